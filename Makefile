@@ -1,0 +1,45 @@
+# mercury-dem: two commands on a fresh machine.
+#   make demo  - set everything up, then run the main job on the synthetic default
+#   make test  - set everything up, then run the test suite
+# Both are idempotent: set-up is skipped when nothing it depends on changed.
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+# Debian packages the project needs at run or test time (installed with apt when missing).
+DEB_PACKAGES := libsuitesparse-dev gdal-bin
+DEMO_DIR ?= demo_output
+
+.PHONY: setup system-deps test test-slow demo clean
+
+setup: system-deps $(STAMP)
+
+system-deps:
+	@missing=""; for p in $(DEB_PACKAGES); do \
+	  dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:$$missing"; \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q -e '.[test]'
+	@$(PY) -m pip install -q 'scikit-sparse==0.4.16' 2>/dev/null \
+	  && echo "scikit-sparse (CHOLMOD) installed" \
+	  || echo "scikit-sparse not installed: the bundle adjustment uses its scipy fallback"
+	touch $(STAMP)
+
+test: setup
+	$(PY) -m pytest
+
+test-slow: setup
+	$(PY) -m pytest -m slow
+
+demo: setup
+	$(VENV)/bin/mercury-dem demo --out $(DEMO_DIR)
+
+clean:
+	rm -rf $(VENV) $(DEMO_DIR) .pytest_cache

@@ -1,0 +1,63 @@
+"""The ``mercury-dem`` command line: a thin layer over the stage runners.
+
+Each subcommand lives in its own module of :mod:`mercury_dem.commands` and
+defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args, config) -> int``.
+Modules there are discovered, so adding a command never edits this file.
+Every subcommand takes ``--config FILE``. Errors the package raises on purpose
+(:class:`MercuryDemError`) are printed as one line, exit code 2; nothing else
+is caught.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from mercury_dem import __version__, commands
+from mercury_dem.config import load_config
+from mercury_dem.exceptions import MercuryDemError
+
+
+def _command_modules() -> list:
+    mods = []
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{commands.__name__}.{info.name}")
+        if hasattr(mod, "NAME") and hasattr(mod, "run"):
+            mods.append(mod)
+    return sorted(mods, key=lambda m: m.NAME)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mercury-dem",
+        description="Global planetary DEMs from orbital images: tile matching, hierarchical bundle "
+        "adjustment and gridding on Dask (synthetic Mercury by default).",
+    )
+    parser.add_argument("--version", action="version", version=f"mercury-dem {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for mod in _command_modules():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        p.add_argument("--config", metavar="FILE", help="YAML configuration (see 'mercury-dem config --template')")
+        mod.add_arguments(p)
+        p.set_defaults(_module=mod)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(list(argv) if argv is not None else None)
+    try:
+        config = load_config(args.config)
+        return int(args._module.run(args, config) or 0)
+    except MercuryDemError as exc:
+        print(f"mercury-dem {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

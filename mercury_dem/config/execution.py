@@ -1,0 +1,18 @@
+"""Configuration of execution on Dask."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mercury_dem.config.base import ConfigSection, param
+
+
+@dataclass(frozen=True)
+class ExecutionConfig(ConfigSection):
+    scheduler: str = param(
+        "local", "'local' (LocalCluster), 'sync' (in-process) or a scheduler address tcp://host:port"
+    )
+    workers: int = param(0, "LocalCluster workers; 0 = from the machine's cores", lo=0, hi=4096)
+    threads_per_worker: int = param(0, "Threads per LocalCluster worker; 0 = automatic", lo=0, hi=1024)
+    host: str = param("127.0.0.1", "Address LocalCluster binds to (loopback by default)")
+    retries: int = param(2, "Retries of a failed task (lost worker)", lo=0, hi=100)

@@ -1,0 +1,19 @@
+"""Configuration of the synthetic mission generator."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mercury_dem.config.base import ConfigSection, param
+
+
+@dataclass(frozen=True)
+class SynthConfig(ConfigSection):
+    preset: str = param("tiny", "Synthetic mission preset", choices=("tiny", "demo", "large"))
+    seed: int = param(42, "Seed of the surface, the mission and the noise", lo=0)
+    pointing_sigma_urad: float = param(
+        450.0, "A-priori pointing error per axis and image (1 sigma)", unit="urad", lo=0.0, hi=1e5
+    )
+    position_sigma_m: float = param(
+        100.0, "A-priori spacecraft position error per axis (1 sigma)", unit="m", lo=0.0, hi=1e5
+    )

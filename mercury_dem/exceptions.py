@@ -1,0 +1,41 @@
+"""Exceptions of mercury_dem.
+
+Expected failures (a tile with no images, a pair with no matches) are recorded as
+values in reports; the exceptions below are for inputs or states a caller must
+fix. Every message names the thing at fault (image, tile, file, key) and says
+what to do.
+"""
+
+from __future__ import annotations
+
+
+class MercuryDemError(Exception):
+    """Base class of every error this package raises on purpose."""
+
+
+class ConfigError(MercuryDemError, ValueError):
+    """A configuration key has a bad value or is unknown."""
+
+
+class GeometryError(MercuryDemError, ValueError):
+    """Geometry of an image (position, rotation, camera) is missing or invalid."""
+
+
+class IsdError(GeometryError):
+    """A CSM/ALE image support data (ISD) file lacks a key or has a bad value."""
+
+
+class StoreError(MercuryDemError):
+    """A mission or run store is missing, incomplete or would be overwritten."""
+
+
+class NetworkError(MercuryDemError, ValueError):
+    """A control network is inconsistent (dangling ids, bad measures, bad file)."""
+
+
+class AdjustmentError(MercuryDemError):
+    """A bundle adjustment cannot be solved (islands, under-determined unknowns)."""
+
+
+class GridError(MercuryDemError, ValueError):
+    """A DEM cannot be gridded as asked (no points, grid too large for memory)."""

@@ -1,0 +1,1 @@
+"""Planetary geometry: body, framing camera, poses, footprints, tiling (pure numpy)."""

@@ -1,0 +1,1 @@
+"""Input/output: the only layer that knows paths, stores and atomic writes."""
