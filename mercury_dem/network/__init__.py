@@ -1,0 +1,1 @@
+"""Control networks: columnar model, building from matches, merging, validation, storage, ISIS files."""

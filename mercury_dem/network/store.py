@@ -1,0 +1,214 @@
+"""Control networks on disk as a Zarr v3 group.
+
+Layout of a network group (every column of :class:`ControlNetwork` is one array)::
+
+    NET/                       zarr.json attributes: format, format_version, counts, metadata, point_id_kind
+      image_ids/data  uint8    UTF-8 bytes of all image ids, back to back
+      image_ids/offsets int64  (K + 1,) start of each id in data
+      point_ids        int64   (N,)            -- integer ids, or
+      point_ids/data, /offsets                 -- string ids (ISIS), as for image_ids
+      point_type, apriori_xyz, ..., measure_point, sample, ...  one array per column
+      .complete                written last (see mercury_dem.io.atomic)
+
+Strings are stored as bytes plus offsets rather than as a Zarr string dtype:
+fixed-width and variable-length string types are not part of the Zarr v3 core
+spec (zarr-python warns about them) and bytes + offsets are compact and fast.
+
+Writes are atomic: the group is written under a temporary sibling name and
+renamed into place when complete. :func:`open_network` reads only the group's
+attributes and the images table; columns load on demand.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+
+from mercury_dem.exceptions import StoreError
+from mercury_dem.io.atomic import atomic_directory, is_complete
+from mercury_dem.network.model import (
+    MEASURE_COLUMNS,
+    OPTIONAL_POINT_COLUMNS,
+    POINT_COLUMNS,
+    ControlNetwork,
+)
+
+FORMAT_NAME = "mercury_dem.control_network"
+FORMAT_VERSION = 1
+#: Rows per chunk of the points and measures columns.
+CHUNK_ROWS = 1 << 20
+
+
+def encode_strings(values: NDArray[Any]) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
+    """UTF-8 bytes of all strings back to back, and offsets of shape (n + 1,)."""
+    if values.size == 0:
+        return np.zeros(0, np.uint8), np.zeros(1, np.int64)
+    encoded = np.char.encode(values.astype(str), "utf-8")
+    width = encoded.dtype.itemsize
+    lengths = np.char.str_len(encoded).astype(np.int64)
+    raw = np.frombuffer(encoded.tobytes(), np.uint8).reshape(values.size, width)
+    keep = np.arange(width)[None, :] < lengths[:, None]
+    offsets = np.zeros(values.size + 1, np.int64)
+    np.cumsum(lengths, out=offsets[1:])
+    return raw[keep], offsets
+
+
+def decode_strings(data: NDArray[np.uint8], offsets: NDArray[np.int64]) -> NDArray[np.str_]:
+    """Inverse of :func:`encode_strings`: a numpy unicode array."""
+    n = offsets.size - 1
+    if n <= 0:
+        return np.zeros(0, "U1")
+    lengths = np.diff(offsets)
+    width = max(int(lengths.max()), 1)
+    col = np.arange(width)[None, :]
+    idx = offsets[:-1, None] + col
+    valid = col < lengths[:, None]
+    buf = np.zeros((n, width), np.uint8)
+    buf[valid] = data[idx[valid]]
+    raw = buf.view(f"S{width}").ravel()
+    try:
+        return raw.astype(f"U{width}")  # ASCII fast path
+    except UnicodeDecodeError:
+        return np.char.decode(raw, "utf-8")
+
+
+def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
+    return (max(1, min(CHUNK_ROWS, shape[0])),) + tuple(max(1, s) for s in shape[1:])
+
+
+def _write_array(group: Any, name: str, arr: NDArray[Any]) -> None:
+    group.create_array(name, data=np.ascontiguousarray(arr), chunks=_chunks(arr.shape))
+
+
+def _write_strings(group: Any, name: str, values: NDArray[Any]) -> None:
+    data, offsets = encode_strings(values)
+    sub = group.create_group(name)
+    _write_array(sub, "data", data)
+    _write_array(sub, "offsets", offsets)
+
+
+def write_network(network: ControlNetwork, path: str | Path, overwrite: bool = False) -> Path:
+    """Write ``network`` as a Zarr v3 group at ``path``, atomically.
+
+    Raises :class:`StoreError` when ``path`` exists and ``overwrite`` is False.
+    Returns the path.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise StoreError(f"network store {path} already exists; remove it or pass overwrite=True")
+    with atomic_directory(path, overwrite=overwrite) as tmp:
+        g = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        _write_strings(g, "image_ids", network.image_ids)
+        if network.point_ids.dtype.kind == "U":
+            _write_strings(g, "point_ids", network.point_ids)
+            kind = "str"
+        else:
+            _write_array(g, "point_ids", network.point_ids)
+            kind = "int64"
+        for name in (*POINT_COLUMNS, *MEASURE_COLUMNS):
+            _write_array(g, name, getattr(network, name))
+        present = []
+        for name in OPTIONAL_POINT_COLUMNS:
+            val = getattr(network, name)
+            if val is not None:
+                _write_array(g, name, val)
+                present.append(name)
+        g.attrs.update(
+            {
+                "format": FORMAT_NAME,
+                "format_version": FORMAT_VERSION,
+                "n_images": network.n_images,
+                "n_points": network.n_points,
+                "n_measures": network.n_measures,
+                "point_id_kind": kind,
+                "optional_columns": present,
+                "metadata": dict(network.metadata),
+            }
+        )
+    return path
+
+
+class NetworkStore:
+    """A network group opened for reading; columns load on demand.
+
+    Attributes ``n_images``, ``n_points``, ``n_measures`` and ``metadata`` come
+    from the group attributes; :attr:`image_ids` and :meth:`column` read arrays.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise StoreError(f"network store {self.path} does not exist")
+        if not is_complete(self.path):
+            raise StoreError(
+                f"network store {self.path} is incomplete (no completion marker): it was not fully "
+                f"written; re-run the step that writes it"
+            )
+        try:
+            self._group = zarr.open_group(str(self.path), mode="r", zarr_format=3)
+            attrs = dict(self._group.attrs)
+        except Exception as exc:  # zarr raises several types for a damaged group
+            raise StoreError(f"network store {self.path} cannot be opened as Zarr: {exc}") from exc
+        if attrs.get("format") != FORMAT_NAME:
+            raise StoreError(f"{self.path} is not a control network store (format {attrs.get('format')!r})")
+        if int(attrs.get("format_version", -1)) > FORMAT_VERSION:
+            raise StoreError(
+                f"network store {self.path} has format version {attrs['format_version']}, newer than this "
+                f"mercury_dem reads ({FORMAT_VERSION}); upgrade mercury_dem"
+            )
+        self.attrs = attrs
+        self.n_images = int(attrs["n_images"])
+        self.n_points = int(attrs["n_points"])
+        self.n_measures = int(attrs["n_measures"])
+        self.metadata: dict[str, str] = dict(attrs.get("metadata", {}))
+        self._image_ids: NDArray[np.str_] | None = None
+
+    def __repr__(self) -> str:
+        return f"NetworkStore({str(self.path)!r}: {self.n_images} images, {self.n_points} points, {self.n_measures} measures)"
+
+    @property
+    def image_ids(self) -> NDArray[np.str_]:
+        if self._image_ids is None:
+            self._image_ids = self._strings("image_ids")
+        return self._image_ids
+
+    def _strings(self, name: str) -> NDArray[np.str_]:
+        sub = self._group[name]
+        return decode_strings(sub["data"][...], sub["offsets"][...])
+
+    def column(self, name: str) -> NDArray[Any]:
+        """One column as a numpy array (``point_ids`` and ``image_ids`` decoded)."""
+        try:
+            if name == "image_ids":
+                return self.image_ids
+            if name == "point_ids" and self.attrs.get("point_id_kind") == "str":
+                return self._strings("point_ids")
+            return np.asarray(self._group[name][...])
+        except KeyError as exc:
+            raise StoreError(f"network store {self.path} has no column '{name}'") from exc
+
+    def load(self) -> ControlNetwork:
+        """The whole network in memory."""
+        cols: dict[str, Any] = {name: self.column(name) for name in (*POINT_COLUMNS, *MEASURE_COLUMNS)}
+        for name in OPTIONAL_POINT_COLUMNS:
+            cols[name] = self.column(name) if name in self.attrs.get("optional_columns", []) else None
+        net = ControlNetwork(
+            image_ids=self.image_ids, point_ids=self.column("point_ids"), metadata=self.metadata, **cols
+        )
+        if (net.n_images, net.n_points, net.n_measures) != (self.n_images, self.n_points, self.n_measures):
+            raise StoreError(f"network store {self.path}: column lengths disagree with its attributes")
+        return net
+
+
+def open_network(path: str | Path) -> NetworkStore:
+    """Open a network store lazily (attributes only)."""
+    return NetworkStore(path)
+
+
+def read_network(path: str | Path) -> ControlNetwork:
+    """Read a whole network written by :func:`write_network`."""
+    return NetworkStore(path).load()
