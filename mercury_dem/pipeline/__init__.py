@@ -1,0 +1,1 @@
+"""Orchestration on Dask: the only layer that imports dask/distributed."""

@@ -1,0 +1,314 @@
+"""The DEM stage: grid a point cloud into ``dem.zarr`` chunk by chunk, on Dask or in-process.
+
+How it runs
+-----------
+1. The point cloud is validated and indexed once (:func:`~mercury_dem.dem.grid.build_point_index`);
+   on Dask the index (kd-tree + radii) is scattered with ``broadcast=True``, so it
+   reaches every worker once, not once per chunk.
+2. A template store is written with ``to_zarr(compute=False)``: coordinates, CRS
+   (``spatial_ref``), attributes and empty arrays whose Zarr chunks are the map chunks.
+3. One task per map chunk grids it (:func:`~mercury_dem.dem.grid.grid_chunk`, halo
+   included) and writes its region straight into the store; it returns a few
+   counts. The full map is never gathered in one process.
+4. The point-cloud coverage (reference 001) is computed and stored beside the DEM
+   (``coverage.zarr``) and in the DEM attributes.
+
+The whole store is built under a temporary name and renamed when complete; the
+completion mark is the root attribute ``complete = true`` (not a marker file as in
+:mod:`mercury_dem.io.atomic`: zarr warns about unknown files inside a store).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import shutil
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+import zarr
+from numpy.typing import NDArray
+
+from mercury_dem.dem.coverage import CoverageResult, point_coverage
+from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
+from mercury_dem.exceptions import GridError, StoreError
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, IAU_SPHERE_RADIUS_M
+
+ATTRS: dict[str, dict[str, str]] = {
+    "elevation": {
+        "long_name": "elevation above the 2439.4 km datum sphere",
+        "standard_name": "height_above_reference_ellipsoid",
+        "units": "m",
+    },
+    "radius": {"long_name": "planetocentric radius of the surface", "units": "m"},
+    "point_count": {"long_name": "control points within the search radius of the pixel centre", "units": "1"},
+    "distance_to_nearest_point": {
+        "long_name": "horizontal distance from the pixel centre to the nearest control point",
+        "units": "m",
+    },
+    "spread": {
+        "long_name": "standard deviation of the radii of the points used (precision / figure of merit)",
+        "units": "m",
+    },
+}
+
+
+def _dem_config(config: Any) -> Any:
+    """Accept a full :class:`~mercury_dem.config.Config` or its ``dem`` section."""
+    return getattr(config, "dem", config)
+
+
+def estimate_memory_bytes(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
+    """Estimated peak memory of the DEM stage (per worker) and of the products stage.
+
+    The stage holds the point index (points, footprints, tree, radii: ~120 B per
+    point, twice while it is pickled to a worker) and one chunk's work arrays
+    (about 40 float64 per pixel of a query batch plus the haloed chunk layers).
+    The products stage holds a few full-map float32 layers (~5 x 4 B per pixel).
+    """
+    nr, nc = grid.shape
+    npix = nr * nc
+    h = cfg.smoothing_passes * (cfg.smoothing_size // 2)
+    chunk_px = min(cfg.chunk_size + 2 * h, nr + 2 * h) * min(cfg.chunk_size + 2 * h, nc + 2 * h)
+    k = max(cfg.neighbours, cfg.shepard_max_points)
+    per_worker = 240 * n_points + chunk_px * 8 * 12 + min(chunk_px, 1 << 17) * k * 8 * 6
+    products = npix * 4 * 5
+    return {"dem_worker": int(per_worker), "products": int(products), "peak": int(max(per_worker, products))}
+
+
+def check_memory(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
+    """Raise :class:`GridError` with the estimate when the grid would not fit ``dem.memory_limit_gb``."""
+    est = estimate_memory_bytes(grid, n_points, cfg)
+    limit = cfg.memory_limit_gb * 1e9
+    if est["peak"] > limit:
+        nr, nc = grid.shape
+        raise GridError(
+            f"a {nr} x {nc} grid at {grid.pixels_per_degree} pixel/deg from {n_points} points needs about "
+            f"{est['peak'] / 1e9:.1f} GB per process (gridding {est['dem_worker'] / 1e9:.2f} GB, products "
+            f"{est['products'] / 1e9:.1f} GB), over dem.memory_limit_gb = {cfg.memory_limit_gb}; lower "
+            f"dem.pixels_per_degree or raise dem.memory_limit_gb"
+        )
+    return est
+
+
+def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None) -> xr.Dataset:
+    """The lazy (Dask-backed, never computed) Dataset that defines the store's layout."""
+    import dask.array as da
+    import pyproj
+    import rioxarray  # noqa: F401  (registers the .rio accessor)
+
+    nr, nc = grid.shape
+    cs = cfg.chunk_size
+    data_vars = {}
+    for name, dtype in LAYERS.items():
+        fill = 0 if np.dtype(dtype).kind == "i" else np.nan
+        arr = da.full((nr, nc), fill, dtype=dtype, chunks=(cs, cs))
+        data_vars[name] = xr.Variable(("lat", "lon"), arr, attrs=dict(ATTRS[name]))
+    ds = xr.Dataset(
+        data_vars,
+        coords={
+            "lat": ("lat", grid.lat_centres(), {"units": "degrees_north", "standard_name": "latitude",
+                                                 "long_name": "planetocentric latitude of the pixel centre"}),
+            "lon": ("lon", grid.lon_centres(), {"units": "degrees_east", "standard_name": "longitude",
+                                                 "long_name": "east longitude of the pixel centre"}),
+        },
+    )
+    ds = ds.rio.set_spatial_dims(x_dim="lon", y_dim="lat")
+    ds = ds.rio.write_crs(CRS_GEOGRAPHIC)
+    crs = pyproj.CRS.from_user_input(CRS_GEOGRAPHIC)
+    ds["spatial_ref"].attrs["crs_code"] = CRS_GEOGRAPHIC
+    ds["spatial_ref"].attrs["crs_wkt2"] = crs.to_wkt("WKT2_2019")
+    for name in LAYERS:
+        ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref"})
+        ds[name].attrs.pop("grid_mapping", None)
+    ds.attrs.update(
+        {
+            "title": "Mercury DEM gridded from a control point cloud",
+            "Conventions": "CF-1.8",
+            "datum_radius_m": DATUM_RADIUS_M,
+            "height_reference": (
+                "elevation is metres above a sphere of radius 2439.4 km (the MESSENGER DEM datum); the CRS "
+                f"{CRS_GEOGRAPHIC} is the IAU 2015 sphere of radius {IAU_SPHERE_RADIUS_M:.0f} m and only "
+                "georeferences latitude/longitude: heights never refer to it"
+            ),
+            "crs_code": CRS_GEOGRAPHIC,
+            "pixels_per_degree": grid.pixels_per_degree,
+            "pixel_size_m": grid.pixel_size_m,
+            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
+            "pixel_registration": "lat/lon are pixel centres; row 0 is the northernmost",
+            "method": cfg.method,
+            "gridding": json.dumps(
+                {k: getattr(cfg, k) for k in ("method", "neighbours", "sigma_filter", "search_radius_factor",
+                                              "shepard_fallback_neighbours", "shepard_max_points",
+                                              "max_distance_m", "smoothing_passes", "smoothing_size")}
+            ),
+        }
+    )
+    if attrs:
+        ds.attrs.update(attrs)
+    return ds
+
+
+def _grid_and_write(
+    index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: Any, store: str
+) -> dict[str, Any]:
+    """Task body: grid one chunk and write its region into the store; return counts only."""
+    t0 = time.perf_counter()
+    layers = grid_chunk(index, grid, bounds, cfg)
+    r0, r1, c0, c1 = bounds
+    group = zarr.open_group(store, mode="r+")
+    for name, arr in layers.items():
+        group[name][r0:r1, c0:c1] = arr
+    elev = layers["elevation"]
+    valid = np.isfinite(elev)
+    return {
+        "bounds": bounds,
+        "pixels": int(elev.size),
+        "no_value": int((~valid).sum()),
+        "min": float(elev[valid].min()) if valid.any() else math.nan,
+        "max": float(elev[valid].max()) if valid.any() else math.nan,
+        "seconds": time.perf_counter() - t0,
+    }
+
+
+def grid_dem(
+    points_xyz: NDArray[np.floating],
+    config: Any,
+    out_path: str | Path,
+    client: Any = None,
+    *,
+    overwrite: bool = False,
+    attrs: dict[str, Any] | None = None,
+    coverage: bool = True,
+) -> dict[str, Any]:
+    """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
+
+    Parameters
+    ----------
+    points_xyz : ndarray of shape (N, 3), body-fixed metres (the adjusted point cloud)
+    config : Config or DemConfig
+    out_path : path of the store to create (e.g. ``RUN/dem.zarr``)
+    client : dask.distributed.Client or None
+        None grids the chunks in this process, in a plain loop (same result).
+    overwrite : replace an existing store (only once the new one is complete)
+    attrs : extra global attributes (e.g. run id, source of the points)
+    coverage : also compute the point-cloud coverage into ``coverage.zarr`` beside the store
+
+    Returns
+    -------
+    dict: path, shape, n_points, n_chunks, no_value_pixels, no_value_fraction,
+    elevation_min/max (m), seconds, memory_estimate_bytes, coverage (summary dict or None).
+
+    Raises
+    ------
+    GridError : empty/invalid point cloud, grid too large for ``dem.memory_limit_gb``
+    StoreError : ``out_path`` exists and ``overwrite`` is False
+    """
+    t0 = time.perf_counter()
+    cfg = _dem_config(config)
+    out_path = Path(out_path)
+    if out_path.exists() and not overwrite:
+        raise StoreError(f"{out_path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
+    grid = GridSpec.from_config(cfg)
+    pts = np.asarray(points_xyz, dtype=np.float64)
+    n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
+    est = check_memory(grid, max(n_points, 0), cfg)
+    index = build_point_index(pts)
+    chunks = grid.chunks(cfg.chunk_size)
+    with atomic_store(out_path, overwrite=overwrite) as tmp:
+        store = str(tmp)
+        dem_template(grid, cfg, attrs).to_zarr(store, mode="w", compute=False, consolidated=False, zarr_format=3)
+        if client is None:
+            results = [_grid_and_write(index, grid, b, cfg, store) for b in chunks]
+        else:
+            index_f = client.scatter(index, broadcast=True)
+            futures = [
+                client.submit(_grid_and_write, index_f, grid, b, cfg, store, pure=False)
+                for b in chunks
+            ]
+            results = client.gather(futures)
+        cov_summary = None
+        if coverage:
+            cov = point_coverage(index, cfg.coverage_pixel_km)
+            cov_summary = cov.summary()
+            write_coverage(cov, out_path.parent / "coverage.zarr", overwrite=True)
+        no_value = sum(r["no_value"] for r in results)
+        npix = grid.shape[0] * grid.shape[1]
+        mins = [r["min"] for r in results if not math.isnan(r["min"])]
+        maxs = [r["max"] for r in results if not math.isnan(r["max"])]
+        summary = {
+            "path": str(out_path),
+            "shape": list(grid.shape),
+            "pixels_per_degree": grid.pixels_per_degree,
+            "method": cfg.method,
+            "n_points": index.n_points,
+            "n_chunks": len(chunks),
+            "no_value_pixels": int(no_value),
+            "no_value_fraction": no_value / npix,
+            "elevation_min_m": min(mins) if mins else math.nan,
+            "elevation_max_m": max(maxs) if maxs else math.nan,
+            "memory_estimate_bytes": est,
+            "coverage": cov_summary,
+        }
+        group = zarr.open_group(store, mode="r+")
+        group.attrs.update(
+            {
+                "n_points": index.n_points,
+                "no_value_pixels": int(no_value),
+                "coverage": json.dumps(cov_summary) if cov_summary else "",
+                "complete": True,
+            }
+        )
+    summary["seconds"] = time.perf_counter() - t0
+    return summary
+
+
+@contextlib.contextmanager
+def atomic_store(path: Path, overwrite: bool = False) -> Iterator[Path]:
+    """Build a Zarr store under a temporary sibling name; rename it to ``path`` on success.
+
+    The caller marks it complete (root attribute ``complete``). An existing ``path``
+    is replaced only once the new store is complete, and only with ``overwrite``.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
+    try:
+        yield tmp
+        if path.exists():
+            if not overwrite:
+                raise StoreError(f"{path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
+            old = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:12]}")
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def write_coverage(cov: CoverageResult, path: Path, overwrite: bool = False) -> None:
+    """Store the coverage maps (sinusoidal equal-area grid) as a small Zarr Dataset."""
+    with atomic_store(path, overwrite=overwrite) as tmp:
+        ds = cov.to_dataset()
+        ds.attrs["complete"] = True
+        ds.to_zarr(str(tmp), mode="w", consolidated=False, zarr_format=3)
+
+
+def open_dem(path: str | Path) -> xr.Dataset:
+    """Open a ``dem.zarr`` store lazily with its CRS (``decode_coords='all'``)."""
+    path = Path(path)
+    if not path.exists():
+        raise StoreError(f"no DEM store at {path}; run 'mercury-dem grid' (or the pipeline's DEM stage) first")
+    ds = xr.open_zarr(str(path), consolidated=False, decode_coords="all")
+    if not ds.attrs.get("complete"):
+        raise StoreError(f"the DEM store {path} is incomplete (interrupted run?); grid it again with --overwrite")
+    return ds

@@ -1,0 +1,1 @@
+"""DEM products: GeoTIFF/COG, PDS-style equirectangular and polar tiles, browse PNGs, statistics."""

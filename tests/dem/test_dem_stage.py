@@ -1,0 +1,98 @@
+"""The DEM stage: dem.zarr layout, CRS round trip, serial == Dask, bad input, coverage."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyproj
+import pytest
+from conftest import truth_height
+
+from mercury_dem.config.dem import DemConfig
+from mercury_dem.dem.coverage import point_coverage
+from mercury_dem.dem.grid import build_point_index
+from mercury_dem.exceptions import GridError, StoreError
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, latlon_to_xyz
+from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+
+CFG = DemConfig(pixels_per_degree=1, chunk_size=48, max_distance_m=400_000.0, coverage_pixel_km=40.0)
+
+
+@pytest.fixture(scope="module")
+def serial_store(tmp_path_factory, global_cloud):
+    path = tmp_path_factory.mktemp("serial") / "dem.zarr"
+    summary = grid_dem(global_cloud, CFG, path)
+    return path, summary
+
+
+def test_store_layout_crs_and_values(serial_store):
+    path, summary = serial_store
+    ds = open_dem(path)
+    assert set(ds.data_vars) == {"elevation", "radius", "point_count", "distance_to_nearest_point", "spread"}
+    assert ds.elevation.dtype == np.float32 and ds.point_count.dtype == np.int32
+    assert ds.elevation.attrs["units"] == "m"
+    assert ds.attrs["datum_radius_m"] == DATUM_RADIUS_M
+    assert "2439.4 km" in ds.attrs["height_reference"]
+    # Pixel-centre coordinates, north to south.
+    assert ds.lat.values[0] == pytest.approx(89.5) and ds.lon.values[0] == pytest.approx(0.5)
+    # The CRS survives the round trip, as a coordinate, with its code and WKT2.
+    assert "spatial_ref" in ds.coords
+    assert ds.rio.crs is not None
+    assert pyproj.CRS.from_wkt(ds.spatial_ref.attrs["crs_wkt2"]) == pyproj.CRS.from_user_input(CRS_GEOGRAPHIC)
+    assert ds.spatial_ref.attrs["crs_code"] == CRS_GEOGRAPHIC
+    # Recovery of the truth (sparse cloud: ~0.6 points per 1-deg pixel, so a generous bound).
+    lat, lon = np.meshgrid(ds.lat.values, ds.lon.values, indexing="ij")
+    err = ds.elevation.values - truth_height(lat, lon)
+    assert np.sqrt(np.nanmean(err**2)) < 60.0
+    np.testing.assert_allclose(ds.radius.values, ds.elevation.values + DATUM_RADIUS_M, atol=0.5)
+    assert summary["n_chunks"] == 4 * 8
+    assert summary["no_value_pixels"] == int(np.isnan(ds.elevation.values).sum())
+    cov = json.loads(ds.attrs["coverage"])
+    assert 0 < cov["occupied_fraction"] < 1
+
+
+def test_dask_equals_serial(serial_store, global_cloud, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    path, _ = serial_store
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+                                  processes=True) as cluster, distributed.Client(cluster) as client:
+        summary = grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
+    a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
+    for name in a.data_vars:
+        np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
+    assert summary["coverage"] is None
+
+
+def test_existing_store_needs_overwrite(serial_store, global_cloud):
+    path, _ = serial_store
+    with pytest.raises(StoreError, match="overwrite"):
+        grid_dem(global_cloud, CFG, path)
+
+
+def test_empty_cloud_and_memory_limit(tmp_path, global_cloud):
+    with pytest.raises(GridError, match="empty"):
+        grid_dem(np.zeros((0, 3)), CFG, tmp_path / "a.zarr")
+    big = DemConfig(pixels_per_degree=512, memory_limit_gb=8.0)
+    with pytest.raises(GridError, match=r"needs about \d+\.\d GB.*memory_limit_gb"):
+        grid_dem(global_cloud, big, tmp_path / "b.zarr")
+    assert not (tmp_path / "a.zarr").exists() and not (tmp_path / "b.zarr").exists()
+
+
+def test_coverage_counts_and_distances():
+    R = DATUM_RADIUS_M
+    # Three clusters on the equator: 1, 2 and 3 points within one 100 km pixel each.
+    lon = np.array([0.2, 20.2, 20.25, 40.2, 40.22, 40.24])
+    index = build_point_index(latlon_to_xyz(np.zeros(6) + 0.2, lon, 0.0))
+    cov = point_coverage(index, pixel_km=100.0)
+    s = cov.summary()
+    assert s["occupied_pixels"] == 3
+    assert s["share_with_1"] == pytest.approx(1 / 3)
+    assert s["share_with_2"] == pytest.approx(1 / 3)
+    assert s["share_with_3_or_more"] == pytest.approx(1 / 3)
+    # Equal-area grid: the map pixels add up to the sphere's area within the outline's raggedness.
+    assert s["map_area_km2"] == pytest.approx(4 * np.pi * (R / 1000) ** 2, rel=0.02)
+    # Largest distance to the nearest point: about the antipode of the cluster (pi R - ~20 deg).
+    assert s["nearest_point_km"]["min"] < 100.0
+    assert s["nearest_point_km"]["max"] < 2 * R / 1000
+    assert s["nearest_point_km"]["max"] > 0.8 * 2 * R / 1000
