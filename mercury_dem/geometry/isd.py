@@ -1,0 +1,471 @@
+"""Read CSM frame-camera image support data (ISD) into our camera, pose and sun position.
+
+Two flavours of JSON are understood (both as the USGS tools write them):
+
+``ale``
+    The ALE/ISIS layout (``instrument_position``, ``instrument_pointing``,
+    ``body_rotation``, ``sun_position``). Positions are J2000 kilometres relative to
+    the target's centre; rotations are quaternions **(w, x, y, z)** (scalar first,
+    SPICE/ISIS order) whose matrix ``q2m(q)`` rotates J2000 vectors **into** the
+    named frame: ``v_frame = q2m(q) @ v_J2000``. ``body_rotation`` is J2000 ->
+    body-fixed, ``instrument_pointing`` J2000 -> the first of its
+    ``time_dependent_frames``, and ``constant_rotation`` (3 x 3, row-major) that frame
+    -> the instrument frame. ``sun_position`` is the Sun relative to the target.
+``usgscsm``
+    The usgscsm layout (``sensor_position``, ``sensor_orientation``): position
+    body-fixed, in the ``unit`` given (metres by default); the quaternion is
+    **(x, y, z, w)** (scalar last) and rotates camera-frame vectors into the
+    body-fixed frame; ``sun_position`` is body-fixed, Sun relative to the target.
+
+These conventions were established on real MESSENGER MDIS data, not assumed:
+see ``docs/design/isd-check.md`` (every other reading of the quaternions misses
+the PDS label's pointing and sub-solar point by tens of degrees).
+
+Pixels: CSM image coordinates put 0.5 at the centre of the first pixel; ours put 0
+there (``mercury_dem.geometry.camera``). A CSM image pixel ``s_csm`` is detector
+pixel ``s_csm * summing + starting_detector_sample``, and the focal plane is
+``x = (detector_sample - detector_center.sample - a0) / a1`` with
+``focal2pixel_samples = (a0, a1, a2)``; so the optical axis is at our sample
+``(detector_center.sample + a0 - starting_detector_sample) / summing - 0.5``
+(likewise for lines).
+
+Light time and stellar aberration are not applied: the ISD's positions and
+rotations are used as written (ALE has already applied its corrections, if any,
+when it wrote them). Written here rather than taken from ``ale``/``usgscsm`` (C++
+and SPICE dependencies) because we need only this small, fixed subset.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mercury_dem.exceptions import GeometryError, IsdError
+from mercury_dem.geometry.camera import FramingCamera
+
+#: Largest allowed | |q| - 1 | of a quaternion before it is called non-normalised.
+QUATERNION_NORM_TOL = 1e-6
+#: Largest allowed max|M M^T - I| of a rotation matrix given as nine numbers.
+ROTATION_ORTHO_TOL = 1e-6
+#: Heliocentric distance range that a Mercury ISD's sun position must lie in, metres
+#: (Mercury is 46.0e9 to 69.8e9 m from the Sun; the margin catches unit mistakes only).
+SUN_DISTANCE_RANGE_M = (3.0e10, 1.0e11)
+
+_UNIT_TO_M = {"m": 1.0, "meters": 1.0, "metres": 1.0, "km": 1000.0, "kilometers": 1000.0}
+
+
+@dataclass(frozen=True, eq=False)
+class IsdGeometry:
+    """What an ISD says about one image, in our frames and units.
+
+    Attributes
+    ----------
+    source : file name the ISD came from (used in messages)
+    flavour : ``"ale"`` or ``"usgscsm"``
+    camera : interior orientation (our 0-based pixel convention)
+    position : ndarray of shape (3,), body-fixed metres, camera centre
+    rotation : ndarray of shape (3, 3), body-fixed -> camera frame (``v_cam = R @ (X - C)``)
+    sun_position : ndarray of shape (3,), body-fixed metres, Sun relative to the body centre;
+        ``None`` only when read with ``require_sun=False`` from an ISD without a usable one
+    radius_m : the ISD's body radius (``radii.semimajor``), metres
+    ephemeris_time : ``center_ephemeris_time``, seconds TDB past J2000 (NaN when absent)
+    j2000_to_body : ndarray of shape (3, 3) (J2000 -> body-fixed) for the ``ale`` flavour, else ``None``
+    warnings : what was assumed because the ISD did not say it (no distortion model,
+        no usable sun position with ``require_sun=False``); callers show these
+    """
+
+    source: str
+    flavour: str
+    camera: FramingCamera
+    position: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    sun_position: NDArray[np.float64] | None
+    radius_m: float
+    ephemeris_time: float
+    j2000_to_body: NDArray[np.float64] | None = None
+    warnings: tuple[str, ...] = ()
+
+
+# -- rotations ------------------------------------------------------------------
+
+def quaternion_to_matrix(q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrix of a unit quaternion given scalar first, (w, x, y, z).
+
+    The matrix is the active rotation ``v -> q v q*`` (SPICE ``q2m``); shape (..., 3, 3).
+    The quaternion is normalised first (callers check the norm).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def matrix_to_quaternion(m: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (3, 3); inverse of :func:`quaternion_to_matrix`.
+
+    Shepperd's method: the largest of the four squared components is taken from the
+    diagonal, the others from off-diagonal sums, so it is stable for every angle.
+    """
+    m = np.asarray(m, dtype=np.float64)
+    t = np.trace(m)
+    cands = np.array([t, m[0, 0], m[1, 1], m[2, 2]])
+    k = int(np.argmax(cands))
+    if k == 0:
+        w = math.sqrt(1.0 + t) / 2.0
+        q = [w, (m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w), (m[1, 0] - m[0, 1]) / (4 * w)]
+    elif k == 1:
+        x = math.sqrt(1.0 + 2 * m[0, 0] - t) / 2.0
+        q = [(m[2, 1] - m[1, 2]) / (4 * x), x, (m[0, 1] + m[1, 0]) / (4 * x), (m[0, 2] + m[2, 0]) / (4 * x)]
+    elif k == 2:
+        y = math.sqrt(1.0 + 2 * m[1, 1] - t) / 2.0
+        q = [(m[0, 2] - m[2, 0]) / (4 * y), (m[0, 1] + m[1, 0]) / (4 * y), y, (m[1, 2] + m[2, 1]) / (4 * y)]
+    else:
+        z = math.sqrt(1.0 + 2 * m[2, 2] - t) / 2.0
+        q = [(m[1, 0] - m[0, 1]) / (4 * z), (m[0, 2] + m[2, 0]) / (4 * z), (m[1, 2] + m[2, 1]) / (4 * z), z]
+    out = np.array(q)
+    out /= np.linalg.norm(out)
+    return -out if out[0] < 0 else out
+
+
+def iau_body_rotation(
+    ephemeris_time: float,
+    pole_ra: Sequence[float],
+    pole_dec: Sequence[float],
+    pm: Sequence[float],
+    nut_prec_pm: Sequence[float] = (),
+    nut_prec_angles: Sequence[tuple[float, float]] = (),
+) -> NDArray[np.float64]:
+    """J2000 -> body-fixed rotation (3, 3) of an IAU rotation model (the PCK formulas).
+
+    ``pole_ra``/``pole_dec`` are (deg, deg/century), ``pm`` (deg, deg/day);
+    ``nut_prec_pm`` the amplitudes (deg) of ``sin(M_i)`` terms added to the prime
+    meridian, with ``M_i = a_i + b_i T`` from ``nut_prec_angles`` (deg, deg/century).
+    Used to check an ISD's ``body_rotation`` and to explain label differences made
+    with another model; Mercury's right ascension/declination have no periodic terms.
+    """
+    d = ephemeris_time / 86400.0
+    t = d / 36525.0
+    ra = math.radians(pole_ra[0] + pole_ra[1] * t)
+    dec = math.radians(pole_dec[0] + pole_dec[1] * t)
+    w = pm[0] + pm[1] * d
+    for amp, (a, b) in zip(nut_prec_pm, nut_prec_angles):
+        w += amp * math.sin(math.radians(a + b * t))
+
+    def rz(a: float) -> NDArray[np.float64]:
+        c, s = math.cos(a), math.sin(a)
+        return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def rx(a: float) -> NDArray[np.float64]:
+        c, s = math.cos(a), math.sin(a)
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+
+    return rz(math.radians(w)) @ rx(math.pi / 2 - dec) @ rz(math.pi / 2 + ra)
+
+
+# -- reading helpers ------------------------------------------------------------
+
+class _Reader:
+    """Key access into an ISD dict with errors that name the file and the key."""
+
+    def __init__(self, isd: Mapping[str, Any], source: str) -> None:
+        self.isd = isd
+        self.source = source
+
+    def error(self, key: str, what: str) -> IsdError:
+        return IsdError(f"ISD {self.source}: key '{key}' {what}")
+
+    def has(self, key: str) -> bool:
+        node: Any = self.isd
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                return False
+            node = node[part]
+        return True
+
+    def get(self, key: str) -> Any:
+        node: Any = self.isd
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                raise self.error(key, "is missing; re-export the ISD (e.g. with ALE's isd_generate) "
+                                      "or add the key")
+            node = node[part]
+        return node
+
+    def number(self, key: str, positive: bool = False) -> float:
+        value = self.get(key)
+        try:
+            x = float(value)
+        except (TypeError, ValueError):
+            raise self.error(key, f"must be a number, got {value!r}") from None
+        if not math.isfinite(x) or (positive and x <= 0):
+            raise self.error(key, f"must be a finite{' positive' if positive else ''} number, got {x}")
+        return x
+
+    def integer(self, key: str, minimum: int) -> int:
+        x = self.number(key)
+        if x != int(x) or x < minimum:
+            raise self.error(key, f"must be an integer >= {minimum}, got {x}")
+        return int(x)
+
+    def array(self, key: str, shape: tuple[int, ...], value: Any = None) -> NDArray[np.float64]:
+        """A finite float array of exactly ``shape`` (a leading -1 accepts any length >= 1)."""
+        raw = self.get(key) if value is None else value
+        try:
+            a = np.asarray(raw, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self.error(key, f"must hold numbers of shape {shape}, got {str(raw)[:80]}") from None
+        want = tuple(a.shape[0] if (i == 0 and n == -1) else n for i, n in enumerate(shape))
+        if a.shape != want or a.size == 0:
+            what = (f"a list of rows of {shape[1]} numbers" if len(shape) == 2 and shape[0] == -1
+                    else f"{shape[0]} numbers" if len(shape) == 1 and shape[0] > 0 else f"shape {shape}")
+            raise self.error(key, f"must be {what}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise self.error(key, f"holds NaN or infinite values: {a.tolist()}")
+        return a
+
+    def unit_scale(self, key: str, default: str) -> float:
+        unit = self.get(key) if self.has(key) else default
+        scale = _UNIT_TO_M.get(str(unit).strip().lower())
+        if scale is None:
+            raise self.error(key, f"unit {unit!r} is not understood; use 'm' or 'km'")
+        return scale
+
+
+def _at_time(r: _Reader, table: str, column: str, width: int, et: float) -> NDArray[np.float64]:
+    """One row of a time table at ``et`` (linear interpolation between rows; one row is used as is)."""
+    rows = r.array(f"{table}.{column}", (-1, width))
+    if rows.shape[0] == 1 or not math.isfinite(et):
+        return rows[0]
+    times = r.array(f"{table}.ephemeris_times", (rows.shape[0],))
+    if np.any(np.diff(times) <= 0):
+        raise r.error(f"{table}.ephemeris_times", "must increase strictly")
+    if not times[0] <= et <= times[-1]:
+        raise r.error(f"{table}.ephemeris_times",
+                      f"spans {times[0]:.6f}..{times[-1]:.6f} s, not center_ephemeris_time {et:.6f} s")
+    i = int(np.clip(np.searchsorted(times, et) - 1, 0, len(times) - 2))
+    f = (et - times[i]) / (times[i + 1] - times[i])
+    a, b = rows[i], rows[i + 1]
+    if width == 4 and np.dot(a, b) < 0:  # q and -q are the same rotation
+        b = -b
+    out = (1 - f) * a + f * b
+    return out / np.linalg.norm(out) if width == 4 else out
+
+
+def _unit_quaternion(r: _Reader, key: str, q: NDArray[np.float64]) -> NDArray[np.float64]:
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > QUATERNION_NORM_TOL:
+        raise r.error(key, f"is not a unit quaternion (norm {norm:.9f}, tolerance {QUATERNION_NORM_TOL:g}); "
+                           "the ISD is corrupt or hand-edited: regenerate it")
+    return q / norm
+
+
+def _rotation(r: _Reader, key: str) -> NDArray[np.float64]:
+    m = r.array(key, (9,)).reshape(3, 3)
+    err = float(np.abs(m @ m.T - np.eye(3)).max())
+    if err > ROTATION_ORTHO_TOL or np.linalg.det(m) < 0:
+        raise r.error(key, f"is not a proper rotation (max |M M^T - I| = {err:.2e}, det = {np.linalg.det(m):.6f})")
+    return m
+
+
+def _check_sun(r: _Reader, key: str, sun: NDArray[np.float64]) -> NDArray[np.float64]:
+    dist = float(np.linalg.norm(sun))
+    lo, hi = SUN_DISTANCE_RANGE_M
+    if not lo <= dist <= hi:
+        raise r.error(key, f"puts the Sun {dist:.4g} m from the body; Mercury is 4.6e10-7.0e10 m "
+                           "from the Sun: check the position's unit")
+    return sun
+
+
+# -- camera -----------------------------------------------------------------------
+
+def _camera(r: _Reader, warnings: list[str]) -> FramingCamera:
+    f_mm = r.number("focal_length_model.focal_length", positive=True)
+    ts = r.array("focal2pixel_samples", (3,))
+    tl = r.array("focal2pixel_lines", (3,))
+    # Our camera needs x along samples, y along lines and square pixels.
+    pitch_inv = ts[1]
+    if not (pitch_inv > 0 and abs(ts[2]) <= 1e-9 * pitch_inv and abs(tl[1]) <= 1e-9 * pitch_inv
+            and abs(tl[2] - pitch_inv) <= 1e-9 * pitch_inv):
+        raise r.error("focal2pixel_samples", f"/ focal2pixel_lines ({ts.tolist()}, {tl.tolist()}) are not "
+                      "supported: FramingCamera needs (a0, k, 0) and (b0, 0, k), k > 0 (square pixels, "
+                      "focal-plane x along samples and y along lines)")
+    s_sum = r.integer("detector_sample_summing", 1)
+    l_sum = r.integer("detector_line_summing", 1)
+    if s_sum != l_sum:
+        raise r.error("detector_line_summing", f"({l_sum}) differs from detector_sample_summing ({s_sum}); "
+                      "FramingCamera supports equal summing only")
+    c_s = r.number("detector_center.sample")
+    c_l = r.number("detector_center.line")
+    start_s = r.number("starting_detector_sample")
+    start_l = r.number("starting_detector_line")
+    samples = r.integer("image_samples", 1)
+    lines = r.integer("image_lines", 1)
+    dist_x: tuple[float, ...] = ()
+    dist_y: tuple[float, ...] = ()
+    model = r.get("optical_distortion") if r.has("optical_distortion") else None
+    if model is None:
+        warnings.append("no 'optical_distortion' key: an ideal pinhole camera is assumed (MDIS-NAC's "
+                        "distortion moves its corner pixels by about 0.5 px)")
+    elif not isinstance(model, Mapping) or not model:
+        raise r.error("optical_distortion", "must name a distortion model ('transverse')")
+    elif "transverse" in model:
+        dist_x = tuple(r.array("optical_distortion.transverse.x", (10,)).tolist())
+        dist_y = tuple(r.array("optical_distortion.transverse.y", (10,)).tolist())
+    elif "radial" in model and not np.any(r.array("optical_distortion.radial.coefficients", (-1,))):
+        pass  # an all-zero radial model is no distortion
+    else:
+        raise r.error("optical_distortion", f"model {sorted(model)} is not supported; only 'transverse' "
+                      "(MDIS) or an all-zero 'radial' are")
+    name = str(r.isd.get("instrument_id") or r.isd.get("name_sensor") or "unknown")
+    names = f"{r.isd.get('instrument_id', '')} {r.isd.get('name_sensor', '')}".upper()
+    if "NARROW ANGLE" in names or "MDIS_NAC" in names:
+        name = "MDIS-NAC"
+    elif "WIDE ANGLE" in names or "MDIS_WAC" in names:
+        name = "MDIS-WAC"
+    try:
+        return FramingCamera(
+            name=name,
+            focal_length_mm=f_mm,
+            pixel_pitch_mm=1.0 / pitch_inv,
+            summing=s_sum,
+            samples=samples,
+            lines=lines,
+            boresight_sample=(c_s + ts[0] - start_s) / s_sum - 0.5,
+            boresight_line=(c_l + tl[0] - start_l) / l_sum - 0.5,
+            distortion_x=dist_x,
+            distortion_y=dist_y,
+        )
+    except GeometryError as exc:
+        raise IsdError(f"ISD {r.source}: camera keys give an invalid camera: {exc}") from None
+
+
+# -- the two flavours ---------------------------------------------------------------
+
+def _frames_check(r: _Reader, keys: Sequence[str]) -> None:
+    refs = {k: r.get(f"{k}.reference_frame") for k in keys if r.has(f"{k}.reference_frame")}
+    if len(set(map(str, refs.values()))) > 1:
+        raise r.error("reference_frame", f"differs between tables {refs}; all must share one inertial frame")
+
+
+def _optional_sun(r: _Reader, require_sun: bool, warnings: list[str], read: Any) -> Any:
+    """``read()`` the sun position; without ``require_sun`` a failure becomes a warning and None."""
+    try:
+        return read()
+    except IsdError as exc:
+        if require_sun:
+            raise
+        warnings.append(f"sun position unusable, illumination angles left undefined: {exc}")
+        return None
+
+
+def _ale_pose(r: _Reader, et: float, require_sun: bool, warnings: list[str]) -> tuple[Any, ...]:
+    tables = ["instrument_position", "instrument_pointing", "body_rotation"]
+    _frames_check(r, tables + (["sun_position"] if r.has("sun_position") else []))
+    qb = _unit_quaternion(r, "body_rotation.quaternions", _at_time(r, "body_rotation", "quaternions", 4, et))
+    qi = _unit_quaternion(r, "instrument_pointing.quaternions",
+                          _at_time(r, "instrument_pointing", "quaternions", 4, et))
+    j2000_to_body = quaternion_to_matrix(qb)
+    j2000_to_frame = quaternion_to_matrix(qi)
+    if not r.has("instrument_pointing.constant_rotation"):
+        raise r.error("instrument_pointing.constant_rotation",
+                      "is missing; it rotates the pointing frame into the instrument frame (9 numbers, row-major)")
+    const = _rotation(r, "instrument_pointing.constant_rotation")
+    rotation = const @ j2000_to_frame @ j2000_to_body.T
+    scale = r.unit_scale("instrument_position.unit", "km")
+    position = j2000_to_body @ (_at_time(r, "instrument_position", "positions", 3, et) * scale)
+
+    def sun() -> NDArray[np.float64]:
+        s = _at_time(r, "sun_position", "positions", 3, et) * r.unit_scale("sun_position.unit", "km")
+        return j2000_to_body @ _check_sun(r, "sun_position.positions", s)
+
+    return position, rotation, _optional_sun(r, require_sun, warnings, sun), j2000_to_body
+
+
+def _csm_pose(r: _Reader, require_sun: bool, warnings: list[str]) -> tuple[Any, ...]:
+    scale = r.unit_scale("sensor_position.unit", "m")
+    position = r.array("sensor_position.positions", (-1, 3))[0] * scale
+    q = r.array("sensor_orientation.quaternions", (-1, 4))[0]
+    q = _unit_quaternion(r, "sensor_orientation.quaternions", q)
+    camera_to_body = quaternion_to_matrix(np.r_[q[3], q[:3]])  # stored (x, y, z, w)
+
+    def sun() -> NDArray[np.float64]:
+        s = r.array("sun_position.positions", (-1, 3))[0] * r.unit_scale("sun_position.unit", "m")
+        return _check_sun(r, "sun_position.positions", s)
+
+    return position, camera_to_body.T, _optional_sun(r, require_sun, warnings, sun), None
+
+
+def isd_from_dict(isd: Mapping[str, Any], source: str = "<dict>", require_sun: bool = True) -> IsdGeometry:
+    """Camera, pose and sun of an ISD already parsed from JSON.
+
+    Parameters
+    ----------
+    isd : the parsed JSON object
+    source : name used in error messages (the file name)
+    require_sun : when False, a missing or unusable ``sun_position`` gives
+        ``sun_position=None`` instead of an :class:`IsdError`
+
+    Raises
+    ------
+    IsdError
+        naming ``source`` and the key, for a missing key, a non-finite or
+        mis-shaped value, a non-unit quaternion, a non-orthonormal matrix, a
+        spacecraft inside the body or a sun position with an implausible distance.
+    """
+    if not isinstance(isd, Mapping):
+        raise IsdError(f"ISD {source}: top level must be a JSON object, got {type(isd).__name__}")
+    r = _Reader(isd, source)
+    if r.has("instrument_pointing") or r.has("instrument_position"):
+        flavour = "ale"
+    elif r.has("sensor_orientation") or r.has("sensor_position"):
+        flavour = "usgscsm"
+    else:
+        raise IsdError(f"ISD {source}: neither 'instrument_pointing'/'instrument_position' (ALE) nor "
+                       "'sensor_orientation'/'sensor_position' (usgscsm) is present: not a frame-camera ISD")
+    radius_m = r.number("radii.semimajor", positive=True) * r.unit_scale("radii.unit", "km")
+    et = r.number("center_ephemeris_time") if r.has("center_ephemeris_time") else math.nan
+    warnings: list[str] = []
+    camera = _camera(r, warnings)
+    if flavour == "ale":
+        position, rotation, sun, j2b = _ale_pose(r, et, require_sun, warnings)
+        pos_key = "instrument_position.positions"
+    else:
+        position, rotation, sun, j2b = _csm_pose(r, require_sun, warnings)
+        pos_key = "sensor_position.positions"
+    if float(np.linalg.norm(position)) <= radius_m:
+        raise r.error(pos_key, f"puts the camera {np.linalg.norm(position):.1f} m from the body centre, inside "
+                               f"the {radius_m:.1f} m sphere: check its unit and frame")
+    return IsdGeometry(source=source, flavour=flavour, camera=camera, position=position, rotation=rotation,
+                       sun_position=sun, radius_m=radius_m, ephemeris_time=et, j2000_to_body=j2b,
+                       warnings=tuple(warnings))
+
+
+def read_isd(path: str | Path, require_sun: bool = True) -> IsdGeometry:
+    """Read a CSM frame-camera ISD file (ALE or usgscsm flavour); see :func:`isd_from_dict`.
+
+    Raises :class:`IsdError` naming the file for an unreadable file or invalid JSON.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as exc:
+        raise IsdError(f"ISD {p}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise IsdError(f"ISD {p}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    return isd_from_dict(data, source=str(p), require_sun=require_sun)
