@@ -9,8 +9,37 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class AdjustConfig(ConfigSection):
-    pointing_sigma_deg: float = param(0.2, "A-priori pointing constraint (1 sigma)", unit="deg", lo=1e-9, hi=180.0)
-    radius_sigma_m: float = param(10000.0, "A-priori point radius constraint (1 sigma)", unit="m", lo=1e-6)
+    # -- a-priori constraints (weighted pseudo-observations) -------------------
+    pointing_sigma_deg: float = param(0.2, "A-priori pointing constraint per axis (1 sigma)", unit="deg", lo=1e-9, hi=180.0)
+    solve_positions: bool = param(False, "Also solve for spacecraft position corrections")
+    position_sigma_m: float = param(100.0, "A-priori position constraint when solve_positions (1 sigma)", unit="m", lo=1e-6)
+    point_latitude_sigma_m: float | None = param(
+        None, "A-priori point constraint along latitude, on the ground (1 sigma; null: none)", unit="m", lo=1e-6
+    )
+    point_longitude_sigma_m: float | None = param(
+        None, "A-priori point constraint along longitude, on the ground (1 sigma; null: none)", unit="m", lo=1e-6
+    )
+    radius_sigma_m: float | None = param(
+        10000.0, "A-priori point radius constraint (1 sigma; null: none)", unit="m", lo=1e-6
+    )
+    held_images: tuple[str, ...] = param((), "Image ids whose pointing (and position) are held fixed")
+    # -- robustness ----------------------------------------------------------
+    robust_loss: str = param("huber", "Robust loss applied by iterative reweighting", choices=("none", "huber", "cauchy"))
+    robust_scale: float = param(1.0, "Robust loss threshold, in units of the measure sigma", lo=1e-3, hi=1e3)
+    reject_outliers: bool = param(True, "Reject measures beyond k x MAD between iterations (with re-admission)")
+    reject_k_mad: float = param(3.0, "Reject measures beyond median + k x 1.4826 MAD of the residual norms", lo=0.5, hi=100.0)
+    reject_min_px: float = param(0.5, "Never reject a measure whose residual is below this", unit="px", lo=0.0)
+    min_point_measures: int = param(2, "Points with fewer accepted measures are flagged and not adjusted", lo=1, hi=100)
+    min_image_measures: int = param(3, "Images with fewer accepted measures are flagged as weak", lo=0, hi=100000)
+    allow_islands: bool = param(False, "Adjust networks whose image graph is disconnected (otherwise an error)")
+    # -- solver ----------------------------------------------------------------
     max_iterations: int = param(30, "Levenberg-Marquardt iteration limit", lo=1, hi=10000)
-    robust_loss: str = param("huber", "Robust loss", choices=("none", "huber", "cauchy"))
-    reject_k_mad: float = param(3.0, "Reject measures beyond k x MAD of the residuals", lo=0.5, hi=100.0)
+    sigma0_tolerance: float = param(1e-5, "Converged when sigma0 changes by less than this, relative", lo=0.0, hi=1.0)
+    step_tolerance: float = param(1e-10, "Converged when the step is below this, relative to the parameters", lo=0.0, hi=1.0)
+    solver: str = param("auto", "Reduced camera system: direct factorization, PCG, or by size", choices=("auto", "direct", "pcg"))
+    direct_max_unknowns: int = param(30000, "auto: factor directly up to this many camera unknowns, PCG above", lo=1)
+    pcg_tolerance: float = param(0.1, "Relative residual at which PCG stops (inexact Newton)", lo=1e-12, hi=0.9)
+    pcg_max_iterations: int = param(500, "PCG iteration limit per step", lo=1)
+    # -- outputs ----------------------------------------------------------------
+    posterior_sigmas: bool = param(False, "Compute a-posteriori sigmas of images and points (small networks)")
+    posterior_max_unknowns: int = param(6000, "Skip a-posteriori sigmas above this many camera unknowns", lo=1)

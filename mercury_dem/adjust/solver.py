@@ -1,0 +1,262 @@
+"""Levenberg-Marquardt over camera blocks and points, with the Schur complement.
+
+The core knows nothing about cameras: a :class:`BlockModel` gives whitened
+residuals (M, 2) of its measures and their Jacobian blocks with respect to the
+measure's camera block (M, 2, c) and point (M, 2, 3), optional prior
+pseudo-observations on cameras and points, and a ``retract`` that applies a step
+(so rotations can be updated multiplicatively). The same loop therefore runs the
+BAL problems (:mod:`mercury_dem.adjust.bal`) and the planetary framing camera
+(:mod:`mercury_dem.adjust.framing`).
+
+The step control is the classical one (Nielsen; also Ceres'): damping
+``lambda * clip(diag(J^T J), 1e-6, 1e32)`` on both camera and point blocks,
+gain ratio of actual to predicted decrease, ``lambda *= max(1/3, 1 - (2 rho - 1)^3)``
+on success and ``lambda *= nu, nu *= 2`` on failure. Robust losses enter by
+iterative reweighting; between iterations measures beyond ``median + k MAD`` of
+the whitened residual norms are rejected (weight zero) and those that come back
+within the limit are re-admitted.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.adjust.kernels import normal_blocks, prior_blocks
+from mercury_dem.adjust.robust import loss_rho, rejection_limit
+from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
+
+Prior = tuple[NDArray[np.float64], NDArray[np.float64]]
+
+
+class BlockModel(Protocol):
+    """What the solver needs from a camera model (see module docstring)."""
+
+    camera_dim: int
+    n_cameras: int
+    n_points: int
+    camera_index: NDArray[np.int64]
+    point_index: NDArray[np.int64]
+
+    def residuals(self, state: Any) -> NDArray[np.float64]:
+        """Whitened residuals (M, 2) (NaN where a point cannot be projected)."""
+
+    def linearize(self, state: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Residuals (M, 2), d r / d camera (M, 2, c), d r / d point (M, 2, 3)."""
+
+    def camera_prior(self, state: Any) -> Prior | None:
+        """Whitened prior residuals (n_cam, k) and Jacobians (n_cam, k, c), or None."""
+
+    def point_prior(self, state: Any) -> Prior | None:
+        """Whitened prior residuals (n_pt, k) and Jacobians (n_pt, k, 3), or None."""
+
+    def retract(self, state: Any, d_camera: NDArray[np.float64], d_point: NDArray[np.float64]) -> Any:
+        """The state moved by camera steps (n_cam, c) and point steps (n_pt, 3)."""
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Options of :func:`levenberg_marquardt` (the typed config maps onto these)."""
+
+    max_iterations: int = 50
+    function_tolerance: float = 1e-6  # relative decrease of the cost (i.e. ~2x that of sigma0)
+    step_tolerance: float = 1e-10  # |step| relative to |parameters|
+    initial_lambda: float = 1e-4
+    loss: str = "none"
+    loss_scale: float = 1.0  # whitened units (measure sigmas)
+    reject_k: float | None = None  # k of the k x MAD rejection; None: no rejection
+    reject_floor: float = 1.0  # never reject below this whitened norm
+    reject_start: int = 1  # first iteration after which rejection runs
+    min_point_measures: int = 2
+    solver: str = "auto"  # auto | direct | pcg
+    direct_max_unknowns: int = 30_000
+    pcg_tolerance: float = 0.1
+    pcg_max_iterations: int = 500
+    max_rejected_steps: int = 12
+    held_cameras: NDArray[np.bool_] | None = None
+    held_points: NDArray[np.bool_] | None = None
+
+
+@dataclass
+class SolverResult:
+    """Outcome of :func:`levenberg_marquardt`."""
+
+    state: Any
+    initial_cost: float
+    final_cost: float
+    sigma0: float
+    iterations: int
+    converged: bool
+    reason: str
+    accepted: NDArray[np.bool_]  # (M,) measures accepted (not rejected) at the end
+    frozen_points: NDArray[np.bool_]  # (n_pt,) points with too few accepted measures (not adjusted)
+    residuals: NDArray[np.float64]  # (M, 2) whitened residuals at the final state
+    log: list[dict[str, Any]] = field(default_factory=list)
+    seconds: float = 0.0
+    linear_method: str = ""
+    dof: int = 0
+
+
+def _prior_cost(p: Prior | None) -> float:
+    return 0.0 if p is None else 0.5 * float(np.sum(p[0] ** 2))
+
+
+def _cost(model: BlockModel, state: Any, use: NDArray[np.bool_], opt: SolverOptions) -> tuple[float, NDArray[np.float64]]:
+    """Cost 0.5 sum rho(|r|^2) over the measures in use, plus the priors; and the residuals."""
+    r = model.residuals(state)
+    s = np.sum(r * r, axis=1)
+    rho, _ = loss_rho(np.where(use, s, 0.0), opt.loss, opt.loss_scale)
+    c = 0.5 * float(np.sum(rho[use])) + _prior_cost(model.camera_prior(state)) + _prior_cost(model.point_prior(state))
+    if np.any(~np.isfinite(s[use])):
+        c = float("nan")
+    return c, r
+
+
+def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = SolverOptions()) -> SolverResult:
+    """Minimise the (robust) cost of ``model`` from ``state``; see the module docstring.
+
+    Returns the best state found with the reason the iteration stopped
+    (``"converged: ..."``, ``"iteration limit"``, ``"no decrease possible ..."``).
+    Never raises for a singular or indefinite system: such a step is refused
+    like any other step that does not decrease the cost.
+    """
+    t0 = time.perf_counter()
+    c, n_cam, n_pt = model.camera_dim, model.n_cameras, model.n_points
+    cam, pt = model.camera_index, model.point_index
+    m = len(cam)
+    held_c = np.zeros(n_cam, bool) if opt.held_cameras is None else np.asarray(opt.held_cameras, bool)
+    held_p = np.zeros(n_pt, bool) if opt.held_points is None else np.asarray(opt.held_points, bool)
+    struct = SchurStructure.build(cam, pt, n_cam, n_pt, c, eliminate=~held_p)
+    method = choose_method(opt.solver, n_cam * c, opt.direct_max_unknowns)
+    lin_solver = ReducedSolver(method, c, opt.pcg_tolerance, opt.pcg_max_iterations)
+    active = np.ones(m, bool)
+
+    def usable(active_: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        counts_ = np.bincount(pt[active_], minlength=n_pt)
+        frozen_ = (counts_ < opt.min_point_measures) & ~held_p
+        return active_ & ~frozen_[pt], frozen_
+
+    use, frozen = usable(active)
+    cost, r_now = _cost(model, state, use, opt)
+    initial_cost = cost
+    lam, nu = opt.initial_lambda, 2.0
+    log: list[dict[str, Any]] = []
+    converged, reason = False, "iteration limit"
+    eye_c, eye3 = np.eye(c), np.eye(3)
+    n_cam_prior = n_pt_prior = 0
+    it = 0
+
+    def sigma0_of(cost_: float, use_: NDArray[np.bool_], frozen_: NDArray[np.bool_]) -> tuple[float, int]:
+        n_obs = 2 * int(np.sum(use_)) + n_cam_prior + n_pt_prior
+        n_unk = c * int(np.sum(~held_c)) + 3 * int(np.sum(~held_p & ~frozen_))
+        dof = max(n_obs - n_unk, 1)
+        return float(np.sqrt(2.0 * cost_ / dof)), dof
+
+    for it in range(1, opt.max_iterations + 1):
+        t_it = time.perf_counter()
+        # -- linearize ------------------------------------------------------
+        r, jc, jp = model.linearize(state)
+        s = np.sum(r * r, axis=1)
+        _, w = loss_rho(np.where(use, s, 0.0), opt.loss, opt.loss_scale)
+        sw = np.sqrt(np.where(use, w, 0.0))
+        r = r * sw[:, None]
+        jc = jc * sw[:, None, None]
+        jp = jp * sw[:, None, None]
+        jc[held_c[cam]] = 0.0
+        jp[(held_p | frozen)[pt]] = 0.0
+        u = np.zeros((n_cam, c, c))
+        g_c = np.zeros((n_cam, c))
+        v = np.zeros((n_pt, 3, 3))
+        g_p = np.zeros((n_pt, 3))
+        wm = np.empty((m, c, 3))
+        normal_blocks(r, jc, jp, cam, pt, u, g_c, v, g_p, wm)
+        cp = model.camera_prior(state)
+        if cp is not None:
+            n_cam_prior = int(np.sum(~held_c)) * cp[0].shape[1]
+            prior_blocks(cp[0], cp[1], u, g_c)
+        pp = model.point_prior(state)
+        if pp is not None:
+            n_pt_prior = int(np.sum(~held_p & ~frozen)) * pp[0].shape[1]
+            prior_blocks(pp[0], pp[1], v, g_p)
+        u[held_c], g_c[held_c] = eye_c, 0.0
+        v[held_p | frozen], g_p[held_p | frozen] = eye3, 0.0
+        du = np.clip(np.diagonal(u, axis1=1, axis2=2), 1e-6, 1e32)
+        dv = np.clip(np.diagonal(v, axis1=1, axis2=2), 1e-6, 1e32)
+        t_lin = time.perf_counter() - t_it
+        # -- damped steps until one decreases the cost ------------------------
+        accepted_step = False
+        lin_iters = 0
+        for _ in range(opt.max_rejected_steps):
+            ud = u.copy()
+            ud[:, range(c), range(c)] += lam * du
+            vd = v.copy()
+            vd[:, range(3), range(3)] += lam * dv
+            v_inv = inv3(vd)
+            blocks = struct.schur_blocks(wm, v_inv, ud)
+            t_p = np.matmul(v_inv, g_p[:, :, None])[:, :, 0]
+            b = -g_c + struct.camera_sum @ np.matmul(wm, t_p[pt][:, :, None])[:, :, 0]
+            dc, info = lin_solver.solve(struct.to_bsr(blocks), blocks[struct.diag_block], b.ravel())
+            lin_iters += info.iterations
+            dc = dc.reshape(n_cam, c)
+            q = struct.point_sum @ np.matmul(wm.transpose(0, 2, 1), dc[cam][:, :, None])[:, :, 0]
+            dp = np.matmul(v_inv, (-g_p - q)[:, :, None])[:, :, 0]
+            dc[held_c] = 0.0
+            dp[held_p | frozen] = 0.0
+            pred = 0.5 * (lam * (np.sum(du * dc * dc) + np.sum(dv * dp * dp)) - np.sum(g_c * dc) - np.sum(g_p * dp))
+            new_state = model.retract(state, dc, dp) if info.ok and np.all(np.isfinite(dc)) else None
+            new_cost = float("nan")
+            if new_state is not None:
+                new_cost, r_new = _cost(model, new_state, use, opt)
+            gain = (cost - new_cost) / pred if pred > 0 else -1.0
+            if np.isfinite(new_cost) and gain > 1e-3:
+                step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
+                x_norm = float(model.parameter_norm(state)) if hasattr(model, "parameter_norm") else 1.0
+                rel_decrease = (cost - new_cost) / max(cost, 1e-300)
+                state, cost, r_now = new_state, new_cost, r_new
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+                accepted_step = True
+                break
+            lam *= nu
+            nu *= 2.0
+        sigma0, dof = sigma0_of(cost, use, frozen)
+        entry: dict[str, Any] = {
+            "iteration": it, "cost": cost, "sigma0": sigma0, "lambda": lam,
+            "step_accepted": accepted_step, "rejected": int(np.sum(~active)),
+            "linearize_seconds": t_lin, "seconds": time.perf_counter() - t_it,
+            "elapsed": time.perf_counter() - t0, "linear_iterations": lin_iters,
+        }
+        log.append(entry)
+        if not accepted_step:
+            reason = f"no decrease possible (lambda reached {lam:.3g} after {opt.max_rejected_steps} refused steps)"
+            break
+        # -- rejection / re-admission between iterations ---------------------
+        changed = False
+        if opt.reject_k is not None and it >= opt.reject_start:
+            norms = np.sqrt(np.sum(r_now * r_now, axis=1))
+            limit = rejection_limit(norms, use & np.isfinite(norms), opt.reject_k, opt.reject_floor)
+            new_active = np.isfinite(norms) & (norms <= limit)
+            changed = bool(np.any(new_active != active))
+            entry["rejection_limit"] = limit
+            if changed:
+                active = new_active
+                use, frozen = usable(active)
+                cost, r_now = _cost(model, state, use, opt)
+                entry["rejected"] = int(np.sum(~active))
+        if not changed:
+            if rel_decrease < opt.function_tolerance:
+                converged, reason = True, f"converged: relative cost decrease {rel_decrease:.2e} < {opt.function_tolerance:g}"
+                break
+            if step_norm < opt.step_tolerance * (x_norm + opt.step_tolerance):
+                converged, reason = True, f"converged: step {step_norm:.2e} below tolerance"
+                break
+    sigma0, dof = sigma0_of(cost, use, frozen)
+    return SolverResult(
+        state=state, initial_cost=initial_cost, final_cost=cost, sigma0=sigma0, iterations=it,
+        converged=converged, reason=reason, accepted=active, frozen_points=frozen, residuals=r_now,
+        log=log, seconds=time.perf_counter() - t0, linear_method=method, dof=dof,
+    )
