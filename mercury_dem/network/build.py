@@ -1,0 +1,324 @@
+"""Building a control network from pairwise matches.
+
+Every match of two images gives two observations (image, pixel, keypoint id).
+Observations of the same keypoint, of the two sides of a match, and (when the
+keypoint id is unknown) of the same image within ``tolerance_px``, are one
+ground feature: a track (:mod:`mercury_dem.network.tracks`, which also resolves
+conflicts). Each track becomes a point with one measure per image, and its
+a-priori coordinates come from the a-priori geometry by least-squares
+intersection of the measures' rays; points seen by one ray, or by rays that
+converge by less than ``min_convergence_deg`` (where the intersection is
+dominated by pointing errors), or whose intersection lands absurdly far from
+the datum, are placed where their rays meet the datum sphere instead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mercury_dem.exceptions import NetworkError
+from mercury_dem.geometry.body import DATUM_RADIUS_M
+from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.pose import intersect_sphere, pixel_rays
+from mercury_dem.network.model import ControlNetwork, MeasureType, PointType, as_string_array
+from mercury_dem.network.tracks import form_tracks, near_pairs
+
+_MATCH_FIELDS = ("image_a", "image_b", "sample_a", "line_a", "sample_b", "line_b")
+
+
+@dataclass(frozen=True)
+class PairMatches:
+    """Matches between image pairs, one row per match (P rows).
+
+    Attributes
+    ----------
+    image_a, image_b : (P,) int64 image indices (into the ``image_ids`` of :func:`build_network`)
+    sample_a, line_a, sample_b, line_b : (P,) float64 pixels, 0-based
+    feature_a, feature_b : (P,) int64 keypoint ids within their image, -1 when unknown
+    """
+
+    image_a: NDArray[np.int64]
+    image_b: NDArray[np.int64]
+    sample_a: NDArray[np.float64]
+    line_a: NDArray[np.float64]
+    sample_b: NDArray[np.float64]
+    line_b: NDArray[np.float64]
+    feature_a: NDArray[np.int64] | None = None
+    feature_b: NDArray[np.int64] | None = None
+
+    def __post_init__(self) -> None:
+        p = np.shape(self.image_a)[0] if np.ndim(self.image_a) == 1 else -1
+        for name in _MATCH_FIELDS + ("feature_a", "feature_b"):
+            val = getattr(self, name)
+            if val is None:
+                val = np.full(max(p, 0), -1, np.int64)
+            dtype = np.float64 if name.startswith(("sample", "line")) else np.int64
+            arr = np.asarray(val, dtype=dtype)
+            if arr.shape != (p,):
+                raise NetworkError(f"PairMatches.{name} has shape {arr.shape}, expected ({p},) like image_a")
+            object.__setattr__(self, name, arr)
+
+    def __len__(self) -> int:
+        return int(self.image_a.shape[0])
+
+    @classmethod
+    def concatenate(cls, parts: Sequence["PairMatches"]) -> "PairMatches":
+        """All rows of several tables, in order."""
+        if not parts:
+            z = np.zeros(0)
+            return cls(z.astype(np.int64), z.astype(np.int64), z, z, z, z)
+        return cls(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in _MATCH_FIELDS + ("feature_a", "feature_b")})
+
+
+def as_pair_matches(matches: Any) -> PairMatches:
+    """A :class:`PairMatches` from one, from any object with its attributes, or from a mapping."""
+    if isinstance(matches, PairMatches):
+        return matches
+    get = (lambda k: matches.get(k)) if isinstance(matches, Mapping) else (lambda k: getattr(matches, k, None))
+    cols = {k: get(k) for k in _MATCH_FIELDS + ("feature_a", "feature_b")}
+    missing = [k for k in _MATCH_FIELDS if cols[k] is None]
+    if missing:
+        raise NetworkError(f"matches lack the column(s) {missing}; expected a PairMatches table")
+    return PairMatches(**cols)
+
+
+@dataclass(frozen=True)
+class BuildStats:
+    """Counts of one :func:`build_network` call (a report records ``asdict``)."""
+
+    n_matches: int
+    n_matches_invalid: int
+    n_observations: int
+    n_conflicts: int
+    n_conflict_observations: int
+    n_short_tracks: int
+    n_points: int
+    n_measures: int
+    n_triangulated: int
+    n_on_datum: int
+    n_no_ground: int
+
+    def to_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class BuildResult(NamedTuple):
+    network: ControlNetwork
+    stats: BuildStats
+
+
+def _cameras_list(cameras: FramingCamera | Sequence[FramingCamera], k: int) -> Sequence[FramingCamera]:
+    if isinstance(cameras, FramingCamera):
+        return [cameras] * k
+    cams = list(cameras)
+    if len(cams) != k:
+        raise NetworkError(f"build_network: {len(cams)} cameras for {k} images; give one per image (or one for all)")
+    return cams
+
+
+def triangulate_points(
+    measure_point: NDArray[np.int64],
+    measure_image: NDArray[np.int64],
+    pixels: NDArray[np.float64],
+    cameras: FramingCamera | Sequence[FramingCamera],
+    positions: ArrayLike,
+    rotations: ArrayLike,
+    n_points: int,
+    min_convergence_deg: float = 1.0,
+    max_height_m: float = 50_000.0,
+    datum_radius_m: float = DATUM_RADIUS_M,
+) -> tuple[NDArray[np.float64], NDArray[np.int8]]:
+    """A-priori point coordinates from measures and poses.
+
+    Least-squares intersection of the measures' rays: minimise the sum of the
+    squared distances to the rays, i.e. solve ``sum(I - d d^T) X = sum(I - d d^T) C``
+    per point (3 x 3 normal equations assembled with ``bincount``, solved batched).
+
+    Parameters
+    ----------
+    measure_point, measure_image : (M,) indices
+    pixels : (M, 2) sample, line (0-based)
+    cameras : one camera per image, or one for all
+    positions : (K, 3) body-fixed camera positions, m
+    rotations : (K, 3, 3) body -> camera rotations
+    n_points : N
+
+    Returns
+    -------
+    xyz : (N, 3) body-fixed metres (NaN when no ray meets the body)
+    method : (N,) int8: 2 intersected, 1 on the datum, 0 none
+    """
+    positions = np.asarray(positions, np.float64)
+    rotations = np.asarray(rotations, np.float64)
+    k = positions.shape[0]
+    cams = _cameras_list(cameras, k)
+    m = measure_point.size
+    origins = np.empty((m, 3))
+    dirs = np.empty((m, 3))
+    order = np.argsort(measure_image, kind="stable")
+    bounds = np.searchsorted(measure_image[order], np.arange(k + 1))
+    for img in np.flatnonzero(np.diff(bounds)):  # loop over images, vectorized within each
+        sel = order[bounds[img] : bounds[img + 1]]
+        o, d = pixel_rays(cams[img], positions[img], rotations[img], pixels[sel])
+        origins[sel], dirs[sel] = o, d
+    n = n_points
+    cnt = np.bincount(measure_point, minlength=n).astype(np.float64)
+    # normal equations, 6 unique entries of A and 3 of b
+    a = np.empty((n, 3, 3))
+    b = np.empty((n, 3))
+    proj_o = origins - dirs * np.sum(dirs * origins, axis=1, keepdims=True)  # (I - d d^T) o
+    for r in range(3):
+        b[:, r] = np.bincount(measure_point, proj_o[:, r], minlength=n)
+        for c in range(r, 3):
+            w = (1.0 if r == c else 0.0) - dirs[:, r] * dirs[:, c]
+            a[:, r, c] = a[:, c, r] = np.bincount(measure_point, w, minlength=n)
+    # convergence: largest angle between a ray and the point's first ray
+    first = np.full(n, -1, np.int64)
+    first[measure_point[::-1]] = np.arange(m)[::-1]
+    cos = np.sum(dirs * dirs[first[measure_point]], axis=1)
+    min_cos = np.ones(n)
+    np.minimum.at(min_cos, measure_point, cos)
+    converge = np.degrees(np.arccos(np.clip(min_cos, -1.0, 1.0)))
+    good = (cnt >= 2) & (converge >= min_convergence_deg)
+    xyz = np.full((n, 3), np.nan)
+    if good.any():
+        xyz[good] = np.linalg.solve(a[good], b[good][..., None])[..., 0]
+        r = np.linalg.norm(xyz, axis=1)
+        good &= np.abs(r - datum_radius_m) <= max_height_m
+    # datum fallback: mean of the rays' datum hits, put back on the datum
+    ground, hit = intersect_sphere(origins, dirs, datum_radius_m)
+    hits = np.bincount(measure_point[hit], minlength=n).astype(np.float64)
+    mean = np.stack([np.bincount(measure_point[hit], ground[hit, j], minlength=n) for j in range(3)], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean /= hits[:, None]
+        mean *= datum_radius_m / np.linalg.norm(mean, axis=1, keepdims=True)
+    fallback = ~good & (hits > 0)
+    xyz[~good] = np.nan
+    xyz[fallback] = mean[fallback]
+    method = np.where(good, 2, np.where(fallback, 1, 0)).astype(np.int8)
+    return xyz, method
+
+
+def build_network(
+    image_ids: Sequence[str] | NDArray[np.str_],
+    matches: PairMatches | Any,
+    cameras: FramingCamera | Sequence[FramingCamera],
+    positions: ArrayLike,
+    rotations: ArrayLike,
+    tolerance_px: float = 1.0,
+    *,
+    min_measures: int = 2,
+    point_id_start: int = 0,
+    sigma_px: float = np.nan,
+    min_convergence_deg: float = 1.0,
+    max_height_m: float = 50_000.0,
+    datum_radius_m: float = DATUM_RADIUS_M,
+    metadata: Mapping[str, str] | None = None,
+) -> BuildResult:
+    """A control network from pairwise matches.
+
+    Parameters
+    ----------
+    image_ids : (K,) image ids; the images table of the network, in this order
+    matches : a :class:`PairMatches` table (or an object/mapping with its columns)
+    cameras : one :class:`FramingCamera` per image, or one for all
+    positions : (K, 3) a-priori body-fixed camera positions, m
+    rotations : (K, 3, 3) a-priori body -> camera rotations
+    tolerance_px : observations of one image closer than this are the same
+        feature when keypoint ids are unknown; a track's observations in one
+        image must lie within it, else they are a conflict (dropped, counted)
+    min_measures : tracks with fewer measures (images) are dropped
+    point_id_start : point ids are ``point_id_start + 0..N-1`` (give each tile
+        its own range so merged networks keep unique ids)
+    sigma_px : the measures' sample and line sigma (NaN: the adjustment's default)
+    min_convergence_deg, max_height_m, datum_radius_m : see :func:`triangulate_points`
+    metadata : network metadata
+
+    Returns
+    -------
+    BuildResult(network, stats): points ordered by their first match, measures
+    by (point, image), measure type RegisteredSubPixel.
+    """
+    ids = as_string_array(np.asarray(image_ids), "image_ids")
+    k = ids.size
+    mt = as_pair_matches(matches)
+    positions = np.asarray(positions, np.float64)
+    rotations = np.asarray(rotations, np.float64)
+    if positions.shape != (k, 3) or rotations.shape != (k, 3, 3):
+        raise NetworkError(
+            f"build_network: positions {positions.shape} / rotations {rotations.shape} must be ({k}, 3) / ({k}, 3, 3)"
+        )
+    p = len(mt)
+    for name in ("image_a", "image_b"):
+        arr = getattr(mt, name)
+        if p and (arr.min() < 0 or arr.max() >= k):
+            bad = int(np.flatnonzero((arr < 0) | (arr >= k))[0])
+            raise NetworkError(f"build_network: match {bad} has {name}={arr[bad]}, outside the {k} images")
+    valid = (
+        np.isfinite(mt.sample_a) & np.isfinite(mt.line_a) & np.isfinite(mt.sample_b) & np.isfinite(mt.line_b)
+        & (mt.image_a != mt.image_b)
+    )
+    sel = np.flatnonzero(valid)
+    q = sel.size
+    image = np.concatenate([mt.image_a[sel], mt.image_b[sel]])
+    sample = np.concatenate([mt.sample_a[sel], mt.sample_b[sel]])
+    line = np.concatenate([mt.line_a[sel], mt.line_b[sel]])
+    feature = np.concatenate([mt.feature_a[sel], mt.feature_b[sel]])
+    n_obs = 2 * q
+    obs = np.arange(n_obs, dtype=np.int64)
+    edges = [np.column_stack([obs[:q], obs[q:]])]
+    known = feature >= 0
+    n_nodes = n_obs
+    if known.any():
+        key = image[known] * (int(feature.max()) + 1) + feature[known]
+        _, node = np.unique(key, return_inverse=True)
+        edges.append(np.column_stack([obs[known], n_obs + node.ravel()]))
+        n_nodes += int(node.max()) + 1
+    if (~known).any():
+        pairs = near_pairs(image, sample, line, tolerance_px)
+        if pairs.size:
+            pairs = pairs[(feature[pairs[:, 0]] < 0) | (feature[pairs[:, 1]] < 0)]
+            edges.append(pairs)
+    tracks = form_tracks(n_nodes, np.concatenate(edges), image, sample, line, obs, tolerance_px, min_measures)
+    n = tracks.n_tracks
+    mp = tracks.group_track
+    xyz, method = triangulate_points(
+        mp, tracks.group_image, np.column_stack([tracks.sample, tracks.line]), cameras, positions, rotations, n,
+        min_convergence_deg, max_height_m, datum_radius_m,
+    )
+    g = mp.size
+    net = ControlNetwork.from_arrays(
+        ids,
+        point_id_start + np.arange(n, dtype=np.int64),
+        mp,
+        tracks.group_image,
+        tracks.sample,
+        tracks.line,
+        point_type=np.full(n, PointType.FREE, np.int8),
+        apriori_xyz=xyz,
+        sigma=np.full((g, 2), float(sigma_px)),
+        measure_type=np.full(g, MeasureType.REGISTERED_SUBPIXEL, np.int8),
+        metadata=dict(metadata or {}),
+    )
+    no_ground = method == 0
+    if no_ground.any():
+        net = net.take_points(~no_ground)
+    stats = BuildStats(
+        n_matches=p,
+        n_matches_invalid=int(p - q),
+        n_observations=n_obs,
+        n_conflicts=tracks.n_conflicts,
+        n_conflict_observations=tracks.n_conflict_observations,
+        n_short_tracks=tracks.n_short_tracks,
+        n_points=net.n_points,
+        n_measures=net.n_measures,
+        n_triangulated=int((method == 2).sum()),
+        n_on_datum=int((method == 1).sum()),
+        n_no_ground=int(no_ground.sum()),
+    )
+    return BuildResult(net, stats)
