@@ -19,6 +19,7 @@ from mercury_dem.config.base import ConfigSection, from_dict, section, template,
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.config.execution import ExecutionConfig
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.config.network import NetworkConfig
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.config.tiling import TilingConfig
 from mercury_dem.exceptions import ConfigError
@@ -29,6 +30,7 @@ class Config(ConfigSection):
     tiling: TilingConfig = section(TilingConfig, "Tile grid, regions and overlap search")
     synth: SynthConfig = section(SynthConfig, "Synthetic mission generator")
     match: MatchConfig = section(MatchConfig, "Feature matching per tile")
+    network: NetworkConfig = section(NetworkConfig, "Control networks: tracks and merging")
     adjust: AdjustConfig = section(AdjustConfig, "Bundle adjustment at every level")
     dem: DemConfig = section(DemConfig, "DEM gridding")
     execution: ExecutionConfig = section(ExecutionConfig, "Execution on Dask")
