@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from mercury_dem.config import Config
-from mercury_dem.exceptions import IsdError
+from mercury_dem.exceptions import GeometryError, IsdError
 from mercury_dem.geometry.caminfo import (
     CamInfo,
     Comparison,
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
         raise
     radius = g.radius_m if args.radius_km is None else args.radius_km * 1000.0
     if not (math.isfinite(radius) and radius > 0):
-        raise IsdError(f"--radius-km must be a positive number, got {args.radius_km}")
+        raise GeometryError(f"--radius-km must be a positive number, got {args.radius_km}")
     info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, radius, g.j2000_to_body)
     lab = rows = centre = linfo = None
     if args.label:

@@ -221,9 +221,9 @@ class _Reader:
             raise self.error(key, f"must be an integer >= {minimum}, got {x}")
         return int(x)
 
-    def array(self, key: str, shape: tuple[int, ...], value: Any = None) -> NDArray[np.float64]:
+    def array(self, key: str, shape: tuple[int, ...]) -> NDArray[np.float64]:
         """A finite float array of exactly ``shape`` (a leading -1 accepts any length >= 1)."""
-        raw = self.get(key) if value is None else value
+        raw = self.get(key)
         try:
             a = np.asarray(raw, dtype=np.float64)
         except (TypeError, ValueError):
@@ -248,8 +248,14 @@ class _Reader:
 def _at_time(r: _Reader, table: str, column: str, width: int, et: float) -> NDArray[np.float64]:
     """One row of a time table at ``et`` (linear interpolation between rows; one row is used as is)."""
     rows = r.array(f"{table}.{column}", (-1, width))
-    if rows.shape[0] == 1 or not math.isfinite(et):
+    if width == 4:
+        for q in rows:
+            _unit_quaternion(r, f"{table}.{column}", q)
+    if rows.shape[0] == 1:
         return rows[0]
+    if not math.isfinite(et):
+        raise r.error(f"{table}.{column}", f"has {rows.shape[0]} rows but 'center_ephemeris_time' is missing: "
+                                           "it is needed to pick the image's row")
     times = r.array(f"{table}.ephemeris_times", (rows.shape[0],))
     if np.any(np.diff(times) <= 0):
         raise r.error(f"{table}.ephemeris_times", "must increase strictly")
@@ -375,9 +381,8 @@ def _optional_sun(r: _Reader, require_sun: bool, warnings: list[str], read: Any)
 def _ale_pose(r: _Reader, et: float, require_sun: bool, warnings: list[str]) -> tuple[Any, ...]:
     tables = ["instrument_position", "instrument_pointing", "body_rotation"]
     _frames_check(r, tables + (["sun_position"] if r.has("sun_position") else []))
-    qb = _unit_quaternion(r, "body_rotation.quaternions", _at_time(r, "body_rotation", "quaternions", 4, et))
-    qi = _unit_quaternion(r, "instrument_pointing.quaternions",
-                          _at_time(r, "instrument_pointing", "quaternions", 4, et))
+    qb = _at_time(r, "body_rotation", "quaternions", 4, et)  # rows checked to be unit quaternions
+    qi = _at_time(r, "instrument_pointing", "quaternions", 4, et)
     j2000_to_body = quaternion_to_matrix(qb)
     j2000_to_frame = quaternion_to_matrix(qi)
     if not r.has("instrument_pointing.constant_rotation"):
@@ -395,15 +400,22 @@ def _ale_pose(r: _Reader, et: float, require_sun: bool, warnings: list[str]) -> 
     return position, rotation, _optional_sun(r, require_sun, warnings, sun), j2000_to_body
 
 
+def _single_row(r: _Reader, key: str, width: int) -> NDArray[np.float64]:
+    rows = r.array(key, (-1, width))
+    if rows.shape[0] != 1:
+        raise r.error(key, f"has {rows.shape[0]} rows; a frame-camera ISD of this layout has exactly one")
+    return rows[0]
+
+
 def _csm_pose(r: _Reader, require_sun: bool, warnings: list[str]) -> tuple[Any, ...]:
     scale = r.unit_scale("sensor_position.unit", "m")
-    position = r.array("sensor_position.positions", (-1, 3))[0] * scale
-    q = r.array("sensor_orientation.quaternions", (-1, 4))[0]
+    position = _single_row(r, "sensor_position.positions", 3) * scale
+    q = _single_row(r, "sensor_orientation.quaternions", 4)
     q = _unit_quaternion(r, "sensor_orientation.quaternions", q)
     camera_to_body = quaternion_to_matrix(np.r_[q[3], q[:3]])  # stored (x, y, z, w)
 
     def sun() -> NDArray[np.float64]:
-        s = r.array("sun_position.positions", (-1, 3))[0] * r.unit_scale("sun_position.unit", "m")
+        s = _single_row(r, "sun_position.positions", 3) * r.unit_scale("sun_position.unit", "m")
         return _check_sun(r, "sun_position.positions", s)
 
     return position, camera_to_body.T, _optional_sun(r, require_sun, warnings, sun), None

@@ -159,8 +159,14 @@ def test_time_tables_are_interpolated_at_center_time() -> None:
     g = isd_from_dict(d)
     assert np.abs(g.position - POSITION).max() < 1e-6
     d["center_ephemeris_time"] = 4.0e8 + 10
-    with pytest.raises(IsdError, match=r"instrument_position\.ephemeris_times"):
+    with pytest.raises(IsdError, match=r"late\.json: key 'instrument_position\.ephemeris_times"):
         isd_from_dict(d, "late.json")
+    with pytest.raises(IsdError, match="center_ephemeris_time' is missing"):
+        isd_from_dict(_drop(d, "center_ephemeris_time"), "timeless.json")
+    c = csm_isd()
+    c["sensor_position"]["positions"] *= 2
+    with pytest.raises(IsdError, match="has 2 rows"):
+        isd_from_dict(c, "two_rows.json")
 
 
 # -- bad input -------------------------------------------------------------------------
