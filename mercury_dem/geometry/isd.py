@@ -451,6 +451,11 @@ def isd_from_dict(isd: Mapping[str, Any], source: str = "<dict>", require_sun: b
     radius_m = r.number("radii.semimajor", positive=True) * r.unit_scale("radii.unit", "km")
     et = r.number("center_ephemeris_time") if r.has("center_ephemeris_time") else math.nan
     warnings: list[str] = []
+    if r.has("radii.semiminor"):
+        minor = r.number("radii.semiminor", positive=True) * r.unit_scale("radii.unit", "km")
+        if abs(minor - radius_m) > 1e-9 * radius_m:
+            warnings.append(f"radii: an ellipsoid ({radius_m:.1f} m x {minor:.1f} m); the sphere of the "
+                            "semimajor radius is used")
     camera = _camera(r, warnings)
     if flavour == "ale":
         position, rotation, sun, j2b = _ale_pose(r, et, require_sun, warnings)

@@ -270,6 +270,8 @@ def test_optional_parts_become_warnings() -> None:
     g = isd_from_dict(_set(ale_isd(), "sun_position.positions", [[1.0, 2.0, 3.0, 4.0]]), require_sun=False)
     assert g.sun_position is None and "sun_position" in g.warnings[0]
     assert np.abs(g.position - POSITION).max() < 1e-6
+    g = isd_from_dict(_set(ale_isd(), "radii.semiminor", 2438.0))
+    assert g.radius_m == 2439.4e3 and "ellipsoid" in g.warnings[0]
 
 
 # -- the real MDIS ISDs: which convention reproduces the PDS label ---------------------------
