@@ -1,0 +1,41 @@
+"""``mercury-dem run MISSION --out RUN``: the whole job, tiles -> regions -> hemispheres -> globe -> DEM."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from mercury_dem.config import Config
+
+NAME = "run"
+HELP = "run (or resume) the whole pipeline on a mission: matching, hierarchical adjustment, DEM, products"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mission", help="mission store (e.g. from 'mercury-dem synth')")
+    p.add_argument("--out", required=True, help="run directory (created, or resumed when it exists)")
+    p.add_argument("--scheduler", help="'local' (default: LocalCluster), 'sync' (in-process) or tcp://HOST:PORT")
+    p.add_argument("--scheduler-file", help="Dask scheduler file of an existing cluster")
+    p.add_argument("--workers", type=int, help="LocalCluster workers (default: one per core)")
+    p.add_argument("--threads-per-worker", type=int, help="LocalCluster threads per worker")
+    p.add_argument("--force", metavar="STAGE", help="recompute from STAGE on: plan, tile, region, hemisphere, global, dem")
+    p.add_argument("--no-dem", action="store_true", help="stop after the global adjustment")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.pipeline.graph import run_pipeline
+    from mercury_dem.pipeline.report import print_report
+
+    report = run_pipeline(
+        args.mission, args.out, config,
+        scheduler=args.scheduler, scheduler_file=args.scheduler_file,
+        workers=args.workers, threads_per_worker=args.threads_per_worker,
+        force=args.force, stream=None if args.quiet else sys.stdout, dem=not args.no_dem,
+    )
+    print()
+    print_report(report, sys.stdout)
+    print(f"\noutputs: {args.out}/report.json, {args.out}/global/0/ (adjusted network and pointing)"
+          + (f", {args.out}/dem.zarr, {args.out}/products/" if "dem" in report else ""))
+    glob = report["levels"]["global"]
+    return 0 if glob and glob.get("ok") else 1

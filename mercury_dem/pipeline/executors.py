@@ -1,0 +1,158 @@
+"""Where the tasks run: an in-process synchronous client, a LocalCluster, or an existing scheduler.
+
+The graph code (:mod:`mercury_dem.pipeline.graph`) only calls ``submit``,
+``gather`` and ``result`` on what :func:`connect` returns, so the synchronous
+mode runs the same graph, in the same order of dependencies, in this process.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from mercury_dem.config.execution import ExecutionConfig
+
+#: Worker resource that bounds memory-heavy adjustments to one at a time per worker.
+ADJUST_RESOURCE = "adjust_slots"
+
+
+class SyncFuture:
+    """A finished computation, shaped like a ``distributed.Future`` for what the graph uses."""
+
+    def __init__(self, key: str, fn: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any]):
+        self.key = key
+        self._exc: BaseException | None = None
+        self._value: Any = None
+        try:
+            self._value = fn(*[_resolve(a) for a in args], **{k: _resolve(v) for k, v in kwargs.items()})
+            self.status = "finished"
+        except Exception as exc:  # recorded, re-raised by result() like a distributed future
+            self._exc = exc
+            self.status = "error"
+
+    def result(self) -> Any:
+        if self._exc is not None:
+            raise self._exc
+        return self._value
+
+    def done(self) -> bool:
+        return True
+
+
+def _resolve(x: Any) -> Any:
+    if isinstance(x, SyncFuture):
+        return x.result()
+    if isinstance(x, list):
+        return [_resolve(v) for v in x]
+    if isinstance(x, tuple):
+        return tuple(_resolve(v) for v in x)
+    if isinstance(x, dict):
+        return {k: _resolve(v) for k, v in x.items()}
+    return x
+
+
+class SyncClient:
+    """In-process stand-in for ``distributed.Client`` (``--scheduler sync``), for debugging and tests."""
+
+    dashboard_link = None
+    synchronous = True
+
+    def submit(self, fn: Callable[..., Any], *args: Any, key: str | None = None, **kwargs: Any) -> SyncFuture:
+        for k in ("retries", "resources", "pure", "priority", "workers", "allow_other_workers"):
+            kwargs.pop(k, None)
+        return SyncFuture(key or getattr(fn, "__name__", "task"), fn, args, kwargs)
+
+    def gather(self, futures: Any) -> Any:
+        return _resolve(futures)
+
+    def close(self) -> None:
+        pass
+
+
+def as_completed(client: Any, futures: list[Any]) -> Iterator[Any]:
+    """Futures in the order they finish (submission order for the synchronous client)."""
+    if getattr(client, "synchronous", False):
+        yield from futures
+        return
+    from distributed import as_completed as _as_completed
+
+    yield from _as_completed(futures)
+
+
+@dataclass
+class Connection:
+    """A client and what must be closed with it."""
+
+    client: Any
+    mode: str
+    cluster: Any = None
+    description: str = ""
+    uses_resources: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def close(self) -> None:
+        try:
+            self.client.close()
+        finally:
+            if self.cluster is not None:
+                self.cluster.close()
+
+
+def default_workers() -> tuple[int, int]:
+    """(workers, threads per worker) for this machine: one single-threaded worker per core.
+
+    Tile matching is multi-threaded inside OpenCV and the adjustment inside BLAS, so one
+    thread per worker process keeps the cores busy without oversubscription.
+    """
+    n = os.cpu_count() or 1
+    return max(1, n), 1
+
+
+def connect(
+    cfg: ExecutionConfig,
+    scheduler: str | None = None,
+    scheduler_file: str | None = None,
+    workers: int | None = None,
+    threads_per_worker: int | None = None,
+    security: Any = None,
+) -> Connection:
+    """Open the execution backend named by the CLI or the configuration.
+
+    ``scheduler``: ``"sync"``, ``"local"`` (a LocalCluster bound to ``cfg.host``),
+    or an address such as ``tcp://127.0.0.1:8786``; ``scheduler_file`` a Dask
+    scheduler file (how HPC launchers publish the address).
+    """
+    target = scheduler or cfg.scheduler
+    if scheduler_file:
+        from distributed import Client
+
+        client = Client(scheduler_file=scheduler_file, security=security)
+        return Connection(client, "scheduler-file", description=f"scheduler file {scheduler_file}")
+    if target == "sync":
+        return Connection(SyncClient(), "sync", description="in-process, synchronous")
+    if target == "local":
+        from distributed import Client, LocalCluster
+
+        nw, nt = default_workers()
+        nw = workers or cfg.workers or nw
+        nt = threads_per_worker or cfg.threads_per_worker or nt
+        cluster = LocalCluster(
+            n_workers=nw,
+            threads_per_worker=nt,
+            host=cfg.host,
+            dashboard_address=f"{cfg.host}:0",
+            resources={ADJUST_RESOURCE: 1},
+            security=security,
+            processes=True,
+        )
+        client = Client(cluster, security=security)
+        return Connection(
+            client, "local", cluster=cluster, uses_resources=True,
+            description=f"LocalCluster {nw} workers x {nt} threads on {cfg.host}",
+        )
+    from distributed import Client
+
+    client = Client(target, security=security)
+    return Connection(client, "scheduler", description=f"scheduler {target}")

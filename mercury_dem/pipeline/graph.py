@@ -1,0 +1,251 @@
+"""The run: tiles -> 14 regions -> 2 hemispheres -> globe, then the DEM, on any client.
+
+The whole merge tree is submitted up front: each region task depends on its
+tiles' futures, each hemisphere on its regions', the globe on both hemispheres,
+so a region starts as soon as its own tiles are done. Tasks pass store paths and
+small summaries, never networks or images. Every task is wrapped so an
+unexpected exception becomes a failure summary (the run goes on); a lost worker
+is retried by Dask (``retries``). Units already complete in the store are
+skipped by the runners themselves, which is how a killed run resumes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import shutil
+import sys
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from mercury_dem.config import Config, to_dict
+from mercury_dem.exceptions import StoreError
+from mercury_dem.geometry.tiling import N_REGIONS
+from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
+from mercury_dem.pipeline.stages import failure_summary, plan_run, run_adjust_unit, run_tile
+
+#: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
+STAGES = ("plan", "tile", "region", "hemisphere", "global", "dem")
+
+
+def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
+    """Run a stage runner; an unexpected exception becomes a failure summary."""
+    try:
+        return fn(*args)
+    except Exception as exc:  # noqa: BLE001 - recorded as a value, see module docstring
+        return failure_summary(level, unit_id, exc)
+
+
+def _tile_task(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
+    return safe_call(run_tile, "tile", tile_id, run_root, tile_id, config)
+
+
+def _unit_task(run_root: str, level: str, unit_id: int, config: Config, children: list[dict[str, Any]]) -> dict[str, Any]:
+    return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children)
+
+
+def versions() -> dict[str, str]:
+    import cv2
+    import dask
+    import distributed
+    import scipy
+    import xarray
+    import zarr
+
+    from mercury_dem import __version__
+
+    return {
+        "mercury_dem": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
+        "scipy": scipy.__version__, "opencv": cv2.__version__, "dask": dask.__version__,
+        "distributed": distributed.__version__, "zarr": zarr.__version__, "xarray": xarray.__version__,
+    }
+
+
+class Progress:
+    """Per-level counts printed as units finish (plain lines: works in a terminal and a notebook)."""
+
+    def __init__(self, totals: dict[str, int], stream: TextIO | None = sys.stdout, enabled: bool = True):
+        self.totals = totals
+        self.done = {k: 0 for k in totals}
+        self.failed = {k: 0 for k in totals}
+        self.stream = stream
+        self.enabled = enabled and stream is not None
+
+    def update(self, summary: dict[str, Any]) -> None:
+        level = summary.get("level", "?")
+        if level not in self.done:
+            return
+        self.done[level] += 1
+        if not summary.get("ok"):
+            self.failed[level] += 1
+        if self.enabled:
+            state = "ok" if summary.get("ok") else f"FAILED: {summary.get('error')}"
+            line = " | ".join(
+                f"{k} {self.done[k]}/{self.totals[k]}" + (f" ({self.failed[k]} failed)" if self.failed[k] else "")
+                for k in self.totals
+            )
+            print(f"[{line}] {summary.get('name', f'{level} {summary.get('id')}')} {state}", file=self.stream, flush=True)
+
+
+def prepare_store(mission_path: str | Path, out: str | Path, config: Config, force: str | None) -> RunStore:
+    """Create or reopen ``RUN``; a run of another mission is refused; ``force`` clears stages."""
+    store = RunStore(Path(out))
+    mission_abs = str(Path(mission_path).resolve())
+    if store.run_json.exists():
+        prev = store.read_run()
+        if prev.get("mission") != mission_abs:
+            raise StoreError(
+                f"{out} holds a run of mission {prev.get('mission')}, not {mission_abs}; choose another --out"
+            )
+        if prev.get("config") != to_dict(config) and force is None:
+            raise StoreError(
+                f"{out} was run with a different configuration; resume with the same one, "
+                "or recompute with --force plan (or a later stage)"
+            )
+    elif store.root.exists() and any(store.root.iterdir()):
+        raise StoreError(f"{out} exists and is not a mercury-dem run; choose an empty or new --out")
+    store.root.mkdir(parents=True, exist_ok=True)
+    if force is not None:
+        if force not in STAGES:
+            raise StoreError(f"--force takes one of {', '.join(STAGES)}, got {force!r}")
+        for stage in STAGES[STAGES.index(force):]:
+            if stage == "plan":
+                shutil.rmtree(store.plan_dir, ignore_errors=True)
+            elif stage in LEVELS:
+                store.remove_level(stage)
+            elif stage == "dem":
+                for p in (store.dem_path, store.root / "coverage.zarr", store.products_dir):
+                    shutil.rmtree(p, ignore_errors=True)
+    store.write_run({
+        "mission": mission_abs,
+        "config": to_dict(config),
+        "versions": versions(),
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    })
+    return store
+
+
+def run_pipeline(
+    mission_path: str | Path,
+    out: str | Path,
+    config: Config,
+    *,
+    scheduler: str | None = None,
+    scheduler_file: str | None = None,
+    workers: int | None = None,
+    threads_per_worker: int | None = None,
+    force: str | None = None,
+    security: Any = None,
+    stream: TextIO | None = sys.stdout,
+    connection: Connection | None = None,
+    dem: bool = True,
+) -> dict[str, Any]:
+    """Run (or resume) the whole job; return the report (also written to ``RUN/report.json``)."""
+    from mercury_dem.io.mission import open_mission
+    from mercury_dem.pipeline.report import build_report, write_report
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    store = prepare_store(mission_path, out, config, force)
+    mission = open_mission(mission_path)
+    t = time.perf_counter()
+    from mercury_dem.io.atomic import is_complete
+
+    if is_complete(store.plan_dir):
+        plan = json.loads((store.plan_dir / "plan.json").read_text())
+    else:
+        plan = plan_run(store, mission, config)
+    timings["plan"] = time.perf_counter() - t
+
+    own = connection is None
+    conn = connection or connect(config.execution, scheduler, scheduler_file, workers, threads_per_worker, security)
+    client = conn.client
+    if stream is not None:
+        link = getattr(client, "dashboard_link", None)
+        print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
+    perf: Any = contextlib.nullcontext()
+    if conn.mode != "sync":
+        from distributed import performance_report
+
+        perf = performance_report(filename=str(store.performance_html))
+    summaries: dict[str, list[dict[str, Any]]] = {k: [] for k in ("tile", "region", "hemisphere", "global")}
+    try:
+        with perf:
+            summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream)
+            timings.update(level_seconds)
+            dem_summary = None
+            glob = summaries["global"][0] if summaries["global"] else None
+            if dem and glob is not None and glob.get("ok"):
+                t = time.perf_counter()
+                from mercury_dem.pipeline.dem_run import run_dem_stage
+
+                dem_summary = run_dem_stage(store, mission, config, None if conn.mode == "sync" else client, stream)
+                timings["dem"] = time.perf_counter() - t
+    finally:
+        if own:
+            conn.close()
+    timings["total"] = time.perf_counter() - t_start
+    report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
+    write_report(store, report)
+    return report
+
+
+def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
+                 stream: TextIO | None) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
+    from mercury_dem.geometry.tiling import TileGrid
+
+    grid = TileGrid(config.tiling.tile_size_deg)
+    root = str(store.root)
+    retries = config.execution.retries
+    heavy = {"resources": {ADJUST_RESOURCE: 1}} if conn.uses_resources else {}
+    tiles = [int(t) for t in plan["non_empty_tiles"]]
+    tile_f = {t: client.submit(_tile_task, root, t, config, key=f"tile-{t}", retries=retries, pure=False)
+              for t in tiles}
+    region_of = {t: int(grid.region_of_tile(t)) for t in tiles}
+    region_f = {}
+    for r in range(N_REGIONS):
+        deps = [f for t, f in tile_f.items() if region_of[t] == r]
+        if deps:
+            region_f[r] = client.submit(_unit_task, root, "region", r, config, deps,
+                                        key=f"region-{r}", retries=retries, pure=False, **heavy)
+    hemi_f = {}
+    for h in (0, 1):
+        deps = [f for r, f in region_f.items() if grid.hemisphere_of_region(r) == h]
+        if deps:
+            hemi_f[h] = client.submit(_unit_task, root, "hemisphere", h, config, deps,
+                                      key=f"hemisphere-{h}", retries=retries, pure=False, **heavy)
+    glob_f = {}
+    if hemi_f:
+        glob_f[0] = client.submit(_unit_task, root, "global", 0, config, list(hemi_f.values()),
+                                  key="global-0", retries=retries, pure=False, **heavy)
+    levels = {"tile": tile_f, "region": region_f, "hemisphere": hemi_f, "global": glob_f}
+    progress = Progress({k: len(v) for k, v in levels.items()}, stream)
+    level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items()}
+    out: dict[str, list[dict[str, Any]]] = {k: [] for k in levels}
+    first_start = time.perf_counter()
+    finished_at: dict[str, float] = {}
+    all_f = [f for fs in levels.values() for f in fs.values()]
+    for fut in as_completed(client, all_f):
+        lvl, uid = level_of[fut.key]
+        try:
+            s = fut.result()
+        except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
+            s = failure_summary(lvl, uid, exc)
+        out[lvl].append(s)
+        finished_at[lvl] = time.perf_counter() - first_start
+        progress.update(s)
+    for lvl in out:
+        out[lvl].sort(key=lambda s: s["id"])
+    # Wall time of each level: from the previous level's end to its own end.
+    seconds, prev = {}, 0.0
+    for lvl in ("tile", "region", "hemisphere", "global"):
+        if lvl in finished_at:
+            seconds[lvl] = finished_at[lvl] - prev
+            prev = finished_at[lvl]
+    return out, seconds

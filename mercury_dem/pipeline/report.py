@@ -1,0 +1,133 @@
+"""``RUN/report.json``: the stable contract that tools and notebooks read, and its printed summary.
+
+Keys (see docs/design.md): ``tiles`` {total, non_empty, succeeded, failed: [{tile, error}]},
+``levels`` {region: [...], hemisphere: [...], global: {...}} with per unit id, name, ok, error,
+images, points, measures, rms_px, sigma0, rejected, iterations, seconds; ``images`` {input,
+controlled, uncontrolled: [ids], excluded: {id: reason}}; ``timings``; ``config``; ``versions``;
+``execution``; ``dem``; and, when the mission has truth, ``validation``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TextIO
+
+import numpy as np
+
+from mercury_dem.config import Config, to_dict
+from mercury_dem.io.atomic import atomic_write_json
+from mercury_dem.io.run_store import RunStore, read_solution
+
+LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
+              "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
+              "children")
+
+
+def _level_row(s: dict[str, Any]) -> dict[str, Any]:
+    return {k: s.get(k) for k in LEVEL_KEYS if k in s or k in ("id", "ok", "error")}
+
+
+def build_report(store: RunStore, mission: Any, config: Config, plan: dict[str, Any],
+                 summaries: dict[str, list[dict[str, Any]]], timings: dict[str, float], conn: Any,
+                 dem_summary: dict[str, Any] | None) -> dict[str, Any]:
+    from mercury_dem.pipeline.graph import versions
+
+    tiles = summaries.get("tile", [])
+    glob = summaries.get("global", [])
+    ids_all = [str(x) for x in mission.catalog["image_id"]]
+    controlled: list[str] = []
+    report: dict[str, Any] = {
+        "run": str(store.root),
+        "mission": str(mission.path),
+        "tiles": {
+            "total": int(plan["tiles_total"]),
+            "non_empty": len(plan["non_empty_tiles"]),
+            "succeeded": sum(1 for s in tiles if s.get("ok")),
+            "failed": [{"tile": s["id"], "error": s.get("error")} for s in tiles if not s.get("ok")],
+            "image_errors": {k: v for s in tiles for k, v in (s.get("image_errors") or {}).items()},
+        },
+        "levels": {
+            "region": [_level_row(s) for s in summaries.get("region", [])],
+            "hemisphere": [_level_row(s) for s in summaries.get("hemisphere", [])],
+            "global": _level_row(glob[0]) if glob else None,
+        },
+    }
+    validation = None
+    if glob and glob[0].get("ok"):
+        sid, rot, _, table = read_solution(store.solution_path("global", 0))
+        nmeas = table["n_measures"].to_numpy()
+        controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
+        if getattr(mission, "has_truth", False):
+            from mercury_dem.network.store import read_network
+            from mercury_dem.validate.run import validate_run
+
+            net = read_network(store.network_path("global", 0))
+            keep = nmeas > 0
+            validation = validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep])
+    cset = set(controlled)
+    report["images"] = {
+        "input": len(ids_all),
+        "controlled": len(controlled),
+        "uncontrolled": [i for i in ids_all if i not in cset],
+        "excluded": plan.get("excluded", {}),
+    }
+    report["timings"] = {k: float(v) for k, v in timings.items()}
+    report["execution"] = {"mode": conn.mode, "description": conn.description}
+    report["config"] = to_dict(config)
+    report["versions"] = versions()
+    if dem_summary is not None:
+        report["dem"] = dem_summary
+    if validation is not None:
+        if dem_summary is not None and "validation" in dem_summary:
+            validation["dem"] = dem_summary.pop("validation")
+        report["validation"] = validation
+    return report
+
+
+def write_report(store: RunStore, report: dict[str, Any]) -> None:
+    atomic_write_json(store.report_json, report)
+
+
+def _f(x: Any, fmt: str = ".3f") -> str:
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, fmt)
+
+
+def print_report(report: dict[str, Any], stream: TextIO) -> None:
+    """A readable summary of report.json."""
+    t = report["tiles"]
+    im = report["images"]
+    w = stream.write
+    w(f"run {report['run']}  (mission {report['mission']})\n")
+    w(f"tiles: {t['non_empty']} non-empty of {t['total']}; {t['succeeded']} succeeded, {len(t['failed'])} failed\n")
+    for f in t["failed"][:10]:
+        w(f"  tile {f['tile']}: {f['error']}\n")
+    w(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n\n")
+    w(f"{'level':<22}{'images':>7}{'points':>9}{'measures':>10}{'rms px':>8}{'sigma0':>8}{'rej':>7}{'iter':>5}{'s':>7}\n")
+    rows = [("region", r) for r in report["levels"]["region"]] + [("hemisphere", r) for r in report["levels"]["hemisphere"]]
+    if report["levels"]["global"]:
+        rows.append(("global", report["levels"]["global"]))
+    for _, r in rows:
+        name = r.get("name") or str(r.get("id"))
+        if not r.get("ok"):
+            w(f"{name:<22} FAILED: {r.get('error')}\n")
+            continue
+        w(f"{name:<22}{r.get('images', 0):>7}{r.get('points', 0):>9}{r.get('measures', 0):>10}"
+          f"{_f(r.get('rms_px')):>8}{_f(r.get('sigma0')):>8}{r.get('rejected', 0):>7}{r.get('iterations', 0):>5}"
+          f"{_f(r.get('seconds'), '.1f'):>7}\n")
+    v = report.get("validation")
+    if v:
+        p = v["pointing_error_urad"]
+        w(f"\npointing error vs truth (urad RMS): a-priori {_f(p['a_priori_rms'], '.1f')}, adjusted "
+          f"{_f(p['adjusted_rms'], '.1f')} ({_f(v.get('adjusted_rms_in_ifov'), '.2f')} IFOV; IFOV {_f(v['ifov_urad'], '.1f')}), "
+          f"common rotation removed {_f(p['adjusted_rms_common_rotation_removed'], '.1f')}\n")
+        pe = v["point_error_m"]
+        w(f"point error vs truth (m): median {_f(pe['median'], '.1f')}, p95 {_f(pe['p95'], '.1f')} ({pe['points']} points)\n")
+        d = v.get("dem")
+        if d:
+            w(f"DEM vs truth (m): {json_short(d)}\n")
+    tm = report.get("timings", {})
+    w("\ntimings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()) + "\n")
+
+
+def json_short(d: dict[str, Any]) -> str:
+    keys = ("rmse_m", "bias_m", "p05_m", "p50_m", "p95_m")
+    return ", ".join(f"{k} {_f(d.get(k), '.1f')}" for k in keys if k in d) or str(d)[:200]

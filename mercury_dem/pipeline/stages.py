@@ -1,0 +1,371 @@
+"""Stage runners: each reads its inputs from the run store, calls pure functions, writes atomically.
+
+Every runner takes plain arguments (paths, ids, the configuration) and returns a
+small JSON-able summary dict, so it runs the same in a Dask task, in the
+synchronous client or in a plain loop. Expected failures (a tile with no
+overlapping images, a region whose tiles all failed, an unsolvable adjustment)
+are returned as ``{"ok": False, "error": "..."}`` summaries, and written, so the
+run goes on and a resumed run does not retry them (``--force`` does).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import traceback
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from mercury_dem.config import Config, to_dict
+from mercury_dem.exceptions import MercuryDemError
+from mercury_dem.geometry.footprints import overlap_graph
+from mercury_dem.geometry.pose import validate_pose
+from mercury_dem.geometry.tiling import TileGrid, region_name
+from mercury_dem.io.atomic import atomic_directory, atomic_write_json
+from mercury_dem.io.run_store import RunStore, read_solution, write_solution
+
+#: Point ids of tile t start at t * POINT_ID_STRIDE, so ids stay unique when tiles merge.
+POINT_ID_STRIDE = 10_000_000
+
+LEVEL_CHILD = {"region": "tile", "hemisphere": "region", "global": "hemisphere"}
+
+
+def unit_name(level: str, unit_id: int) -> str:
+    """``tile 17``, ``region N-060-120``, ``hemisphere north``, ``global``."""
+    if level == "region":
+        return f"region {region_name(unit_id)}"
+    if level == "hemisphere":
+        return f"hemisphere {'north' if unit_id == 0 else 'south'}"
+    if level == "global":
+        return "global"
+    return f"{level} {unit_id}"
+
+
+# --------------------------------------------------------------------------- plan
+def plan_run(store: RunStore, mission: Any, config: Config) -> dict[str, Any]:
+    """Tile of every image and the a-priori overlap graph, written to ``RUN/plan``.
+
+    Images whose geometry is unusable (NaN, non-orthonormal rotation) are kept in
+    the table with ``excluded_reason`` and take no further part.
+    """
+    t0 = time.perf_counter()
+    cat = mission.catalog
+    ids = cat["image_id"].to_numpy(dtype=str)
+    grid = TileGrid(config.tiling.tile_size_deg)
+    cameras: list[Any] = []
+    cam_idx = np.zeros(ids.size, dtype=np.int64)
+    positions = np.zeros((ids.size, 3))
+    rotations = np.tile(np.eye(3), (ids.size, 1, 1))
+    excluded = np.full(ids.size, "", dtype=object)
+    for k, image_id in enumerate(ids):
+        try:
+            cam = mission.camera(image_id)
+            c, r = mission.a_priori_pose(image_id)
+            validate_pose(image_id, c, r)
+        except MercuryDemError as exc:
+            excluded[k] = str(exc)
+            continue
+        if cam not in cameras:
+            cameras.append(cam)
+        cam_idx[k] = cameras.index(cam)
+        positions[k], rotations[k] = c, r
+    ok = excluded == ""
+    lat = cat["center_lat"].to_numpy(dtype=float)
+    lon = cat["center_lon"].to_numpy(dtype=float)
+    bad_centre = ok & ~(np.isfinite(lat) & np.isfinite(lon))
+    excluded[bad_centre] = [f"image {i}: centre latitude/longitude missing; fix the catalog" for i in ids[bad_centre]]
+    ok &= ~bad_centre
+    tile = np.full(ids.size, -1, dtype=np.int64)
+    tile[ok] = grid.tile_of(lat[ok], lon[ok])
+    region = np.full(ids.size, -1, dtype=np.int64)
+    region[ok] = grid.region_of_tile(tile[ok])
+    good = np.flatnonzero(ok)
+    graph = overlap_graph(
+        cameras, cam_idx[good], positions[good], rotations[good],
+        min_fraction=config.tiling.min_overlap_fraction,
+    ) if cameras else None
+    i = good[graph.i] if graph is not None else np.zeros(0, np.int64)
+    j = good[graph.j] if graph is not None else np.zeros(0, np.int64)
+    images = pd.DataFrame({
+        "image_id": ids, "tile_id": tile, "region_id": region,
+        "excluded_reason": excluded.astype(str),
+    })
+    pairs = pd.DataFrame({
+        "i": i, "j": j, "image_i": ids[i], "image_j": ids[j],
+        "fraction": graph.fraction if graph is not None else np.zeros(0),
+    })
+    non_empty = sorted(set(tile[ok].tolist()))
+    info = {
+        "tile_size_deg": grid.tile_size_deg,
+        "tiles_total": grid.n_tiles,
+        "non_empty_tiles": non_empty,
+        "images": int(ids.size),
+        "excluded": {str(a): str(b) for a, b in zip(ids[~ok], excluded[~ok])},
+        "overlap_pairs": int(len(pairs)),
+        "seconds": time.perf_counter() - t0,
+    }
+    with atomic_directory(store.plan_dir, overwrite=True) as tmp:
+        images.to_parquet(tmp / "images.parquet", index=False)
+        pairs.to_parquet(tmp / "overlaps.parquet", index=False)
+        (tmp / "plan.json").write_text(json.dumps(info, indent=2))
+    return info
+
+
+def tile_pairs(images: pd.DataFrame, pairs: pd.DataFrame, tile_id: int) -> list[tuple[str, str]]:
+    """(reference, match) pairs of a tile: every tile image with every image overlapping it.
+
+    A pair of two images of the tile is matched once (the first in catalog order is
+    the reference); a pair with one image outside the tile has the tile's image as
+    reference (the neighbouring tile matches it again the other way round; the
+    merge joins the two).
+    """
+    in_tile = images["tile_id"].to_numpy() == tile_id
+    ok = images["excluded_reason"].to_numpy(dtype=str) == ""
+    i, j = pairs["i"].to_numpy(), pairs["j"].to_numpy()
+    ids = images["image_id"].to_numpy(dtype=str)
+    a_in, b_in = in_tile[i] & ok[i] & ok[j], in_tile[j] & ok[i] & ok[j]
+    out: list[tuple[str, str]] = []
+    for a, b in zip(i[a_in], j[a_in]):
+        out.append((ids[a], ids[b]))  # i < j: the first is the reference
+    for a, b in zip(i[b_in & ~a_in], j[b_in & ~a_in]):
+        out.append((ids[b], ids[a]))
+    return out
+
+
+def _geometry(mission: Any, image_ids: list[str]) -> tuple[dict[str, Any], list[Any], np.ndarray, np.ndarray, np.ndarray]:
+    from mercury_dem.match.pretransform import ImageGeometry
+
+    geom: dict[str, Any] = {}
+    cameras, positions, rotations = [], [], []
+    for image_id in image_ids:
+        cam = mission.camera(image_id)
+        c, r = mission.a_priori_pose(image_id)
+        geom[image_id] = ImageGeometry.of(cam, c, r, mission.sun_position(image_id))
+        cameras.append(cam)
+        positions.append(c)
+        rotations.append(r)
+    return geom, cameras, np.array(positions).reshape(-1, 3), np.array(rotations).reshape(-1, 3, 3), np.array(image_ids)
+
+
+# --------------------------------------------------------------------------- tiles
+def run_tile(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
+    """Match every image of a tile with its overlaps and build the tile's control network."""
+    store = RunStore(run_root)
+    if store.unit_complete("tile", tile_id):
+        return store.read_summary("tile", tile_id)
+    t0 = time.perf_counter()
+    summary: dict[str, Any] = {"level": "tile", "id": int(tile_id), "ok": False, "error": None}
+    try:
+        summary.update(_run_tile(store, tile_id, config))
+        summary["ok"] = summary["points"] > 0
+        if not summary["ok"] and not summary["error"]:
+            summary["error"] = _no_points_reason(tile_id, summary)
+    except MercuryDemError as exc:
+        summary["error"] = f"tile {tile_id}: {exc}"
+        _write_unit(store, "tile", tile_id, summary, t0)
+        return summary
+    _write_unit(store, "tile", tile_id, summary, t0, files=summary.pop("_files", {}))
+    return summary
+
+
+def _no_points_reason(tile_id: int, s: dict[str, Any]) -> str:
+    if s.get("pairs", 0) == 0:
+        return (f"tile {tile_id}: no overlapping image pairs ({s.get('images', 0)} images); "
+                "nothing to match — add images that overlap these or accept them as uncontrolled")
+    reasons = s.get("pair_failures", {})
+    top = ", ".join(f"{k} ({v})" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])[:3])
+    return f"tile {tile_id}: {s.get('pairs', 0)} pairs gave no control point; pair failures: {top or 'none'}"
+
+
+def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
+    from mercury_dem.io.mission import open_mission
+    from mercury_dem.match.matcher import iter_rows, match_tile
+    from mercury_dem.network.build import build_network
+
+    run = store.read_run()
+    mission = open_mission(run["mission"])
+    images, pairs, _ = store.read_plan()
+    pair_list = tile_pairs(images, pairs, tile_id)
+    ref_ids = images.loc[(images["tile_id"] == tile_id) & (images["excluded_reason"] == ""), "image_id"].tolist()
+    involved = sorted({x for p in pair_list for x in p} | set(ref_ids))
+    pixels: dict[str, Any] = {}
+    image_errors: dict[str, str] = {}
+    for image_id in involved:
+        try:
+            pixels[image_id] = mission.read_image(image_id)
+        except MercuryDemError as exc:
+            pixels[image_id] = None
+            image_errors[image_id] = str(exc)
+    geom, cameras, positions, rotations, ids = _geometry(mission, involved)
+    matches, reports = match_tile(pixels, geom, pair_list, config.match)
+    rows = pd.DataFrame(list(iter_rows(reports)))
+    failures: dict[str, int] = {}
+    if len(rows):
+        for reason in rows.loc[rows["status"] != "matched", "reason"]:
+            key = str(reason).split(":")[0][:80]
+            failures[key] = failures.get(key, 0) + 1
+    built = build_network(
+        ids, matches, cameras, positions, rotations,
+        tolerance_px=config.network.merge_tolerance_px,
+        point_id_start=int(tile_id) * POINT_ID_STRIDE,
+        sigma_px=config.network.measure_sigma_px,
+        metadata={"level": "tile", "tile_id": str(tile_id)},
+    )
+    net = built.network
+    return {
+        "images": len(ref_ids),
+        "images_involved": len(involved),
+        "pairs": len(pair_list),
+        "pairs_matched": int((rows["status"] == "matched").sum()) if len(rows) else 0,
+        "routes": rows["route"].value_counts().to_dict() if len(rows) else {},
+        "pair_failures": failures,
+        "image_errors": image_errors,
+        "points": int(net.n_points),
+        "measures": int(net.n_measures),
+        "_files": {"network": net, "pairs": rows},
+    }
+
+
+def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, Any], t0: float,
+                files: dict[str, Any] | None = None) -> None:
+    """Write a unit directory atomically: its files, then summary.json, then the marker."""
+    from mercury_dem.network.store import write_network
+
+    summary["seconds"] = time.perf_counter() - t0
+    with atomic_directory(store.unit_dir(level, unit_id), overwrite=True) as tmp:
+        for name, obj in (files or {}).items():
+            if name == "network":
+                write_network(obj, tmp / "network.zarr")
+            elif name == "pairs":
+                obj.to_parquet(tmp / "pairs.parquet", index=False)
+            elif name == "solution":
+                write_solution(tmp / "solution.parquet", **obj)
+        atomic_write_json(tmp / "summary.json", summary)
+
+
+# --------------------------------------------------------------------------- cascade
+def child_ids(level: str, unit_id: int, config: Config) -> list[int]:
+    """Ids of the units of the level below that make up a region, hemisphere or the globe."""
+    grid = TileGrid(config.tiling.tile_size_deg)
+    if level == "region":
+        return grid.tiles_of_region(unit_id).tolist()
+    if level == "hemisphere":
+        return grid.regions_of_hemisphere(unit_id).tolist()
+    return [0, 1]
+
+
+def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
+                    children: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Merge the networks of a unit's children and bundle adjust them (region, hemisphere, globe).
+
+    ``children`` are the children's summaries (passed so a task graph orders the
+    work; the data itself is read from the store).
+    """
+    store = RunStore(run_root)
+    if store.unit_complete(level, unit_id):
+        return store.read_summary(level, unit_id)
+    t0 = time.perf_counter()
+    name = unit_name(level, unit_id)
+    summary: dict[str, Any] = {"level": level, "id": int(unit_id), "name": name, "ok": False, "error": None}
+    files: dict[str, Any] = {}
+    try:
+        result = _adjust_unit(store, level, unit_id, config)
+        files = result.pop("_files", {})
+        summary.update(result)
+        summary["ok"] = True
+    except MercuryDemError as exc:
+        summary["error"] = f"{name}: {exc}"
+    _write_unit(store, level, unit_id, summary, t0, files=files)
+    return summary
+
+
+def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> dict[str, Any]:
+    from mercury_dem.pipeline.adjust_adapter import adjust_network
+    from mercury_dem.io.mission import open_mission
+    from mercury_dem.network.merge import merge_networks
+    from mercury_dem.network.store import read_network
+
+    child_level = LEVEL_CHILD[level]
+    kids = [c for c in child_ids(level, unit_id, config)
+            if store.unit_complete(child_level, c) and store.read_summary(child_level, c).get("ok")]
+    if not kids:
+        raise _NoInput(f"no successful {child_level} network to merge (all empty or failed)")
+    nets = []
+    for c in kids:
+        net = read_network(store.network_path(child_level, c))
+        if child_level != "tile":
+            # Start from the level below's adjusted points; every measure is judged again.
+            adj = net.adjusted_xyz
+            use = np.all(np.isfinite(adj), axis=1)
+            net = net.replace(
+                apriori_xyz=np.where(use[:, None], adj, net.apriori_xyz),
+                measure_rejected=np.zeros_like(net.measure_rejected),
+                point_rejected=np.zeros_like(net.point_rejected),
+            )
+        nets.append(net)
+    merged = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network
+    run = store.read_run()
+    mission = open_mission(run["mission"])
+    ids = [str(x) for x in merged.image_ids]
+    cameras = [mission.camera(i) for i in ids]
+    positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
+    rotations = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
+    start_rot, start_pos = rotations.copy(), positions.copy()
+    if child_level != "tile":
+        start_rot, start_pos = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
+    adj = adjust_network(
+        merged, cameras, start_pos, start_rot, config.adjust,
+        apriori_positions=positions, apriori_rotations=rotations,
+    )
+    return {
+        "children": kids,
+        **adj.summary,
+        "_files": {
+            "network": adj.network,
+            "solution": {
+                "image_ids": np.array(ids), "rotations": adj.rotations, "positions": adj.positions,
+                "extra": {"n_measures": adj.image_measures, "rms_px": adj.image_rms_px},
+            },
+        },
+    }
+
+
+class _NoInput(MercuryDemError):
+    pass
+
+
+def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids: list[str],
+                        rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starting pointing of each image from the children's solutions.
+
+    An image near a border was adjusted in several children; it starts from the
+    child in which it had the most measures (the best-determined solution), ties
+    broken by the lower child id. Images no child adjusted keep their a-priori pose.
+    """
+    index = {k: n for n, k in enumerate(ids)}
+    rot, pos = rotations.copy(), positions.copy()
+    best = np.full(len(ids), -1, dtype=np.int64)
+    for c in kids:
+        sid, srot, spos, table = read_solution(store.solution_path(child_level, c))
+        nmeas = table["n_measures"].to_numpy() if "n_measures" in table else np.ones(sid.size, int)
+        for k, image_id in enumerate(sid):
+            n = index.get(str(image_id))
+            if n is not None and nmeas[k] > best[n]:
+                best[n] = nmeas[k]
+                rot[n], pos[n] = srot[k], spos[k]
+    return rot, pos
+
+
+def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, Any]:
+    """A summary for a task that died with an unexpected exception (a bug, a lost worker)."""
+    return {
+        "level": level, "id": int(unit_id), "ok": False,
+        "error": f"{unit_name(level, unit_id)}: unexpected {type(exc).__name__}: {exc}",
+        "traceback": "".join(traceback.format_exception(exc))[-4000:],
+    }
+
+
+def config_dict(config: Config) -> dict[str, Any]:
+    return to_dict(config)
