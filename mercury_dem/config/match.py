@@ -1,4 +1,12 @@
-"""Configuration of feature matching."""
+"""Configuration of feature matching (``mercury_dem.match``).
+
+Defaults follow Becker et al. (2016) -- FAST detector, SIFT descriptors,
+brute-force k=2 matching, ratio/symmetry/fundamental/homography outlier chain,
+at most 400 matches per pair -- plus guided matching, an area-based (NCC)
+fallback, illumination limits and sub-pixel refinement. The illumination
+limits and tolerances were chosen from the measurements in
+``docs/benchmarks/match.md`` (rendered cratered terrain, true errors).
+"""
 
 from __future__ import annotations
 
@@ -6,11 +14,93 @@ from dataclasses import dataclass
 
 from mercury_dem.config.base import ConfigSection, param
 
+DETECTORS = ("FAST", "SIFT", "ORB", "AKAZE", "BRISK")
+DESCRIPTORS = ("SIFT", "ORB", "AKAZE", "BRISK")
+
 
 @dataclass(frozen=True)
 class MatchConfig(ConfigSection):
-    detector: str = param("FAST", "OpenCV feature detector", choices=("FAST", "SIFT", "ORB", "AKAZE", "BRISK"))
-    descriptor: str = param("SIFT", "OpenCV descriptor extractor", choices=("SIFT", "ORB", "AKAZE", "BRISK"))
-    fast_threshold: int = param(20, "FAST intensity threshold (8-bit scale)", lo=1, hi=255)
+    # -- features ------------------------------------------------------------
+    detector: str = param("FAST", "OpenCV feature detector", choices=DETECTORS)
+    descriptor: str = param("SIFT", "OpenCV descriptor extractor", choices=DESCRIPTORS)
+    matcher: str = param(
+        "BF", "Descriptor matcher: brute force (exact) or FLANN (approximate, float descriptors only)",
+        choices=("BF", "FLANN"),
+    )
+    fast_threshold: int = param(12, "FAST intensity threshold (8-bit scale, after the robust stretch)", lo=1, hi=255)
+    max_keypoints: int = param(
+        1500, "Most keypoints kept per image (strongest, spread over a grid)", lo=10, hi=100000
+    )
+    keypoint_grid: int = param(8, "Cells per image side used to spread the kept keypoints", lo=1, hi=64)
+    stretch_low_percentile: float = param(
+        0.5, "Lower percentile of the 12-bit -> 8-bit robust stretch", unit="%", lo=0.0, hi=50.0
+    )
+    stretch_high_percentile: float = param(
+        99.5, "Upper percentile of the 12-bit -> 8-bit robust stretch", unit="%", lo=50.0, hi=100.0
+    )
+    saturated_dn: int = param(4095, "DN at or above which a pixel counts as saturated", lo=1, hi=65535)
+    max_saturated_fraction: float = param(
+        0.5, "An image with more saturated pixels than this fails the pair", lo=0.0, hi=1.0
+    )
+    min_dynamic_range_dn: float = param(
+        8.0, "An image whose robust DN range is below this is 'textureless' and fails the pair", unit="DN", lo=0.0
+    )
+    # -- outlier chain -------------------------------------------------------
     ratio: float = param(0.8, "Lowe ratio test threshold, both directions", lo=0.1, hi=1.0)
-    max_matches: int = param(400, "Most matches kept per image pair", lo=1, hi=100000)
+    fundamental_tolerance_px: float = param(
+        1.5, "Fundamental-matrix RANSAC epipolar distance tolerance", unit="px", lo=0.01, hi=100.0
+    )
+    fundamental_confidence: float = param(0.999, "Fundamental-matrix RANSAC confidence", lo=0.5, hi=0.999999)
+    homography_tolerance_px: float = param(
+        3.0, "Homography RANSAC reprojection tolerance (allows relief parallax after the pre-transform)",
+        unit="px", lo=0.01, hi=100.0,
+    )
+    max_matches: int = param(400, "Most matches kept per image pair (best, spatially spread)", lo=1, hi=100000)
+    min_matches: int = param(
+        20, "Fewer matches than this after the chain: try the NCC fallback, else fail the pair", lo=4, hi=100000
+    )
+    ransac_seed: int = param(0, "Seed of OpenCV's RANSAC (per pair, so results do not depend on threads)", lo=0)
+    # -- geometric pre-transform and guidance --------------------------------
+    pretransform: bool = param(
+        True, "Warp the match image into the reference geometry (datum homography) before detection"
+    )
+    pretransform_grid: int = param(9, "Points per side of the grid fitted by the pre-transform homography", lo=3, hi=64)
+    guided: bool = param(
+        True, "Restrict descriptor candidates to a window around the a-priori predicted position"
+    )
+    pointing_sigma_urad: float = param(
+        450.0, "A-priori pointing uncertainty per axis and image (1 sigma)", unit="urad", lo=0.0, hi=1e5
+    )
+    guidance_sigmas: float = param(3.0, "Guidance window half-width in pointing sigmas", lo=0.5, hi=20.0)
+    guidance_margin_px: float = param(
+        8.0, "Added to the guidance half-width for relief parallax and model error", unit="px", lo=0.0, hi=1e4
+    )
+    # -- area-based fallback -------------------------------------------------
+    ncc_fallback: bool = param(
+        True, "Area-based fallback (NCC at reference corners within the guidance window) when descriptors yield too few"
+    )
+    ncc_template_px: int = param(31, "NCC fallback template size (odd)", unit="px", lo=5, hi=255)
+    ncc_min_score: float = param(0.6, "Lowest NCC peak accepted by the fallback", lo=-1.0, hi=1.0)
+    ncc_max_points: int = param(300, "Most reference corners tried by the fallback", lo=1, hi=100000)
+    # -- illumination --------------------------------------------------------
+    max_incidence_difference_deg: float = param(
+        50.0, "Skip pairs whose incidence angles differ by more than this", unit="deg", lo=0.0, hi=180.0
+    )
+    max_sun_azimuth_difference_deg: float = param(
+        100.0, "Skip pairs whose sun azimuths differ by more than this", unit="deg", lo=0.0, hi=180.0
+    )
+    # -- sub-pixel refinement ------------------------------------------------
+    refine: bool = param(True, "Sub-pixel refinement of every measure on the pre-transformed images")
+    refine_window_px: int = param(21, "Refinement correlation window (odd)", unit="px", lo=5, hi=101)
+    refine_search_px: int = param(3, "Refinement integer search radius around the matched position", unit="px", lo=1, hi=32)
+    refine_iterations: int = param(
+        4, "Gauss-Newton (Lucas-Kanade, gain and offset) steps after the correlation peak fit", lo=0, hi=50
+    )
+    refine_min_score: float = param(
+        0.5, "Measures whose refined NCC is below this are dropped", lo=-1.0, hi=1.0
+    )
+    refine_max_shift_px: float = param(
+        2.5, "Measures the refinement moves farther than this are dropped", unit="px", lo=0.1, hi=64.0
+    )
+    # -- execution -----------------------------------------------------------
+    threads: int = param(2, "Threads over pairs inside one tile task (OpenCV releases the GIL)", lo=1, hi=256)

@@ -1,0 +1,121 @@
+"""Descriptor matching (optionally guided by the a-priori geometry) and the area-based fallback.
+
+Guided matching: after the pre-transform a true match lies at the reference
+keypoint's own position up to the pointing error and relief parallax, so
+candidates are restricted to a square window of half-width ``window_px``
+around the predicted position. The restriction is passed to OpenCV's
+brute-force ``knnMatch`` as its mask (query x train, uint8), so the ratio test
+compares only plausible candidates -- which is what lets true matches through
+under strong illumination differences.
+
+Area-based fallback (the equivalent of ISIS autoseed + pointreg): normalized
+cross-correlation of a template around each reference corner over the
+guidance window of the warped match image (``cv2.matchTemplate``,
+``TM_CCOEFF_NORMED``). It loops over at most ``ncc_max_points`` corners per
+pair -- a seeding step, not a per-measure hot path -- because a vectorized
+search over a window this large would need far more memory than OpenCV's
+per-template correlation.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.match.features import Features
+from mercury_dem.match.outliers import KnnResult, knn_from_opencv
+
+
+def candidate_mask(
+    predicted: NDArray[np.float64], points_b: NDArray[np.float64], window_px: float
+) -> NDArray[np.uint8]:
+    """uint8 mask (Na, Nb): 1 where keypoint b lies within ``window_px`` (per axis) of a's predicted position."""
+    pa = predicted.astype(np.float32)
+    pb = points_b.astype(np.float32)
+    w = np.float32(window_px)
+    close = np.abs(pa[:, None, 0] - pb[None, :, 0]) <= w
+    close &= np.abs(pa[:, None, 1] - pb[None, :, 1]) <= w
+    return close.view(np.uint8)
+
+
+def knn_both_ways(
+    fa: Features, fb: Features, mask: NDArray[np.uint8] | None = None, matcher: str = "BF"
+) -> tuple[KnnResult, KnnResult]:
+    """k=2 nearest neighbours a -> b and b -> a (brute force, or FLANN for float descriptors)."""
+    if fa.size == 0 or fb.size == 0:
+        empty_a = KnnResult(np.full(fa.size, -1, np.int64), np.full(fa.size, np.inf), np.full(fa.size, np.inf))
+        empty_b = KnnResult(np.full(fb.size, -1, np.int64), np.full(fb.size, np.inf), np.full(fb.size, np.inf))
+        return empty_a, empty_b
+    if matcher == "FLANN" and fa.norm == cv2.NORM_L2 and mask is None:
+        m = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
+    else:
+        m = cv2.BFMatcher(fa.norm, crossCheck=False)
+    if mask is None:
+        ab = m.knnMatch(fa.descriptors, fb.descriptors, k=2)
+        ba = m.knnMatch(fb.descriptors, fa.descriptors, k=2)
+    else:
+        ab = m.knnMatch(fa.descriptors, fb.descriptors, k=2, mask=mask)
+        ba = m.knnMatch(fb.descriptors, fa.descriptors, k=2, mask=np.ascontiguousarray(mask.T))
+    return knn_from_opencv(ab, fa.size), knn_from_opencv(ba, fb.size)
+
+
+def ncc_matches(
+    ref: NDArray[np.float32],
+    warped: NDArray[np.float32],
+    valid: NDArray[np.bool_],
+    corners: NDArray[np.float64],
+    window_px: float,
+    template_px: int,
+    min_score: float,
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Area-based matches of reference corners in the warped match image.
+
+    Parameters
+    ----------
+    ref : ndarray (lines, samples) float32, reference DN
+    warped : ndarray (lines, samples) float32, match image in the reference geometry
+    valid : ndarray bool, where ``warped`` is inside the match image
+    corners : ndarray (K, 2), reference corner positions (sample, line)
+    window_px : search half-width around each corner's own position
+    template_px : odd template size
+    min_score : lowest NCC peak accepted
+
+    Returns
+    -------
+    index : ndarray (M,) int64, which corners matched
+    points : ndarray (M, 2), integer-pixel peak positions in the warped frame
+    score : ndarray (M,), NCC peak values
+    """
+    half = template_px // 2
+    r = int(np.ceil(window_px))
+    h, w = ref.shape
+    idx: list[int] = []
+    pts: list[tuple[float, float]] = []
+    scores: list[float] = []
+    for k, (s, l) in enumerate(np.rint(corners).astype(np.int64)):
+        if s - half < 0 or l - half < 0 or s + half >= w or l + half >= h:
+            continue
+        t = ref[l - half : l + half + 1, s - half : s + half + 1]
+        if float(t.std()) <= 1e-6:
+            continue
+        s0, s1 = max(s - r - half, 0), min(s + r + half + 1, w)
+        l0, l1 = max(l - r - half, 0), min(l + r + half + 1, h)
+        if s1 - s0 < template_px + 2 or l1 - l0 < template_px + 2:
+            continue
+        if not valid[l0:l1, s0:s1].all():
+            # Only search where the match image has data: shrink to the valid box, or skip.
+            continue
+        res = cv2.matchTemplate(warped[l0:l1, s0:s1], t, cv2.TM_CCOEFF_NORMED)
+        _, peak, _, loc = cv2.minMaxLoc(res)
+        if not np.isfinite(peak) or peak < min_score:
+            continue
+        # Reject peaks on the edge of the search window (the true peak may be outside).
+        if loc[0] in (0, res.shape[1] - 1) or loc[1] in (0, res.shape[0] - 1):
+            continue
+        idx.append(k)
+        pts.append((float(s0 + loc[0] + half), float(l0 + loc[1] + half)))
+        scores.append(float(peak))
+    if not idx:
+        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0)
+    return np.asarray(idx, np.int64), np.asarray(pts, np.float64), np.asarray(scores, np.float64)

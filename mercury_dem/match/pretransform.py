@@ -1,0 +1,205 @@
+"""Geometric pre-transform of a pair from its a-priori geometry (like ISIS ``FASTGEOM``).
+
+A grid of reference pixels is intersected with the datum sphere and projected
+into the match image; a homography ``H`` (reference pixel -> match pixel) is
+fitted to those points by least squares (``cv2.findHomography``, method 0).
+Warping the match image with ``H`` (``cv2.warpPerspective`` with
+``WARP_INVERSE_MAP``) puts it in the reference's geometry: scale, rotation and
+perspective differences are gone and a true match lies at the same pixel up to
+the pointing error and relief parallax. Warped-frame positions map back to the
+original match image exactly by ``H`` (it is the warp's own sampling function).
+
+The same grid gives the pair's a-priori overlap, scale ratio and illumination
+(incidence of each image and sun-azimuth difference at the overlap centre).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.pose import illumination_angles, image_to_ground, project
+
+
+@dataclass(frozen=True)
+class ImageGeometry:
+    """A-priori geometry of one image: camera, pose and sun.
+
+    Attributes
+    ----------
+    camera : the framing camera (its samples x lines is the image size)
+    position : ndarray (3,), spacecraft position, body-fixed metres
+    rotation : ndarray (3, 3), body-fixed -> camera (``v_cam = R @ (X - C)``)
+    sun_position : ndarray (3,), Sun position, body-fixed metres
+    """
+
+    camera: FramingCamera
+    position: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    sun_position: NDArray[np.float64]
+
+    @staticmethod
+    def of(camera: FramingCamera, position: ArrayLike, rotation: ArrayLike, sun_position: ArrayLike) -> "ImageGeometry":
+        return ImageGeometry(
+            camera,
+            np.asarray(position, dtype=np.float64).reshape(3),
+            np.asarray(rotation, dtype=np.float64).reshape(3, 3),
+            np.asarray(sun_position, dtype=np.float64).reshape(3),
+        )
+
+
+@dataclass(frozen=True)
+class PairGeometry:
+    """What the a-priori geometry says about a pair.
+
+    Attributes
+    ----------
+    homography : ndarray (3, 3), reference pixel -> match pixel (homogeneous), a-priori on the datum
+    fit_rms_px : RMS of the homography fit, match pixels (datum curvature, distortion)
+    overlap : share of the reference image whose datum point falls inside the match image (0..1)
+    scale_ratio : ground pixel size ratio, >= 1 (the coarser over the finer) at the overlap centre
+    match_px_per_ref_px : linear scale of ``homography`` at the overlap centre
+    incidence_ref_deg, incidence_match_deg : incidence at the overlap centre (sphere normal)
+    sun_azimuth_difference_deg : difference of the local sun azimuths, 0..180
+    guidance_px : guidance window half-width, reference pixels
+    """
+
+    homography: NDArray[np.float64]
+    fit_rms_px: float
+    overlap: float
+    scale_ratio: float
+    match_px_per_ref_px: float
+    incidence_ref_deg: float
+    incidence_match_deg: float
+    sun_azimuth_difference_deg: float
+    guidance_px: float
+
+
+def sun_azimuth_deg(ground: NDArray[np.float64], sun: NDArray[np.float64]) -> float:
+    """Azimuth of the Sun (degrees clockwise from north) at a ground point (3,), body-fixed."""
+    up = ground / np.linalg.norm(ground)
+    east = np.cross([0.0, 0.0, 1.0], up)
+    if np.linalg.norm(east) < 1e-9:  # at a pole: any horizontal direction is "north"
+        east = np.cross([0.0, 1.0, 0.0], up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    s = sun - ground
+    return float(np.degrees(np.arctan2(s @ east, s @ north)) % 360.0)
+
+
+def angle_difference_deg(a: float, b: float) -> float:
+    """Absolute difference of two angles in degrees, folded into 0..180."""
+    d = abs(a - b) % 360.0
+    return float(min(d, 360.0 - d))
+
+
+def apply_homography(h: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Map points (N, 2) by a homography (3, 3)."""
+    p = np.asarray(points, dtype=np.float64)
+    q = p @ h[:, :2].T + h[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return q[:, :2] / q[:, 2:3]
+
+
+def pair_geometry(
+    ref: ImageGeometry,
+    match: ImageGeometry,
+    grid: int = 9,
+    pointing_sigma_rad: float = 0.0,
+    guidance_sigmas: float = 3.0,
+    guidance_margin_px: float = 0.0,
+) -> PairGeometry | str:
+    """The pre-transform homography, overlap, scale and illumination of a pair, or a failure reason.
+
+    Returns a string (the reason) when the reference does not see the body or the
+    pair has no a-priori overlap.
+    """
+    cam_r, cam_m = ref.camera, match.camera
+    t = (np.arange(grid) + 0.5) / grid
+    ss, ll = np.meshgrid(t * cam_r.samples - 0.5, t * cam_r.lines - 0.5)
+    px_r = np.stack([ss.ravel(), ll.ravel()], axis=-1)
+    ground, hit = image_to_ground(cam_r, ref.position, ref.rotation, px_r)
+    if hit.sum() < 4:
+        return "reference image does not see the body at enough grid points for the pre-transform"
+    px_m, depth = project(cam_m, match.position, match.rotation, ground[hit])
+    front = (depth > 0) & np.all(np.isfinite(px_m), axis=-1)
+    inside = front & cam_m.in_image(np.nan_to_num(px_m, nan=-1e9))
+    overlap = float(inside.sum()) / float(px_r.shape[0])
+    if not inside.any():
+        return "no a-priori overlap (no reference grid point projects into the match image)"
+    # Fit over the overlap (plus its neighbours) when it is well covered, else over all visible points.
+    use = front & cam_m.in_image(np.nan_to_num(px_m, nan=-1e9), margin=-0.25 * max(cam_m.samples, cam_m.lines))
+    if use.sum() < 8:
+        use = front
+    if use.sum() < 4:
+        return "too few reference grid points are in front of the match camera"
+    src = px_r[hit][use].astype(np.float64)
+    dst = px_m[use].astype(np.float64)
+    h, _ = cv2.findHomography(src, dst, 0)
+    if h is None or not np.all(np.isfinite(h)):
+        return "pre-transform homography could not be fitted (degenerate a-priori geometry)"
+    fit_rms = float(np.sqrt(np.mean(np.sum((apply_homography(h, src) - dst) ** 2, axis=-1))))
+    # Overlap centre, local scale and illumination there.
+    centre_r = px_r[hit][inside].mean(axis=0)
+    scale = _local_scale(h, centre_r)
+    g = ground[hit][inside].mean(axis=0)
+    g = g / np.linalg.norm(g) * np.linalg.norm(ground[hit][0])
+    inc_r = float(illumination_angles(g, ref.position, ref.sun_position)[0])
+    inc_m = float(illumination_angles(g, match.position, match.sun_position)[0])
+    daz = angle_difference_deg(sun_azimuth_deg(g, ref.sun_position), sun_azimuth_deg(g, match.sun_position))
+    # Guidance: pointing error of each image (sigma / IFOV pixels) in reference pixels, combined.
+    sig_r = pointing_sigma_rad / cam_r.ifov_rad
+    sig_m = pointing_sigma_rad / cam_m.ifov_rad / max(scale, 1e-9)
+    guidance = guidance_sigmas * float(np.hypot(sig_r, sig_m)) + guidance_margin_px
+    return PairGeometry(
+        homography=h,
+        fit_rms_px=fit_rms,
+        overlap=overlap,
+        scale_ratio=float(max(scale, 1.0 / max(scale, 1e-12))),
+        match_px_per_ref_px=float(scale),
+        incidence_ref_deg=inc_r,
+        incidence_match_deg=inc_m,
+        sun_azimuth_difference_deg=daz,
+        guidance_px=guidance,
+    )
+
+
+def _local_scale(h: NDArray[np.float64], p: NDArray[np.float64], d: float = 1.0) -> float:
+    """sqrt |det J| of a homography at a point: match pixels per reference pixel (linear)."""
+    pts = np.array([p, p + [d, 0.0], p + [0.0, d]])
+    q = apply_homography(h, pts)
+    j = np.stack([(q[1] - q[0]) / d, (q[2] - q[0]) / d], axis=-1)
+    return float(np.sqrt(abs(np.linalg.det(j))))
+
+
+def warp_to_reference(
+    match_image: NDArray[np.float32], homography: NDArray[np.float64], ref_shape: tuple[int, int], scale: float
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """The match image resampled in the reference geometry, and where it is valid.
+
+    Parameters
+    ----------
+    match_image : ndarray (lines, samples) float32, DN
+    homography : reference pixel -> match pixel
+    ref_shape : (lines, samples) of the reference image
+    scale : match pixels per reference pixel; above 1.25 the match image is
+        low-pass filtered first (Gaussian, sigma = 0.4 * scale) so the warp does not alias
+
+    Returns
+    -------
+    warped : ndarray ref_shape float32 (0 outside the match image)
+    valid : ndarray ref_shape bool, True where the bilinear sample is fully inside the match image
+    """
+    src = match_image
+    if scale > 1.25:
+        src = cv2.GaussianBlur(src, (0, 0), sigmaX=0.4 * scale)
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    size = (int(ref_shape[1]), int(ref_shape[0]))
+    warped = cv2.warpPerspective(src, homography, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    ones = np.ones(match_image.shape, np.float32)
+    cover = cv2.warpPerspective(ones, homography, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return warped, cover > 0.999

@@ -1,0 +1,178 @@
+"""Sub-pixel refinement of matches on the pre-transformed images, vectorized over measures.
+
+For every match, a ``window`` x ``window`` template around the reference
+position is correlated (zero-mean normalized cross-correlation) with the
+warped match image at every integer shift within ``search`` pixels of the
+matched position; the peak is located to sub-pixel by a parabola through its
+neighbours along each axis, then polished by a few Gauss-Newton
+(Lucas-Kanade) steps of a translation with gain and offset
+(``ref ~ a * match(x + d) + b``), which removes the parabola's pixel-locking
+bias. Only the match-side position moves; the reference position (the
+keypoint, whose id the control network tracks) is kept.
+
+Written with numpy instead of a per-measure loop over ``cv2.matchTemplate`` /
+``cv2.findTransformECC`` because those take one template per call: a Python loop
+over hundreds of measures per pair. Here the loop runs over the (2 * search + 1)^2
+shifts and the iterations only, each a vectorized operation over all measures.
+Bilinear sampling is done in numpy (``cv2.remap`` quantizes positions to 1/32 pixel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Refined:
+    """Refined match positions.
+
+    Attributes
+    ----------
+    points : ndarray (N, 2), refined positions in the warped (reference-geometry) frame
+    score : ndarray (N,), NCC of the template at the refined position
+    ok : ndarray (N,) bool, False where the window leaves valid data, the peak is on
+        the search border, the score is low or the move is too large
+    """
+
+    points: NDArray[np.float64]
+    score: NDArray[np.float64]
+    ok: NDArray[np.bool_]
+
+
+def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], half: int) -> NDArray[np.float32]:
+    """Bilinear samples (N, 2*half+1, 2*half+1) of ``image`` on square grids about ``centres`` (N, 2).
+
+    Out-of-image neighbours are clamped to the border (callers check validity separately).
+    """
+    h, w = image.shape
+    off = np.arange(-half, half + 1, dtype=np.float64)
+    x = centres[:, 0, None, None] + off[None, None, :]
+    y = centres[:, 1, None, None] + off[None, :, None]
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0).astype(np.float32)
+    fy = (y - y0).astype(np.float32)
+    xi = np.clip(x0.astype(np.int64), 0, w - 2)
+    yi = np.clip(y0.astype(np.int64), 0, h - 2)
+    flat = image.ravel()
+    i00 = yi * w + xi
+    v00 = flat[i00]
+    v01 = flat[i00 + 1]
+    v10 = flat[i00 + w]
+    v11 = flat[i00 + w + 1]
+    top = v00 + fx * (v01 - v00)
+    bot = v10 + fx * (v11 - v10)
+    return top + fy * (bot - top)
+
+
+def _normalize(p: NDArray[np.float32]) -> NDArray[np.float32]:
+    q = p - p.mean(axis=(1, 2), keepdims=True)
+    n = np.sqrt(np.sum(q * q, axis=(1, 2), keepdims=True))
+    return q / np.maximum(n, 1e-12)
+
+
+def _box_count(mask: NDArray[np.bool_], lo: NDArray[np.int64], hi: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Number of True pixels in boxes [lo, hi] (inclusive, (N, 2) sample/line) via an integral image."""
+    h, w = mask.shape
+    ii = np.zeros((h + 1, w + 1), dtype=np.int64)
+    ii[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0, dtype=np.int64), axis=1)
+    s0 = np.clip(lo[:, 0], 0, w)
+    l0 = np.clip(lo[:, 1], 0, h)
+    s1 = np.clip(hi[:, 0] + 1, 0, w)
+    l1 = np.clip(hi[:, 1] + 1, 0, h)
+    return ii[l1, s1] - ii[l0, s1] - ii[l1, s0] + ii[l0, s0]
+
+
+def refine_matches(
+    ref: NDArray[np.float32],
+    warped: NDArray[np.float32],
+    valid: NDArray[np.bool_],
+    points_ref: NDArray[np.float64],
+    points_warped: NDArray[np.float64],
+    window: int = 21,
+    search: int = 3,
+    iterations: int = 4,
+    min_score: float = 0.5,
+    max_shift_px: float = 2.5,
+) -> Refined:
+    """Refine the warped-frame position of every match (see the module docstring).
+
+    Parameters
+    ----------
+    ref : ndarray (lines, samples) float32, reference image DN
+    warped : ndarray (lines, samples) float32, match image resampled in the reference geometry
+    valid : ndarray (lines, samples) bool, where ``warped`` has data
+    points_ref : ndarray (N, 2), reference positions (sample, line), kept fixed
+    points_warped : ndarray (N, 2), matched positions in the warped frame (start values)
+    window : odd correlation window size, pixels
+    search : integer search radius, pixels
+    iterations : Gauss-Newton polishing steps (0 = parabola only)
+    min_score : lowest accepted NCC at the refined position
+    max_shift_px : largest accepted move from the start position
+    """
+    n = points_ref.shape[0]
+    if n == 0:
+        return Refined(np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool))
+    half = window // 2
+    h, w = ref.shape
+    pa = np.asarray(points_ref, np.float64)
+    pb = np.asarray(points_warped, np.float64)
+    reach = half + search + 2
+    inside = (
+        (pa[:, 0] - half - 1 >= 0) & (pa[:, 1] - half - 1 >= 0) & (pa[:, 0] + half + 2 < w) & (pa[:, 1] + half + 2 < h)
+    )
+    lo = np.floor(pb).astype(np.int64) - reach
+    hi = np.ceil(pb).astype(np.int64) + reach
+    inside &= (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
+    area = (hi - lo + 1).prod(axis=1)
+    inside &= _box_count(valid, lo, hi) == area
+
+    tmpl = _normalize(sample_patches(ref, pa, half))
+    big = sample_patches(warped, pb, half + search)
+    k = 2 * search + 1
+    ncc = np.empty((n, k, k), np.float32)
+    for i in range(k):
+        for j in range(k):
+            ncc[:, i, j] = np.sum(_normalize(big[:, i : i + window, j : j + window]) * tmpl, axis=(1, 2))
+    flat = ncc.reshape(n, -1)
+    best = np.argmax(flat, axis=1)
+    bi, bj = np.divmod(best, k)
+    interior = (bi > 0) & (bi < k - 1) & (bj > 0) & (bj < k - 1)
+    rows = np.arange(n)
+    c0 = flat[rows, best]
+
+    def vertex(m: NDArray[np.float32], c: NDArray[np.float32], p: NDArray[np.float32]) -> NDArray[np.float64]:
+        den = m - 2.0 * c + p
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = np.where(den < 0, 0.5 * (m - p) / den, 0.0)
+        return np.clip(v, -0.5, 0.5).astype(np.float64)
+
+    bi_c, bj_c = np.clip(bi, 1, k - 2), np.clip(bj, 1, k - 2)
+    dy = vertex(ncc[rows, bi_c - 1, bj_c], c0, ncc[rows, bi_c + 1, bj_c])
+    dx = vertex(ncc[rows, bi_c, bj_c - 1], c0, ncc[rows, bi_c, bj_c + 1])
+    d = np.stack([bj - search + dx, bi - search + dy], axis=-1)
+
+    # Gauss-Newton on ref ~ a * warped(x + d) + b, unknowns (a, b, a*dx, a*dy).
+    t_raw = sample_patches(ref, pa, half).reshape(n, -1).astype(np.float64)
+    for _ in range(iterations):
+        p = sample_patches(warped, pb + d, half + 1).astype(np.float64)
+        gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
+        gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
+        c = p[:, 1:-1, 1:-1]
+        a_mat = np.stack([c.reshape(n, -1), np.ones((n, window * window)), gx.reshape(n, -1), gy.reshape(n, -1)], -1)
+        ata = np.einsum("nki,nkj->nij", a_mat, a_mat)
+        atb = np.einsum("nki,nk->ni", a_mat, t_raw)
+        ata += np.eye(4) * 1e-9 * np.trace(ata, axis1=1, axis2=2)[:, None, None]
+        sol = np.linalg.solve(ata, atb[..., None])[..., 0]
+        gain = sol[:, 0]
+        step = sol[:, 2:] / np.where(np.abs(gain) > 1e-9, gain, np.nan)[:, None]
+        step = np.clip(np.nan_to_num(step), -1.0, 1.0)
+        d = d + step
+    final = pb + d
+    score = np.sum(_normalize(sample_patches(warped, final, half)) * tmpl, axis=(1, 2)).astype(np.float64)
+    moved = np.hypot(d[:, 0], d[:, 1])
+    ok = inside & interior & np.isfinite(final).all(axis=1) & (score >= min_score) & (moved <= max_shift_px)
+    return Refined(final, score, ok)

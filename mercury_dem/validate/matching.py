@@ -1,0 +1,172 @@
+"""True accuracy of matches against the synthetic truth (issue 4, section 4).
+
+The true error of an accepted match: the ground point seen at the reference
+measure (true pose of the reference, true surface) is projected into the match
+image with its true pose and compared with the match measure, in match pixels.
+Pairs are classed by illumination (incidence and sun-azimuth difference) and
+scale ratio, and each class gets its outlier share, median and 95th percentile
+error, and the share of truly overlapping pairs that gave enough matches.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.pose import image_to_ground, project
+
+HeightFunction = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
+
+
+@dataclass(frozen=True)
+class TruePose:
+    """The true geometry of one image."""
+
+    camera: FramingCamera
+    position: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+
+
+def true_errors(
+    image_ids: Sequence[str],
+    image_a: NDArray[np.int64],
+    image_b: NDArray[np.int64],
+    points_a: NDArray[np.float64],
+    points_b: NDArray[np.float64],
+    truth: Mapping[str, TruePose],
+    height: HeightFunction,
+) -> NDArray[np.float64]:
+    """True error (M,) in match pixels of every match; NaN where the reference ray misses the surface.
+
+    Parameters
+    ----------
+    image_ids : ids indexed by ``image_a``/``image_b``
+    image_a, image_b : ndarray (M,) int, reference and match image of each match
+    points_a, points_b : ndarray (M, 2), 0-based (sample, line) in the original images
+    truth : image id -> true camera and pose
+    height : the true surface height (lat, lon) -> m above the datum
+    """
+    ia = np.asarray(image_a, np.int64)
+    ib = np.asarray(image_b, np.int64)
+    out = np.full(ia.shape[0], np.nan)
+    if ia.size == 0:
+        return out
+    keys = ia * (len(image_ids) + 1) + ib
+    for key in np.unique(keys):
+        sel = np.flatnonzero(keys == key)
+        ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
+        g, hit = image_to_ground(ta.camera, ta.position, ta.rotation, points_a[sel], height=height)
+        px, depth = project(tb.camera, tb.position, tb.rotation, np.where(hit[:, None], g, 0.0))
+        err = np.linalg.norm(px - points_b[sel], axis=-1)
+        out[sel] = np.where(hit & (depth > 0), err, np.nan)
+    return out
+
+
+def true_overlap(a: TruePose, b: TruePose, height: HeightFunction, grid: int = 16) -> float:
+    """Overlap of two images as a fraction of the smaller one (0..1), on the true surface.
+
+    The share of each image's grid whose ground point the other image sees; the
+    larger share is intersection / smaller area.
+    """
+
+    def share(p: TruePose, q: TruePose) -> float:
+        t = (np.arange(grid) + 0.5) / grid
+        ss, ll = np.meshgrid(t * p.camera.samples - 0.5, t * p.camera.lines - 0.5)
+        px = np.stack([ss.ravel(), ll.ravel()], -1)
+        g, hit = image_to_ground(p.camera, p.position, p.rotation, px, height=height)
+        if not hit.any():
+            return 0.0
+        proj, depth = project(q.camera, q.position, q.rotation, g[hit])
+        inside = (depth > 0) & q.camera.in_image(np.nan_to_num(proj, nan=-1e9))
+        return float(inside.sum()) / float(px.shape[0])
+
+    return max(share(a, b), share(b, a))
+
+
+def illumination_class(incidence_difference_deg: float, sun_azimuth_difference_deg: float) -> str:
+    """'similar' (incidence within 15 deg and sun azimuth within 30 deg), 'incidence'
+    (incidence differs more, sun on the same side) or 'azimuth' (sun azimuth differs more than 30 deg)."""
+    if sun_azimuth_difference_deg > 30.0:
+        return "azimuth"
+    if incidence_difference_deg > 15.0:
+        return "incidence"
+    return "similar"
+
+
+def scale_class(scale_ratio: float) -> str:
+    """'<=1.5x', '1.5-4x' or '>4x'."""
+    if scale_ratio <= 1.5:
+        return "<=1.5x"
+    return "1.5-4x" if scale_ratio <= 4.0 + 1e-6 else ">4x"
+
+
+def summarize(
+    errors: NDArray[np.float64],
+    pair: NDArray[np.int64],
+    rows: Sequence[Mapping[str, Any]],
+    overlaps: Sequence[float],
+    min_matches: int = 20,
+    outlier_px: float = 2.0,
+    min_overlap: float = 0.10,
+) -> dict[str, dict[str, float]]:
+    """Accuracy per pair class and overall.
+
+    Parameters
+    ----------
+    errors : ndarray (M,), true error of each match (``true_errors``)
+    pair : ndarray (M,), report row of each match
+    rows : pair report rows (``PairReport.as_row()``), with incidence/azimuth difference and scale ratio
+    overlaps : true overlap of each pair (fraction of the smaller image)
+
+    Returns
+    -------
+    dict: class name ('all', 'similar', 'incidence', 'azimuth', 'scale <=1.5x', ...) ->
+        n_pairs, n_overlapping (true overlap >= ``min_overlap``), share_with_min_matches (of those),
+        n_measures, outlier_share (> ``outlier_px``), median_px, p95_px
+    """
+    err = np.asarray(errors, np.float64)
+    pair = np.asarray(pair, np.int64)
+    counts = np.bincount(pair, minlength=len(rows)) if pair.size else np.zeros(len(rows), np.int64)
+    cls_illum = [illumination_class(r["incidence_difference_deg"], r["sun_azimuth_difference_deg"]) for r in rows]
+    cls_scale = ["scale " + scale_class(r["scale_ratio"]) for r in rows]
+    groups: dict[str, list[int]] = {"all": list(range(len(rows)))}
+    for k, (ci, cs) in enumerate(zip(cls_illum, cls_scale)):
+        groups.setdefault(ci, []).append(k)
+        groups.setdefault(cs, []).append(k)
+    out: dict[str, dict[str, float]] = {}
+    for name, members in groups.items():
+        m = np.asarray(members, np.int64)
+        in_group = np.isin(pair, m)
+        e = err[in_group]
+        e = e[np.isfinite(e)]
+        ov = np.asarray(overlaps, np.float64)[m] >= min_overlap
+        n_ov = int(ov.sum())
+        ok = counts[m][ov] >= min_matches
+        out[name] = {
+            "n_pairs": float(m.size),
+            "n_overlapping": float(n_ov),
+            "share_with_min_matches": float(ok.mean()) if n_ov else float("nan"),
+            "n_measures": float(e.size),
+            "outlier_share": float(np.mean(e > outlier_px)) if e.size else float("nan"),
+            "median_px": float(np.median(e)) if e.size else float("nan"),
+            "p95_px": float(np.percentile(e, 95)) if e.size else float("nan"),
+        }
+    return out
+
+
+def format_summary(summary: Mapping[str, Mapping[str, float]]) -> str:
+    """A Markdown table of :func:`summarize` output."""
+    lines = [
+        "| class | pairs | overlapping | with >= min matches | measures | outliers > 2 px | median px | p95 px |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, s in summary.items():
+        lines.append(
+            f"| {name} | {s['n_pairs']:.0f} | {s['n_overlapping']:.0f} | {100 * s['share_with_min_matches']:.0f}% "
+            f"| {s['n_measures']:.0f} | {100 * s['outlier_share']:.2f}% | {s['median_px']:.3f} | {s['p95_px']:.3f} |"
+        )
+    return "\n".join(lines)
