@@ -40,6 +40,9 @@ from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.exceptions import GridError, StoreError
 from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, IAU_SPHERE_RADIUS_M
+from mercury_dem.products.make import make_products, open_dem
+
+__all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "check_memory", "dem_template"]
 
 ATTRS: dict[str, dict[str, str]] = {
     "elevation": {
@@ -301,14 +304,3 @@ def write_coverage(cov: CoverageResult, path: Path, overwrite: bool = False) -> 
         ds = cov.to_dataset()
         ds.attrs["complete"] = True
         ds.to_zarr(str(tmp), mode="w", consolidated=False, zarr_format=3)
-
-
-def open_dem(path: str | Path) -> xr.Dataset:
-    """Open a ``dem.zarr`` store lazily with its CRS (``decode_coords='all'``)."""
-    path = Path(path)
-    if not path.exists():
-        raise StoreError(f"no DEM store at {path}; run 'mercury-dem grid' (or the pipeline's DEM stage) first")
-    ds = xr.open_zarr(str(path), consolidated=False, decode_coords="all")
-    if not ds.attrs.get("complete"):
-        raise StoreError(f"the DEM store {path} is incomplete (interrupted run?); grid it again with --overwrite")
-    return ds

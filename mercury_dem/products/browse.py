@@ -1,0 +1,250 @@
+"""Browse PNGs of the DEM, as PDS "extras" (Mattson et al.): greyscale, shaded relief,
+colour-coded elevation over shaded relief with colour ramp and scale bar, and a global
+map in Robinson projection (as Becker et al. 2016, Fig. 1), plus the coverage map.
+
+Drawn with matplotlib (Agg); the Robinson map is a raster reprojected here with pyproj
+(each output pixel mapped back to latitude/longitude), so no cartopy is needed.
+Shaded relief of a whole planet at browse scale is nearly flat at true scale, so the
+shading uses a vertical exaggeration chosen from the data (stated on the images).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pyproj  # noqa: E402
+from matplotlib import colors  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M  # noqa: E402
+from mercury_dem.products.sampling import sample_bilinear  # noqa: E402
+from mercury_dem.products.stats import block_centres, block_mean  # noqa: E402
+
+#: Robinson, central meridian 180 (the map runs 0..360 E like the reference's Fig. 1).
+CRS_ROBINSON_180 = "IAU_2015:19955"
+CMAP = "turbo"
+
+
+def browse_grid(elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating],
+                width: int) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
+    """Block-mean the DEM down to at most ``width`` columns; returns (h, lat, lon)."""
+    f = max(1, int(math.ceil(elevation.shape[1] / width)))
+    return block_mean(elevation, f), block_centres(lat, f), block_centres(lon, f)
+
+
+def _spacing(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> tuple[float, float, bool]:
+    dlat = abs(float(lat[1] - lat[0])) if lat.size > 1 else 1.0
+    dlon = abs(float(lon[1] - lon[0])) if lon.size > 1 else dlat
+    return dlat, dlon, abs(dlon * lon.size - 360.0) < 1e-6
+
+
+def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64]
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """East and north height gradients (m/m) by central differences; columns wrap on a global grid."""
+    dlat, dlon, wrap = _spacing(lat, lon)
+    z = np.asarray(h, dtype=np.float64)
+    if wrap:
+        ex = 0.5 * (np.roll(z, -1, axis=1) - np.roll(z, 1, axis=1))
+    else:
+        ex = np.gradient(z, axis=1) if z.shape[1] > 1 else np.zeros_like(z)
+    ny = -np.gradient(z, axis=0) if z.shape[0] > 1 else np.zeros_like(z)  # rows run north to south
+    dx = DATUM_RADIUS_M * np.maximum(np.cos(np.radians(lat)), 1e-3)[:, None] * math.radians(dlon)
+    dy = DATUM_RADIUS_M * math.radians(dlat)
+    return ex / dx, ny / dy
+
+
+def hillshade(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
+              azimuth_deg: float = 315.0, altitude_deg: float = 45.0, exaggeration: float = 1.0
+              ) -> NDArray[np.float64]:
+    """Lambertian shaded relief in [0, 1] (NaN where no value or next to a gap).
+
+    The surface normal ``(-dz/de, -dz/dn, 1)`` (east, north, up; true metric spacing
+    per row, heights times ``exaggeration``) dotted with the unit vector to a sun at
+    ``azimuth_deg`` (clockwise from north; 315 = north-west) and ``altitude_deg``.
+    """
+    ge, gn = _gradients(h, lat, lon)
+    ge, gn = ge * exaggeration, gn * exaggeration
+    az, alt = math.radians(azimuth_deg), math.radians(altitude_deg)
+    sun = (math.sin(az) * math.cos(alt), math.cos(az) * math.cos(alt), math.sin(alt))
+    shade = (-ge * sun[0] - gn * sun[1] + sun[2]) / np.sqrt(ge * ge + gn * gn + 1.0)
+    return np.clip(shade, 0.0, 1.0)
+
+
+def auto_exaggeration(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
+                      target_deg: float = 12.0) -> float:
+    """A vertical exaggeration (1..200) making the 90th-percentile browse slope about ``target_deg``."""
+    ge, gn = _gradients(h, lat, lon)
+    g = np.hypot(ge, gn)[np.abs(lat) < 75.0]
+    g = g[np.isfinite(g)]
+    if g.size == 0:
+        return 1.0
+    p90 = float(np.percentile(g, 90))
+    if p90 <= 0:
+        return 1.0
+    return float(np.clip(math.tan(math.radians(target_deg)) / p90, 1.0, 200.0))
+
+
+def _limits(h: NDArray[np.floating]) -> tuple[float, float]:
+    v = h[np.isfinite(h)]
+    if v.size == 0:
+        return -1.0, 1.0
+    lo, hi = np.percentile(v, [1, 99])
+    if hi <= lo:
+        hi = lo + 1.0
+    return float(lo), float(hi)
+
+
+def colour_relief(h: NDArray[np.floating], shade: NDArray[np.floating], vmin: float, vmax: float
+                  ) -> NDArray[np.float64]:
+    """RGBA (H, W, 4): colour-coded elevation multiplied by the shaded relief; transparent where no value."""
+    rgba = plt.get_cmap(CMAP)(colors.Normalize(vmin, vmax, clip=True)(np.nan_to_num(h, nan=vmin)))
+    k = 0.35 + 0.65 * np.nan_to_num(shade, nan=1.0)
+    rgba[..., :3] *= k[..., None]
+    rgba[..., 3] = np.isfinite(h)
+    return rgba
+
+
+def write_greyscale_png(h: NDArray[np.floating], path: str | Path) -> Path:
+    """Elevation as grey levels stretched over the 1-99 % range; no value = transparent."""
+    vmin, vmax = _limits(h)
+    cmap = plt.get_cmap("gray").with_extremes(bad=(0, 0, 0, 0))
+    plt.imsave(path, np.ma.masked_invalid(h), cmap=cmap, vmin=vmin, vmax=vmax)
+    return Path(path)
+
+
+def write_hillshade_png(shade: NDArray[np.floating], path: str | Path) -> Path:
+    """Shaded relief as grey levels; no value = transparent."""
+    cmap = plt.get_cmap("gray").with_extremes(bad=(0, 0, 0, 0))
+    plt.imsave(path, np.ma.masked_invalid(shade), cmap=cmap, vmin=0.0, vmax=1.0)
+    return Path(path)
+
+
+def _nice_length(x: float) -> float:
+    p = 10 ** math.floor(math.log10(x))
+    for m in (5, 2, 1):
+        if m * p <= x:
+            return m * p
+    return p
+
+
+def _finish(fig: Any, path: str | Path) -> Path:
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
+
+
+def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
+                     lon: NDArray[np.float64], path: str | Path, title: str, exaggeration: float) -> Path:
+    """Annotated colour-coded elevation over shaded relief: axes in degrees, colour ramp, scale bar."""
+    vmin, vmax = _limits(h)
+    rgba = colour_relief(h, shade, vmin, vmax)
+    dlat, dlon, _ = _spacing(lat, lon)
+    extent = (lon[0] - dlon / 2, lon[-1] + dlon / 2, lat[-1] - dlat / 2, lat[0] + dlat / 2)
+    aspect_hw = (extent[3] - extent[2]) / (extent[1] - extent[0])
+    fig_w = 12.0
+    fig, ax = plt.subplots(figsize=(fig_w, max(3.0, fig_w * aspect_hw * 0.82 + 1.6)), layout="constrained")
+    ax.set_facecolor("0.85")
+    ax.imshow(rgba, extent=extent, interpolation="nearest", aspect="equal")
+    ax.set_xlabel("east longitude (deg)")
+    ax.set_ylabel("planetocentric latitude (deg)")
+    ax.set_title(title)
+    sm = plt.cm.ScalarMappable(norm=colors.Normalize(vmin, vmax), cmap=CMAP)
+    cb = fig.colorbar(sm, ax=ax, shrink=0.8, pad=0.02)
+    cb.set_label("elevation above 2439.4 km datum (m)")
+    # Scale bar: equirectangular is true to scale along the parallel of the map's latitude nearest
+    # the equator; the bar is drawn in the lower left and says which latitude it holds for.
+    lat_ref = float(np.clip(0.0, extent[2], extent[3]))
+    km_per_deg = DATUM_RADIUS_M * math.radians(1.0) / 1000.0 * max(math.cos(math.radians(lat_ref)), 1e-3)
+    span_km = (extent[1] - extent[0]) * km_per_deg
+    length_km = _nice_length(span_km / 5.0)
+    y_bar = extent[2] + 0.07 * (extent[3] - extent[2])
+    x0 = extent[0] + 0.04 * (extent[1] - extent[0])
+    x1 = x0 + length_km / km_per_deg
+    ax.plot([x0, x1], [y_bar, y_bar], color="black", lw=5, solid_capstyle="butt")
+    ax.plot([x0, x1], [y_bar, y_bar], color="white", lw=2.5, solid_capstyle="butt")
+    where = "at the equator" if lat_ref == 0.0 else f"along {lat_ref:.0f}°"
+    ax.text((x0 + x1) / 2, y_bar + 0.025 * (extent[3] - extent[2]), f"{length_km:g} km {where}",
+            ha="center", va="bottom", fontsize=9, bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+    ax.text(0.99, 0.01, f"shaded relief x{exaggeration:.0f} vertical exaggeration, sun from NW 45°",
+            transform=ax.transAxes, ha="right", va="bottom", fontsize=8,
+            bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none"})
+    return _finish(fig, path)
+
+
+def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
+                       lon: NDArray[np.float64], path: str | Path, width: int, title: str) -> Path:
+    """Global colour-coded shaded relief in Robinson projection (central meridian 180) with graticule."""
+    vmin, vmax = _limits(h)
+    fwd = pyproj.Transformer.from_crs(CRS_GEOGRAPHIC, CRS_ROBINSON_180, always_xy=True)
+    inv = pyproj.Transformer.from_crs(CRS_ROBINSON_180, CRS_GEOGRAPHIC, always_xy=True)
+    xmax = abs(fwd.transform(0.0, 0.0)[0])  # lon 0 is 180 deg from the central meridian
+    ymax = abs(fwd.transform(180.0, 90.0)[1])
+    nx = int(width)
+    ny = int(round(nx * ymax / xmax))
+    xs = np.linspace(-xmax, xmax, nx)
+    ys = np.linspace(ymax, -ymax, ny)
+    xx, yy = np.meshgrid(xs, ys)
+    qlon, qlat = inv.transform(xx, yy)
+    bx, by = fwd.transform(qlon, qlat)
+    with np.errstate(invalid="ignore"):
+        inside = np.isfinite(qlon) & (np.hypot(bx - xx, by - yy) < 1e-3 * xmax) & (np.abs(qlat) <= 90)
+    qlat = np.where(inside, qlat, np.nan)
+    qlon = np.where(inside, qlon, np.nan)
+    hs = sample_bilinear(h, lat, lon, qlat, qlon)
+    sh = sample_bilinear(shade, lat, lon, qlat, qlon)
+    rgba = colour_relief(hs, sh, vmin, vmax)
+    rgba[~inside] = (1.0, 1.0, 1.0, 1.0)
+    nodata = inside & ~np.isfinite(hs)
+    rgba[nodata] = (0.75, 0.75, 0.75, 1.0)
+    fig, ax = plt.subplots(figsize=(12, 12 * ny / nx * 0.85 + 1.2), layout="constrained")
+    ax.imshow(rgba, extent=(-xmax, xmax, -ymax, ymax), interpolation="nearest")
+    for g in range(-60, 61, 30):  # parallels
+        px, py = fwd.transform(np.linspace(0, 359.9999, 361), np.full(361, float(g)))
+        ax.plot(px, py, color="k", lw=0.4, alpha=0.5)
+    # The outline: both poles' lines and the 0/360 meridian on either side.
+    edge_lat = np.linspace(-90, 90, 181)
+    for lon_e in (0.0, 359.9999):
+        px, py = fwd.transform(np.full(181, lon_e), edge_lat)
+        ax.plot(px, py, color="k", lw=0.8)
+    for lat_e in (-90.0, 90.0):
+        px, py = fwd.transform(np.linspace(0, 359.9999, 361), np.full(361, lat_e))
+        ax.plot(px, py, color="k", lw=0.8)
+    for g in range(30, 331, 30):  # meridians
+        px, py = fwd.transform(np.full(181, float(g)), np.linspace(-90, 90, 181))
+        ax.plot(px, py, color="k", lw=0.4, alpha=0.5)
+        if g % 60 == 0:
+            tx, ty = fwd.transform(float(g), 0.0)
+            ax.text(tx, ty, f"{g}°E", fontsize=7, ha="center", va="top", alpha=0.8)
+    ax.set_xlim(-1.01 * xmax, 1.01 * xmax)
+    ax.set_ylim(-1.02 * ymax, 1.02 * ymax)
+    ax.set_axis_off()
+    ax.set_title(title)
+    sm = plt.cm.ScalarMappable(norm=colors.Normalize(vmin, vmax), cmap=CMAP)
+    cb = fig.colorbar(sm, ax=ax, orientation="horizontal", shrink=0.5, pad=0.02)
+    cb.set_label("elevation above 2439.4 km datum (m); grey: no data")
+    return _finish(fig, path)
+
+
+def write_coverage_png(nearest_km: NDArray[np.floating], x_km: NDArray[np.floating], y_km: NDArray[np.floating],
+                       path: str | Path, width: int, title: str) -> Path:
+    """Distance from each map pixel to its nearest control point (reference 001, Fig. 2)."""
+    f = max(1, int(math.ceil(nearest_km.shape[1] / width)))
+    d = block_mean(nearest_km, f)
+    vmax = float(np.nanpercentile(d, 99)) if np.isfinite(d).any() else 1.0
+    fig, ax = plt.subplots(figsize=(12, 12 * d.shape[0] / d.shape[1] * 0.85 + 1.2), layout="constrained")
+    cmap = plt.get_cmap("viridis").with_extremes(bad=(1, 1, 1, 1))
+    im = ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=0.0, vmax=max(vmax, 1e-6), interpolation="nearest",
+                   extent=(x_km[0], x_km[-1], y_km[-1], y_km[0]))
+    ax.set_xlabel("sinusoidal x (km)")
+    ax.set_ylabel("y (km)")
+    ax.set_title(title)
+    cb = fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.5, pad=0.02)
+    cb.set_label("distance to nearest control point (km)")
+    return _finish(fig, path)

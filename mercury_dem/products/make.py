@@ -1,0 +1,197 @@
+"""Make every product of a gridded DEM (``mercury-dem products``, last step of ``run``).
+
+Reads ``dem.zarr`` (and ``coverage.zarr`` beside it when present) and writes into
+``out_dir``::
+
+    dem.tif                      global DEM, COG, IAU_2015:19900 (degrees), float32
+    pds/equirectangular.tif      |lat| < 65, IAU_2015:19915 (metres), float32
+    pds/north_polar.tif          lat >= 65, IAU_2015:19930, reprojected, float32
+    pds/south_polar.tif          lat <= -65, IAU_2015:19935, reprojected, float32
+    browse/greyscale.png, browse/hillshade.png, browse/colour_hillshade.png,
+    browse/robinson.png, browse/coverage_distance.png (with coverage.zarr)
+    statistics.json              reference 000 Table 1 (+ the printed table)
+    coverage.json                reference 001 point-cloud coverage (with coverage.zarr)
+    accuracy.json                DEM minus truth (when a truth height is given)
+    profile_<n>.png/.csv         elevation profiles (when asked)
+
+Existing files are never replaced without ``overwrite``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from mercury_dem.dem.accuracy import dem_accuracy
+from mercury_dem.exceptions import GridError, StoreError
+from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
+from mercury_dem.products import browse
+from mercury_dem.products.geotiff import write_dem_geotiff, write_pds_equirectangular, write_raster
+from mercury_dem.products.polar import reproject_polar
+from mercury_dem.products.profile import elevation_profile, write_profile
+from mercury_dem.products.stats import dem_statistics, format_statistics_table
+
+#: Files always written (relative to the products directory).
+PRODUCT_FILES = (
+    "dem.tif", "pds/equirectangular.tif", "pds/north_polar.tif", "pds/south_polar.tif",
+    "browse/greyscale.png", "browse/hillshade.png", "browse/colour_hillshade.png", "browse/robinson.png",
+    "statistics.json", "statistics.txt",
+)
+
+
+def open_dem(path: str | Path) -> xr.Dataset:
+    """Open a ``dem.zarr`` store lazily with its CRS (``decode_coords='all'``).
+
+    Raises StoreError when the store is missing or was not written to completion.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise StoreError(f"no DEM store at {path}; run 'mercury-dem grid' (or the pipeline's DEM stage) first")
+    ds = xr.open_zarr(str(path), consolidated=False, decode_coords="all")
+    if not ds.attrs.get("complete"):
+        raise StoreError(f"the DEM store {path} is incomplete (interrupted run?); grid it again with --overwrite")
+    return ds
+
+
+def _dem_config(config: Any) -> Any:
+    return getattr(config, "dem", config)
+
+
+def make_products(
+    dem_path: str | Path,
+    out_dir: str | Path,
+    config: Any,
+    truth_height: Callable[[Any, Any], Any] | None = None,
+    *,
+    profiles: Sequence[tuple[float, float, float, float]] = (),
+    overwrite: bool = False,
+) -> dict[str, Any]:
+    """Write every product of the DEM at ``dem_path`` into ``out_dir``; return a summary.
+
+    Parameters
+    ----------
+    dem_path : ``dem.zarr`` written by :func:`mercury_dem.pipeline.dem_stage.grid_dem`
+    out_dir : products directory (e.g. ``RUN/products``)
+    config : Config or DemConfig
+    truth_height : optional callable (lat, lon) -> m above the 2439.4 km datum; adds accuracy.json
+    profiles : (lat1, lon1, lat2, lon2) tuples, degrees
+    overwrite : replace existing product files
+
+    Returns
+    -------
+    dict: ``files`` (paths written), ``statistics`` (dict), ``table`` (printable str),
+    ``coverage`` (dict or None), ``accuracy`` (dict or None), ``pds`` (descriptions),
+    ``profiles``, ``seconds``.
+
+    Raises
+    ------
+    StoreError : no/incomplete store, or a product exists and ``overwrite`` is False
+    GridError : the full map would not fit ``dem.memory_limit_gb``
+    """
+    t0 = time.perf_counter()
+    cfg = _dem_config(config)
+    dem_path, out = Path(dem_path), Path(out_dir)
+    ds = open_dem(dem_path)
+    planned = list(PRODUCT_FILES) + [f"profile_{i + 1}.png" for i in range(len(profiles))]
+    if truth_height is not None:
+        planned.append("accuracy.json")
+    if not overwrite:
+        for rel in planned:
+            if (out / rel).exists():
+                raise StoreError(f"product {out / rel} already exists; pass --overwrite (overwrite=True) to replace it")
+    H, W = ds.sizes["lat"], ds.sizes["lon"]
+    need = H * W * 4 * 5
+    if need > cfg.memory_limit_gb * 1e9:
+        raise GridError(f"making products of a {H} x {W} DEM needs about {need / 1e9:.1f} GB, over "
+                        f"dem.memory_limit_gb = {cfg.memory_limit_gb}; raise the limit or grid coarser")
+    (out / "pds").mkdir(parents=True, exist_ok=True)
+    (out / "browse").mkdir(parents=True, exist_ok=True)
+    lat = ds.lat.values.astype(np.float64)
+    lon = ds.lon.values.astype(np.float64)
+    elev = ds.elevation.values  # float32 (H, W): the only full-map array held
+    files: list[str] = []
+    summary: dict[str, Any] = {"dem": str(dem_path), "shape": [H, W]}
+
+    # GeoTIFFs.
+    files.append(str(write_dem_geotiff(elev, lat, lon, out / "dem.tif", cog=cfg.cog)))
+    pds: dict[str, Any] = {}
+    if (np.abs(lat) < cfg.polar_cut_lat).any():
+        pds["equirectangular"] = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif",
+                                                           cfg.polar_cut_lat, cog=cfg.cog)
+        files.append(pds["equirectangular"]["path"])
+    for name, north in (("north_polar", True), ("south_polar", False)):
+        covers = lat.max() >= cfg.polar_cut_lat if north else lat.min() <= -cfg.polar_cut_lat
+        if not covers:
+            pds[name] = None
+            continue
+        cap = reproject_polar(elev, lat, lon, north, cfg.polar_cut_lat)
+        p = write_raster(cap["values"], cap["x"], cap["y"], cap["crs"], out / f"pds/{name}.tif", cog=cfg.cog,
+                         tags={"UNITS": "m", "DATUM_RADIUS_M": "2439400.0", "LATITUDE_LIMIT_DEG": str(cfg.polar_cut_lat)})
+        pds[name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
+                     "valid_fraction_in_cap": cap["valid_fraction"]}
+        files.append(str(p))
+    summary["pds"] = pds
+
+    # Statistics (reference Table 1).
+    stats = dem_statistics(elev, lat, lon, pixel_km=cfg.stats_pixel_km, polar_cut=cfg.polar_cut_lat,
+                           south_limit=cfg.south_polar_stats_limit)
+    table = format_statistics_table(stats)
+    files.append(str(atomic_write_json(out / "statistics.json", stats)))
+    files.append(str(atomic_write_text(out / "statistics.txt", table + "\n")))
+    summary["statistics"] = stats
+    summary["table"] = table
+
+    # Browse images.
+    h, blat, blon = browse.browse_grid(elev, lat, lon, cfg.browse_width)
+    ex = browse.auto_exaggeration(h, blat, blon)
+    shade = browse.hillshade(h, blat, blon, exaggeration=ex)
+    files.append(str(browse.write_greyscale_png(h, out / "browse/greyscale.png")))
+    files.append(str(browse.write_hillshade_png(shade, out / "browse/hillshade.png")))
+    ppd = float(ds.attrs.get("pixels_per_degree", 1.0 / abs(lat[1] - lat[0]) if H > 1 else 1.0))
+    files.append(str(browse.write_colour_png(
+        h, shade, blat, blon, out / "browse/colour_hillshade.png",
+        f"Mercury DEM ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief",
+        ex)))
+    files.append(str(browse.write_robinson_png(
+        h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600),
+        "Mercury DEM, Robinson projection (0-360°E, centred on 180°E)")))
+    summary["browse_exaggeration"] = ex
+
+    # Coverage (reference 001), when the DEM stage stored it.
+    summary["coverage"] = None
+    cov_path = dem_path.parent / "coverage.zarr"
+    if cov_path.exists():
+        cov = xr.open_zarr(str(cov_path), consolidated=False)
+        cov_summary = json.loads(ds.attrs["coverage"]) if ds.attrs.get("coverage") else None
+        if cov_summary:
+            files.append(str(atomic_write_json(out / "coverage.json", cov_summary)))
+            summary["coverage"] = cov_summary
+        files.append(str(browse.write_coverage_png(
+            cov.nearest_point_distance.values, cov.x.values, cov.y.values, out / "browse/coverage_distance.png",
+            cfg.browse_width, f"Distance to the nearest control point ({float(cov.attrs['pixel_km']):g} km/pixel "
+            "sinusoidal equal-area grid)")))
+
+    # Accuracy against truth.
+    summary["accuracy"] = None
+    if truth_height is not None:
+        acc = dem_accuracy(elev, lat, lon, truth_height, ds.distance_to_nearest_point.values)
+        files.append(str(atomic_write_json(out / "accuracy.json", acc)))
+        summary["accuracy"] = acc
+
+    # Profiles.
+    summary["profiles"] = []
+    for i, ends in enumerate(profiles):
+        prof = elevation_profile(elev, lat, lon, ends, cfg.profile_samples)
+        info = write_profile(prof, out / f"profile_{i + 1}.png", out / f"profile_{i + 1}.csv", truth_height)
+        files += [info["png"], info["csv"]]
+        summary["profiles"].append(info)
+
+    summary["files"] = files
+    summary["seconds"] = time.perf_counter() - t0
+    return summary
