@@ -20,13 +20,14 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.sparse import coo_matrix
 
 from mercury_dem.exceptions import NetworkError
 from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import intersect_sphere, pixel_rays
 from mercury_dem.network.model import ControlNetwork, MeasureType, PointType, as_string_array
-from mercury_dem.network.tracks import form_tracks, near_pairs
+from mercury_dem.network.tracks import components, form_tracks, near_pairs
 
 _MATCH_FIELDS = ("image_a", "image_b", "sample_a", "line_a", "sample_b", "line_b")
 
@@ -94,6 +95,7 @@ class BuildStats:
     n_matches: int
     n_matches_invalid: int
     n_observations: int
+    n_links_pruned: int
     n_conflicts: int
     n_conflict_observations: int
     n_short_tracks: int
@@ -204,6 +206,60 @@ def triangulate_points(
     return xyz, method
 
 
+def _prune_unsupported_links(
+    n_nodes: int,
+    identity: NDArray[np.int64],
+    links: NDArray[np.int64],
+    image: NDArray[np.int64],
+    sample: NDArray[np.float64],
+    line: NDArray[np.float64],
+    tolerance_px: float,
+) -> tuple[NDArray[np.int64], int]:
+    """Remove matches that hold a conflicting track together without support.
+
+    Observations joined by identity edges (same keypoint, same pixel) are one
+    feature. A match between features u and v is *supported* when some third
+    feature is matched to both (a triangle). A wrong match that fuses two
+    ground features typically has no triangle, while the true matches of a
+    point seen in three or more images all do. Only tracks with a conflict
+    (two features of one image further apart than the tolerance) are touched,
+    and only their unsupported matches are removed; what remains of a conflict
+    is dropped later by :func:`form_tracks`. Order-independent and vectorized.
+
+    Returns the kept links and how many were removed.
+    """
+    n_obs = image.size
+    if links.size == 0:
+        return links, 0
+    feat = components(n_nodes, identity)[:n_obs]
+    _, feat = np.unique(feat, return_inverse=True)
+    feat = feat.ravel()
+    nf = int(feat.max()) + 1
+    fu, fv = feat[links[:, 0]], feat[links[:, 1]]
+    adj = coo_matrix((np.ones(fu.size * 2), (np.r_[fu, fv], np.r_[fv, fu])), shape=(nf, nf)).tocsr()
+    adj.data[:] = 1.0  # binary, duplicates collapsed
+    track_of_feat = components(nf, np.column_stack([fu, fv]))
+    track = track_of_feat[feat]
+    # conflicting tracks: observations of one image spread beyond the tolerance
+    order = np.lexsort((image, track))
+    new = np.r_[True, (np.diff(track[order]) != 0) | (np.diff(image[order]) != 0)]
+    starts = np.flatnonzero(new)
+    spread = np.hypot(
+        np.maximum.reduceat(sample[order], starts) - np.minimum.reduceat(sample[order], starts),
+        np.maximum.reduceat(line[order], starts) - np.minimum.reduceat(line[order], starts),
+    )
+    bad_tracks = np.unique(track[order[starts[~(spread <= tolerance_px)]]])
+    if bad_tracks.size == 0:
+        return links, 0
+    in_bad = np.isin(track_of_feat[fu], bad_tracks) & (fu != fv)
+    sel = np.flatnonzero(in_bad)
+    support = np.asarray(adj[fu[sel]].multiply(adj[fv[sel]]).sum(axis=1)).ravel()
+    drop = sel[support == 0]
+    keep = np.ones(links.shape[0], bool)
+    keep[drop] = False
+    return links[keep], int(drop.size)
+
+
 def build_network(
     image_ids: Sequence[str] | NDArray[np.str_],
     matches: PairMatches | Any,
@@ -284,7 +340,9 @@ def build_network(
         if pairs.size:
             pairs = pairs[(feature[pairs[:, 0]] < 0) | (feature[pairs[:, 1]] < 0)]
             edges.append(pairs)
-    tracks = form_tracks(n_nodes, np.concatenate(edges), image, sample, line, obs, tolerance_px, min_measures)
+    identity = np.concatenate(edges[1:]) if len(edges) > 1 else np.zeros((0, 2), np.int64)
+    links, n_pruned = _prune_unsupported_links(n_nodes, identity, edges[0], image, sample, line, tolerance_px)
+    tracks = form_tracks(n_nodes, np.concatenate([links, identity]), image, sample, line, obs, tolerance_px, min_measures)
     n = tracks.n_tracks
     mp = tracks.group_track
     xyz, method = triangulate_points(
@@ -312,6 +370,7 @@ def build_network(
         n_matches=p,
         n_matches_invalid=int(p - q),
         n_observations=n_obs,
+        n_links_pruned=n_pruned,
         n_conflicts=tracks.n_conflicts,
         n_conflict_observations=tracks.n_conflict_observations,
         n_short_tracks=tracks.n_short_tracks,

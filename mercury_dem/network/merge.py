@@ -116,6 +116,15 @@ def merge_networks(
         raise NetworkError("merge_networks needs at least one network")
     if point_ids not in ("auto", "keep", "renumber"):
         raise NetworkError(f"merge_networks: point_ids must be 'auto', 'keep' or 'renumber', got {point_ids!r}")
+    for i, net in enumerate(nets):
+        if net.n_measures and (
+            net.measure_point.min() < 0 or net.measure_point.max() >= net.n_points
+            or net.measure_image.min() < 0 or net.measure_image.max() >= net.n_images
+        ):
+            raise NetworkError(
+                f"merge_networks: network {i} ({net!r}) has dangling point or image indices; "
+                f"run validate() on it and fix its source"
+            )
     all_ids = np.concatenate([n.image_ids for n in nets])
     uniq, first_idx, inv = np.unique(all_ids, return_index=True, return_inverse=True)
     order = np.argsort(first_idx, kind="stable")

@@ -81,7 +81,7 @@ class Tracks:
     n_short_tracks: int
 
 
-def _components(n_nodes: int, edges: NDArray[np.int64]) -> NDArray[np.int64]:
+def components(n_nodes: int, edges: NDArray[np.int64]) -> NDArray[np.int64]:
     if edges.size == 0:
         return np.arange(n_nodes, dtype=np.int64)
     g = coo_matrix((np.ones(edges.shape[0], np.int8), (edges[:, 0], edges[:, 1])), shape=(n_nodes, n_nodes)).tocsr()
@@ -128,7 +128,7 @@ def form_tracks(
     """
     n_obs = image.size
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
-    label = _components(n_nodes, edges)
+    label = components(n_nodes, edges)
     obs = np.arange(n_obs, dtype=np.int64)
     order, starts = _groups(label, image, rank, obs)
     n_conflicts = n_conflict_obs = 0
@@ -144,7 +144,7 @@ def form_tracks(
             dropped[order[np.repeat(bad, sizes)]] = True
             n_conflict_obs = int(dropped.sum())
             keep_edge = ~(dropped[edges[:, 0]] | dropped[edges[:, 1]])
-            label = _components(n_nodes, edges[keep_edge])
+            label = components(n_nodes, edges[keep_edge])
             obs = np.flatnonzero(~dropped[:n_obs])
             order, starts = _groups(label, image, rank, obs)
     if order.size == 0:
