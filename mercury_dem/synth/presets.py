@@ -1,0 +1,105 @@
+"""The three synthetic mission designs: ``tiny`` (tests), ``demo`` (make demo), ``large`` (clusters).
+
+A :class:`MissionDesign` says where images go and how they look; the seed, the
+pointing and position errors come from :class:`mercury_dem.config.synth.SynthConfig`.
+
+Choices and reasons (also in docs/design/synth.md):
+
+* ``tiny``: 256^2 images over lat -10..20, lon -15..15 (the area straddles the
+  equator — the hemisphere and region boundary —, the 0/360 seam — a region
+  boundary —, and 10-degree tile boundaries), four passes of 3 x 3 images plus
+  two isolated ones (one near the north pole). 256 pixels at 1.1-3.2 km/pixel
+  keeps it at ~40 images and well under 30 s to generate.
+* ``demo``: global, 512^2 at 1.4-4.0 km/pixel (median ~2.3 km), three passes
+  laid on Fibonacci spirals so each point is seen ~3x; ~300 images, so
+  generation stays within a few minutes on 2 cores and the whole pipeline
+  within make demo's budget. Coarser than the reference's 75-800 m/pixel on
+  purpose (the reference needed 100,000 images).
+* ``large``: the same design at 1024^2 and 150-600 m/pixel: ~1.2 x 10^4 images,
+  generated in parallel on Dask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mercury_dem.exceptions import ConfigError
+from mercury_dem.synth.render import RenderSettings
+from mercury_dem.synth.terrain import SurfaceParams
+
+
+@dataclass(frozen=True)
+class MissionDesign:
+    """Where the images go and what they look like.
+
+    area_deg : (lat_min, lat_max, lon_min, lon_max), longitudes may run through 0
+        (``lon_min < 0``); None means the whole body
+    samples : image size (square), pixels
+    pixel_scale_m : (min, max) ground pixel scale at the image centre, drawn log-uniformly
+    passes : number of coverage passes (each covers the area about once)
+    spacing_factor : centre spacing / median footprint width within a pass
+    nac_fraction : share of NAC images where the NAC can reach the pixel scale
+    nac_max_slant_m : farthest NAC range (MESSENGER's apoapsis is ~15,000 km)
+    incidence_deg, emission_deg : (min, max) at the image centre
+    isolated : extra images (lat, lon) placed apart from everything
+    truth_dem_ppd : pixels per degree of the stored truth DEM
+    """
+
+    name: str
+    area_deg: tuple[float, float, float, float] | None
+    samples: int
+    pixel_scale_m: tuple[float, float]
+    passes: int
+    spacing_factor: float = 0.85
+    nac_fraction: float = 0.5
+    nac_max_slant_m: float = 15_000e3
+    incidence_deg: tuple[float, float] = (20.0, 85.0)
+    emission_deg: tuple[float, float] = (0.0, 45.0)
+    isolated: tuple[tuple[float, float], ...] = ()
+    truth_dem_ppd: float = 4.0
+    surface: SurfaceParams = field(default_factory=SurfaceParams)
+    render: RenderSettings = field(default_factory=RenderSettings)
+
+
+PRESETS: dict[str, MissionDesign] = {
+    "tiny": MissionDesign(
+        name="tiny",
+        area_deg=(-10.0, 20.0, -15.0, 15.0),
+        samples=256,
+        pixel_scale_m=(1100.0, 3200.0),
+        passes=4,
+        spacing_factor=0.9,
+        nac_fraction=0.8,
+        isolated=((84.0, 200.0), (45.0, 120.0)),
+        truth_dem_ppd=8.0,
+        surface=SurfaceParams(crater_d_min_m=3000.0, rough_shortest_m=500.0),
+    ),
+    "demo": MissionDesign(
+        name="demo",
+        area_deg=None,
+        samples=512,
+        pixel_scale_m=(1400.0, 4000.0),
+        passes=3,
+        spacing_factor=0.8,
+        truth_dem_ppd=4.0,
+        surface=SurfaceParams(crater_d_min_m=4000.0, rough_shortest_m=700.0),
+    ),
+    "large": MissionDesign(
+        name="large",
+        area_deg=None,
+        samples=1024,
+        pixel_scale_m=(150.0, 600.0),
+        passes=3,
+        spacing_factor=0.8,
+        truth_dem_ppd=16.0,
+        surface=SurfaceParams(crater_d_min_m=1200.0, rough_shortest_m=75.0),
+    ),
+}
+
+
+def get_preset(name: str) -> MissionDesign:
+    """The design of a preset, or a ConfigError naming the allowed ones."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ConfigError(f"unknown synthetic mission preset {name!r}; allowed: {', '.join(PRESETS)}") from None
