@@ -38,13 +38,16 @@ def loss_rho(s: NDArray[np.float64], loss: str, scale: float) -> tuple[NDArray[n
     raise ValueError(f"unknown robust loss {loss!r}; choose one of {LOSSES}")
 
 
-def rejection_limit(norms: NDArray[np.float64], accepted: NDArray[np.bool_], k: float, floor: float) -> float:
-    """Residual-norm limit ``median + k * 1.4826 * MAD`` over accepted measures (at least ``floor``).
+def rejection_limit(norms: NDArray[np.float64], sample: NDArray[np.bool_], k: float, floor: float) -> float:
+    """Residual-norm limit ``median + k * 1.4826 * MAD`` over the ``sample`` measures (at least ``floor``).
 
-    As jigsaw does, the statistics are those of the measures currently accepted;
-    the limit then applies to all measures, so rejected ones can come back.
+    The adjustment passes all measures as the sample (median and MAD shrug off
+    up to half of them being outliers); using only the accepted ones, as jigsaw
+    does, truncates the distribution each round so the limit creeps down and
+    good measures erode. The limit applies to all measures, so rejected ones can
+    come back.
     """
-    x = norms[accepted]
+    x = norms[sample]
     if x.size == 0:
         return float("inf")
     med = float(np.median(x))

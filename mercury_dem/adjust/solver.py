@@ -13,8 +13,12 @@ The step control is the classical one (Nielsen; also Ceres'): damping
 gain ratio of actual to predicted decrease, ``lambda *= max(1/3, 1 - (2 rho - 1)^3)``
 on success and ``lambda *= nu, nu *= 2`` on failure. Robust losses enter by
 iterative reweighting; between iterations measures beyond ``median + k MAD`` of
-the whitened residual norms are rejected (weight zero) and those that come back
-within the limit are re-admitted.
+the whitened residual norms (standardized by the measures' redundancy with
+respect to their points, see ``_redundancy``) are rejected (weight zero) and those that come back within the limit
+are re-admitted. Rejection starts only once the robust solve has settled (a step
+lowering the cost by less than ``reject_after``): at the a-priori state the
+residuals mostly show pointing errors, and a point whose measures are rejected
+then is left with too few measures to ever move back.
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ from mercury_dem.adjust.robust import loss_rho, rejection_limit
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 
 Prior = tuple[NDArray[np.float64], NDArray[np.float64]]
+
+#: A rejected measure is re-admitted only below this fraction of the rejection limit.
+READMIT_FRACTION = 0.8
 
 
 class BlockModel(Protocol):
@@ -70,7 +77,9 @@ class SolverOptions:
     loss_scale: float = 1.0  # whitened units (measure sigmas)
     reject_k: float | None = None  # k of the k x MAD rejection; None: no rejection
     reject_floor: float = 1.0  # never reject below this whitened norm
-    reject_start: int = 1  # first iteration after which rejection runs
+    reject_settled_fraction: float = 1e-4  # fewer rejection changes than this share of measures count as settled
+    reject_max_rounds: int = 8  # rejection rounds after which the rejected set is kept
+    reject_after: float = 0.05  # rejection starts once a step lowers the cost by less than this, relative
     min_point_measures: int = 2
     solver: str = "auto"  # auto | direct | pcg
     direct_max_unknowns: int = 30_000
@@ -116,6 +125,41 @@ def _cost(model: BlockModel, state: Any, use: NDArray[np.bool_], opt: SolverOpti
     return c, r
 
 
+def _redundancy(
+    jp: NDArray[np.float64], v: NDArray[np.float64], pt: NDArray[np.int64], use: NDArray[np.bool_], fixed: NDArray[np.bool_]
+) -> NDArray[np.float64]:
+    """Redundancy of each measure with respect to its point: ``1 - h`` (``1 + h`` if not in use).
+
+    ``h = trace(Jp V^-1 Jp^T) / 2`` is the measure's leverage on its point,
+    ``V`` the point's normal block from the measures in use (and its prior).
+    A measure in a much finer image than the point's other measures (NAC next
+    to WAC, 200 km next to 1500 km) has ``h`` near 1: its point follows it, so
+    its residual hides its error, which the division by ``sqrt(1 - h)`` brings
+    back (Baarda's standardized residuals, with the points' share only).
+    """
+    q = np.matmul(jp, inv3(v)[pt])
+    h = 0.5 * np.sum(q * jp, axis=(1, 2))
+    h[fixed[pt]] = 0.0
+    return np.clip(np.where(use, 1.0 - h, 1.0 + h), 0.005, None)
+
+
+def _spare_all_but_worst(pt: NDArray[np.int64], norms: NDArray[np.float64], candidates: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Of newly rejected measures, keep (spare) all but the worst one of each point.
+
+    An outlier drags its point, and with it the residuals of the point's good
+    measures; rejecting only the worst measure per point and round (the
+    re-solve then frees the point from it) avoids losing those good measures.
+    """
+    idx = np.flatnonzero(candidates)
+    spare = np.zeros(len(pt), bool)
+    if idx.size:
+        order = idx[np.lexsort((-np.nan_to_num(norms[idx], nan=np.inf), pt[idx]))]
+        first = np.ones(len(order), bool)
+        first[1:] = pt[order][1:] != pt[order][:-1]
+        spare[order[~first]] = True
+    return spare
+
+
 def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = SolverOptions()) -> SolverResult:
     """Minimise the (robust) cost of ``model`` from ``state``; see the module docstring.
 
@@ -148,6 +192,9 @@ def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = Solv
     converged, reason = False, "iteration limit"
     eye_c, eye3 = np.eye(c), np.eye(3)
     n_cam_prior = n_pt_prior = 0
+    rejecting = False
+    seen_sets: set[int] = set()
+    rounds = 0
     it = 0
 
     def sigma0_of(cost_: float, use_: NDArray[np.bool_], frozen_: NDArray[np.bool_]) -> tuple[float, int]:
@@ -165,6 +212,7 @@ def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = Solv
         sw = np.sqrt(np.where(use, w, 0.0))
         r = r * sw[:, None]
         jc = jc * sw[:, None, None]
+        jp_raw = jp
         jp = jp * sw[:, None, None]
         jc[held_c[cam]] = 0.0
         jp[(held_p | frozen)[pt]] = 0.0
@@ -236,13 +284,28 @@ def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = Solv
             break
         # -- rejection / re-admission between iterations ---------------------
         changed = False
-        if opt.reject_k is not None and it >= opt.reject_start:
-            norms = np.sqrt(np.sum(r_now * r_now, axis=1))
-            limit = rejection_limit(norms, use & np.isfinite(norms), opt.reject_k, opt.reject_floor)
-            new_active = np.isfinite(norms) & (norms <= limit)
-            changed = bool(np.any(new_active != active))
+        if opt.reject_k is not None and not rejecting and rel_decrease < opt.reject_after:
+            rejecting = True  # the robust solve has settled: residuals now reflect the measures
+        if rejecting and rounds >= opt.reject_max_rounds:
+            entry["rejection_frozen"] = True  # the rejected set is kept from here on
+        elif rejecting:
+            rounds += 1
+            red = _redundancy(jp_raw, v, pt, use, held_p | frozen)
+            norms = np.sqrt(np.sum(r_now * r_now, axis=1) / red)
+            limit = rejection_limit(norms, np.isfinite(norms), opt.reject_k, opt.reject_floor)
+            # Hysteresis: a rejected measure comes back only well inside the limit.
+            new_active = np.isfinite(norms) & (norms <= np.where(active, limit, READMIT_FRACTION * limit))
+            new_active |= _spare_all_but_worst(pt, norms, active & ~new_active)
+            n_changed = int(np.sum(new_active != active))
+            changed = n_changed > opt.reject_settled_fraction * m
+            entry["rejection_changes"] = n_changed
+            key = hash(np.packbits(new_active).tobytes())
+            if changed and key in seen_sets:
+                changed = False  # the rejected set cycles: keep the current one
+                entry["rejection_cycle"] = True
+            seen_sets.add(key)
             entry["rejection_limit"] = limit
-            if changed:
+            if n_changed and not entry.get("rejection_cycle"):
                 active = new_active
                 use, frozen = usable(active)
                 cost, r_now = _cost(model, state, use, opt)

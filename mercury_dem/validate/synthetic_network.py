@@ -87,6 +87,7 @@ def make_synthetic_network(
     wac_altitude_km: tuple[float, float] = (200.0, 500.0),
     samples: int = 512,
     measures_per_image: int = 100,
+    min_views: int = 2,
     max_views: int = 5,
     coverage: float = 5.0,
     max_emission_deg: float = 25.0,
@@ -96,6 +97,8 @@ def make_synthetic_network(
 ) -> SyntheticNetwork:
     """A synthetic network of about ``n_measures`` measures (the count is approximate).
 
+    Each point is measured in ``min_views`` to ``max_views`` images (fewer when
+    fewer see it; points seen by fewer than ``min_views`` are dropped).
     ``measure_sigma_px`` is the sigma written into the problem (what an operator
     would assume), independent of the injected ``noise_px``.
     """
@@ -122,14 +125,14 @@ def make_synthetic_network(
     rot_true = look_at_rotation(positions, target)
     image_camera = is_wac.astype(np.int64)
     # Points on the true surface, uniform in the cap.
-    mean_views = (2 + max_views) / 2.0
+    mean_views = (min_views + max_views) / 2.0
     n_pt = max(4, int(n_measures / mean_views * 1.15))
     pt_u = _cap_samples(n_pt, cos_alpha, rng)
     points = pt_u * (DATUM_RADIUS_M + _relief(pt_u, relief_m, seed))[:, None]
     # Candidate images: the nearest image targets; visibility by projection.
     tree = cKDTree(target_u)
     k_cand = min(32, n_img)
-    wanted = rng.integers(2, max_views + 1, n_pt)
+    wanted = rng.integers(min_views, max_views + 1, n_pt)
     m_img, m_pt, m_px = [], [], []
     for s in range(0, n_pt, chunk_points):
         e = min(s + chunk_points, n_pt)
@@ -152,7 +155,7 @@ def make_synthetic_network(
         rank = np.empty_like(order)
         np.put_along_axis(rank, order, np.arange(k_cand)[None, :].repeat(e - s, 0), axis=1)
         take = vis & (rank < wanted[s:e, None])
-        take &= (take.sum(axis=1) >= 2)[:, None]
+        take &= (take.sum(axis=1) >= min_views)[:, None]
         r_idx, c_idx = np.nonzero(take)
         m_img.append(cand[r_idx, c_idx])
         m_pt.append(r_idx + s)
