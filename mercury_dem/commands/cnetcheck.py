@@ -9,13 +9,24 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
+
 from mercury_dem.config import Config
-from mercury_dem.io.atomic import _json_default
 from mercury_dem.network.files import read_any_network
 from mercury_dem.network.validate import validate
 
 NAME = "cnetcheck"
 HELP = "check a control network (.net or network store): dangling ids, duplicates, islands, statistics"
+
+
+def _json_default(o: object) -> object:
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.floating):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

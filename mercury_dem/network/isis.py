@@ -141,7 +141,7 @@ def read_isis_network(
             else:
                 chunks.append(np.array([value], np.int64))
         sizes = np.concatenate(chunks) if chunks else np.zeros(0, np.int64)
-        starts = ps + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        starts = ps + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)[: sizes.size]
         ends = starts + sizes
         if sizes.size and ends[-1] > end:
             bad = int(np.argmax(ends > end))

@@ -429,8 +429,9 @@ class ControlNetwork:
                 if check_metadata and dict(a) != dict(b):
                     out.append(f.name)
                 continue
-            if a is None or b is None:
-                if (a is None) != (b is None):
+            if a is None or b is None:  # an absent optional column equals an all-NaN one
+                present = b if a is None else a
+                if present is not None and not np.all(np.isnan(present)):
                     out.append(f.name)
                 continue
             if a.shape != b.shape:
