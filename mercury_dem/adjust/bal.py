@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.adjust.kernels import bal_project
+from mercury_dem.adjust.solver import SolverOptions, SolverResult, levenberg_marquardt
 from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles
 
 
@@ -152,3 +153,14 @@ def bal_cost(problem: BalProblem, state: BalState | None = None) -> float:
     model = BalModel(problem)
     r = model.residuals(model.initial_state() if state is None else state)
     return 0.5 * float(np.sum(r * r))
+
+
+def adjust_bal(problem: BalProblem, options: SolverOptions | None = None) -> tuple[BalState, SolverResult]:
+    """Adjust a BAL problem (plain least squares unless ``options`` say otherwise).
+
+    Returns the final state and the solver's result (costs 0.5 sum r^2, log with
+    the cost and elapsed seconds per iteration).
+    """
+    model = BalModel(problem)
+    res = levenberg_marquardt(model, model.initial_state(), options or SolverOptions(max_iterations=50))
+    return res.state, res

@@ -12,6 +12,7 @@ first pixel at (0, 0); sigmas in pixels.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,7 +43,7 @@ class AdjustmentProblem:
     measures : (M, 2) measured (sample, line), 0-based pixels
     measure_sigma : (M,) measure sigma, pixels (> 0)
     image_ids : (n_img,) image ids, for reports and error messages
-    point_ids : (n_pt,) int point ids (default 0..n_pt-1)
+    point_ids : (n_pt,) point ids, int or str (default 0..n_pt-1)
     held_images : (n_img,) bool, images whose pointing (and position) are fixed
     held_points : (n_pt,) bool, points fixed (ground control)
     """
@@ -57,7 +58,7 @@ class AdjustmentProblem:
     measures: NDArray[np.float64]
     measure_sigma: NDArray[np.float64]
     image_ids: tuple[str, ...] = ()
-    point_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    point_ids: NDArray[Any] = field(default_factory=lambda: np.zeros(0, np.int64))
     held_images: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     held_points: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
 

@@ -45,7 +45,7 @@ class AdjustmentResult:
     """
 
     image_ids: tuple[str, ...]
-    point_ids: NDArray[np.int64]
+    point_ids: NDArray[Any]
     rotations: NDArray[np.float64]
     positions: NDArray[np.float64]
     pointing_corrections: NDArray[np.float64]
