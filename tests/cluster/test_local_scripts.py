@@ -1,0 +1,113 @@
+"""cluster/local/: start.sh starts a real scheduler and workers on 127.0.0.1, stop.sh stops every process."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from distributed import Client
+
+from tests.cluster.conftest import LOCAL, LocalDeployment, alive, listening_addresses, script_env, start_local
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_start_compute_stop(local_deployment: LocalDeployment) -> None:
+    dep = local_deployment
+    assert set(dep.leaders) == {"scheduler", "worker-1", "worker-2"}
+    # Leaders plus at least one child per worker (the nanny's worker process).
+    assert len(dep.processes) >= 5
+    with Client(scheduler_file=str(dep.scheduler_file), timeout=20) as client:
+        info = client.scheduler_info(n_workers=-1)
+        assert info["address"].startswith("tcp://127.0.0.1:")
+        workers = info["workers"]
+        assert len(workers) == 2
+        for addr, w in workers.items():
+            assert addr.startswith("tcp://127.0.0.1:"), addr
+            assert w["resources"] == {"adjust_slots": 1}
+            assert w["nthreads"] == 1
+        assert client.dashboard_link.startswith("http://127.0.0.1:")
+        # A small computation, with and without the adjustment resource.
+        futures = client.map(_square, range(20))
+        assert sum(client.gather(futures)) == sum(i * i for i in range(20))
+        constrained = [client.submit(_square, i, resources={"adjust_slots": 1}, pure=False) for i in range(4)]
+        assert client.gather(constrained) == [0, 1, 4, 9]
+    # The scheduler file names the loopback address and a dashboard.
+    sched = json.loads(dep.scheduler_file.read_text())
+    assert sched["address"].startswith("tcp://127.0.0.1:") and "dashboard" in sched["services"]
+    # A second start on the same state directory is refused, and leaves the running one alone.
+    again = subprocess.run([str(LOCAL / "start.sh"), "--state-dir", str(dep.state), "--port", "0"],
+                           capture_output=True, text=True, timeout=60, env=script_env())
+    assert again.returncode != 0 and "already has a running process" in again.stderr
+    assert len(alive(dep.processes)) == len(dep.processes)
+    # Nothing the scripts started listens beyond the loopback interface.
+    socks = listening_addresses(dep.processes)
+    assert socks, "no listening sockets found"
+    assert {ip for _, ip, _ in socks} == {"127.0.0.1"}, socks
+
+    res = dep.stop()
+    assert res.returncode == 0, res.stderr
+    deadline = time.monotonic() + 10
+    while alive(dep.processes) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert alive(dep.processes) == [], [p.pid for p in alive(dep.processes)]
+    assert list((dep.state / "pids").glob("*.pid")) == []
+    assert not dep.scheduler_file.exists()
+
+
+def test_stop_skips_a_stale_pid_that_is_not_dask(tmp_path: Path) -> None:
+    """A PID file pointing at an unrelated live process (here: this test) must not be signalled."""
+    import os
+
+    pids = tmp_path / "pids"
+    pids.mkdir()
+    (pids / "worker-1.pid").write_text(str(os.getpid()))
+    res = subprocess.run([str(LOCAL / "stop.sh"), "--state-dir", str(tmp_path)], capture_output=True, text=True,
+                         timeout=60, env=script_env())
+    assert res.returncode == 0, res.stderr
+    assert not (pids / "worker-1.pid").exists()
+
+
+def test_tls_deployment_refuses_plain_tcp_and_foreign_certificates(tmp_path: Path) -> None:
+    from distributed.security import Security
+
+    from mercury_dem.pipeline.security import TlsFiles, tls_environment, tls_security
+    from tests.cluster.conftest import make_certs
+
+    dep = start_local(tmp_path / "dask", workers=1, tls=True)
+    try:
+        address = dep.address
+        assert address.startswith("tls://127.0.0.1:")
+        # 1. plain TCP to the TLS port: the scheduler drops the connection.
+        with pytest.raises(OSError):
+            Client(address.replace("tls://", "tcp://"), timeout=5)
+        # 2. TLS with a certificate from another CA: refused during the handshake.
+        other = TlsFiles.in_directory(make_certs(tmp_path / "other-ca"))
+        with pytest.raises(OSError):
+            Client(address, security=tls_security(other), timeout=5)
+        # 3. The deployment's own certificates: accepted, and the work runs on the TLS worker.
+        own = TlsFiles.in_directory(dep.state / "tls")
+        with Client(address, security=tls_security(own), timeout=20) as client:
+            assert client.submit(_square, 7).result() == 49
+            (w,) = client.scheduler_info(n_workers=-1)["workers"]
+            assert w.startswith("tls://127.0.0.1:")
+        # env.sh names the same files that tls_environment() would export.
+        env_sh = (dep.state / "env.sh").read_text()
+        for key, value in tls_environment(own).items():
+            if "SCHEDULER" in key or "WORKER" in key:
+                continue
+            assert f'{key}="{value}"' in env_sh or f"{key}={value}" in env_sh, key
+        assert isinstance(tls_security(own), Security)
+        assert {ip for _, ip, _ in listening_addresses(dep.processes)} == {"127.0.0.1"}
+    finally:
+        res = dep.stop()
+    assert res.returncode == 0, res.stderr
+    deadline = time.monotonic() + 10
+    while alive(dep.processes) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert alive(dep.processes) == []
