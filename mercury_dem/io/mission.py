@@ -87,7 +87,8 @@ def write_tables(
     missing = [c for c in CATALOG_COLUMNS if c not in catalog.columns]
     if missing:
         raise StoreError(f"catalog lacks columns {missing}; the mission would not be readable")
-    catalog.to_parquet(root / "catalog.parquet", index=False)
+    extra = [c for c in catalog.columns if c not in CATALOG_COLUMNS]
+    catalog[CATALOG_COLUMNS + extra].to_parquet(root / "catalog.parquet", index=False)
     if truth_poses is not None:
         (root / "truth").mkdir(exist_ok=True)
         truth_poses.to_parquet(root / "truth" / "poses.parquet", index=False)

@@ -59,7 +59,7 @@ class SurfaceParams:
     rough_hurst: float = 0.6
     rough_shortest_m: float = 30.0
     albedo_mean: float = 0.14
-    albedo_variation: float = 0.22
+    albedo_variation: float = 0.45
     index_cell_deg: float = 1.0
 
     def __post_init__(self) -> None:

@@ -1,0 +1,52 @@
+"""``mercury-dem info MISSION [--json]``: summarise a mission and write its coverage map."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from mercury_dem.config import Config
+
+NAME = "info"
+HELP = "summarise a mission (images by instrument, scales, angles, images per tile, coverage) and map its coverage"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mission", metavar="MISSION", help="mission directory (from 'mercury-dem synth')")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--coverage-map", metavar="PNG",
+                   help="where to write the coverage map (default: MISSION_coverage.png beside the mission)")
+    p.add_argument("--step-deg", type=float, help="grid step of the coverage count (default from the mission size)")
+
+
+def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.io.mission import open_mission
+    from mercury_dem.synth.info import coverage_map, mission_summary
+
+    mission = open_mission(args.mission)
+    summary, cov = mission_summary(mission, args.step_deg)
+    png = Path(args.coverage_map) if args.coverage_map else mission.path.parent / f"{mission.path.name}_coverage.png"
+    coverage_map(cov, png, title=f"{mission.path.name}: {summary['images']} images")
+    summary["coverage_map"] = str(png)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    c = summary["coverage"]
+    per_tile = summary["images_per_tile"]
+    lines = [
+        f"mission      {summary['mission']} (preset {summary['preset']}, truth: {'yes' if summary['has_truth'] else 'no'})",
+        f"images       {summary['images']}  " + ", ".join(f"{k}: {v}" for k, v in summary["images_by_instrument"].items())
+        + f"  size {', '.join(summary['image_size'])}",
+        f"pixel scale  {summary['pixel_scale_m'][0]:.0f} - {summary['pixel_scale_m'][1]:.0f} m/pixel",
+        f"incidence    {summary['incidence_deg'][0]:.1f} - {summary['incidence_deg'][1]:.1f} deg;  "
+        f"emission {summary['emission_deg'][0]:.1f} - {summary['emission_deg'][1]:.1f} deg",
+        f"tiles        {summary['tiles_with_images']} with images; images per tile min {per_tile['min']}, "
+        f"median {per_tile['median']:.0f}, max {per_tile['max']}",
+        f"coverage     seen {100 * c['fraction_seen']:.1f} %, >=3 images {100 * c['fraction_seen_3x']:.1f} %, "
+        f">=3 images with >=5 deg convergence {100 * c['fraction_stereo_3x_5deg']:.1f} % "
+        f"(grid {c['grid_step_deg']} deg over {'the area ' + str(c['area_deg']) if c['area_deg'] else 'the whole body'})",
+        f"coverage map {png}",
+    ]
+    print("\n".join(lines))
+    return 0
