@@ -31,6 +31,10 @@ class MatchConfig(ConfigSection):
     max_keypoints: int = param(
         1500, "Most keypoints kept per image (strongest, spread over a grid)", lo=10, hi=100000
     )
+    keypoint_size_px: float = param(
+        4.0, "Size given to FAST keypoints for the descriptor (SIFT support is about 6 x this); 0 = OpenCV's", unit="px",
+        lo=0.0, hi=256.0,
+    )
     keypoint_grid: int = param(8, "Cells per image side used to spread the kept keypoints", lo=1, hi=64)
     stretch_low_percentile: float = param(
         0.5, "Lower percentile of the 12-bit -> 8-bit robust stretch", unit="%", lo=0.0, hi=50.0
@@ -46,7 +50,10 @@ class MatchConfig(ConfigSection):
         8.0, "An image whose robust DN range is below this is 'textureless' and fails the pair", unit="DN", lo=0.0
     )
     # -- outlier chain -------------------------------------------------------
-    ratio: float = param(0.8, "Lowe ratio test threshold, both directions", lo=0.1, hi=1.0)
+    ratio: float = param(
+        0.9, "Lowe ratio test threshold, both directions (looser than the unguided 0.8: the guidance window "
+        "already removes distant look-alikes)", lo=0.1, hi=1.0,
+    )
     fundamental_tolerance_px: float = param(
         1.5, "Fundamental-matrix RANSAC epipolar distance tolerance", unit="px", lo=0.01, hi=100.0
     )
@@ -63,6 +70,17 @@ class MatchConfig(ConfigSection):
     # -- geometric pre-transform and guidance --------------------------------
     pretransform: bool = param(
         True, "Warp the match image into the reference geometry (datum homography) before detection"
+    )
+    warp_finer: bool = param(
+        True, "Keep the coarser image of a pair in its own geometry and warp the finer one onto it "
+        "(else the reference is always kept)"
+    )
+    swap_scale_ratio: float = param(
+        1.15, "Scale ratio above which the coarser image is kept when warp_finer is on", lo=1.0, hi=100.0
+    )
+    psf_sigma_px: float = param(
+        0.7, "Point-spread sigma of the images in their own pixels (pixel footprint included); the finer image "
+        "of a pair is blurred to the coarser one's resolution before warping", unit="px", lo=0.0, hi=10.0,
     )
     pretransform_grid: int = param(9, "Points per side of the grid fitted by the pre-transform homography", lo=3, hi=64)
     guided: bool = param(
@@ -87,7 +105,7 @@ class MatchConfig(ConfigSection):
         50.0, "Skip pairs whose incidence angles differ by more than this", unit="deg", lo=0.0, hi=180.0
     )
     max_sun_azimuth_difference_deg: float = param(
-        100.0, "Skip pairs whose sun azimuths differ by more than this", unit="deg", lo=0.0, hi=180.0
+        45.0, "Skip pairs whose sun azimuths differ by more than this", unit="deg", lo=0.0, hi=180.0
     )
     # -- sub-pixel refinement ------------------------------------------------
     refine: bool = param(True, "Sub-pixel refinement of every measure on the pre-transformed images")

@@ -173,6 +173,9 @@ def detect_and_describe(
     resp = np.fromiter((k.response for k in kps), dtype=np.float32, count=len(kps))
     keep = spread_best(pts, resp, config.max_keypoints, image8.shape[:2], config.keypoint_grid)
     kps = [kps[i] for i in keep]
+    if config.detector == "FAST" and config.keypoint_size_px > 0:
+        for k in kps:  # FAST has no scale: the descriptor support is set by the configured size
+            k.size = config.keypoint_size_px
     desc_ex, norm = _descriptor(config)
     kps, desc = desc_ex.compute(image8, kps)
     if desc is None or len(kps) == 0:

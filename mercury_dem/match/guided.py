@@ -90,6 +90,8 @@ def ncc_matches(
     half = template_px // 2
     r = int(np.ceil(window_px))
     h, w = ref.shape
+    # Template centres whose whole template lies on valid warped data.
+    centre_ok = cv2.erode(valid.view(np.uint8), np.ones((template_px, template_px), np.uint8)).astype(bool)
     idx: list[int] = []
     pts: list[tuple[float, float]] = []
     scores: list[float] = []
@@ -103,18 +105,22 @@ def ncc_matches(
         l0, l1 = max(l - r - half, 0), min(l + r + half + 1, h)
         if s1 - s0 < template_px + 2 or l1 - l0 < template_px + 2:
             continue
-        if not valid[l0:l1, s0:s1].all():
-            # Only search where the match image has data: shrink to the valid box, or skip.
-            continue
         res = cv2.matchTemplate(warped[l0:l1, s0:s1], t, cv2.TM_CCOEFF_NORMED)
+        ok = centre_ok[l0 + half : l1 - half, s0 + half : s1 - half]
+        if not ok.any():
+            continue
+        res = np.where(ok, res, -2.0).astype(np.float32)
         _, peak, _, loc = cv2.minMaxLoc(res)
         if not np.isfinite(peak) or peak < min_score:
             continue
-        # Reject peaks on the edge of the search window (the true peak may be outside).
-        if loc[0] in (0, res.shape[1] - 1) or loc[1] in (0, res.shape[0] - 1):
+        # Reject peaks on the edge of the searchable area (the true peak may be outside it).
+        y, x = loc[1], loc[0]
+        if x in (0, res.shape[1] - 1) or y in (0, res.shape[0] - 1):
+            continue
+        if not (ok[y - 1, x] and ok[y + 1, x] and ok[y, x - 1] and ok[y, x + 1]):
             continue
         idx.append(k)
-        pts.append((float(s0 + loc[0] + half), float(l0 + loc[1] + half)))
+        pts.append((float(s0 + x + half), float(l0 + y + half)))
         scores.append(float(peak))
     if not idx:
         return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0)

@@ -60,16 +60,20 @@ ROUTES = ("guided", "descriptor", "ncc", "none")
 #: Statuses of a pair (``PairReport.status``).
 STATUSES = ("matched", "failed", "skipped")
 
-_DETECTION_BORDER_PX = 12  # keypoints this close to the edge of the warped data are not described
+_DETECTION_BORDER_PX = 4  # keypoints this close to the edge of the warped data are not described
 
 
 @dataclass(frozen=True)
 class ImageFeatures:
-    """An image prepared once per tile: quality, float DN and features in its own geometry."""
+    """An image prepared once per tile: quality, float DN and features in its own geometry.
+
+    ``described`` is False when the features were not computed (yet).
+    """
 
     quality: ImageQuality
     image: NDArray[np.float32]
     features: Features
+    described: bool = True
 
 
 @dataclass
@@ -81,6 +85,7 @@ class PairReport:
     status: str = "failed"
     route: str = "none"
     reason: str = ""
+    own_geometry: str = ""
     overlap_apriori: float = float("nan")
     scale_ratio: float = float("nan")
     incidence_ref_deg: float = float("nan")
@@ -113,7 +118,8 @@ class PairResult:
     Attributes
     ----------
     points_ref, points_match : ndarray (K, 2)
-    feature_ref : ndarray (K,) int64, keypoint id in the reference image's own features
+    feature_ref, feature_match : ndarray (K,) int64, keypoint id in that image's own features,
+        -1 on the side that was warped (the finer image)
     score : ndarray (K,), NCC of the refined match (or the matching score when not refined)
     report : PairReport
     """
@@ -121,6 +127,7 @@ class PairResult:
     points_ref: NDArray[np.float64]
     points_match: NDArray[np.float64]
     feature_ref: NDArray[np.int64]
+    feature_match: NDArray[np.int64]
     score: NDArray[np.float64]
     report: PairReport
 
@@ -134,8 +141,8 @@ class TileMatches:
     image_ids : tuple of str; ``image_a``/``image_b`` index into it
     image_a, image_b : ndarray (M,) int64, reference and match image of each match
     sample_a, line_a, sample_b, line_b : ndarray (M,) float64, 0-based pixels in the original images
-    feature_a : ndarray (M,) int64, keypoint id in image_a (stable across pairs of the same reference)
-    feature_b : ndarray (M,) int64, -1 (the warped side has no stable id)
+    feature_a, feature_b : ndarray (M,) int64, keypoint id in that image's own features (stable across
+        all pairs of the tile), -1 on the side that was warped (the finer image of the pair)
     score : ndarray (M,) float64, NCC of the refined match
     pair : ndarray (M,) int64, row of the pair report the match came from
     """
@@ -160,8 +167,10 @@ class TileMatches:
         return {k: v for k, v in asdict(self).items() if k != "image_ids"}
 
 
-def prepare_image(image: NDArray[Any] | None, camera_shape: tuple[int, int], config: MatchConfig) -> ImageFeatures:
-    """Quality check, float conversion and features in the image's own geometry.
+def prepare_image(
+    image: NDArray[Any] | None, camera_shape: tuple[int, int], config: MatchConfig, describe: bool = True
+) -> ImageFeatures:
+    """Quality check, float conversion and (if ``describe``) features in the image's own geometry.
 
     ``camera_shape`` is (lines, samples) of the image's camera; a different array
     shape (truncated or corrupt image) or ``None`` (unreadable) gives a failed quality.
@@ -175,16 +184,21 @@ def prepare_image(image: NDArray[Any] | None, camera_shape: tuple[int, int], con
         return ImageFeatures(ImageQuality(False, reason, 0, 0, 0), np.zeros((0, 0), np.float32), empty)
     q = image_quality(arr, config)
     f32 = np.nan_to_num(arr.astype(np.float32, copy=False))
-    if not q.ok:
-        return ImageFeatures(q, f32, empty)
+    if not q.ok or not describe:
+        return ImageFeatures(q, f32, empty, described=q.ok and describe)
     feats = detect_and_describe(stretch_to_8bit(f32, q.low, q.high), config)
     return ImageFeatures(q, f32, feats)
+
+
+def _describe(im: ImageFeatures, config: MatchConfig) -> ImageFeatures:
+    feats = detect_and_describe(stretch_to_8bit(im.image, im.quality.low, im.quality.high), config)
+    return ImageFeatures(im.quality, im.image, feats)
 
 
 def _fail(report: PairReport, reason: str, status: str = "failed") -> PairResult:
     report.status, report.reason = status, reason
     z = np.zeros((0, 2))
-    return PairResult(z, z.copy(), np.zeros(0, np.int64), np.zeros(0), report)
+    return PairResult(z, z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), report)
 
 
 def match_pair(
@@ -205,8 +219,7 @@ def match_pair(
     ref_image, match_image : ndarray (lines, samples), 12-bit DN (uint16) or float; None = unreadable
     ref_geom, match_geom : a-priori geometry of each image
     config : MatchConfig
-    ref_features, match_features : :func:`prepare_image` results to reuse (computed when None;
-        ``match_features`` is used only with the pre-transform off)
+    ref_features, match_features : :func:`prepare_image` results to reuse (computed when None)
     ref_id, match_id : names used in the report
 
     Returns
@@ -234,23 +247,15 @@ def _match_pair(
     cv2.setRNGSeed(config.ransac_seed)
     cam_r, cam_m = ref_geom.camera, match_geom.camera
     if rf is None:
-        rf = prepare_image(ref_image, (cam_r.lines, cam_r.samples), config)
+        rf = prepare_image(ref_image, (cam_r.lines, cam_r.samples), config, describe=False)
     if not rf.quality.ok:
         return _fail(rep, f"reference image {rep.ref_id}: {rf.quality.reason}")
-    if match_image is None:
-        return _fail(rep, f"match image {rep.match_id}: unreadable")
-    m_arr = np.asarray(match_image)
-    if m_arr.shape != (cam_m.lines, cam_m.samples):
-        return _fail(rep, f"match image {rep.match_id}: shape {m_arr.shape} does not match its camera "
-                     f"{(cam_m.lines, cam_m.samples)} (truncated or corrupt)")
-    mq = mf.quality if mf is not None else image_quality(m_arr, config)
-    if not mq.ok:
-        return _fail(rep, f"match image {rep.match_id}: {mq.reason}")
+    if mf is None:
+        mf = prepare_image(match_image, (cam_m.lines, cam_m.samples), config, describe=False)
+    if not mf.quality.ok:
+        return _fail(rep, f"match image {rep.match_id}: {mf.quality.reason}")
 
-    pg = pair_geometry(
-        ref_geom, match_geom, config.pretransform_grid, config.pointing_sigma_urad * 1e-6,
-        config.guidance_sigmas, config.guidance_margin_px,
-    )
+    pg = _pair_geometry(ref_geom, match_geom, config)
     if isinstance(pg, str):
         return _fail(rep, pg)
     _record_geometry(rep, pg)
@@ -261,20 +266,60 @@ def _match_pair(
         return _fail(rep, f"sun azimuth differs by {pg.sun_azimuth_difference_deg:.0f} deg "
                      f"> max_sun_azimuth_difference_deg {config.max_sun_azimuth_difference_deg:g}", "skipped")
 
-    fa = rf.features
-    m_f32 = mf.image if mf is not None else np.nan_to_num(m_arr.astype(np.float32, copy=False))
+    # The coarser image stays in its own geometry; the finer one is warped (low-passed) onto it.
+    swap = config.warp_finer and pg.match_px_per_ref_px < 1.0 / config.swap_scale_ratio
+    if swap:
+        pg2 = _pair_geometry(match_geom, ref_geom, config)
+        if isinstance(pg2, str):
+            return _fail(rep, pg2)
+        pg, base, other, base_geom, other_geom = pg2, mf, rf, match_geom, ref_geom
+        rep.own_geometry = "match"
+    else:
+        base, other, base_geom, other_geom = rf, mf, ref_geom, match_geom
+        rep.own_geometry = "ref"
+    if not base.described:
+        base = _describe(base, config)
+    out = _match_core(base, other, base_geom, other_geom, pg, config, rep)
+    if isinstance(out, str):
+        return _fail(rep, out)
+    p_base, p_other, feat, score = out
+    rep.status, rep.n_matches = "matched", int(feat.size)
+    none = np.full(feat.size, -1, np.int64)
+    if swap:
+        return PairResult(p_other, p_base, none, feat, score, rep)
+    return PairResult(p_base, p_other, feat, none, score, rep)
+
+
+def _pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig) -> PairGeometry | str:
+    return pair_geometry(
+        a, b, config.pretransform_grid, config.pointing_sigma_urad * 1e-6,
+        config.guidance_sigmas, config.guidance_margin_px,
+    )
+
+
+def _match_core(
+    base: ImageFeatures,
+    other: ImageFeatures,
+    base_geom: ImageGeometry,
+    other_geom: ImageGeometry,
+    pg: PairGeometry,
+    config: MatchConfig,
+    rep: PairReport,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]] | str:
+    """Match ``other`` onto ``base`` (kept in its own geometry); points in original pixels of each."""
+    fa = base.features
     h = pg.homography
-    warped, valid = warp_to_reference(m_f32, h, rf.image.shape, pg.match_px_per_ref_px)
+    warped, valid = warp_to_reference(other.image, h, base.image.shape, pg.match_px_per_ref_px, config.psf_sigma_px)
     if config.pretransform:
-        w8 = stretch_to_8bit(warped, mq.low, mq.high)
+        w8 = stretch_to_8bit(warped, other.quality.low, other.quality.high)
         det_mask = cv2.erode(valid.view(np.uint8), np.ones((2 * _DETECTION_BORDER_PX + 1,) * 2, np.uint8))
         fb = detect_and_describe(w8, config, det_mask)
         predicted = fa.points
         window = pg.guidance_px
     else:
-        if mf is None:
-            mf = prepare_image(m_arr, (cam_m.lines, cam_m.samples), config)
-        fb = mf.features
+        if not other.described:
+            other = _describe(other, config)
+        fb = other.features
         predicted = apply_homography(h, fa.points)
         window = pg.guidance_px * pg.match_px_per_ref_px
     rep.n_keypoints_ref, rep.n_keypoints_match = fa.size, fb.size
@@ -301,9 +346,9 @@ def _match_pair(
     # Area-based fallback.
     if feat.size < config.min_matches and config.ncc_fallback:
         n_corner = min(config.ncc_max_points, fa.size)
-        corners_id = spread_best(fa.points, fa.response, n_corner, rf.image.shape, config.keypoint_grid)
+        corners_id = spread_best(fa.points, fa.response, n_corner, base.image.shape, config.keypoint_grid)
         idx, pts_w, sc = ncc_matches(
-            rf.image, warped, valid, fa.points[corners_id], pg.guidance_px,
+            base.image, warped, valid, fa.points[corners_id], pg.guidance_px,
             config.ncc_template_px | 1, config.ncc_min_score,
         )
         rep.n_ncc = int(idx.size)
@@ -318,25 +363,24 @@ def _match_pair(
             rep.route = "ncc"
 
     # Keep the best, spread; refine; map back.
-    keep = select_spread(pa, quality, config.max_matches, rf.image.shape)
+    keep = select_spread(pa, quality, config.max_matches, base.image.shape)
     feat, pa, pb, quality = feat[keep], pa[keep], pb[keep], quality[keep]
     rep.n_kept = int(feat.size)
     score = quality
     if config.refine and feat.size:
         r = refine_matches(
-            rf.image, warped, valid, pa, pb, config.refine_window_px | 1, config.refine_search_px,
+            base.image, warped, valid, pa, pb, config.refine_window_px | 1, config.refine_search_px,
             config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
         )
         feat, pa, pb, score = feat[r.ok], pa[r.ok], r.points[r.ok], r.score[r.ok]
     pm = apply_homography(h, pb)
-    inside = cam_m.in_image(pm) & np.isfinite(pm).all(axis=1)
+    inside = other_geom.camera.in_image(pm) & np.isfinite(pm).all(axis=1)
     feat, pa, pm, score = feat[inside], pa[inside], pm[inside], score[inside]
     if feat.size < config.min_matches:
-        return _fail(rep, f"too few matches: {feat.size} < min_matches {config.min_matches} "
-                     f"(chain {rep.n_ratio}->{rep.n_symmetry}->{rep.n_fundamental}->{rep.n_homography}, "
-                     f"ncc {rep.n_ncc}->{rep.n_ncc_homography})")
-    rep.status, rep.n_matches = "matched", int(feat.size)
-    return PairResult(pa, pm, feat.astype(np.int64), score.astype(np.float64), rep)
+        return (f"too few matches: {feat.size} < min_matches {config.min_matches} "
+                f"(chain {rep.n_ratio}->{rep.n_symmetry}->{rep.n_fundamental}->{rep.n_homography}, "
+                f"ncc {rep.n_ncc}->{rep.n_ncc_homography})")
+    return pa, pm, feat.astype(np.int64), score.astype(np.float64)
 
 
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:
@@ -387,7 +431,7 @@ def match_tile(
     index = {k: i for i, k in enumerate(ids)}
     needed: list[str] = []
     for a, b in pairs:
-        for x in ((a, b) if not config.pretransform else (a,)):
+        for x in (a, b):
             if x in index and x in geometry and x not in needed:
                 needed.append(x)
 
@@ -403,7 +447,7 @@ def match_tile(
             return _fail(rep, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
         return match_pair(
             images[a], images[b], geometry[a], geometry[b], config,
-            ref_features=prepared[a], match_features=prepared.get(b), ref_id=a, match_id=b,
+            ref_features=prepared[a], match_features=prepared[b], ref_id=a, match_id=b,
         )
 
     threads = max(1, config.threads)
@@ -437,7 +481,7 @@ def _collect(
         sample_b=pm[:, 0].copy(),
         line_b=pm[:, 1].copy(),
         feature_a=cat(lambda r: r.feature_ref, np.int64),
-        feature_b=np.full(int(counts.sum()), -1, np.int64),
+        feature_b=cat(lambda r: r.feature_match, np.int64),
         score=cat(lambda r: r.score, np.float64),
         pair=pair,
     )

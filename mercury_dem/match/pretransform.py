@@ -177,7 +177,11 @@ def _local_scale(h: NDArray[np.float64], p: NDArray[np.float64], d: float = 1.0)
 
 
 def warp_to_reference(
-    match_image: NDArray[np.float32], homography: NDArray[np.float64], ref_shape: tuple[int, int], scale: float
+    match_image: NDArray[np.float32],
+    homography: NDArray[np.float64],
+    ref_shape: tuple[int, int],
+    scale: float,
+    psf_sigma_px: float = 0.7,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """The match image resampled in the reference geometry, and where it is valid.
 
@@ -186,20 +190,26 @@ def warp_to_reference(
     match_image : ndarray (lines, samples) float32, DN
     homography : reference pixel -> match pixel
     ref_shape : (lines, samples) of the reference image
-    scale : match pixels per reference pixel; above 1.25 the match image is
-        low-pass filtered first (Gaussian, sigma = 0.4 * scale) so the warp does not alias
+    scale : match pixels per reference pixel. Above 1 (the match image is finer)
+        it is low-pass filtered first with a Gaussian of sigma
+        ``psf_sigma_px * sqrt(scale**2 - 1)`` match pixels, so that after the warp
+        its blur equals that of an image taken at the reference's pixel scale
+        (both images having a point spread of ``psf_sigma_px`` of their own pixels,
+        pixel footprint included); this also prevents aliasing
+    psf_sigma_px : point-spread sigma of the images in their own pixels
 
     Returns
     -------
-    warped : ndarray ref_shape float32 (0 outside the match image)
+    warped : ndarray ref_shape float32 (border pixels replicated outside the match image)
     valid : ndarray ref_shape bool, True where the bilinear sample is fully inside the match image
     """
     src = match_image
-    if scale > 1.25:
-        src = cv2.GaussianBlur(src, (0, 0), sigmaX=0.4 * scale)
+    if scale > 1.05:
+        src = cv2.GaussianBlur(src, (0, 0), sigmaX=psf_sigma_px * float(np.sqrt(scale * scale - 1.0)))
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     size = (int(ref_shape[1]), int(ref_shape[0]))
-    warped = cv2.warpPerspective(src, homography, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    # Replicated borders keep the detectors from seeing an artificial edge where the data ends.
+    warped = cv2.warpPerspective(src, homography, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
     ones = np.ones(match_image.shape, np.float32)
     cover = cv2.warpPerspective(ones, homography, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
     return warped, cover > 0.999

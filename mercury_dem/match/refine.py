@@ -120,16 +120,14 @@ def refine_matches(
     h, w = ref.shape
     pa = np.asarray(points_ref, np.float64)
     pb = np.asarray(points_warped, np.float64)
-    reach = half + search + 2
     inside = (
         (pa[:, 0] - half - 1 >= 0) & (pa[:, 1] - half - 1 >= 0) & (pa[:, 0] + half + 2 < w) & (pa[:, 1] + half + 2 < h)
     )
-    lo = np.floor(pb).astype(np.int64) - reach
-    hi = np.ceil(pb).astype(np.int64) + reach
-    inside &= (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
-    area = (hi - lo + 1).prod(axis=1)
-    inside &= _box_count(valid, lo, hi) == area
-
+    # The searched patches must lie in the image (sampling clamps at its border); validity of the
+    # warped data is checked at the final position only, so matches near the edge of a small
+    # overlap survive as long as their own window is on data.
+    reach = half + search + 2
+    inside &= (pb[:, 0] - reach >= 0) & (pb[:, 1] - reach >= 0) & (pb[:, 0] + reach < w) & (pb[:, 1] + reach < h)
     tmpl = _normalize(sample_patches(ref, pa, half))
     big = sample_patches(warped, pb, half + search)
     k = 2 * search + 1
@@ -174,5 +172,11 @@ def refine_matches(
     final = pb + d
     score = np.sum(_normalize(sample_patches(warped, final, half)) * tmpl, axis=(1, 2)).astype(np.float64)
     moved = np.hypot(d[:, 0], d[:, 1])
+    f = np.nan_to_num(final, nan=-1e9)
+    lo = np.floor(f).astype(np.int64) - half - 1
+    hi = np.ceil(f).astype(np.int64) + half + 1
+    on_data = (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
+    on_data &= _box_count(valid, lo, hi) == (hi - lo + 1).prod(axis=1)
+    inside &= on_data
     ok = inside & interior & np.isfinite(final).all(axis=1) & (score >= min_score) & (moved <= max_shift_px)
     return Refined(final, score, ok)

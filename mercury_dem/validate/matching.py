@@ -170,3 +170,73 @@ def format_summary(summary: Mapping[str, Mapping[str, float]]) -> str:
             f"| {s['n_measures']:.0f} | {100 * s['outlier_share']:.2f}% | {s['median_px']:.3f} | {s['p95_px']:.3f} |"
         )
     return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- standard pair scenes
+@dataclass(frozen=True)
+class SceneView:
+    """A true view: camera, pose and sun (body-fixed metres)."""
+
+    camera: FramingCamera
+    position: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    sun: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ScenePair:
+    """A pair of true views with the class it is meant to test."""
+
+    name: str
+    ref: SceneView
+    match: SceneView
+
+
+def standard_pairs(
+    camera: FramingCamera, lat_deg: float = 5.0, lon_deg: float = 3.0, altitude_m: float | None = None
+) -> list[ScenePair]:
+    """The pair classes of issue 4, section 4, around one site (true geometry only; render them yourself).
+
+    ``altitude_m`` defaults to about 1.8 km/pixel for a 256-pixel WAC (scaled by
+    the camera's IFOV). Similar illumination: a stereo pair, 2x scale with 30 deg
+    rotation, 4x finer and 4x coarser with rotation; incidence 30 deg vs 70 deg
+    with the sun on the same side at 1x, 2x coarser and 2x finer (rotated) and 4x;
+    sun azimuth 45 and 90 deg apart.
+    """
+    from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
+    from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
+
+    alt = altitude_m if altitude_m is not None else 1.79e3 / camera.ifov_rad
+    up = latlon_to_unit(lat_deg, lon_deg)
+    east = np.cross([0.0, 0.0, 1.0], up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    centre = latlon_to_xyz(lat_deg, lon_deg)
+    k = alt / 2500e3
+
+    def sun(inc: float, az: float) -> NDArray[np.float64]:
+        i, a = np.radians(inc), np.radians(az)
+        return centre + 5.8e10 * (np.cos(i) * up + np.sin(i) * (np.sin(a) * east + np.cos(a) * north))
+
+    def view(h: float, inc: float, az: float, de: float = 0.0, dn: float = 0.0, twist: float = 0.0,
+             ae: float = 0.0, an: float = 0.0) -> SceneView:
+        c = centre + h * k * up + de * k * east + dn * k * north
+        r = look_at_rotation(c, centre + ae * k * east + an * k * north, north)
+        r = rotation_from_angles(np.array([0.0, 0.0, np.radians(twist)])) @ r
+        return SceneView(camera, c, r, sun(inc, az))
+
+    ref = view(2500e3, 50, 90)
+    ref30 = view(2500e3, 30, 90, de=100e3)
+    return [
+        ScenePair("stereo", ref, view(2500e3, 52, 95, de=400e3, ae=20e3)),
+        ScenePair("scale2_rot30", ref, view(5000e3, 45, 80, dn=-300e3, twist=30)),
+        ScenePair("scale2_finer_rot45", ref, view(1250e3, 48, 92, de=-100e3, twist=45)),
+        ScenePair("scale4_finer", ref, view(625e3, 50, 90, dn=50e3, an=40e3, twist=-60)),
+        ScenePair("scale4_coarser", ref, view(10000e3, 48, 92, de=-500e3, twist=120)),
+        ScenePair("inc30_70", ref30, view(2500e3, 70, 95, de=-300e3)),
+        ScenePair("inc30_70_scale2", ref30, view(5000e3, 70, 95, dn=-200e3, twist=70)),
+        ScenePair("inc30_70_scale2_finer", ref30, view(1250e3, 70, 95, dn=-100e3, twist=170)),
+        ScenePair("inc30_70_scale4", ref30, view(10000e3, 72, 90, dn=-200e3, twist=-20)),
+        ScenePair("azimuth45", ref, view(2500e3, 50, 135, de=200e3)),
+        ScenePair("azimuth90", ref, view(2500e3, 50, 180, de=200e3)),
+    ]
