@@ -1,0 +1,135 @@
+"""Unit tests of the matching building blocks on small exact inputs."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter, shift
+
+from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.camera import mdis_nac
+from mercury_dem.geometry.pose import image_to_ground, look_at_rotation, project
+from mercury_dem.geometry.body import latlon_to_xyz, latlon_to_unit
+from mercury_dem.match.features import image_quality, spread_best
+from mercury_dem.match.outliers import KnnResult, homography_inliers, ratio_test, symmetric_pairs
+from mercury_dem.match.pretransform import ImageGeometry, apply_homography, pair_geometry, warp_to_reference
+from mercury_dem.match.refine import refine_matches, sample_patches
+
+
+def texture(n: int, seed: int, sigma: float = 2.0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = gaussian_filter(rng.normal(size=(n, n)), sigma)
+    return (2000 + 600 * t / t.std()).astype(np.float32)
+
+
+def test_spread_best_takes_each_cells_best_first() -> None:
+    pts = np.array([[1, 1], [2, 2], [3, 3], [60, 60], [61, 61]], float)
+    score = np.array([5, 9, 1, 3, 2], float)
+    keep = spread_best(pts, score, 2, (64, 64), 2)
+    assert set(keep.tolist()) == {1, 3}  # best of the top-left cell and best of the bottom-right cell
+
+
+def test_ratio_and_symmetry() -> None:
+    ab = KnnResult(np.array([0, 1, 1]), np.array([1.0, 1.0, 5.0]), np.array([2.0, 1.05, 6.0]))
+    ba = KnnResult(np.array([0, 2]), np.array([1.0, 5.0]), np.array([3.0, 10.0]))
+    ok_ab, ok_ba = ratio_test(ab, 0.9), ratio_test(ba, 0.9)
+    assert ok_ab.tolist() == [True, False, True]
+    ia, ib = symmetric_pairs(ab, ba, ok_ab, ok_ba)
+    assert ia.tolist() == [0, 2] and ib.tolist() == [0, 1]
+
+
+def test_homography_ransac_rejects_injected_outliers() -> None:
+    rng = np.random.default_rng(0)
+    h = np.array([[1.1, 0.1, 5.0], [-0.05, 0.95, -3.0], [1e-5, 0.0, 1.0]])
+    pa = rng.uniform(0, 500, (200, 2))
+    pb = apply_homography(h, pa) + rng.normal(0, 0.3, (200, 2))
+    bad = rng.choice(200, 30, replace=False)
+    pb[bad] += rng.uniform(20, 60, (30, 2))
+    inl, _ = homography_inliers(pa, pb, 3.0)
+    assert not inl[bad].any()
+    assert inl.sum() >= 165
+
+
+def test_image_quality_reasons() -> None:
+    cfg = MatchConfig()
+    assert image_quality(texture(64, 0), cfg).ok
+    assert "blank" in image_quality(np.zeros((64, 64), np.uint16), cfg).reason
+    assert "saturated" in image_quality(np.full((64, 64), 4095, np.uint16) - np.eye(64, dtype=np.uint16), cfg).reason
+    flat = (1000 + np.random.default_rng(1).integers(0, 3, (64, 64))).astype(np.uint16)
+    assert "textureless" in image_quality(flat, cfg).reason
+    assert "not a 2-D image" in image_quality(np.zeros(5), cfg).reason
+
+
+def _views() -> tuple[ImageGeometry, ImageGeometry]:
+    cam = mdis_nac(256, distortion=False)
+    centre = latlon_to_xyz(20.0, 100.0)
+    up = latlon_to_unit(20.0, 100.0)
+    ca = centre + 300e3 * up
+    cb = centre + 450e3 * up + np.array([30e3, -20e3, 0.0])
+    sun = centre * 1e4
+    ra = look_at_rotation(ca, centre, (0, 0, 1))
+    rb = look_at_rotation(cb, centre + np.array([1e3, 0, 0]), (0.3, 0, 1))
+    return ImageGeometry.of(cam, ca, ra, sun), ImageGeometry.of(cam, cb, rb, sun)
+
+
+def test_pretransform_homography_maps_datum_points() -> None:
+    a, b = _views()
+    pg = pair_geometry(a, b)
+    assert not isinstance(pg, str)
+    px = np.random.default_rng(3).uniform(20, 236, (50, 2))
+    g, hit = image_to_ground(a.camera, a.position, a.rotation, px)
+    truth, _ = project(b.camera, b.position, b.rotation, g)
+    assert np.abs(apply_homography(pg.homography, px) - truth).max() < 0.05
+    assert pg.scale_ratio == pytest.approx(1.5, rel=0.05)
+    assert pg.overlap > 0.9
+
+
+def test_pretransform_reports_no_overlap() -> None:
+    a, b = _views()
+    far = ImageGeometry.of(b.camera, b.position, look_at_rotation(b.position, latlon_to_xyz(25.0, 106.0), (0, 0, 1)), b.sun_position)
+    assert "no a-priori overlap" in pair_geometry(a, far)
+
+
+def test_warp_follows_the_homography() -> None:
+    img = texture(128, 5)
+    h = np.array([[0.9, 0.1, 8.0], [-0.1, 0.9, 4.0], [0.0, 0.0, 1.0]])
+    warped, valid = warp_to_reference(img, h, (128, 128), scale=1.0)
+    p = np.array([[40.0, 50.0], [70.2, 30.7]])
+    q = apply_homography(h, p)
+    want = sample_patches(img, q, 0)[:, 0, 0]
+    got = sample_patches(warped, p, 0)[:, 0, 0]
+    assert valid[50, 40] and np.allclose(got, want, atol=2.0)
+
+
+def test_refinement_recovers_a_subpixel_shift() -> None:
+    ref = texture(160, 7, sigma=2.5)
+    true_shift = np.array([0.37, -0.62])  # (sample, line): match(x) = ref(x - shift)
+    moved = shift(ref.astype(np.float64), (true_shift[1], true_shift[0]), order=3, mode="nearest").astype(np.float32)
+    moved = moved * 1.3 + 50.0  # gain and offset must not matter
+    g = np.arange(30, 131, 10, dtype=float)
+    pa = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    start = np.rint(pa + true_shift) + np.array([1.0, -1.0])  # a pixel off
+    r = refine_matches(ref, moved, np.ones_like(ref, bool), pa, start, window=21, search=3)
+    assert r.ok.all()
+    err = np.linalg.norm(r.points - (pa + true_shift), axis=1)
+    assert np.median(err) < 0.02 and err.max() < 0.06
+
+
+def test_refinement_drops_measures_off_the_data() -> None:
+    ref = texture(96, 8)
+    valid = np.ones_like(ref, bool)
+    valid[:, 60:] = False
+    pa = np.array([[30.0, 48.0], [70.0, 48.0]])
+    r = refine_matches(ref, ref, valid, pa, pa.copy())
+    assert r.ok.tolist() == [True, False]
+
+
+def test_detectors_selectable_by_name() -> None:
+    from mercury_dem.match.features import detect_and_describe, stretch_to_8bit
+
+    img8 = stretch_to_8bit(texture(128, 9), 1000, 3000)
+    for det, desc in [("FAST", "SIFT"), ("ORB", "ORB"), ("AKAZE", "AKAZE"), ("BRISK", "BRISK"), ("SIFT", "SIFT")]:
+        f = detect_and_describe(img8, MatchConfig(detector=det, descriptor=desc, max_keypoints=200))
+        assert 0 < f.size <= 200 and f.descriptors.shape[0] == f.size
+        assert f.norm == (cv2.NORM_L2 if desc == "SIFT" else cv2.NORM_HAMMING)
