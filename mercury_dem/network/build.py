@@ -195,7 +195,10 @@ def triangulate_points(
     # datum fallback: mean of the rays' datum hits, put back on the datum
     ground, hit = intersect_sphere(origins, dirs, datum_radius_m)
     hits = np.bincount(measure_point[hit], minlength=n).astype(np.float64)
-    mean = np.stack([np.bincount(measure_point[hit], ground[hit, j], minlength=n) for j in range(3)], axis=1)
+    # float64 explicitly: bincount of an empty selection returns int64
+    mean = np.stack(
+        [np.bincount(measure_point[hit], ground[hit, j], minlength=n) for j in range(3)], axis=1
+    ).astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean /= hits[:, None]
         mean *= datum_radius_m / np.linalg.norm(mean, axis=1, keepdims=True)
