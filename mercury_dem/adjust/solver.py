@@ -296,16 +296,25 @@ def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = Solv
             # Hysteresis: a rejected measure comes back only well inside the limit.
             new_active = np.isfinite(norms) & (norms <= np.where(active, limit, READMIT_FRACTION * limit))
             new_active |= _spare_all_but_worst(pt, norms, active & ~new_active)
+            # A point left with a single measure cannot show whether that one is right (its
+            # point followed it): reject it too, so a lone outlier never survives on its own.
+            lone = np.bincount(pt[new_active], minlength=n_pt) < opt.min_point_measures
+            new_active &= ~(lone[pt] & ~held_p[pt])
             n_changed = int(np.sum(new_active != active))
             changed = n_changed > opt.reject_settled_fraction * m
             entry["rejection_changes"] = n_changed
             key = hash(np.packbits(new_active).tobytes())
             if changed and key in seen_sets:
-                changed = False  # the rejected set cycles: keep the current one
+                # The rejected set cycles (measures flip as their points move): keep every
+                # measure accepted in either state, and stop rejecting.
+                new_active = new_active | active
+                new_active &= ~(np.bincount(pt[new_active], minlength=n_pt) < opt.min_point_measures)[pt] | held_p[pt]
+                n_changed = int(np.sum(new_active != active))
                 entry["rejection_cycle"] = True
+                rounds = opt.reject_max_rounds
             seen_sets.add(key)
             entry["rejection_limit"] = limit
-            if n_changed and not entry.get("rejection_cycle"):
+            if n_changed:
                 active = new_active
                 use, frozen = usable(active)
                 cost, r_now = _cost(model, state, use, opt)
