@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+"""Start a Dask scheduler here, its workers as SLURM or PBS batch jobs, and run a command against it.
+
+    python cluster/jobqueue_launch.py {slurm,pbs} --dask-dir DIR [--jobs N | --adapt MIN:MAX]
+        [--tls-dir CERTS | --no-tls] [--scheduler-host HOST] [--dashboard-address 127.0.0.1:8787]
+        [--wait-workers K] -- COMMAND ...
+    python cluster/jobqueue_launch.py {slurm,pbs} --dask-dir DIR --print-job-script
+
+The workers' shape (cores, memory, processes, walltime, local directory,
+interface, the ``adjust_slots`` resource) comes from dask-jobqueue's
+configuration: ``DASK_CONFIG`` pointing at ``cluster/slurm/`` or ``cluster/pbs/``
+(set by the ``launch.sh`` next to each; this script sets it to that directory
+when it is unset). The scheduler runs in this process and writes its address
+to ``DIR/scheduler.json``; COMMAND (normally ``mercury-dem run MISSION --out RUN
+--scheduler-file DIR/scheduler.json``) runs with ``MERCURY_DEM_SCHEDULER_FILE``
+set and, with TLS, the ``DASK_DISTRIBUTED__COMM__TLS__*`` variables that let any
+Dask client connect. When COMMAND ends (or this process gets SIGTERM/SIGINT)
+the jobs are cancelled and the exit code is COMMAND's.
+
+Secure by default: the scheduler listens on one address reachable from the
+compute nodes (``--scheduler-host``, the configured interface, or this host's
+outward address), every connection is TLS with certificates made in
+``DIR/tls`` by ``cluster/local/make-certs.sh`` (``--no-tls`` to opt out), and
+the dashboard binds to 127.0.0.1 (tunnel it: ``ssh -L 8787:127.0.0.1:8787 HOST``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SYSTEMS = {"slurm": "SLURMCluster", "pbs": "PBSCluster"}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command: list[str] = []
+    if "--" in argv:
+        i = argv.index("--")
+        argv, command = argv[:i], argv[i + 1:]
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("system", choices=sorted(SYSTEMS), help="batch system")
+    p.add_argument("--dask-dir", required=True, help="directory for scheduler.json, logs/ and tls/")
+    p.add_argument("--jobs", type=int, default=2, help="batch jobs to submit (default 2)")
+    p.add_argument("--adapt", metavar="MIN:MAX", help="scale between MIN and MAX jobs with the load instead of --jobs")
+    p.add_argument("--scheduler-host", help="address the scheduler listens on (default: the configured "
+                                            "interface's, else this host's outward address)")
+    p.add_argument("--dashboard-address", help="scheduler dashboard (default from the YAML: 127.0.0.1:8787)")
+    tls = p.add_mutually_exclusive_group()
+    tls.add_argument("--tls-dir", help="ca.pem/cert.pem/key.pem to use (made there when absent; default DIR/tls)")
+    tls.add_argument("--no-tls", action="store_true", help="plain TCP (only on a network you trust)")
+    p.add_argument("--wait-workers", type=int, default=0, help="wait for this many workers before COMMAND")
+    p.add_argument("--timeout", type=float, default=3600.0, help="seconds to wait for --wait-workers")
+    p.add_argument("--print-job-script", action="store_true", help="print one job's script and exit")
+    args = p.parse_args(argv)
+    args.command = command
+    if not args.print_job_script and not command:
+        p.error("give the command to run after '--' (e.g. -- mercury-dem run MISSION --out RUN --scheduler-file ...)")
+    if args.jobs < 0:
+        p.error("--jobs must be >= 0")
+    if args.adapt:
+        try:
+            lo, hi = (int(v) for v in args.adapt.split(":"))
+        except ValueError:
+            p.error(f"--adapt takes MIN:MAX job counts, got {args.adapt!r}")
+        if not 0 <= lo <= hi:
+            p.error(f"--adapt needs 0 <= MIN <= MAX, got {args.adapt!r}")
+        args.adapt = (lo, hi)
+    return args
+
+
+def make_certificates(directory: Path, hosts: list[str]) -> Path:
+    """ca.pem, cert.pem and key.pem in ``directory`` (kept when they exist)."""
+    if not (directory / "key.pem").exists():
+        subprocess.run([str(HERE / "local" / "make-certs.sh"), str(directory), "--hosts", ",".join(hosts)],
+                       check=True, stdout=subprocess.DEVNULL)
+    return directory
+
+
+def build_cluster(args: argparse.Namespace, dask_dir: Path):  # -> dask_jobqueue.JobQueueCluster
+    """The SLURMCluster/PBSCluster of the YAML, with this run's scheduler file, logs and TLS."""
+    import dask
+    import dask_jobqueue
+    from distributed.utils import get_ip, get_ip_interface
+
+    key = f"jobqueue.{args.system}"
+    if dask.config.get(f"{key}.cores", None) is None or dask.config.get(f"{key}.memory", None) is None:
+        raise SystemExit(f"jobqueue_launch: no cores/memory in the Dask configuration '{key}'; set "
+                         f"DASK_CONFIG={HERE / args.system} (DASK_CONFIG is {os.environ.get('DASK_CONFIG')!r})")
+    options = dict(dask.config.get(f"{key}.scheduler-options", None) or {})
+    options["scheduler_file"] = str(dask_dir / "scheduler.json")
+    if args.dashboard_address:
+        options["dashboard_address"] = args.dashboard_address
+    options.setdefault("dashboard_address", "127.0.0.1:8787")
+    interface = dask.config.get(f"{key}.interface", None)
+    host = args.scheduler_host or (get_ip_interface(interface) if interface else get_ip())
+    options["host"] = host
+    options.pop("interface", None)
+
+    security = None
+    if not args.no_tls:
+        from mercury_dem.pipeline.security import TlsFiles, tls_security
+
+        tls_dir = Path(args.tls_dir) if args.tls_dir else dask_dir / "tls"
+        hosts = sorted({host, "127.0.0.1", "localhost", socket.gethostname()})
+        files = TlsFiles.in_directory(make_certificates(tls_dir, hosts))
+        security = tls_security(files)
+        args.tls_files = files
+    cls = getattr(dask_jobqueue, SYSTEMS[args.system])
+    return cls(
+        scheduler_options=options,
+        log_directory=str(dask_dir / "logs"),
+        security=security,
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    os.environ.setdefault("DASK_CONFIG", str(HERE / args.system))
+    dask_dir = Path(args.dask_dir).resolve()
+    (dask_dir / "logs").mkdir(parents=True, exist_ok=True)
+    os.chmod(dask_dir, 0o700)
+    (dask_dir / "scheduler.json").unlink(missing_ok=True)
+    args.tls_files = None
+
+    cluster = build_cluster(args, dask_dir)
+
+    def _stop(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    try:
+        if args.print_job_script:
+            print(cluster.job_script())
+            return 0
+        (dask_dir / "launcher.pid").write_text(str(os.getpid()))
+        print(f"scheduler {cluster.scheduler_address}  file {dask_dir / 'scheduler.json'}", flush=True)
+        print(f"dashboard {cluster.dashboard_link} (bound to this host; tunnel it with ssh -L)", flush=True)
+        if args.adapt:
+            cluster.adapt(minimum_jobs=args.adapt[0], maximum_jobs=args.adapt[1])
+            print(f"adaptive: {args.adapt[0]}..{args.adapt[1]} jobs", flush=True)
+        else:
+            cluster.scale(jobs=args.jobs)
+            print(f"submitted {args.jobs} jobs", flush=True)
+        env = dict(os.environ, MERCURY_DEM_SCHEDULER_FILE=str(dask_dir / "scheduler.json"))
+        if args.tls_files is not None:
+            from mercury_dem.pipeline.security import tls_environment
+
+            env.update(tls_environment(args.tls_files))
+        if args.wait_workers:
+            from distributed import Client
+
+            with Client(cluster, timeout=60) as client:
+                t0 = time.monotonic()
+                client.wait_for_workers(args.wait_workers, timeout=args.timeout)
+                print(f"{args.wait_workers} workers joined in {time.monotonic() - t0:.0f} s", flush=True)
+        print("running:", " ".join(args.command), flush=True)
+        return subprocess.run(args.command, env=env).returncode
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        cluster.close()
+        (dask_dir / "launcher.pid").unlink(missing_ok=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,192 @@
+"""cluster/slurm and cluster/pbs: job scripts rendered by dask-jobqueue from the repo's YAML, and a
+whole launch.sh run against stand-in batch commands that run the job scripts on this machine."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from tests.cluster.conftest import CLUSTER, script_env
+
+pytest.importorskip("dask_jobqueue", reason="dask-jobqueue is not installed (pip install -e '.[test]')")
+
+LAUNCHER = CLUSTER / "jobqueue_launch.py"
+
+
+def _yaml(system: str) -> dict:
+    return yaml.safe_load((CLUSTER / system / "jobqueue.yaml").read_text())["jobqueue"][system]
+
+
+def render(system: str, tmp_path: Path, *extra: str) -> str:
+    env = script_env(DASK_CONFIG=str(CLUSTER / system))
+    res = subprocess.run(
+        [sys.executable, str(LAUNCHER), system, "--dask-dir", str(tmp_path / "dask"), "--print-job-script",
+         "--scheduler-host", "127.0.0.1", *extra],
+        capture_output=True, text=True, timeout=120, env=env,
+    )
+    assert res.returncode == 0, res.stderr
+    return res.stdout
+
+
+def _worker_line(script: str) -> str:
+    (line,) = [ln for ln in script.splitlines() if "distributed.cli.dask_worker" in ln]
+    return line
+
+
+def _common_worker_checks(line: str, conf: dict, scheme: str) -> None:
+    cores, processes = conf["cores"], conf["processes"]
+    assert line.startswith(sys.executable + " -m distributed.cli.dask_worker ")
+    assert re.search(rf"dask_worker {scheme}://127\.0\.0\.1:\d+ ", line), line
+    assert f"--nworkers {processes}" in line
+    assert f"--nthreads {cores // processes}" in line
+    assert "--resources adjust_slots=1" in line
+    assert "--local-directory ${TMPDIR:-/tmp}" in line
+    assert "--dashboard-address 127.0.0.1:0" in line
+    assert f"--death-timeout {conf['death-timeout']}" in line
+
+
+def test_slurm_job_script_from_the_repo_yaml(tmp_path: Path) -> None:
+    conf = _yaml("slurm")
+    script = render("slurm", tmp_path)
+    assert script.startswith("#!/usr/bin/env bash")
+    assert f"#SBATCH -J {conf['name']}" in script
+    assert f"#SBATCH --cpus-per-task={conf['cores']}" in script
+    mem_gib = int(conf["memory"].removesuffix("GiB"))
+    assert f"#SBATCH --mem={mem_gib}G" in script
+    assert f"#SBATCH -t {conf['walltime']}" in script
+    assert f"#SBATCH -e {tmp_path / 'dask' / 'logs'}/" in script
+    line = _worker_line(script)
+    _common_worker_checks(line, conf, "tls")
+    assert f"--memory-limit {mem_gib / conf['processes']:.2f}GiB" in line
+    # TLS by default: the workers get the certificates made in DIR/tls.
+    tls = tmp_path / "dask" / "tls"
+    for flag, name in (("--tls-ca-file", "ca.pem"), ("--tls-cert", "cert.pem"), ("--tls-key", "key.pem")):
+        assert f"{flag} {tls / name}" in line
+    assert oct((tls / "key.pem").stat().st_mode & 0o777) == "0o600"
+
+
+def test_pbs_job_script_from_the_repo_yaml(tmp_path: Path) -> None:
+    conf = _yaml("pbs")
+    # The resource request and the worker shape say the same thing.
+    m = re.fullmatch(r"select=1:ncpus=(\d+):mem=(\d+)GB", conf["resource-spec"])
+    assert m and int(m.group(1)) == conf["cores"] and f"{m.group(2)}GB" == conf["memory"]
+    script = render("pbs", tmp_path, "--no-tls")
+    assert f"#PBS -N {conf['name']}" in script
+    assert f"#PBS -l {conf['resource-spec']}" in script
+    assert f"#PBS -l walltime={conf['walltime']}" in script
+    line = _worker_line(script)
+    _common_worker_checks(line, conf, "tcp")
+    mem_per_worker = int(conf["memory"].removesuffix("GB")) * 1e9 / conf["processes"] / 2**30
+    assert f"--memory-limit {mem_per_worker:.2f}GiB" in line
+    assert "--tls-" not in line
+
+
+def test_launcher_refuses_a_missing_configuration(tmp_path: Path) -> None:
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    res = subprocess.run(
+        [sys.executable, str(LAUNCHER), "slurm", "--dask-dir", str(tmp_path / "d"), "--print-job-script"],
+        capture_output=True, text=True, timeout=120, env=script_env(DASK_CONFIG=str(empty)),
+    )
+    assert res.returncode != 0
+    assert "no cores/memory" in res.stderr and "DASK_CONFIG" in res.stderr
+
+
+# --- a whole launch.sh run, SLURM stood in for by scripts that run the job on this machine -----------
+
+FAKE_SBATCH = """#!/usr/bin/env bash
+# stand-in for sbatch: keep a copy of the job script and run it in its own process group
+set -e
+n=$(ls "$FAKE_BATCH_DIR"/job-*.sh 2>/dev/null | wc -l)
+cp "$1" "$FAKE_BATCH_DIR/job-$n.sh"
+setsid bash "$FAKE_BATCH_DIR/job-$n.sh" > "$FAKE_BATCH_DIR/job-$n.log" 2>&1 < /dev/null &
+echo $! >> "$FAKE_BATCH_DIR/jobids"
+echo "Submitted batch job $!"
+"""
+FAKE_SCANCEL = """#!/usr/bin/env bash
+# stand-in for scancel: end the job's process group
+for id in "$@"; do echo "$id" >> "$FAKE_BATCH_DIR/cancelled"; kill -TERM -- "-$id" 2>/dev/null || true; done
+"""
+# Stands in for mercury-dem: records its arguments, then works through the scheduler file it is given,
+# connecting with nothing but the environment the launcher set (TLS included).
+FAKE_MERCURY_DEM = """#!{python}
+import json, os, sys
+from distributed import Client
+args = sys.argv[1:]
+sched = args[args.index("--scheduler-file") + 1]
+assert sched == os.environ["MERCURY_DEM_SCHEDULER_FILE"]
+with Client(scheduler_file=sched, timeout=30) as c:
+    workers = c.scheduler_info(n_workers=-1)["workers"]
+    total = c.submit(sum, range(10), resources={{"adjust_slots": 1}}).result()
+    out = {{"argv": args, "address": c.scheduler.address, "total": total,
+           "resources": [w["resources"] for w in workers.values()], "nthreads": [w["nthreads"] for w in workers.values()]}}
+open(os.environ["FAKE_BATCH_DIR"] + "/mercury-dem.json", "w").write(json.dumps(out))
+"""
+
+
+def test_slurm_launch_runs_the_command_on_batch_workers_and_cancels_them(tmp_path: Path) -> None:
+    import json
+
+    import psutil
+
+    bin_dir, batch = tmp_path / "bin", tmp_path / "batch"
+    bin_dir.mkdir()
+    batch.mkdir()
+    for name, text in (("sbatch", FAKE_SBATCH), ("scancel", FAKE_SCANCEL),
+                       ("mercury-dem", FAKE_MERCURY_DEM.format(python=sys.executable))):
+        (bin_dir / name).write_text(text)
+        (bin_dir / name).chmod(0o755)
+    mission, run = tmp_path / "mission", tmp_path / "run"
+    mission.mkdir()
+    env = script_env(
+        FAKE_BATCH_DIR=str(batch),
+        # A small job for this 2-core machine: one job of 2 single-threaded workers.
+        DASK_JOBQUEUE__SLURM__CORES="2", DASK_JOBQUEUE__SLURM__MEMORY="2GiB",
+        DASK_JOBQUEUE__SLURM__LOCAL_DIRECTORY=str(tmp_path / "scratch"),
+    )
+    env["PATH"] = f"{bin_dir}{os.pathsep}{env['PATH']}"
+    t0 = time.monotonic()
+    res = subprocess.run(
+        [str(CLUSTER / "slurm" / "launch.sh"), str(mission), str(run), "--jobs", "1", "--wait-workers", "2",
+         "--timeout", "120", "--", "--quiet"],
+        capture_output=True, text=True, timeout=300, env=env,
+    )
+    elapsed = time.monotonic() - t0
+    assert res.returncode == 0, f"{res.stdout}\n{res.stderr}"
+    out = json.loads((batch / "mercury-dem.json").read_text())
+    assert out["argv"] == ["run", str(mission), "--out", str(run), "--scheduler-file",
+                           f"{run}.dask/scheduler.json", "--quiet"]
+    assert out["address"].startswith("tls://")
+    assert out["total"] == 45
+    assert out["resources"] == [{"adjust_slots": 1}] * 2 and out["nthreads"] == [1, 1]
+    # The job script that was submitted names the scheduler and the TLS files.
+    (job,) = sorted(batch.glob("job-*.sh"))
+    text = job.read_text()
+    assert "#SBATCH --cpus-per-task=2" in text and "--tls-cert" in text
+    # Every job was cancelled and its processes are gone; the scheduler file was removed.
+    jobids = [int(i) for i in (batch / "jobids").read_text().split()]
+    assert sorted(int(i) for i in (batch / "cancelled").read_text().split()) == sorted(jobids)
+    deadline = time.monotonic() + 15
+    left = []
+    while time.monotonic() < deadline:
+        left = [p.pid for p in psutil.process_iter() if _pgid(p.pid) in jobids]
+        if not left:
+            break
+        time.sleep(0.2)
+    assert left == [], f"job processes still running: {left}"
+    assert not (tmp_path / "run.dask" / "scheduler.json").exists()
+    print(f"launch.sh round trip: {elapsed:.1f} s")
+
+
+def _pgid(pid: int) -> int:
+    try:
+        return os.getpgid(pid)
+    except (ProcessLookupError, PermissionError):
+        return -1
