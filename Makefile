@@ -38,8 +38,12 @@ test: setup
 test-slow: setup
 	$(PY) -m pytest -m slow
 
+# The demo mission is generated once and reused; the run resumes when interrupted.
 demo: setup
-	$(VENV)/bin/mercury-dem demo --out $(DEMO_DIR)
+	@if [ -f $(DEMO_DIR)/mission/.complete ]; then echo "reusing the demo mission in $(DEMO_DIR)/mission"; \
+	else $(VENV)/bin/mercury-dem synth $(DEMO_DIR)/mission --preset demo --overwrite; fi
+	$(VENV)/bin/mercury-dem info $(DEMO_DIR)/mission
+	$(VENV)/bin/mercury-dem run $(DEMO_DIR)/mission --out $(DEMO_DIR)/run
 
 clean:
 	rm -rf $(VENV) $(DEMO_DIR) .pytest_cache

@@ -42,6 +42,9 @@ class RunStore:
 
     root: Path
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "root", Path(self.root))
+
     @classmethod
     def open(cls, root: str | Path) -> "RunStore":
         r = Path(root)

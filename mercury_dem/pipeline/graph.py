@@ -90,7 +90,8 @@ class Progress:
                 f"{k} {self.done[k]}/{self.totals[k]}" + (f" ({self.failed[k]} failed)" if self.failed[k] else "")
                 for k in self.totals
             )
-            print(f"[{line}] {summary.get('name', f'{level} {summary.get('id')}')} {state}", file=self.stream, flush=True)
+            name = summary.get("name") or f"{level} {summary.get('id')}"
+            print(f"[{line}] {name} {state}", file=self.stream, flush=True)
 
 
 def prepare_store(mission_path: str | Path, out: str | Path, config: Config, force: str | None) -> RunStore:

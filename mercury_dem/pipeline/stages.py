@@ -11,6 +11,7 @@ run goes on and a resumed run does not retry them (``--force`` does).
 from __future__ import annotations
 
 import json
+import re
 import time
 import traceback
 from typing import Any
@@ -204,7 +205,7 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
     failures: dict[str, int] = {}
     if len(rows):
         for reason in rows.loc[rows["status"] != "matched", "reason"]:
-            key = str(reason).split(":")[0][:80]
+            key = re.sub(r"\d+(\.\d+)?", "N", str(reason))[:100]  # category: numbers folded
             failures[key] = failures.get(key, 0) + 1
     built = build_network(
         ids, matches, cameras, positions, rotations,
@@ -305,7 +306,9 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
                 point_rejected=np.zeros_like(net.point_rejected),
             )
         nets.append(net)
-    merged = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network
+    merged = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network.drop_unused_images()
+    if merged.n_measures == 0:
+        raise _NoInput("the merged network has no measures")
     run = store.read_run()
     mission = open_mission(run["mission"])
     ids = [str(x) for x in merged.image_ids]
@@ -315,10 +318,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     start_rot, start_pos = rotations.copy(), positions.copy()
     if child_level != "tile":
         start_rot, start_pos = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
-    adj = adjust_network(
-        merged, cameras, start_pos, start_rot, config.adjust,
-        apriori_positions=positions, apriori_rotations=rotations,
-    )
+    adj = adjust_network(merged, cameras, start_pos, start_rot, config.adjust)
     return {
         "children": kids,
         **adj.summary,
@@ -361,7 +361,7 @@ def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids:
 def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, Any]:
     """A summary for a task that died with an unexpected exception (a bug, a lost worker)."""
     return {
-        "level": level, "id": int(unit_id), "ok": False,
+        "level": level, "id": int(unit_id), "name": unit_name(level, unit_id), "ok": False,
         "error": f"{unit_name(level, unit_id)}: unexpected {type(exc).__name__}: {exc}",
         "traceback": "".join(traceback.format_exception(exc))[-4000:],
     }

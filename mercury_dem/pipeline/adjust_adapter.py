@@ -1,0 +1,85 @@
+"""Bundle adjustment of one unit (region, hemisphere, globe): network in, adjusted network and pointing out.
+
+Joins the control network (:mod:`mercury_dem.network`) and the adjustment engine
+(:mod:`mercury_dem.adjust`) for the stage runners, and turns the result into the
+unit's summary (the ``levels`` rows of report.json).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.config.adjust import AdjustConfig
+
+
+@dataclass(frozen=True)
+class UnitAdjustment:
+    network: Any  # ControlNetwork with adjusted points, residuals, rejections
+    rotations: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    image_measures: NDArray[np.int64]  # accepted measures per image
+    image_rms_px: NDArray[np.float64]
+    summary: dict[str, Any]
+
+
+def adjust_network(
+    network: Any,
+    cameras: list[Any],
+    positions: NDArray[np.float64],
+    rotations: NDArray[np.float64],
+    config: AdjustConfig,
+    *,
+    rms_flag_px: float = 2.0,
+) -> UnitAdjustment:
+    """Adjust a merged network starting from ``positions``/``rotations``.
+
+    Islands (disconnected groups of images) are adjusted together, each held by
+    its a-priori constraints, and reported by id; images whose RMS residual
+    exceeds ``rms_flag_px`` are flagged.
+    """
+    from mercury_dem.adjust.bundle import bundle_adjust
+    from mercury_dem.adjust.network import network_with_result, problem_from_network
+
+    cfg = dataclasses.replace(config, allow_islands=True)
+    problem, measure_index = problem_from_network(network, cameras, positions, rotations, cfg)
+    result = bundle_adjust(problem, cfg)
+    adjusted = network_with_result(network, result, measure_index)
+    ids = np.asarray(network.image_ids).astype(str)
+    rms_img = np.asarray(result.rms_per_image, dtype=np.float64)
+    flagged = [
+        {"image": str(ids[k]), "rms_px": float(rms_img[k])}
+        for k in np.flatnonzero(np.nan_to_num(rms_img) > rms_flag_px)
+    ]
+    islands = [[str(ids[i]) for i in isl] for isl in result.diagnosis.islands]
+    summary = {
+        "images": int(problem.n_images),
+        "points": int(problem.n_points),
+        "measures": int(problem.n_measures),
+        "rms_px": float(result.rms_px),
+        "initial_rms_px": float(result.initial_rms_px),
+        "sigma0": float(result.sigma0),
+        "rejected": int(np.sum(result.rejected)),
+        "underdetermined_points": int(np.sum(result.underdetermined_points)),
+        "weak_images": [str(ids[k]) for k in np.flatnonzero(result.weak_images)],
+        "iterations": int(result.iterations),
+        "converged": bool(result.converged),
+        "reason": str(result.reason),
+        "sigma0_history": [float(e.get("sigma0", np.nan)) for e in result.log],
+        "linear_method": result.linear_method,
+        "solve_seconds": float(result.solve_seconds),
+        "flagged_images": flagged,
+        "islands": islands if len(islands) > 1 else [],
+    }
+    return UnitAdjustment(
+        network=adjusted,
+        rotations=np.asarray(result.rotations),
+        positions=np.asarray(result.positions),
+        image_measures=np.asarray(result.accepted_per_image, dtype=np.int64),
+        image_rms_px=rms_img,
+        summary=summary,
+    )

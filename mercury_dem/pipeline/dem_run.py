@@ -1,0 +1,68 @@
+"""The DEM stage of a run: grid the global adjusted point cloud, make products, validate against truth."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from typing import Any, TextIO
+
+import numpy as np
+
+from mercury_dem.config import Config
+from mercury_dem.io.run_store import RunStore
+
+
+def point_cloud(network: Any, adjusted: bool = True) -> np.ndarray:
+    """Body-fixed points (N, 3) of a network: adjusted (not rejected, finite) or a-priori."""
+    xyz = network.adjusted_xyz if adjusted else network.apriori_xyz
+    ok = np.all(np.isfinite(xyz), axis=1) & ~np.asarray(network.point_rejected)
+    return np.asarray(xyz[ok])
+
+
+def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
+    """Grid ``dem.zarr`` from the global network, then the products; returns the report's ``dem`` block.
+
+    With truth, the a-priori (unadjusted) points are gridded too (into a
+    temporary store) so the report shows what the adjustment bought.
+    """
+    from mercury_dem.network.store import read_network
+    from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+    from mercury_dem.products.make import make_products
+
+    net = read_network(store.network_path("global", 0))
+    pts = point_cloud(net, adjusted=True)
+    if store.dem_path.exists() and not (store.products_dir / ".complete").exists():
+        pass  # an existing complete DEM is reused; products are redone below
+    if not store.dem_path.exists():
+        grid_summary = grid_dem(pts, config, store.dem_path, client, attrs={"source": "global adjusted control points"})
+    else:
+        grid_summary = {"path": str(store.dem_path), "reused": True}
+    truth = mission.surface().height if getattr(mission, "has_truth", False) else None
+    products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
+    out: dict[str, Any] = {
+        "points": int(pts.shape[0]),
+        "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
+        "coverage": grid_summary.get("coverage"),
+        "statistics": products.get("statistics"),
+        "files": [str(f) for f in products.get("files", [])],
+    }
+    if truth is not None:
+        from mercury_dem.dem.accuracy import dem_accuracy
+
+        validation: dict[str, Any] = {"adjusted": products.get("accuracy")}
+        apri = point_cloud(net, adjusted=False)
+        tmp = store.root / "dem_apriori.zarr"
+        shutil.rmtree(tmp, ignore_errors=True)
+        try:
+            grid_dem(apri, config, tmp, client, coverage=False, attrs={"source": "a-priori control points"})
+            ds = open_dem(tmp)
+            validation["a_priori"] = dem_accuracy(
+                ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth,
+                ds["distance_to_nearest_point"].values,
+            )
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        out["validation"] = validation
+    if stream is not None and products.get("table"):
+        print(products["table"], file=stream)
+    return out
