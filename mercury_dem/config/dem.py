@@ -52,6 +52,10 @@ class DemConfig(ConfigSection):
     smoothing_size: int = param(3, "Box size of the averaging filter (odd)", unit="pixel", lo=1, hi=101)
     # --- execution --------------------------------------------------------------------------
     chunk_size: int = param(1024, "Map chunk edge (pixels) = Dask task = Zarr chunk", unit="pixel", lo=8, hi=65536)
+    query_threads: int = param(
+        -1, "Threads of each kd-tree query (scipy 'workers'): -1 = all cores; 1 under Dask with 1 thread/worker",
+        lo=-1, hi=1024,
+    )
     memory_limit_gb: float = param(
         8.0, "Refuse a grid whose estimated peak memory (per process) exceeds this", unit="GB", lo=0.001
     )

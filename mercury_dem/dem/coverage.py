@@ -106,7 +106,7 @@ def sinusoidal_grid(pixel_km: float, radius_m: float = DATUM_RADIUS_M) -> tuple[
     return x, y
 
 
-def point_coverage(index: Any, pixel_km: float = 1.0) -> CoverageResult:
+def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1) -> CoverageResult:
     """Coverage of a point cloud on a sinusoidal equal-area grid.
 
     Parameters
@@ -114,6 +114,7 @@ def point_coverage(index: Any, pixel_km: float = 1.0) -> CoverageResult:
     index : PointIndex (``dem.grid.build_point_index``): kd-tree of the points'
         footprints on the datum sphere (distances are horizontal)
     pixel_km : pixel edge, km (reference: 1 km)
+    threads : kd-tree query threads (-1 = all cores)
 
     Returns
     -------
@@ -142,6 +143,6 @@ def point_coverage(index: Any, pixel_km: float = 1.0) -> CoverageResult:
         cl = np.maximum(np.cos(la), 1e-12)
         lo = np.clip(x[cols] / (rk * cl), -math.pi, math.pi)
         q = latlon_to_unit(np.degrees(la), np.degrees(lo)) * DATUM_RADIUS_M
-        d, _ = index.tree.query(q, k=1)
+        d, _ = index.tree.query(q, k=1, workers=threads)
         nearest[r0 + rows, cols] = d / 1000.0
     return CoverageResult(pixel_km=pixel_km, x_km=x, y_km=y, count=count, nearest_km=nearest)

@@ -169,12 +169,18 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
     return PointIndex(tree=cKDTree(footprint), radius=r)
 
 
+def _threads(cfg: Any) -> int:
+    """kd-tree query threads (``dem.query_threads``; -1 = all cores). Results do not depend on it."""
+    t = int(getattr(cfg, "query_threads", -1))
+    return -1 if t == 0 else t
+
+
 def _median11(
     index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: float
 ) -> dict[str, NDArray[Any]]:
     """median11 on query points q (P, 3); returns flat per-pixel layers (radius float64)."""
     k = min(int(cfg.neighbours), index.n_points)
-    d, idx = index.tree.query(q, k=k)
+    d, idx = index.tree.query(q, k=k, workers=_threads(cfg))
     d = d.reshape(len(q), k)
     idx = idx.reshape(len(q), k)
     rs = np.sort(index.radius[idx], axis=1)
@@ -209,7 +215,7 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
     """Modified Shepard IDW on query points q (P, 3); flat per-pixel layers (radius float64)."""
     P = len(q)
     kmax = min(int(cfg.shepard_max_points), index.n_points)
-    d, idx = index.tree.query(q, k=kmax, distance_upper_bound=search_r)
+    d, idx = index.tree.query(q, k=kmax, distance_upper_bound=search_r, workers=_threads(cfg))
     d = d.reshape(P, kmax)
     idx = idx.reshape(P, kmax)
     inside = np.isfinite(d)
@@ -243,7 +249,7 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
     miss = ~has
     if miss.any():
         kf = min(int(cfg.shepard_fallback_neighbours), index.n_points)
-        df, idf = index.tree.query(q[miss], k=kf)
+        df, idf = index.tree.query(q[miss], k=kf, workers=_threads(cfg))
         df = df.reshape(-1, kf)
         idf = idf.reshape(-1, kf)
         with np.errstate(divide="ignore"):
@@ -291,7 +297,8 @@ def grid_pixels(
         capped = res["count_capped"]
         if capped.any():  # the k-NN query saw only k of them: count them all
             count = count.copy()
-            count[capped] = index.tree.query_ball_point(q[capped], r=search_r, return_length=True)
+            count[capped] = index.tree.query_ball_point(q[capped], r=search_r, return_length=True,
+                                                           workers=_threads(cfg))
         gap = res["nearest"] > cfg.max_distance_m
         out["height"][sl] = np.where(gap, np.nan, res["radius"] - DATUM_RADIUS_M)
         out["point_count"][sl] = count

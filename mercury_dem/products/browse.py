@@ -134,6 +134,26 @@ def _nice_length(x: float) -> float:
     return p
 
 
+def _map_figure(aspect_hw: float, colorbar: str, labels: bool) -> tuple[Any, Any, Any]:
+    """A figure with a map axes of the given height/width and a colour-bar axes, laid out by hand.
+
+    (matplotlib's constrained layout measures every tick label and cost seconds per image.)
+    """
+    lm, rm = (0.8, 0.2) if labels else (0.3, 0.3)  # inches left/right of the map
+    top, bottom = 0.45, (0.7 if labels else 0.2)
+    map_w = 12.0 - lm - rm - (1.4 if colorbar == "vertical" else 0.0)
+    map_h = map_w * aspect_hw
+    cb_h = 0.9 if colorbar == "horizontal" else 0.0
+    W, H = 12.0, top + map_h + bottom + cb_h
+    fig = plt.figure(figsize=(W, H))
+    ax = fig.add_axes((lm / W, (bottom + cb_h) / H, map_w / W, map_h / H))
+    if colorbar == "vertical":
+        cax = fig.add_axes(((lm + map_w + 0.25) / W, (bottom + 0.1 * map_h) / H, 0.2 / W, 0.8 * map_h / H))
+    else:
+        cax = fig.add_axes((0.25, 0.45 / H, 0.5, 0.18 / H))
+    return fig, ax, cax
+
+
 def _finish(fig: Any, path: str | Path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -148,15 +168,14 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
     dlat, dlon, _ = _spacing(lat, lon)
     extent = (lon[0] - dlon / 2, lon[-1] + dlon / 2, lat[-1] - dlat / 2, lat[0] + dlat / 2)
     aspect_hw = (extent[3] - extent[2]) / (extent[1] - extent[0])
-    fig_w = 12.0
-    fig, ax = plt.subplots(figsize=(fig_w, max(3.0, fig_w * aspect_hw * 0.82 + 1.6)), layout="constrained")
+    fig, ax, cax = _map_figure(aspect_hw, "vertical", labels=True)
     ax.set_facecolor("0.85")
     ax.imshow(rgba, extent=extent, interpolation="nearest", aspect="equal")
     ax.set_xlabel("east longitude (deg)")
     ax.set_ylabel("planetocentric latitude (deg)")
     ax.set_title(title)
     sm = plt.cm.ScalarMappable(norm=colors.Normalize(vmin, vmax), cmap=CMAP)
-    cb = fig.colorbar(sm, ax=ax, shrink=0.8, pad=0.02)
+    cb = fig.colorbar(sm, cax=cax)
     cb.set_label("elevation above 2439.4 km datum (m)")
     # Scale bar: equirectangular is true to scale along the parallel of the map's latitude nearest
     # the equator; the bar is drawn in the lower left and says which latitude it holds for.
@@ -203,7 +222,7 @@ def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat
     rgba[~inside] = (1.0, 1.0, 1.0, 1.0)
     nodata = inside & ~np.isfinite(hs)
     rgba[nodata] = (0.75, 0.75, 0.75, 1.0)
-    fig, ax = plt.subplots(figsize=(12, 12 * ny / nx * 0.85 + 1.2), layout="constrained")
+    fig, ax, cax = _map_figure(1.02 * ymax / (1.01 * xmax), "horizontal", labels=False)
     ax.imshow(rgba, extent=(-xmax, xmax, -ymax, ymax), interpolation="nearest")
     for g in range(-60, 61, 30):  # parallels
         px, py = fwd.transform(np.linspace(0, 359.9999, 361), np.full(361, float(g)))
@@ -227,7 +246,7 @@ def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat
     ax.set_axis_off()
     ax.set_title(title)
     sm = plt.cm.ScalarMappable(norm=colors.Normalize(vmin, vmax), cmap=CMAP)
-    cb = fig.colorbar(sm, ax=ax, orientation="horizontal", shrink=0.5, pad=0.02)
+    cb = fig.colorbar(sm, cax=cax, orientation="horizontal")
     cb.set_label("elevation above 2439.4 km datum (m); grey: no data")
     return _finish(fig, path)
 
@@ -238,13 +257,13 @@ def write_coverage_png(nearest_km: NDArray[np.floating], x_km: NDArray[np.floati
     f = max(1, int(math.ceil(nearest_km.shape[1] / width)))
     d = block_mean(nearest_km, f)
     vmax = float(np.nanpercentile(d, 99)) if np.isfinite(d).any() else 1.0
-    fig, ax = plt.subplots(figsize=(12, 12 * d.shape[0] / d.shape[1] * 0.85 + 1.2), layout="constrained")
+    fig, ax, cax = _map_figure(d.shape[0] / d.shape[1], "horizontal", labels=True)
     cmap = plt.get_cmap("viridis").with_extremes(bad=(1, 1, 1, 1))
     im = ax.imshow(np.ma.masked_invalid(d), cmap=cmap, vmin=0.0, vmax=max(vmax, 1e-6), interpolation="nearest",
                    extent=(x_km[0], x_km[-1], y_km[-1], y_km[0]))
     ax.set_xlabel("sinusoidal x (km)")
     ax.set_ylabel("y (km)")
     ax.set_title(title)
-    cb = fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.5, pad=0.02)
+    cb = fig.colorbar(im, cax=cax, orientation="horizontal")
     cb.set_label("distance to nearest control point (km)")
     return _finish(fig, path)

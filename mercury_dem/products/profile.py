@@ -62,7 +62,8 @@ def write_profile(profile: dict[str, NDArray[np.float64]], png: str | Path, csv:
     d, e = profile["distance_km"], profile["elevation"]
     cols = [d, profile["lat"], profile["lon"], e]
     header = "distance_km,lat_deg,lon_deg,elevation_m"
-    fig, ax = plt.subplots(figsize=(10, 4), layout="constrained")
+    fig, ax = plt.subplots(figsize=(10, 4))
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.9, bottom=0.13)
     ax.plot(d, e, color="C0", lw=1.5, label="DEM")
     if truth_height is not None:
         tr = np.asarray(truth_height(profile["lat"], profile["lon"]), dtype=np.float64)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import NOISE_M, sample_cloud, truth_height
+from dem_synthetic import NOISE_M, sample_cloud, truth_height
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.grid import GridSpec, build_point_index, grid_chunk, grid_pixels

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pyproj
 import pytest
-from conftest import truth_height
+from dem_synthetic import truth_height
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.coverage import point_coverage
@@ -55,13 +55,25 @@ def test_store_layout_crs_and_values(serial_store):
 def test_dask_equals_serial(serial_store, global_cloud, tmp_path):
     distributed = pytest.importorskip("distributed")
     path, _ = serial_store
+    # In-process workers keep the test fast on a loaded 2-core machine; that the point index
+    # survives the trip to a worker process (pickling) is checked below.
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
-                                  processes=True) as cluster, distributed.Client(cluster) as client:
+                                  processes=False) as cluster, distributed.Client(cluster) as client:
         summary = grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
     a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
     for name in a.data_vars:
         np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
     assert summary["coverage"] is None
+
+
+def test_point_index_pickles_for_workers(global_cloud):
+    import pickle
+
+    index = build_point_index(global_cloud)
+    back = pickle.loads(pickle.dumps(index, protocol=5))
+    q = global_cloud[:100] * 1.0001
+    np.testing.assert_array_equal(back.tree.query(q, k=3)[1], index.tree.query(q, k=3)[1])
+    np.testing.assert_array_equal(back.radius, index.radius)
 
 
 def test_existing_store_needs_overwrite(serial_store, global_cloud):
@@ -96,3 +108,16 @@ def test_coverage_counts_and_distances():
     assert s["nearest_point_km"]["min"] < 100.0
     assert s["nearest_point_km"]["max"] < 2 * R / 1000
     assert s["nearest_point_km"]["max"] > 0.8 * 2 * R / 1000
+
+
+@pytest.mark.slow
+def test_dask_worker_processes_equal_serial(serial_store, global_cloud, tmp_path):
+    """Same as test_dask_equals_serial with real worker processes (the index is pickled once per worker)."""
+    distributed = pytest.importorskip("distributed")
+    path, _ = serial_store
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+                                  processes=True) as cluster, distributed.Client(cluster) as client:
+        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
+    a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
+    for name in a.data_vars:
+        np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)

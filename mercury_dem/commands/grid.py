@@ -1,0 +1,120 @@
+"""``mercury-dem grid POINTS --out DIR``: grid a point cloud file into DIR/dem.zarr.
+
+A standalone use of the DEM stage, e.g. on a point cloud exported from elsewhere.
+POINTS is a ``.npy`` array (N, 3) of body-fixed XYZ metres, or a ``.csv`` with either
+columns ``x,y,z`` (metres) or ``lat,lon,radius`` (degrees, degrees, metres), named in a
+header line (without a header the three columns are read as x, y, z).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mercury_dem.exceptions import ConfigError, GridError
+
+NAME = "grid"
+HELP = "grid a point cloud (.npy/.csv of XYZ or lat,lon,radius) into DIR/dem.zarr"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("points", metavar="POINTS", help=".npy (N,3) XYZ metres, or .csv with x,y,z or lat,lon,radius")
+    p.add_argument("--out", metavar="DIR", required=True, help="output directory (dem.zarr and coverage.zarr go there)")
+    p.add_argument("--method", choices=("median11", "shepard"), help="override dem.method")
+    p.add_argument("--ppd", type=float, metavar="N", help="override dem.pixels_per_degree")
+    p.add_argument("--workers", type=int, default=0, metavar="N",
+                   help="Dask LocalCluster workers (0 = grid in this process; same result)")
+    p.add_argument("--no-coverage", action="store_true", help="skip the point-cloud coverage analysis")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing DIR/dem.zarr")
+
+
+def read_points(path: str | Path) -> np.ndarray:
+    """Read a point cloud file into (N, 3) body-fixed metres (see the module docstring)."""
+    from mercury_dem.geometry.body import latlon_to_unit
+
+    path = Path(path)
+    if not path.is_file():
+        raise GridError(f"point cloud file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            pts = np.load(path, allow_pickle=False)
+        except ValueError as exc:
+            raise GridError(f"point cloud file {path} is not a plain numpy array: {exc}") from None
+        return np.asarray(pts, dtype=np.float64)
+    if suffix not in (".csv", ".txt"):
+        raise GridError(f"point cloud file {path}: expected .npy or .csv, got '{suffix}'")
+    with open(path) as fh:
+        first = fh.readline()
+    names = [c.strip().lower() for c in first.split(",")]
+    has_header = any(c and not _is_number(c) for c in names)
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1 if has_header else 0, ndmin=2)
+    except ValueError as exc:
+        raise GridError(f"point cloud file {path} is not a numeric CSV: {exc}") from None
+    if data.size == 0:
+        return np.zeros((0, 3))
+    if has_header and {"lat", "lon", "radius"} <= set(names):
+        lat, lon, r = (data[:, names.index(k)] for k in ("lat", "lon", "radius"))
+        return latlon_to_unit(lat, lon) * r[:, None]
+    if has_header and {"x", "y", "z"} <= set(names):
+        return data[:, [names.index(k) for k in ("x", "y", "z")]]
+    if has_header:
+        raise GridError(f"point cloud file {path}: the header must name x,y,z or lat,lon,radius, got {first.strip()!r}")
+    if data.shape[1] != 3:
+        raise GridError(f"point cloud file {path}: expected 3 columns (x,y,z), got {data.shape[1]}")
+    return data
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def run(args: argparse.Namespace, config: Any) -> int:
+    from mercury_dem.pipeline.dem_stage import grid_dem
+
+    dem = config.dem
+    changes: dict[str, Any] = {}
+    if args.method:
+        changes["method"] = args.method
+    if args.ppd is not None:
+        changes["pixels_per_degree"] = args.ppd
+    try:
+        dem = dataclasses.replace(dem, **changes)
+    except ConfigError:
+        raise
+    points = read_points(args.points)
+    out = Path(args.out)
+    client = None
+    cluster = None
+    if args.workers > 0:
+        from distributed import Client, LocalCluster
+
+        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, dashboard_address=None,
+                               host=config.execution.host)
+        client = Client(cluster)
+    try:
+        summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
+                           coverage=not args.no_coverage, attrs={"source": str(args.points)})
+    finally:
+        if client is not None:
+            client.close()
+            cluster.close()
+    print(f"gridded {summary['n_points']} points into {summary['path']} "
+          f"({summary['shape'][0]} x {summary['shape'][1]}, {summary['method']}, {summary['n_chunks']} chunks) "
+          f"in {summary['seconds']:.1f} s; {summary['no_value_pixels']} pixels without value "
+          f"({100 * summary['no_value_fraction']:.2f} %)")
+    if summary["coverage"]:
+        print("coverage: " + json.dumps({k: summary["coverage"][k] for k in
+                                         ("pixel_km", "occupied_fraction", "share_with_1", "share_with_2",
+                                          "share_with_3_or_more")}))
+    return 0

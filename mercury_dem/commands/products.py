@@ -1,0 +1,47 @@
+"""``mercury-dem products DIR``: GeoTIFF/PDS products, browse PNGs and statistics of DIR/dem.zarr."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from mercury_dem.exceptions import MercuryDemError
+
+NAME = "products"
+HELP = "make the GeoTIFF, PDS-style, browse and statistics products of DIR/dem.zarr"
+
+
+class ProfileError(MercuryDemError, ValueError):
+    """A --profile argument is malformed."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", metavar="DIR", help="directory holding dem.zarr (a run directory or 'grid --out')")
+    p.add_argument("--out", metavar="OUT", help="products directory (default DIR/products)")
+    p.add_argument("--profile", action="append", default=[], metavar="LAT1,LON1,LAT2,LON2",
+                   help="elevation profile along the great circle between two points (degrees); repeatable")
+    p.add_argument("--overwrite", action="store_true", help="replace existing product files")
+
+
+def run(args: argparse.Namespace, config: Any) -> int:
+    from mercury_dem.products.make import make_products
+    from mercury_dem.products.profile import parse_profile
+
+    try:
+        profiles = [parse_profile(t) for t in args.profile]
+    except ValueError as exc:
+        raise ProfileError(f"--profile: {exc}") from None
+    d = Path(args.dir)
+    out = Path(args.out) if args.out else d / "products"
+    summary = make_products(d / "dem.zarr", out, config, profiles=profiles, overwrite=args.overwrite)
+    print(summary["table"])
+    if summary["coverage"]:
+        c = summary["coverage"]
+        n = c["nearest_point_km"]
+        print(f"coverage ({c['pixel_km']:g} km/pixel sinusoidal): {100 * c['occupied_fraction']:.2f} % of map pixels "
+              f"hold >= 1 point; of those {100 * c['share_with_1']:.2f} % one, {100 * c['share_with_2']:.2f} % two, "
+              f"{100 * c['share_with_3_or_more']:.2f} % three or more; nearest point {n['min']:.3f} / {n['mean']:.2f} "
+              f"+- {n['std']:.2f} / {n['max']:.1f} km (min / mean +- std / max)")
+    print(f"{len(summary['files'])} files in {out} ({summary['seconds']:.1f} s)")
+    return 0

@@ -1,0 +1,141 @@
+"""Product files: GeoTIFF/COG with the Mercury CRS, PDS equirectangular and polar caps, PNGs, JSON."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import matplotlib.image as mpimg
+import numpy as np
+import pyproj
+import pytest
+import rasterio
+from products_synthetic import CFG, NOISE_M, truth_height
+
+from mercury_dem.exceptions import GridError, StoreError
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC
+from mercury_dem.products.make import make_products, open_dem
+
+
+def _centres(src):
+    """Pixel-centre x (W,), y (H,) of a north-up raster."""
+    t = src.transform
+    return t.c + (np.arange(src.width) + 0.5) * t.a, t.f + (np.arange(src.height) + 0.5) * t.e
+
+
+def test_geotiff_is_the_dem_with_mercury_crs(dem_dir, products):
+    ds = open_dem(dem_dir / "dem.zarr")
+    with rasterio.open(dem_dir / "products/dem.tif") as src:
+        assert src.crs.to_string() == CRS_GEOGRAPHIC
+        assert src.dtypes[0] == "float32" and np.isnan(src.nodata)
+        assert src.overviews(1)  # cloud-optimised: overviews inside
+        x, y = _centres(src)
+        np.testing.assert_allclose(x, ds.lon.values)
+        np.testing.assert_allclose(y, ds.lat.values)
+        np.testing.assert_array_equal(src.read(1), ds.elevation.values)
+        assert src.tags()["DATUM_RADIUS_M"] == "2439400.0"
+
+
+@pytest.mark.skipif(shutil.which("gdalinfo") is None, reason="gdalinfo (Debian gdal-bin) not installed")
+def test_gdalinfo_opens_the_cog_with_mercury_crs(products, dem_dir):
+    out = subprocess.run(["gdalinfo", str(dem_dir / "products/dem.tif")], capture_output=True, text=True,
+                         check=True).stdout
+    assert "Mercury (2015) - Sphere / Ocentric" in out
+    assert "LAYOUT=COG" in out
+    assert "2440530" in out
+
+
+def test_pds_equirectangular_is_affine_cut(dem_dir, products):
+    ds = open_dem(dem_dir / "dem.zarr")
+    with rasterio.open(dem_dir / "products/pds/equirectangular.tif") as src:
+        x, y = _centres(src)
+        tr = pyproj.Transformer.from_crs(src.crs, CRS_GEOGRAPHIC, always_xy=True)
+        lon, _ = tr.transform(x, np.zeros_like(x))
+        _, lat = tr.transform(np.zeros_like(y), y)
+        rows = np.abs(ds.lat.values) < 65
+        np.testing.assert_allclose(lat, ds.lat.values[rows], atol=1e-6)
+        np.testing.assert_allclose(np.mod(lon, 360), ds.lon.values, atol=1e-6)
+        np.testing.assert_array_equal(src.read(1), ds.elevation.values[rows])
+
+
+@pytest.mark.parametrize("cap", ["north", "south"])
+def test_polar_caps_are_reprojected_truth(dem_dir, products, cap):
+    with rasterio.open(dem_dir / f"products/pds/{cap}_polar.tif") as src:
+        v = src.read(1)
+        x, y = _centres(src)
+        xx, yy = np.meshgrid(x, y)
+        # Compare CRSs by transforming points (GDAL renames the stereographic variant).
+        lon, lat = pyproj.Transformer.from_crs(src.crs, CRS_GEOGRAPHIC, always_xy=True).transform(xx, yy)
+    ok = np.isfinite(v)
+    assert ok.mean() > 0.6  # the inscribed circle of lat 65 is ~79 % of the square
+    assert (np.abs(lat[ok]) >= 65 - 1e-6).all()
+    assert (np.sign(lat[ok]) == (1 if cap == "north" else -1)).all()
+    err = v[ok] - truth_height(lat[ok], lon[ok])
+    # The reprojected cap is as close to the truth as the DEM's own cap pixels are (the truth's
+    # three-lobed pattern is sharp at the pole, so the DEM error there exceeds the equatorial one).
+    ds = open_dem(dem_dir / "dem.zarr")
+    la2, lo2 = np.meshgrid(ds.lat.values, ds.lon.values, indexing="ij")
+    in_cap = (la2 >= 65) if cap == "north" else (la2 <= -65)
+    e_dem = (ds.elevation.values - truth_height(la2, lo2))[in_cap]
+    rmse_dem = np.sqrt(np.nanmean(e_dem**2))
+    assert np.sqrt(np.mean(err**2)) < 1.2 * rmse_dem + 2.0
+    assert rmse_dem < 2 * NOISE_M
+    assert products["pds"][f"{cap}_polar"]["valid_fraction_in_cap"] > 0.99
+
+
+def test_browse_pngs_look_like_the_dem(dem_dir, products):
+    ds = open_dem(dem_dir / "dem.zarr")
+    grey = mpimg.imread(dem_dir / "products/browse/greyscale.png")
+    assert grey.shape[:2] == (360, 720)
+    elev = ds.elevation.values
+    ok = np.isfinite(elev)
+    assert (grey[..., 3][~ok] == 0).all()  # no value = transparent
+    # Grey level is a monotone stretch of elevation.
+    r = np.corrcoef(grey[..., 0][ok], np.clip(elev[ok], *np.percentile(elev[ok], [1, 99])))[0, 1]
+    assert r > 0.999
+    for name in ("hillshade", "colour_hillshade", "robinson", "coverage_distance"):
+        img = mpimg.imread(dem_dir / f"products/browse/{name}.png")
+        assert img.shape[0] > 100 and img.shape[1] > 300
+        assert img[..., :3].std() > 0.05  # not blank
+
+
+def test_statistics_and_accuracy_json(dem_dir, products):
+    stats = json.loads((dem_dir / "products/statistics.json").read_text())
+    assert stats["resample"]["factor"] == 2
+    for region in ("global", "north_polar", "south_polar", "equatorial"):
+        assert stats[region]["n_pixels"] > 0
+        assert stats[region]["min_m"] <= stats[region]["median_m"] <= stats[region]["max_m"]
+    assert (dem_dir / "products/statistics.txt").read_text().startswith("DEM statistics")
+    acc = json.loads((dem_dir / "products/accuracy.json").read_text())
+    # Sparse cloud (one point per ~25 km): noise (~0.4 sigma after the median) plus the
+    # smoothing of a curved surface over the 11-point neighbourhood; below the point noise.
+    assert acc["rmse_m"] < NOISE_M and abs(acc["bias_m"]) < 2.0
+    assert acc["n_no_value"] > 0  # the gap
+    assert sum(b["n"] for b in acc["error_vs_distance"]) == acc["n_compared"]
+    cov = json.loads((dem_dir / "products/coverage.json").read_text())
+    assert 0 < cov["occupied_fraction"] <= 1
+
+
+def test_profile_follows_truth(dem_dir, products):
+    data = np.genfromtxt(dem_dir / "products/profile_1.csv", delimiter=",", names=True)
+    ok = np.isfinite(data["elevation_m"])
+    assert ok.mean() > 0.95
+    assert np.sqrt(np.mean((data["elevation_m"][ok] - data["truth_m"][ok]) ** 2)) < NOISE_M
+    assert data["distance_km"][-1] == pytest.approx(products["profiles"][0]["length_km"])
+    assert (dem_dir / "products/profile_1.png").stat().st_size > 10_000
+
+
+def test_existing_products_need_overwrite(dem_dir, products):
+    with pytest.raises(StoreError, match="already exists.*overwrite"):
+        make_products(dem_dir / "dem.zarr", dem_dir / "products", CFG)
+
+
+def test_missing_store_and_memory_limit(tmp_path, dem_dir):
+    with pytest.raises(StoreError, match="no DEM store"):
+        make_products(tmp_path / "dem.zarr", tmp_path / "p", CFG)
+    import dataclasses
+
+    tiny = dataclasses.replace(CFG, memory_limit_gb=0.001)
+    with pytest.raises(GridError, match=r"needs about .* GB"):
+        make_products(dem_dir / "dem.zarr", tmp_path / "p", tiny)
