@@ -49,9 +49,10 @@ def problem_from_network(
     image_camera = np.array([distinct.setdefault(c, len(distinct)) for c in cameras], dtype=np.int64)
     measure_index = np.flatnonzero(network.active_measures())
     sig = np.asarray(network.sigma, np.float64)[measure_index]
-    with np.errstate(invalid="ignore"):
-        sigma = np.nanmean(np.where(np.isfinite(sig), sig, np.nan), axis=1) if sig.size else np.zeros(0)
-    sigma = np.where(np.isfinite(sigma), sigma, default_sigma_px)
+    finite = np.isfinite(sig)
+    count = finite.sum(axis=1)
+    total = np.where(finite, sig, 0.0).sum(axis=1)
+    sigma = np.where(count > 0, total / np.maximum(count, 1), default_sigma_px)
     held_images = np.zeros(n_img, bool)
     problem = AdjustmentProblem(
         cameras=tuple(distinct),

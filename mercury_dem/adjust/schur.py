@@ -241,7 +241,7 @@ class ReducedSolver:
         if self.method == "cholmod":
             try:
                 if self._factor is None:
-                    self._factor = _cholmod.cholesky(a)
+                    self._factor = _cholmod.cholesky(a, mode="supernodal")
                 else:
                     self._factor.cholesky_inplace(a)
                 return self._factor(rhs), LinearSolveInfo("cholmod")

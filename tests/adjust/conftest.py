@@ -50,3 +50,9 @@ def small_network():
     """A small clean network (no outliers) for exactness and diagnosis tests."""
     return make_synthetic_network(3000, rng=np.random.default_rng(7), min_views=3, outlier_fraction=0.0,
                                   noise_px=0.0, measures_per_image=150)
+
+
+@pytest.fixture(scope="session")
+def bal_path():
+    """Path of a BAL file under ../shared/data/bal (skips when absent)."""
+    return bal_file
