@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from mercury_dem.exceptions import NetworkError
 from mercury_dem.io.atomic import atomic_write_bytes
 from mercury_dem.network import protowire as pw
-from mercury_dem.network.model import ControlNetwork, PointType, as_string_array
+from mercury_dem.network.model import ControlNetwork, PointType, _take_measure_columns, as_string_array
 from mercury_dem.network.store import decode_strings, encode_strings
 
 #: Where the protobuf header starts in files we write (as ISIS does).
@@ -177,11 +177,12 @@ def read_isis_network(
         raise NetworkError(f"{path}: point {int(np.argmax(cols['pid_len'] < 0))} has no id; the file is damaged")
     if np.any(cols["ser_len"] < 0):
         raise NetworkError(f"{path}: a measure has no serial number; the file is damaged")
-    point_ids = _strings_at(buf, cols["pid_off"], cols["pid_len"])
-    if int_point_ids and point_ids.size:
-        as_int = _canonical_ints(point_ids)
-        if as_int is not None:
-            point_ids = as_int
+    point_ids: NDArray[Any] | None = None
+    if int_point_ids and n:
+        values, canonical = pw.parse_int_spans(buf, cols["pid_off"], cols["pid_len"])
+        point_ids = values if canonical else None
+    if point_ids is None:
+        point_ids = _strings_at(buf, cols["pid_off"], cols["pid_len"])
     serial_codes, serials = _unique_strings_at(buf, cols["ser_off"], cols["ser_len"])
     ptype = cols["ptype"]
     ptype = np.where(ptype == 0, PointType.FREE, np.where(ptype == 1, PointType.FIXED, ptype)).astype(np.int8)
@@ -240,46 +241,41 @@ def _covariance(values: NDArray[np.float64], present: NDArray[np.bool_]) -> NDAr
     return values if present.any() else None
 
 
-def _padded_bytes(buf: NDArray[np.uint8], off: NDArray[np.int64], length: NDArray[np.int64]) -> NDArray[np.bytes_]:
-    width = max(int(length.max()) if length.size else 1, 1)
-    col = np.arange(width)[None, :]
-    valid = col < length[:, None]
-    out = np.zeros((off.size, width), np.uint8)
-    out[valid] = buf[(off[:, None] + col)[valid]]
-    return out.view(f"S{width}").ravel()
-
-
 def _strings_at(buf: NDArray[np.uint8], off: NDArray[np.int64], length: NDArray[np.int64]) -> NDArray[np.str_]:
+    """The spans as a numpy unicode array (gathered by a compiled loop, decoded as ASCII when possible)."""
     if off.size == 0:
         return np.zeros(0, "U1")
-    raw = _padded_bytes(buf, off, length)
+    width = max(int(length.max()), 1)
+    raw = pw.gather_padded(buf, off, length, width).view(f"S{width}").ravel()
     try:
-        return raw.astype(f"U{raw.dtype.itemsize}")
+        return raw.astype(f"U{width}")
     except UnicodeDecodeError:
         return np.char.decode(raw, "utf-8")
 
 
 def _unique_strings_at(buf: NDArray[np.uint8], off: NDArray[np.int64], length: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.str_]]:
-    """Codes (M,) into unique strings, the unique strings in order of first appearance."""
+    """Codes (M,) into the distinct spans, and those strings in order of first appearance.
+
+    Spans are told apart by a 64-bit hash (one compiled pass, then a sort of
+    integers, not of strings); every span is then compared byte for byte with
+    its group's first span, and a hash collision falls back to sorting the
+    strings themselves.
+    """
     if off.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, "U1")
-    raw = _padded_bytes(buf, off, length)
-    uniq, first, inv = np.unique(raw, return_index=True, return_inverse=True)
+    h = pw.hash_spans(buf, off, length)
+    _, first, inv = np.unique(h, return_index=True, return_inverse=True)
+    inv = inv.ravel()
+    rep = first[inv]
+    if not np.all(pw.spans_equal(buf, off, length, off[rep], length[rep])):  # pragma: no cover - 2^-64 odds
+        raw = _strings_at(buf, off, length)
+        _, first, inv = np.unique(raw, return_index=True, return_inverse=True)
+        inv = inv.ravel()
     order = np.argsort(first)  # first-appearance order
     rank = np.empty_like(order)
     rank[order] = np.arange(order.size)
-    strings = np.char.decode(uniq[order], "utf-8")
-    return rank[inv.ravel()].astype(np.int64), strings
-
-
-def _canonical_ints(ids: NDArray[np.str_]) -> NDArray[np.int64] | None:
-    if not np.all(np.char.isdigit(np.char.lstrip(ids, "-"))):
-        return None
-    try:
-        vals = ids.astype(np.int64)
-    except (ValueError, OverflowError):
-        return None
-    return vals if np.array_equal(vals.astype(str), ids) else None
+    strings = _strings_at(buf, off[first[order]], length[first[order]])
+    return rank[inv].astype(np.int64), strings
 
 
 def _image_table(
@@ -350,19 +346,18 @@ def encode_isis_network(
     if image_to_serial is not None:
         serial_names = np.array([image_to_serial.get(s, s) for s in net.image_ids.tolist()], dtype=str)
     ser_data, ser_off = encode_strings(serial_names)
-    pid_data, pid_off = encode_strings(net.point_ids.astype(str))
-    order = np.argsort(net.measure_point, kind="stable")
+    if net.point_ids.dtype.kind in "iu":
+        pid_data, pid_off = pw.format_ints(net.point_ids.astype(np.int64))
+    else:
+        pid_data, pid_off = encode_strings(net.point_ids)
     first = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(net.measure_point, minlength=n), out=first[1:])
-    mimage = np.ascontiguousarray(net.measure_image[order])
-    mtype = np.ascontiguousarray(net.measure_type[order].astype(np.int64))
-    sample = np.ascontiguousarray(net.sample[order] + 1.0)
-    line = np.ascontiguousarray(net.line[order] + 1.0)
-    res = np.ascontiguousarray(net.residuals[order])
-    mign = np.ascontiguousarray(net.measure_ignored[order])
-    mrej = np.ascontiguousarray(net.measure_rejected[order])
-    appix = np.ascontiguousarray(net.apriori_pixels[order] + 1.0)
-    sigma = np.ascontiguousarray(net.sigma[order])
+    if m and np.any(np.diff(net.measure_point) < 0):  # group measures by point (stable)
+        net = net.replace(**_take_measure_columns(net, np.argsort(net.measure_point, kind="stable")))
+    mimage, sample, line = net.measure_image, net.sample + 1.0, net.line + 1.0
+    mtype = net.measure_type.astype(np.int64)
+    res, mign, mrej, sigma = net.residuals, net.measure_ignored, net.measure_rejected, net.sigma
+    appix = net.apriori_pixels + 1.0
     ptype = net.point_type.astype(np.int64)
     apcov = net.apriori_covariance if net.apriori_covariance is not None else np.full((n, 6), np.nan)
     adcov = net.adjusted_covariance if net.adjusted_covariance is not None else np.full((n, 6), np.nan)

@@ -465,3 +465,101 @@ def decode_message(data: bytes, base_offset: int = 0) -> list[tuple[int, int, ob
         out.append((f, wt, value, at))
         i = j
     return out
+
+
+# -- byte spans (strings inside the buffer) ---------------------------------------
+
+
+@njit(cache=True)
+def gather_padded(buf, off, length, width):  # pragma: no cover - compiled
+    """Rows (n, width) of the spans ``buf[off:off+length]``, zero-padded."""
+    out = np.zeros((off.size, width), np.uint8)
+    for i in range(off.size):
+        for j in range(min(length[i], width)):
+            out[i, j] = buf[off[i] + j]
+    return out
+
+
+@njit(cache=True)
+def hash_spans(buf, off, length):  # pragma: no cover - compiled
+    """64-bit FNV-1a hash of each span (the length mixed in)."""
+    out = np.empty(off.size, np.uint64)
+    prime = np.uint64(1099511628211)
+    for i in range(off.size):
+        h = np.uint64(14695981039346656037)
+        for j in range(length[i]):
+            h = (h ^ np.uint64(buf[off[i] + j])) * prime
+        out[i] = (h ^ np.uint64(length[i])) * prime
+    return out
+
+
+@njit(cache=True)
+def spans_equal(buf, off_a, len_a, off_b, len_b):  # pragma: no cover - compiled
+    """True where span a equals span b, byte for byte."""
+    out = np.empty(off_a.size, np.bool_)
+    for i in range(off_a.size):
+        same = len_a[i] == len_b[i]
+        j = 0
+        while same and j < len_a[i]:
+            same = buf[off_a[i] + j] == buf[off_b[i] + j]
+            j += 1
+        out[i] = same
+    return out
+
+
+@njit(cache=True)
+def parse_int_spans(buf, off, length):  # pragma: no cover - compiled
+    """Spans that are canonical decimal integers ("0", "17", "-5"; no '+', no leading zeros) as int64.
+
+    Returns (values, all_canonical); values are meaningless when not all are canonical.
+    """
+    out = np.empty(off.size, np.int64)
+    for i in range(off.size):
+        n = length[i]
+        j = off[i]
+        neg = n > 0 and buf[j] == 45  # '-'
+        start = j + (1 if neg else 0)
+        digits = n - (1 if neg else 0)
+        if digits < 1 or digits > 18:
+            return out, False
+        if digits > 1 and buf[start] == 48:  # leading zero
+            return out, False
+        if neg and digits == 1 and buf[start] == 48:  # "-0"
+            return out, False
+        v = 0
+        for q in range(digits):
+            c = buf[start + q]
+            if c < 48 or c > 57:
+                return out, False
+            v = v * 10 + (c - 48)
+        out[i] = -v if neg else v
+    return out, True
+
+
+@njit(cache=True)
+def format_ints(values):  # pragma: no cover - compiled
+    """Decimal text of int64 values: (bytes back to back, offsets (n + 1,))."""
+    n = values.size
+    offsets = np.zeros(n + 1, np.int64)
+    tmp = np.empty(20, np.uint8)
+    data = np.empty(n * 20, np.uint8)
+    pos = 0
+    for i in range(n):
+        v = values[i]
+        neg = v < 0
+        u = -v if neg else v
+        k = 0
+        while True:
+            tmp[k] = 48 + u % 10
+            u //= 10
+            k += 1
+            if u == 0:
+                break
+        if neg:
+            data[pos] = 45
+            pos += 1
+        for q in range(k):
+            data[pos + q] = tmp[k - 1 - q]
+        pos += k
+        offsets[i + 1] = pos
+    return data[:pos].copy(), offsets

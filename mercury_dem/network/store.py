@@ -47,11 +47,15 @@ def encode_strings(values: NDArray[Any]) -> tuple[NDArray[np.uint8], NDArray[np.
     """UTF-8 bytes of all strings back to back, and offsets of shape (n + 1,)."""
     if values.size == 0:
         return np.zeros(0, np.uint8), np.zeros(1, np.int64)
-    encoded = np.char.encode(values.astype(str), "utf-8")
+    values = values.astype(str, copy=False)
+    try:
+        encoded = values.astype("S")  # ASCII fast path
+    except UnicodeEncodeError:
+        encoded = np.char.encode(values, "utf-8")
     width = encoded.dtype.itemsize
-    lengths = np.char.str_len(encoded).astype(np.int64)
-    raw = np.frombuffer(encoded.tobytes(), np.uint8).reshape(values.size, width)
-    keep = np.arange(width)[None, :] < lengths[:, None]
+    raw = encoded.view(np.uint8).reshape(values.size, width)
+    keep = raw != 0  # strings hold no NUL: the padding is the zeros
+    lengths = keep.sum(axis=1, dtype=np.int64)
     offsets = np.zeros(values.size + 1, np.int64)
     np.cumsum(lengths, out=offsets[1:])
     return raw[keep], offsets

@@ -90,11 +90,20 @@ def components(n_nodes: int, edges: NDArray[np.int64]) -> NDArray[np.int64]:
 
 
 def _groups(label: NDArray[np.int64], image: NDArray[np.int64], rank: NDArray[np.int64], obs: NDArray[np.int64]):
-    """Sort observations ``obs`` by (label, image, rank, index); return order and group starts."""
-    order = obs[np.lexsort((obs, rank[obs], image[obs], label[obs]))]
-    lab, im = label[order], image[order]
+    """Sort observations ``obs`` by (label, image, rank, index); return order and group starts.
+
+    One stable sort of the composite key ``label * K + image`` over the
+    observations pre-ordered by (rank, index) (no pre-sort needed when the
+    ranks are already non-decreasing, as for build and for point-sorted merges).
+    """
+    if obs.size and np.any(np.diff(rank[obs]) < 0):
+        obs = obs[np.argsort(rank[obs], kind="stable")]
+    k = int(image.max()) + 1 if image.size else 1
+    key = label[obs] * k + image[obs]
+    perm = np.argsort(key, kind="stable")
+    order, ks = obs[perm], key[perm]
     new = np.ones(order.size, bool)
-    new[1:] = (lab[1:] != lab[:-1]) | (im[1:] != im[:-1])
+    new[1:] = ks[1:] != ks[:-1]
     return order, np.flatnonzero(new)
 
 
