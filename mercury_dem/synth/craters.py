@@ -7,7 +7,7 @@ the ``C_*`` constants) drawn from a power-law size-frequency distribution,
 * simple bowls (D below the simple-to-complex transition, ~10 km on Mercury):
   parabolic bowl, rim-to-floor depth ``0.2 D``, raised rim, ejecta falling off as r^-3;
 * complex craters: flat floor (a growing fraction of the radius), terraced-looking
-  smooth walls, a central peak, depth growing slowly with D (d ~ D^0.25);
+  smooth walls, a central peak, depth growing slowly with D (d ~ D^0.2, at most 3.5 km);
 * multi-ring basins: flooded flat floor, an inner peak ring, the main rim and an
   outer ring scarp.
 
@@ -96,7 +96,10 @@ def build_crater_table(
     simple = kinds == KIND_SIMPLE
     complex_ = kinds == KIND_COMPLEX
     basin = kinds == KIND_BASIN
-    depth = np.where(simple, 0.2 * d, 0.2 * transition_m * (np.maximum(d, transition_m) / transition_m) ** 0.25)
+    # Complex craters deepen slowly with D and stay within ~3.5 km (Mercury's large craters).
+    depth = np.where(
+        simple, 0.2 * d, np.minimum(0.2 * transition_m * (np.maximum(d, transition_m) / transition_m) ** 0.2, 3500.0)
+    )
     depth = np.where(basin, rng.uniform(2500.0, 3500.0, n), depth)
     rim = np.where(simple, 0.04 * d, 0.04 * transition_m * (np.maximum(d, transition_m) / transition_m) ** 0.45)
     rim = np.where(basin, 0.25 * depth, rim)
@@ -108,7 +111,7 @@ def build_crater_table(
     peak = np.where(basin, 0.25 * depth, peak)
     # Degradation: old craters keep ~35 % of their relief; basins keep theirs (flooded instead).
     amp = np.where(basin, 1.0, 0.35 + 0.65 * ages**0.7)
-    reach = np.where(basin, 2.2, 3.0)
+    reach = np.where(basin, 2.2, 2.5)
     t[:, C_DEPTH] = depth
     t[:, C_RIM] = rim
     t[:, C_FLOOR] = floor
@@ -195,38 +198,38 @@ def _smooth(x: float) -> float:
     return x * x * (3.0 - 2.0 * x)
 
 
-@numba.njit(cache=True)
-def crater_profile(row: NDArray[np.float64], r: float) -> float:
-    """Height (m, relative to the pre-crater surface) at r = distance / rim radius for one crater."""
-    kind = int(row[C_KIND])
-    depth = row[C_DEPTH]
-    rim = row[C_RIM]
-    reach = row[C_REACH]
+@numba.njit(cache=True, inline="always")
+def crater_profile(table: NDArray[np.float64], j: int, r: float) -> float:
+    """Height (m, relative to the pre-crater surface) at r = distance / rim radius for crater ``j``."""
+    kind = int(table[j, C_KIND])
+    depth = table[j, C_DEPTH]
+    rim = table[j, C_RIM]
+    reach = table[j, C_REACH]
     if r >= reach:
         return 0.0
     if r >= 1.0:
         # Ejecta blanket: falls as r^-3, tapered to zero at the reach.
-        h = rim * r ** -3.0 * (1.0 - _smooth((r - 1.0) / (reach - 1.0)) ** 2)
+        taper = _smooth((r - 1.0) / (reach - 1.0))
+        h = rim / (r * r * r) * (1.0 - taper * taper)
         if kind == KIND_BASIN:
             # Outer ring scarp at 1.5 radii.
             q = (r - 1.5) / 0.06
-            h += row[C_PEAK] * 0.6 * np.exp(-q * q)
+            h += table[j, C_PEAK] * 0.6 * np.exp(-q * q)
         return h
     if kind == KIND_SIMPLE:
         return rim - depth * (1.0 - r * r)
-    f = row[C_FLOOR]
+    f = table[j, C_FLOOR]
     floor = rim - depth
     if r <= f:
         h = floor
     else:
         x = (r - f) / (1.0 - f)
         h = floor + depth * _smooth(x) ** 1.3
-    if kind == KIND_COMPLEX:
-        q = r / 0.12
-        h += row[C_PEAK] * np.exp(-q * q)
-    else:
-        q = (r - 0.5) / 0.05
-        h += row[C_PEAK] * np.exp(-q * q)
+    peak = table[j, C_PEAK]
+    if peak > 0.0:
+        q = r / 0.12 if kind == KIND_COMPLEX else (r - 0.5) / 0.05
+        if q * q < 30.0:
+            h += peak * np.exp(-q * q)
     return h
 
 
@@ -242,6 +245,21 @@ def _cell_of(px: float, py: float, pz: float, cell_deg: float, n_lat: int, n_lon
 
 
 @numba.njit(cache=True)
+def _order_by_cell(cells: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
+    """Indices that visit the points cell by cell (counting sort, O(n + n_cells))."""
+    counts = np.zeros(n_cells + 1, dtype=np.int64)
+    for i in range(cells.shape[0]):
+        counts[cells[i] + 1] += 1
+    for c in range(n_cells):
+        counts[c + 1] += counts[c]
+    order = np.empty(cells.shape[0], dtype=np.int64)
+    for i in range(cells.shape[0]):
+        order[counts[cells[i]]] = i
+        counts[cells[i]] += 1
+    return order
+
+
+@numba.njit(cache=True)
 def crater_heights(
     units: NDArray[np.float64],
     table: NDArray[np.float64],
@@ -253,12 +271,21 @@ def crater_heights(
     cand: NDArray[np.float64],
     body_radius_m: float,
 ) -> NDArray[np.float64]:
-    """Summed crater relief (m) at unit vectors (N, 3)."""
+    """Summed crater relief (m) at unit vectors (N, 3).
+
+    Points are visited in order of their index cell so the candidate lists
+    stay in cache (a large gain for scattered points).
+    """
     n = units.shape[0]
     out = np.zeros(n)
+    cells = np.empty(n, dtype=np.int64)
     for i in range(n):
+        cells[i] = _cell_of(units[i, 0], units[i, 1], units[i, 2], cell_deg, n_lat, n_lon)
+    order = _order_by_cell(cells, n_lat * n_lon)
+    for ii in range(n):
+        i = order[ii]
         px, py, pz = units[i, 0], units[i, 1], units[i, 2]
-        c = _cell_of(px, py, pz, cell_deg, n_lat, n_lon)
+        c = cells[i]
         h = 0.0
         for m in range(starts[c], starts[c + 1]):
             dx = px - cand[m, 0]
@@ -267,11 +294,11 @@ def crater_heights(
             chord2 = dx * dx + dy * dy + dz * dz
             if chord2 >= cand[m, 3]:
                 continue
-            row = table[members[m]]
+            j = members[m]
             dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
-            r = dist / row[C_RADIUS]
-            if r < row[C_REACH]:
-                h += row[C_AMP] * crater_profile(row, r)
+            r = dist / table[j, C_RADIUS]
+            if r < table[j, C_REACH]:
+                h += table[j, C_AMP] * crater_profile(table, j, r)
         out[i] = h
     return out
 
@@ -291,9 +318,14 @@ def ray_albedo(
     """Relative albedo boost (>= 0) of fresh-crater haloes and rays at unit vectors (N, 3)."""
     n = units.shape[0]
     out = np.zeros(n)
+    cells = np.empty(n, dtype=np.int64)
     for i in range(n):
+        cells[i] = _cell_of(units[i, 0], units[i, 1], units[i, 2], cell_deg, n_lat, n_lon)
+    order = _order_by_cell(cells, n_lat * n_lon)
+    for ii in range(n):
+        i = order[ii]
         px, py, pz = units[i, 0], units[i, 1], units[i, 2]
-        c = _cell_of(px, py, pz, cell_deg, n_lat, n_lon)
+        c = cells[i]
         boost = 0.0
         for m in range(starts[c], starts[c + 1]):
             dx = px - cand[m, 0]

@@ -104,8 +104,12 @@ def plan_mission(design: MissionDesign, seed: int, radius_m: float = DATUM_RADIU
     lo, hi = design.pixel_scale_m
     median_w = design.samples * np.sqrt(lo * hi)
     targets: list[tuple[float, float, int]] = []
+    gap_units = latlon_to_unit([g[0] for g in design.gaps], [g[1] for g in design.gaps]).reshape(-1, 3)
+    gap_cos = np.cos(np.radians([g[2] for g in design.gaps]))
     for p in range(design.passes):
         for lat, lon in _pass_centres(design, rng, design.spacing_factor * median_w, radius_m):
+            if gap_units.size and np.any(gap_units @ latlon_to_unit(lat, lon) > gap_cos):
+                continue
             targets.append((lat, lon, p))
     for lat, lon in design.isolated:
         targets.append((lat, lon, -1))

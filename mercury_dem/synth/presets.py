@@ -9,14 +9,17 @@ Choices and reasons (also in docs/design/synth.md):
   equator — the hemisphere and region boundary —, the 0/360 seam — a region
   boundary —, and 10-degree tile boundaries), four passes of 3 x 3 images plus
   two isolated ones (one near the north pole). 256 pixels at 1.1-3.2 km/pixel
-  keeps it at ~40 images and well under 30 s to generate.
-* ``demo``: global, 512^2 at 1.4-4.0 km/pixel (median ~2.3 km), three passes
-  laid on Fibonacci spirals so each point is seen ~3x; ~300 images, so
-  generation stays within a few minutes on 2 cores and the whole pipeline
-  within make demo's budget. Coarser than the reference's 75-800 m/pixel on
-  purpose (the reference needed 100,000 images).
-* ``large``: the same design at 1024^2 and 150-600 m/pixel: ~1.2 x 10^4 images,
-  generated in parallel on Dask.
+  keeps it at ~40 images and well under 30 s to generate; scales 0.9-3.4 km
+  (pairs up to ~3.8x apart).
+* ``demo``: global, 512^2 at 1.2-3.2 km/pixel (median ~2 km), three passes
+  laid on randomly rotated Fibonacci spirals so each point is seen >= 3x; one
+  data gap (a 22-degree cap with a single isolated image, hence empty tiles).
+  ~240 images, so generation stays within a few minutes on 2 cores and the
+  whole pipeline within make demo's budget. Coarser than the reference's
+  75-800 m/pixel on purpose (the reference needed 100,000 images). The NAC is
+  allowed ranges up to 60,000 km (flyby-like) so both cameras take part.
+* ``large``: the same design at 1024^2 and 70-300 m/pixel (NAC within
+  15,000 km as in orbit): >10^4 images, generated in parallel on Dask.
 """
 
 from __future__ import annotations
@@ -42,6 +45,8 @@ class MissionDesign:
     nac_max_slant_m : farthest NAC range (MESSENGER's apoapsis is ~15,000 km)
     incidence_deg, emission_deg : (min, max) at the image centre
     isolated : extra images (lat, lon) placed apart from everything
+    gaps : (lat, lon, radius_deg) caps where no pass puts an image (data gaps: empty
+        tiles; an isolated image may sit in one)
     truth_dem_ppd : pixels per degree of the stored truth DEM
     """
 
@@ -56,6 +61,7 @@ class MissionDesign:
     incidence_deg: tuple[float, float] = (20.0, 85.0)
     emission_deg: tuple[float, float] = (0.0, 45.0)
     isolated: tuple[tuple[float, float], ...] = ()
+    gaps: tuple[tuple[float, float, float], ...] = ()
     truth_dem_ppd: float = 4.0
     surface: SurfaceParams = field(default_factory=SurfaceParams)
     render: RenderSettings = field(default_factory=RenderSettings)
@@ -66,9 +72,9 @@ PRESETS: dict[str, MissionDesign] = {
         name="tiny",
         area_deg=(-10.0, 20.0, -15.0, 15.0),
         samples=256,
-        pixel_scale_m=(1100.0, 3200.0),
+        pixel_scale_m=(900.0, 3400.0),
         passes=4,
-        spacing_factor=0.9,
+        spacing_factor=1.05,
         nac_fraction=0.8,
         isolated=((84.0, 200.0), (45.0, 120.0)),
         truth_dem_ppd=8.0,
@@ -78,9 +84,13 @@ PRESETS: dict[str, MissionDesign] = {
         name="demo",
         area_deg=None,
         samples=512,
-        pixel_scale_m=(1400.0, 4000.0),
+        pixel_scale_m=(1200.0, 3200.0),
         passes=3,
-        spacing_factor=0.8,
+        spacing_factor=0.95,
+        emission_deg=(0.0, 35.0),
+        nac_max_slant_m=60_000e3,
+        gaps=((-35.0, 250.0, 22.0),),
+        isolated=((-35.0, 250.0),),
         truth_dem_ppd=4.0,
         surface=SurfaceParams(crater_d_min_m=4000.0, rough_shortest_m=700.0),
     ),
@@ -88,11 +98,14 @@ PRESETS: dict[str, MissionDesign] = {
         name="large",
         area_deg=None,
         samples=1024,
-        pixel_scale_m=(150.0, 600.0),
+        pixel_scale_m=(70.0, 300.0),
         passes=3,
-        spacing_factor=0.8,
+        spacing_factor=0.95,
+        emission_deg=(0.0, 40.0),
+        gaps=((-35.0, 250.0, 8.0), (20.0, 40.0, 5.0)),
+        isolated=((-35.0, 250.0), (20.0, 40.0)),
         truth_dem_ppd=16.0,
-        surface=SurfaceParams(crater_d_min_m=1200.0, rough_shortest_m=75.0),
+        surface=SurfaceParams(crater_d_min_m=2000.0, rough_shortest_m=35.0),
     ),
 }
 

@@ -106,7 +106,9 @@ class LocalGrid:
     """A gnomonic grid on the plane tangent at ``centre`` (unit vector), spacing ``spacing_m``.
 
     Node (j, i) has plane coordinates ``x = x0 + i * spacing``, ``y = y0 + j * spacing``
-    along ``east`` and ``north``; its direction is ``normalize(R * centre + x * east + y * north)``.
+    along the tangent unit vectors ``east`` and ``north`` (any right-handed tangent
+    pair: the renderer aligns them with the image axes so the grid hugs the
+    footprint); its direction is ``normalize(R * centre + x * east + y * north)``.
     """
 
     centre: NDArray[np.float64]
@@ -165,7 +167,13 @@ def footprint_grid(
     if not hit_hi[-1]:
         raise GeometryError("the image centre does not see the body; cannot render")
     centre = p_hi[-1] / np.linalg.norm(p_hi[-1])
-    east, north = tangent_frame(centre)
+    # Grid axes along the image's sample direction projected on the tangent plane.
+    east = rotation[0] - (rotation[0] @ centre) * centre
+    if np.linalg.norm(east) < 1e-6:
+        east, north = tangent_frame(centre)
+    else:
+        east = east / np.linalg.norm(east)
+        north = np.cross(centre, east)
     slant = np.linalg.norm(p_hi[-1] - position)
     spacing = settings.grid_spacing_px * slant * camera.ifov_rad
     pts = np.concatenate([p_lo[hit_lo], p_hi[hit_hi]])
@@ -245,12 +253,34 @@ def shadow_grid(points: NDArray[np.float64], grid: LocalGrid, sun_position: NDAr
     return lit.T if sn > 0 else lit.T[::-1, :]
 
 
+@numba.njit(cache=True)
+def _grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    ny, nx, _ = points.shape
+    out = np.empty((3, ny, nx))
+    for j in range(ny):
+        j0, j1 = max(j - 1, 0), min(j + 1, ny - 1)
+        for i in range(nx):
+            i0, i1 = max(i - 1, 0), min(i + 1, nx - 1)
+            ax = points[j, i1, 0] - points[j, i0, 0]
+            ay = points[j, i1, 1] - points[j, i0, 1]
+            az = points[j, i1, 2] - points[j, i0, 2]
+            bx = points[j1, i, 0] - points[j0, i, 0]
+            by = points[j1, i, 1] - points[j0, i, 1]
+            bz = points[j1, i, 2] - points[j0, i, 2]
+            cx = ay * bz - az * by
+            cy = az * bx - ax * bz
+            cz = ax * by - ay * bx
+            n = np.sqrt(cx * cx + cy * cy + cz * cz)
+            out[0, j, i] = cx / n
+            out[1, j, i] = cy / n
+            out[2, j, i] = cz / n
+    return out
+
+
 def grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Outward unit normals (ny, nx, 3) of a grid of 3-D points (ny, nx, 3) (x = east, y = north)."""
-    dx = np.gradient(points, axis=1)
-    dy = np.gradient(points, axis=0)
-    n = np.cross(dx, dy)
-    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+    """Outward unit normals (3, ny, nx) of a grid of 3-D points (ny, nx, 3) (x = east, y = north),
+    by central differences (one-sided at the border)."""
+    return _grid_normals(np.ascontiguousarray(points))
 
 
 @numba.njit(cache=True, inline="always")
@@ -279,7 +309,7 @@ def _height_gap(
     return r - radius - h, fx, fy
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=True)
 def _cast_and_shade(
     origin: NDArray[np.float64],
     dirs: NDArray[np.float64],
@@ -306,7 +336,7 @@ def _cast_and_shade(
     out = np.zeros(n)
     ox, oy, oz = origin[0], origin[1], origin[2]
     oo = ox * ox + oy * oy + oz * oz
-    tol = 1e-3 * g
+    tol = 1e-2 * g
     min_step = 0.05 * g
     ny, nx = heights.shape
     for k in range(n):
@@ -489,7 +519,7 @@ def _render_supersampled(
     frame = np.stack([grid.centre, grid.east, grid.north])
     out = _cast_and_shade(
         c, np.ascontiguousarray(d), frame, radius, grid.x0, grid.y0, grid.spacing_m,
-        np.ascontiguousarray(heights), *(np.ascontiguousarray(normals[..., k]) for k in range(3)),
+        np.ascontiguousarray(heights), normals[0], normals[1], normals[2],
         np.ascontiguousarray(alb), np.ascontiguousarray(lit),
         float(heights.min()) - 1.0, float(heights.max()) + 1.0, slope_max, sun,
         settings.lambert_weight, np.radians(settings.phase_scale_deg),

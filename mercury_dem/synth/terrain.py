@@ -3,7 +3,7 @@
 ``Surface(SurfaceParams(seed=...))`` draws a crater population, a few multi-ring
 basins, smooth-plains units and long-wavelength relief, then evaluates
 
-    height = polar depression + sum of crater profiles
+    height = polar depression + sum of crater profiles (softly limited at -4.5 km)
              + fractal noise from long-wave relief down to roughness (damped on the plains)
     albedo = mean * (1 + mottling) * (1 + halo/ray boost of fresh craters)
 
@@ -60,7 +60,7 @@ class SurfaceParams:
     rough_shortest_m: float = 30.0
     albedo_mean: float = 0.14
     albedo_variation: float = 0.45
-    index_cell_deg: float = 1.0
+    index_cell_deg: float = 0.5
 
     def __post_init__(self) -> None:
         positive = ("crater_d_min_m", "crater_d_max_m", "transition_m", "rough_longest_m", "rough_shortest_m",
@@ -192,6 +192,10 @@ class Surface:
         h = cr.crater_heights(
             flat, self.craters, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m
         )
+        # Stacked craters (a crater in a crater in a basin) would add their depths; real
+        # excavation does not go that deep, so the crater relief is softly limited at -4.5 km (C1).
+        knee, span = -2500.0, 2000.0
+        h = np.where(h > knee, h, knee - span * np.tanh((knee - h) / span))
         lam, amp = self._rough_octaves(resolution_m)
         lam = np.concatenate([self._longwave[0], lam])
         amp = np.concatenate([self._longwave[1], amp])
