@@ -30,7 +30,7 @@ def contact_sheet(mission: Any, path: str | Path, image_ids: list[str] | None = 
     for ax, image_id in zip(axes.ravel(), image_ids):
         img = mission.read_image(image_id)
         r = cat.loc[image_id]
-        lo, hi = np.percentile(img, [0.5, 99.8])
+        lo, hi = np.percentile(img, [1.0, 99.0])
         ax.imshow(img, cmap="gray", vmin=lo, vmax=max(hi, lo + 1), interpolation="nearest")
         ax.set_title(
             f"{image_id} {str(r['instrument'])[-3:]}\n{r['pixel_scale_m']:.0f} m/px  i={r['incidence_deg']:.0f}°"

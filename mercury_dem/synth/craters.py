@@ -127,7 +127,7 @@ def build_crater_table(
     return t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _fill_index(
     lat: NDArray[np.float64],
     lon: NDArray[np.float64],
@@ -244,7 +244,7 @@ def _cell_of(px: float, py: float, pz: float, cell_deg: float, n_lat: int, n_lon
     return b * n_lon + k
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _order_by_cell(cells: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
     """Indices that visit the points cell by cell (counting sort, O(n + n_cells))."""
     counts = np.zeros(n_cells + 1, dtype=np.int64)
@@ -259,7 +259,7 @@ def _order_by_cell(cells: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
     return order
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def crater_heights(
     units: NDArray[np.float64],
     table: NDArray[np.float64],
@@ -303,7 +303,7 @@ def crater_heights(
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def ray_albedo(
     units: NDArray[np.float64],
     table: NDArray[np.float64],

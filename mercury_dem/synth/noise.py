@@ -45,7 +45,7 @@ def _grad(h: np.uint32, dx: float, dy: float, dz: float) -> float:
     return gx * dx + gy * dy + gz * dz
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _octave_add(
     out: NDArray[np.float64], px: NDArray[np.float64], py: NDArray[np.float64], pz: NDArray[np.float64],
     inv: float, off: float, amp: float, seed: np.uint32,

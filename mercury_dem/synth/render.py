@@ -204,7 +204,7 @@ def footprint_grid(
     return LocalGrid(centre, east, north, radius_m, xmin - pad, ymin - pad, spacing, nx, ny)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sweep_shadows(b: NDArray[np.float64], dy: float) -> NDArray[np.float64]:
     """Lit (1) / shadowed (0) nodes by a running-max sweep along +x toward the sun.
 
@@ -253,7 +253,7 @@ def shadow_grid(points: NDArray[np.float64], grid: LocalGrid, sun_position: NDAr
     return lit.T if sn > 0 else lit.T[::-1, :]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
     ny, nx, _ = points.shape
     out = np.empty((3, ny, nx))
@@ -309,7 +309,7 @@ def _height_gap(
     return r - radius - h, fx, fy
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True)
 def _cast_and_shade(
     origin: NDArray[np.float64],
     dirs: NDArray[np.float64],
@@ -416,7 +416,7 @@ def _cast_and_shade(
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _interp_directions(
     lattice: NDArray[np.float64], step: int, n_lines: int, n_samples: int, rot: NDArray[np.float64]
 ) -> NDArray[np.float64]:

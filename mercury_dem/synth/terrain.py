@@ -85,7 +85,7 @@ class SurfaceParams:
         return cls(**data)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _plains_mask(units: NDArray[np.float64], plains: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smooth-plains mask in [0, 1] at unit vectors (N, 3).
 
