@@ -1,0 +1,39 @@
+"""Runs of the whole pipeline on the tiny mission, shared by the pipeline tests."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mercury_dem.config import Config, load_config
+
+
+def tiny_config(**sections: dict[str, Any]) -> Config:
+    """The configuration the pipeline tests use: a small DEM over the tiny mission's area."""
+    base: dict[str, Any] = {
+        "dem": {
+            "pixels_per_degree": 4.0, "lat_min": -20.0, "lat_max": 30.0, "lon_min": -25.0, "lon_max": 25.0,
+            "chunk_size": 64, "browse_width": 256, "stats_pixel_km": 20.0, "coverage_pixel_km": 20.0,
+        },
+        "execution": {"retries": 2},
+    }
+    for k, v in sections.items():
+        base.setdefault(k, {}).update(v)
+    return load_config(overrides=base)
+
+
+@pytest.fixture(scope="session")
+def sync_run(tiny_mission_path: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """The tiny mission run in-process (``--scheduler sync``): (run directory, report)."""
+    from mercury_dem.pipeline.graph import run_pipeline
+
+    out = tmp_path_factory.mktemp("runs") / "sync"
+    report = run_pipeline(tiny_mission_path, out, tiny_config(), scheduler="sync", stream=None)
+    return out, report
+
+
+def read_report(run: Path) -> dict[str, Any]:
+    return json.loads((run / "report.json").read_text())
