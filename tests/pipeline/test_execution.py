@@ -49,8 +49,8 @@ def test_local_cluster_gives_the_sync_result(sync_run: tuple[Path, dict[str, Any
 
 
 def _start(cmd: list[str], log: Path) -> subprocess.Popen[bytes]:
-    fh = open(log, "wb")  # noqa: SIM115 - closed when the process is reaped
-    return subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+    with open(log, "wb") as fh:  # the child keeps its own descriptor
+        return subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
 
 
 @pytest.mark.slow

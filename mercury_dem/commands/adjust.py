@@ -1,0 +1,75 @@
+"""``mercury-dem adjust RUN --level region|hemisphere|global [--id ...]``: re-run one level's adjustments."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+
+from mercury_dem.config import Config
+from mercury_dem.exceptions import StoreError
+
+NAME = "adjust"
+HELP = "bundle adjust stored networks of a run at one level (region, hemisphere or global)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run_dir", metavar="RUN", help="run directory (its lower level must be complete)")
+    p.add_argument("--level", required=True, choices=("region", "hemisphere", "global"))
+    p.add_argument("--id", help="comma-separated unit ids (default: every unit of the level with input)")
+    p.add_argument("--report-dir", help="also write a jigsaw-like bundleout.txt and CSV tables here")
+    p.add_argument("--json", action="store_true")
+
+
+def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.geometry.tiling import N_REGIONS
+    from mercury_dem.io.run_store import RunStore
+    from mercury_dem.pipeline.stages import LEVEL_CHILD, child_ids, run_adjust_unit
+
+    store = RunStore.open(args.run_dir)
+    run_cfg = store.read_run().get("config")
+    if run_cfg is not None:
+        from mercury_dem.config import load_config
+
+        config = load_config(args.config, overrides=None) if args.config else load_config(overrides=run_cfg)
+    n = {"region": N_REGIONS, "hemisphere": 2, "global": 1}[args.level]
+    ids = [int(x) for x in args.id.split(",")] if args.id else list(range(n))
+    child = LEVEL_CHILD[args.level]
+    ids = [u for u in ids if any(store.unit_complete(child, c) for c in child_ids(args.level, u, config))]
+    if not ids:
+        raise StoreError(f"no {args.level} of {args.run_dir} has a complete {child} network; run the earlier stages first")
+    out = []
+    for u in ids:
+        shutil.rmtree(store.unit_dir(args.level, u), ignore_errors=True)
+        s = run_adjust_unit(str(store.root), args.level, u, config)
+        out.append(s)
+        if args.report_dir and s["ok"]:
+            _write_tables(store, args.level, u, args.report_dir)
+        if not args.json:
+            if s["ok"]:
+                print(f"{s['name']}: {s['images']} images, {s['points']} points, {s['measures']} measures, "
+                      f"rms {s['rms_px']:.3f} px, sigma0 {s['sigma0']:.3f}, {s['rejected']} rejected, "
+                      f"{s['iterations']} iterations, {s['seconds']:.1f} s", file=sys.stdout)
+            else:
+                print(f"{s['name']}: FAILED: {s['error']}", file=sys.stdout)
+    if args.json:
+        print(json.dumps(out, indent=2))
+    return 0 if all(s["ok"] for s in out) else 1
+
+
+def _write_tables(store, level: str, unit: int, directory: str) -> None:  # type: ignore[no-untyped-def]
+    """CSV tables of the unit's adjusted network (images, points, residuals)."""
+    from pathlib import Path
+
+    from mercury_dem.io.run_store import read_solution
+    from mercury_dem.network.store import read_network
+
+    d = Path(directory) / f"{level}_{unit}"
+    d.mkdir(parents=True, exist_ok=True)
+    net = read_network(store.network_path(level, unit))
+    net.points_frame().to_csv(d / "points.csv", index=False)
+    net.measures_frame().to_csv(d / "residuals.csv", index=False)
+    _, _, _, table = read_solution(store.solution_path(level, unit))
+    table.to_csv(d / "images.csv", index=False)
+    (d / "summary.json").write_text(json.dumps(store.read_summary(level, unit), indent=2))
