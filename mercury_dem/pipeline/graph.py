@@ -243,8 +243,14 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
         progress.update(s)
     for lvl in out:
         out[lvl].sort(key=lambda s: s["id"])
-    # Wall time of each level: from the previous level's end to its own end.
-    seconds, prev = {}, 0.0
+    seconds: dict[str, float] = {}
+    if getattr(client, "synchronous", False):
+        # in-process, every unit ran at submission: a level's time is the sum of its units'
+        for lvl in ("tile", "region", "hemisphere", "global"):
+            seconds[lvl] = float(sum(s.get("seconds", 0.0) or 0.0 for s in out[lvl]))
+        return out, seconds
+    # distributed: wall time of a level from the previous level's end to its own end
+    prev = 0.0
     for lvl in ("tile", "region", "hemisphere", "global"):
         if lvl in finished_at:
             seconds[lvl] = finished_at[lvl] - prev
