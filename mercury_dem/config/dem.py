@@ -39,7 +39,7 @@ class DemConfig(ConfigSection):
         5, "shepard: nearest points used where the radial search finds none", lo=1, hi=1000
     )
     shepard_max_points: int = param(
-        64, "shepard: at most this many nearest points inside the search radius are weighted", lo=1, hi=10000
+        32, "shepard: at most this many nearest points inside the search radius are weighted", lo=1, hi=10000
     )
     max_distance_m: float = param(
         50_000.0,
@@ -69,10 +69,24 @@ class DemConfig(ConfigSection):
         lo=65.0, hi=90.0,
     )
     stats_pixel_km: float = param(2.0, "Pixel scale of the resample the statistics use", unit="km", lo=0.001)
-    coverage_pixel_km: float = param(1.0, "Pixel scale of the sinusoidal equal-area coverage grid", unit="km", lo=0.001)
+    coverage_pixel_km: float = param(
+        0.0,
+        "Pixel scale of the sinusoidal equal-area coverage grid; 0 = the DEM's pixel size but at least 1 km "
+        "(the reference's 1 km at 64 pixel/deg)",
+        unit="km", lo=0.0,
+    )
     browse_width: int = param(2048, "Width of the browse PNGs", unit="pixel", lo=64, hi=16384)
     cog: bool = param(True, "Write the GeoTIFFs cloud-optimised (COG driver)")
     profile_samples: int = param(1000, "Samples along an elevation profile", lo=2, hi=1_000_000)
+
+    @property
+    def coverage_pixel_km_effective(self) -> float:
+        """``coverage_pixel_km``, with 0 resolved to max(1 km, the DEM's north-south pixel size)."""
+        if self.coverage_pixel_km > 0:
+            return self.coverage_pixel_km
+        import math
+
+        return max(1.0, 2.0 * math.pi * 2439.4 / 360.0 / self.pixels_per_degree)
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -211,6 +211,29 @@ def _median11(
     return {"radius": value, "nearest": d[:, 0], "spread": spread, "count": count, "count_capped": count == k}
 
 
+def _weighted_mean(w: NDArray[np.float64], r: NDArray[np.float64], d: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Weighted mean and weighted standard deviation of radii r (rows = pixels), weights w >= 0.
+
+    A point exactly on the pixel centre (d == 0) takes all the weight (mean of such points).
+    Radii are centred on the first column before summing (no cancellation at 2.4e6 m).
+    Spread is NaN where fewer than two points carry weight.
+    """
+    exact = d == 0.0
+    any_exact = exact.any(axis=1)
+    if any_exact.any():
+        w = w.copy()
+        w[any_exact] = exact[any_exact]
+    ref = r[:, :1]
+    c = r - ref
+    sw = w.sum(axis=1)
+    m = np.einsum("ij,ij->i", w, c) / sw
+    c -= m[:, None]
+    var = np.einsum("ij,ij->i", w, c * c) / sw
+    nused = np.count_nonzero(w > 0, axis=1)
+    return ref[:, 0] + m, np.where(nused >= 2, np.sqrt(var), np.nan)
+
+
 def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: float) -> dict[str, NDArray[Any]]:
     """Modified Shepard IDW on query points q (P, 3); flat per-pixel layers (radius float64)."""
     P = len(q)
@@ -218,34 +241,23 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
     d, idx = index.tree.query(q, k=kmax, distance_upper_bound=search_r, workers=_threads(cfg))
     d = d.reshape(P, kmax)
     idx = idx.reshape(P, kmax)
-    inside = np.isfinite(d)
-    count = np.count_nonzero(inside, axis=1)
-    safe_idx = np.where(inside, idx, 0)
-    r = np.where(inside, index.radius[safe_idx], 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(inside, ((search_r - d) / (search_r * d)) ** 2, 0.0)
+    count = np.count_nonzero(np.isfinite(d), axis=1)
+    # Neighbours come sorted by distance, misses (inf) last: keep only the columns some pixel uses.
+    kc = max(int(count.max()), 1)
+    d, idx = d[:, :kc], idx[:, :kc]
     value = np.full(P, np.nan)
     spread = np.full(P, np.nan)
     nearest = np.where(count > 0, d[:, 0], np.inf)
-
-    def _combine(sel: NDArray[np.bool_], w: NDArray[np.float64], r: NDArray[np.float64], d0: NDArray[np.float64],
-                 valid: NDArray[np.bool_]) -> None:
-        # A point exactly on the pixel centre: its radius (mean if several) is the value.
-        exact = valid & (d0 == 0.0)
-        wx = np.where(exact, 1.0, 0.0)
-        any_exact = exact.any(axis=1)
-        w = np.where(any_exact[:, None], wx, np.where(np.isfinite(w), w, 0.0))
-        sw = w.sum(axis=1)
-        ref = r[:, :1]
-        v = ref[:, 0] + (w * (r - ref)).sum(axis=1) / sw
-        var = (w * (r - v[:, None]) ** 2).sum(axis=1) / sw
-        nused = np.count_nonzero(w > 0, axis=1)
-        value[sel] = v
-        spread[sel] = np.where(nused >= 2, np.sqrt(var), np.nan)
-
     has = count > 0
     if has.any():
-        _combine(has, w[has], r[has], d[has], inside[has])
+        dh = d[has]
+        inside = np.isfinite(dh)
+        r = index.radius[np.where(inside, idx[has], 0)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = ((search_r - dh) / (search_r * dh)) ** 2
+        w[~inside] = 0.0
+        w[dh == 0.0] = 0.0  # (set by _weighted_mean's exact rule)
+        value[has], spread[has] = _weighted_mean(w, r, dh)
     miss = ~has
     if miss.any():
         kf = min(int(cfg.shepard_fallback_neighbours), index.n_points)
@@ -254,7 +266,8 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
         idf = idf.reshape(-1, kf)
         with np.errstate(divide="ignore"):
             wf = 1.0 / (df * df)
-        _combine(miss, wf, index.radius[idf], df, np.ones_like(df, dtype=bool))
+        wf[df == 0.0] = 0.0
+        value[miss], spread[miss] = _weighted_mean(wf, index.radius[idf], df)
         nearest[miss] = df[:, 0]
     return {"radius": value, "nearest": nearest, "spread": spread, "count": count, "count_capped": count == kmax}
 

@@ -1,0 +1,231 @@
+"""Benchmark: DEM gridding, ours (median11, shepard) vs gdal_grid (invdistnn, nearest) and scipy griddata.
+
+One run, same points, same grid, side by side. Each method is timed as a whole,
+including reading its input from disk: gdal_grid reads a CSV through an OGR VRT,
+ours read the point cloud (.npy, as the run store holds it) and write dem.zarr
+(the full DEM stage, smoothing included, coverage off), scipy.interpolate.griddata
+reads the same .npy. Accuracy against the known surface is printed alongside.
+
+Matching parameters: gdal_grid ``invdistnn`` uses power 2, the radius of our
+Shepard search (1.4142 pixel) and at most ``neighbours`` (11) points; ``nearest``
+the same radius. gdal_grid works in the CSV's lon/lat degrees, so the test region
+straddles the equator (|lat| <= 10, where a degree of longitude is within 1.5 % of
+a degree of latitude).
+
+Usage (heavy: run under the lock)::
+
+    flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_grid.py \\
+        [--points 1000000] [--size 1000] [--skip-griddata]
+    flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_grid.py --full [--points 10000000]
+
+``--full`` grids the 64 pixel/deg global map (23040 x 11520) from 10^7 points on a
+Dask LocalCluster (2 workers x 1 thread) and reports time and peak memory (ru_maxrss
+of this process and of the workers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mercury_dem.config.dem import DemConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz, xyz_to_latlon
+from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+
+
+def truth_height(lat, lon):
+    la, lo = np.radians(lat), np.radians(lon)
+    return (1500.0 * np.sin(2 * la) * np.cos(3 * lo) + 800.0 * np.cos(la) * np.sin(2 * lo + 0.3)
+            + 300.0 * np.sin(7 * la) * np.sin(11 * lo))
+
+
+def make_points(n, lat_range, lon_range, seed=0, noise=20.0, outliers=0.005):
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(np.sin(np.radians(lat_range[0])), np.sin(np.radians(lat_range[1])), n)
+    lat = np.degrees(np.arcsin(z))
+    lon = rng.uniform(lon_range[0], lon_range[1], n)
+    h = truth_height(lat, lon) + rng.normal(0.0, noise, n)
+    bad = rng.random(n) < outliers
+    h[bad] += rng.choice([-3000.0, 3000.0], int(bad.sum()))
+    return latlon_to_xyz(lat, lon, h)
+
+
+def rmse_vs_truth(elev, lat, lon):
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    e = elev - truth_height(la, lo)
+    return float(np.sqrt(np.nanmean(e**2))), float(np.isfinite(elev).mean())
+
+
+def run_ours(npy, method, cfg, work):
+    out = work / f"{method}.zarr"
+    t0 = time.perf_counter()
+    pts = np.load(npy)
+    summary = grid_dem(pts, cfg, out, coverage=False)
+    dt = time.perf_counter() - t0
+    ds = open_dem(out)
+    return dt, ds.elevation.values, ds.lat.values, ds.lon.values, summary
+
+
+def run_gdal(vrt, algo, size, extent, work):
+    out = work / f"gdal_{algo.split(':')[0]}.tif"
+    lon0, lon1, lat0, lat1 = extent
+    cmd = ["gdal_grid", "-q", "-a", algo, "-txe", str(lon0), str(lon1), "-tye", str(lat1), str(lat0),
+           "-outsize", str(size), str(size), "-ot", "Float32", "-of", "GTiff", "-l", "points", str(vrt), str(out)]
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True)
+    dt = time.perf_counter() - t0
+    import rasterio
+
+    with rasterio.open(out) as src:
+        a = src.read(1).astype(np.float64)
+        nod = src.nodata
+    if nod is not None and not np.isnan(nod):
+        a[a == nod] = np.nan
+    return dt, a, " ".join(cmd)
+
+
+def run_griddata(npy, size, extent):
+    from scipy.interpolate import griddata
+
+    lon0, lon1, lat0, lat1 = extent
+    t0 = time.perf_counter()
+    pts = np.load(npy)
+    lat, lon, h = xyz_to_latlon(pts)
+    step = (lon1 - lon0) / size
+    glat = lat1 - (np.arange(size) + 0.5) * step
+    glon = lon0 + (np.arange(size) + 0.5) * step
+    gl, gn = np.meshgrid(glat, glon, indexing="ij")
+    out = griddata(np.column_stack([lon, lat]), h, (gn, gl), method="linear")
+    return time.perf_counter() - t0, out
+
+
+def comparison(args):
+    size = args.size
+    span = 20.0
+    ppd = size / span
+    extent = (0.0, span, -span / 2, span / 2)  # lon0, lon1, lat0, lat1
+    work = Path(tempfile.mkdtemp(prefix="bench_grid_"))
+    try:
+        pts = make_points(args.points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
+        npy = work / "points.npy"
+        np.save(npy, pts)
+        lat, lon, h = xyz_to_latlon(pts)
+        lon = np.where(lon > 180, lon - 360, lon)
+        csv = work / "points.csv"
+        np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="",
+                   fmt="%.8f")
+        vrt = work / "points.vrt"
+        vrt.write_text(
+            '<OGRVRTDataSource><OGRVRTLayer name="points"><SrcDataSource>' + str(csv) + "</SrcDataSource>"
+            '<GeometryType>wkbPoint</GeometryType><GeometryField encoding="PointFromColumns" x="lon" y="lat" '
+            'z="elev"/></OGRVRTLayer></OGRVRTDataSource>'
+        )
+        base = dict(pixels_per_degree=ppd, lat_min=extent[2], lat_max=extent[3], lon_min=extent[0],
+                    lon_max=extent[1], chunk_size=512, max_distance_m=1e7)
+        npix = size * size
+        rows = []
+        radius_deg = 1.4142 / ppd
+        cfg_m = DemConfig(method="median11", **base)
+        cfg_s = DemConfig(method="shepard", **base)
+        for name, fn in (
+            ("ours median11", lambda: run_ours(npy, "median11", cfg_m, work)),
+            ("ours shepard", lambda: run_ours(npy, "shepard", cfg_s, work)),
+        ):
+            dt, elev, la, lo, _ = fn()
+            rows.append((name, dt, *rmse_vs_truth(elev, la, lo), "in-process, kd-tree queries on 2 threads"))
+        glat = extent[3] - (np.arange(size) + 0.5) / ppd
+        glon = extent[0] + (np.arange(size) + 0.5) / ppd
+        algos = {
+            "gdal_grid invdistnn": f"invdistnn:power=2.0:radius={radius_deg:.8f}:max_points=11:min_points=1:nodata=nan",
+            "gdal_grid nearest": f"nearest:radius1={radius_deg:.8f}:radius2={radius_deg:.8f}:nodata=nan",
+        }
+        cmds = {}
+        for name, algo in algos.items():
+            dt, elev, cmd = run_gdal(vrt, algo, size, extent, work)
+            cmds[name] = cmd
+            rows.append((name, dt, *rmse_vs_truth(elev, glat, glon), "GDAL 3.6 (Debian), CSV via VRT"))
+        if not args.skip_griddata:
+            dt, elev = run_griddata(npy, size, extent)
+            rows.append(("scipy griddata linear", dt, *rmse_vs_truth(elev, glat, glon), "Delaunay on lon/lat"))
+        ref = dict((r[0], r[1]) for r in rows)["gdal_grid invdistnn"]
+        print(f"\n{args.points} points -> {size} x {size} grid ({ppd:g} pixel/deg, {1000 * 2 * math.pi * DATUM_RADIUS_M / 360 / ppd / 1000:.0f} m), "
+              f"noise 20 m, 0.5 % outliers of +-3 km")
+        print(f"{'method':24s} {'seconds':>8s} {'Mpoints/s':>10s} {'Mpixels/s':>10s} {'vs invdistnn':>13s} "
+              f"{'RMSE (m)':>9s} {'filled':>7s}  notes")
+        for name, dt, rmse, filled, note in rows:
+            print(f"{name:24s} {dt:8.2f} {args.points / dt / 1e6:10.3f} {npix / dt / 1e6:10.3f} {ref / dt:12.2f}x "
+                  f"{rmse:9.1f} {100 * filled:6.1f}%  {note}")
+        for name, cmd in cmds.items():
+            print(f"  {name}: {cmd}")
+        return rows
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def full_size(args):
+    from distributed import Client, LocalCluster
+
+    work = Path(tempfile.mkdtemp(prefix="bench_grid_full_"))
+    try:
+        t0 = time.perf_counter()
+        pts = make_points(args.points, (-90, 90), (0, 360))
+        np.save(work / "points.npy", pts)
+        del pts
+        t_make = time.perf_counter() - t0
+        cfg = DemConfig(pixels_per_degree=64, chunk_size=args.chunk, method=args.method, query_threads=1,
+                        memory_limit_gb=16.0)
+        with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+                          memory_limit="8GB") as cluster, Client(cluster) as client:
+            t0 = time.perf_counter()
+            pts = np.load(work / "points.npy")
+            summary = grid_dem(pts, cfg, work / "dem.zarr", client=client, coverage=False)
+            t_grid = time.perf_counter() - t0
+            worker_rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+        own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        ds = open_dem(work / "dem.zarr")
+        la = ds.lat.values[::8]
+        lo = ds.lon.values[::8]
+        elev = ds.elevation.values[::8, ::8]
+        rmse, filled = rmse_vs_truth(elev, la, lo)
+        result = {
+            "points": args.points, "shape": summary["shape"], "method": args.method, "chunk": args.chunk,
+            "n_chunks": summary["n_chunks"], "seconds_grid_stage": t_grid, "seconds_make_points": t_make,
+            "pixels_per_second": summary["shape"][0] * summary["shape"][1] / t_grid,
+            "peak_rss_client_gb": own / 1e6, "peak_rss_workers_gb": {k: v / 1e6 for k, v in worker_rss.items()},
+            "rmse_vs_truth_m_subsampled": rmse, "filled_fraction": filled,
+            "store_bytes": sum(f.stat().st_size for f in (work / "dem.zarr").rglob("*") if f.is_file()),
+        }
+        print(json.dumps(result, indent=2))
+        return result
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--points", type=int, default=None)
+    p.add_argument("--size", type=int, default=1000)
+    p.add_argument("--skip-griddata", action="store_true")
+    p.add_argument("--full", action="store_true")
+    p.add_argument("--method", default="median11", choices=("median11", "shepard"))
+    p.add_argument("--chunk", type=int, default=1440)
+    args = p.parse_args()
+    if args.full:
+        args.points = args.points or 10_000_000
+        full_size(args)
+    else:
+        args.points = args.points or 1_000_000
+        comparison(args)
+
+
+if __name__ == "__main__":
+    main()
