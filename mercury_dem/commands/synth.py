@@ -28,6 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--workers", type=int, default=1,
                    help="render on a local Dask cluster of this many processes (default 1: plain loop)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="render on a running Dask cluster (tcp://host:port); OUT must be on a file system the workers share")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -53,7 +55,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     summary = generate_mission(
         args.out, cfg, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
-        workers=max(1, args.workers), progress=progress,
+        workers=max(1, args.workers), progress=progress, scheduler=args.scheduler,
     )
     print(json.dumps(summary, indent=2))
     return 0

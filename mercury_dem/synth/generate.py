@@ -46,6 +46,7 @@ def generate_mission(
     client: Any = None,
     design: MissionDesign | None = None,
     progress: Callable[[int, int], None] | None = None,
+    scheduler: str | None = None,
 ) -> dict[str, Any]:
     """Generate the synthetic mission of ``config.preset`` (or ``design``) at ``out``.
 
@@ -83,7 +84,7 @@ def generate_mission(
     with atomic_directory(out, overwrite=overwrite) as tmp:
         init_store(tmp)
         timings = render_all(tmp, plan, params.to_dict(), radius, design.render, config.seed, workers=workers,
-                             client=client, progress=progress)
+                             client=client, progress=progress, scheduler=scheduler)
         surface = cached_surface(params.to_dict(), radius)
         t_dem = time.perf_counter()
         height, lat_max, lon_min, ppd = truth_dem_grid(surface, design)

@@ -78,16 +78,19 @@ def render_all(
     client: Any = None,
     batch_size: int = 8,
     progress: Callable[[int, int], None] | None = None,
+    scheduler: str | None = None,
 ) -> list[tuple[str, float]]:
     """Render every image of ``plan`` into the mission at ``root``.
 
-    ``workers <= 1`` and no ``client``: a plain loop in this process. Otherwise
-    batches are submitted to ``client`` (a ``distributed.Client``) or to a
-    temporary LocalCluster of ``workers`` single-threaded processes.
+    ``workers <= 1`` and no ``client``/``scheduler``: a plain loop in this
+    process. Otherwise batches are submitted to ``client`` (a
+    ``distributed.Client``), to the scheduler at ``scheduler``
+    (``tcp://host:port``; the workers must see ``root`` on a shared file system),
+    or to a temporary LocalCluster of ``workers`` single-threaded processes.
     """
     table = plan.assign(index=np.arange(len(plan)))[RENDER_COLUMNS]
     rows = table.to_dict("records")
-    if client is None and workers <= 1:
+    if client is None and scheduler is None and workers <= 1:
         done: list[tuple[str, float]] = []
         for k, row in enumerate(rows):
             done += render_batch(str(root), [row], params, radius_m, settings, seed)
@@ -98,6 +101,10 @@ def render_all(
     if client is not None:
         return _run_on(client, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
     from distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        with Client(scheduler) as c:
+            return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with Client(cluster) as c:

@@ -59,7 +59,7 @@ class SurfaceParams:
     rough_hurst: float = 0.6
     rough_shortest_m: float = 30.0
     albedo_mean: float = 0.14
-    albedo_variation: float = 0.45
+    albedo_variation: float = 0.3
     index_cell_deg: float = 0.5
 
     def __post_init__(self) -> None:
