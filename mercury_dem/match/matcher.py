@@ -451,8 +451,11 @@ def match_tile(
         )
 
     threads = max(1, config.threads)
-    with _OpenCVThreads(1 if threads > 1 else cv2.getNumThreads()):
-        with ThreadPoolExecutor(max_workers=threads) as pool:
+    if threads == 1:  # in the calling thread, OpenCV's own threads as they are
+        prepared = {k: prep(k) for k in needed}
+        results = [run(k) for k in range(len(pairs))]
+    else:
+        with _OpenCVThreads(1), ThreadPoolExecutor(max_workers=threads) as pool:
             prepared = dict(zip(needed, pool.map(prep, needed)))
             results = list(pool.map(run, range(len(pairs))))
     return _collect(ids, index, pairs, results), [r.report for r in results]

@@ -210,6 +210,32 @@ def warp_to_reference(
     size = (int(ref_shape[1]), int(ref_shape[0]))
     # Replicated borders keep the detectors from seeing an artificial edge where the data ends.
     warped = cv2.warpPerspective(src, homography, size, flags=flags, borderMode=cv2.BORDER_REPLICATE)
-    ones = np.ones(match_image.shape, np.float32)
+    return warped, valid_region(homography, match_image.shape, ref_shape)
+
+
+def valid_region(
+    homography: NDArray[np.float64], match_shape: tuple[int, ...], ref_shape: tuple[int, int]
+) -> NDArray[np.bool_]:
+    """Reference-frame pixels whose bilinear sample lies fully inside the match image.
+
+    A homography maps the match image's border (its pixel-centre rectangle) to a
+    quadrilateral, which is filled and shrunk by one pixel for safety. When a
+    corner maps through infinity (the match image sees the horizon of the
+    reference plane) the region is found by warping an image of ones instead.
+    """
+    hm, wm = int(match_shape[0]), int(match_shape[1])
+    corners = np.array([[0.0, 0.0], [wm - 1.0, 0.0], [wm - 1.0, hm - 1.0], [0.0, hm - 1.0]])
+    inv = np.linalg.inv(homography)
+    q = corners @ inv[:, :2].T + inv[:, 2]
+    out = np.zeros(ref_shape, np.uint8)
+    if np.all(q[:, 2] > 0) or np.all(q[:, 2] < 0):  # no corner maps through infinity
+        poly = q[:, :2] / q[:, 2:3]
+        if np.all(np.isfinite(poly)) and np.abs(poly).max() < 1e7:
+            shift = 4
+            cv2.fillConvexPoly(out, np.rint(poly * (1 << shift)).astype(np.int32), 1, lineType=cv2.LINE_8, shift=shift)
+            return cv2.erode(out, np.ones((3, 3), np.uint8)).astype(bool)
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    size = (int(ref_shape[1]), int(ref_shape[0]))
+    ones = np.ones((hm, wm), np.float32)
     cover = cv2.warpPerspective(ones, homography, size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-    return warped, cover > 0.999
+    return cover > 0.999

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -45,27 +46,24 @@ class Refined:
 def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], half: int) -> NDArray[np.float32]:
     """Bilinear samples (N, 2*half+1, 2*half+1) of ``image`` on square grids about ``centres`` (N, 2).
 
-    Out-of-image neighbours are clamped to the border (callers check validity separately).
+    Every pixel of one patch shares the centre's fractional offset, so a patch is
+    one integer block of (2*half+2)^2 pixels (gathered through a strided window
+    view, a single fancy index) blended with four scalar weights. Blocks that
+    would leave the image are clamped to its border (callers check validity).
     """
     h, w = image.shape
-    off = np.arange(-half, half + 1, dtype=np.float64)
-    x = centres[:, 0, None, None] + off[None, None, :]
-    y = centres[:, 1, None, None] + off[None, :, None]
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0).astype(np.float32)
-    fy = (y - y0).astype(np.float32)
-    xi = np.clip(x0.astype(np.int64), 0, w - 2)
-    yi = np.clip(y0.astype(np.int64), 0, h - 2)
-    flat = image.ravel()
-    i00 = yi * w + xi
-    v00 = flat[i00]
-    v01 = flat[i00 + 1]
-    v10 = flat[i00 + w]
-    v11 = flat[i00 + w + 1]
-    top = v00 + fx * (v01 - v00)
-    bot = v10 + fx * (v11 - v10)
-    return top + fy * (bot - top)
+    size = 2 * half + 1
+    c = np.asarray(centres, dtype=np.float64)
+    x0 = np.floor(c[:, 0]) - half
+    y0 = np.floor(c[:, 1]) - half
+    fx = (c[:, 0] - np.floor(c[:, 0])).astype(np.float32)[:, None, None]
+    fy = (c[:, 1] - np.floor(c[:, 1])).astype(np.float32)[:, None, None]
+    xi = np.clip(np.nan_to_num(x0, nan=0.0), 0, w - size - 1).astype(np.intp)
+    yi = np.clip(np.nan_to_num(y0, nan=0.0), 0, h - size - 1).astype(np.intp)
+    blocks = np.lib.stride_tricks.sliding_window_view(image, (size + 1, size + 1))[yi, xi]
+    top = blocks[:, :-1, :-1] + fx * (blocks[:, :-1, 1:] - blocks[:, :-1, :-1])
+    bot = blocks[:, 1:, :-1] + fx * (blocks[:, 1:, 1:] - blocks[:, 1:, :-1])
+    return (top + fy * (bot - top)).astype(np.float32, copy=False)
 
 
 def _normalize(p: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -77,13 +75,12 @@ def _normalize(p: NDArray[np.float32]) -> NDArray[np.float32]:
 def _box_count(mask: NDArray[np.bool_], lo: NDArray[np.int64], hi: NDArray[np.int64]) -> NDArray[np.int64]:
     """Number of True pixels in boxes [lo, hi] (inclusive, (N, 2) sample/line) via an integral image."""
     h, w = mask.shape
-    ii = np.zeros((h + 1, w + 1), dtype=np.int64)
-    ii[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0, dtype=np.int64), axis=1)
+    ii = cv2.integral(mask.view(np.uint8))  # (h + 1, w + 1) int32
     s0 = np.clip(lo[:, 0], 0, w)
     l0 = np.clip(lo[:, 1], 0, h)
     s1 = np.clip(hi[:, 0] + 1, 0, w)
     l1 = np.clip(hi[:, 1] + 1, 0, h)
-    return ii[l1, s1] - ii[l0, s1] - ii[l1, s0] + ii[l0, s0]
+    return (ii[l1, s1] - ii[l0, s1] - ii[l1, s0] + ii[l0, s0]).astype(np.int64)
 
 
 def refine_matches(
@@ -128,13 +125,18 @@ def refine_matches(
     # overlap survive as long as their own window is on data.
     reach = half + search + 2
     inside &= (pb[:, 0] - reach >= 0) & (pb[:, 1] - reach >= 0) & (pb[:, 0] + reach < w) & (pb[:, 1] + reach < h)
-    tmpl = _normalize(sample_patches(ref, pa, half))
+    t_raw = sample_patches(ref, pa, half)
+    tmpl = _normalize(t_raw)
     big = sample_patches(warped, pb, half + search)
     k = 2 * search + 1
-    ncc = np.empty((n, k, k), np.float32)
-    for i in range(k):
-        for j in range(k):
-            ncc[:, i, j] = np.sum(_normalize(big[:, i : i + window, j : j + window]) * tmpl, axis=(1, 2))
+    # All (2 search + 1)^2 windows of every measure as rows of one array, so the correlations
+    # are a single batched matrix product and the window sums plain row sums.
+    win = np.lib.stride_tricks.sliding_window_view(big, (window, window), axis=(1, 2)).reshape(n, k * k, -1)
+    num = np.matmul(win, tmpl.reshape(n, -1, 1))[..., 0]
+    ssum = win.sum(axis=-1)
+    ssq = np.einsum("nkp,nkp->nk", win, win)
+    den = np.sqrt(np.maximum(ssq - ssum * ssum / (window * window), 1e-12))
+    ncc = (num / den).reshape(n, k, k)
     flat = ncc.reshape(n, -1)
     best = np.argmax(flat, axis=1)
     bi, bj = np.divmod(best, k)
@@ -154,17 +156,19 @@ def refine_matches(
     d = np.stack([bj - search + dx, bi - search + dy], axis=-1)
 
     # Gauss-Newton on ref ~ a * warped(x + d) + b, unknowns (a, b, a*dx, a*dy).
-    t_raw = sample_patches(ref, pa, half).reshape(n, -1).astype(np.float64)
+    t_col = t_raw.reshape(n, -1, 1).astype(np.float64)
+    ones = np.ones((n, window * window))
     for _ in range(iterations):
         p = sample_patches(warped, pb + d, half + 1).astype(np.float64)
         gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
         gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
         c = p[:, 1:-1, 1:-1]
-        a_mat = np.stack([c.reshape(n, -1), np.ones((n, window * window)), gx.reshape(n, -1), gy.reshape(n, -1)], -1)
-        ata = np.einsum("nki,nkj->nij", a_mat, a_mat)
-        atb = np.einsum("nki,nk->ni", a_mat, t_raw)
+        a_mat = np.stack([c.reshape(n, -1), ones, gx.reshape(n, -1), gy.reshape(n, -1)], -1)
+        a_t = a_mat.transpose(0, 2, 1)
+        ata = np.matmul(a_t, a_mat)
+        atb = np.matmul(a_t, t_col)
         ata += np.eye(4) * 1e-9 * np.trace(ata, axis1=1, axis2=2)[:, None, None]
-        sol = np.linalg.solve(ata, atb[..., None])[..., 0]
+        sol = np.linalg.solve(ata, atb)[..., 0]
         gain = sol[:, 0]
         step = sol[:, 2:] / np.where(np.abs(gain) > 1e-9, gain, np.nan)[:, None]
         step = np.clip(np.nan_to_num(step), -1.0, 1.0)

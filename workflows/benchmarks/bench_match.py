@@ -1,0 +1,198 @@
+"""Benchmark and accuracy study of tile matching (issue 4, sections 4 and 5).
+
+Speed (default): seconds per pair of ``match_tile`` on a tile of overlapping
+rendered images at 512^2 and 1024^2, side by side with the bare OpenCV floor for
+the same pairs in the same run: FAST (same cap) + SIFT on both images, brute-force
+k=2 one way, ratio test, one fundamental-matrix RANSAC -- no reuse, no guidance,
+no refinement. Both at 1 thread and at 2 threads (ours: a thread pool over pairs;
+the floor: OpenCV's own threads).
+
+Accuracy (``--accuracy``): the standard pair classes of
+:func:`mercury_dem.validate.matching.standard_pairs` rendered at 256^2, matched
+with the defaults and with the pre-transform, guidance, NCC fallback and
+refinement each switched off; true errors per class (Markdown tables).
+
+Run (heavy; take the lock):
+    flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_match.py
+    flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_match.py --accuracy
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+
+from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.camera import mdis_wac
+from mercury_dem.geometry.pose import rotation_from_angles
+from mercury_dem.match import ImageGeometry, match_tile
+from mercury_dem.match.features import image_quality, spread_best, stretch_to_8bit
+from mercury_dem.validate.matching import (
+    TruePose,
+    format_summary,
+    standard_pairs,
+    summarize,
+    true_errors,
+    true_overlap,
+)
+
+
+def _surface_and_renderer() -> tuple[Any, Any]:
+    from mercury_dem.synth.render import render_image
+    from mercury_dem.synth.terrain import Surface, SurfaceParams
+
+    return Surface(SurfaceParams(seed=42)), render_image
+
+
+def _tile(n_px: int, n_images: int, rng: np.random.Generator) -> tuple[dict[str, Any], dict[str, ImageGeometry], list[tuple[str, str]], Any]:
+    """n_images mutually overlapping views (same sun side, small offsets) and all their pairs."""
+    surface, render = _surface_and_renderer()
+    cam = mdis_wac(n_px)
+    base = standard_pairs(cam)[0]  # the stereo pair's reference view
+    images, geom = {}, {}
+    offsets = [(0, 0), (60e3, 10e3), (-40e3, 50e3), (20e3, -60e3), (-70e3, -30e3), (80e3, 70e3)][:n_images]
+    from mercury_dem.geometry.pose import look_at_rotation
+
+    centre = base.ref.position / np.linalg.norm(base.ref.position) * 2439400.0
+    alt = np.linalg.norm(base.ref.position) - 2439400.0
+    up = centre / np.linalg.norm(centre)
+    east = np.cross([0.0, 0.0, 1.0], up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    for k, (de, dn) in enumerate(offsets):
+        c = centre + alt * up + de * east + dn * north
+        r = look_at_rotation(c, centre + 0.3 * (de * east + dn * north), north)
+        vid = f"img{k}"
+        images[vid] = render(surface, cam, c, r, base.ref.sun, rng)
+        r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
+        geom[vid] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, base.ref.sun)
+    ids = list(images)
+    pairs = [(ids[i], ids[j]) for i in range(len(ids)) for j in range(i + 1, len(ids))]
+    return images, geom, pairs, surface
+
+
+def floor_pair(a: np.ndarray, b: np.ndarray, config: MatchConfig) -> int:
+    """The bare OpenCV work for one pair: detect + describe both, BF k=2 one way, ratio, one F RANSAC."""
+    fast = cv2.FastFeatureDetector_create(threshold=config.fast_threshold, nonmaxSuppression=True)
+    sift = cv2.SIFT_create()
+    desc = []
+    for img in (a, b):
+        q = image_quality(img, config)
+        i8 = stretch_to_8bit(img, q.low, q.high)
+        kps = fast.detect(i8, None)
+        pts = cv2.KeyPoint_convert(kps)
+        resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
+        keep = spread_best(pts.astype(np.float64), resp, config.max_keypoints, i8.shape, config.keypoint_grid)
+        kps = [kps[i] for i in keep]
+        for k in kps:
+            k.size = config.keypoint_size_px
+        kps, d = sift.compute(i8, kps)
+        desc.append((cv2.KeyPoint_convert(kps), d))
+    (pa, da), (pb, db) = desc
+    knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
+    good = [m[0] for m in knn if len(m) == 2 and m[0].distance < config.ratio * m[1].distance]
+    if len(good) < 8:
+        return 0
+    qa = np.float64([pa[m.queryIdx] for m in good])
+    qb = np.float64([pb[m.trainIdx] for m in good])
+    _, mask = cv2.findFundamentalMat(qa, qb, cv2.FM_RANSAC, config.fundamental_tolerance_px, config.fundamental_confidence)
+    return int(mask.sum()) if mask is not None else 0
+
+
+def speed(sizes: list[int], n_images: int, repeats: int) -> None:
+    rng = np.random.default_rng(5)
+    print(f"# bench_match speed: {n_images} mutually overlapping images per tile, all pairs; best of {repeats}")
+    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio | ours matches/pair | floor F-inliers/pair |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n in sizes:
+        images, geom, pairs, _ = _tile(n, n_images, rng)
+        for threads in (1, 2):
+            cfg = MatchConfig(threads=threads)
+            t_ours, t_floor = [], []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                m, reps = match_tile(images, geom, pairs, cfg)
+                t_ours.append(time.perf_counter() - t0)
+                old = cv2.getNumThreads()
+                cv2.setNumThreads(threads)
+                t0 = time.perf_counter()
+                fl = [floor_pair(images[a], images[b], cfg) for a, b in pairs]
+                t_floor.append(time.perf_counter() - t0)
+                cv2.setNumThreads(old)
+            o, f = min(t_ours) / len(pairs), min(t_floor) / len(pairs)
+            print(f"| {n}^2 | {threads} | {len(pairs)} | {o:.3f} | {f:.3f} | {o / f:.2f} | "
+                  f"{np.mean([r.n_matches for r in reps]):.0f} | {np.mean(fl):.0f} |", flush=True)
+
+
+def accuracy() -> None:
+    surface, render = _surface_and_renderer()
+    cam = mdis_wac(256)
+    scene = standard_pairs(cam)
+    rng = np.random.default_rng(2024)
+    ids: dict[int, str] = {}
+    images: dict[str, Any] = {}
+    geom: dict[str, ImageGeometry] = {}
+    truth: dict[str, TruePose] = {}
+    pairs = []
+    for sp in scene:
+        pid = []
+        for v in (sp.ref, sp.match):
+            if id(v) not in ids:
+                vid = f"v{len(ids):02d}"
+                ids[id(v)] = vid
+                images[vid] = render(surface, v.camera, v.position, v.rotation, v.sun, rng)
+                r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ v.rotation
+                geom[vid] = ImageGeometry.of(v.camera, v.position + rng.normal(0, 100, 3), r_ap, v.sun)
+                truth[vid] = TruePose(v.camera, v.position, v.rotation)
+            pid.append(ids[id(v)])
+        pairs.append((pid[0], pid[1]))
+    overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
+    base = MatchConfig(threads=2, max_sun_azimuth_difference_deg=180.0)
+    variants = {
+        "defaults (sun-azimuth limit lifted to measure the 90 deg pair)": base,
+        "pre-transform off": dataclasses.replace(base, pretransform=False),
+        "guidance off": dataclasses.replace(base, guided=False),
+        "NCC fallback off": dataclasses.replace(base, ncc_fallback=False),
+        "refinement off": dataclasses.replace(base, refine=False),
+    }
+    for title, cfg in variants.items():
+        m, reps = match_tile(images, geom, pairs, cfg)
+        pa = np.stack([m.sample_a, m.line_a], -1)
+        pb = np.stack([m.sample_b, m.line_b], -1)
+        err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
+        rows = [r.as_row() for r in reps]
+        print(f"\n### {title}\n")
+        print("| pair | status | route | matches | chain ratio>sym>F>H | ncc | scale | d-inc | d-az | median px | p95 px | > 2 px |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for k, (name, r) in enumerate(zip([s.name for s in scene], reps)):
+            e = err[m.pair == k]
+            med = f"{np.median(e):.3f}" if e.size else "-"
+            p95 = f"{np.percentile(e, 95):.3f}" if e.size else "-"
+            out = f"{100 * np.mean(e > 2):.1f}%" if e.size else "-"
+            print(f"| {name} | {r.status} | {r.route} | {r.n_matches} | {r.n_ratio}>{r.n_symmetry}>{r.n_fundamental}>"
+                  f"{r.n_homography} | {r.n_ncc}>{r.n_ncc_homography} | {r.scale_ratio:.1f} | "
+                  f"{r.incidence_difference_deg:.0f} | {r.sun_azimuth_difference_deg:.0f} | {med} | {p95} | {out} |")
+        print()
+        print(format_summary(summarize(err, m.pair, rows, overlaps)))
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--accuracy", action="store_true", help="run the accuracy study instead of the speed benchmark")
+    p.add_argument("--sizes", default="512,1024")
+    p.add_argument("--images", type=int, default=4)
+    p.add_argument("--repeats", type=int, default=3)
+    a = p.parse_args()
+    if a.accuracy:
+        accuracy()
+    else:
+        speed([int(s) for s in a.sizes.split(",")], a.images, a.repeats)
+
+
+if __name__ == "__main__":
+    main()
