@@ -117,8 +117,10 @@ def plan_mission(design: MissionDesign, seed: int, radius_m: float = DATUM_RADIU
     t = np.array(targets)
     lat, lon, pass_id = t[:, 0], np.mod(t[:, 1], 360.0), t[:, 2].astype(np.int64)
     scale = np.exp(rng.uniform(np.log(lo), np.log(hi), n))
-    inc = rng.uniform(*design.incidence_deg, n)
-    sun_az = rng.uniform(0.0, 2 * np.pi, n)
+    camp = np.asarray(design.sun_campaigns, dtype=np.float64).reshape(-1, 4)
+    c = camp[np.where(pass_id >= 0, pass_id, 0) % len(camp)]
+    inc = np.clip(rng.uniform(c[:, 2], c[:, 3]), *design.incidence_deg)
+    sun_az = np.radians(c[:, 0] + rng.uniform(-1.0, 1.0, n) * c[:, 1])
     emi = rng.uniform(*design.emission_deg, n)
     view_az = rng.uniform(0.0, 2 * np.pi, n)
     twist = rng.uniform(0.0, 2 * np.pi, n)

@@ -44,6 +44,11 @@ class MissionDesign:
     nac_fraction : share of NAC images where the NAC can reach the pixel scale
     nac_max_slant_m : farthest NAC range (MESSENGER's apoapsis is ~15,000 km)
     incidence_deg, emission_deg : (min, max) at the image centre
+    sun_campaigns : illumination per pass, cycled: (sun azimuth, azimuth jitter, incidence min,
+        incidence max) in degrees; azimuth from local east towards north (0 = sun in the east,
+        a morning campaign). Real imaging campaigns have consistent illumination at a site
+        (the sun azimuth follows local time); uniformly random azimuths would leave most
+        pairs unmatchable. Isolated images use the first campaign.
     isolated : extra images (lat, lon) placed apart from everything
     gaps : (lat, lon, radius_deg) caps where no pass puts an image (data gaps: empty
         tiles; an isolated image may sit in one)
@@ -60,6 +65,12 @@ class MissionDesign:
     nac_max_slant_m: float = 15_000e3
     incidence_deg: tuple[float, float] = (20.0, 85.0)
     emission_deg: tuple[float, float] = (0.0, 45.0)
+    sun_campaigns: tuple[tuple[float, float, float, float], ...] = (
+        (0.0, 15.0, 25.0, 50.0),   # morning, moderate sun
+        (10.0, 15.0, 55.0, 80.0),  # morning, low sun: long shadows (30 vs 70 deg pairs with the first)
+        (-15.0, 15.0, 35.0, 60.0),
+        (25.0, 15.0, 20.0, 45.0),
+    )
     isolated: tuple[tuple[float, float], ...] = ()
     gaps: tuple[tuple[float, float, float], ...] = ()
     truth_dem_ppd: float = 4.0
