@@ -318,7 +318,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     start_rot, start_pos = rotations.copy(), positions.copy()
     if child_level != "tile":
         start_rot, start_pos = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
-    adj = adjust_network(merged, cameras, start_pos, start_rot, config.adjust)
+    adj = adjust_network(merged, cameras, start_pos, start_rot, adjust_config_for(mission, config))
     return {
         "children": kids,
         **adj.summary,
@@ -330,6 +330,24 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
             },
         },
     }
+
+
+def adjust_config_for(mission: Any, config: Config) -> Any:
+    """The adjustment configuration for a mission: its declared a-priori pointing sigma when asked.
+
+    A mission (like SPICE with its CK quality) may state how wrong its a-priori
+    pointing is (``pointing_sigma_urad`` in mission.json). Weighting the pointing
+    constraint with the real uncertainty keeps the weakly determined directions of a
+    network without ground control (a horizontal shift of the whole block traded
+    against the pointing) near the a-priori instead of drifting.
+    """
+    import dataclasses
+
+    cfg = config.adjust
+    sigma_urad = getattr(mission, "meta", {}).get("pointing_sigma_urad")
+    if cfg.pointing_sigma_from_mission and sigma_urad:
+        cfg = dataclasses.replace(cfg, pointing_sigma_deg=float(np.degrees(float(sigma_urad) * 1e-6)))
+    return cfg
 
 
 class _NoInput(MercuryDemError):
