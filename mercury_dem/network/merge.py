@@ -86,6 +86,12 @@ def _weighted_mean(
     return out
 
 
+def _has_duplicates(values: NDArray[np.generic]) -> bool:
+    """True when some value occurs twice (a sort: numpy 2's hash-based unique is far slower on ints)."""
+    v = np.sort(values)
+    return bool(np.any(v[1:] == v[:-1]))
+
+
 def merge_networks(
     networks: Sequence[ControlNetwork],
     tolerance_px: float = 1.0,
@@ -177,10 +183,10 @@ def merge_networks(
             opt[name] = full[rep]
     ids = pid_all[rep]
     renumbered = False
-    if point_ids == "renumber" or (point_ids == "auto" and np.unique(ids).size != ids.size):
+    if point_ids == "renumber" or (point_ids == "auto" and _has_duplicates(ids)):
         ids = np.arange(n, dtype=np.int64)
         renumbered = True
-    elif point_ids == "keep" and np.unique(ids).size != ids.size:
+    elif point_ids == "keep" and _has_duplicates(ids):
         raise NetworkError(
             "merge_networks: merged point ids collide (the inputs reuse ids for different points); "
             "build each network with its own point_id_start, or pass point_ids='renumber'"

@@ -169,12 +169,12 @@ def form_tracks(
     per_track = np.diff(np.append(tstart, starts.size))
     keep_track = per_track >= min_measures
     n_short = int((~keep_track).sum())
-    keep_group = np.repeat(keep_track, per_track)
     # number kept tracks by their smallest rank (ties by label)
     min_rank = np.minimum.reduceat(rank[order], starts)
     track_min_rank = np.minimum.reduceat(min_rank, tstart) if tstart.size else np.zeros(0, np.int64)
     kept_t = np.flatnonzero(keep_track)
-    t_order = kept_t[np.lexsort((glabel[tstart[kept_t]], track_min_rank[kept_t]))]
+    # tracks are in label order already: a stable sort by rank breaks ties by label
+    t_order = kept_t[np.argsort(track_min_rank[kept_t], kind="stable")]
     track_number = np.full(tstart.size, -1, np.int64)
     track_number[t_order] = np.arange(t_order.size)
     g_track_all = np.repeat(track_number, per_track)
@@ -186,9 +186,12 @@ def form_tracks(
     dl = np.add.reduceat(line[order] - l_first, starts) / sizes
     g_sample = sample[first_in_group] + np.where(sizes > 1, ds, 0.0)
     g_line = line[first_in_group] + np.where(sizes > 1, dl, 0.0)
-    # keep groups of kept tracks, sorted by (track, image)
-    gsel = np.flatnonzero(keep_group)
-    gsel = gsel[np.lexsort((image[first_in_group[gsel]], g_track_all[gsel]))]
+    # groups of kept tracks, by (track, image): within a track the groups are already by image,
+    # so lay the tracks' group ranges out in track order (no sort)
+    counts = per_track[t_order]
+    total = int(counts.sum())
+    begin = np.cumsum(counts) - counts
+    gsel = np.repeat(tstart[t_order] - begin, counts) + np.arange(total)
     group_of_old = np.full(starts.size, -1, np.int64)
     group_of_old[gsel] = np.arange(gsel.size)
     obs_group = np.full(n_obs, -1, np.int64)
