@@ -118,7 +118,13 @@ class MatchConfig(ConfigSection):
         0.5, "Measures whose refined NCC is below this are dropped", lo=-1.0, hi=1.0
     )
     refine_max_shift_px: float = param(
-        2.5, "Measures the refinement moves farther than this are dropped", unit="px", lo=0.1, hi=64.0
+        1.5, "Measures the refinement moves farther than this are dropped (it jumped to another peak)",
+        unit="px", lo=0.1, hi=64.0,
     )
+    local_tolerance_px: float = param(
+        1.0, "After refinement, drop matches whose displacement differs from their neighbours' median by more "
+        "than this (0 = off)", unit="px", lo=0.0, hi=100.0,
+    )
+    local_neighbours: int = param(8, "Neighbours of the local-consistency check", lo=2, hi=100)
     # -- execution -----------------------------------------------------------
     threads: int = param(2, "Threads over pairs inside one tile task (OpenCV releases the GIL)", lo=1, hi=256)

@@ -42,6 +42,7 @@ from mercury_dem.match.guided import candidate_mask, knn_both_ways, ncc_matches
 from mercury_dem.match.outliers import (
     fundamental_inliers,
     homography_inliers,
+    local_consistency,
     ratio_test,
     select_spread,
     symmetric_pairs,
@@ -104,6 +105,8 @@ class PairReport:
     n_ncc_fundamental: int = 0
     n_ncc_homography: int = 0
     n_kept: int = 0
+    n_refined: int = 0
+    n_local: int = 0
     n_matches: int = 0
     seconds: float = 0.0
 
@@ -373,6 +376,11 @@ def _match_core(
             config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
         )
         feat, pa, pb, score = feat[r.ok], pa[r.ok], r.points[r.ok], r.score[r.ok]
+    rep.n_refined = int(feat.size)
+    if config.local_tolerance_px > 0:
+        ok = local_consistency(pa, pb, config.local_tolerance_px, config.local_neighbours)
+        feat, pa, pb, score = feat[ok], pa[ok], pb[ok], score[ok]
+    rep.n_local = int(feat.size)
     pm = apply_homography(h, pb)
     inside = other_geom.camera.in_image(pm) & np.isfinite(pm).all(axis=1)
     feat, pa, pm, score = feat[inside], pa[inside], pm[inside], score[inside]

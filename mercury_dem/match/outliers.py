@@ -110,3 +110,26 @@ def select_spread(
     """
     g = grid if grid > 0 else max(2, int(round(np.sqrt(n) / 2)))
     return spread_best(points, quality, n, shape, g)
+
+
+def local_consistency(
+    points_a: NDArray[np.float64], points_b: NDArray[np.float64], tolerance_px: float, neighbours: int = 8
+) -> NDArray[np.bool_]:
+    """Matches whose displacement agrees with the median displacement of their nearest neighbours.
+
+    After the pre-transform the displacement ``points_b - points_a`` is the pointing
+    error plus relief parallax: smooth over tens of pixels. A match that deviates
+    from the median of its ``neighbours`` nearest matches (in ``points_a``, itself
+    excluded) by more than ``tolerance_px`` is an outlier the global F/H checks
+    cannot see (their tolerances must admit the parallax across the whole image).
+    With fewer than ``neighbours + 1`` matches every match is kept.
+    """
+    n = points_a.shape[0]
+    if n < neighbours + 1:
+        return np.ones(n, dtype=bool)
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(points_a).query(points_a, k=neighbours + 1)
+    d = points_b - points_a
+    med = np.median(d[idx[:, 1:]], axis=1)
+    return np.linalg.norm(d - med, axis=1) <= tolerance_px
