@@ -166,7 +166,8 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
     if (r <= 0).any():
         raise GridError(f"the point cloud holds {int((r <= 0).sum())} points at the body centre")
     footprint = p * (DATUM_RADIUS_M / r)[:, None]
-    return PointIndex(tree=cKDTree(footprint), radius=r)
+    # Sliding-midpoint (unbalanced) tree: builds in about half the time, queries as fast.
+    return PointIndex(tree=cKDTree(footprint, balanced_tree=False), radius=r)
 
 
 def _threads(cfg: Any) -> int:
