@@ -319,11 +319,9 @@ def _cast_and_shade(
     y0: float,
     g: float,
     heights: NDArray[np.float64],
-    normal_x: NDArray[np.float64],
-    normal_y: NDArray[np.float64],
-    normal_z: NDArray[np.float64],
-    albedo: NDArray[np.float64],
-    lit: NDArray[np.float64],
+    fields: NDArray[np.float64],
+    block_max: NDArray[np.float64],
+    block: int,
     h_lo: float,
     h_hi: float,
     slope_max: float,
@@ -358,6 +356,24 @@ def _cast_and_shade(
         a = abs(px * dx + py * dy + pz * dz) / rr
         lip = a + 1.1 * slope_max * np.sqrt(max(0.0, 1.0 - a * a)) + 1e-6
         f, fx, fy = _height_gap(px, py, pz, frame, radius, x0, y0, g, heights)
+        # Block phase: while the ray is above the highest node within one block
+        # (``block_max`` is dilated by a block), descend to that height in one step,
+        # moving at most one block sideways (safe: nothing there reaches the ray).
+        reach = 0.9 * block * g
+        for _ in range(256):
+            bi = min(max(int(fx) // block, 0), block_max.shape[1] - 1)
+            bj = min(max(int(fy) // block, 0), block_max.shape[0] - 1)
+            above = rr - radius - block_max[bj, bi]
+            if above < g:
+                break
+            rate = -(px * dx + py * dy + pz * dz) / rr
+            step = reach if rate <= 1e-9 else min(above / rate, reach)
+            t += step
+            if t > t_end + g:
+                break
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            rr = np.sqrt(px * px + py * py + pz * pz)
+            f, fx, fy = _height_gap(px, py, pz, frame, radius, x0, y0, g, heights)
         t_prev, f_prev = t, f
         hit = False
         for _ in range(10000):
@@ -394,10 +410,19 @@ def _cast_and_shade(
                     side = -1
         if fx < 0.0 or fy < 0.0 or fx > nx - 1 or fy > ny - 1:
             continue
-        # Shading at the hit point.
-        nxv = _bilinear(normal_x, fx, fy)
-        nyv = _bilinear(normal_y, fx, fy)
-        nzv = _bilinear(normal_z, fx, fy)
+        # Shading at the hit point: one bilinear stencil for the packed fields
+        # (normal x, y, z, lit fraction, albedo) of shape (ny, nx, 5).
+        ii = min(max(int(np.floor(fx)), 0), nx - 2)
+        jj = min(max(int(np.floor(fy)), 0), ny - 2)
+        uu = min(max(fx - ii, 0.0), 1.0)
+        vv = min(max(fy - jj, 0.0), 1.0)
+        w00 = (1.0 - uu) * (1.0 - vv)
+        w01 = uu * (1.0 - vv)
+        w10 = (1.0 - uu) * vv
+        w11 = uu * vv
+        nxv = w00 * fields[jj, ii, 0] + w01 * fields[jj, ii + 1, 0] + w10 * fields[jj + 1, ii, 0] + w11 * fields[jj + 1, ii + 1, 0]
+        nyv = w00 * fields[jj, ii, 1] + w01 * fields[jj, ii + 1, 1] + w10 * fields[jj + 1, ii, 1] + w11 * fields[jj + 1, ii + 1, 1]
+        nzv = w00 * fields[jj, ii, 2] + w01 * fields[jj, ii + 1, 2] + w10 * fields[jj + 1, ii, 2] + w11 * fields[jj + 1, ii + 1, 2]
         nn = np.sqrt(nxv * nxv + nyv * nyv + nzv * nzv)
         nxv, nyv, nzv = nxv / nn, nyv / nn, nzv / nn
         sx, sy, sz = sun[0] - px, sun[1] - py, sun[2] - pz
@@ -407,12 +432,15 @@ def _cast_and_shade(
         mu = -(nxv * dx + nyv * dy + nzv * dz)
         if mu0 <= 0.0 or mu <= 0.0:
             continue
+        shade = w00 * fields[jj, ii, 3] + w01 * fields[jj, ii + 1, 3] + w10 * fields[jj + 1, ii, 3] + w11 * fields[jj + 1, ii + 1, 3]
+        if shade <= 0.0:
+            continue
+        alb = w00 * fields[jj, ii, 4] + w01 * fields[jj, ii + 1, 4] + w10 * fields[jj + 1, ii, 4] + w11 * fields[jj + 1, ii + 1, 4]
         cos_phase = -(sx * dx + sy * dy + sz * dz)
         phase = np.arccos(min(1.0, max(-1.0, cos_phase)))
         ls = 2.0 * mu0 / (mu0 + mu)
         refl = (1.0 - lambert_weight) * ls + lambert_weight * mu0
-        shade = _bilinear(lit, fx, fy)
-        out[k] = _bilinear(albedo, fx, fy) * np.exp(-phase / phase_scale_rad) * refl * shade
+        out[k] = alb * np.exp(-phase / phase_scale_rad) * refl * shade
     return out
 
 
@@ -470,6 +498,28 @@ def subsample_directions(
     return _interp_directions(np.ascontiguousarray(lattice), step, n_l, n_s, np.ascontiguousarray(rotation))
 
 
+BLOCK = 16
+
+
+def block_maxima(heights: NDArray[np.float64], block: int) -> NDArray[np.float64]:
+    """Highest node of each ``block`` x ``block`` cell, dilated by one block (nby, nbx).
+
+    Node (j, i) is in block (j // block, i // block); a point of block (bj, bi) is
+    within one block of every node counted in its entry.
+    """
+    ny, nx = heights.shape
+    nby, nbx = -(-ny // block), -(-nx // block)
+    pad = np.full((nby * block, nbx * block), -np.inf)
+    pad[:ny, :nx] = heights
+    bm = pad.reshape(nby, block, nbx, block).max(axis=(1, 3))
+    out = bm.copy()
+    p = np.pad(bm, 1, constant_values=-np.inf)
+    for dj in (0, 1, 2):
+        for di in (0, 1, 2):
+            out = np.maximum(out, p[dj:dj + nby, di:di + nbx])
+    return np.ascontiguousarray(out)
+
+
 def subsample_pixels(samples: int, lines: int, supersample: int) -> NDArray[np.float64]:
     """Sub-pixel positions (lines*ss, samples*ss, 2) (sample, line), 0-based pixel centres."""
     off = (np.arange(supersample) + 0.5) / supersample - 0.5
@@ -519,8 +569,8 @@ def _render_supersampled(
     frame = np.stack([grid.centre, grid.east, grid.north])
     out = _cast_and_shade(
         c, np.ascontiguousarray(d), frame, radius, grid.x0, grid.y0, grid.spacing_m,
-        np.ascontiguousarray(heights), normals[0], normals[1], normals[2],
-        np.ascontiguousarray(alb), np.ascontiguousarray(lit),
+        np.ascontiguousarray(heights), np.ascontiguousarray(np.stack([normals[0], normals[1], normals[2], lit, alb], -1)),
+        block_maxima(heights, BLOCK), BLOCK,
         float(heights.min()) - 1.0, float(heights.max()) + 1.0, slope_max, sun,
         settings.lambert_weight, np.radians(settings.phase_scale_deg),
     )
