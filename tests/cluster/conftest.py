@@ -6,7 +6,8 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,6 +98,15 @@ def listening_addresses(procs: list[psutil.Process]) -> list[tuple[int, str, int
             continue
         out += [(p.pid, c.laddr.ip, c.laddr.port) for c in conns if c.status == psutil.CONN_LISTEN]
     return out
+
+
+def refused(connect: Callable[[], object], reason: str) -> None:
+    """``connect`` fails with an OSError whose message matches ``reason``, well before its timeout
+    (so a slow machine's timeout cannot pass for a refusal)."""
+    t0 = time.monotonic()
+    with pytest.raises(OSError, match=reason):
+        connect()
+    assert time.monotonic() - t0 < 5.0
 
 
 @pytest.fixture
