@@ -190,3 +190,11 @@ def _pgid(pid: int) -> int:
         return os.getpgid(pid)
     except (ProcessLookupError, PermissionError):
         return -1
+
+
+def test_pbs_launch_script_is_the_slurm_one_for_pbs() -> None:
+    """The end-to-end launch test runs cluster/slurm/launch.sh; the PBS one differs only in names."""
+    slurm = (CLUSTER / "slurm" / "launch.sh").read_text()
+    pbs = (CLUSTER / "pbs" / "launch.sh").read_text()
+    assert pbs == slurm.replace("SLURM", "PBS").replace("sbatch", "qsub").replace(" slurm ", " pbs ").replace(
+        "cluster/slurm/", "cluster/pbs/")
