@@ -91,6 +91,46 @@ def auto_exaggeration(h: NDArray[np.floating], lat: NDArray[np.float64], lon: ND
     return float(np.clip(math.tan(math.radians(target_deg)) / p90, 1.0, 200.0))
 
 
+def crop_to_data(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
+                 lon: NDArray[np.float64], margin: int = 4
+                 ) -> tuple[NDArray[np.floating], NDArray[np.floating], NDArray[np.float64], NDArray[np.float64]]:
+    """Crop a browse grid to the rows/columns holding data (plus a margin).
+
+    On a global grid the columns are first rolled so the widest empty band of longitude
+    is cut, not the data (a patch across 0/360 stays in one piece); longitudes stay
+    continuous and are shifted by -360 when the crop starts past 180 E. Returns the
+    inputs unchanged when there is no data.
+    """
+    ok = np.isfinite(h)
+    rows, cols = np.flatnonzero(ok.any(axis=1)), ok.any(axis=0)
+    if rows.size == 0:
+        return h, shade, lat, lon
+    _, dlon, wrap = _spacing(lat, lon)
+    lon_c = np.asarray(lon, dtype=np.float64)
+    if wrap and not cols.all():
+        # Start just after the longest circular run of empty columns.
+        empty = ~cols
+        n = empty.size
+        ext = np.concatenate([empty, empty])
+        best_len, best_end, run = 0, 0, 0
+        for j in range(2 * n):  # over columns of a browse grid (<= a few thousand), not pixels
+            run = run + 1 if ext[j] else 0
+            if run > best_len and run <= n:
+                best_len, best_end = run, j
+        start = (best_end + 1 - min(margin, best_len // 2)) % n  # leave room for the margin
+        h, shade = np.roll(h, -start, axis=1), np.roll(shade, -start, axis=1)
+        lon_c = np.roll(lon_c, -start)
+        lon_c = lon_c + 360.0 * (np.arange(n) >= n - start)
+        cols = np.roll(cols, -start)
+    c = np.flatnonzero(cols)
+    r0, r1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h.shape[0])
+    c0, c1 = max(c[0] - margin, 0), min(c[-1] + margin + 1, h.shape[1])
+    lon_out = lon_c[c0:c1]
+    if lon_out[0] > 180.0:
+        lon_out = lon_out - 360.0
+    return h[r0:r1, c0:c1], shade[r0:r1, c0:c1], lat[r0:r1], lon_out
+
+
 def _limits(h: NDArray[np.floating]) -> tuple[float, float]:
     v = h[np.isfinite(h)]
     if v.size == 0:
@@ -105,7 +145,8 @@ def colour_relief(h: NDArray[np.floating], shade: NDArray[np.floating], vmin: fl
                   ) -> NDArray[np.float64]:
     """RGBA (H, W, 4): colour-coded elevation multiplied by the shaded relief; transparent where no value."""
     rgba = plt.get_cmap(CMAP)(colors.Normalize(vmin, vmax, clip=True)(np.nan_to_num(h, nan=vmin)))
-    k = 0.35 + 0.65 * np.nan_to_num(shade, nan=1.0)
+    # Where the shading is unknown (next to a gap) use the flat-ground value, so gap edges are not lit.
+    k = 0.35 + 0.65 * np.nan_to_num(shade, nan=math.sin(math.radians(45.0)))
     rgba[..., :3] *= k[..., None]
     rgba[..., 3] = np.isfinite(h)
     return rgba

@@ -154,10 +154,12 @@ def make_products(
     files.append(str(browse.write_greyscale_png(h, out / "browse/greyscale.png")))
     files.append(str(browse.write_hillshade_png(shade, out / "browse/hillshade.png")))
     ppd = float(ds.attrs.get("pixels_per_degree", 1.0 / abs(lat[1] - lat[0]) if H > 1 else 1.0))
-    files.append(str(browse.write_colour_png(
-        h, shade, blat, blon, out / "browse/colour_hillshade.png",
-        f"Mercury DEM ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief",
-        ex)))
+    title = f"Mercury DEM ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief"
+    ch, cs, clat, clon = h, shade, blat, blon
+    if np.isfinite(h).mean() < 0.5:  # mostly empty map: show where the data are
+        ch, cs, clat, clon = browse.crop_to_data(h, shade, blat, blon)
+        title += " (cropped to the data)"
+    files.append(str(browse.write_colour_png(ch, cs, clat, clon, out / "browse/colour_hillshade.png", title, ex)))
     files.append(str(browse.write_robinson_png(
         h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600),
         "Mercury DEM, Robinson projection (0-360°E, centred on 180°E)")))

@@ -121,3 +121,18 @@ def test_cli_grid_then_products(tmp_path, capsys):
     assert main(["products", str(tmp_path / "a"), "--config", str(cfg)]) == 2
     assert main(["products", str(tmp_path / "a"), "--profile", "0,10,20", "--overwrite", "--config", str(cfg)]) == 2
     assert main(["grid", str(tmp_path / "missing.npy"), "--out", str(tmp_path / "c")]) == 2
+
+
+def test_crop_to_data_keeps_a_patch_across_the_seam_whole():
+    from mercury_dem.products.browse import crop_to_data
+
+    lat, lon = _global(1)
+    h = np.full((lat.size, lon.size), np.nan)
+    la2, lo2 = np.meshgrid(lat, lon, indexing="ij")
+    patch = (np.abs(la2) < 10) & ((lo2 < 10) | (lo2 > 350))
+    h[patch] = 1.0
+    ch, cs, clat, clon = crop_to_data(h, h.copy(), lat, lon, margin=2)
+    assert np.all(np.diff(clon) == pytest.approx(1.0))  # continuous across 0/360
+    assert clon[0] == pytest.approx(-11.5) and clon[-1] == pytest.approx(11.5)
+    assert clat[0] == pytest.approx(11.5) and clat[-1] == pytest.approx(-11.5)
+    assert np.isfinite(ch).sum() == patch.sum()
