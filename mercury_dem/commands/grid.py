@@ -89,9 +89,9 @@ def run(args: argparse.Namespace, config: Any) -> int:
     if args.ppd is not None:
         changes["pixels_per_degree"] = args.ppd
     try:
-        dem = dataclasses.replace(dem, **changes)
-    except ConfigError:
-        raise
+        dem = dataclasses.replace(dem, **changes)  # validated again on construction
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("config key '", "config key 'dem.", 1)) from None
     points = read_points(args.points)
     out = Path(args.out)
     client = None
