@@ -82,8 +82,10 @@ else
 fi
 
 # setsid: each process leads its own process group, so stop.sh can end it and its
-# children (a worker's nanny and worker process) by that one recorded PID.
-setsid "$PYTHON" -m distributed.cli.dask_scheduler \
+# children (a worker's nanny and worker process) by that one recorded PID. (Without setsid,
+# e.g. on macOS, stop.sh signals the PID alone; the nanny still ends its worker.)
+SETSID="$(command -v setsid || true)"
+$SETSID "$PYTHON" -m distributed.cli.dask_scheduler \
   --host "$host" --port "$port" --protocol "$protocol" --dashboard-address "$host:$dport" \
   --scheduler-file "$sched_file" "${tls_args[@]}" \
   >"$state/logs/scheduler.log" 2>&1 < /dev/null &
@@ -91,7 +93,7 @@ echo $! > "$state/pids/scheduler.pid"
 
 # Workers start at once: each waits (up to its death timeout) for the scheduler file.
 for i in $(seq 1 "$workers"); do
-  setsid "$PYTHON" -m distributed.cli.dask_worker \
+  $SETSID "$PYTHON" -m distributed.cli.dask_worker \
     --scheduler-file "$sched_file" --host "$host" --dashboard-address "$host:0" \
     --nthreads "$threads" --nworkers 1 --memory-limit "$memory_limit" --resources "adjust_slots=1" \
     --name "local-$i" --local-directory "$state/workers" --death-timeout 60 "${tls_args[@]}" \

@@ -20,16 +20,29 @@ while [ $# -gt 0 ]; do
 done
 [ -d "$state/pids" ] || { echo "stop.sh: nothing recorded in $state/pids"; exit 0; }
 
-is_dask() { tr '\0' ' ' < "/proc/$1/cmdline" 2>/dev/null | grep -q 'distributed.cli.dask_\|dask scheduler\|dask worker'; }
-group_alive() { kill -0 -- "-$1" 2>/dev/null; }
+is_dask() { ps -o args= -p "$1" 2>/dev/null | grep -q 'distributed.cli.dask_\|dask scheduler\|dask worker'; }
+# The process group the PID leads (start.sh used setsid), or the PID alone where setsid was missing.
+group_alive() { kill -0 -- "-$1" 2>/dev/null || kill -0 "$1" 2>/dev/null; }
+group_is_dask() {  # a member of process group $1 is a Dask process or one of its multiprocessing children
+  local p
+  for p in $(pgrep -g "$1" 2>/dev/null); do
+    is_dask "$p" && return 0
+    ps -o args= -p "$p" 2>/dev/null | grep -q 'multiprocessing.spawn\|multiprocessing.resource_tracker' && return 0
+  done
+  return 1
+}
+kill_group() { kill "-$1" -- "-$2" 2>/dev/null || kill "-$1" "$2" 2>/dev/null; }
 
 stop_files() {
   local pids=() f pid
   for f in "$@"; do
     [ -e "$f" ] || continue
     pid="$(cat "$f")"
-    if [[ "$pid" =~ ^[0-9]+$ ]] && group_alive "$pid" && is_dask "$pid"; then
-      kill -TERM "$pid" 2>/dev/null && pids+=("$pid")
+    [[ "$pid" =~ ^[0-9]+$ ]] || continue
+    if kill -0 "$pid" 2>/dev/null && is_dask "$pid"; then
+      kill -TERM "$pid" 2>/dev/null && pids+=("$pid")       # the leader: a nanny closes its worker
+    elif group_is_dask "$pid"; then
+      kill_group TERM "$pid" && pids+=("$pid")             # leader gone, its children left behind
     fi
   done
   local waited=0
@@ -42,7 +55,7 @@ stop_files() {
   done
   for pid in "${pids[@]+"${pids[@]}"}"; do
     echo "stop.sh: process group $pid did not exit after ${timeout}s; killing" >&2
-    kill -KILL -- "-$pid" 2>/dev/null
+    kill_group KILL "$pid"
   done
   for f in "$@"; do [ -e "$f" ] && rm -f "$f"; done
 }
