@@ -1,0 +1,186 @@
+"""Where a run stands, read from its store only (works for a running, finished or remote run).
+
+States of a unit (a tile, region, hemisphere or the globe):
+
+``done``
+    its directory is complete and its summary says ``ok``;
+``failed``
+    complete, summary not ``ok`` (the reason is the summary's ``error``);
+``running``
+    inferred, for the adjustment levels only: the unit is not written yet but every
+    child it needs is (a unit is written atomically at its end, so the store cannot
+    tell a running tile from a queued one; on Dask a "running" region may still
+    wait for the adjustment resource);
+``pending``
+    anything else the plan expects.
+
+Nothing here imports Dask; every function takes a run directory (or a
+:class:`~mercury_dem.io.run_store.RunStore`) and returns pandas tables.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from mercury_dem.geometry.tiling import TileGrid
+from mercury_dem.io.atomic import is_complete
+from mercury_dem.io.run_store import LEVELS, RunStore
+
+#: The unit states, in display order.
+STATES = ("pending", "running", "done", "failed")
+#: Colours of the states (shared by the matplotlib figures and the dashboard).
+STATE_COLOURS = {"pending": "#d9d9d9", "running": "#f0ad4e", "done": "#3c9a5f", "failed": "#d9534f"}
+
+UNIT_COLUMNS = ("level", "id", "name", "state", "error", "images", "points", "measures", "rms_px", "sigma0",
+                "iterations", "seconds")
+
+
+def as_store(run: str | Path | RunStore) -> RunStore:
+    """A :class:`RunStore` for a path (or the store itself); StoreError when there is no run.json."""
+    return run if isinstance(run, RunStore) else RunStore.open(run)
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None  # absent, or being replaced this instant: the next poll sees it
+
+
+def _plan(store: RunStore) -> dict[str, Any] | None:
+    return _read_json(store.plan_dir / "plan.json") if is_complete(store.plan_dir) else None
+
+
+def _tile_grid(store: RunStore, plan: dict[str, Any] | None) -> TileGrid:
+    if plan is not None:
+        return TileGrid(float(plan["tile_size_deg"]))
+    run = _read_json(store.run_json) or {}
+    return TileGrid(float(run.get("config", {}).get("tiling", {}).get("tile_size_deg", 10.0)))
+
+
+def _summary(store: RunStore, level: str, unit_id: int) -> dict[str, Any] | None:
+    d = store.unit_dir(level, unit_id)
+    return _read_json(d / "summary.json") if is_complete(d) else None
+
+
+def _unit_row(level: str, unit_id: int, name: str, s: dict[str, Any] | None, state: str) -> dict[str, Any]:
+    s = s or {}
+    return {
+        "level": level, "id": int(unit_id), "name": name, "state": state, "error": s.get("error") or "",
+        "images": s.get("images"), "points": s.get("points"), "measures": s.get("measures"),
+        "rms_px": s.get("rms_px"), "sigma0": s.get("sigma0"), "iterations": s.get("iterations"),
+        "seconds": s.get("seconds"),
+    }
+
+
+def _state(s: dict[str, Any] | None, ready: bool) -> str:
+    if s is not None:
+        return "done" if s.get("ok") else "failed"
+    return "running" if ready else "pending"
+
+
+def expected_units(store: RunStore, plan: dict[str, Any] | None = None) -> dict[str, list[int]]:
+    """Units the run will compute per level (from the plan; empty lists before the plan exists)."""
+    plan = plan if plan is not None else _plan(store)
+    if plan is None:
+        return {lvl: [] for lvl in LEVELS}
+    grid = _tile_grid(store, plan)
+    tiles = sorted(int(t) for t in plan["non_empty_tiles"])
+    regions = sorted({int(r) for r in grid.region_of_tile(np.asarray(tiles, dtype=np.int64))}) if tiles else []
+    hemis = sorted({int(grid.hemisphere_of_region(r)) for r in regions})
+    return {"tile": tiles, "region": regions, "hemisphere": hemis, "global": [0] if hemis else []}
+
+
+def unit_status(run: str | Path | RunStore) -> pd.DataFrame:
+    """One row per expected unit of every level: level, id, name, state, error, counts, rms, sigma0, seconds."""
+    from mercury_dem.pipeline.stages import unit_name
+
+    store = as_store(run)
+    plan = _plan(store)
+    units = expected_units(store, plan)
+    grid = _tile_grid(store, plan)
+    rows: list[dict[str, Any]] = []
+    written: dict[tuple[str, int], bool] = {}
+    for level in LEVELS:
+        for uid in units[level]:
+            s = _summary(store, level, uid)
+            written[(level, uid)] = s is not None
+            if level == "tile":
+                kids: list[tuple[str, int]] = []
+            elif level == "region":
+                kids = [("tile", t) for t in units["tile"] if int(grid.region_of_tile(t)) == uid]
+            elif level == "hemisphere":
+                kids = [("region", r) for r in units["region"] if int(grid.hemisphere_of_region(r)) == uid]
+            else:
+                kids = [("hemisphere", h) for h in units["hemisphere"]]
+            ready = bool(kids) and all(written.get(k, False) for k in kids)
+            rows.append(_unit_row(level, uid, unit_name(level, uid), s, _state(s, ready)))
+    return pd.DataFrame(rows, columns=list(UNIT_COLUMNS))
+
+
+def tile_status(run: str | Path | RunStore) -> pd.DataFrame:
+    """The expected tiles with their bounds (deg, east longitude 0..360), region and state.
+
+    Columns: tile, lat_min, lat_max, lon_min, lon_max, region, state, error, images,
+    points, measures, seconds.
+    """
+    store = as_store(run)
+    plan = _plan(store)
+    grid = _tile_grid(store, plan)
+    units = unit_status(store)
+    t = units[units["level"] == "tile"].reset_index(drop=True)
+    ids = t["id"].to_numpy(dtype=np.int64)
+    la0, la1, lo0, lo1 = (np.asarray(b, dtype=np.float64) for b in grid.bounds(ids)) if ids.size else [np.zeros(0)] * 4
+    return pd.DataFrame({
+        "tile": ids, "lat_min": la0, "lat_max": la1, "lon_min": lo0, "lon_max": lo1,
+        "region": grid.region_of_tile(ids) if ids.size else np.zeros(0, np.int64),
+        "state": t["state"], "error": t["error"], "images": t["images"], "points": t["points"],
+        "measures": t["measures"], "seconds": t["seconds"],
+    })
+
+
+def level_progress(units: pd.DataFrame) -> pd.DataFrame:
+    """Counts per level and state from :func:`unit_status`: level, total, pending, running, done, failed."""
+    rows = []
+    for level in LEVELS:
+        u = units[units["level"] == level]
+        counts = {s: int((u["state"] == s).sum()) for s in STATES}
+        rows.append({"level": level, "total": int(len(u)), **counts})
+    return pd.DataFrame(rows, columns=["level", "total", *STATES])
+
+
+def sigma0_history(run: str | Path | RunStore) -> pd.DataFrame:
+    """σ0 per iteration of every written adjustment unit: level, id, name, iteration, sigma0."""
+    from mercury_dem.pipeline.stages import unit_name
+
+    store = as_store(run)
+    rows = []
+    for level in LEVELS[1:]:
+        for uid in store.completed_units(level):
+            s = _summary(store, level, uid) or {}
+            for k, v in enumerate(s.get("sigma0_history") or []):
+                rows.append({"level": level, "id": uid, "name": unit_name(level, uid), "iteration": k,
+                             "sigma0": float(v) if v is not None else np.nan})
+    return pd.DataFrame(rows, columns=["level", "id", "name", "iteration", "sigma0"])
+
+
+def run_info(run: str | Path | RunStore) -> dict[str, Any]:
+    """Small facts of a run: mission, created, finished (report.json present), dask dashboard link, timings."""
+    store = as_store(run)
+    info = _read_json(store.run_json) or {}
+    report = _read_json(store.report_json) if store.report_json.is_file() else None
+    link = info.get("dashboard_link") or ((report or {}).get("execution") or {}).get("dashboard_link")
+    return {
+        "run": str(store.root),
+        "mission": info.get("mission"),
+        "created": info.get("created"),
+        "finished": report is not None,
+        "dashboard_link": link,
+        "execution": (report or {}).get("execution"),
+        "timings": (report or {}).get("timings", {}),
+    }
