@@ -165,3 +165,32 @@ def bal_project(
         jc[m, 1, 7] = f * n2 * py
         jc[m, 0, 8] = f * n2 * n2 * px
         jc[m, 1, 8] = f * n2 * n2 * py
+
+
+@numba.njit(cache=True, fastmath=True)
+def reduced_rhs(
+    w: NDArray[np.float64], t_p: NDArray[np.float64], cam: NDArray[np.int64], pt: NDArray[np.int64], b: NDArray[np.float64]
+) -> None:
+    """b[cam] += W[m] t_p[pt] over measures (the W V^-1 g_p part of the reduced right-hand side)."""
+    c = w.shape[1]
+    for m in range(w.shape[0]):
+        i = cam[m]
+        j = pt[m]
+        for a in range(c):
+            b[i, a] += w[m, a, 0] * t_p[j, 0] + w[m, a, 1] * t_p[j, 1] + w[m, a, 2] * t_p[j, 2]
+
+
+@numba.njit(cache=True, fastmath=True)
+def point_rhs(
+    w: NDArray[np.float64], dc: NDArray[np.float64], cam: NDArray[np.int64], pt: NDArray[np.int64], q: NDArray[np.float64]
+) -> None:
+    """q[pt] += W[m]^T dc[cam] over measures (for the point back-substitution)."""
+    c = w.shape[1]
+    for m in range(w.shape[0]):
+        i = cam[m]
+        j = pt[m]
+        for b in range(3):
+            s = 0.0
+            for a in range(c):
+                s += w[m, a, b] * dc[i, a]
+            q[j, b] += s
