@@ -108,7 +108,12 @@ class FramingModel:
 
     def initial_state(self) -> FramingState:
         n = self.n_cameras
-        return FramingState(np.zeros((n, 3)), np.zeros((n, 3)), self.problem.points.copy())
+        omega = np.zeros((n, 3))
+        init = self.problem.initial_rotations
+        if init is not None:
+            # start from given rotations; the pointing constraint stays centred on problem.rotations
+            omega = angles_from_rotation(np.matmul(init, np.swapaxes(self.problem.rotations, -1, -2)))
+        return FramingState(omega, np.zeros((n, 3)), self.problem.points.copy())
 
     def rotations(self, state: FramingState) -> NDArray[np.float64]:
         """Corrected rotations (n_img, 3, 3)."""

@@ -22,6 +22,7 @@ def problem_from_network(
     rotations: ArrayLike,
     config: AdjustConfig | None = None,
     default_sigma_px: float = 1.0,
+    initial_rotations: ArrayLike | None = None,
 ) -> tuple[AdjustmentProblem, NDArray[np.int64]]:
     """The adjustment problem of a network's active measures.
 
@@ -33,6 +34,8 @@ def problem_from_network(
     rotations : (n_img, 3, 3) a-priori rotations body-fixed -> camera
     config : used for ``held_images`` only (the rest applies in ``bundle_adjust``)
     default_sigma_px : sigma of measures whose sigma is unknown (NaN)
+    initial_rotations : (n_img, 3, 3) rotations to start from (a lower level's solution); the
+        pointing constraint stays centred on ``rotations``
 
     Returns
     -------
@@ -68,6 +71,7 @@ def problem_from_network(
         point_ids=np.asarray(network.point_ids),
         held_images=held_images,
         held_points=np.asarray(network.point_type == PointType.FIXED),
+        initial_rotations=None if initial_rotations is None else np.asarray(initial_rotations, np.float64),
     )
     return problem, measure_index
 

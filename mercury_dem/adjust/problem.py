@@ -61,6 +61,9 @@ class AdjustmentProblem:
     point_ids: NDArray[Any] = field(default_factory=lambda: np.zeros(0, np.int64))
     held_images: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     held_points: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    #: (n_img, 3, 3) rotations to start the iteration from (e.g. a lower level's solution);
+    #: None starts at ``rotations``, which stay the centre of the pointing constraint either way.
+    initial_rotations: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         n_img, n_pt = len(self.positions), len(self.points)
@@ -81,6 +84,11 @@ class AdjustmentProblem:
             set_(self, "held_images", np.zeros(n_img, bool))
         if len(self.held_points) == 0:
             set_(self, "held_points", np.zeros(n_pt, bool))
+        if self.initial_rotations is not None:
+            init = np.asarray(self.initial_rotations, np.float64)
+            if init.shape != (n_img, 3, 3) or not np.all(np.isfinite(init)):
+                raise AdjustmentError(f"initial_rotations must be finite, of shape ({n_img}, 3, 3), got {init.shape}")
+            set_(self, "initial_rotations", init)
         self.validate()
 
     @property

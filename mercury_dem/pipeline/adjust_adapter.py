@@ -34,9 +34,13 @@ def adjust_network(
     rotations: NDArray[np.float64],
     config: AdjustConfig,
     *,
+    initial_rotations: NDArray[np.float64] | None = None,
     rms_flag_px: float = 2.0,
 ) -> UnitAdjustment:
-    """Adjust a merged network starting from ``positions``/``rotations``.
+    """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
+
+    ``initial_rotations`` (a lower level's solution) is where the iteration
+    starts; the pointing constraint stays centred on the a-priori ``rotations``.
 
     Islands (disconnected groups of images) are adjusted together, each held by
     its a-priori constraints, and reported by id; images whose RMS residual
@@ -46,7 +50,9 @@ def adjust_network(
     from mercury_dem.adjust.network import network_with_result, problem_from_network
 
     cfg = dataclasses.replace(config, allow_islands=True)
-    problem, measure_index = problem_from_network(network, cameras, positions, rotations, cfg)
+    problem, measure_index = problem_from_network(
+        network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
+    )
     result = bundle_adjust(problem, cfg)
     adjusted = network_with_result(network, result, measure_index)
     ids = np.asarray(network.image_ids).astype(str)

@@ -315,10 +315,11 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     cameras = [mission.camera(i) for i in ids]
     positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
     rotations = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
-    start_rot, start_pos = rotations.copy(), positions.copy()
+    start_rot = None
     if child_level != "tile":
-        start_rot, start_pos = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
-    adj = adjust_network(merged, cameras, start_pos, start_rot, adjust_config_for(mission, config))
+        start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
+    adj = adjust_network(merged, cameras, positions, rotations, adjust_config_for(mission, config),
+                         initial_rotations=start_rot)
     return {
         "children": kids,
         **adj.summary,
