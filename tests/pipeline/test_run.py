@@ -71,7 +71,7 @@ def test_adjustment_improves_the_a_priori_pointing(sync_run: tuple[Path, dict[st
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "not reached yet: tiny's network leaves ~1.0 IFOV RMS (528 urad of 788 a-priori, 2026-11-22). "
+    "not reached yet: tiny's network leaves ~0.9 IFOV RMS (459 urad of 788 a-priori, 0.87 IFOV, 2026-11-22). "
     "Even with noise-free measures the optimum is ~344 urad: most points have only two rays and the "
     "network has no ground control, so pointing trades with point positions along weak directions"))
 def test_adjustment_recovers_pointing_within_half_an_ifov(sync_run: tuple[Path, dict[str, Any]]) -> None:
