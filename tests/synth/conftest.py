@@ -1,1 +1,1 @@
-"""Synth tests use the session-wide ``tiny_mission_path`` / ``tiny_mission`` fixtures of tests/conftest.py."""
+"""The synth tests use the session-wide ``tiny_mission`` / ``tiny_mission_path`` of tests/conftest.py."""
