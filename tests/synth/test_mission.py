@@ -143,3 +143,24 @@ def test_incomplete_or_missing_missions_are_refused(tiny_mission_path, tmp_path)
         m.read_image(victim)
     with pytest.raises(StoreError, match="not in the catalog"):
         m.read_image("EN0000000000X")
+
+
+def test_demo_and_large_designs():
+    from mercury_dem.geometry.body import angular_distance_deg
+
+    demo = plan_mission(get_preset("demo"), seed=42)
+    assert 200 <= len(demo) <= 300 and set(demo["samples"]) == {512}
+    assert set(demo["instrument"]) == {"MDIS-NAC", "MDIS-WAC"}
+    assert demo["target_lat"].max() > 80 and demo["target_lat"].min() < -80  # poles covered
+    lat, lon, rad = get_preset("demo").gaps[0]
+    in_gap = angular_distance_deg(demo["target_lat"], demo["target_lon"], lat, lon) < rad
+    assert in_gap.sum() == 1 and (demo.loc[in_gap, "pass_id"] == -1).all()  # only the isolated image
+    large = plan_mission(get_preset("large"), seed=42)
+    assert len(large) >= 10_000 and set(large["samples"]) == {1024}
+    s = large["design_pixel_scale_m"]
+    assert s.min() >= 70 and s.max() <= 300 and s.max() / s.min() > 4.0 * 0.99
+    from mercury_dem.geometry.camera import mdis_nac
+
+    nac = large[large["instrument"] == "MDIS-NAC"]
+    assert len(nac) > 1000
+    assert (nac["design_pixel_scale_m"] / mdis_nac(1024).ifov_rad <= get_preset("large").nac_max_slant_m + 1).all()
