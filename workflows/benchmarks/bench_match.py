@@ -15,6 +15,7 @@ refinement each switched off; true errors per class (Markdown tables).
 Run (heavy; take the lock):
     flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_match.py
     flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_match.py --accuracy
+    flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_match.py --mission MISSION
 """
 
 from __future__ import annotations
@@ -187,14 +188,65 @@ def accuracy() -> None:
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
 
 
+def mission_accuracy(path: str) -> None:
+    """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
+    from mercury_dem.geometry.footprints import overlap_graph
+    from mercury_dem.io.mission import open_mission
+
+    ms = open_mission(path)
+    ids = ms.image_ids
+    cams = [ms.camera(i) for i in ids]
+    uniq: list[Any] = []
+    cam_index = []
+    for c in cams:
+        if c not in uniq:
+            uniq.append(c)
+        cam_index.append(uniq.index(c))
+    pos = np.array([ms.a_priori_pose(i)[0] for i in ids])
+    rot = np.array([ms.a_priori_pose(i)[1] for i in ids])
+    g = overlap_graph(uniq, np.array(cam_index), pos, rot, min_fraction=0.02)
+    pairs = [(ids[a], ids[b]) for a, b in zip(g.i, g.j)]
+    images = {i: ms.read_image(i) for i in ids}
+    geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, p, r in zip(ids, cams, pos, rot)}
+    truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(ids, cams)}
+    surface = ms.surface()
+    overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
+    t0 = time.perf_counter()
+    m, reps = match_tile(images, geom, pairs, MatchConfig(threads=2))
+    dt = time.perf_counter() - t0
+    pa = np.stack([m.sample_a, m.line_a], -1)
+    pb = np.stack([m.sample_b, m.line_b], -1)
+    err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
+    rows = [r.as_row() for r in reps]
+    status: dict[str, int] = {}
+    for r in reps:
+        key = f"{r.status}/{r.route}" if r.status == "matched" else f"{r.status}: {r.reason.split(' (')[0].split(':')[0][:60]}"
+        status[key] = status.get(key, 0) + 1
+    print(f"mission {path}: {len(ids)} images, {len(pairs)} a-priori overlapping pairs (>= 2 %), "
+          f"{len(m)} matches in {dt:.1f} s ({dt / max(len(pairs), 1):.3f} s/pair, 2 threads)\n")
+    print("| outcome | pairs |\n|---|---|")
+    for k, v in sorted(status.items(), key=lambda kv: -kv[1]):
+        print(f"| {k} | {v} |")
+    print()
+    print(format_summary(summarize(err, m.pair, rows, overlaps)))
+    ov = np.asarray(overlaps) >= 0.10
+    bad = [(a, b, f"{o:.2f}", r.reason) for (a, b), o, r in zip(pairs, overlaps, reps) if o >= 0.10 and r.n_matches < 20]
+    print(f"\ntruly overlapping (>= 10 %) pairs with < 20 matches: {len(bad)} of {int(ov.sum())}")
+    for b in bad[:15]:
+        print("  ", *b)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--accuracy", action="store_true", help="run the accuracy study instead of the speed benchmark")
+    p.add_argument("--mission", help="run the accuracy study on every overlapping pair of this mission store")
     p.add_argument("--sizes", default="512,1024")
     p.add_argument("--images", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
     a = p.parse_args()
-    if a.accuracy:
+    if a.mission:
+        mission_accuracy(a.mission)
+    elif a.accuracy:
         accuracy()
     else:
         speed([int(s) for s in a.sizes.split(",")], a.images, a.repeats)
