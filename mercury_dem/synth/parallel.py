@@ -106,7 +106,9 @@ def render_all(
         with Client(scheduler) as c:
             return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(
+        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0"
+    ) as cluster:
         with Client(cluster) as c:
             return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 

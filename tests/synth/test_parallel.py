@@ -22,7 +22,7 @@ def test_dask_generation_equals_the_plain_loop(tmp_path):
     distributed = pytest.importorskip("distributed")
     cfg = SynthConfig(seed=9)
     serial = generate_mission(tmp_path / "serial", cfg, design=MINI)
-    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None) as client:
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2, dashboard_address="127.0.0.1:0") as client:
         par = generate_mission(tmp_path / "dask", cfg, design=MINI, client=client)
     assert serial["images"] == par["images"] >= 2
     a, b = open_mission(tmp_path / "serial"), open_mission(tmp_path / "dask")
