@@ -145,13 +145,11 @@ def merge_networks(
     mimage = np.concatenate([img_map[img_off[i] + n.measure_image] for i, n in enumerate(nets)]).astype(np.int64)
     cols = {name: np.concatenate([getattr(n, name) for n in nets]) for name in MEASURE_COLUMNS if name not in ("measure_point", "measure_image")}
     sample, line = cols["sample"], cols["line"]
-    # graph: measures 0..M-1, then one glue node per input point
-    mids = np.arange(m_in, dtype=np.int64)
-    edges = [np.column_stack([mids, m_in + mpoint])]
+    # graph: one node per input point (its measures sit on it); an edge per pair of near measures
     pairs = near_pairs(mimage, sample, line, tolerance_px)
-    if pairs.size:
-        edges.append(pairs[mpoint[pairs[:, 0]] != mpoint[pairs[:, 1]]])
-    tracks = form_tracks(m_in + n_in, np.concatenate(edges), mimage, sample, line, mpoint, tolerance_px, min_measures)
+    pairs = pairs[mpoint[pairs[:, 0]] != mpoint[pairs[:, 1]]]
+    tracks = form_tracks(n_in, mpoint[pairs], mimage, sample, line, mpoint, tolerance_px, min_measures,
+                         node_of_obs=mpoint, edge_obs=pairs)
     n = tracks.n_tracks
     # track of each input point (-1 when all its measures were dropped)
     kept_obs = np.flatnonzero(tracks.obs_group >= 0)

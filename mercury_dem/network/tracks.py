@@ -120,6 +120,8 @@ def form_tracks(
     rank: NDArray[np.int64],
     tolerance_px: float,
     min_measures: int = 2,
+    node_of_obs: NDArray[np.int64] | None = None,
+    edge_obs: NDArray[np.int64] | None = None,
 ) -> Tracks:
     """Connected components of observations, conflicts removed, groups merged into measures.
 
@@ -134,10 +136,21 @@ def form_tracks(
     tolerance_px : observations of one track in one image further apart than
         this (bounding-box diagonal) are a conflict
     min_measures : tracks with fewer measures (distinct images) are dropped
+    node_of_obs : (n_obs,) optional node of each observation, when several
+        observations share a node (merge: the node is the input point); default:
+        observation i is node i
+    edge_obs : (E, 2) with ``node_of_obs``: the observation behind each end of
+        each edge, -1 for none; an edge goes when an observation behind it is
+        dropped. Default: the ends that are observations.
     """
     n_obs = image.size
     edges = np.asarray(edges, np.int64).reshape(-1, 2)
-    label = components(n_nodes, edges)
+    if node_of_obs is None:
+        node_of_obs = np.arange(n_obs, dtype=np.int64)
+        edge_obs = np.where(edges < n_obs, edges, -1)
+    elif edge_obs is None:
+        raise ValueError("form_tracks: edge_obs is required with node_of_obs")
+    label = components(n_nodes, edges)[node_of_obs]
     obs = np.arange(n_obs, dtype=np.int64)
     order, starts = _groups(label, image, rank, obs)
     n_conflicts = n_conflict_obs = 0
@@ -149,11 +162,11 @@ def form_tracks(
         bad &= sizes > 1
         if bad.any():
             n_conflicts = int(bad.sum())
-            dropped = np.zeros(n_nodes, bool)
+            dropped = np.zeros(n_obs + 1, bool)  # the extra slot stands for "no observation" (-1)
             dropped[order[np.repeat(bad, sizes)]] = True
             n_conflict_obs = int(dropped.sum())
-            keep_edge = ~(dropped[edges[:, 0]] | dropped[edges[:, 1]])
-            label = components(n_nodes, edges[keep_edge])
+            keep_edge = ~(dropped[edge_obs[:, 0]] | dropped[edge_obs[:, 1]])
+            label = components(n_nodes, edges[keep_edge])[node_of_obs]
             obs = np.flatnonzero(~dropped[:n_obs])
             order, starts = _groups(label, image, rank, obs)
     if order.size == 0:
