@@ -4,7 +4,8 @@
 - :mod:`~mercury_dem.viz.tables`: report.json as tables, images with problems;
 - :mod:`~mercury_dem.viz.networks`: network statistics, residuals per level / point / image;
 - :mod:`~mercury_dem.viz.pointing`: pointing error before/after vs truth;
-- :mod:`~mercury_dem.viz.figures`: matplotlib figures of all of these, coverage and the DEM.
+- :mod:`~mercury_dem.viz.figures`: matplotlib figures of all of these, coverage and the DEM;
+- :mod:`~mercury_dem.viz.session`: a configuration for a mission's area, a run in the background, following a run.
 """
 
 from mercury_dem.viz.figures import (
@@ -20,6 +21,7 @@ from mercury_dem.viz.figures import (
 )
 from mercury_dem.viz.networks import image_residuals, network_statistics, point_residuals, residuals_by_level
 from mercury_dem.viz.pointing import pointing_errors
+from mercury_dem.viz.session import BackgroundRun, area_config, follow, progress_line
 from mercury_dem.viz.status import (
     STATE_COLOURS,
     STATES,
@@ -33,7 +35,7 @@ from mercury_dem.viz.status import (
 from mercury_dem.viz.tables import problem_images, read_report, report_tables
 
 __all__ = [
-    "STATES", "STATE_COLOURS", "coverage_figure", "dem_error", "dem_validation_figure", "expected_units",
+    "BackgroundRun", "area_config", "follow", "progress_line", "STATES", "STATE_COLOURS", "coverage_figure", "dem_error", "dem_validation_figure", "expected_units",
     "hillshade_figure", "image_residuals", "level_progress", "network_statistics", "point_residuals",
     "pointing_errors", "pointing_figure", "problem_images", "read_report", "report_tables",
     "residual_histograms_figure", "residual_map_figure", "residuals_by_level", "run_info", "sigma0_figure",
