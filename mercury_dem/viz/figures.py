@@ -109,7 +109,9 @@ def pointing_figure(errors: pd.DataFrame) -> Figure:
     ifov = float(errors["ifov_urad"].mean()) if len(errors) else np.nan
     sc = a.scatter(x, y, c=np.log10(np.maximum(errors["n_measures"].to_numpy(float), 1)), s=14, cmap="viridis")
     fig.colorbar(sc, ax=a, label="log10 measures")
-    lim = [max(min(x.min(initial=1), y.min(initial=1)) * 0.5, 1e-1), max(x.max(initial=1), y.max(initial=1)) * 2]
+    both = np.concatenate([x, y])
+    both = both[np.isfinite(both) & (both > 0)]
+    lim = [max(float(both.min()) * 0.5, 1e-1), float(both.max()) * 2] if both.size else [1.0, 1e4]
     a.plot(lim, lim, "k--", lw=0.8, label="no change")
     if np.isfinite(ifov):
         a.axhline(ifov, color="r", lw=0.8, label=f"1 IFOV ({ifov:.0f} µrad)")
@@ -163,8 +165,9 @@ def hillshade_figure(run: str | Path | RunStore, exaggeration: float | None = No
     fig = Figure(figsize=(8, 5), layout="constrained")
     ax = fig.add_subplot()
     ax.imshow(shade, cmap="gray", extent=extent, origin=origin, vmin=0, vmax=1)
-    m = ax.imshow(h / 1000.0, cmap="terrain", alpha=0.45, extent=extent, origin=origin)
-    fig.colorbar(m, ax=ax, label="elevation (km above 2439.4 km)")
+    lo, hi = (np.nanpercentile(h, [2, 98]) / 1000.0) if np.isfinite(h).any() else (0.0, 1.0)
+    m = ax.imshow(h / 1000.0, cmap="terrain", alpha=0.45, extent=extent, origin=origin, vmin=lo, vmax=hi)
+    fig.colorbar(m, ax=ax, label="elevation (km above 2439.4 km; 2-98 % range)", extend="both")
     ax.set(xlabel="east longitude (deg)", ylabel="latitude (deg)",
            title=f"DEM hillshade (vertical exaggeration {ex:.0f}x)")
     return fig
