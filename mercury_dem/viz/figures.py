@@ -71,7 +71,7 @@ def residual_histograms_figure(residuals: pd.DataFrame, bins: int = 40) -> Figur
     levels = [lv for lv in LEVELS if lv in set(residuals["level"])]
     fig = Figure(figsize=(3.2 * max(len(levels), 1), 3.2), layout="constrained")
     axes = fig.subplots(1, max(len(levels), 1), squeeze=False)[0]
-    finite = residuals["residual_px"].to_numpy(dtype=float)
+    finite = residuals.loc[residuals["active"].astype(bool), "residual_px"].to_numpy(dtype=float)
     top = float(np.nanpercentile(finite, 99.5)) if np.isfinite(finite).any() else 1.0
     edges = np.linspace(0.0, max(top, 1e-3), bins + 1)
     for ax, level in zip(axes, levels):
@@ -79,7 +79,8 @@ def residual_histograms_figure(residuals: pd.DataFrame, bins: int = 40) -> Figur
         r = r[np.isfinite(r)]
         ax.hist(np.clip(r, 0, edges[-1]), bins=edges, color=LEVEL_COLOURS[level])
         rms = float(np.sqrt(np.mean(r * r))) if r.size else float("nan")
-        ax.set(title=f"{level}: {r.size} measures, RMS {rms:.2f} px", xlabel="residual (px)")
+        ax.set_title(f"{level}\n{r.size} active measures, RMS {rms:.2f} px", fontsize="medium")
+        ax.set_xlabel("residual length (px; last bin: beyond p99.5)")
         ax.set_yscale("log")
     axes[0].set_ylabel("measures")
     if not levels:
