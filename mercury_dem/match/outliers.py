@@ -122,6 +122,8 @@ def local_consistency(
     from the median of its ``neighbours`` nearest matches (in ``points_a``, itself
     excluded) by more than ``tolerance_px`` is an outlier the global F/H checks
     cannot see (their tolerances must admit the parallax across the whole image).
+    The tolerance is 3 robust sigmas (1.4826 MAD) of the neighbours' own deviations
+    from their median, bounded to ``tolerance_px`` .. 2 x ``tolerance_px``.
     With fewer than ``neighbours + 1`` matches every match is kept.
     """
     n = points_a.shape[0]
@@ -131,5 +133,9 @@ def local_consistency(
 
     _, idx = cKDTree(points_a).query(points_a, k=neighbours + 1)
     d = points_b - points_a
-    med = np.median(d[idx[:, 1:]], axis=1)
-    return np.linalg.norm(d - med, axis=1) <= tolerance_px
+    nb = d[idx[:, 1:]]  # (N, k, 2)
+    med = np.median(nb, axis=1)
+    # Where the neighbours themselves disagree (sparse matches over varying parallax) the
+    # tolerance widens to 3 robust sigmas of their spread.
+    spread = 1.4826 * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
+    return np.linalg.norm(d - med, axis=1) <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px)
