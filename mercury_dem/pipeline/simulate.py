@@ -1,0 +1,388 @@
+"""Replay of the merge cascade as sleep tasks: measured unit times, scaling, critical path.
+
+Helpers of ``workflows/benchmarks/bench_cascade.py`` (issue #6, section 7): read the
+measured duration of every unit of a finished run from its store, build the same
+tile -> region -> hemisphere -> global graph as :mod:`mercury_dem.pipeline.graph`
+for any tile size, scale measured durations to another mission size, compute the
+critical path (longest chain through the merge tree), predict the makespan of a
+greedy list schedule, and replay the graph as ``time.sleep`` tasks on a Dask
+cluster (submitted up front, dependencies as futures, exactly like the run).
+
+Durations are in *simulated seconds*; :func:`replay_on_dask` compresses them by
+``time_scale`` (real seconds per simulated second) so an hours-long plan replays in
+seconds. A small discrete-event list scheduler is written here instead of a
+scheduling library because it has to mirror one specific policy (Dask's: ready
+tasks run in submission order on the first free worker) and is twenty lines.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mercury_dem.exceptions import StoreError
+from mercury_dem.geometry.tiling import N_REGIONS, TileGrid
+
+LEVELS = ("tile", "region", "hemisphere", "global")
+
+
+# --------------------------------------------------------------------------- measured run
+@dataclass(frozen=True)
+class UnitTiming:
+    """What a finished unit recorded in its ``summary.json``.
+
+    ``seconds`` is the runner's own wall time inside the task (store reads, work,
+    atomic write); ``work`` is the unit's size: matched pairs for a tile, measures
+    for an adjustment unit.
+    """
+
+    level: str
+    id: int
+    seconds: float
+    ok: bool
+    images: int
+    pairs: int
+    measures: int
+    iterations: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.level}-{self.id}"
+
+
+def read_unit_timings(run_root: str | Path) -> dict[str, list[UnitTiming]]:
+    """Every complete unit's timing, per level, from ``RUN/<level>/<id>/summary.json``.
+
+    Raises
+    ------
+    StoreError
+        When the run holds no timed tile (not a finished ``mercury-dem run``).
+    """
+    root = Path(run_root)
+    out: dict[str, list[UnitTiming]] = {lvl: [] for lvl in LEVELS}
+    for lvl in LEVELS:
+        d = root / lvl
+        if not d.is_dir():
+            continue
+        for p in sorted(d.iterdir(), key=lambda q: (len(q.name), q.name)):
+            f = p / "summary.json"
+            if not (p.name.isdigit() and f.is_file()):
+                continue
+            s = json.loads(f.read_text())
+            if s.get("seconds") is None:
+                continue
+            out[lvl].append(UnitTiming(
+                level=lvl, id=int(p.name), seconds=float(s["seconds"]), ok=bool(s.get("ok")),
+                images=int(s.get("images") or 0), pairs=int(s.get("pairs") or 0),
+                measures=int(s.get("measures") or 0), iterations=int(s.get("iterations") or 0),
+            ))
+    if not out["tile"]:
+        raise StoreError(f"{root}: no tile/<id>/summary.json with 'seconds'; point at a finished mercury-dem run")
+    return out
+
+
+def n_workers_of(report: Mapping[str, Any]) -> int | None:
+    """Worker count from ``report.json``'s execution description (``LocalCluster N workers x M threads``)."""
+    desc = str(report.get("execution", {}).get("description", ""))
+    parts = desc.split()
+    if "workers" in parts:
+        k = parts.index("workers")
+        try:
+            return int(parts[k - 1])
+        except (ValueError, IndexError):
+            return None
+    return 1 if report.get("execution", {}).get("mode") == "sync" else None
+
+
+def busy_fraction(timings: Mapping[str, list[UnitTiming]], wall_seconds: float, n_workers: int) -> float:
+    """Sum of unit times over (wall time x workers): 1 means every worker busy all the time."""
+    total = sum(u.seconds for lvl in LEVELS for u in timings.get(lvl, []))
+    return total / (wall_seconds * n_workers)
+
+
+# --------------------------------------------------------------------------- graph
+@dataclass(frozen=True)
+class CascadeGraph:
+    """The merge tree as a DAG of keys ``tile-<id>``, ``region-<id>``, ``hemisphere-<id>``, ``global-0``.
+
+    ``deps[key]`` are the keys it waits for; ``order`` is the submission order of
+    :func:`mercury_dem.pipeline.graph._run_cascade` (tiles, regions, hemispheres, globe).
+    """
+
+    deps: Mapping[str, tuple[str, ...]]
+    order: tuple[str, ...]
+
+    def level_of(self, key: str) -> str:
+        return key.rsplit("-", 1)[0]
+
+    def keys(self, level: str) -> list[str]:
+        return [k for k in self.order if self.level_of(k) == level]
+
+
+def cascade_graph(tile_size_deg: float = 10.0, tiles: Sequence[int] | None = None) -> CascadeGraph:
+    """The run's graph for a tile grid: every tile (or only ``tiles``) -> regions -> hemispheres -> globe.
+
+    Units without children are left out, as the run does for empty regions.
+    """
+    grid = TileGrid(tile_size_deg)
+    tile_ids = list(range(grid.n_tiles)) if tiles is None else sorted(int(t) for t in tiles)
+    deps: dict[str, tuple[str, ...]] = {f"tile-{t}": () for t in tile_ids}
+    order = [f"tile-{t}" for t in tile_ids]
+    region_of = grid.region_of_tile(np.asarray(tile_ids, dtype=np.int64)) if tile_ids else np.zeros(0, int)
+    regions = []
+    for r in range(N_REGIONS):
+        kids = tuple(f"tile-{t}" for t, rr in zip(tile_ids, region_of) if rr == r)
+        if kids:
+            deps[f"region-{r}"] = kids
+            order.append(f"region-{r}")
+            regions.append(r)
+    hemis = []
+    for h in (0, 1):
+        kids = tuple(f"region-{r}" for r in regions if int(grid.hemisphere_of_region(r)) == h)
+        if kids:
+            deps[f"hemisphere-{h}"] = kids
+            order.append(f"hemisphere-{h}")
+            hemis.append(h)
+    if hemis:
+        deps["global-0"] = tuple(f"hemisphere-{h}" for h in hemis)
+        order.append("global-0")
+    return CascadeGraph(deps=deps, order=tuple(order))
+
+
+def critical_path(deps: Mapping[str, Sequence[str]], durations: Mapping[str, float]) -> tuple[float, list[str]]:
+    """Longest chain of a DAG with task durations: (its length, its keys from first to last).
+
+    ``deps`` must list every key (roots with no dependency map to an empty sequence).
+    The makespan of any schedule, on any number of workers, is at least this length.
+    """
+    finish: dict[str, float] = {}
+    via: dict[str, str | None] = {}
+    state: dict[str, int] = {}
+
+    def visit(k: str) -> float:
+        # iterative depth-first search (the tree is shallow, but keep it stack-safe)
+        stack = [(k, False)]
+        while stack:
+            node, expanded = stack.pop()
+            if node in finish:
+                continue
+            if expanded:
+                best, arg = 0.0, None
+                for d in deps[node]:
+                    if finish[d] > best:
+                        best, arg = finish[d], d
+                finish[node] = best + float(durations[node])
+                via[node] = arg
+                continue
+            if state.get(node) == 1:
+                raise ValueError(f"critical_path: the graph has a cycle through {node!r}")
+            state[node] = 1
+            stack.append((node, True))
+            for d in deps[node]:
+                if d not in deps:
+                    raise KeyError(f"critical_path: {node!r} depends on {d!r}, which is not in the graph")
+                if d not in finish:
+                    stack.append((d, False))
+        return finish[k]
+
+    for k in deps:
+        visit(k)
+    end = max(finish, key=lambda k: finish[k])
+    path = [end]
+    while via[path[-1]] is not None:
+        path.append(via[path[-1]])  # type: ignore[arg-type]
+    return finish[end], path[::-1]
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Start and finish time of every task, and the makespan."""
+
+    start: Mapping[str, float]
+    finish: Mapping[str, float]
+
+    @property
+    def makespan(self) -> float:
+        return max(self.finish.values()) if self.finish else 0.0
+
+    def level_finish(self, graph: CascadeGraph) -> dict[str, float]:
+        return {lvl: max(self.finish[k] for k in graph.keys(lvl)) for lvl in LEVELS if graph.keys(lvl)}
+
+
+def list_schedule(graph: CascadeGraph, durations: Mapping[str, float], n_workers: int) -> Schedule:
+    """Greedy schedule: whenever a worker is free it takes the ready task submitted first.
+
+    This is Dask's behaviour for a graph submitted up front without priorities, with
+    zero scheduler overhead; :func:`replay_on_dask` measures the real thing.
+    """
+    rank = {k: n for n, k in enumerate(graph.order)}
+    waiting = {k: len(graph.deps[k]) for k in graph.order}
+    children: dict[str, list[str]] = {k: [] for k in graph.order}
+    for k, ds in graph.deps.items():
+        for d in ds:
+            children[d].append(k)
+    ready = [rank[k] for k in graph.order if waiting[k] == 0]
+    heapq.heapify(ready)
+    running: list[tuple[float, int]] = []  # (finish time, rank)
+    free, now = n_workers, 0.0
+    start: dict[str, float] = {}
+    finish: dict[str, float] = {}
+    while ready or running:
+        while ready and free > 0:
+            k = graph.order[heapq.heappop(ready)]
+            start[k] = now
+            heapq.heappush(running, (now + float(durations[k]), rank[k]))
+            free -= 1
+        now, r = heapq.heappop(running)
+        done = graph.order[r]
+        finish[done] = now
+        free += 1
+        for c in children[done]:
+            waiting[c] -= 1
+            if waiting[c] == 0:
+                heapq.heappush(ready, rank[c])
+    return Schedule(start=start, finish=finish)
+
+
+# --------------------------------------------------------------------------- scaling
+@dataclass(frozen=True)
+class TargetSize:
+    """The mission to plan for (defaults: Becker et al. 2016, MESSENGER MDIS)."""
+
+    images: int = 100_432
+    measures: int = 94_745_475
+    tile_size_deg: float = 10.0
+    pairs_per_image: float = 15.0
+
+
+@dataclass(frozen=True)
+class ScaledPlan:
+    """Durations (simulated seconds) of every unit of the target graph and how they were derived."""
+
+    graph: CascadeGraph
+    durations: Mapping[str, float]
+    images: Mapping[str, float]
+    measures: Mapping[str, float]
+    notes: Mapping[str, Any] = field(default_factory=dict)
+
+
+def images_per_tile(grid: TileGrid, total: int) -> np.ndarray:
+    """Images of every tile when ``total`` image centres are spread uniformly over the sphere.
+
+    A tile's share is its area, sin(lat_max) - sin(lat_min) over the sphere's 2 x n_cols.
+    """
+    t = np.arange(grid.n_tiles)
+    lat0, lat1, _, _ = grid.bounds(t)
+    w = np.sin(np.radians(lat1)) - np.sin(np.radians(lat0))
+    return total * w / w.sum()
+
+
+def scale_plan(timings: Mapping[str, list[UnitTiming]], target: TargetSize, alpha: float = 1.0,
+               seed: int = 0) -> ScaledPlan:
+    """Durations of the target mission's cascade from a measured run.
+
+    Tiles: a target tile of ``n`` images matches ``n x pairs_per_image`` pairs; its
+    time is that count times a measured seconds-per-pair, drawn (seeded) from the
+    measured tiles, so the spread of the measured per-pair costs is kept. Adjustment
+    units: time = ``k_level x measures**alpha``, ``k_level`` the median over the
+    measured units of the level (``seconds / measures**alpha``); a unit's measures
+    are its images' share of ``target.measures``. A level with no measured unit
+    borrows the nearest lower level's coefficient.
+    """
+    grid = TileGrid(target.tile_size_deg)
+    rng = np.random.default_rng(seed)
+    graph = cascade_graph(target.tile_size_deg)
+    n_img = images_per_tile(grid, target.images)
+    tiles = [u for u in timings["tile"] if u.ok and u.pairs > 0]
+    if not tiles:
+        raise StoreError("scale_plan: no successful tile with pairs to take a per-pair time from")
+    per_pair = np.array([u.seconds / u.pairs for u in tiles])
+    draw = per_pair[rng.integers(0, per_pair.size, grid.n_tiles)]
+    durations: dict[str, float] = {}
+    images: dict[str, float] = {}
+    measures: dict[str, float] = {}
+    mpi = target.measures / target.images
+    for t in range(grid.n_tiles):
+        k = f"tile-{t}"
+        durations[k] = float(draw[t] * n_img[t] * target.pairs_per_image)
+        images[k] = float(n_img[t])
+    coef: dict[str, float] = {}
+    for lvl in ("region", "hemisphere", "global"):
+        units = [u for u in timings.get(lvl, []) if u.ok and u.measures > 0]
+        if units:
+            coef[lvl] = float(np.median([u.seconds / u.measures ** alpha for u in units]))
+        else:
+            coef[lvl] = coef.get({"region": "region", "hemisphere": "region", "global": "hemisphere"}[lvl], np.nan)
+        for k in graph.keys(lvl):
+            images[k] = float(sum(images[d] for d in graph.deps[k]))
+            measures[k] = images[k] * mpi
+            durations[k] = coef[lvl] * measures[k] ** alpha
+    notes = {
+        "seconds_per_pair": {"median": float(np.median(per_pair)), "min": float(per_pair.min()),
+                             "max": float(per_pair.max()), "tiles": int(per_pair.size)},
+        "adjust_coefficient_s_per_measure_pow_alpha": coef,
+        "alpha": alpha,
+        "measures_per_image": mpi,
+        "images_per_tile": {"mean": float(n_img.mean()), "max": float(n_img.max()), "min": float(n_img.min())},
+    }
+    return ScaledPlan(graph=graph, durations=durations, images=images, measures=measures, notes=notes)
+
+
+# --------------------------------------------------------------------------- Dask replay
+def _sleep(seconds: float, *deps: Any) -> float:
+    time.sleep(seconds)
+    return time.perf_counter()
+
+
+def sleep_cluster(n_workers: int) -> Any:
+    """An in-process LocalCluster of single-threaded workers (inproc transport, no port, no dashboard).
+
+    Sleep tasks release the GIL, so threads stand in for worker processes.
+    """
+    from distributed import LocalCluster
+
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None)
+
+
+def replay_on_dask(client: Any, graph: CascadeGraph, durations: Mapping[str, float],
+                   time_scale: float) -> dict[str, Any]:
+    """Submit the graph up front as sleep tasks (``durations x time_scale`` real seconds); time it.
+
+    Returns ``makespan`` and ``level_finish`` (simulated seconds, i.e. real seconds
+    divided by ``time_scale``), measured from the first submission to each
+    completion as seen by the client.
+    """
+    from distributed import as_completed
+
+    t0 = time.perf_counter()
+    futs: dict[str, Any] = {}
+    for k in graph.order:
+        futs[k] = client.submit(_sleep, float(durations[k]) * time_scale, *[futs[d] for d in graph.deps[k]],
+                                key=f"sim-{k}-{t0}", pure=False)
+    key_of = {f.key: k for k, f in futs.items()}
+    done_at: dict[str, float] = {}
+    for f in as_completed(list(futs.values())):
+        f.result()
+        done_at[key_of[f.key]] = (time.perf_counter() - t0) / time_scale
+    level_finish = {lvl: max(done_at[k] for k in graph.keys(lvl)) for lvl in LEVELS if graph.keys(lvl)}
+    return {"makespan": max(done_at.values()), "level_finish": level_finish, "finish": done_at}
+
+
+def _noop(x: int) -> int:
+    return x
+
+
+def scheduler_overhead(client: Any, n_tasks: int = 1000) -> dict[str, float]:
+    """Seconds per trivial task, submitted in one batch and gathered (after a warm-up batch)."""
+    client.gather(client.map(_noop, range(50), pure=False))
+    t = time.perf_counter()
+    client.gather(client.map(_noop, range(n_tasks), pure=False))
+    total = time.perf_counter() - t
+    return {"tasks": n_tasks, "seconds": total, "seconds_per_task": total / n_tasks}

@@ -1,0 +1,143 @@
+"""The cascade replay helpers: critical path, graph shape, scaling, schedule and Dask replay."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from mercury_dem.exceptions import StoreError
+from mercury_dem.pipeline.simulate import (
+    TargetSize,
+    UnitTiming,
+    busy_fraction,
+    cascade_graph,
+    critical_path,
+    list_schedule,
+    n_workers_of,
+    read_unit_timings,
+    replay_on_dask,
+    scale_plan,
+    scheduler_overhead,
+    sleep_cluster,
+)
+
+
+def test_critical_path_hand_made_graph() -> None:
+    # a(3) -> c(2); b(5) -> c; b -> d(1); c -> e(4); d -> e. Longest: b, c, e = 11.
+    deps = {"a": (), "b": (), "c": ("a", "b"), "d": ("b",), "e": ("c", "d")}
+    dur = {"a": 3.0, "b": 5.0, "c": 2.0, "d": 1.0, "e": 4.0}
+    length, path = critical_path(deps, dur)
+    assert length == pytest.approx(11.0)
+    assert path == ["b", "c", "e"]
+    dur["d"] = 7.0  # now b -> d -> e = 16
+    assert critical_path(deps, dur) == (pytest.approx(16.0), ["b", "d", "e"])
+
+
+def test_critical_path_refuses_cycles_and_unknown_keys() -> None:
+    with pytest.raises(ValueError, match="cycle"):
+        critical_path({"a": ("b",), "b": ("a",)}, {"a": 1.0, "b": 1.0})
+    with pytest.raises(KeyError, match="'z'"):
+        critical_path({"a": ("z",)}, {"a": 1.0})
+
+
+def test_cascade_graph_shape_10_degrees() -> None:
+    g = cascade_graph(10.0)
+    assert [len(g.keys(lvl)) for lvl in ("tile", "region", "hemisphere", "global")] == [648, 14, 2, 1]
+    # every tile feeds exactly one region; regions 0-6 north, 7-13 south
+    fed = [t for r in g.keys("region") for t in g.deps[r]]
+    assert sorted(fed) == sorted(g.keys("tile"))
+    assert g.deps["hemisphere-0"] == tuple(f"region-{r}" for r in range(7))
+    assert g.deps["global-0"] == ("hemisphere-0", "hemisphere-1")
+    # a 10-degree polar cap is 3 rows x 36 columns; a 0-60 deg sector 6 rows x 6 columns
+    assert len(g.deps["region-0"]) == 108 and len(g.deps["region-3"]) == 36
+    assert g.order[:648] == tuple(g.keys("tile"))
+
+
+def test_cascade_graph_of_a_subset_leaves_out_empty_units() -> None:
+    g = cascade_graph(10.0, tiles=[0, 1, 182])  # south cap; row 5 col 2 (lat -40, lon 20): sector 0-60
+    assert g.keys("region") == ["region-7", "region-8"]
+    assert g.keys("hemisphere") == ["hemisphere-1"]
+    assert g.deps["global-0"] == ("hemisphere-1",)
+
+
+def test_list_schedule_bounds() -> None:
+    g = cascade_graph(30.0)
+    dur = {k: 1.0 + (n % 7) / 7.0 for n, k in enumerate(g.order)}
+    cp, _ = critical_path(g.deps, dur)
+    wide = list_schedule(g, dur, 10_000)
+    assert wide.makespan == pytest.approx(cp)
+    narrow = list_schedule(g, dur, 2)
+    assert narrow.makespan >= max(cp, sum(dur.values()) / 2) - 1e-9
+    for k, ds in g.deps.items():  # no task starts before its inputs finish
+        assert all(narrow.start[k] >= narrow.finish[d] - 1e-12 for d in ds)
+
+
+def _fake_run(root: Path) -> None:
+    units = {
+        ("tile", 0): {"seconds": 2.0, "ok": True, "images": 2, "pairs": 10, "measures": 100},
+        ("tile", 1): {"seconds": 4.0, "ok": True, "images": 2, "pairs": 10, "measures": 100},
+        ("region", 7): {"seconds": 3.0, "ok": True, "images": 4, "measures": 300, "iterations": 5},
+        ("hemisphere", 1): {"seconds": 6.0, "ok": True, "images": 4, "measures": 300},
+        ("global", 0): {"seconds": 9.0, "ok": True, "images": 4, "measures": 300},
+    }
+    for (lvl, uid), s in units.items():
+        d = root / lvl / str(uid)
+        d.mkdir(parents=True)
+        (d / "summary.json").write_text(json.dumps({"level": lvl, "id": uid, **s}))
+
+
+def test_read_timings_busy_fraction_and_scaling(tmp_path: Path) -> None:
+    _fake_run(tmp_path)
+    t = read_unit_timings(tmp_path)
+    assert [u.key for u in t["tile"]] == ["tile-0", "tile-1"]
+    assert t["region"][0] == UnitTiming("region", 7, 3.0, True, 4, 0, 300, 5)
+    assert busy_fraction(t, wall_seconds=12.0, n_workers=2) == pytest.approx(24.0 / 24.0)
+    # 0.2 and 0.4 s per pair; 100 images x 3 pairs per image spread over the sphere
+    target = TargetSize(images=6480, measures=648_000, tile_size_deg=10.0, pairs_per_image=3.0)
+    plan = scale_plan(t, target, alpha=1.0)
+    assert sum(plan.images[k] for k in plan.graph.keys("tile")) == pytest.approx(6480)
+    per_pair = [plan.durations[k] / (plan.images[k] * 3.0) for k in plan.graph.keys("tile")]
+    assert set(round(x, 9) for x in per_pair) == {0.2, 0.4}
+    # adjustment: 0.01 s per measure at region level, 0.02 hemisphere, 0.03 global
+    assert plan.measures["global-0"] == pytest.approx(648_000)
+    assert plan.durations["global-0"] == pytest.approx(0.03 * 648_000)
+    assert plan.durations["hemisphere-0"] == pytest.approx(0.02 * 324_000)
+    assert plan.durations["region-0"] == pytest.approx(0.01 * plan.measures["region-0"])
+
+
+def test_read_timings_refuses_an_empty_directory(tmp_path: Path) -> None:
+    with pytest.raises(StoreError, match="finished mercury-dem run"):
+        read_unit_timings(tmp_path)
+
+
+def test_n_workers_of_report() -> None:
+    assert n_workers_of({"execution": {"mode": "local", "description": "LocalCluster 2 workers x 1 threads on 127.0.0.1"}}) == 2
+    assert n_workers_of({"execution": {"mode": "sync", "description": "in-process, synchronous"}}) == 1
+
+
+def test_replay_on_dask_makespan_near_critical_path() -> None:
+    distributed = pytest.importorskip("distributed")
+    # 12 tiles of 30 deg over 5 regions of both hemispheres: the run's shape, small enough for 16 threads
+    tiles = [0, 1, 2, 3, 14, 15, 48, 49, 50, 51, 60, 70]
+    g = cascade_graph(30.0, tiles=tiles)
+    assert [len(g.keys(lvl)) for lvl in ("tile", "region", "hemisphere", "global")] == [12, 5, 2, 1]
+    dur = {k: 0.3 for k in g.keys("tile")}
+    dur.update({k: 0.2 for k in g.order if not k.startswith("tile")})
+    cp, path = critical_path(g.deps, dur)
+    assert cp == pytest.approx(0.9) and [k.split("-")[0] for k in path] == ["tile", "region", "hemisphere", "global"]
+    with sleep_cluster(16) as cluster, distributed.Client(cluster) as client:
+        res = replay_on_dask(client, g, dur, time_scale=1.0)
+        # plentiful workers: the critical path plus the scheduler's overhead (generous: a loaded 2-core machine)
+        assert cp - 0.01 <= res["makespan"] <= cp + 0.6
+        lf = res["level_finish"]
+        assert lf["tile"] <= lf["region"] <= lf["hemisphere"] <= lf["global"] == res["makespan"]
+    narrow = list_schedule(g, dur, 3).makespan
+    assert narrow >= max(cp, sum(dur.values()) / 3) > cp
+    with sleep_cluster(3) as cluster, distributed.Client(cluster) as client:
+        res3 = replay_on_dask(client, g, dur, time_scale=1.0)
+        assert res3["makespan"] >= narrow - 0.01  # no schedule beats the work bound here
+        assert res3["makespan"] <= narrow + 0.6
+        ov = scheduler_overhead(client, n_tasks=200)
+        assert 0 < ov["seconds_per_task"] < 0.05
