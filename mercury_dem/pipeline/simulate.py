@@ -51,6 +51,11 @@ class UnitTiming:
     pairs: int
     measures: int
     iterations: int
+    end: float = float("nan")
+
+    @property
+    def start(self) -> float:
+        return self.end - self.seconds
 
     @property
     def key(self) -> str:
@@ -82,6 +87,7 @@ def read_unit_timings(run_root: str | Path) -> dict[str, list[UnitTiming]]:
                 level=lvl, id=int(p.name), seconds=float(s["seconds"]), ok=bool(s.get("ok")),
                 images=int(s.get("images") or 0), pairs=int(s.get("pairs") or 0),
                 measures=int(s.get("measures") or 0), iterations=int(s.get("iterations") or 0),
+                end=f.stat().st_mtime,
             ))
     if not out["tile"]:
         raise StoreError(f"{root}: no tile/<id>/summary.json with 'seconds'; point at a finished mercury-dem run")
@@ -99,6 +105,19 @@ def n_workers_of(report: Mapping[str, Any]) -> int | None:
         except (ValueError, IndexError):
             return None
     return 1 if report.get("execution", {}).get("mode") == "sync" else None
+
+
+def level_spans(timings: Mapping[str, list[UnitTiming]]) -> dict[str, dict[str, float]]:
+    """Per level: first unit start and last unit end (seconds from the first tile's start) and the span."""
+    units = [u for lvl in LEVELS for u in timings.get(lvl, [])]
+    t0 = min(u.start for u in units)
+    out = {}
+    for lvl in LEVELS:
+        us = timings.get(lvl, [])
+        if us:
+            a, b = min(u.start for u in us) - t0, max(u.end for u in us) - t0
+            out[lvl] = {"start": a, "end": b, "span": b - a}
+    return out
 
 
 def busy_fraction(timings: Mapping[str, list[UnitTiming]], wall_seconds: float, n_workers: int) -> float:

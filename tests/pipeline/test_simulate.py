@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,7 @@ from mercury_dem.pipeline.simulate import (
     busy_fraction,
     cascade_graph,
     critical_path,
+    level_spans,
     list_schedule,
     n_workers_of,
     read_unit_timings,
@@ -105,6 +107,16 @@ def test_read_timings_busy_fraction_and_scaling(tmp_path: Path) -> None:
     assert plan.durations["global-0"] == pytest.approx(0.03 * 648_000)
     assert plan.durations["hemisphere-0"] == pytest.approx(0.02 * 324_000)
     assert plan.durations["region-0"] == pytest.approx(0.01 * plan.measures["region-0"])
+
+
+def test_level_spans_from_summary_times(tmp_path: Path) -> None:
+    _fake_run(tmp_path)
+    ends = {("tile", 0): 102.0, ("tile", 1): 104.0, ("region", 7): 107.0, ("hemisphere", 1): 113.0, ("global", 0): 122.0}
+    for (lvl, uid), end in ends.items():
+        os.utime(tmp_path / lvl / str(uid) / "summary.json", (end, end))
+    sp = level_spans(read_unit_timings(tmp_path))
+    assert sp["tile"] == {"start": 0.0, "end": 4.0, "span": 4.0}  # tile 1: 100 -> 104
+    assert sp["region"]["start"] == pytest.approx(4.0) and sp["global"]["end"] == pytest.approx(22.0)
 
 
 def test_read_timings_refuses_an_empty_directory(tmp_path: Path) -> None:

@@ -3,7 +3,7 @@
 Usage::
 
     flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_cascade.py RUN \
-        [--workers 32 64] [--hour-seconds 2] [--alpha 1.0] [--pairs-per-image X] [--json OUT.json]
+        [--workers 32 64] [--hour-seconds 5] [--alpha 1.0] [--pairs-per-image X] [--json OUT.json]
 
 Part 1, the measured run (``RUN/report.json`` and every unit's ``summary.json``):
 wall time per level (``report.timings``), the sum of unit times per level, how busy
@@ -39,6 +39,7 @@ from mercury_dem.pipeline.simulate import (
     LEVELS,
     TargetSize,
     busy_fraction,
+    level_spans,
     cascade_graph,
     critical_path,
     list_schedule,
@@ -65,14 +66,16 @@ def measured_part(run: Path) -> dict:
     nw = n_workers_of(report) or 1
     tm = report["timings"]
     cascade_wall = sum(float(tm.get(lvl, 0.0)) for lvl in LEVELS)
+    spans = level_spans(timings)
     per_level = {}
     for lvl in LEVELS:
         us = timings[lvl]
         s = float(sum(u.seconds for u in us))
-        wall = float(tm.get(lvl, np.nan))
-        per_level[lvl] = {"units": len(us), "wall_s": wall, "sum_unit_s": s,
+        sp = spans.get(lvl, {"start": np.nan, "end": np.nan, "span": np.nan})
+        per_level[lvl] = {"units": len(us), "report_s": float(tm.get(lvl, np.nan)), **sp, "sum_unit_s": s,
                           "max_unit_s": float(max((u.seconds for u in us), default=0.0)),
-                          "busy": s / (wall * nw) if wall > 0 else None}
+                          "busy_in_span": s / (sp["span"] * nw) if sp["span"] > 0 else None}
+    span_all = max(v["end"] for v in spans.values())
     g = cascade_graph(report["config"]["tiling"]["tile_size_deg"], tiles=[u.id for u in timings["tile"]])
     dur = {u.key: u.seconds for lvl in LEVELS for u in timings[lvl]}
     dur.update({k: 0.0 for k in g.order if k not in dur})
@@ -80,8 +83,9 @@ def measured_part(run: Path) -> dict:
     ideal = list_schedule(g, dur, nw).makespan
     return {
         "report_timings": tm, "n_workers": nw, "execution": report.get("execution"),
-        "levels": per_level, "cascade_wall_s": cascade_wall,
+        "levels": per_level, "cascade_wall_s": cascade_wall, "units_span_s": span_all,
         "busy_fraction": busy_fraction(timings, cascade_wall, nw),
+        "busy_fraction_units_span": busy_fraction(timings, span_all, nw),
         "critical_path_s": cp, "critical_path": path, "ideal_list_schedule_s": ideal,
         "pairs_per_image": sum(u.pairs for u in timings["tile"]) / max(1, sum(u.images for u in timings["tile"])),
         "timings": timings,
@@ -151,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path)
     ap.add_argument("--workers", type=int, nargs="+", default=[32, 64])
-    ap.add_argument("--hour-seconds", type=float, default=2.0, help="real seconds per simulated hour")
+    ap.add_argument("--hour-seconds", type=float, default=5.0, help="real seconds per simulated hour")
     ap.add_argument("--alpha", type=float, default=1.0, help="adjustment time ~ measures**alpha")
     ap.add_argument("--pairs-per-image", type=float, default=None, help="default: the run's own")
     ap.add_argument("--images", type=int, default=TargetSize.images)
@@ -165,12 +169,16 @@ def main(argv: list[str] | None = None) -> int:
     m = measured_part(a.run)
     timings = m.pop("timings")
     print(f"\n== measured run {a.run} ({m['execution']}) ==")
-    print(f"{'level':<11}{'units':>6}{'wall s':>9}{'sum s':>9}{'max s':>8}{'busy':>7}")
+    print("report.timings = time from the previous level's last completion to this level's last; start/end/span "
+          "from each unit's summary.json (mtime = end, minus its seconds = start), s from the first tile's start")
+    print(f"{'level':<11}{'units':>6}{'report s':>9}{'start':>8}{'end':>8}{'span':>8}{'sum s':>9}{'max s':>8}{'busy':>7}")
     for lvl, r in m["levels"].items():
-        busy = "-" if r["busy"] is None else f"{r['busy']:.2f}"
-        print(f"{lvl:<11}{r['units']:>6}{r['wall_s']:>9.1f}{r['sum_unit_s']:>9.1f}{r['max_unit_s']:>8.1f}{busy:>7}")
-    print(f"cascade wall {m['cascade_wall_s']:.1f} s on {m['n_workers']} workers; busy fraction "
-          f"{m['busy_fraction']:.2f}; critical path {m['critical_path_s']:.1f} s ({' -> '.join(m['critical_path'])}); "
+        busy = "-" if r["busy_in_span"] is None else f"{r['busy_in_span']:.2f}"
+        print(f"{lvl:<11}{r['units']:>6}{r['report_s']:>9.1f}{r['start']:>8.1f}{r['end']:>8.1f}{r['span']:>8.1f}"
+              f"{r['sum_unit_s']:>9.1f}{r['max_unit_s']:>8.1f}{busy:>7}")
+    print(f"cascade wall (report) {m['cascade_wall_s']:.1f} s, units' span {m['units_span_s']:.1f} s, on "
+          f"{m['n_workers']} workers; busy fraction {m['busy_fraction']:.2f} of the cascade wall "
+          f"({m['busy_fraction_units_span']:.2f} of the units' span); critical path {m['critical_path_s']:.1f} s ({' -> '.join(m['critical_path'])}); "
           f"ideal list schedule of the measured units {m['ideal_list_schedule_s']:.1f} s "
           f"(wall / ideal {m['cascade_wall_s'] / m['ideal_list_schedule_s']:.2f})")
     t = time.perf_counter()
@@ -210,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"with the anchor's adjustment times: critical path {s['anchor_schedule']['critical_path_h']:.2f} h, list schedule "
           + ", ".join(f"{w} workers {h:.2f} h" for w, h in s["anchor_schedule"]["list_schedule_h"].items()))
     if a.json:
+        a.json.parent.mkdir(parents=True, exist_ok=True)
         a.json.write_text(json.dumps({"measured": m, "overhead": ov, "simulation": s}, indent=1, default=str))
     return 0
 
