@@ -94,7 +94,8 @@ def test_read_timings_busy_fraction_and_scaling(tmp_path: Path) -> None:
     _fake_run(tmp_path)
     t = read_unit_timings(tmp_path)
     assert [u.key for u in t["tile"]] == ["tile-0", "tile-1"]
-    assert t["region"][0] == UnitTiming("region", 7, 3.0, True, 4, 0, 300, 5)
+    r = t["region"][0]
+    assert r == UnitTiming("region", 7, 3.0, True, 4, 0, 300, 5, end=r.end) and r.start == pytest.approx(r.end - 3.0)
     assert busy_fraction(t, wall_seconds=12.0, n_workers=2) == pytest.approx(24.0 / 24.0)
     # 0.2 and 0.4 s per pair; 100 images x 3 pairs per image spread over the sphere
     target = TargetSize(images=6480, measures=648_000, tile_size_deg=10.0, pairs_per_image=3.0)
