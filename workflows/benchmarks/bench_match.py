@@ -21,6 +21,7 @@ Run (heavy; take the lock):
 from __future__ import annotations
 
 import argparse
+import re
 import dataclasses
 import time
 from typing import Any
@@ -188,7 +189,7 @@ def accuracy() -> None:
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
 
 
-def mission_accuracy(path: str) -> None:
+def mission_accuracy(path: str, max_pairs: int = 0) -> None:
     """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
     from mercury_dem.geometry.footprints import overlap_graph
     from mercury_dem.io.mission import open_mission
@@ -206,9 +207,14 @@ def mission_accuracy(path: str) -> None:
     rot = np.array([ms.a_priori_pose(i)[1] for i in ids])
     g = overlap_graph(uniq, np.array(cam_index), pos, rot, min_fraction=0.02)
     pairs = [(ids[a], ids[b]) for a, b in zip(g.i, g.j)]
-    images = {i: ms.read_image(i) for i in ids}
-    geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, p, r in zip(ids, cams, pos, rot)}
-    truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(ids, cams)}
+    n_all = len(pairs)
+    if max_pairs and len(pairs) > max_pairs:
+        pick = np.sort(np.random.default_rng(1).choice(len(pairs), max_pairs, replace=False))
+        pairs = [pairs[k] for k in pick]
+    used = sorted({x for p in pairs for x in p})
+    images = {i: ms.read_image(i) for i in used}
+    geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, p, r in zip(ids, cams, pos, rot) if i in images}
+    truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(ids, cams) if i in images}
     surface = ms.surface()
     overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
     t0 = time.perf_counter()
@@ -220,9 +226,9 @@ def mission_accuracy(path: str) -> None:
     rows = [r.as_row() for r in reps]
     status: dict[str, int] = {}
     for r in reps:
-        key = f"{r.status}/{r.route}" if r.status == "matched" else f"{r.status}: {r.reason.split(' (')[0].split(':')[0][:60]}"
+        key = f"{r.status}/{r.route}" if r.status == "matched" else f"{r.status}: {re.sub(r'[0-9.]+', 'N', r.reason.split(' (')[0])}"
         status[key] = status.get(key, 0) + 1
-    print(f"mission {path}: {len(ids)} images, {len(pairs)} a-priori overlapping pairs (>= 2 %), "
+    print(f"mission {path}: {len(ids)} images, {n_all} a-priori overlapping pairs (>= 2 %), {len(pairs)} matched here, "
           f"{len(m)} matches in {dt:.1f} s ({dt / max(len(pairs), 1):.3f} s/pair, 2 threads)\n")
     print("| outcome | pairs |\n|---|---|")
     for k, v in sorted(status.items(), key=lambda kv: -kv[1]):
@@ -240,12 +246,13 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--accuracy", action="store_true", help="run the accuracy study instead of the speed benchmark")
     p.add_argument("--mission", help="run the accuracy study on every overlapping pair of this mission store")
+    p.add_argument("--max-pairs", type=int, default=0, help="with --mission: a seeded random sample of the pairs")
     p.add_argument("--sizes", default="512,1024")
     p.add_argument("--images", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
     a = p.parse_args()
     if a.mission:
-        mission_accuracy(a.mission)
+        mission_accuracy(a.mission, a.max_pairs)
     elif a.accuracy:
         accuracy()
     else:
