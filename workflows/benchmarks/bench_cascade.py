@@ -60,10 +60,10 @@ ANCHOR_ADJUST_GB = 4.3
 MERGE_GIB_PER_MEASURE = 1.72 / 5.5e6
 
 
-def measured_part(run: Path) -> dict:
+def measured_part(run: Path, run_workers: int | None = None) -> dict:
     report = json.loads((run / "report.json").read_text())
     timings = read_unit_timings(run)
-    nw = n_workers_of(report) or 1
+    nw = run_workers or n_workers_of(report) or 1
     tm = report["timings"]
     cascade_wall = sum(float(tm.get(lvl, 0.0)) for lvl in LEVELS)
     spans = level_spans(timings)
@@ -160,13 +160,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs-per-image", type=float, default=None, help="default: the run's own")
     ap.add_argument("--images", type=int, default=TargetSize.images)
     ap.add_argument("--measures", type=int, default=TargetSize.measures)
+    ap.add_argument("--run-workers", type=int, default=None,
+                    help="workers of the measured run (default: from report.json's execution description)")
     ap.add_argument("--overhead-tasks", type=int, default=1000)
     ap.add_argument("--no-replay", action="store_true", help="list schedule only, no Dask replay")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     print(f"date {datetime.now(timezone.utc).isoformat(timespec='seconds')}; {platform.node()} "
           f"{os.cpu_count()} cores; load {os.getloadavg()}; python {platform.python_version()}")
-    m = measured_part(a.run)
+    m = measured_part(a.run, a.run_workers)
     timings = m.pop("timings")
     print(f"\n== measured run {a.run} ({m['execution']}) ==")
     print("report.timings = time from the previous level's last completion to this level's last; start/end/span "
