@@ -116,7 +116,7 @@ PRESETS: dict[str, MissionDesign] = {
         gaps=((-35.0, 250.0, 8.0), (20.0, 40.0, 5.0)),
         isolated=((-35.0, 250.0), (20.0, 40.0)),
         truth_dem_ppd=16.0,
-        surface=SurfaceParams(crater_d_min_m=2000.0, rough_shortest_m=35.0),
+        surface=SurfaceParams(crater_d_min_m=2000.0, rough_shortest_m=35.0, rough_hurst=0.45),
     ),
 }
 
