@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.exceptions import StoreError
@@ -102,7 +101,3 @@ def generate_mission(
         "truth_dem_seconds": t_dem,
         "truth_dem_shape": list(height.shape),
     }
-
-
-def summary_frame(timings: list[tuple[str, float]]) -> pd.DataFrame:
-    return pd.DataFrame(timings, columns=["image_id", "seconds"])

@@ -268,11 +268,6 @@ def catalog_from_poses(
     return cat
 
 
-def camera_of(instrument: str, samples: int) -> FramingCamera:
-    """The camera model of a catalog row."""
-    return camera_preset(instrument, samples)
-
-
 __all__ = [
     "plan_mission",
     "perturb_poses",
