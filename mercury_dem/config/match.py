@@ -89,6 +89,10 @@ class MatchConfig(ConfigSection):
     pointing_sigma_urad: float = param(
         450.0, "A-priori pointing uncertainty per axis and image (1 sigma)", unit="urad", lo=0.0, hi=1e5
     )
+    position_sigma_m: float = param(
+        100.0, "A-priori spacecraft position uncertainty per axis (1 sigma), seen as an angle from the camera",
+        unit="m", lo=0.0, hi=1e7,
+    )
     guidance_sigmas: float = param(3.0, "Guidance window half-width in pointing sigmas", lo=0.5, hi=20.0)
     guidance_margin_px: float = param(
         8.0, "Added to the guidance half-width for relief parallax and model error", unit="px", lo=0.0, hi=1e4

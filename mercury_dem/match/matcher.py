@@ -296,7 +296,7 @@ def _match_pair(
 def _pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig) -> PairGeometry | str:
     return pair_geometry(
         a, b, config.pretransform_grid, config.pointing_sigma_urad * 1e-6,
-        config.guidance_sigmas, config.guidance_margin_px,
+        config.guidance_sigmas, config.guidance_margin_px, config.position_sigma_m,
     )
 
 

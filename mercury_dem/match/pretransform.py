@@ -65,7 +65,8 @@ class PairGeometry:
     match_px_per_ref_px : linear scale of ``homography`` at the overlap centre
     incidence_ref_deg, incidence_match_deg : incidence at the overlap centre (sphere normal)
     sun_azimuth_difference_deg : difference of the local sun azimuths, 0..180
-    guidance_px : guidance window half-width, reference pixels
+    guidance_px : guidance window half-width, reference pixels: ``guidance_sigmas`` times the
+        combined pointing and position error of both images, plus ``guidance_margin_px``
     """
 
     homography: NDArray[np.float64]
@@ -112,6 +113,7 @@ def pair_geometry(
     pointing_sigma_rad: float = 0.0,
     guidance_sigmas: float = 3.0,
     guidance_margin_px: float = 0.0,
+    position_sigma_m: float = 0.0,
 ) -> PairGeometry | str:
     """The pre-transform homography, overlap, scale and illumination of a pair, or a failure reason.
 
@@ -151,9 +153,14 @@ def pair_geometry(
     inc_r = float(illumination_angles(g, ref.position, ref.sun_position)[0])
     inc_m = float(illumination_angles(g, match.position, match.sun_position)[0])
     daz = angle_difference_deg(sun_azimuth_deg(g, ref.sun_position), sun_azimuth_deg(g, match.sun_position))
-    # Guidance: pointing error of each image (sigma / IFOV pixels) in reference pixels, combined.
-    sig_r = pointing_sigma_rad / cam_r.ifov_rad
-    sig_m = pointing_sigma_rad / cam_m.ifov_rad / max(scale, 1e-9)
+    # Guidance: pointing and position error of each image (as angles seen from the camera, in
+    # IFOV pixels), the match image's converted to reference pixels, combined.
+    range_r = float(np.linalg.norm(g - ref.position))
+    range_m = float(np.linalg.norm(g - match.position))
+    ang_r = float(np.hypot(pointing_sigma_rad, position_sigma_m / range_r))
+    ang_m = float(np.hypot(pointing_sigma_rad, position_sigma_m / range_m))
+    sig_r = ang_r / cam_r.ifov_rad
+    sig_m = ang_m / cam_m.ifov_rad / max(scale, 1e-9)
     guidance = guidance_sigmas * float(np.hypot(sig_r, sig_m)) + guidance_margin_px
     return PairGeometry(
         homography=h,

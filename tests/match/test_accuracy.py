@@ -100,6 +100,8 @@ def test_pretransform_buys_descriptor_matches(pair_world: Any) -> None:
 
 
 def test_guidance_buys_matches_across_illumination(pair_world: Any) -> None:
+    if pair_world.renderer.startswith("toy"):
+        pytest.skip("the toy Lambert world has no cast shadows: unguided matching is not hurt there")
     cfg = MatchConfig(threads=1, ncc_fallback=False)
     on, _, _ = _run(pair_world, cfg, ["inc30_70"])
     off, _, _ = _run(pair_world, dataclasses.replace(cfg, guided=False), ["inc30_70"])
