@@ -24,7 +24,7 @@ class MatchConfig(ConfigSection):
     detector: str = param("FAST", "OpenCV feature detector", choices=DETECTORS)
     descriptor: str = param("SIFT", "OpenCV descriptor extractor", choices=DESCRIPTORS)
     matcher: str = param(
-        "BF", "Descriptor matcher: brute force (exact) or FLANN (approximate, float descriptors only)",
+        "BF", "Descriptor matcher: brute force (exact) or FLANN (approximate; float descriptors and guided=false only, else BF)",
         choices=("BF", "FLANN"),
     )
     fast_threshold: int = param(12, "FAST intensity threshold (8-bit scale, after the robust stretch)", lo=1, hi=255)
