@@ -41,9 +41,9 @@ test-slow: setup
 # The demo mission is generated once and reused; the run resumes when interrupted.
 demo: setup
 	@if [ -f $(DEMO_DIR)/mission/.complete ]; then echo "reusing the demo mission in $(DEMO_DIR)/mission"; \
-	else $(VENV)/bin/mercury-dem synth $(DEMO_DIR)/mission --preset demo --overwrite; fi
+	else $(VENV)/bin/mercury-dem synth $(DEMO_DIR)/mission --preset demo --overwrite --workers $$(nproc); fi
 	$(VENV)/bin/mercury-dem info $(DEMO_DIR)/mission
-	$(VENV)/bin/mercury-dem run $(DEMO_DIR)/mission --out $(DEMO_DIR)/run
+	$(VENV)/bin/mercury-dem run $(DEMO_DIR)/mission --out $(DEMO_DIR)/run --config workflows/demo.yaml
 
 clean:
 	rm -rf $(VENV) $(DEMO_DIR) .pytest_cache
