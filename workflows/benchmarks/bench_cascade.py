@@ -183,6 +183,10 @@ def main(argv: list[str] | None = None) -> int:
           f"({m['busy_fraction_units_span']:.2f} of the units' span); critical path {m['critical_path_s']:.1f} s ({' -> '.join(m['critical_path'])}); "
           f"ideal list schedule of the measured units {m['ideal_list_schedule_s']:.1f} s "
           f"(wall / ideal {m['cascade_wall_s'] / m['ideal_list_schedule_s']:.2f})")
+    if abs(m["units_span_s"] - m["cascade_wall_s"]) > 0.1 * m["cascade_wall_s"]:
+        print(f"WARNING: the units span {m['units_span_s']:.0f} s but the report's cascade took "
+              f"{m['cascade_wall_s']:.0f} s: this run was resumed (units reused from an earlier invocation keep "
+              "their first times); the busy fraction of the report's wall is meaningless, read the per-level spans")
     t = time.perf_counter()
     ov = overhead_part(m["n_workers"], a.overhead_tasks)
     print(f"scheduler overhead: {ov['tasks']} trivial tasks on a LocalCluster of {m['n_workers']} worker processes: "
