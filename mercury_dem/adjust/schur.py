@@ -15,10 +15,8 @@ changes during an adjustment (rejected measures get zero weight, they are not
 removed), so every index array is computed once in :class:`SchurStructure` and
 each iteration only fills numbers:
 
-* per-measure products are summed per camera / per point by multiplying with a
-  precomputed 0/1 sparse matrix (a segment sum; measured faster here than
-  ``np.bincount`` and far faster than ``np.add.at``);
-* the camera-pair products ``Y_m1 W_m2^T`` (``Y = W V^-1``) of every pair of
+* per-measure products are summed per camera / per point, and the camera-pair
+  products ``Y_m1 W_m2^T`` (``Y = W V^-1``) of every pair of
   measures of a point are summed into their (i, k) block by a compiled loop
   (:mod:`mercury_dem.adjust.kernels`), so no per-pair array ever exists;
 * the blocks go straight into a ``scipy.sparse.bsr_matrix`` (block CSR) whose
@@ -51,14 +49,6 @@ except Exception:  # pragma: no cover - depends on the machine
 HAVE_CHOLMOD = _cholmod is not None
 
 from mercury_dem.adjust.kernels import schur_pairs
-
-def segment_matrix(groups: NDArray[np.int64], n_groups: int) -> sp.csr_matrix:
-    """0/1 matrix (n_groups, len(groups)) whose product with per-item rows sums them per group."""
-    n = len(groups)
-    return sp.csr_matrix(
-        (np.ones(n), (groups.astype(np.int64), np.arange(n))), shape=(n_groups, n)
-    )
-
 
 def inv3(a: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverses of stacked 3 x 3 matrices (..., 3, 3) by the adjugate (closed form).
@@ -100,8 +90,6 @@ class SchurStructure:
     n_cameras: int
     n_points: int
     camera_dim: int
-    camera_sum: sp.csr_matrix = field(init=False)
-    point_sum: sp.csr_matrix = field(init=False)
     pair_first: NDArray[np.int64] = field(init=False)
     pair_second: NDArray[np.int64] = field(init=False)
     block_row: NDArray[np.int64] = field(init=False)
@@ -131,8 +119,6 @@ class SchurStructure:
     def _build(self, eliminate: NDArray[np.bool_] | None) -> None:
         cam, pt = self.camera_index, self.point_index
         m = len(cam)
-        self.camera_sum = segment_matrix(cam, self.n_cameras)
-        self.point_sum = segment_matrix(pt, self.n_points)
         use = np.ones(m, bool) if eliminate is None else eliminate[pt]
         # All ordered pairs (m1, m2) of measures of the same point.
         idx = np.flatnonzero(use)
