@@ -99,7 +99,7 @@ def run(args: argparse.Namespace, config: Any) -> int:
     if args.workers > 0:
         from distributed import Client, LocalCluster
 
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, dashboard_address=None,
+        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, dashboard_address=":0",
                                host=config.execution.host)
         client = Client(cluster)
     try:

@@ -57,7 +57,7 @@ def test_dask_equals_serial(serial_store, global_cloud, tmp_path):
     path, _ = serial_store
     # In-process workers keep the test fast on a loaded 2-core machine; that the point index
     # survives the trip to a worker process (pickling) is checked below.
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
                                   processes=False) as cluster, distributed.Client(cluster) as client:
         summary = grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
     a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
@@ -115,7 +115,7 @@ def test_dask_worker_processes_equal_serial(serial_store, global_cloud, tmp_path
     """Same as test_dask_equals_serial with real worker processes (the index is pickled once per worker)."""
     distributed = pytest.importorskip("distributed")
     path, _ = serial_store
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
                                   processes=True) as cluster, distributed.Client(cluster) as client:
         grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
     a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")

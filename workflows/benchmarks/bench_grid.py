@@ -183,7 +183,7 @@ def full_size(args):
         t_make = time.perf_counter() - t0
         cfg = DemConfig(pixels_per_degree=64, chunk_size=args.chunk, method=args.method, query_threads=1,
                         memory_limit_gb=16.0)
-        with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None,
+        with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
                           memory_limit="8GB") as cluster, Client(cluster) as client:
             t0 = time.perf_counter()
             pts = np.load(work / "points.npy")
