@@ -130,6 +130,7 @@ def test_n_workers_of_report() -> None:
     assert n_workers_of({"execution": {"mode": "sync", "description": "in-process, synchronous"}}) == 1
 
 
+@pytest.mark.slow  # timing-based; hung for 600 s once inside the full suite on a loaded machine (passes alone in ~7 s)
 def test_replay_on_dask_makespan_near_critical_path() -> None:
     distributed = pytest.importorskip("distributed")
     # 12 tiles of 30 deg over 5 regions of both hemispheres: the run's shape, small enough for 16 threads
