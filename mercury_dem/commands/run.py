@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from mercury_dem.config import Config
+from mercury_dem.pipeline.security import add_tls_arguments, security_from_args
 
 NAME = "run"
 HELP = "run (or resume) the whole pipeline on a mission: matching, hierarchical adjustment, DEM, products"
@@ -18,6 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler-file", help="Dask scheduler file of an existing cluster")
     p.add_argument("--workers", type=int, help="LocalCluster workers (default: one per core)")
     p.add_argument("--threads-per-worker", type=int, help="LocalCluster threads per worker")
+    add_tls_arguments(p)
     p.add_argument("--force", metavar="STAGE", help="recompute from STAGE on: plan, tile, region, hemisphere, global, dem")
     p.add_argument("--no-dem", action="store_true", help="stop after the global adjustment")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     report = run_pipeline(
         args.mission, args.out, config,
         scheduler=args.scheduler, scheduler_file=args.scheduler_file,
-        workers=args.workers, threads_per_worker=args.threads_per_worker,
+        workers=args.workers, threads_per_worker=args.threads_per_worker, security=security_from_args(args),
         force=args.force, stream=None if args.quiet else sys.stdout, dem=not args.no_dem,
     )
     print()
