@@ -31,8 +31,7 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
 
     net = read_network(store.network_path("global", 0))
     pts = point_cloud(net, adjusted=True)
-    if store.dem_path.exists() and not (store.products_dir / ".complete").exists():
-        pass  # an existing complete DEM is reused; products are redone below
+    # an existing complete DEM is reused (resume); products are always rewritten
     if not store.dem_path.exists():
         grid_summary = grid_dem(pts, config, store.dem_path, client, attrs={"source": "global adjusted control points"})
     else:
