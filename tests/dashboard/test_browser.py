@@ -94,11 +94,12 @@ def test_dashboard_follows_a_live_run(tiny_mission_path: Path, tmp_path: Path) -
     port = free_port()
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
     cli = [sys.executable, "-m", "mercury_dem.cli"]
-    dash = subprocess.Popen([*cli, "dashboard", str(run), "--port", str(port), "--interval", "0.5"],
-                            stdout=open(tmp_path / "dashboard.log", "wb"), stderr=subprocess.STDOUT, env=env, cwd=REPO)
-    job = subprocess.Popen([*cli, "run", str(tiny_mission_path), "--out", str(run), "--scheduler", "sync",
-                            "--config", str(cfg)], stdout=open(tmp_path / "run.log", "wb"),
-                           stderr=subprocess.STDOUT, env=env, cwd=REPO)
+    # the children keep their own descriptors; ours are closed at once (no ResourceWarning)
+    with open(tmp_path / "dashboard.log", "wb") as dash_log, open(tmp_path / "run.log", "wb") as run_log:
+        dash = subprocess.Popen([*cli, "dashboard", str(run), "--port", str(port), "--interval", "0.5"],
+                                stdout=dash_log, stderr=subprocess.STDOUT, env=env, cwd=REPO)
+        job = subprocess.Popen([*cli, "run", str(tiny_mission_path), "--out", str(run), "--scheduler", "sync",
+                                "--config", str(cfg)], stdout=run_log, stderr=subprocess.STDOUT, env=env, cwd=REPO)
     driver = None
     try:
         driver = _driver(tmp_path / "chromium-profile")
