@@ -7,8 +7,9 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
-# Debian packages the project needs at run or test time (installed with apt when missing).
-DEB_PACKAGES := libsuitesparse-dev gdal-bin
+# Debian packages the project needs at run or test time (installed with apt when missing):
+# SuiteSparse for CHOLMOD, gdal-bin for gdalinfo/gdal_grid checks, Chromium for the dashboard browser test.
+DEB_PACKAGES := libsuitesparse-dev gdal-bin chromium chromium-driver
 DEMO_DIR ?= demo_output
 
 .PHONY: setup system-deps test test-slow demo clean
