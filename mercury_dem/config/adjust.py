@@ -26,6 +26,12 @@ class AdjustConfig(ConfigSection):
     radius_sigma_m: float | None = param(
         10000.0, "A-priori point radius constraint (1 sigma; null: none)", unit="m", lo=1e-6
     )
+    point_prior_center: str = param(
+        "datum", "Where the point constraints are centred (and points start): 'datum' puts each a-priori point "
+        "on the datum sphere along its direction (as ISIS does with an ellipsoid shape model); 'network' uses the "
+        "network's a-priori coordinates (rays intersected with the a-priori pointing, biased by its errors)",
+        choices=("datum", "network"),
+    )
     held_images: tuple[str, ...] = param((), "Image ids whose pointing (and position) are held fixed")
     # -- robustness ----------------------------------------------------------
     robust_loss: str = param("huber", "Robust loss applied by iterative reweighting", choices=("none", "huber", "cauchy"))

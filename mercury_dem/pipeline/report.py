@@ -53,7 +53,7 @@ def build_report(store: RunStore, mission: Any, config: Config, plan: dict[str, 
     }
     validation = None
     if glob and glob[0].get("ok"):
-        sid, rot, _, table = read_solution(store.solution_path("global", 0))
+        sid, rot, pos, table = read_solution(store.solution_path("global", 0))
         nmeas = table["n_measures"].to_numpy()
         controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
         if getattr(mission, "has_truth", False):
@@ -62,7 +62,7 @@ def build_report(store: RunStore, mission: Any, config: Config, plan: dict[str, 
 
             net = read_network(store.network_path("global", 0))
             keep = nmeas > 0
-            validation = validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep])
+            validation = validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep], positions=pos[keep])
     cset = set(controlled)
     report["images"] = {
         "input": len(ids_all),
@@ -116,9 +116,12 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
     v = report.get("validation")
     if v:
         p = v["pointing_error_urad"]
-        w(f"\npointing error vs truth (urad RMS): a-priori {_f(p['a_priori_rms'], '.1f')}, adjusted "
-          f"{_f(p['adjusted_rms'], '.1f')} ({_f(v.get('adjusted_rms_in_ifov'), '.2f')} IFOV; IFOV {_f(v['ifov_urad'], '.1f')}), "
-          f"common rotation removed {_f(p['adjusted_rms_common_rotation_removed'], '.1f')}\n")
+        ims = v.get("image_space_error_px") or {}
+        w(f"\npointing error vs truth, in each image's pixels (IFOV) RMS: a-priori {_f(ims.get('a_priori_rms'), '.2f')}, "
+          f"adjusted {_f(v.get('adjusted_rms_in_ifov'), '.2f')}\n")
+        w(f"pointing error vs truth (urad RMS): a-priori {_f(p['a_priori_rms'], '.1f')}, adjusted "
+          f"{_f(p['adjusted_rms'], '.1f')} (boresight {_f(p.get('adjusted_boresight_rms'), '.1f')}, twist "
+          f"{_f(p.get('adjusted_twist_rms'), '.1f')}; mean IFOV {_f(v['ifov_urad'], '.1f')})\n")
         pe = v["point_error_m"]
         w(f"point error vs truth (m): median {_f(pe['median'], '.1f')}, p95 {_f(pe['p95'], '.1f')} ({pe['points']} points)\n")
         d = v.get("dem")

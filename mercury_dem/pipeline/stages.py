@@ -297,11 +297,9 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     for c in kids:
         net = read_network(store.network_path(child_level, c))
         if child_level != "tile":
-            # Start from the level below's adjusted points; every measure is judged again.
-            adj = net.adjusted_xyz
-            use = np.all(np.isfinite(adj), axis=1)
+            # Every measure is judged again at this level. The a-priori coordinates stay
+            # those of the tiles (the a-priori DEM of the validation is gridded from them).
             net = net.replace(
-                apriori_xyz=np.where(use[:, None], adj, net.apriori_xyz),
                 measure_rejected=np.zeros_like(net.measure_rejected),
                 point_rejected=np.zeros_like(net.point_rejected),
             )
