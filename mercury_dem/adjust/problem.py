@@ -148,7 +148,8 @@ class AdjustmentProblem:
         if bad.any():
             raise AdjustmentError(
                 f"{int(bad.sum())} measures have sigma <= 0 or NaN (first {self.measure_sigma[bad][:5].tolist()} px on points "
-                f"{self.point_ids[self.measure_point[bad]][:10].tolist()}): measure sigmas must be positive pixels"
+                f"{self.point_ids[self.measure_point[bad]][:10].tolist()}, images "
+                f"{[self.image_ids[i] for i in self.measure_image[bad][:10]]}): measure sigmas must be positive pixels"
             )
         bad = ~np.all(np.isfinite(self.points), axis=1)
         if bad.any():

@@ -19,7 +19,9 @@ def test_pointing_recovered_to_half_ifov(accuracy_network, accuracy_result):
 
     Checked on the raw error (no common rotation removed): with positions known,
     the block's datum is fixed well enough here that removing the common rotation
-    changes the figure by < 0.05 IFOV (both printed). The twist about the
+    (an unweighted mean over all images, weak ones included) changes the figure by
+    < 0.1 IFOV (both printed). The figure over all images is printed and bounded
+    loosely (images with few measures are weakly determined). The twist about the
     boresight moves pixels by angle x distance from the centre (< 362 px), so it is
     ~100x less observable than the boresight; it is reported, not bounded to 0.5 IFOV.
     """
@@ -36,6 +38,7 @@ def test_pointing_recovered_to_half_ifov(accuracy_network, accuracy_result):
           f"removing the common rotation; all images {np.sqrt(np.mean(boresight**2)):.3f}; a-priori "
           f"{np.sqrt(np.mean(apriori[sel]**2)):.2f}; twist RMS {np.sqrt(np.mean((raw[sel, 2] / ifov[sel])**2)):.2f} IFOV")
     assert rms <= 0.5
+    assert np.sqrt(np.mean(boresight**2)) <= 1.0
     assert np.sqrt(np.mean(apriori[sel] ** 2)) > 5.0  # the a-priori error was real
 
 
@@ -49,17 +52,13 @@ def test_residuals_and_sigma0(accuracy_result):
 
 
 def test_outliers_rejected(accuracy_network, accuracy_result):
-    """>= 98 % of injected outliers rejected and <= 1 % of good measures.
-
-    The issue asks >= 99 %: what is missed are outliers in a much finer image
-    than the point's other images (NAC beside WAC, 200 km beside 1500 km) whose
-    point follows them; docs/design/adjust.md gives the figures.
-    """
+    """>= 99 % of injected outliers rejected and <= 1 % of good measures (on this seed; over
+    several seeds in test_outliers.py)."""
     out, rej = accuracy_network.outlier, accuracy_result.rejected
     frac_out = rej[out].mean()
     frac_good = rej[~out].mean()
     print(f"outliers rejected {frac_out:.4f} ({out.sum()}), good rejected {frac_good:.4f}")
-    assert frac_out >= 0.98
+    assert frac_out >= 0.99
     assert frac_good <= 0.01
 
 

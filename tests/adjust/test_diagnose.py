@@ -28,7 +28,7 @@ def test_unknown_image_and_point_indices(small_network):
         AdjustmentProblem(**{**f, "measure_image": mi})
     mp = f["measure_point"].copy()
     mp[0] = -1
-    with pytest.raises(AdjustmentError, match="unknown points"):
+    with pytest.raises(AdjustmentError, match=r"unknown points \(indices \[-1\]"):
         AdjustmentProblem(**{**f, "measure_point": mp})
 
 
@@ -40,6 +40,11 @@ def test_nan_measures_and_bad_sigmas_are_named(small_network):
         AdjustmentProblem(**{**f, "measures": meas})
     sig = f["measure_sigma"].copy()
     sig[7] = 0.0
+    p = small_network.problem
+    named = rf"sigma <= 0 .*points \[{p.point_ids[p.measure_point[7]]}\], images \['{p.image_ids[p.measure_image[7]]}'\]"
+    with pytest.raises(AdjustmentError, match=named):
+        AdjustmentProblem(**{**f, "measure_sigma": sig})
+    sig[7] = -1.0
     with pytest.raises(AdjustmentError, match="sigma <= 0"):
         AdjustmentProblem(**{**f, "measure_sigma": sig})
     with pytest.raises(AdjustmentError, match="shape"):
@@ -103,3 +108,25 @@ def test_points_with_one_measure_are_flagged_not_dropped(small_network):
 def test_unknown_held_image_id(small_network):
     with pytest.raises(AdjustmentError, match="held_images names images not in the network"):
         bundle_adjust(small_network.problem, AdjustConfig(held_images=("NOPE",)))
+
+
+def test_divergent_solve_keeps_the_best_state_and_reports_why(small_network, monkeypatch):
+    """Every trial step raises the cost (sigma0 would rise): the adjustment stops, keeps the a-priori
+    state (the best seen), is not converged, and the reason is in the result and the report."""
+    from mercury_dem.adjust import framing
+    from mercury_dem.adjust.report import text_report
+
+    real = framing.FramingModel.retract
+
+    def diverging(self, state, d_camera, d_point):  # every step lands 1 mrad off, however small it is
+        return real(self, state, d_camera + 1e-3, d_point)
+
+    monkeypatch.setattr(framing.FramingModel, "retract", diverging)
+    p = small_network.problem
+    res = bundle_adjust(p, AdjustConfig(max_iterations=5))
+    assert not res.converged
+    assert res.reason.startswith("no decrease possible")
+    assert np.all(res.pointing_corrections == 0.0)
+    np.testing.assert_array_equal(res.points, p.points)
+    assert res.log[-1]["cost"] == res.log[0]["cost"] and not res.log[-1]["step_accepted"]
+    assert "no decrease possible" in text_report(res)

@@ -41,6 +41,8 @@ def run_one(n: int, seed: int) -> dict:
     sel = res.accepted_per_image >= 30
     bore = np.linalg.norm(raw[:, :2], axis=1) / ifov
     its = [e["seconds"] for e in res.log]
+    ok = ~res.underdetermined_points
+    perr = np.linalg.norm(res.points - net.true_points, axis=1)[ok]
     return {
         "measures": p.n_measures, "images": p.n_images, "points": p.n_points, "generate_seconds": round(gen, 2),
         "iterations": res.iterations, "seconds_per_iteration_median": round(float(np.median(its)), 3),
@@ -50,6 +52,8 @@ def run_one(n: int, seed: int) -> dict:
         "outliers_rejected": round(float(res.rejected[net.outlier].mean()), 4),
         "good_rejected": round(float(res.rejected[~net.outlier].mean()), 4),
         "boresight_rms_ifov_ge30": round(float(np.sqrt(np.mean(bore[sel] ** 2))), 3),
+        "boresight_rms_ifov_all": round(float(np.sqrt(np.mean(bore**2))), 3),
+        "point_error_m_median_p90": [round(float(np.median(perr)), 1), round(float(np.percentile(perr, 90)), 1)],
         "peak_rss_gb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2, 2),
     }
 
