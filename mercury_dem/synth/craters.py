@@ -59,6 +59,8 @@ class CraterIndex:
     #: (len(members), 4): centre unit vector and squared chord of the reach of each member,
     #: stored in CSR order so the rejection test of a cell reads contiguous memory.
     cand: NDArray[np.float64]
+    #: (n_table,) angular reach (rad) of every crater of the table the index was built on.
+    reach_rad: NDArray[np.float64]
 
 
 def sample_diameters(rng: np.random.Generator, n: int, d_min: float, d_max: float, slope: float) -> NDArray[np.float64]:
@@ -185,7 +187,7 @@ def build_index(table: NDArray[np.float64], reach_col_factor: NDArray[np.float64
     cand = np.empty((members.size, 4))
     cand[:, 0:3] = table[members, 0:3]
     cand[:, 3] = (2.0 * np.sin(0.5 * reach[members])) ** 2
-    return CraterIndex(cell_deg, n_lat, n_lon, starts, members, np.ascontiguousarray(cand))
+    return CraterIndex(cell_deg, n_lat, n_lon, starts, members, np.ascontiguousarray(cand), reach)
 
 
 @numba.njit(cache=True, inline="always")
@@ -259,6 +261,54 @@ def _order_by_cell(cells: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
     return order
 
 
+@numba.njit(cache=True, inline="always")
+def _height_term(table: NDArray[np.float64], j: int, chord2: float, body_radius_m: float) -> float:
+    """Relief (m) of crater ``j`` at a point at squared chord ``chord2`` (unit sphere) from its centre."""
+    dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
+    r = dist / table[j, C_RADIUS]
+    if r < table[j, C_REACH]:
+        return table[j, C_AMP] * crater_profile(table, j, r)
+    return 0.0
+
+
+@numba.njit(cache=True, inline="always")
+def _ray_term(
+    table: NDArray[np.float64], j: int, px: float, py: float, pz: float, chord2: float, body_radius_m: float
+) -> float:
+    """Relative albedo boost of the halo and rays of crater ``j`` at unit vector (px, py, pz)."""
+    row = table[j]
+    length = row[C_RAYLEN]
+    dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
+    r = dist / row[C_RADIUS]
+    if r >= length:
+        return 0.0
+    # Bright halo over the crater and its continuous ejecta.
+    q = r / 1.6
+    b = np.exp(-q * q * q * q)
+    if r > 0.8:
+        # Azimuth about the centre in its local east/north frame.
+        cx, cy, cz = row[C_X], row[C_Y], row[C_Z]
+        ex, ey = -cy, cx
+        en = np.sqrt(ex * ex + ey * ey)
+        if en < 1e-9:
+            ex, ey, en = 1.0, 0.0, 1.0
+        ex /= en
+        ey /= en
+        nx, ny, nz = -cz * ey, cz * ex, cx * ey - cy * ex
+        az = np.arctan2(px * nx + py * ny + pz * nz, px * ex + py * ey)
+        s = (
+            np.cos(row[C_RAYK] * az + row[C_RAYK + 3])
+            + np.cos(row[C_RAYK + 1] * az + row[C_RAYK + 4])
+            + np.cos(row[C_RAYK + 2] * az + row[C_RAYK + 5])
+        ) / 3.0
+        if s > 0.2:
+            s = (s - 0.2) / 0.8
+            fade_in = _smooth((r - 0.8) / 0.7)
+            fade_out = (1.0 - r / length) ** 2
+            b += 0.9 * s * s * fade_in * fade_out
+    return row[C_RAYAMP] * b
+
+
 @numba.njit(cache=True, nogil=True)
 def crater_heights(
     units: NDArray[np.float64],
@@ -294,11 +344,7 @@ def crater_heights(
             chord2 = dx * dx + dy * dy + dz * dz
             if chord2 >= cand[m, 3]:
                 continue
-            j = members[m]
-            dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
-            r = dist / table[j, C_RADIUS]
-            if r < table[j, C_REACH]:
-                h += table[j, C_AMP] * crater_profile(table, j, r)
+            h += _height_term(table, members[m], chord2, body_radius_m)
         out[i] = h
     return out
 
@@ -334,36 +380,151 @@ def ray_albedo(
             chord2 = dx * dx + dy * dy + dz * dz
             if chord2 >= cand[m, 3]:
                 continue
-            row = table[members[m]]
-            length = row[C_RAYLEN]
-            dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
-            r = dist / row[C_RADIUS]
-            if r >= length:
-                continue
-            # Bright halo over the crater and its continuous ejecta.
-            q = r / 1.6
-            b = np.exp(-q * q * q * q)
-            if r > 0.8:
-                # Azimuth about the centre in its local east/north frame.
-                cx, cy, cz = row[C_X], row[C_Y], row[C_Z]
-                ex, ey = -cy, cx
-                en = np.sqrt(ex * ex + ey * ey)
-                if en < 1e-9:
-                    ex, ey, en = 1.0, 0.0, 1.0
-                ex /= en
-                ey /= en
-                nx, ny, nz = -cz * ey, cz * ex, cx * ey - cy * ex
-                az = np.arctan2(px * nx + py * ny + pz * nz, px * ex + py * ey)
-                s = (
-                    np.cos(row[C_RAYK] * az + row[C_RAYK + 3])
-                    + np.cos(row[C_RAYK + 1] * az + row[C_RAYK + 4])
-                    + np.cos(row[C_RAYK + 2] * az + row[C_RAYK + 5])
-                ) / 3.0
-                if s > 0.2:
-                    s = (s - 0.2) / 0.8
-                    fade_in = _smooth((r - 0.8) / 0.7)
-                    fade_out = (1.0 - r / length) ** 2
-                    b += 0.9 * s * s * fade_in * fade_out
-            boost += row[C_RAYAMP] * b
+            boost += _ray_term(table, members[m], px, py, pz, chord2, body_radius_m)
         out[i] = boost
+    return out
+
+
+# --------------------------------------------------------------------------- local grids
+@numba.njit(cache=True, nogil=True)
+def _members_of_cells(
+    b0: int, b1: int, k0: int, k1: int, n_lon: int, starts: NDArray[np.int64], members: NDArray[np.int64], n_table: int
+) -> NDArray[np.int64]:
+    """Sorted distinct members of the cells of latitude rows b0..b1 and longitude columns k0..k1 (mod n_lon)."""
+    seen = np.zeros(n_table, dtype=np.bool_)
+    count = 0
+    for b in range(b0, b1 + 1):
+        for kk in range(k0, k1 + 1):
+            c = b * n_lon + (kk % n_lon)
+            for m in range(starts[c], starts[c + 1]):
+                j = members[m]
+                if not seen[j]:
+                    seen[j] = True
+                    count += 1
+    out = np.empty(count, dtype=np.int64)
+    n = 0
+    for j in range(n_table):
+        if seen[j]:
+            out[n] = j
+            n += 1
+    return out
+
+
+def grid_candidates(index: CraterIndex, units: NDArray[np.float64], n_table: int) -> NDArray[np.int64]:
+    """Craters of ``index`` that may reach any of the unit vectors ``units`` (ny, nx, 3) of a local grid.
+
+    The grid's cells are those of its latitude/longitude box (from its border
+    nodes, widened by one cell; all longitudes when it comes near a pole), so
+    every crater listed in the cell of any node is returned.
+    """
+    border = np.concatenate([units[0], units[-1], units[:, 0], units[:, -1]])
+    lat = np.degrees(np.arcsin(np.clip(border[:, 2], -1.0, 1.0)))
+    centre = units[units.shape[0] // 2, units.shape[1] // 2]
+    lon_c = np.degrees(np.arctan2(centre[1], centre[0]))
+    dlon = (np.degrees(np.arctan2(border[:, 1], border[:, 0])) - lon_c + 180.0) % 360.0 - 180.0
+    cd = index.cell_deg
+    lat_lo, lat_hi = lat.min() - cd, lat.max() + cd
+    # A pole inside the grid: the border does not enclose it in latitude.
+    z = units[..., 2]
+    if z.max() > np.sin(np.radians(90.0 - 2 * cd)) or z.min() < -np.sin(np.radians(90.0 - 2 * cd)):
+        if z.max() > 0:
+            lat_hi = 90.0
+        if z.min() < 0:
+            lat_lo = -90.0
+    all_lon = lat_hi >= 90.0 - 2 * cd or lat_lo <= -90.0 + 2 * cd or dlon.max() - dlon.min() > 180.0
+    b0 = max(0, int(np.floor((lat_lo + 90.0) / cd)))
+    b1 = min(index.n_lat - 1, int(np.floor((lat_hi + 90.0) / cd)))
+    if all_lon:
+        k0, k1 = 0, index.n_lon - 1
+    else:
+        k0 = int(np.floor((lon_c + dlon.min() - cd) / cd))
+        k1 = int(np.floor((lon_c + dlon.max() + cd) / cd))
+    return _members_of_cells(b0, b1, k0, k1, index.n_lon, index.starts, index.members, n_table)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_box(
+    cx: float, cy: float, cz: float, reach: float, frame: NDArray[np.float64], radius: float,
+    x0: float, y0: float, g: float, nx: int, ny: int,
+) -> tuple[int, int, int, int]:
+    """Node index box (i0, i1, j0, j1) that holds every node within angle ``reach`` of a centre.
+
+    The gnomonic map stretches distances at angle theta from the tangent point by at
+    most 1 / cos^2(theta), so the cap lies within ``R * reach / cos^2(theta_c + reach)``
+    of the projected centre; an empty box (i0 > i1) when the cap misses the grid.
+    """
+    cos_c = cx * frame[0, 0] + cy * frame[0, 1] + cz * frame[0, 2]
+    theta = np.arccos(min(1.0, max(-1.0, cos_c)))
+    if theta - reach >= 0.5 * np.pi:
+        return 0, -1, 0, -1
+    if theta + reach >= 1.3:  # strongly stretched (or unprojectable): the whole grid
+        return 0, nx - 1, 0, ny - 1
+    xc = radius * (cx * frame[1, 0] + cy * frame[1, 1] + cz * frame[1, 2]) / cos_c
+    yc = radius * (cx * frame[2, 0] + cy * frame[2, 1] + cz * frame[2, 2]) / cos_c
+    c2 = np.cos(theta + reach) ** 2
+    half = radius * reach / c2 + g
+    i0 = max(0, int(np.floor((xc - half - x0) / g)))
+    i1 = min(nx - 1, int(np.ceil((xc + half - x0) / g)))
+    j0 = max(0, int(np.floor((yc - half - y0) / g)))
+    j1 = min(ny - 1, int(np.ceil((yc + half - y0) / g)))
+    return i0, i1, j0, j1
+
+
+@numba.njit(cache=True, nogil=True)
+def crater_heights_grid(
+    units: NDArray[np.float64], table: NDArray[np.float64], ids: NDArray[np.int64], reach_rad: NDArray[np.float64],
+    frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, body_radius_m: float,
+) -> NDArray[np.float64]:
+    """Summed crater relief (m) at the nodes (ny, nx) of a local gnomonic grid, crater by crater.
+
+    The same relief as :func:`crater_heights` at ``units`` (up to the order of the
+    sum): each candidate crater ``ids`` visits only the nodes of its box.
+    ``frame`` rows: the grid's centre, east and north unit vectors; the grid's
+    node (j, i) sits at plane coordinates (x0 + i g, y0 + j g) on the plane tangent
+    at distance ``radius``.
+    """
+    ny, nx = units.shape[0], units.shape[1]
+    out = np.zeros((ny, nx))
+    for q in range(ids.shape[0]):
+        k = ids[q]
+        cx, cy, cz = table[k, C_X], table[k, C_Y], table[k, C_Z]
+        reach = reach_rad[k]
+        lim = (2.0 * np.sin(0.5 * reach)) ** 2
+        i0, i1, j0, j1 = _grid_box(cx, cy, cz, reach, frame, radius, x0, y0, g, nx, ny)
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                dx = units[j, i, 0] - cx
+                dy = units[j, i, 1] - cy
+                dz = units[j, i, 2] - cz
+                chord2 = dx * dx + dy * dy + dz * dz
+                if chord2 >= lim:
+                    continue
+                out[j, i] += _height_term(table, k, chord2, body_radius_m)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def ray_albedo_grid(
+    units: NDArray[np.float64], table: NDArray[np.float64], ids: NDArray[np.int64], reach_rad: NDArray[np.float64],
+    frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, body_radius_m: float,
+) -> NDArray[np.float64]:
+    """Albedo boost of haloes and rays (as :func:`ray_albedo`) at the nodes of a local grid, crater by crater."""
+    ny, nx = units.shape[0], units.shape[1]
+    out = np.zeros((ny, nx))
+    for q in range(ids.shape[0]):
+        k = ids[q]
+        cx, cy, cz = table[k, C_X], table[k, C_Y], table[k, C_Z]
+        reach = reach_rad[k]
+        lim = (2.0 * np.sin(0.5 * reach)) ** 2
+        i0, i1, j0, j1 = _grid_box(cx, cy, cz, reach, frame, radius, x0, y0, g, nx, ny)
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                px, py, pz = units[j, i, 0], units[j, i, 1], units[j, i, 2]
+                dx = px - cx
+                dy = py - cy
+                dz = pz - cz
+                chord2 = dx * dx + dy * dy + dz * dz
+                if chord2 >= lim:
+                    continue
+                out[j, i] += _ray_term(table, k, px, py, pz, chord2, body_radius_m)
     return out

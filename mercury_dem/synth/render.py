@@ -15,22 +15,24 @@ How an image is made (:func:`render_image`):
    when its ``b`` is not below the running maximum of ``b`` of the nodes between
    it and the sun. This is exact for parallel sun rays up to the grid's
    interpolation and costs O(nodes).
-3. **Primary rays**, ``supersample`` x ``supersample`` per pixel, are cast from the
-   camera through the distorted pixel positions (the inverse of the camera
-   model used by :func:`mercury_dem.geometry.pose.project`) and marched onto the
-   bilinearly interpolated height grid with steps bounded by the grid's steepest
-   slope (they never skip through a ridge), then refined by regula falsi to
-   the converged intersection.
+3. **Drawing**: every node goes through the camera model (rotation,
+   perspective, the distortion polynomial of :func:`mercury_dem.geometry.pose.project`)
+   to sub-sample coordinates, ``supersample`` x ``supersample`` per pixel, and each
+   grid cell is drawn as two triangles into a z-buffer (the nearest surface wins,
+   so terrain hidden behind a ridge is hidden exactly). See
+   :mod:`mercury_dem.synth.raster`.
 4. **Photometry:** a Lommel–Seeliger / Lambert mix with an exponential phase
-   function, the albedo field (including rays of fresh craters) and the shadow
-   fraction, all interpolated at the hit point; local incidence and emission
-   use the grid normals.
+   function, the albedo field (including rays of fresh craters) and the lit
+   flag of the sweep, all interpolated at each sub-sample from the nodes of its
+   triangle; local incidence and emission use the grid normals (parallel sun rays
+   from the grid centre, as the shadow sweep).
 5. **Sensor:** Gaussian point-spread blur, box average of the sub-samples,
    automatic exposure (a high percentile of the scene to a fixed DN), shot
    noise (Poisson in electrons), read noise, 12-bit quantisation, ``uint16``.
 
-The compiled kernels (numba) replace a numpy ray march that took 4 s per 512^2
-image at one sample per pixel (see docs/benchmarks/synth.md). All randomness
+The compiled kernels (numba) replace a numpy ray march that took 8 s per 512^2
+image at 2 x 2 sub-samples and a compiled ray march that took 0.3 s of the
+0.7 s per image (see docs/benchmarks/synth.md). All randomness
 comes from the ``rng`` argument: the same inputs give a bit-identical image.
 """
 
@@ -42,11 +44,11 @@ from typing import Protocol
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.ndimage import gaussian_filter
 
 from mercury_dem.exceptions import GeometryError
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import intersect_sphere, pixel_rays
+from mercury_dem.synth import raster as rs
 
 #: Conservative height bounds (m) of any synthetic surface, used to bound the footprint.
 DEFAULT_HEIGHT_BOUNDS_M = (-9000.0, 7000.0)
@@ -123,14 +125,10 @@ class LocalGrid:
 
     def directions(self) -> NDArray[np.float64]:
         """Unit vectors of the nodes, shape (ny, nx, 3)."""
-        x = self.x0 + self.spacing_m * np.arange(self.nx)
-        y = self.y0 + self.spacing_m * np.arange(self.ny)
-        v = (
-            self.radius_m * self.centre[None, None, :]
-            + x[None, :, None] * self.east[None, None, :]
-            + y[:, None, None] * self.north[None, None, :]
+        return rs.grid_directions(
+            np.asarray(self.centre, float), np.asarray(self.east, float), np.asarray(self.north, float),
+            float(self.radius_m), float(self.x0), float(self.y0), float(self.spacing_m), int(self.nx), int(self.ny),
         )
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
     def plane_coords(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
         """Gnomonic plane coordinates (..., 2) of body-fixed points (..., 3)."""
@@ -283,243 +281,6 @@ def grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
     return _grid_normals(np.ascontiguousarray(points))
 
 
-@numba.njit(cache=True, inline="always")
-def _bilinear(a: NDArray[np.float64], fx: float, fy: float) -> float:
-    ny, nx = a.shape
-    i = min(max(int(np.floor(fx)), 0), nx - 2)
-    j = min(max(int(np.floor(fy)), 0), ny - 2)
-    u = min(max(fx - i, 0.0), 1.0)
-    v = min(max(fy - j, 0.0), 1.0)
-    return (1 - v) * ((1 - u) * a[j, i] + u * a[j, i + 1]) + v * ((1 - u) * a[j + 1, i] + u * a[j + 1, i + 1])
-
-
-@numba.njit(cache=True, inline="always")
-def _height_gap(
-    px: float, py: float, pz: float, frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float,
-    heights: NDArray[np.float64],
-) -> tuple[float, float, float]:
-    """(height of the point above the interpolated surface, grid fx, grid fy)."""
-    pc = px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]
-    x = radius * (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / pc
-    y = radius * (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / pc
-    fx = (x - x0) / g
-    fy = (y - y0) / g
-    h = _bilinear(heights, fx, fy)
-    r = np.sqrt(px * px + py * py + pz * pz)
-    return r - radius - h, fx, fy
-
-
-@numba.njit(cache=True, nogil=True, fastmath=True)
-def _cast_and_shade(
-    origin: NDArray[np.float64],
-    dirs: NDArray[np.float64],
-    frame: NDArray[np.float64],
-    radius: float,
-    x0: float,
-    y0: float,
-    g: float,
-    heights: NDArray[np.float64],
-    fields: NDArray[np.float64],
-    block_max: NDArray[np.float64],
-    block: int,
-    h_lo: float,
-    h_hi: float,
-    slope_max: float,
-    sun: NDArray[np.float64],
-    lambert_weight: float,
-    phase_scale_rad: float,
-) -> NDArray[np.float64]:
-    """I/F of each ray (N,) (0 where it misses the body), by marching onto the height grid."""
-    n = dirs.shape[0]
-    out = np.zeros(n)
-    ox, oy, oz = origin[0], origin[1], origin[2]
-    oo = ox * ox + oy * oy + oz * oz
-    tol = 1e-2 * g
-    min_step = 0.05 * g
-    ny, nx = heights.shape
-    for k in range(n):
-        dx, dy, dz = dirs[k, 0], dirs[k, 1], dirs[k, 2]
-        bq = ox * dx + oy * dy + oz * dz
-        r_hi = radius + h_hi
-        disc = bq * bq - (oo - r_hi * r_hi)
-        if disc < 0.0:
-            continue
-        t = -bq - np.sqrt(disc)
-        if t < 0.0:
-            t = 0.0
-        r_lo = radius + h_lo
-        disc_lo = bq * bq - (oo - r_lo * r_lo)
-        t_end = -bq - np.sqrt(disc_lo) if disc_lo >= 0.0 else -bq + np.sqrt(disc)
-        # Lipschitz bound of the height gap along the ray.
-        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        rr = np.sqrt(px * px + py * py + pz * pz)
-        a = abs(px * dx + py * dy + pz * dz) / rr
-        lip = a + 1.1 * slope_max * np.sqrt(max(0.0, 1.0 - a * a)) + 1e-6
-        f, fx, fy = _height_gap(px, py, pz, frame, radius, x0, y0, g, heights)
-        # Block phase: while the ray is above the highest node within one block
-        # (``block_max`` is dilated by a block), descend to that height in one step,
-        # moving at most one block sideways (safe: nothing there reaches the ray).
-        reach = 0.9 * block * g
-        for _ in range(256):
-            bi = min(max(int(fx) // block, 0), block_max.shape[1] - 1)
-            bj = min(max(int(fy) // block, 0), block_max.shape[0] - 1)
-            above = rr - radius - block_max[bj, bi]
-            if above < g:
-                break
-            rate = -(px * dx + py * dy + pz * dz) / rr
-            step = reach if rate <= 1e-9 else min(above / rate, reach)
-            t += step
-            if t > t_end + g:
-                break
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            rr = np.sqrt(px * px + py * py + pz * pz)
-            f, fx, fy = _height_gap(px, py, pz, frame, radius, x0, y0, g, heights)
-        t_prev, f_prev = t, f
-        hit = False
-        for _ in range(10000):
-            if f < tol:
-                hit = True
-                break
-            t_prev, f_prev = t, f
-            t += max(f / lip, min_step)
-            if t > t_end + g:
-                break
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            f, fx, fy = _height_gap(px, py, pz, frame, radius, x0, y0, g, heights)
-        if not hit:
-            continue
-        if f < -tol:
-            # Regula falsi (Illinois) between the last point above and the first below.
-            ta, fa, tb, fb = t_prev, f_prev, t, f
-            side = 0
-            for _ in range(30):
-                tm = (ta * fb - tb * fa) / (fb - fa)
-                px, py, pz = ox + tm * dx, oy + tm * dy, oz + tm * dz
-                fm, fx, fy = _height_gap(px, py, pz, frame, radius, x0, y0, g, heights)
-                if abs(fm) < tol:
-                    break
-                if fm > 0.0:
-                    ta, fa = tm, fm
-                    if side == 1:
-                        fb *= 0.5
-                    side = 1
-                else:
-                    tb, fb = tm, fm
-                    if side == -1:
-                        fa *= 0.5
-                    side = -1
-        if fx < 0.0 or fy < 0.0 or fx > nx - 1 or fy > ny - 1:
-            continue
-        # Shading at the hit point: one bilinear stencil for the packed fields
-        # (normal x, y, z, lit fraction, albedo) of shape (ny, nx, 5).
-        ii = min(max(int(np.floor(fx)), 0), nx - 2)
-        jj = min(max(int(np.floor(fy)), 0), ny - 2)
-        uu = min(max(fx - ii, 0.0), 1.0)
-        vv = min(max(fy - jj, 0.0), 1.0)
-        w00 = (1.0 - uu) * (1.0 - vv)
-        w01 = uu * (1.0 - vv)
-        w10 = (1.0 - uu) * vv
-        w11 = uu * vv
-        nxv = w00 * fields[jj, ii, 0] + w01 * fields[jj, ii + 1, 0] + w10 * fields[jj + 1, ii, 0] + w11 * fields[jj + 1, ii + 1, 0]
-        nyv = w00 * fields[jj, ii, 1] + w01 * fields[jj, ii + 1, 1] + w10 * fields[jj + 1, ii, 1] + w11 * fields[jj + 1, ii + 1, 1]
-        nzv = w00 * fields[jj, ii, 2] + w01 * fields[jj, ii + 1, 2] + w10 * fields[jj + 1, ii, 2] + w11 * fields[jj + 1, ii + 1, 2]
-        nn = np.sqrt(nxv * nxv + nyv * nyv + nzv * nzv)
-        nxv, nyv, nzv = nxv / nn, nyv / nn, nzv / nn
-        sx, sy, sz = sun[0] - px, sun[1] - py, sun[2] - pz
-        sn = np.sqrt(sx * sx + sy * sy + sz * sz)
-        sx, sy, sz = sx / sn, sy / sn, sz / sn
-        mu0 = nxv * sx + nyv * sy + nzv * sz
-        mu = -(nxv * dx + nyv * dy + nzv * dz)
-        if mu0 <= 0.0 or mu <= 0.0:
-            continue
-        shade = w00 * fields[jj, ii, 3] + w01 * fields[jj, ii + 1, 3] + w10 * fields[jj + 1, ii, 3] + w11 * fields[jj + 1, ii + 1, 3]
-        if shade <= 0.0:
-            continue
-        alb = w00 * fields[jj, ii, 4] + w01 * fields[jj, ii + 1, 4] + w10 * fields[jj + 1, ii, 4] + w11 * fields[jj + 1, ii + 1, 4]
-        cos_phase = -(sx * dx + sy * dy + sz * dz)
-        phase = np.arccos(min(1.0, max(-1.0, cos_phase)))
-        ls = 2.0 * mu0 / (mu0 + mu)
-        refl = (1.0 - lambert_weight) * ls + lambert_weight * mu0
-        out[k] = alb * np.exp(-phase / phase_scale_rad) * refl * shade
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _interp_directions(
-    lattice: NDArray[np.float64], step: int, n_lines: int, n_samples: int, rot: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Body-fixed unit ray directions (n_lines * n_samples, 3) by bilinear interpolation of
-    undistorted focal-plane vectors given every ``step`` sub-samples (``lattice`` (La, Lb, 3))."""
-    out = np.empty((n_lines * n_samples, 3))
-    la, lb = lattice.shape[0], lattice.shape[1]
-    for row in range(n_lines):
-        j = min(row // step, la - 2)
-        v = (row - j * step) / step
-        for col in range(n_samples):
-            i = min(col // step, lb - 2)
-            u = (col - i * step) / step
-            w00 = (1 - u) * (1 - v)
-            w01 = u * (1 - v)
-            w10 = (1 - u) * v
-            w11 = u * v
-            cx = w00 * lattice[j, i, 0] + w01 * lattice[j, i + 1, 0] + w10 * lattice[j + 1, i, 0] + w11 * lattice[j + 1, i + 1, 0]
-            cy = w00 * lattice[j, i, 1] + w01 * lattice[j, i + 1, 1] + w10 * lattice[j + 1, i, 1] + w11 * lattice[j + 1, i + 1, 1]
-            cz = w00 * lattice[j, i, 2] + w01 * lattice[j, i + 1, 2] + w10 * lattice[j + 1, i, 2] + w11 * lattice[j + 1, i + 1, 2]
-            nrm = np.sqrt(cx * cx + cy * cy + cz * cz)
-            cx, cy, cz = cx / nrm, cy / nrm, cz / nrm
-            k = row * n_samples + col
-            # Body-fixed direction R^T v.
-            out[k, 0] = rot[0, 0] * cx + rot[1, 0] * cy + rot[2, 0] * cz
-            out[k, 1] = rot[0, 1] * cx + rot[1, 1] * cy + rot[2, 1] * cz
-            out[k, 2] = rot[0, 2] * cx + rot[1, 2] * cy + rot[2, 2] * cz
-    return out
-
-
-def subsample_directions(
-    camera: FramingCamera, rotation: NDArray[np.float64], supersample: int, step: int = 8
-) -> NDArray[np.float64]:
-    """Body-fixed unit directions (lines*ss * samples*ss, 3) of all sub-pixel rays, row-major.
-
-    The camera model (with its distortion) is evaluated exactly on a lattice every
-    ``step`` sub-samples; in between, the undistorted focal-plane vectors are
-    interpolated bilinearly (exact for a pinhole; below 1e-3 pixel for the MDIS
-    NAC polynomial).
-    """
-    n_l, n_s = camera.lines * supersample, camera.samples * supersample
-    rows = np.arange(0, n_l - 1 + step, step)
-    cols = np.arange(0, n_s - 1 + step, step)
-    off = 0.5 / supersample - 0.5
-    ss, ll = np.meshgrid(cols / supersample + off, rows / supersample + off)
-    p = camera.pixel_size_mm
-    xd = (ss - camera.boresight_sample) * p
-    yd = (ll - camera.boresight_line) * p
-    x, y = camera.undistort(xd, yd)
-    lattice = np.stack([x, y, np.full_like(x, camera.focal_length_mm)], -1)
-    return _interp_directions(np.ascontiguousarray(lattice), step, n_l, n_s, np.ascontiguousarray(rotation))
-
-
-BLOCK = 16
-
-
-def block_maxima(heights: NDArray[np.float64], block: int) -> NDArray[np.float64]:
-    """Highest node of each ``block`` x ``block`` cell, dilated by one block (nby, nbx).
-
-    Node (j, i) is in block (j // block, i // block); a point of block (bj, bi) is
-    within one block of every node counted in its entry.
-    """
-    ny, nx = heights.shape
-    nby, nbx = -(-ny // block), -(-nx // block)
-    pad = np.full((nby * block, nbx * block), -np.inf)
-    pad[:ny, :nx] = heights
-    bm = pad.reshape(nby, block, nbx, block).max(axis=(1, 3))
-    out = bm.copy()
-    p = np.pad(bm, 1, constant_values=-np.inf)
-    for dj in (0, 1, 2):
-        for di in (0, 1, 2):
-            out = np.maximum(out, p[dj:dj + nby, di:di + nbx])
-    return np.ascontiguousarray(out)
-
-
 def subsample_pixels(samples: int, lines: int, supersample: int) -> NDArray[np.float64]:
     """Sub-pixel positions (lines*ss, samples*ss, 2) (sample, line), 0-based pixel centres."""
     off = (np.arange(supersample) + 0.5) / supersample - 0.5
@@ -527,6 +288,12 @@ def subsample_pixels(samples: int, lines: int, supersample: int) -> NDArray[np.f
     l = (np.arange(lines)[:, None] + off[None, :]).ravel()
     ss, ll = np.meshgrid(s, l)
     return np.stack([ss, ll], -1)
+
+
+def sun_direction(grid: LocalGrid, sun_position: ArrayLike) -> NDArray[np.float64]:
+    """Unit vector toward the sun from the grid centre (the renderer's parallel sun rays)."""
+    s = np.asarray(sun_position, dtype=np.float64) - grid.centre * grid.radius_m
+    return s / np.linalg.norm(s)
 
 
 def render_reflectance(
@@ -543,6 +310,22 @@ def render_reflectance(
     return img.reshape(camera.lines, ss, camera.samples, ss).mean(axis=(1, 3))
 
 
+def sample_surface(
+    surface: SurfaceModel, grid: LocalGrid, dirs: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Heights (m) and albedo of the grid nodes, each (ny, nx), at the grid's resolution.
+
+    ``dirs`` : (ny, nx, 3) the node directions (``grid.directions()``).
+    Uses the surface's ``sample_grid(grid, dirs)`` when it has one (the truth ``Surface``
+    evaluates craters per crater over the grid instead of per point), else
+    ``height_unit``/``albedo_unit`` at the node directions.
+    """
+    fast = getattr(surface, "sample_grid", None)
+    if fast is not None:
+        return fast(grid, dirs)
+    return surface.height_unit(dirs, grid.spacing_m), surface.albedo_unit(dirs, grid.spacing_m)
+
+
 def _render_supersampled(
     surface: SurfaceModel,
     camera: FramingCamera,
@@ -552,29 +335,24 @@ def _render_supersampled(
     settings: RenderSettings,
 ) -> NDArray[np.float64]:
     c = np.asarray(position, dtype=np.float64)
-    r = np.asarray(rotation, dtype=np.float64)
+    r = np.ascontiguousarray(rotation, dtype=np.float64)
     sun = np.asarray(sun_position, dtype=np.float64)
     radius = float(surface.radius_m)
     grid = footprint_grid(camera, c, r, sun, radius, settings)
     dirs = grid.directions()
-    heights = surface.height_unit(dirs, grid.spacing_m)
-    alb = surface.albedo_unit(dirs, grid.spacing_m)
+    heights, alb = sample_surface(surface, grid, dirs)
     points = dirs * (radius + heights)[..., None]
-    normals = grid_normals(points)
     lit = shadow_grid(points, grid, sun) if settings.shadows else np.ones(heights.shape)
-    gy, gx = np.gradient(heights, grid.spacing_m)
-    slope_max = float(np.sqrt(gx * gx + gy * gy).max())
+    s = sun_direction(grid, sun)
+    fields = rs.node_fields(points, lit, np.ascontiguousarray(alb, dtype=np.float64), c, s,
+                            float(np.radians(settings.phase_scale_deg)))
     ss = settings.supersample
-    d = subsample_directions(camera, r, ss)
-    frame = np.stack([grid.centre, grid.east, grid.north])
-    out = _cast_and_shade(
-        c, np.ascontiguousarray(d), frame, radius, grid.x0, grid.y0, grid.spacing_m,
-        np.ascontiguousarray(heights), np.ascontiguousarray(np.stack([normals[0], normals[1], normals[2], lit, alb], -1)),
-        block_maxima(heights, BLOCK), BLOCK,
-        float(heights.min()) - 1.0, float(heights.max()) + 1.0, slope_max, sun,
-        settings.lambert_weight, np.radians(settings.phase_scale_deg),
-    )
-    return out.reshape(camera.lines * ss, camera.samples * ss)
+    dist_x = np.asarray(camera.distortion_x, dtype=np.float64)
+    dist_y = np.asarray(camera.distortion_y, dtype=np.float64)
+    uv, depth = rs.project_nodes(points, c, r, camera.focal_length_mm, camera.pixel_size_mm, camera.boresight_sample,
+                                 camera.boresight_line, dist_x, dist_y, ss)
+    tri, w1, w2 = rs.rasterize(uv, depth, camera.samples * ss, camera.lines * ss)
+    return rs.shade(tri, w1, w2, fields, s, settings.lambert_weight)
 
 
 def render_image(
@@ -603,10 +381,7 @@ def render_image(
     ndarray (lines, samples) uint16, DN in 0..4095; pixels that miss the body are dark-level noise.
     """
     img = _render_supersampled(surface, camera, position, rotation, sun_position, settings)
-    ss = settings.supersample
-    if settings.psf_sigma_px > 0:
-        img = gaussian_filter(img, settings.psf_sigma_px * ss, mode="nearest")
-    img = img.reshape(camera.lines, ss, camera.samples, ss).mean(axis=(1, 3))
+    img = rs.psf_box(img, settings.psf_sigma_px, settings.supersample)
     return expose(img, rng, settings)
 
 

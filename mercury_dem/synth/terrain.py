@@ -187,11 +187,17 @@ class Surface:
         u = np.asarray(units, dtype=np.float64)
         shape = u.shape[:-1]
         flat = np.ascontiguousarray(u.reshape(-1, 3))
-        plains = _plains_mask(flat, self._plains)
         ix = self._height_index
         h = cr.crater_heights(
             flat, self.craters, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m
         )
+        return self._compose_height(flat, h, resolution_m).reshape(shape)
+
+    def _compose_height(
+        self, flat: NDArray[np.float64], h: NDArray[np.float64], resolution_m: float | None
+    ) -> NDArray[np.float64]:
+        """Height (N,) at unit vectors ``flat`` (N, 3) from their summed crater relief ``h`` (N,)."""
+        plains = _plains_mask(flat, self._plains)
         # Stacked craters (a crater in a crater in a basin) would add their depths; real
         # excavation does not go that deep, so the crater relief is softly limited at -4.5 km (C1).
         knee, span = -2500.0, 2000.0
@@ -203,25 +209,56 @@ class Surface:
         rough = fbm(flat * self.radius_m, lam, amp, self._seed_rough)
         z = flat[:, 2]
         polar = -self.params.polar_drop_m * (z * z - 1.0 / 3.0)
-        total = polar + h + rough * (1.0 - 0.6 * plains)
-        return total.reshape(shape)
+        return polar + h + rough * (1.0 - 0.6 * plains)
 
     def albedo_unit(self, units: ArrayLike, resolution_m: float | None = None) -> NDArray[np.float64]:
         """Normal albedo (dimensionless, ~0.05-0.4) at unit vectors (..., 3); independent of the height."""
         u = np.asarray(units, dtype=np.float64)
         shape = u.shape[:-1]
         flat = np.ascontiguousarray(u.reshape(-1, 3))
+        ix = self._ray_index
+        boost = cr.ray_albedo(
+            flat, self._ray_table, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m
+        )
+        return self._compose_albedo(flat, boost, resolution_m).reshape(shape)
+
+    def _compose_albedo(
+        self, flat: NDArray[np.float64], boost: NDArray[np.float64], resolution_m: float | None
+    ) -> NDArray[np.float64]:
+        """Albedo (N,) at unit vectors ``flat`` (N, 3) from the ray/halo boost (N,)."""
         p = self.params
         shortest = 2.0 * resolution_m if resolution_m else 500.0
         lam, amp = octaves(800e3, max(shortest, 500.0), 1.0, 0.5, lacunarity=3.0)
         amp = amp / np.sqrt(np.sum(amp**2)) * 1.6
         mottle = fbm(flat * self.radius_m, lam, amp, self._seed_albedo)
-        ix = self._ray_index
-        boost = cr.ray_albedo(
-            flat, self._ray_table, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m
-        )
         a = p.albedo_mean * np.exp(p.albedo_variation * mottle) * (1.0 + boost)
-        return np.clip(a, 0.01, 0.9).reshape(shape)
+        return np.clip(a, 0.01, 0.9)
+
+    def sample_grid(self, grid: Any, units: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Height (m) and albedo, each (ny, nx), at the nodes of a renderer's local grid.
+
+        ``grid`` : a :class:`mercury_dem.synth.render.LocalGrid` (plane tangent at
+        ``grid.centre``, spacing ``grid.spacing_m``), ``units`` (ny, nx, 3) its node
+        directions. The same fields as :meth:`height_unit` / :meth:`albedo_unit` at
+        ``resolution_m = grid.spacing_m`` (up to the order of the crater sums, ~1e-12 m),
+        but the craters are visited crater by crater over the grid (each touches only
+        the nodes it reaches) instead of point by point through the lat/lon index:
+        ~3x faster on a renderer's grid.
+        """
+        u = np.ascontiguousarray(units, dtype=np.float64)
+        shape = u.shape[:-1]
+        flat = u.reshape(-1, 3)
+        frame = np.ascontiguousarray(np.stack([grid.centre, grid.east, grid.north]), dtype=np.float64)
+        geo = (frame, float(grid.radius_m), float(grid.x0), float(grid.y0), float(grid.spacing_m), self.radius_m)
+        ix = self._height_index
+        ids = cr.grid_candidates(ix, u, self.craters.shape[0])
+        h = cr.crater_heights_grid(u, self.craters, ids, ix.reach_rad, *geo)
+        height = self._compose_height(flat, h.ravel(), grid.spacing_m).reshape(shape)
+        ix = self._ray_index
+        ids = cr.grid_candidates(ix, u, self._ray_table.shape[0])
+        boost = cr.ray_albedo_grid(u, self._ray_table, ids, ix.reach_rad, *geo)
+        albedo = self._compose_albedo(flat, boost.ravel(), grid.spacing_m).reshape(shape)
+        return height, albedo
 
     # -- evaluation on latitude/longitude ------------------------------------
     def height(self, lat_deg: ArrayLike, lon_deg: ArrayLike, resolution_m: float | None = None) -> NDArray[np.float64]:

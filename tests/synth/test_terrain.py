@@ -69,3 +69,24 @@ def test_bad_parameters_are_named():
         SurfaceParams(crater_d_min_m=-1.0)
     with pytest.raises(ConfigError, match="unknown surface parameters"):
         SurfaceParams.from_dict({"seed": 1, "bogus": 2})
+
+
+@pytest.mark.parametrize("lat, lon, scale_m", [(12.0, 35.0, 2000.0), (89.7, 10.0, 1500.0), (-2.0, 359.8, 900.0)],
+                         ids=["mid", "pole", "seam"])
+def test_grid_sampling_equals_point_sampling(surface, lat, lon, scale_m):
+    """The renderer's crater-by-crater grid evaluation gives the point-by-point heights and albedo."""
+    from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
+    from mercury_dem.geometry.camera import mdis_wac
+    from mercury_dem.geometry.pose import look_at_rotation
+    from mercury_dem.synth.render import RenderSettings, footprint_grid
+
+    cam = mdis_wac(128)
+    up = latlon_to_unit(lat, lon)
+    c = up * (DATUM_RADIUS_M + scale_m / cam.ifov_rad)
+    r = look_at_rotation(c, up * DATUM_RADIUS_M)
+    sun = 5.8e10 * latlon_to_unit(lat - 30.0, lon + 40.0)
+    grid = footprint_grid(cam, c, r, sun, surface.radius_m, RenderSettings())
+    dirs = grid.directions()
+    h, a = surface.sample_grid(grid, dirs)
+    assert np.allclose(h, surface.height_unit(dirs, grid.spacing_m), rtol=0, atol=1e-6)
+    assert np.allclose(a, surface.albedo_unit(dirs, grid.spacing_m), rtol=0, atol=1e-9)
