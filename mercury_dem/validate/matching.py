@@ -240,3 +240,56 @@ def standard_pairs(
         ScenePair("azimuth45", ref, view(2500e3, 50, 135, de=200e3)),
         ScenePair("azimuth90", ref, view(2500e3, 50, 180, de=200e3)),
     ]
+
+
+# --------------------------------------------------------------------------- control networks
+def network_true_errors(
+    image_ids: Sequence[str],
+    measure_point: NDArray[np.int64],
+    measure_image: NDArray[np.int64],
+    pixels: NDArray[np.float64],
+    truth: Mapping[str, TruePose],
+    height: HeightFunction,
+) -> NDArray[np.float64]:
+    """True error (M,) in pixels of every measure of a control network against its point's anchor.
+
+    The anchor of a point is its first measure (in measure order): the ground
+    point seen there (true pose, true surface) is projected into every other
+    measure's image and compared with that measure. Anchors get 0; NaN where the
+    anchor's ray misses the surface or the point is behind a camera. A point whose
+    measures all see one ground feature has every error near the matching error;
+    a track that joined two features shows their offset.
+
+    Parameters
+    ----------
+    image_ids : (K,) ids indexed by ``measure_image``
+    measure_point, measure_image : (M,) int, point and image of each measure
+    pixels : (M, 2) 0-based (sample, line)
+    truth : image id -> true camera and pose
+    height : the true surface height (lat, lon) -> m above the datum
+    """
+    mp = np.asarray(measure_point, np.int64)
+    mi = np.asarray(measure_image, np.int64)
+    m = mp.size
+    if m == 0:
+        return np.zeros(0)
+    first = np.full(int(mp.max()) + 1, -1, np.int64)
+    first[mp[::-1]] = np.arange(m)[::-1]
+    anchor = first[mp]
+    others = np.flatnonzero(anchor != np.arange(m))
+    out = np.zeros(m)
+    err = true_errors(image_ids, mi[anchor[others]], mi[others], pixels[anchor[others]], pixels[others], truth, height)
+    out[others] = err
+    return out
+
+
+def rays_histogram(measure_point: NDArray[np.int64], top: int = 6) -> dict[str, int]:
+    """Points by number of measures (rays): {'2': n, '3': n, ..., f'>={top}': n}."""
+    mp = np.asarray(measure_point, np.int64)
+    if mp.size == 0:
+        return {}
+    rays = np.bincount(mp)
+    rays = rays[rays > 0]
+    out = {str(k): int((rays == k).sum()) for k in range(int(rays.min()), top)}
+    out[f">={top}"] = int((rays >= top).sum())
+    return out

@@ -242,6 +242,93 @@ def mission_accuracy(path: str, max_pairs: int = 0) -> None:
         print("  ", *b)
 
 
+def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = None, verbose: bool = True) -> dict[str, Any]:
+    """Every tile of a mission matched and built into a network as the pipeline's ``run_tile`` does.
+
+    Reads the plan of ``run_dir`` (``mercury-dem match MISSION --out RUN`` writes it; the
+    tile networks there are not used), matches every tile with ``config`` and builds its
+    network with the default network settings; returns (and prints) the points by number
+    of rays, and the measures' true errors against their point's first measure
+    (:func:`mercury_dem.validate.matching.network_true_errors`).
+    """
+    from mercury_dem.config import Config
+    from mercury_dem.io.mission import open_mission
+    from mercury_dem.network.build import build_network
+    from mercury_dem.io.run_store import RunStore
+    from mercury_dem.pipeline.stages import tile_pairs
+    from mercury_dem.validate.matching import network_true_errors, rays_histogram
+
+    ms = open_mission(mission_path)
+    cfg = Config()
+    mcfg = config or cfg.match
+    store = RunStore(run_dir)
+    images, pairs, info = store.read_plan()
+    tiles = sorted(set(images.loc[images["excluded_reason"] == "", "tile_id"].tolist()))
+    surface = ms.surface()
+    rays_all: list[np.ndarray] = []
+    errs: list[np.ndarray] = []
+    pair_err: list[np.ndarray] = []
+    n_pairs = n_matched = n_match_rows = 0
+    t_match = 0.0
+    for t in tiles:
+        pl = tile_pairs(images, pairs, t)
+        if not pl:
+            continue
+        ref_ids = images.loc[(images["tile_id"] == t) & (images["excluded_reason"] == ""), "image_id"].tolist()
+        involved = sorted({x for p in pl for x in p} | set(ref_ids))
+        pix = {i: ms.read_image(i) for i in involved}
+        cams = [ms.camera(i) for i in involved]
+        poses = [ms.a_priori_pose(i) for i in involved]
+        geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, (p, r) in zip(involved, cams, poses)}
+        truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(involved, cams)}
+        t0 = time.perf_counter()
+        m, reps = match_tile(pix, geom, pl, mcfg)
+        t_match += time.perf_counter() - t0
+        n_pairs += len(pl)
+        n_matched += sum(r.status == "matched" for r in reps)
+        n_match_rows += len(m)
+        pa = np.stack([m.sample_a, m.line_a], -1)
+        pb = np.stack([m.sample_b, m.line_b], -1)
+        pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height))
+        net = build_network(
+            involved, m, cams, np.array([p for p, _ in poses]), np.array([r for _, r in poses]),
+            tolerance_px=cfg.network.merge_tolerance_px, sigma_px=cfg.network.measure_sigma_px,
+        ).network
+        if net.n_measures == 0:
+            continue
+        rays_all.append(np.bincount(net.measure_point, minlength=net.n_points))
+        errs.append(network_true_errors(involved, net.measure_point, net.measure_image,
+                                        np.stack([net.sample, net.line], -1), truth, surface.height))
+    rays = np.concatenate(rays_all) if rays_all else np.zeros(0, np.int64)
+    hist = rays_histogram(np.repeat(np.arange(rays.size), rays))
+    e = np.concatenate(errs) if errs else np.zeros(0)
+    e = e[np.isfinite(e) & (e > 0)]
+    pe = np.concatenate(pair_err) if pair_err else np.zeros(0)
+    pe = pe[np.isfinite(pe)]
+    out = {
+        "tiles": len(tiles), "pairs": n_pairs, "pairs_matched": n_matched, "matches": n_match_rows,
+        "match_seconds": t_match, "points": int(rays.size), "measures": int(rays.sum()),
+        "mean_rays": float(rays.mean()) if rays.size else float("nan"),
+        "share_3plus": float(np.mean(rays >= 3)) if rays.size else float("nan"),
+        "rays": hist,
+        "pair_median_px": float(np.median(pe)), "pair_p95_px": float(np.percentile(pe, 95)),
+        "pair_outliers": float(np.mean(pe > 2.0)),
+        "net_median_px": float(np.median(e)), "net_p95_px": float(np.percentile(e, 95)),
+        "net_outliers": float(np.mean(e > 2.0)),
+    }
+    if verbose:
+        print(f"mission {mission_path}: {out['tiles']} tiles, {n_pairs} pairs, {n_matched} matched, "
+              f"{n_match_rows} matches, matching {t_match:.1f} s")
+        print(f"points {out['points']}, measures {out['measures']}, mean rays {out['mean_rays']:.2f}, "
+              f"points with >= 3 rays {100 * out['share_3plus']:.1f} %")
+        print("rays per point: " + ", ".join(f"{k}: {v}" for k, v in hist.items()))
+        print(f"pair matches true error: median {out['pair_median_px']:.3f} px, p95 {out['pair_p95_px']:.3f} px, "
+              f"> 2 px {100 * out['pair_outliers']:.2f} %")
+        print(f"network measures vs their point's first measure: median {out['net_median_px']:.3f} px, "
+              f"p95 {out['net_p95_px']:.3f} px, > 2 px {100 * out['net_outliers']:.2f} %")
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--accuracy", action="store_true", help="run the accuracy study instead of the speed benchmark")
@@ -250,8 +337,12 @@ def main() -> None:
     p.add_argument("--sizes", default="512,1024")
     p.add_argument("--images", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--tracks", nargs=2, metavar=("MISSION", "RUN"),
+                   help="rays per point and true errors of every tile network (RUN holds the plan)")
     a = p.parse_args()
-    if a.mission:
+    if a.tracks:
+        tracks_study(*a.tracks)
+    elif a.mission:
         mission_accuracy(a.mission, a.max_pairs)
     elif a.accuracy:
         accuracy()
