@@ -88,8 +88,9 @@ def test_every_pair_records_illumination_and_route(default_run: Any) -> None:
 def test_refinement_buys_accuracy(pair_world: Any) -> None:
     _, e_on, _ = _run(pair_world, MatchConfig(threads=1), ["stereo"])
     _, e_off, _ = _run(pair_world, MatchConfig(threads=1, refine=False), ["stereo"])
-    assert np.median(e_off) > 0.25
-    assert np.median(e_on) < 0.5 * np.median(e_off)
+    # measured: 0.24 px -> 0.064 px on the mission renderer (0.56 -> 0.067 on its earlier version)
+    assert np.median(e_off) > 0.15
+    assert np.median(e_on) < 0.4 * np.median(e_off)
 
 
 def test_pretransform_buys_descriptor_matches(pair_world: Any) -> None:
