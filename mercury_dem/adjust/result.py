@@ -24,8 +24,11 @@ class AdjustmentResult:
     position_corrections : (n_img, 3) m
     points : (n_pt, 3) adjusted points, body-fixed m
     residuals_px : (M, 2) computed - measured (sample, line) at the adjusted state, pixels
-    rejected : (M,) bool, measures rejected by the k x MAD test; measures of points left with fewer
-        than ``min_point_measures`` accepted ones are not rejected but unused (see ``underdetermined_points``)
+    rejected : (M,) bool, measures rejected by the k x MAD test on the deletion statistic (see
+        :func:`~mercury_dem.adjust.solver.deletion_statistic`), including both measures of an ambiguous
+        point and the lone measure a rejection leaves on its point; measures of points that had fewer
+        than ``min_point_measures`` measures from the start are not rejected but unused (see
+        ``underdetermined_points``)
     sigma0 : a-posteriori standard deviation of unit weight, sqrt(v^T P v / dof)
     rms_px : RMS residual per coordinate over accepted measures, sqrt(mean(v_s^2 + v_l^2) / 2)
     rms_sample_px, rms_line_px : the same per coordinate
