@@ -54,7 +54,7 @@ from mercury_dem.match.pretransform import (
     pair_geometry,
     warp_to_reference,
 )
-from mercury_dem.match.refine import refine_matches
+from mercury_dem.match.refine import refine_matches_adaptive
 from mercury_dem.match.tracks import propagate_pair
 
 #: Routes a pair can take (``PairReport.route``).
@@ -427,7 +427,7 @@ def _match_core(
     rep.n_kept = int(feat.size)
     score = quality
     if config.refine and feat.size:
-        r = refine_matches(
+        r = refine_matches_adaptive(
             base.image, warped, valid, pa, pb, config.refine_window_px | 1, config.refine_search_px,
             config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
         )
