@@ -48,5 +48,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
         f"(grid {c['grid_step_deg']} deg over {'the area ' + str(c['area_deg']) if c['area_deg'] else 'the whole body'})",
         f"coverage map {png}",
     ]
+    if summary.get("partial"):
+        lines.insert(1, f"PARTIAL      {summary['partial'].get('note', 'a subset of the design')}")
     print("\n".join(lines))
     return 0

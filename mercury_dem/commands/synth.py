@@ -30,6 +30,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="render on a local Dask cluster of this many processes (default 1: plain loop)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="render on a running Dask cluster (tcp://host:port); OUT must be on a file system the workers share")
+    sel = p.add_mutually_exclusive_group()
+    sel.add_argument("--limit", type=int, metavar="N",
+                     help="generate only the first N images of the design (a PARTIAL mission, marked so in mission.json)")
+    sel.add_argument("--images", metavar="A:B",
+                     help="generate only images A..B-1 of the design (a PARTIAL mission, marked so in mission.json)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -56,6 +61,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     summary = generate_mission(
         args.out, cfg, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
         workers=max(1, args.workers), progress=progress, scheduler=args.scheduler,
+        images=args.images if args.images is not None else args.limit,
     )
     print(json.dumps(summary, indent=2))
     return 0

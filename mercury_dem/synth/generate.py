@@ -12,9 +12,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from mercury_dem.config.synth import SynthConfig
-from mercury_dem.exceptions import StoreError
+from mercury_dem.exceptions import ConfigError, StoreError
 from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.io.mission import dem_axes, init_store, write_tables, write_truth_dem
@@ -36,6 +37,33 @@ def truth_dem_grid(surface: Surface, design: MissionDesign, rows_per_chunk: int 
     return out, la1, lo0, ppd
 
 
+def image_selection(spec: str | int | slice | None, n_images: int) -> NDArray[np.int64] | None:
+    """Indices of the design's images to generate: None (all), ``N`` (the first N) or ``"A:B"`` (A..B-1).
+
+    Raises ConfigError naming the selection and the design's image count when it
+    selects nothing or is malformed.
+    """
+    if spec is None:
+        return None
+    if isinstance(spec, slice):
+        sel = spec
+    elif isinstance(spec, int) or (isinstance(spec, str) and ":" not in spec):
+        try:
+            sel = slice(0, int(spec))
+        except ValueError:
+            raise ConfigError(f"image selection {spec!r}: expected N or A:B (integers)") from None
+    else:
+        try:
+            a, b = (int(x) if x.strip() else None for x in spec.split(":"))
+        except ValueError:
+            raise ConfigError(f"image selection {spec!r}: expected N or A:B (integers)") from None
+        sel = slice(a, b)
+    idx = np.arange(n_images)[sel]
+    if idx.size == 0:
+        raise ConfigError(f"image selection {spec!r} selects none of the design's {n_images} images")
+    return idx
+
+
 def generate_mission(
     out: str | Path,
     config: SynthConfig,
@@ -46,12 +74,20 @@ def generate_mission(
     design: MissionDesign | None = None,
     progress: Callable[[int, int], None] | None = None,
     scheduler: str | None = None,
+    images: str | int | slice | None = None,
 ) -> dict[str, Any]:
     """Generate the synthetic mission of ``config.preset`` (or ``design``) at ``out``.
 
     Written atomically: built under a temporary name, renamed when complete. An
     existing ``out`` is refused unless ``overwrite``. Returns a summary dict
     (images, seconds, per-image render seconds).
+
+    ``images`` (``N``, ``"A:B"`` or a slice) generates only those images of the
+    design, through the same code path and with the same ids, poses, errors and
+    noise as in the full mission (to test or time the ``large`` preset on a
+    small machine). Such a mission is marked partial in ``mission.json``
+    (``"partial": {...}``, ``n_images`` the images present, ``n_images_design``
+    the full design's count) and its catalog and truth hold only those images.
     """
     out = Path(out)
     if out.exists() and not overwrite:
@@ -69,6 +105,11 @@ def generate_mission(
     for k, ax in enumerate("xyz"):
         truth[f"pointing_error_{ax}_rad"] = omega[:, k]
         truth[f"position_error_{ax}_m"] = c_apr[:, k] - c_true[:, k]
+    n_design = len(plan)
+    plan = plan.assign(index=np.arange(n_design))
+    idx = image_selection(images, n_design)
+    if idx is not None:
+        plan, catalog, truth = (t.iloc[idx].reset_index(drop=True) for t in (plan, catalog, truth))
     meta = {
         "preset": design.name,
         "seed": config.seed,
@@ -77,9 +118,18 @@ def generate_mission(
         "tile_size_deg": tile_size_deg,
         "datum_radius_m": radius,
         "n_images": len(catalog),
+        "n_images_design": n_design,
         "image_size": design.samples,
         "area_deg": list(design.area_deg) if design.area_deg else None,
     }
+    if idx is not None:
+        meta["partial"] = {
+            "images": [int(idx[0]), int(idx[-1]) + 1] if np.all(np.diff(idx) == 1) else idx.tolist(),
+            "n_images": int(idx.size),
+            "n_images_design": n_design,
+            "note": f"PARTIAL mission: {idx.size} of the {n_design} images of the {design.name!r} design "
+                    "(coverage, tiles and statistics are those of the subset, not of the design)",
+        }
     with atomic_directory(out, overwrite=overwrite) as tmp:
         init_store(tmp)
         timings = render_all(tmp, plan, params.to_dict(), radius, design.render, config.seed, workers=workers,
@@ -95,6 +145,8 @@ def generate_mission(
         "path": str(out),
         "preset": design.name,
         "images": len(catalog),
+        "images_design": n_design,
+        "partial": idx is not None,
         "seconds": time.perf_counter() - t0,
         "render_seconds_median": float(np.median(secs)) if secs.size else 0.0,
         "render_seconds_total": float(secs.sum()),

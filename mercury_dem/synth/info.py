@@ -50,6 +50,7 @@ def mission_summary(mission: Any, step_deg: float | None = None) -> tuple[dict[s
             "median_images_per_point": float(np.median(count)),
         },
         "has_truth": bool(mission.has_truth),
+        "partial": mission.meta.get("partial"),
     }
     return summary, cov
 

@@ -82,13 +82,18 @@ def render_all(
 ) -> list[tuple[str, float]]:
     """Render every image of ``plan`` into the mission at ``root``.
 
+    ``plan`` may carry an ``index`` column (the image's index in the full design,
+    which seeds its noise); without it the rows are numbered 0..n-1.
+
     ``workers <= 1`` and no ``client``/``scheduler``: a plain loop in this
     process. Otherwise batches are submitted to ``client`` (a
     ``distributed.Client``), to the scheduler at ``scheduler``
     (``tcp://host:port``; the workers must see ``root`` on a shared file system),
     or to a temporary LocalCluster of ``workers`` single-threaded processes.
     """
-    table = plan.assign(index=np.arange(len(plan)))[RENDER_COLUMNS]
+    if "index" not in plan.columns:  # the image's index in its design (seeds its noise)
+        plan = plan.assign(index=np.arange(len(plan)))
+    table = plan[RENDER_COLUMNS]
     rows = table.to_dict("records")
     if client is None and scheduler is None and workers <= 1:
         done: list[tuple[str, float]] = []

@@ -45,3 +45,24 @@ def test_a_failed_generation_leaves_nothing_behind(tmp_path, monkeypatch):
     assert not list(tmp_path.iterdir())  # no temporary directory left either
     with pytest.raises(StoreError, match="does not exist"):
         open_mission(tmp_path / "m")
+
+
+def test_a_partial_mission_is_the_same_images_and_is_marked(tmp_path):
+    """--images A:B renders those images of the design exactly as the full mission does, and says it is partial."""
+    from mercury_dem.exceptions import ConfigError
+
+    cfg = SynthConfig(seed=9)
+    full = generate_mission(tmp_path / "full", cfg, design=MINI)
+    part = generate_mission(tmp_path / "part", cfg, design=MINI, images="1:3")
+    assert part["partial"] and not full["partial"] and part["images"] == 2 and part["images_design"] == full["images"]
+    a, b = open_mission(tmp_path / "full"), open_mission(tmp_path / "part")
+    assert b.meta["partial"]["images"] == [1, 3] and b.meta["n_images"] == 2
+    assert b.meta["n_images_design"] == a.meta["n_images_design"] == full["images"]
+    assert "partial" not in a.meta
+    assert b.image_ids == a.image_ids[1:3]
+    for image_id in b.image_ids:
+        assert np.array_equal(a.read_image(image_id), b.read_image(image_id))
+        assert np.allclose(a.a_priori_pose(image_id)[1], b.a_priori_pose(image_id)[1], rtol=0, atol=0)
+    assert len(b.truth_poses) == 2
+    with pytest.raises(ConfigError, match="selects none"):
+        generate_mission(tmp_path / "none", cfg, design=MINI, images="50:60")

@@ -2,15 +2,18 @@
 
 Both render the same 512^2 image (MDIS-WAC, ~1.5 km/pixel, incidence 70 deg,
 emission 25 deg) of the demo surface from the same local height grid; the
-numpy reference marches all rays at once in fixed steps of one grid cell, then
-bisects, and casts a shadow ray from every hit point toward the sun in fixed
-steps (the approach the issue measured at 4 s per image and 1 sample/pixel).
-Reported: seconds per image at 1x1 and 2x2 sub-samples, with 1 and 2 threads
-(two images rendered concurrently; the numba kernels release the GIL), and the
-mean |difference| between the two renderers' I/F images (they must agree up to
-the shadow test and interpolation details).
+numpy reference marches all rays at once in half-cell steps, then bisects, and
+casts a shadow ray from every hit point toward the sun in half-cell steps (the
+approach the issue measured at 4 s per image and 1 sample/pixel).
+Reported: seconds per image at 1x1 and 2x2 sub-samples — wall and CPU time on
+one thread (``render_image`` in this process; numba kernels are not
+parallelised), wall time per image with two images rendered concurrently (the
+kernels release the GIL) —, the numpy reference's wall time, the mean
+|difference| between the two renderers' I/F images (they agree up to the shadow
+test and interpolation details: triangles vs bilinear patches), and where the
+time of one 2x2 image goes.
 
-Run: ``flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_render.py``
+Run: ``flock /tmp/mercury_bench.lock env NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 .venv/bin/python workflows/benchmarks/bench_render.py``
 """
 
 from __future__ import annotations
@@ -125,6 +128,48 @@ def numpy_reference(surface, cam, c, r, sun, supersample: int, settings: rd.Rend
     return val.reshape(cam.lines, ss, cam.samples, ss).mean(axis=(1, 3))
 
 
+def stages(surface, cam, c, r, sun, st: rd.RenderSettings, repeats: int) -> dict[str, float]:
+    """CPU seconds of each stage of render_image (best of ``repeats``)."""
+    from mercury_dem.synth import raster as rs
+
+    best: dict[str, float] = {}
+    for _ in range(repeats):
+        t = time.process_time()
+        times = {}
+
+        def lap(name: str) -> None:
+            nonlocal t
+            now = time.process_time()
+            times[name] = now - t
+            t = now
+
+        grid = rd.footprint_grid(cam, c, r, sun, surface.radius_m, st)
+        dirs = grid.directions()
+        lap("footprint + grid directions")
+        h, alb = rd.sample_surface(surface, grid, dirs)
+        lap("surface on the grid (craters, rays, noise)")
+        pts = dirs * (surface.radius_m + h)[..., None]
+        lit = rd.shadow_grid(pts, grid, sun)
+        lap("shadow sweep")
+        s = rd.sun_direction(grid, sun)
+        fields = rs.node_fields(pts, lit, alb, c, s, float(np.radians(st.phase_scale_deg)))
+        lap("node normals + photometric fields")
+        ss = st.supersample
+        uv, depth = rs.project_nodes(pts, c, np.ascontiguousarray(r), cam.focal_length_mm, cam.pixel_size_mm,
+                                     cam.boresight_sample, cam.boresight_line, np.asarray(cam.distortion_x, float),
+                                     np.asarray(cam.distortion_y, float), ss)
+        tri, w1, w2 = rs.rasterize(uv, depth, cam.samples * ss, cam.lines * ss)
+        lap("projection + rasterization (z-buffer)")
+        img = rs.shade(tri, w1, w2, fields, s, st.lambert_weight)
+        lap("shading")
+        img = rs.psf_box(img, st.psf_sigma_px, ss)
+        rd.expose(img, np.random.default_rng(0), st)
+        lap("PSF + box + exposure/noise/quantisation")
+        for k, v in times.items():
+            best[k] = min(best.get(k, np.inf), v)
+    return best
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=512)
@@ -137,12 +182,12 @@ def main() -> None:
     for ss in (1, 2):
         st = replace(get_preset("demo").render, supersample=ss)
         rd.render_image(surface, cam, c, r, sun, np.random.default_rng(0), st)  # compile / warm
-        times = []
+        wall, cpu = [], []
         for k in range(args.repeats):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             rd.render_image(surface, cam, c, r, sun, np.random.default_rng(k), st)
-            times.append(time.perf_counter() - t0)
-        one = min(times)
+            wall.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
         with ThreadPoolExecutor(2) as pool:
             t0 = time.perf_counter()
             list(pool.map(lambda k: rd.render_image(surface, cam, c, r, sun, np.random.default_rng(k), st),
@@ -156,11 +201,17 @@ def main() -> None:
             ref = numpy_reference(surface, cam, c, r, sun, ss, st)
             ref_t = time.perf_counter() - t0
             diff = float(np.mean(np.abs(ours - ref)) / np.mean(ref))
-        rows.append((ss, one, two, ref_t, diff))
+        rows.append((ss, min(wall), min(cpu), two, ref_t, diff))
     print(f"image {args.samples}x{args.samples}, MDIS-WAC ~1.5 km/px, i=70, e=25; seconds per image (best of {args.repeats})")
-    print("subsamples | numba 1 thread | numba 2 threads (per image) | numpy reference | ref/numba | mean|dI/F|/I/F")
-    for ss, one, two, ref_t, diff in rows:
-        print(f"{ss}x{ss}        | {one:14.3f} | {two:27.3f} | {ref_t:15.2f} | {ref_t / one:9.1f} | {diff:.4f}")
+    print("subsamples | ours 1 thread wall | ours 1 thread CPU | ours 2 threads (per image) | numpy reference | ref/ours | mean|dI/F|/I/F")
+    for ss, one, cpu, two, ref_t, diff in rows:
+        print(f"{ss}x{ss}        | {one:18.3f} | {cpu:17.3f} | {two:26.3f} | {ref_t:15.2f} | {ref_t / one:8.1f} | {diff:.4f}")
+    st = replace(get_preset("demo").render, supersample=2)
+    parts = stages(surface, cam, c, r, sun, st, args.repeats)
+    print("2x2 image, CPU seconds by stage (best of repeats):")
+    for k, v in parts.items():
+        print(f"  {k:45s} {v:.3f}")
+    print(f"  {'sum':45s} {sum(parts.values()):.3f}")
 
 
 if __name__ == "__main__":
