@@ -404,8 +404,16 @@ def _match_core(
 
     # Area-based fallback.
     if feat.size < config.min_matches and config.ncc_fallback:
-        n_corner = min(config.ncc_max_points, fa.size)
-        corners_id = spread_best(fa.points, fa.response, n_corner, base.image.shape, config.keypoint_grid)
+        # Only corners whose template can lie on the warped data: when the warped image is a
+        # small patch of the base (the finer image of a 4x pair) a cap spread over the whole base
+        # would leave a handful of corners in it.
+        tpl = config.ncc_template_px | 1
+        on = cv2.erode(valid.view(np.uint8), np.ones((tpl, tpl), np.uint8)).astype(bool)
+        ij = np.clip(np.rint(fa.points).astype(np.int64), 0, [on.shape[1] - 1, on.shape[0] - 1])
+        usable = np.flatnonzero(on[ij[:, 1], ij[:, 0]]) if fa.size else np.zeros(0, np.int64)
+        n_corner = min(config.ncc_max_points, usable.size)
+        corners_id = usable[spread_best(fa.points[usable], fa.response[usable], n_corner, base.image.shape,
+                                        config.keypoint_grid)]
         idx, pts_w, sc = ncc_matches(
             base.image, warped, valid, fa.points[corners_id], pg.guidance_px,
             config.ncc_template_px | 1, config.ncc_min_score,

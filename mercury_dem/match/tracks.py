@@ -154,12 +154,16 @@ def propagate_pair(
         cand = np.flatnonzero(_away_from(taken, fixed, dedup_px) & _window_on(fixed_valid, fixed, half + 1))
         if cand.size == 0:
             return empty
-        q = fixed[cand]
         # the displacement field (warped - base) around each anchor, from the pair's matches on
         # the anchor's own side (base positions for forward anchors, warped ones for reverse)
-        med, spread = predict_displacement(field, d_pair, q, neighbours)
-        start = q + sign * med
-        r = refine_matches(fixed_img, moving_img, moving_valid, q, start, window, search, iterations,
+        med, spread = predict_displacement(field, d_pair, fixed[cand], neighbours)
+        start = fixed[cand] + sign * med
+        # only anchors whose whole search area is on the partner's data are refined
+        reach = _window_on(moving_valid, start, half + search + 1)
+        cand, start, spread = cand[reach], start[reach], spread[reach]
+        if cand.size == 0:
+            return empty
+        r = refine_matches(fixed_img, moving_img, moving_valid, fixed[cand], start, window, search, iterations,
                            min_score, float(search))
         dev = np.linalg.norm(r.points - start, axis=1)
         ok = r.ok & (dev <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px))

@@ -189,7 +189,7 @@ def accuracy() -> None:
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
 
 
-def mission_accuracy(path: str, max_pairs: int = 0) -> None:
+def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None) -> None:
     """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
     from mercury_dem.geometry.footprints import overlap_graph
     from mercury_dem.io.mission import open_mission
@@ -218,7 +218,7 @@ def mission_accuracy(path: str, max_pairs: int = 0) -> None:
     surface = ms.surface()
     overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
     t0 = time.perf_counter()
-    m, reps = match_tile(images, geom, pairs, MatchConfig(threads=2))
+    m, reps = match_tile(images, geom, pairs, config or MatchConfig(threads=2))
     dt = time.perf_counter() - t0
     pa = np.stack([m.sample_a, m.line_a], -1)
     pb = np.stack([m.sample_b, m.line_b], -1)
@@ -242,7 +242,8 @@ def mission_accuracy(path: str, max_pairs: int = 0) -> None:
         print("  ", *b)
 
 
-def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = None, verbose: bool = True) -> dict[str, Any]:
+def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = None, verbose: bool = True,
+                 tracks: bool = True) -> dict[str, Any]:
     """Every tile of a mission matched and built into a network as the pipeline's ``run_tile`` does.
 
     Reads the plan of ``run_dir`` (``mercury-dem match MISSION --out RUN`` writes it; the
@@ -282,7 +283,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, (p, r) in zip(involved, cams, poses)}
         truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(involved, cams)}
         t0 = time.perf_counter()
-        m, reps = match_tile(pix, geom, pl, mcfg)
+        m, reps = match_tile(pix, geom, pl, mcfg, tracks=tracks)
         t_match += time.perf_counter() - t0
         n_pairs += len(pl)
         n_matched += sum(r.status == "matched" for r in reps)
@@ -317,7 +318,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         "net_outliers": float(np.mean(e > 2.0)),
     }
     if verbose:
-        print(f"mission {mission_path}: {out['tiles']} tiles, {n_pairs} pairs, {n_matched} matched, "
+        print(f"tracks={'on' if tracks else 'off'}: mission {mission_path}: {out['tiles']} tiles, {n_pairs} pairs, {n_matched} matched, "
               f"{n_match_rows} matches, matching {t_match:.1f} s")
         print(f"points {out['points']}, measures {out['measures']}, mean rays {out['mean_rays']:.2f}, "
               f"points with >= 3 rays {100 * out['share_3plus']:.1f} %")
@@ -341,7 +342,9 @@ def main() -> None:
                    help="rays per point and true errors of every tile network (RUN holds the plan)")
     a = p.parse_args()
     if a.tracks:
-        tracks_study(*a.tracks)
+        tracks_study(*a.tracks, tracks=False)
+        print()
+        tracks_study(*a.tracks, tracks=True)
     elif a.mission:
         mission_accuracy(a.mission, a.max_pairs)
     elif a.accuracy:
