@@ -16,3 +16,9 @@ class ExecutionConfig(ConfigSection):
     threads_per_worker: int = param(0, "Threads per LocalCluster worker; 0 = automatic", lo=0, hi=1024)
     host: str = param("127.0.0.1", "Address LocalCluster binds to (loopback by default)")
     retries: int = param(2, "Retries of a failed task (lost worker)", lo=0, hi=100)
+    adjust_resource: str = param(
+        "auto", "Run bundle adjustments (memory-heavy) one per worker through the Dask worker resource "
+        "'adjust': 'auto' uses it on a LocalCluster and on a scheduler whose workers advertise it "
+        "(dask worker --resources adjust=1, as the cluster/ scripts start them); 'on' always (a task waits "
+        "for such a worker); 'off' never", choices=("auto", "on", "off"),
+    )

@@ -167,8 +167,12 @@ def run_pipeline(
     own = connection is None
     conn = connection or connect(config.execution, scheduler, scheduler_file, workers, threads_per_worker, security)
     client = conn.client
+    link = getattr(client, "dashboard_link", None)
+    info = store.read_run()
+    info["execution"] = {"mode": conn.mode, "description": conn.description}
+    info["dashboard_link"] = link
+    store.write_run(info)  # the run dashboard links to the Dask dashboard from here
     if stream is not None:
-        link = getattr(client, "dashboard_link", None)
         print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
     perf: Any = contextlib.nullcontext()
     if conn.mode != "sync":
@@ -204,34 +208,43 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     grid = TileGrid(config.tiling.tile_size_deg)
     root = str(store.root)
     retries = config.execution.retries
-    heavy = {"resources": {ADJUST_RESOURCE: 1}} if conn.uses_resources else {}
+    heavy = {"resources": {ADJUST_RESOURCE: 1}} if use_adjust_resource(conn, config, stream) else {}
     tiles = [int(t) for t in plan["non_empty_tiles"]]
-    tile_f = {t: client.submit(_tile_task, root, t, config, key=f"tile-{t}", retries=retries, pure=False)
-              for t in tiles}
+    done: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in ("tile", "region", "hemisphere", "global")}
+
+    def submit(fn: Callable[..., dict[str, Any]], level: str, uid: int, *args: Any, **kw: Any) -> Any:
+        """A future, or the stored summary of a unit a previous run finished (not resubmitted)."""
+        if store.unit_complete(level, uid):
+            done[level][uid] = store.read_summary(level, uid)
+            return done[level][uid]
+        return client.submit(fn, *args, key=f"{level}-{uid}", retries=retries, pure=False, **kw)
+
+    tile_f = {t: submit(_tile_task, "tile", t, root, t, config) for t in tiles}
     region_of = {t: int(grid.region_of_tile(t)) for t in tiles}
     region_f = {}
     for r in range(N_REGIONS):
         deps = [f for t, f in tile_f.items() if region_of[t] == r]
         if deps:
-            region_f[r] = client.submit(_unit_task, root, "region", r, config, deps,
-                                        key=f"region-{r}", retries=retries, pure=False, **heavy)
+            region_f[r] = submit(_unit_task, "region", r, root, "region", r, config, deps, **heavy)
     hemi_f = {}
     for h in (0, 1):
         deps = [f for r, f in region_f.items() if grid.hemisphere_of_region(r) == h]
         if deps:
-            hemi_f[h] = client.submit(_unit_task, root, "hemisphere", h, config, deps,
-                                      key=f"hemisphere-{h}", retries=retries, pure=False, **heavy)
+            hemi_f[h] = submit(_unit_task, "hemisphere", h, root, "hemisphere", h, config, deps, **heavy)
     glob_f = {}
     if hemi_f:
-        glob_f[0] = client.submit(_unit_task, root, "global", 0, config, list(hemi_f.values()),
-                                  key="global-0", retries=retries, pure=False, **heavy)
+        glob_f[0] = submit(_unit_task, "global", 0, root, "global", 0, config, list(hemi_f.values()), **heavy)
     levels = {"tile": tile_f, "region": region_f, "hemisphere": hemi_f, "global": glob_f}
     progress = Progress({k: len(v) for k, v in levels.items()}, stream)
-    level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items()}
     out: dict[str, list[dict[str, Any]]] = {k: [] for k in levels}
+    for lvl, units in done.items():
+        for s in units.values():
+            out[lvl].append(s)
+            progress.update(s)
+    level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
     first_start = time.perf_counter()
     finished_at: dict[str, float] = {}
-    all_f = [f for fs in levels.values() for f in fs.values()]
+    all_f = [f for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]]
     for fut in as_completed(client, all_f):
         lvl, uid = level_of[fut.key]
         try:
@@ -256,3 +269,27 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
             seconds[lvl] = finished_at[lvl] - prev
             prev = finished_at[lvl]
     return out, seconds
+
+
+def use_adjust_resource(conn: Connection, config: Config, stream: TextIO | None = None) -> bool:
+    """Whether adjustments ask for the ``adjust`` worker resource (one at a time per worker).
+
+    ``auto``: on a LocalCluster (we start its workers with the resource) and on a
+    scheduler where at least one connected worker advertises it. Workers that join
+    later (an adaptive cluster) are not seen here: set ``execution.adjust_resource: on``.
+    """
+    mode = config.execution.adjust_resource
+    if mode == "off" or conn.mode == "sync":
+        return False
+    if mode == "on" or conn.uses_resources:
+        return True
+    try:
+        workers = conn.client.scheduler_info().get("workers", {})
+    except Exception:  # noqa: BLE001 - no scheduler info: behave as without the resource
+        workers = {}
+    has = any(ADJUST_RESOURCE in (w.get("resources") or {}) for w in workers.values())
+    if not has and stream is not None:
+        print(f"mercury-dem run: no worker advertises the '{ADJUST_RESOURCE}' resource; adjustments are not "
+              f"limited to one per worker (start workers with --resources {ADJUST_RESOURCE}=1)",
+              file=stream, flush=True)
+    return has
