@@ -14,7 +14,7 @@ from mercury_dem.geometry.body import latlon_to_xyz, latlon_to_unit
 from mercury_dem.match.features import image_quality, spread_best
 from mercury_dem.match.outliers import KnnResult, homography_inliers, ratio_test, symmetric_pairs
 from mercury_dem.match.pretransform import ImageGeometry, apply_homography, pair_geometry, warp_to_reference
-from mercury_dem.match.refine import refine_matches, sample_patches
+from mercury_dem.match.refine import refine_matches, refine_matches_adaptive, sample_patches
 
 
 def texture(n: int, seed: int, sigma: float = 2.0) -> np.ndarray:
@@ -123,6 +123,24 @@ def test_refinement_drops_measures_off_the_data() -> None:
     pa = np.array([[30.0, 48.0], [70.0, 48.0]])
     r = refine_matches(ref, ref, valid, pa, pa.copy())
     assert r.ok.tolist() == [True, False]
+
+
+def test_adaptive_refinement_keeps_measures_near_the_edge_of_a_small_patch() -> None:
+    """A 64-pixel warped patch (a 4x pair): measures 8-12 px from its edge are refined with smaller windows."""
+    ref = texture(160, 9, sigma=2.5)
+    true_shift = np.array([0.41, 0.23])
+    moved = shift(ref.astype(np.float64), (true_shift[1], true_shift[0]), order=3, mode="nearest").astype(np.float32)
+    valid = np.zeros_like(ref, bool)
+    valid[48:112, 48:112] = True
+    g = np.array([57.0, 60.0, 80.0, 100.0, 103.0])
+    pa = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    start = np.rint(pa + true_shift)
+    fixed = refine_matches(ref, moved, valid, pa, start, window=21, search=3)
+    r = refine_matches_adaptive(ref, moved, valid, pa, start, window=21, search=3, min_window=11)
+    assert fixed.ok.sum() <= 4 and r.ok.sum() >= 20  # only the 4 inner measures fit a 21-pixel window
+    assert set(np.unique(r.window[r.ok]).tolist()) <= {21, 15, 11} and (r.window[r.ok] < 21).any()
+    err = np.linalg.norm(r.points[r.ok] - (pa[r.ok] + true_shift), axis=1)
+    assert np.median(err) < 0.03 and err.max() < 0.1, err
 
 
 def test_detectors_selectable_by_name() -> None:

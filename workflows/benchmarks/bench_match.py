@@ -167,23 +167,24 @@ def accuracy() -> None:
         "guidance off": dataclasses.replace(base, guided=False),
         "NCC fallback off": dataclasses.replace(base, ncc_fallback=False),
         "refinement off": dataclasses.replace(base, refine=False),
+        "track propagation off": base,
     }
     for title, cfg in variants.items():
-        m, reps = match_tile(images, geom, pairs, cfg)
+        m, reps = match_tile(images, geom, pairs, cfg, tracks=not title.startswith("track"))
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
         err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
         rows = [r.as_row() for r in reps]
         print(f"\n### {title}\n")
-        print("| pair | status | route | matches | chain ratio>sym>F>H | ncc | kept>refined>local | scale | d-inc | d-az | median px | p95 px | > 2 px |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("| pair | status | route | matches | chain ratio>sym>F>H | ncc | kept>refined>local | propagated | scale | d-inc | d-az | median px | p95 px | > 2 px |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for k, (name, r) in enumerate(zip([s.name for s in scene], reps)):
             e = err[m.pair == k]
             med = f"{np.median(e):.3f}" if e.size else "-"
             p95 = f"{np.percentile(e, 95):.3f}" if e.size else "-"
             out = f"{100 * np.mean(e > 2):.1f}%" if e.size else "-"
             print(f"| {name} | {r.status} | {r.route} | {r.n_matches} | {r.n_ratio}>{r.n_symmetry}>{r.n_fundamental}>"
-                  f"{r.n_homography} | {r.n_ncc}>{r.n_ncc_homography} | {r.n_kept}>{r.n_refined}>{r.n_local} | {r.scale_ratio:.1f} | "
+                  f"{r.n_homography} | {r.n_ncc}>{r.n_ncc_homography} | {r.n_kept}>{r.n_refined}>{r.n_local} | {r.n_propagated} | {r.scale_ratio:.1f} | "
                   f"{r.incidence_difference_deg:.0f} | {r.sun_azimuth_difference_deg:.0f} | {med} | {p95} | {out} |")
         print()
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
@@ -271,6 +272,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     pair_err: list[np.ndarray] = []
     n_pairs = n_matched = n_match_rows = 0
     t_match = 0.0
+    build_stats: dict[str, int] = {}
     for t in tiles:
         pl = tile_pairs(images, pairs, t)
         if not pl:
@@ -291,10 +293,13 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
         pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height))
-        net = build_network(
+        built = build_network(
             involved, m, cams, np.array([p for p, _ in poses]), np.array([r for _, r in poses]),
             tolerance_px=cfg.network.merge_tolerance_px, sigma_px=cfg.network.measure_sigma_px,
-        ).network
+        )
+        net = built.network
+        for key in ("n_conflicts", "n_conflict_observations", "n_links_pruned", "n_observations"):
+            build_stats[key] = build_stats.get(key, 0) + getattr(built.stats, key)
         if net.n_measures == 0:
             continue
         rays_all.append(np.bincount(net.measure_point, minlength=net.n_points))
@@ -316,6 +321,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         "pair_outliers": float(np.mean(pe > 2.0)),
         "net_median_px": float(np.median(e)), "net_p95_px": float(np.percentile(e, 95)),
         "net_outliers": float(np.mean(e > 2.0)),
+        "build": build_stats,
     }
     if verbose:
         print(f"tracks={'on' if tracks else 'off'}: mission {mission_path}: {out['tiles']} tiles, {n_pairs} pairs, {n_matched} matched, "
@@ -327,6 +333,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
               f"> 2 px {100 * out['pair_outliers']:.2f} %")
         print(f"network measures vs their point's first measure: median {out['net_median_px']:.3f} px, "
               f"p95 {out['net_p95_px']:.3f} px, > 2 px {100 * out['net_outliers']:.2f} %")
+        print("build_network: " + ", ".join(f"{k} {v}" for k, v in build_stats.items()))
     return out
 
 
