@@ -90,6 +90,7 @@ class PairReport:
     own_geometry: str = ""
     overlap_apriori: float = float("nan")
     scale_ratio: float = float("nan")
+    match_px_per_ref_px: float = float("nan")
     incidence_ref_deg: float = float("nan")
     incidence_match_deg: float = float("nan")
     incidence_difference_deg: float = float("nan")
@@ -451,6 +452,7 @@ def _match_core(
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:
     rep.overlap_apriori = pg.overlap
     rep.scale_ratio = pg.scale_ratio
+    rep.match_px_per_ref_px = pg.match_px_per_ref_px
     rep.incidence_ref_deg = pg.incidence_ref_deg
     rep.incidence_match_deg = pg.incidence_match_deg
     rep.incidence_difference_deg = abs(pg.incidence_ref_deg - pg.incidence_match_deg)

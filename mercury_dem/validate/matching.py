@@ -126,11 +126,19 @@ def summarize(
     -------
     dict: class name ('all', 'similar', 'incidence', 'azimuth', 'scale <=1.5x', ...) ->
         n_pairs, n_overlapping (true overlap >= ``min_overlap``), share_with_min_matches (of those),
-        n_measures, outlier_share (> ``outlier_px``), median_px, p95_px
+        n_measures, outlier_share (> ``outlier_px``), median_px, p95_px (in the match image's
+        pixels), median_coarse_px, p95_coarse_px (in pixels of the coarser image of each pair:
+        where the match image is s times finer the error is divided by s -- a correspondence
+        cannot be more precise than the coarser image allows, and a finer image's measure of
+        s x 0.2 px is the same ground error as the coarser one's 0.2 px; rows without
+        ``match_px_per_ref_px`` count as scale 1)
     """
     err = np.asarray(errors, np.float64)
     pair = np.asarray(pair, np.int64)
     counts = np.bincount(pair, minlength=len(rows)) if pair.size else np.zeros(len(rows), np.int64)
+    finer = np.array([max(1.0, float(r.get("match_px_per_ref_px", 1.0))) if np.isfinite(r.get("match_px_per_ref_px", 1.0))
+                      else 1.0 for r in rows] + [1.0])
+    err_coarse = err / finer[np.where((pair >= 0) & (pair < len(rows)), pair, len(rows))] if err.size else err
     cls_illum = [illumination_class(r["incidence_difference_deg"], r["sun_azimuth_difference_deg"]) for r in rows]
     cls_scale = ["scale " + scale_class(r["scale_ratio"]) for r in rows]
     groups: dict[str, list[int]] = {"all": list(range(len(rows)))}
@@ -142,6 +150,8 @@ def summarize(
         m = np.asarray(members, np.int64)
         in_group = np.isin(pair, m)
         e = err[in_group]
+        ec = err_coarse[in_group]
+        ec = ec[np.isfinite(ec)]
         e = e[np.isfinite(e)]
         ov = np.asarray(overlaps, np.float64)[m] >= min_overlap
         n_ov = int(ov.sum())
@@ -154,6 +164,8 @@ def summarize(
             "outlier_share": float(np.mean(e > outlier_px)) if e.size else float("nan"),
             "median_px": float(np.median(e)) if e.size else float("nan"),
             "p95_px": float(np.percentile(e, 95)) if e.size else float("nan"),
+            "median_coarse_px": float(np.median(ec)) if ec.size else float("nan"),
+            "p95_coarse_px": float(np.percentile(ec, 95)) if ec.size else float("nan"),
         }
     return out
 
@@ -161,13 +173,15 @@ def summarize(
 def format_summary(summary: Mapping[str, Mapping[str, float]]) -> str:
     """A Markdown table of :func:`summarize` output."""
     lines = [
-        "| class | pairs | overlapping | with >= min matches | measures | outliers > 2 px | median px | p95 px |",
-        "|---|---|---|---|---|---|---|---|",
+        "| class | pairs | overlapping | with >= min matches | measures | outliers > 2 px | median px | p95 px "
+        "| median coarser-image px | p95 coarser-image px |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, s in summary.items():
         lines.append(
             f"| {name} | {s['n_pairs']:.0f} | {s['n_overlapping']:.0f} | {100 * s['share_with_min_matches']:.0f}% "
-            f"| {s['n_measures']:.0f} | {100 * s['outlier_share']:.2f}% | {s['median_px']:.3f} | {s['p95_px']:.3f} |"
+            f"| {s['n_measures']:.0f} | {100 * s['outlier_share']:.2f}% | {s['median_px']:.3f} | {s['p95_px']:.3f} "
+            f"| {s.get('median_coarse_px', float('nan')):.3f} | {s.get('p95_coarse_px', float('nan')):.3f} |"
         )
     return "\n".join(lines)
 
