@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mercury_dem.match.features import spread_best
 from mercury_dem.match.refine import _box_count, refine_matches
 
 #: Neighbours (pair matches) whose median displacement predicts a propagated anchor's position.
@@ -120,6 +121,9 @@ def propagate_pair(
     tolerance_px: float,
     neighbours: int = PREDICT_NEIGHBOURS,
     dedup_px: float = DEDUP_PX,
+    max_candidates: int = 0,
+    forward_priority: NDArray[np.float64] | None = None,
+    reverse_priority: NDArray[np.float64] | None = None,
 ) -> Propagated:
     """Match anchors into one pair whose own matches ``pa`` <-> ``pb`` give the displacement field.
 
@@ -136,6 +140,9 @@ def propagate_pair(
         displacement is 3 robust sigmas of the neighbours' spread, bounded to 1-2 x this
     neighbours : matches whose median displacement predicts each anchor
     dedup_px : anchors this close to an existing match are skipped
+    max_candidates : when > 0, at most this many anchors of each direction are refined (those
+        on the partner's data, the highest ``*_priority`` first, spread over an 8 x 8 grid)
+    forward_priority, reverse_priority : (F,), (R,) larger first (default: equal)
 
     Returns
     -------
@@ -148,7 +155,7 @@ def propagate_pair(
     half = window // 2
     everywhere = np.ones(base.shape, bool)
 
-    def run(fixed_img, moving_img, moving_valid, fixed_valid, fixed, field, taken, sign):
+    def run(fixed_img, moving_img, moving_valid, fixed_valid, fixed, field, taken, sign, prio):
         if fixed.shape[0] == 0:
             return empty
         cand = np.flatnonzero(_away_from(taken, fixed, dedup_px) & _window_on(fixed_valid, fixed, half + 1))
@@ -163,13 +170,17 @@ def propagate_pair(
         cand, start, spread = cand[reach], start[reach], spread[reach]
         if cand.size == 0:
             return empty
+        if 0 < max_candidates < cand.size:
+            p = np.zeros(cand.size) if prio is None else np.asarray(prio, np.float64)[cand]
+            keep = spread_best(start, p, max_candidates, base.shape, 8)
+            cand, start, spread = cand[keep], start[keep], spread[keep]
         r = refine_matches(fixed_img, moving_img, moving_valid, fixed[cand], start, window, search, iterations,
                            min_score, float(search))
         dev = np.linalg.norm(r.points - start, axis=1)
         ok = r.ok & (dev <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px))
         return cand[ok], r.points[ok], r.score[ok]
 
-    fwd = run(base, warped, valid, everywhere, forward, pa, pa, +1)
+    fwd = run(base, warped, valid, everywhere, forward, pa, pa, +1, forward_priority)
     # a partner anchor at a feature just matched forward would be a second measure of it
-    rev = run(warped, base, everywhere, valid, reverse, pb, np.concatenate([pb, fwd[1]]), -1)
+    rev = run(warped, base, everywhere, valid, reverse, pb, np.concatenate([pb, fwd[1]]), -1, reverse_priority)
     return Propagated(*fwd, *rev)
