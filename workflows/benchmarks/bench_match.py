@@ -111,18 +111,22 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
     print(f"# bench_match speed: {n_images} mutually overlapping images per tile, all pairs; best of {repeats}")
     print("Wall seconds per pair (CPU seconds of the process in brackets: the machine is shared, CPU time is the")
     print("steadier figure at 1 thread). Ours includes computing every image's own features once.\n")
-    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours matches/pair | floor F-inliers/pair |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours without track propagation: ratio wall, CPU | ours matches/pair | floor F-inliers/pair |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
         images, geom, pairs, _ = _tile(n, n_images, rng)
         for threads in (1, 2):
             cfg = MatchConfig(threads=threads)
-            t_ours, t_floor, c_ours, c_floor = [], [], [], []
+            t_ours, t_floor, c_ours, c_floor, t_pw, c_pw = [], [], [], [], [], []
             for _ in range(repeats):
                 t0, c0 = time.perf_counter(), time.process_time()
                 m, reps = match_tile(images, geom, pairs, cfg)
                 t_ours.append(time.perf_counter() - t0)
                 c_ours.append(time.process_time() - c0)
+                t0, c0 = time.perf_counter(), time.process_time()
+                match_tile(images, geom, pairs, cfg, tracks=False)
+                t_pw.append(time.perf_counter() - t0)
+                c_pw.append(time.process_time() - c0)
                 old = cv2.getNumThreads()
                 cv2.setNumThreads(threads)
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -133,7 +137,9 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
             k = len(pairs)
             o, f = min(t_ours) / k, min(t_floor) / k
             co, cf = min(c_ours) / k, min(c_floor) / k
+            pw, cpw = min(t_pw) / k, min(c_pw) / k
             print(f"| {n}^2 | {threads} | {k} | {o:.3f} ({co:.3f}) | {f:.3f} ({cf:.3f}) | {o / f:.2f} | {co / cf:.2f} | "
+                  f"{pw / f:.2f}, {cpw / cf:.2f} | "
                   f"{np.mean([r.n_matches for r in reps]):.0f} | {np.mean(fl):.0f} |", flush=True)
 
 
