@@ -163,6 +163,7 @@ class _PairState:
     score: NDArray[np.float64]
     other_exact: NDArray[np.float64] | None = None  # (K, 2) original pixels where feat_other >= 0
     kind: NDArray[np.int8] | None = None  # (K,) PairResult.propagated; None = all 0
+    warped: Any = None  # (warped partner, valid mask) kept for the propagation, or None
 
     def take(self, keep: NDArray[Any]) -> None:
         if self.kind is None:
@@ -287,8 +288,11 @@ def _match_pair(
     rf: ImageFeatures | None,
     mf: ImageFeatures | None,
     rep: PairReport,
+    keep_warped: bool = False,
 ) -> PairResult | _PairState:
-    """The pair up to its matches in the pair frame (a :class:`_PairState`), or a failed/skipped result."""
+    """The pair up to its matches in the pair frame (a :class:`_PairState`), or a failed/skipped result.
+
+    ``keep_warped``: the state keeps the warped partner and its valid mask (for propagation)."""
     cv2.setRNGSeed(config.ransac_seed)
     cam_r, cam_m = ref_geom.camera, match_geom.camera
     if rf is None:
@@ -324,8 +328,9 @@ def _match_pair(
         rep.own_geometry = "ref"
     if not base.described:
         base = _describe(base, config)
-    feat, pa, pb, score = _match_core(base, other, base_geom, other_geom, pg, config, rep)
-    return _PairState(swap, pg, base, other, other_geom, feat, np.full(feat.size, -1, np.int64), pa, pb, score)
+    feat, pa, pb, score, warped = _match_core(base, other, base_geom, other_geom, pg, config, rep)
+    return _PairState(swap, pg, base, other, other_geom, feat, np.full(feat.size, -1, np.int64), pa, pb, score,
+                      warped=warped if keep_warped else None)
 
 
 def _finish(st: _PairState, config: MatchConfig, rep: PairReport) -> PairResult:
@@ -364,9 +369,9 @@ def _match_core(
     pg: PairGeometry,
     config: MatchConfig,
     rep: PairReport,
-) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], Any]:
     """Match ``other`` onto ``base`` (kept in its own geometry): base keypoint ids, base pixels,
-    warped-frame pixels and scores of the matches."""
+    warped-frame pixels and scores of the matches, and (warped image, valid mask)."""
     fa = base.features
     h = pg.homography
     warped, valid = warp_to_reference(other.image, h, base.image.shape, pg.match_px_per_ref_px, config.psf_sigma_px)
@@ -446,7 +451,7 @@ def _match_core(
         ok = local_consistency(pa, pb, config.local_tolerance_px, config.local_neighbours)
         feat, pa, pb, score = feat[ok], pa[ok], pb[ok], score[ok]
     rep.n_local = int(feat.size)
-    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64)
+    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid)
 
 
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:
@@ -518,11 +523,15 @@ def match_tile(
         if missing:
             return rep, _fail(rep, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
         t0 = time.perf_counter()
-        out = _match_pair(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b], rep)
+        out = _match_pair(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b], rep,
+                          keep_warped=keep_warped)
         rep.seconds = time.perf_counter() - t0
         return rep, out
 
     propagate = tracks and config.refine
+    # the warped partners are kept for the propagation when they all fit in the budget, else re-warped
+    largest = max((geometry[x].camera.lines * geometry[x].camera.samples for x in needed), default=0)
+    keep_warped = propagate and len(pairs) * largest * 5 <= _KEEP_WARPED_BYTES
     anchors: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
 
     def extend(k: int) -> None:
@@ -538,6 +547,7 @@ def match_tile(
         if isinstance(st, PairResult):
             return st
         t0 = time.perf_counter()
+        st.warped = None
         if propagate and st.pa.shape[0] > config.max_matches:
             _thin(st, priority[k], config, rep)
         out = _finish(st, config, rep)
@@ -558,6 +568,8 @@ def match_tile(
 
 
 _NONE = np.zeros(0, np.int64)
+#: Memory the warped partners (float32 + bool mask) of a tile may take between phases 1 and 2.
+_KEEP_WARPED_BYTES = 256 * 2**20
 _NO_ANCHORS = (_NONE, _NONE)
 #: Lowest NCC of a propagated match: measured on the tiny mission, propagated matches with a
 #: refined NCC of 0.5-0.7 had a median true error of 0.6-0.9 px (0.2-0.4 px above 0.8).
@@ -594,10 +606,10 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
                other_anchors: tuple[NDArray[np.int64], NDArray[np.int64]], config: MatchConfig, rep: PairReport) -> None:
     """Add the base's and the partner's anchors this pair does not have yet (see :mod:`.tracks`).
 
-    Each direction refines at most the pair's free room below ``max_matches`` plus a quarter of
-    ``max_matches`` (for a full pair: 100 anchors that may replace single-pair matches in the
+    Each direction refines at most the pair's free room below ``max_matches`` plus an eighth of
+    ``max_matches`` (for a full pair: 50 anchors that may replace single-pair matches in the
     thinning), those matched in more pairs first, spread: the cost stays bounded by about one
-    more refinement pass."""
+    more refinement pass (a full pair: a quarter of one)."""
     if st.pa.shape[0] < _PROPAGATE_MIN_MATCHES or not st.base.described or not st.other.described:
         return
     new = ~np.isin(base_anchors[0], st.feat_base)
@@ -608,13 +620,17 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
     h = st.pg.homography
     rev_orig = st.other.features.points[rev]
     rev_pair = apply_homography(np.linalg.inv(h), rev_orig) if rev.size else np.zeros((0, 2))
-    warped, valid = warp_to_reference(st.other.image, h, st.base.image.shape, st.pg.match_px_per_ref_px,
-                                      config.psf_sigma_px)
+    if st.warped is not None:
+        warped, valid = st.warped
+        st.warped = None
+    else:
+        warped, valid = warp_to_reference(st.other.image, h, st.base.image.shape, st.pg.match_px_per_ref_px,
+                                          config.psf_sigma_px)
     prop = propagate_pair(
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
         config.refine_window_px | 1, min(config.refine_search_px, PROPAGATE_SEARCH_PX), config.refine_iterations,
         max(config.refine_min_score, PROPAGATE_MIN_SCORE), config.local_tolerance_px if config.local_tolerance_px > 0 else 1.0,
-        max_candidates=max(config.max_matches - st.pa.shape[0], 0) + max(config.max_matches // 4, 1),
+        max_candidates=max(config.max_matches - st.pa.shape[0], 0) + max(config.max_matches // 8, 1),
         forward_priority=fwd_count.astype(np.float64),
         reverse_priority=rev_count.astype(np.float64),
     )
