@@ -280,6 +280,9 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     n_pairs = n_matched = n_match_rows = 0
     t_match = 0.0
     build_stats: dict[str, int] = {}
+    pair_index: list[np.ndarray] = []
+    all_rows: list[dict[str, Any]] = []
+    overlaps: list[float] = []
     for t in tiles:
         pl = tile_pairs(images, pairs, t)
         if not pl:
@@ -300,6 +303,10 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
         pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height))
+        pair_index.append(m.pair + len(all_rows))
+        all_rows.extend(r.as_row() for r in reps)
+        overlaps.extend(true_overlap(truth[a], truth[b], surface.height) if a in truth and b in truth else 0.0
+                        for a, b in pl)
         built = build_network(
             involved, m, cams, np.array([p for p, _ in poses]), np.array([r for _, r in poses]),
             tolerance_px=cfg.network.merge_tolerance_px, sigma_px=cfg.network.measure_sigma_px,
@@ -317,6 +324,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     e = np.concatenate(errs) if errs else np.zeros(0)
     e = e[np.isfinite(e) & (e > 0)]
     pe = np.concatenate(pair_err) if pair_err else np.zeros(0)
+    classes = summarize(pe, np.concatenate(pair_index) if pair_index else np.zeros(0, np.int64), all_rows, overlaps)
     pe = pe[np.isfinite(pe)]
     out = {
         "tiles": len(tiles), "pairs": n_pairs, "pairs_matched": n_matched, "matches": n_match_rows,
@@ -341,6 +349,8 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         print(f"network measures vs their point's first measure: median {out['net_median_px']:.3f} px, "
               f"p95 {out['net_p95_px']:.3f} px, > 2 px {100 * out['net_outliers']:.2f} %")
         print("build_network: " + ", ".join(f"{k} {v}" for k, v in build_stats.items()))
+        print("\npair matches by class (every pair of every tile; a pair of two tiles' images is matched in both):\n")
+        print(format_summary(classes))
     return out
 
 
