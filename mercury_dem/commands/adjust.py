@@ -73,3 +73,6 @@ def _write_tables(store, level: str, unit: int, directory: str) -> None:  # type
     _, _, _, table = read_solution(store.solution_path(level, unit))
     table.to_csv(d / "images.csv", index=False)
     (d / "summary.json").write_text(json.dumps(store.read_summary(level, unit), indent=2))
+    report = store.unit_dir(level, unit) / "bundleout.txt"
+    if report.exists():
+        shutil.copyfile(report, d / "bundleout.txt")

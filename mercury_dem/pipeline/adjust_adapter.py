@@ -42,6 +42,7 @@ class UnitAdjustment:
     image_measures: NDArray[np.int64]  # accepted measures per image
     image_rms_px: NDArray[np.float64]
     summary: dict[str, Any]
+    text_report: str = ""  # jigsaw-like bundleout.txt of the solve
 
 
 def adjust_network(
@@ -65,6 +66,7 @@ def adjust_network(
     """
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.adjust.network import network_with_result, problem_from_network
+    from mercury_dem.adjust.report import text_report
 
     cfg = dataclasses.replace(config, allow_islands=True)
     problem, measure_index = problem_from_network(
@@ -108,4 +110,5 @@ def adjust_network(
         image_measures=np.asarray(result.accepted_per_image, dtype=np.int64),
         image_rms_px=rms_img,
         summary=summary,
+        text_report=text_report(result, cfg),
     )

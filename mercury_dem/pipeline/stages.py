@@ -243,6 +243,8 @@ def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, An
                 obj.to_parquet(tmp / "pairs.parquet", index=False)
             elif name == "solution":
                 write_solution(tmp / "solution.parquet", **obj)
+            elif name == "bundleout":
+                (tmp / "bundleout.txt").write_text(obj)
         atomic_write_json(tmp / "summary.json", summary)
 
 
@@ -322,6 +324,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
         "children": kids,
         **adj.summary,
         "_files": {
+            "bundleout": adj.text_report,
             "network": adj.network,
             "solution": {
                 "image_ids": np.array(ids), "rotations": adj.rotations, "positions": adj.positions,

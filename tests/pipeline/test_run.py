@@ -192,3 +192,23 @@ def test_global_solution_does_not_depend_on_the_tile_size(sync_run: tuple[Path, 
     ])
     assert np.sqrt(np.mean(apart**2)) <= 0.2, apart
     assert np.sqrt(np.mean(apart**2)) < 0.5 * rep10["validation"]["adjusted_rms_in_ifov"]
+
+
+def test_adjust_command_redoes_a_level_and_writes_jigsaw_like_reports(
+    sync_run: tuple[Path, dict[str, Any]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``mercury-dem adjust RUN --level global`` re-adjusts the stored global network: same solution."""
+    run, report = sync_run
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    before = read_solution(RunStore(copy).solution_path("global", 0))
+    assert (copy / "global" / "0" / "bundleout.txt").read_text().count("sigma0") >= 1
+    code = main(["adjust", str(copy), "--level", "global", "--report-dir", str(tmp_path / "tables"), "--json"])
+    assert code == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert rows[0]["ok"] and rows[0]["measures"] == report["levels"]["global"]["measures"]
+    after = read_solution(RunStore(copy).solution_path("global", 0))
+    assert (before[0] == after[0]).all() and np.allclose(before[1], after[1], atol=1e-9)
+    tables = tmp_path / "tables" / "global_0"
+    assert {"bundleout.txt", "images.csv", "points.csv", "residuals.csv", "summary.json"} <= {p.name for p in tables.iterdir()}
+    assert "ITERATIONS" in (tables / "bundleout.txt").read_text()
