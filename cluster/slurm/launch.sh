@@ -1,37 +1,10 @@
 #!/usr/bin/env bash
-# Run mercury-dem on a SLURM cluster: the Dask scheduler runs here (a login node, or a
-# small long job: see driver.* next to this file), the workers run as SLURM batch jobs
-# shaped by jobqueue.yaml (next to this file), and 'mercury-dem run' drives the pipeline.
+# Run mercury-dem on a SLURM cluster: scheduler here, workers as SLURM batch jobs shaped by
+# jobqueue.yaml (next to this file), then 'mercury-dem run --scheduler-file'.
 #
 #   cluster/slurm/launch.sh MISSION RUN [--jobs N | --adapt MIN:MAX] [--no-tls] [--tls-dir D]
-#                          [--scheduler-host H] [--wait-workers K] [-- EXTRA mercury-dem run ARGS]
+#                        [--scheduler-host H] [--wait-workers K] [-- EXTRA mercury-dem run ARGS]
 #
-# Writes RUN (the run store) and RUN.dask/ (scheduler.json, logs/, tls/; override with
-# DASK_DIR=...). Environment: PYTHON (default python3: the project's venv), MERCURY_DEM
-# (default mercury-dem), DASK_CONFIG (default: this directory). TLS is on by default.
-# The dashboard binds to 127.0.0.1:8787 here: ssh -L 8787:127.0.0.1:8787 THIS-HOST.
-# The run resumes when launched again with the same MISSION and RUN.
-set -euo pipefail
-
-here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-usage() { sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-2}"; }
-[ $# -ge 2 ] || usage
-case "$1" in -h|--help) usage 0 ;; esac
-mission="$1"; run="${2%/}"; shift 2
-launcher_args=(); run_args=()
-while [ $# -gt 0 ]; do
-  if [ "$1" = "--" ]; then shift; run_args=("$@"); break; fi
-  launcher_args+=("$1"); shift
-done
-
-PYTHON="${PYTHON:-$(command -v python3 || command -v python)}"
-MERCURY_DEM="${MERCURY_DEM:-mercury-dem}"
-command -v "$MERCURY_DEM" >/dev/null || {
-  echo "launch.sh: $MERCURY_DEM is not on PATH; activate the project's venv or set MERCURY_DEM=/path/to/mercury-dem" >&2; exit 1; }
-command -v sbatch >/dev/null || { echo "launch.sh: sbatch not found: is this a SLURM login node?" >&2; exit 1; }
-[ -e "$mission" ] || { echo "launch.sh: mission $mission does not exist (make one with mercury-dem synth)" >&2; exit 1; }
-
-dask_dir="${DASK_DIR:-$run.dask}"
-export DASK_CONFIG="${DASK_CONFIG:-$here}"
-exec "$PYTHON" "$here/../jobqueue_launch.py" slurm --dask-dir "$dask_dir" "${launcher_args[@]+"${launcher_args[@]}"}" -- \
-  "$MERCURY_DEM" run "$mission" --out "$run" --scheduler-file "$dask_dir/scheduler.json" "${run_args[@]+"${run_args[@]}"}"
+# The launcher is shared with the other batch system: cluster/common/launch_jobqueue.sh
+# (its header lists the environment variables and what is written where).
+exec "$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)/../common/launch_jobqueue.sh" slurm "$@"

@@ -2,5 +2,6 @@
 
 from mercury_dem.dashboard.app import dashboard_app, free_port, serve
 from mercury_dem.dashboard.data import dashboard_data
+from mercury_dem.dashboard.embed import EmbeddedDashboard, embed
 
-__all__ = ["dashboard_app", "dashboard_data", "free_port", "serve"]
+__all__ = ["EmbeddedDashboard", "dashboard_app", "dashboard_data", "embed", "free_port", "serve"]

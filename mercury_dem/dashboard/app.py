@@ -2,8 +2,8 @@
 
 ``dashboard_app(run)`` returns the function that builds a page for a Bokeh
 Document; :func:`serve` serves it on 127.0.0.1 (``mercury-dem dashboard RUN``),
-and in Jupyter ``bokeh.io.show(dashboard_app(run))`` embeds it (after
-``bokeh.io.output_notebook()``; Bokeh runs the app on the notebook's kernel).
+and in Jupyter :func:`mercury_dem.dashboard.embed` shows it in an iframe onto a
+server in a thread of the kernel (it keeps updating while a cell runs the pipeline).
 
 The page reads only the store (see :mod:`mercury_dem.viz.status` for how states are
 inferred), so it works for a run in progress, a finished run, or a run written by
@@ -21,6 +21,16 @@ from typing import Any
 from mercury_dem.dashboard.data import dashboard_data
 from mercury_dem.io.run_store import LEVELS, RunStore
 from mercury_dem.viz.status import STATE_COLOURS, STATES
+
+
+def _legend_below(fig: Any, font_size: str) -> None:
+    """Move the figure's legend below the plot area, so it never hides data (e.g. a tile near a pole)."""
+    legend = fig.legend[0]
+    fig.center.remove(legend)
+    legend.orientation = "horizontal"
+    legend.location = "center"
+    legend.label_text_font_size = font_size
+    fig.add_layout(legend, "below")
 
 
 def _figures(data: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
@@ -41,16 +51,14 @@ def _figures(data: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
     fmap.add_tools(HoverTool(renderers=[fmap.renderers[0]], tooltips=[
         ("tile", "@tile"), ("state", "@state"), ("images", "@images"), ("points", "@points"),
         ("seconds", "@seconds"), ("reason", "@error")]))
-    fmap.legend.location = "top_left"
+    _legend_below(fmap, "9pt")
 
     fprog = figure(title="progress per level (units)", y_range=FactorRange(*reversed(LEVELS)), width=420,
-                   height=220, tools="", toolbar_location=None, name="progress_bars")
+                   height=250, tools="", toolbar_location=None, name="progress_bars")
     fprog.hbar_stack(["done", "failed", "running", "pending"], y="level", height=0.7, source=prog,
                      color=[STATE_COLOURS[s] for s in ("done", "failed", "running", "pending")],
                      legend_label=["done", "failed", "running", "pending"])
-    fprog.legend.orientation = "horizontal"
-    fprog.legend.location = "bottom_right"
-    fprog.legend.label_text_font_size = "8pt"
+    _legend_below(fprog, "8pt")
 
     fsig = figure(title="adjustment convergence (σ0 per iteration)", width=420, height=260, y_axis_type="log",
                   x_axis_label="iteration", y_axis_label="σ0", tools="pan,wheel_zoom,reset", name="sigma0_plot")

@@ -101,6 +101,25 @@ def test_dockerfile_installs_the_project_as_a_non_root_user() -> None:
     assert "*" in ignore and {"!pyproject.toml", f"!{project['readme']}", "!mercury_dem/"} <= set(ignore)
 
 
+def test_dockerfile_order_installs_as_root_then_runs_as_the_created_user() -> None:
+    """Static checks of the build order (the image is never built here: no Docker engine on this machine)."""
+    text = re.sub(r"\\\n\s*", " ", (K8S / "Dockerfile").read_text())
+    steps = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    instr = [ln.split()[0] for ln in steps]
+    assert instr[0] == "FROM" and instr.count("FROM") == 1
+    users = [i for i, k in enumerate(instr) if k == "USER"]
+    assert len(users) == 1, "one USER switch, to the unprivileged user, and none back"
+    install = [i for i, ln in enumerate(steps) if ln.startswith("RUN") and "pip install ." in ln]
+    copies = [i for i, k in enumerate(instr) if k == "COPY"]
+    assert install and copies and max(copies) < install[0] < users[0], "copy, install (as root), then USER"
+    assert instr.index("ENTRYPOINT") > users[0]
+    uid, _, gid = steps[users[0]].split()[1].partition(":")
+    created = next(ln for ln in steps if "useradd" in ln)
+    assert f"--uid {uid}" in created and (not gid or f"--gid {gid}" in created)
+    # the install step checks the entry point answers, so a broken console script fails the build
+    assert "mercury-dem --help" in steps[install[0]]
+
+
 def test_every_container_runs_the_dockerfile_image_and_entry_point() -> None:
     image = _image_name()
     assert image.endswith(f":{_version()}")

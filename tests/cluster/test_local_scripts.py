@@ -9,6 +9,7 @@ from pathlib import Path
 
 from distributed import Client
 
+from mercury_dem.pipeline.executors import ADJUST_RESOURCE
 from tests.cluster.conftest import (
     LOCAL,
     LocalDeployment,
@@ -36,13 +37,13 @@ def test_start_compute_stop(local_deployment: LocalDeployment) -> None:
         assert len(workers) == 2
         for addr, w in workers.items():
             assert addr.startswith("tcp://127.0.0.1:"), addr
-            assert w["resources"] == {"adjust_slots": 1}
+            assert w["resources"] == {ADJUST_RESOURCE: 1}  # the resource the pipeline asks for
             assert w["nthreads"] == 1
         assert client.dashboard_link.startswith("http://127.0.0.1:")
         # A small computation, with and without the adjustment resource.
         futures = client.map(_square, range(20))
         assert sum(client.gather(futures)) == sum(i * i for i in range(20))
-        constrained = [client.submit(_square, i, resources={"adjust_slots": 1}, pure=False) for i in range(4)]
+        constrained = [client.submit(_square, i, resources={ADJUST_RESOURCE: 1}, pure=False) for i in range(4)]
         assert client.gather(constrained) == [0, 1, 4, 9]
     # The scheduler file names the loopback address and a dashboard.
     sched = json.loads(dep.scheduler_file.read_text())

@@ -155,3 +155,30 @@ def test_dashboard_follows_a_live_run(tiny_mission_path: Path, tmp_path: Path) -
     if os.environ.get("MERCURY_DEM_UPDATE_DOCS_IMAGE"):
         (REPO / "docs" / "images").mkdir(parents=True, exist_ok=True)
         shutil.copy(tmp_path / "dashboard-2.png", REPO / "docs" / "images" / "dashboard.png")
+
+
+def test_embedded_dashboard_renders_in_an_iframe(tiny_run: Path, tmp_path: Path) -> None:
+    """What a notebook shows after ``embed(RUN)``: its HTML output in a page of another origin, rendered by Chromium."""
+    from mercury_dem.dashboard import embed
+
+    driver = None
+    with embed(tiny_run, interval_ms=500) as dash:
+        host_page = tmp_path / "notebook-output.html"
+        host_page.write_text(f"<html><body><h1>a notebook output cell</h1>{dash._repr_html_()}</body></html>")
+        try:
+            driver = _driver(tmp_path / "chromium-profile")
+            driver.get(host_page.as_uri())
+            frame = driver.find_element("css selector", "iframe.mercury-dem-dashboard")
+            assert frame.get_attribute("src") == dash.url
+            driver.switch_to.frame(frame)
+            tiles = _wait("the tile spans inside the iframe", lambda: driver.execute_script(JS_DOM), 120)
+            model = driver.execute_script(JS_MODEL)
+            driver.switch_to.default_content()
+            driver.save_screenshot(str(tmp_path / "embedded.png"))
+        finally:
+            if driver is not None:
+                driver.quit()
+    assert len(tiles) == 14 and all(state in ("done", "failed") for _, state in tiles)
+    assert sorted(model["tile"]) == sorted(t for t, _ in tiles)
+    assert (tmp_path / "embedded.png").stat().st_size > 10_000
+    assert not dash.running

@@ -63,3 +63,16 @@ def test_server_binds_localhost_and_serves_the_page(tiny_run: Path) -> None:
         assert html is not None and "mercury-dem" in html and "bokeh" in html.lower()
     finally:
         server.stop()
+
+
+def test_legends_sit_outside_the_plot_areas(tmp_path: Path) -> None:
+    """A legend inside the map hid the isolated 84° N tile; every legend is laid out below its plot."""
+    from bokeh.document import Document
+    from bokeh.models import Legend
+
+    doc = Document()
+    dashboard_app(tmp_path / "not-yet")(doc)
+    for name in ("tile_map", "progress_bars"):
+        fig = doc.get_model_by_name(name)
+        assert not [m for m in fig.center if isinstance(m, Legend)], name
+        assert [m for m in fig.below if isinstance(m, Legend)], name
