@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from mercury_dem.cli import main
 
 
@@ -34,3 +36,21 @@ def test_info_summarises_and_maps(tiny_mission_path, tmp_path, capsys):
     assert png.stat().st_size > 10_000
     assert main(["info", str(tmp_path / "none")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_synth_names_a_bad_image_selection(tmp_path, capsys):
+    assert main(["synth", str(tmp_path / "a"), "--preset", "tiny", "--images", "30:10"]) == 2
+    err = capsys.readouterr().err
+    assert "30:10" in err and "38 images" in err
+    with pytest.raises(SystemExit):  # argparse: --limit takes an integer
+        main(["synth", str(tmp_path / "b"), "--preset", "tiny", "--limit", "x"])
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_info_says_a_mission_is_partial(tmp_path, capsys):
+    out = tmp_path / "p"
+    assert main(["synth", str(out), "--preset", "tiny", "--limit", "2", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(out), "--coverage-map", str(tmp_path / "c.png")]) == 0
+    text = capsys.readouterr().out
+    assert "PARTIAL" in text and "2 of the 38 images" in text
