@@ -242,8 +242,6 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
             out[lvl].append(s)
             progress.update(s)
     level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
-    first_start = time.perf_counter()
-    finished_at: dict[str, float] = {}
     all_f = [f for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]]
     for fut in as_completed(client, all_f):
         lvl, uid = level_of[fut.key]
@@ -252,7 +250,6 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
         except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
             s = failure_summary(lvl, uid, exc)
         out[lvl].append(s)
-        finished_at[lvl] = time.perf_counter() - first_start
         progress.update(s)
     for lvl in out:
         out[lvl].sort(key=lambda s: s["id"])
@@ -262,12 +259,15 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
         for lvl in ("tile", "region", "hemisphere", "global"):
             seconds[lvl] = float(sum(s.get("seconds", 0.0) or 0.0 for s in out[lvl]))
         return out, seconds
-    # distributed: wall time of a level from the previous level's end to its own end
-    prev = 0.0
+    # distributed: a level's span, from its first unit's start to its last unit's end (units
+    # of this run only; wall clock written by the workers), which overlaps the next level
     for lvl in ("tile", "region", "hemisphere", "global"):
-        if lvl in finished_at:
-            seconds[lvl] = finished_at[lvl] - prev
-            prev = finished_at[lvl]
+        ran = [s for uid, s in ((s["id"], s) for s in out[lvl]) if uid not in done[lvl]
+               and s.get("started_at") is not None]
+        if ran:
+            seconds[lvl] = float(max(s["finished_at"] for s in ran) - min(s["started_at"] for s in ran))
+        elif out[lvl]:
+            seconds[lvl] = 0.0  # every unit was finished by an earlier run
     return out, seconds
 
 

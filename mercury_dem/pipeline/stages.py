@@ -235,6 +235,8 @@ def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, An
     from mercury_dem.network.store import write_network
 
     summary["seconds"] = time.perf_counter() - t0
+    summary["finished_at"] = time.time()  # wall clock (s since the epoch): level spans across workers
+    summary["started_at"] = summary["finished_at"] - summary["seconds"]
     with atomic_directory(store.unit_dir(level, unit_id), overwrite=True) as tmp:
         for name, obj in (files or {}).items():
             if name == "network":
