@@ -57,7 +57,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     tls = p.add_mutually_exclusive_group()
     tls.add_argument("--tls-dir", help="ca.pem/cert.pem/key.pem to use (made there when absent; default DIR/tls)")
     tls.add_argument("--no-tls", action="store_true", help="plain TCP (only on a network you trust)")
-    p.add_argument("--wait-workers", type=int, default=0, help="wait for this many workers before COMMAND")
+    p.add_argument("--wait-workers", type=int, default=None,
+                   help="wait for this many workers before COMMAND (default: 1 when jobs are submitted at once, "
+                        "so 'mercury-dem run' sees the adjust_slots resource; a timeout is then only a warning)")
     p.add_argument("--timeout", type=float, default=3600.0, help="seconds to wait for --wait-workers")
     p.add_argument("--print-job-script", action="store_true", help="print one job's script and exit")
     args = p.parse_args(argv)
@@ -74,7 +76,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         if not 0 <= lo <= hi:
             p.error(f"--adapt needs 0 <= MIN <= MAX, got {args.adapt!r}")
         args.adapt = (lo, hi)
+    args.wait_explicit = args.wait_workers is not None
+    if args.wait_workers is None:
+        args.wait_workers = default_wait_workers(args.jobs, args.adapt)
     return args
+
+
+def default_wait_workers(jobs: int, adapt: tuple[int, int] | None) -> int:
+    """Workers to wait for before COMMAND when ``--wait-workers`` is not given.
+
+    ``mercury-dem run`` (``execution.adjust_resource: auto``) limits the memory-heavy
+    adjustments to one per worker when the workers it sees at start advertise the
+    ``adjust_slots`` resource, so it should start after the first worker has joined;
+    with ``--adapt 0:N`` no worker comes before there is work: set
+    ``execution: {adjust_resource: "on"}`` in the run's configuration instead.
+    """
+    if adapt is not None:
+        return 1 if adapt[0] > 0 else 0
+    return 1 if jobs > 0 else 0
 
 
 def make_certificates(directory: Path, hosts: list[str]) -> Path:
@@ -161,8 +180,18 @@ def main(argv: list[str] | None = None) -> int:
 
             with Client(cluster, timeout=60) as client:
                 t0 = time.monotonic()
-                client.wait_for_workers(args.wait_workers, timeout=args.timeout)
-                print(f"{args.wait_workers} workers joined in {time.monotonic() - t0:.0f} s", flush=True)
+                try:
+                    client.wait_for_workers(args.wait_workers, timeout=args.timeout)
+                except TimeoutError:
+                    if args.wait_explicit:
+                        raise
+                    print(f"no worker joined within {args.timeout:.0f} s; running anyway (the adjustments are "
+                          "limited to one per worker only with execution.adjust_resource: on)", flush=True)
+                else:
+                    print(f"{args.wait_workers} workers joined in {time.monotonic() - t0:.0f} s", flush=True)
+        elif args.adapt:
+            print("no worker is waited for (--adapt 0:N): set execution.adjust_resource: on in the run's "
+                  "configuration so the adjustments stay one per worker", flush=True)
         print("running:", " ".join(args.command), flush=True)
         return subprocess.run(args.command, env=env).returncode
     finally:

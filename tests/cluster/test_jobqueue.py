@@ -90,6 +90,24 @@ def test_pbs_job_script_from_the_repo_yaml(tmp_path: Path) -> None:
     assert "--tls-" not in line
 
 
+def test_launcher_waits_for_a_first_worker_by_default() -> None:
+    """'mercury-dem run' turns the adjust resource on when the workers it sees advertise it: let one join first."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("jobqueue_launch", LAUNCHER)
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    base = ["slurm", "--dask-dir", "d", "--", "mercury-dem", "run"]
+    assert mod.parse_args(base).wait_workers == 1  # --jobs 2 by default
+    assert mod.parse_args(base[:3] + ["--jobs", "0"] + base[3:]).wait_workers == 0
+    assert mod.parse_args(base[:3] + ["--adapt", "2:8"] + base[3:]).wait_workers == 1
+    assert mod.parse_args(base[:3] + ["--adapt", "0:8"] + base[3:]).wait_workers == 0
+    explicit = mod.parse_args(base[:3] + ["--wait-workers", "3"] + base[3:])
+    assert explicit.wait_workers == 3 and explicit.wait_explicit
+    assert not mod.parse_args(base).wait_explicit
+
+
 def test_launcher_refuses_a_missing_configuration(tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -154,6 +154,26 @@ def test_daskjob_runs_mercury_dem_run_with_arguments_the_cli_accepts() -> None:
     assert ns.mission.startswith("/data/") and "/data" in mounts
 
 
+def test_daskjob_runner_keeps_adjustments_one_per_worker() -> None:
+    """The runner may start before any worker joins, so its configuration turns the adjust resource on."""
+    from mercury_dem.cli import build_parser
+    from mercury_dem.config import load_config
+
+    job, _ = _job_and_cluster()
+    (runner,) = job["spec"]["job"]["spec"]["containers"]
+    ns = build_parser().parse_args([a.replace("$(DASK_SCHEDULER_ADDRESS)", "tcp://x:8786") for a in runner["args"]])
+    config_path = Path(ns.config)
+    (mount,) = [m for m in runner["volumeMounts"] if Path(m["mountPath"]) == config_path.parent]
+    (volume,) = [v for v in job["spec"]["job"]["spec"]["volumes"] if v["name"] == mount["name"]]
+    (cm,) = [d for n, d in _docs() if d["kind"] == "ConfigMap" and d["metadata"]["name"] == volume["configMap"]["name"]]
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / config_path.name
+        f.write_text(cm["data"][config_path.name])
+        assert load_config(f).execution.adjust_resource == "on"
+
+
 @pytest.mark.parametrize("kind", ["DaskCluster", "DaskJob"])
 def test_workers_and_scheduler_arguments_parse_with_dask_cli(kind: str) -> None:
     from distributed.cli.dask_scheduler import main as scheduler_cli

@@ -182,3 +182,6 @@ def test_embedded_dashboard_renders_in_an_iframe(tiny_run: Path, tmp_path: Path)
     assert sorted(model["tile"]) == sorted(t for t, _ in tiles)
     assert (tmp_path / "embedded.png").stat().st_size > 10_000
     assert not dash.running
+    if os.environ.get("MERCURY_DEM_UPDATE_DOCS_IMAGE"):
+        (REPO / "docs" / "images").mkdir(parents=True, exist_ok=True)
+        shutil.copy(tmp_path / "embedded.png", REPO / "docs" / "images" / "dashboard-embedded.png")
