@@ -41,12 +41,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mercury_dem.dem.buckets import NEEDS_FALLBACK, SphereBuckets, build_buckets, median11_search, shepard_search
 from mercury_dem.dem.filters import smooth_height
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
@@ -128,18 +130,40 @@ class GridSpec:
 
 @dataclass(frozen=True)
 class PointIndex:
-    """A point cloud ready for gridding: kd-tree of datum-sphere footprints + radii.
+    """A point cloud ready for gridding: footprints bucketed on the datum sphere + radii.
 
     Build it once (:func:`build_point_index`) and share it by every chunk (on Dask:
-    scattered once to each worker).
+    scattered once to each worker). The points are held in bucket order
+    (``buckets.order`` maps back to the input rows). A kd-tree of the same footprints
+    (``tree``) is built on first use only: the exact fallback of the bucket search
+    for pixels far from every point, and the coverage's nearest-point map.
     """
 
-    tree: cKDTree
-    radius: NDArray[np.float64]  # (N,) metres
+    buckets: SphereBuckets
+
+    @property
+    def radius(self) -> NDArray[np.float64]:
+        """(N,) radii |p| of the points, metres (bucket order)."""
+        return self.buckets.radius
+
+    @property
+    def footprint(self) -> NDArray[np.float64]:
+        """(N, 3) footprints on the datum sphere, body-fixed metres (bucket order)."""
+        return self.buckets.xyz
 
     @property
     def n_points(self) -> int:
-        return int(self.radius.shape[0])
+        return self.buckets.n_points
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """kd-tree of the footprints (same order as ``radius``), built on first use."""
+        # Sliding-midpoint (unbalanced) tree: builds in about half the time, queries as fast.
+        return cKDTree(self.footprint, balanced_tree=False)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Ship the buckets only: a worker rebuilds the tree if it ever needs it.
+        return {"buckets": self.buckets}
 
 
 def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
@@ -161,13 +185,14 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
         raise GridError("the point cloud is empty: nothing to grid (did the adjustment keep any points?)")
     bad = ~np.isfinite(p).all(axis=1)
     if bad.any():
-        raise GridError(f"the point cloud holds {int(bad.sum())} non-finite points (first at row {int(np.argmax(bad))})")
+        raise GridError(
+            f"the point cloud holds {int(bad.sum())} non-finite points (first at row {int(np.argmax(bad))})"
+        )
     r = np.sqrt(np.einsum("ij,ij->i", p, p))
     if (r <= 0).any():
         raise GridError(f"the point cloud holds {int((r <= 0).sum())} points at the body centre")
     footprint = p * (DATUM_RADIUS_M / r)[:, None]
-    # Sliding-midpoint (unbalanced) tree: builds in about half the time, queries as fast.
-    return PointIndex(tree=cKDTree(footprint, balanced_tree=False), radius=r)
+    return PointIndex(buckets=build_buckets(footprint, r, DATUM_RADIUS_M))
 
 
 def _threads(cfg: Any) -> int:
@@ -273,36 +298,28 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
     return {"radius": value, "nearest": nearest, "spread": spread, "count": count, "count_capped": count == kmax}
 
 
-def grid_pixels(
-    index: PointIndex, lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], cfg: Any
-) -> dict[str, NDArray[Any]]:
-    """Grid the point cloud at arbitrary pixel centres (no smoothing).
+def _search_radius(cfg: Any) -> float:
+    """Radial search radius R (m): ``search_radius_factor`` x the north-south pixel size."""
+    return cfg.search_radius_factor * 2.0 * math.pi * DATUM_RADIUS_M / 360.0 / cfg.pixels_per_degree
 
-    Parameters
-    ----------
-    index : PointIndex
-    lat_deg, lon_deg : ndarray of shape (P,), planetocentric degrees
-    cfg : DemConfig (method, neighbours, sigma_filter, search_radius_factor,
-        shepard_*, max_distance_m, pixels_per_degree)
 
-    Returns
-    -------
-    dict of (P,) arrays: ``height`` (float64, m above the datum, NaN = no value),
-    ``point_count`` (int32, points within the search radius),
-    ``distance_to_nearest_point`` (float64, m), ``spread`` (float64, m, NaN when
-    fewer than two points were used).
+def _give_up_angle(index: PointIndex, cfg: Any, k: int) -> float:
+    """Largest cap (radians) the bucket search scans before leaving a pixel to the kd-tree.
+
+    Twice the no-value distance or 8 x the starting cap, whichever is larger: pixels
+    beyond it are in gaps far from every point, rare, and cheaper for the tree.
     """
-    lat = np.asarray(lat_deg, dtype=np.float64).ravel()
-    lon = np.asarray(lon_deg, dtype=np.float64).ravel()
+    a_gap = 2.0 * math.asin(min(1.0, cfg.max_distance_m / (2.0 * DATUM_RADIUS_M)))
+    return min(math.pi, max(2.0 * a_gap, 8.0 * index.buckets.start_angle(k)))
+
+
+def _kdtree_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: Any,
+                   search_r: float) -> dict[str, NDArray[Any]]:
+    """The same layers from kd-tree queries (the exact fallback of the bucket search)."""
     P = lat.size
-    search_r = cfg.search_radius_factor * 2.0 * math.pi * DATUM_RADIUS_M / 360.0 / cfg.pixels_per_degree
+    out = {"radius": np.empty(P), "count": np.empty(P, dtype=np.int32), "nearest": np.empty(P),
+           "spread": np.empty(P)}
     kernel = _median11 if cfg.method == "median11" else _shepard
-    out = {
-        "height": np.empty(P),
-        "point_count": np.empty(P, dtype=np.int32),
-        "distance_to_nearest_point": np.empty(P),
-        "spread": np.empty(P),
-    }
     for s in range(0, P, QUERY_BATCH):
         sl = slice(s, min(s + QUERY_BATCH, P))
         q = latlon_to_unit(lat[sl], lon[sl]) * DATUM_RADIUS_M
@@ -313,12 +330,61 @@ def grid_pixels(
             count = count.copy()
             count[capped] = index.tree.query_ball_point(q[capped], r=search_r, return_length=True,
                                                            workers=_threads(cfg))
-        gap = res["nearest"] > cfg.max_distance_m
-        out["height"][sl] = np.where(gap, np.nan, res["radius"] - DATUM_RADIUS_M)
-        out["point_count"][sl] = count
-        out["distance_to_nearest_point"][sl] = res["nearest"]
-        out["spread"][sl] = np.where(gap, np.nan, res["spread"])
+        out["radius"][sl] = res["radius"]
+        out["count"][sl] = count
+        out["nearest"][sl] = res["nearest"]
+        out["spread"][sl] = res["spread"]
     return out
+
+
+def grid_pixels(
+    index: PointIndex, lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], cfg: Any,
+    *, use_kdtree: bool = False,
+) -> dict[str, NDArray[Any]]:
+    """Grid the point cloud at arbitrary pixel centres (no smoothing).
+
+    Parameters
+    ----------
+    index : PointIndex
+    lat_deg, lon_deg : ndarray of shape (P,), planetocentric degrees
+    cfg : DemConfig (method, neighbours, sigma_filter, search_radius_factor,
+        shepard_*, max_distance_m, pixels_per_degree, query_threads)
+    use_kdtree : compute every pixel with scipy's kd-tree and numpy (the independent
+        reference implementation; slower) instead of the compiled bucket search
+
+    Returns
+    -------
+    dict of (P,) arrays: ``height`` (float64, m above the datum, NaN = no value),
+    ``point_count`` (int32, points within the search radius),
+    ``distance_to_nearest_point`` (float64, m), ``spread`` (float64, m, NaN when
+    fewer than two points were used).
+    """
+    lat = np.asarray(lat_deg, dtype=np.float64).ravel()
+    lon = np.asarray(lon_deg, dtype=np.float64).ravel()
+    search_r = _search_radius(cfg)
+    if use_kdtree:
+        res = _kdtree_pixels(index, lat, lon, cfg, search_r)
+    else:
+        if cfg.method == "median11":
+            k = min(int(cfg.neighbours), index.n_points)
+            res = median11_search(index.buckets, lat, lon, k, cfg.sigma_filter, search_r,
+                                  _give_up_angle(index, cfg, k), _threads(cfg))
+        else:
+            kf = min(int(cfg.shepard_fallback_neighbours), index.n_points)
+            res = shepard_search(index.buckets, lat, lon, min(int(cfg.shepard_max_points), index.n_points), kf,
+                                 search_r, _give_up_angle(index, cfg, kf), _threads(cfg))
+        far = np.flatnonzero(res.pop("status") == NEEDS_FALLBACK)
+        if far.size:
+            fb = _kdtree_pixels(index, lat[far], lon[far], cfg, search_r)
+            for key, v in fb.items():
+                res[key][far] = v
+    gap = res["nearest"] > cfg.max_distance_m
+    return {
+        "height": np.where(gap, np.nan, res["radius"] - DATUM_RADIUS_M),
+        "point_count": res["count"].astype(np.int32, copy=False),
+        "distance_to_nearest_point": res["nearest"],
+        "spread": np.where(gap, np.nan, res["spread"]),
+    }
 
 
 def grid_chunk(

@@ -12,7 +12,7 @@ import json
 import os
 import shutil
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -63,7 +63,9 @@ def _json_default(o: Any) -> Any:
 
 
 @contextlib.contextmanager
-def atomic_directory(path: str | Path, overwrite: bool = False) -> Iterator[Path]:
+def atomic_directory(
+    path: str | Path, overwrite: bool = False, *, mark_complete: Callable[[Path], None] | None = None
+) -> Iterator[Path]:
     """Build a directory under a temporary name; on success rename it to ``path``.
 
     Yields the temporary directory to write into. The completion marker is
@@ -71,6 +73,10 @@ def atomic_directory(path: str | Path, overwrite: bool = False) -> Iterator[Path
     directory is removed and ``path`` is untouched. With ``overwrite`` an
     existing ``path`` is replaced (moved aside, then deleted) only after the new
     one is complete.
+
+    ``mark_complete(tmp)``, when given, replaces the ``.complete`` marker file as the
+    completion mark (e.g. a Zarr attribute: zarr warns about unknown files inside a
+    store); :func:`is_complete` then does not apply, the caller checks its own mark.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -78,7 +84,10 @@ def atomic_directory(path: str | Path, overwrite: bool = False) -> Iterator[Path
     tmp.mkdir()
     try:
         yield tmp
-        (tmp / COMPLETE_MARKER).write_text("complete\n")
+        if mark_complete is None:
+            (tmp / COMPLETE_MARKER).write_text("complete\n")
+        else:
+            mark_complete(tmp)
         if path.exists():
             if not overwrite:
                 raise FileExistsError(path)

@@ -13,9 +13,10 @@ How it runs
 4. The point-cloud coverage (reference 001) is computed and stored beside the DEM
    (``coverage.zarr``) and in the DEM attributes.
 
-The whole store is built under a temporary name and renamed when complete; the
-completion mark is the root attribute ``complete = true`` (not a marker file as in
-:mod:`mercury_dem.io.atomic`: zarr warns about unknown files inside a store).
+The whole store is built under a temporary name and renamed when complete
+(:func:`mercury_dem.io.atomic.atomic_directory`); its completion mark is the root
+attribute ``complete = true`` instead of that module's marker file (zarr warns about
+unknown files inside a store).
 """
 
 from __future__ import annotations
@@ -23,10 +24,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
-import shutil
 import time
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -40,6 +38,7 @@ from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.exceptions import GridError, StoreError
 from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, IAU_SPHERE_RADIUS_M
+from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.products.make import make_products, open_dem
 
 __all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "check_memory", "dem_template"]
@@ -266,41 +265,35 @@ def grid_dem(
                 "n_points": index.n_points,
                 "no_value_pixels": int(no_value),
                 "coverage": json.dumps(cov_summary) if cov_summary else "",
-                "complete": True,
             }
         )
     summary["seconds"] = time.perf_counter() - t0
     return summary
 
 
+def mark_zarr_complete(store: Path) -> None:
+    """The stores' completion mark: root attribute ``complete = true`` (a marker *file*
+    inside a Zarr v3 store would make zarr warn on every open)."""
+    zarr.open_group(str(store), mode="r+").attrs["complete"] = True
+
+
 @contextlib.contextmanager
 def atomic_store(path: Path, overwrite: bool = False) -> Iterator[Path]:
-    """Build a Zarr store under a temporary sibling name; rename it to ``path`` on success.
+    """:func:`mercury_dem.io.atomic.atomic_directory` with the Zarr completion mark.
 
-    The caller marks it complete (root attribute ``complete``). An existing ``path``
-    is replaced only once the new store is complete, and only with ``overwrite``.
+    Yields an empty temporary sibling directory to write the store into; renamed to
+    ``path`` once marked complete. An existing ``path`` is replaced only then, and
+    only with ``overwrite`` (else :class:`StoreError`).
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
     try:
-        yield tmp
-        if path.exists():
-            if not overwrite:
-                raise StoreError(f"{path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
-            old = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:12]}")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+        with atomic_directory(path, overwrite=overwrite, mark_complete=mark_zarr_complete) as tmp:
+            yield tmp
+    except FileExistsError as exc:
+        raise StoreError(f"{path} already exists; pass overwrite=True (CLI: --overwrite) to replace it") from exc
 
 
 def write_coverage(cov: CoverageResult, path: Path, overwrite: bool = False) -> None:
     """Store the coverage maps (sinusoidal equal-area grid) as a small Zarr Dataset."""
     with atomic_store(path, overwrite=overwrite) as tmp:
         ds = cov.to_dataset()
-        ds.attrs["complete"] = True
         ds.to_zarr(str(tmp), mode="w", consolidated=False, zarr_format=3)

@@ -1,0 +1,646 @@
+"""Neighbour search on the datum sphere for pixel-ordered queries: latitude bands of longitude cells (numba).
+
+Why not only ``scipy.spatial.cKDTree``
+--------------------------------------
+Gridding asks, for every pixel centre of a map, for the k (11) nearest points or the
+points within 1.41 pixel, then reduces them (1-sigma median, Shepard weights). With a
+kd-tree that is one generic query returning ``(P, k)`` distance/index arrays, then a
+second pass in numpy over those arrays. Profiling the DEM stage showed the query
+(about 60 %) and the ``(P, k)`` post-processing dominating; ``cKDTree`` cannot fuse
+the reduction into the search. A bucket grid on the sphere, searched and reduced in
+one compiled loop per pixel, does both with no ``(P, k)`` arrays at all. The kd-tree
+remains the exact fallback for the rare pixels this search gives up on (far from
+every point, see ``ang_max``) and for the tests' independent checks.
+
+Structure
+---------
+Points are bucketed by their footprint's latitude into bands of height ``band_h``
+(radians) and, within a band, by longitude into ``band_ncell[b]`` equal cells, so a
+cell is about ``band_h`` wide on the ground at the band's widest latitude. Points are
+stored sorted by cell, band after band, so the cells of a band in a longitude interval
+are one contiguous run of points. The cell size follows the cloud's density (about
+``points_per_cell`` points per cell over the area the cloud occupies).
+
+Search
+------
+For a query direction at latitude phi and an angular radius a, every point within a
+lies in the bands covering [phi - a, phi + a] and, unless the cap reaches a pole,
+within longitude +-asin(sin a / cos phi) (the bounding box of a spherical cap). The
+k-NN search starts with a cap expected to hold ~2k points and doubles it until the
+k-th distance found lies inside the scanned cap (then the k found are exactly the k
+nearest) or the cap exceeds ``ang_max`` (the pixel is marked for the kd-tree).
+Distances are chords between footprints on the 2439.4 km datum sphere, metres.
+
+A pixel's result depends only on its own centre and the index (the scan order is
+fixed by the index), never on which other pixels are computed with it, so chunked
+maps are bit-identical to whole ones.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numba import prange
+from numpy.typing import NDArray
+
+#: Pixels per parallel work item of the kernels (each item allocates its scratch once).
+BLOCK = 256
+
+#: Candidates buffered per pixel before ranking (beyond: ranked while scanning).
+BUFFER = 2048
+
+#: Status of a pixel in the kernels' output.
+OK, NEEDS_FALLBACK = 0, 1
+
+# Concurrent launches of numba's default (workqueue) parallel layer from several threads
+# are unsafe: parallel kernels are serialised per process (each uses all its threads).
+_PARALLEL_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True)
+class SphereBuckets:
+    """Points of a cloud bucketed on the datum sphere (arrays sorted by cell).
+
+    Attributes
+    ----------
+    xyz : (N, 3) float64, footprints on the datum sphere, body-fixed metres, sorted by cell
+    radius : (N,) float64, the points' radii |p| (m), same order
+    order : (N,) int64, original row of each sorted point
+    lat0, band_h : float, southern edge of band 0 and band height (radians)
+    lon0, lon_span : float, the cells cover east longitudes lon0 .. lon0 + lon_span (radians,
+        2 pi for a cloud around the planet; a regional cloud's empty longitudes get no cells)
+    band_ncell : (B,) int64, longitude cells of each band
+    band_first : (B + 1,) int64, index of each band's first cell
+    cell_start : (C + 1,) int64, first sorted point of each cell
+    density : float, points per steradian over the area the cloud occupies
+    sphere_radius : float, radius of the footprint sphere (m)
+    """
+
+    xyz: NDArray[np.float64]
+    radius: NDArray[np.float64]
+    order: NDArray[np.int64]
+    lat0: float
+    band_h: float
+    lon0: float
+    lon_span: float
+    band_ncell: NDArray[np.int64]
+    band_first: NDArray[np.int64]
+    cell_start: NDArray[np.int64]
+    density: float
+    sphere_radius: float
+
+    @property
+    def n_points(self) -> int:
+        return int(self.radius.shape[0])
+
+    def start_angle(self, k: int) -> float:
+        """Initial search cap (radians) expected to hold about 2k + 4 points."""
+        return math.sqrt((2.0 * k + 4.0) / (math.pi * self.density))
+
+
+def _occupied_density(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> float:
+    """Points per steradian over the area of the coarse lat/lon cells holding points.
+
+    The coarse cell edge gives about 20 points per cell for a global cloud (0.5-15 deg),
+    so a regional cloud is not diluted over the whole sphere.
+    """
+    n = lat.size
+    c = math.radians(min(15.0, max(0.5, math.sqrt(41253.0 / max(n / 20.0, 1.0)))))
+    nlat = int(math.ceil(math.pi / c))
+    nlon = int(math.ceil(2 * math.pi / c))
+    i = np.clip(((lat + math.pi / 2) / c).astype(np.int64), 0, nlat - 1)
+    j = np.clip((lon / c).astype(np.int64), 0, nlon - 1)
+    occ = np.zeros(nlat * nlon, dtype=bool)
+    occ[i * nlon + j] = True
+    edges = np.minimum(-math.pi / 2 + np.arange(nlat + 1) * c, math.pi / 2)
+    band_area = (np.sin(edges[1:]) - np.sin(edges[:-1])) * c  # last lon cell may be narrower: ignored
+    area = float((occ.reshape(nlat, nlon).sum(axis=1) * band_area).sum())
+    return n / max(area, 1e-30)
+
+
+def _latlon_body(fp, rs, lat, lon):  # pragma: no cover - compiled
+    for p in prange(fp.shape[0]):
+        z = fp[p, 2] / rs
+        lat[p] = math.asin(min(1.0, max(-1.0, z)))
+        t = math.atan2(fp[p, 1], fp[p, 0]) % (2.0 * math.pi)
+        lon[p] = 0.0 if t >= 2.0 * math.pi else t
+
+
+def _cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band_first, out):  # pragma: no cover
+    nb = band_ncell.size
+    for p in prange(lat.size):
+        b = int(math.floor((lat[p] - lat0) / band_h))
+        b = min(max(b, 0), nb - 1)
+        nc = band_ncell[b]
+        u = (lon[p] - lon0) % (2.0 * math.pi)
+        j = int(math.floor(u / (lon_span / nc)))
+        out[p] = band_first[b] + min(max(j, 0), nc - 1)
+
+
+def _gather_body(order, fp, radius, xyz_out, r_out):  # pragma: no cover - compiled
+    for p in prange(order.size):
+        i = order[p]
+        xyz_out[p, 0] = fp[i, 0]
+        xyz_out[p, 1] = fp[i, 1]
+        xyz_out[p, 2] = fp[i, 2]
+        r_out[p] = radius[i]
+
+
+@numba.njit(cache=True)
+def _counting_order(cell, cell_start):  # pragma: no cover - compiled
+    """Stable order of points by cell, given the cells' start offsets."""
+    pos = cell_start[:-1].copy()
+    order = np.empty(cell.size, dtype=np.int64)
+    for p in range(cell.size):
+        c = cell[p]
+        order[pos[c]] = p
+        pos[c] += 1
+    return order
+
+
+_latlon = numba.njit(parallel=True, cache=True)(_latlon_body)
+_cell_of = numba.njit(parallel=True, cache=True)(_cell_body)
+_gather = numba.njit(parallel=True, cache=True)(_gather_body)
+
+
+def _lon_extent(lon: NDArray[np.float64]) -> tuple[float, float]:
+    """(origin, span) in radians of the smallest longitude interval holding every point.
+
+    The complement of the widest empty gap of a 0.5-degree histogram; the whole circle
+    (origin 0) when no gap is wider than 5 degrees.
+    """
+    nbin = 720
+    occ = np.bincount(np.minimum((lon / (2 * math.pi) * nbin).astype(np.int64), nbin - 1), minlength=nbin) > 0
+    if occ.all():
+        return 0.0, 2 * math.pi
+    # widest circular run of empty bins
+    occ2 = np.concatenate([occ, occ])
+    idx = np.flatnonzero(occ2)
+    gaps = np.diff(idx) - 1
+    g = int(np.argmax(gaps))
+    if gaps[g] * 360.0 / nbin < 5.0:
+        return 0.0, 2 * math.pi
+    origin = (idx[g + 1] % nbin) * 2 * math.pi / nbin
+    u = np.mod(lon - origin, 2 * math.pi)
+    return float(origin), float(min(2 * math.pi, u.max() * (1 + 1e-12) + 1e-12))
+
+
+def build_buckets(
+    footprint: NDArray[np.float64], radius: NDArray[np.float64], sphere_radius: float, points_per_cell: float = 3.0
+) -> SphereBuckets:
+    """Bucket a validated cloud.
+
+    Parameters
+    ----------
+    footprint : (N, 3) float64, points projected on the sphere of ``sphere_radius`` (m)
+    radius : (N,) float64, the points' radii (m)
+    sphere_radius : float, m
+    points_per_cell : target mean occupancy of a cell where the cloud lies
+    """
+    n = footprint.shape[0]
+    fp = np.ascontiguousarray(footprint, dtype=np.float64)
+    lat, lon = np.empty(n), np.empty(n)
+    _run(_latlon, -1, fp, float(sphere_radius), lat, lon)
+    density = _occupied_density(lat, lon)
+    lon0, lon_span = _lon_extent(lon)
+    s = math.sqrt(points_per_cell / density)
+    lat_lo, lat_hi = float(lat.min()), float(lat.max())
+    for _ in range(8):  # grow cells until their count is at most ~4 per point
+        nb = max(1, int(math.ceil((lat_hi - lat_lo) / s)))
+        band_h = (lat_hi - lat_lo) / nb if lat_hi > lat_lo else s
+        lo_edge = lat_lo + band_h * np.arange(nb)
+        hi_edge = lo_edge + band_h
+        cosmax = np.where((lo_edge <= 0) & (hi_edge >= 0), 1.0, np.maximum(np.cos(lo_edge), np.cos(hi_edge)))
+        ncell = np.clip(np.floor(lon_span * cosmax / s), 1, None).astype(np.int64)
+        if ncell.sum() <= 4 * n + 1024:
+            break
+        s *= math.sqrt(ncell.sum() / (4 * n + 1024))
+    band_first = np.zeros(nb + 1, dtype=np.int64)
+    np.cumsum(ncell, out=band_first[1:])
+    cell = np.empty(n, dtype=np.int64)
+    _run(_cell_of, -1, lat, lon, lat_lo, band_h, lon0, lon_span, ncell, band_first, cell)
+    counts = np.bincount(cell, minlength=int(band_first[-1]))
+    cell_start = np.zeros(counts.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=cell_start[1:])
+    order = _counting_order(cell, cell_start)
+    xyz, rad = np.empty((n, 3)), np.empty(n)
+    _run(_gather, -1, order, fp, np.ascontiguousarray(radius, dtype=np.float64), xyz, rad)
+    return SphereBuckets(
+        xyz=xyz,
+        radius=rad,
+        order=order,
+        lat0=lat_lo,
+        band_h=float(band_h),
+        lon0=lon0,
+        lon_span=lon_span,
+        band_ncell=ncell,
+        band_first=band_first,
+        cell_start=cell_start,
+        density=density,
+        sphere_radius=float(sphere_radius),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# compiled search
+# ----------------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, inline="always")
+def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, out):  # pragma: no cover
+    """Contiguous runs of sorted points that hold every point within angle a of (phi, lam).
+
+    Writes ``[start, end)`` pairs into ``out`` (at least 2 x bands rows); returns their number.
+    """
+    nb = band_ncell.size
+    ae = a * (1.0 + 1e-9) + 1e-12
+    b0 = int(math.floor((phi - ae - lat0) / band_h))
+    b1 = int(math.floor((phi + ae - lat0) / band_h))
+    if b0 < 0:
+        b0 = 0
+    if b1 > nb - 1:
+        b1 = nb - 1
+    full = ae >= math.pi or phi + ae >= 0.5 * math.pi or phi - ae <= -0.5 * math.pi
+    dl = math.pi
+    if not full:
+        sa = math.sin(ae)
+        cp = math.cos(phi)
+        if sa >= cp:
+            full = True
+        else:
+            dl = math.asin(sa / cp) * (1.0 + 1e-9) + 1e-12
+            full = dl >= math.pi
+    u = (lam - lon0) % (2.0 * math.pi)  # query longitude from the cells' origin
+    n = 0
+    for b in range(b0, b1 + 1):
+        nc = band_ncell[b]
+        f = band_first[b]
+        if full:
+            out[n, 0] = cell_start[f]
+            out[n, 1] = cell_start[f + nc]
+            n += 1
+            continue
+        w = lon_span / nc
+        # the interval [u - dl, u + dl] and its copies one turn away, cut to the cells [0, lon_span)
+        for shift in (-2.0 * math.pi, 0.0, 2.0 * math.pi):
+            u0 = u - dl + shift
+            u1 = u + dl + shift
+            if u1 < 0.0 or u0 >= lon_span:
+                continue
+            j0 = 0 if u0 <= 0.0 else int(math.floor(u0 / w))
+            j1 = nc - 1 if u1 >= lon_span else int(math.floor(u1 / w))
+            if j0 > nc - 1:
+                j0 = nc - 1
+            if j1 > nc - 1:
+                j1 = nc - 1
+            out[n, 0] = cell_start[f + j0]
+            out[n, 1] = cell_start[f + j1 + 1]
+            n += 1
+    return n
+
+
+@numba.njit(cache=True, inline="always")
+def _insert(dk2, ik, m, k, d2, i):  # pragma: no cover
+    """Insert (d2, i) into the ascending top-k list (ties broken by point index); return its new length."""
+    if m < k:
+        j = m - 1
+        m += 1
+    elif d2 < dk2[k - 1] or (d2 == dk2[k - 1] and i < ik[k - 1]):
+        j = k - 2
+    else:
+        return m
+    while j >= 0 and (dk2[j] > d2 or (dk2[j] == d2 and ik[j] > i)):
+        dk2[j + 1] = dk2[j]
+        ik[j + 1] = ik[j]
+        j -= 1
+    dk2[j + 1] = d2
+    ik[j + 1] = i
+    return m
+
+
+@numba.njit(cache=True)
+def _scan(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pragma: no cover
+    """Keep the k smallest squared distances <= d2max (sorted, with indices); count those <= r2count.
+
+    Returns (number kept, number within the count radius).
+    """
+    m = 0
+    cnt = 0
+    for t in range(nr):
+        for i in range(ranges[t, 0], ranges[t, 1]):
+            dx = xyz[i, 0] - qx
+            dy = xyz[i, 1] - qy
+            dz = xyz[i, 2] - qz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= r2count:
+                cnt += 1
+            if d2 <= d2max:
+                m = _insert(dk2, ik, m, k, d2, i)
+    return m, cnt
+
+
+@numba.njit(cache=True, inline="always")
+def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no cover
+    """Squared distances <= cap2 into (bd2, bi); returns (how many there were, count <= r2count).
+
+    More than ``bd2.size`` means the buffer overflowed (only its first entries are stored).
+    """
+    m = 0
+    cnt = 0
+    nbuf = bd2.size
+    for t in range(nr):
+        for i in range(ranges[t, 0], ranges[t, 1]):
+            dx = xyz[i, 0] - qx
+            dy = xyz[i, 1] - qy
+            dz = xyz[i, 2] - qz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= r2count:
+                cnt += 1
+            if d2 <= cap2:
+                if m < nbuf:
+                    bd2[m] = d2
+                    bi[m] = i
+                m += 1
+    return m, cnt
+
+
+@numba.njit(cache=True, inline="always")
+def _centre(lat_deg, lon_deg, rs):  # pragma: no cover
+    """(phi, lam) in radians (lam in [0, 2 pi)) and the point on the sphere of radius rs (m)."""
+    phi = math.radians(lat_deg)
+    lam = math.radians(lon_deg) % (2.0 * math.pi)
+    if lam >= 2.0 * math.pi:
+        lam = 0.0
+    c = rs * math.cos(phi)
+    return phi, lam, c * math.cos(lam), c * math.sin(lam), rs * math.sin(phi)
+
+
+@numba.njit(cache=True, inline="always")
+def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k, a0,
+         ang_max, rs,
+         r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
+    """Exact k nearest (ascending in dk2/ik) by doubling caps from a0.
+
+    ``t2`` is a guess of the k-th squared distance (e.g. 1.5 x the previous pixel's):
+    when at least k candidates lie within it, only those are ranked (the ranking,
+    not the result, is what the guess saves). Returns (done, count within r2count).
+    """
+    a = a0
+    while True:
+        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
+        if a >= math.pi:
+            cap2 = np.inf
+        else:
+            ch = 2.0 * rs * math.sin(0.5 * a)
+            cap2 = ch * ch
+        m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
+        if m > bd2.size:
+            mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
+        else:
+            mk = 0
+            if t2 < cap2:
+                for j in range(m):
+                    if bd2[j] <= t2:
+                        mk = _insert(dk2, ik, mk, k, bd2[j], bi[j])
+            if mk < k:
+                mk = 0
+                for j in range(m):
+                    mk = _insert(dk2, ik, mk, k, bd2[j], bi[j])
+        if mk >= k:
+            return True, cnt
+        if a >= ang_max:
+            return False, cnt
+        a = min(2.0 * a, ang_max)
+
+
+@numba.njit(cache=True)
+def _median_filtered(r, n, sigma):  # pragma: no cover
+    """1-sigma filtered median of r[:n] (sorted in place) and the spread of the kept run."""
+    for i in range(1, n):  # insertion sort
+        v = r[i]
+        j = i - 1
+        while j >= 0 and r[j] > v:
+            r[j + 1] = r[j]
+            j -= 1
+        r[j + 1] = v
+    if n % 2:
+        med = r[n // 2]
+    else:
+        med = 0.5 * (r[n // 2 - 1] + r[n // 2])
+    s1 = 0.0
+    s2 = 0.0
+    for i in range(n):
+        c = r[i] - med
+        s1 += c
+        s2 += c * c
+    var = s2 / n - (s1 / n) ** 2
+    band = sigma * math.sqrt(var) if var > 0 else 0.0
+    lo = 0
+    hi = 0
+    for i in range(n):
+        c = r[i] - med
+        if c < -band:
+            lo += 1
+        if c <= band:
+            hi += 1
+    nk = hi - lo
+    if nk <= 0:
+        return med, np.nan
+    a = lo + (nk - 1) // 2
+    b = lo + nk // 2
+    value = med + 0.5 * ((r[a] - med) + (r[b] - med))
+    if nk < 2:
+        return value, np.nan
+    t1 = 0.0
+    t2 = 0.0
+    for i in range(lo, hi):
+        c = r[i] - med
+        t1 += c
+        t2 += c * c
+    t1 /= nk
+    return value, math.sqrt(max(t2 / nk - t1 * t1, 0.0))
+
+
+def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, lat, lon, k,
+                   sigma, search_r,
+                   a_min, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
+    P = lat.size
+    nblk = (P + BLOCK - 1) // BLOCK
+    r2count = search_r * search_r
+    for blk in prange(nblk):
+        ranges = np.empty((2 * band_ncell.size + 2, 2), dtype=np.int64)
+        dk2 = np.empty(k)
+        ik = np.empty(k, dtype=np.int64)
+        rr = np.empty(k)
+        bd2 = np.empty(BUFFER)
+        bi = np.empty(BUFFER, dtype=np.int64)
+        t2 = np.inf
+        dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
+        px = py = pz = 0.0
+        for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
+            phi, lam, qx, qy, qz = _centre(lat[p], lon[p], rs)
+            a = a0
+            if dprev >= 0.0:
+                # The previous pixel's k nearest lie within dprev + |q - q_prev| of this one
+                # (triangle inequality): a cap that surely holds k points, no doubling.
+                bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
+                if bound < 2.0 * rs:
+                    ab = max(2.0 * math.asin(bound / (2.0 * rs)), a_min)
+                    if ab < a:
+                        a = ab
+            done, cnt = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam,
+                             qx, qy, qz, k, a,
+                             ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
+            if not done:
+                status[p] = NEEDS_FALLBACK
+                t2 = np.inf
+                dprev = -1.0
+                continue
+            t2 = 1.5 * dk2[k - 1]
+            dprev = math.sqrt(dk2[k - 1])
+            px, py, pz = qx, qy, qz
+            status[p] = OK
+            for i in range(k):
+                rr[i] = radius[ik[i]]
+            v, sp = _median_filtered(rr, k, sigma)
+            out_r[p] = v
+            out_spread[p] = sp
+            out_count[p] = cnt
+            out_near[p] = math.sqrt(dk2[0])
+
+
+@numba.njit(cache=True)
+def _weighted(radius, ik, d, w, n):  # pragma: no cover
+    """Weighted mean and weighted std of radius[ik[:n]] (weights w[:n]; a zero distance takes all)."""
+    exact = False
+    for i in range(n):
+        if d[i] == 0.0:
+            exact = True
+    if exact:
+        for i in range(n):
+            w[i] = 1.0 if d[i] == 0.0 else 0.0
+    ref = radius[ik[0]]
+    sw = 0.0
+    sm = 0.0
+    used = 0
+    for i in range(n):
+        sw += w[i]
+        sm += w[i] * (radius[ik[i]] - ref)
+        if w[i] > 0:
+            used += 1
+    m = sm / sw
+    sv = 0.0
+    for i in range(n):
+        c = radius[ik[i]] - ref - m
+        sv += w[i] * c * c
+    return ref + m, (math.sqrt(sv / sw) if used >= 2 else np.nan)
+
+
+def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, lat, lon, kmax,
+                  kfb, search_r,
+                  a_r, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
+    P = lat.size
+    nblk = (P + BLOCK - 1) // BLOCK
+    r2 = search_r * search_r
+    kb = max(kmax, kfb)
+    for blk in prange(nblk):
+        ranges = np.empty((2 * band_ncell.size + 2, 2), dtype=np.int64)
+        dk2 = np.empty(kb)
+        ik = np.empty(kb, dtype=np.int64)
+        d = np.empty(kb)
+        w = np.empty(kb)
+        bd2 = np.empty(BUFFER)
+        bi = np.empty(BUFFER, dtype=np.int64)
+        for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
+            phi, lam, qx, qy, qz = _centre(lat[p], lon[p], rs)
+            nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a_r, ranges)
+            m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
+            if m > 0:
+                for i in range(m):
+                    d[i] = math.sqrt(dk2[i])
+                    w[i] = ((search_r - d[i]) / (search_r * d[i])) ** 2 if d[i] > 0 else 0.0
+            else:
+                done, _ = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam,
+                               qx, qy, qz, kfb, a0,
+                               ang_max, rs, r2, ranges, dk2, ik, bd2, bi, np.inf)
+                if not done:
+                    status[p] = NEEDS_FALLBACK
+                    continue
+                m = kfb
+                for i in range(m):
+                    d[i] = math.sqrt(dk2[i])
+                    w[i] = 1.0 / dk2[i] if dk2[i] > 0 else 0.0
+            status[p] = OK
+            v, sp = _weighted(radius, ik, d, w, m)
+            out_r[p] = v
+            out_spread[p] = sp
+            out_count[p] = cnt
+            out_near[p] = d[0]
+
+
+_median11_kernel = numba.njit(parallel=True, cache=True)(_median11_body)
+_shepard_kernel = numba.njit(parallel=True, cache=True)(_shepard_body)
+
+
+def _run(kernel, threads: int, *args) -> None:
+    """Launch a parallel kernel on ``threads`` threads (-1: all numba's), one launch at a time."""
+    n = numba.config.NUMBA_NUM_THREADS if threads < 1 else min(threads, numba.config.NUMBA_NUM_THREADS)
+    with _PARALLEL_LOCK:
+        old = numba.get_num_threads()
+        numba.set_num_threads(n)
+        try:
+            kernel(*args)
+        finally:
+            numba.set_num_threads(old)
+
+
+def _outputs(P: int) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np.float64], NDArray[np.float64],
+                              NDArray[np.uint8]]:
+    return np.empty(P), np.zeros(P, dtype=np.int32), np.empty(P), np.empty(P), np.zeros(P, dtype=np.uint8)
+
+
+def median11_search(
+    b: SphereBuckets, lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], k: int, sigma: float,
+    search_r: float, ang_max: float, threads: int = -1,
+) -> dict[str, NDArray[np.generic]]:
+    """median11 at pixel centres (P,) (degrees): k nearest, 1-sigma filter about the median radius.
+
+    Returns dict of (P,) arrays: ``radius`` (m), ``count`` (points within ``search_r``),
+    ``nearest`` (chord to the nearest point, m), ``spread`` (m; NaN under two kept points),
+    ``status`` (``OK`` or ``NEEDS_FALLBACK`` where the k nearest are beyond ``ang_max`` radians:
+    the other outputs are then undefined).
+    """
+    lat = np.ascontiguousarray(lat_deg, dtype=np.float64)
+    lon = np.ascontiguousarray(lon_deg, dtype=np.float64)
+    out = _outputs(lat.size)
+    a_r = 2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius)))
+    a_min = min(a_r * (1 + 1e-6), math.pi)
+    a0 = min(max(b.start_angle(k), a_min), math.pi)
+    _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, b.band_h, b.lon0, b.lon_span, b.band_ncell, b.band_first,
+         b.cell_start, lat, lon, int(k), float(sigma), float(search_r), a_min, a0, max(a0, min(ang_max, math.pi)),
+         b.sphere_radius, *out)
+    return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
+
+
+def shepard_search(
+    b: SphereBuckets, lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], kmax: int, kfb: int,
+    search_r: float, ang_max: float, threads: int = -1,
+) -> dict[str, NDArray[np.generic]]:
+    """Modified Shepard at pixel centres (P,) (degrees); outputs as :func:`median11_search`.
+
+    Weights ``((R - d) / (R d))**2`` over the (at most ``kmax`` nearest) points within
+    ``R = search_r``; where none, the ``kfb`` nearest with weights ``1 / d**2``.
+    """
+    lat = np.ascontiguousarray(lat_deg, dtype=np.float64)
+    lon = np.ascontiguousarray(lon_deg, dtype=np.float64)
+    out = _outputs(lat.size)
+    a_r = min(2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius))), math.pi)
+    a0 = min(max(b.start_angle(kfb), a_r), math.pi)
+    _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, b.band_h, b.lon0, b.lon_span, b.band_ncell, b.band_first,
+         b.cell_start, lat, lon, int(kmax), int(kfb), float(search_r), a_r, a0, max(a0, min(ang_max, math.pi)),
+         b.sphere_radius, *out)
+    return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
