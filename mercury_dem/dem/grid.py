@@ -4,10 +4,13 @@ Frames and units
 ----------------
 * Points: body-fixed XYZ, metres, shape (N, 3). Their radius ``|p|`` is what is
   gridded; heights are ``radius - DATUM_RADIUS_M`` (2439.4 km datum).
-* Neighbour search: a kd-tree (``scipy.spatial.cKDTree``) over the points'
-  *footprints* on the datum sphere (``p / |p| * DATUM_RADIUS_M``), queried with
-  pixel centres on the same sphere. Distances are therefore horizontal chords
-  (equal to great-circle distances to better than 1 mm below 50 km), and the
+* Neighbour search: over the points' *footprints* on the datum sphere
+  (``p / |p| * DATUM_RADIUS_M``), queried with pixel centres on the same sphere,
+  by the compiled bucket search of :mod:`mercury_dem.dem.buckets` (search and
+  reduction fused per pixel); a ``scipy.spatial.cKDTree`` of the same footprints
+  is the exact fallback for pixels far from every point and the independent
+  reference path (``grid_pixels(..., use_kdtree=True)``). Distances are horizontal
+  chords (equal to great-circle distances to better than 1 mm below 50 km), and the
   seam at 0/360 degrees and the poles need no special case. Using the raw 3-D
   points instead would make a point 3 km above the datum 3 km "farther" from
   every pixel, biasing the neighbours towards low ground.
@@ -20,10 +23,9 @@ Methods
 -------
 ``median11`` (Becker et al. 2016): the k (11) nearest points, discard those
 farther than ``sigma_filter`` standard deviations from their median radius,
-return the median of the rest. The filter is vectorized over pixels: after a
-row-wise sort, the kept points are a contiguous run of the sorted radii (an
-interval about the median), so its bounds are two counts and its median two
-gathers; no per-pixel Python.
+return the median of the rest. After sorting the k radii the kept points are a
+contiguous run (an interval about the median): its bounds are two counts, its
+median two reads (compiled per pixel; vectorized over pixels on the kd-tree path).
 
 ``shepard`` (Becker et al. 2015): modified Shepard (Franke & Nielson) weights
 ``w = ((R - d) / (R d))**2`` for the points within the search radius ``R``; where

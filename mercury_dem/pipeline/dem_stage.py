@@ -3,7 +3,7 @@
 How it runs
 -----------
 1. The point cloud is validated and indexed once (:func:`~mercury_dem.dem.grid.build_point_index`);
-   on Dask the index (kd-tree + radii) is scattered with ``broadcast=True``, so it
+   on Dask the index (bucketed footprints + radii) is scattered with ``broadcast=True``, so it
    reaches every worker once, not once per chunk.
 2. A template store is written with ``to_zarr(compute=False)``: coordinates, CRS
    (``spatial_ref``), attributes and empty arrays whose Zarr chunks are the map chunks.
@@ -70,7 +70,7 @@ def _dem_config(config: Any) -> Any:
 def estimate_memory_bytes(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
     """Estimated peak memory of the DEM stage (per worker) and of the products stage.
 
-    The stage holds the point index (points, footprints, tree, radii: ~120 B per
+    The stage holds the point index (points, footprints, buckets, radii: ~120 B per
     point, twice while it is pickled to a worker) and one chunk's work arrays
     (about 40 float64 per pixel of a query batch plus the haloed chunk layers).
     The products stage holds a few full-map float32 layers (~5 x 4 B per pixel).

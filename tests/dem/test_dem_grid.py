@@ -165,3 +165,25 @@ def test_grid_spec_rejects_fractional_pixels():
     assert g.shape == (80, 80)
     assert g.lat_centres()[0] == pytest.approx(10 - 0.125)
     assert g.lon_centres()[-1] == pytest.approx(370 - 0.125)
+
+
+@pytest.mark.parametrize("method", ["median11", "shepard"])
+@pytest.mark.parametrize(
+    "lat_range, lon_range",
+    [((-90.0, 90.0), (0.0, 360.0)),  # global: poles in the caps
+     ((-30.0, 30.0), (340.0, 380.0)),  # regional across the 0/360 seam (cells cover its longitudes only)
+     ((60.0, 90.0), (0.0, 360.0))],  # a polar cap
+)
+def test_bucket_search_equals_kdtree(method, lat_range, lon_range):
+    """The compiled bucket search finds the same neighbours as scipy's kd-tree (independent path)."""
+    cloud = sample_cloud(np.random.default_rng(4), 30_000, lat_range, lon_range, outlier_fraction=0.02)
+    index = build_point_index(cloud)
+    cfg = DemConfig(method=method, pixels_per_degree=2, max_distance_m=300_000.0)
+    rng = np.random.default_rng(9)
+    lat = rng.uniform(-90, 90, 4000)
+    lon = rng.uniform(0, 360, 4000)
+    fast = grid_pixels(index, lat, lon, cfg)
+    ref = grid_pixels(index, lat, lon, cfg, use_kdtree=True)
+    for key in fast:
+        np.testing.assert_allclose(fast[key], ref[key], rtol=0, atol=1e-6, err_msg=key)
+    assert np.isfinite(fast["height"]).sum() > 100

@@ -121,3 +121,19 @@ def test_dask_worker_processes_equal_serial(serial_store, global_cloud, tmp_path
     a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
     for name in a.data_vars:
         np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
+
+
+def test_store_is_atomic_with_zarr_completion_mark(serial_store):
+    """io.atomic's directory swap with the Zarr attribute as the mark: no marker file, no leftovers."""
+    import warnings
+
+    import xarray as xr
+
+    path, _ = serial_store
+    assert not (path / ".complete").exists()
+    assert not [p for p in path.parent.iterdir() if p.name.startswith(f".{path.name}.tmp-")]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds = xr.open_zarr(path, consolidated=False)
+    assert ds.attrs["complete"] is True
+    assert (path.parent / "coverage.zarr").exists() and not (path.parent / "coverage.zarr" / ".complete").exists()
