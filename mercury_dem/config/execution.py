@@ -18,7 +18,7 @@ class ExecutionConfig(ConfigSection):
     retries: int = param(2, "Retries of a failed task (lost worker)", lo=0, hi=100)
     adjust_resource: str = param(
         "auto", "Run bundle adjustments (memory-heavy) one per worker through the Dask worker resource "
-        "'adjust': 'auto' uses it on a LocalCluster and on a scheduler whose workers advertise it "
-        "(dask worker --resources adjust=1, as the cluster/ scripts start them); 'on' always (a task waits "
+        "'adjust_slots': 'auto' uses it on a LocalCluster and on a scheduler whose workers advertise it "
+        "(dask worker --resources adjust_slots=1, as the cluster/ scripts start them); 'on' always (a task waits "
         "for such a worker); 'off' never", choices=("auto", "on", "off"),
     )
