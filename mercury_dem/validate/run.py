@@ -127,12 +127,12 @@ def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float
         x = x[np.isfinite(x)]
         return float(np.sqrt(np.mean(x**2))) if x.size else None
 
-    instruments = np.array([str(getattr(c, "name", "")) for c in cams])
-    try:
-        cat = mission.catalog.set_index("image_id")
-        instruments = np.array([str(cat.loc[i, "instrument"]) for i in ids])
-    except (AttributeError, KeyError):
-        pass
+    catalog = getattr(mission, "catalog", None)
+    if catalog is not None and {"image_id", "instrument"} <= set(catalog.columns):
+        instrument_of = catalog.set_index("image_id")["instrument"]
+        instruments = np.array([str(instrument_of.get(i, "")) for i in ids])
+    else:  # a mission without a catalog table: the camera names
+        instruments = np.array([str(getattr(c, "name", "")) for c in cams])
     by_instrument = {
         str(name): {"images": int((instruments == name).sum()),
                     "a_priori_rms": rms(img_apr[instruments == name]),
