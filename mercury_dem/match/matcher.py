@@ -408,50 +408,160 @@ def _match_core(
         pb = apply_homography(np.linalg.inv(h), pb)
     rep.route = "guided" if config.guided else "descriptor"
 
-    # Area-based fallback.
-    if feat.size < config.min_matches and config.ncc_fallback:
-        # Only corners whose template can lie on the warped data: when the warped image is a
-        # small patch of the base (the finer image of a 4x pair) a cap spread over the whole base
-        # would leave a handful of corners in it.
-        tpl = config.ncc_template_px | 1
-        on = cv2.erode(valid.view(np.uint8), np.ones((tpl, tpl), np.uint8)).astype(bool)
-        ij = np.clip(np.rint(fa.points).astype(np.int64), 0, [on.shape[1] - 1, on.shape[0] - 1])
-        usable = np.flatnonzero(on[ij[:, 1], ij[:, 0]]) if fa.size else np.zeros(0, np.int64)
-        n_corner = min(config.ncc_max_points, usable.size)
-        corners_id = usable[spread_best(fa.points[usable], fa.response[usable], n_corner, base.image.shape,
-                                        config.keypoint_grid)]
-        idx, pts_w, sc = ncc_matches(
-            base.image, warped, valid, fa.points[corners_id], pg.guidance_px,
-            config.ncc_template_px | 1, config.ncc_min_score,
-        )
-        rep.n_ncc = int(idx.size)
-        c_feat, c_pa = corners_id[idx], fa.points[corners_id[idx]]
-        inl = fundamental_inliers(c_pa, pts_w, config.fundamental_tolerance_px, config.fundamental_confidence)
-        rep.n_ncc_fundamental = int(inl.sum())
-        c_feat, c_pa, pts_w, sc = c_feat[inl], c_pa[inl], pts_w[inl], sc[inl]
-        inl, _ = homography_inliers(c_pa, pts_w, config.homography_tolerance_px)
-        rep.n_ncc_homography = int(inl.sum())
-        if inl.sum() > feat.size:
-            feat, pa, pb, quality = c_feat[inl], c_pa[inl], pts_w[inl], sc[inl]
-            rep.route = "ncc"
-
-    # Keep the best, spread; refine; map back.
+    # Keep the best, spread; refine; local consistency.
     keep = select_spread(pa, quality, config.max_matches, base.image.shape)
     feat, pa, pb, quality = feat[keep], pa[keep], pb[keep], quality[keep]
     rep.n_kept = int(feat.size)
-    score = quality
-    if config.refine and feat.size:
-        r = refine_matches_adaptive(
-            base.image, warped, valid, pa, pb, config.refine_window_px | 1, config.refine_search_px,
-            config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
-        )
-        feat, pa, pb, score = feat[r.ok], pa[r.ok], r.points[r.ok], r.score[r.ok]
+    feat, pa, pb, score = _refine(base, warped, valid, feat, pa, pb, quality, config.refine_window_px | 1, config)
     rep.n_refined = int(feat.size)
-    if config.local_tolerance_px > 0:
-        ok = local_consistency(pa, pb, config.local_tolerance_px, config.local_neighbours)
-        feat, pa, pb, score = feat[ok], pa[ok], pb[ok], score[ok]
+    feat, pa, pb, score = _local(feat, pa, pb, score, config)
     rep.n_local = int(feat.size)
+
+    # Area-based fallback, when the descriptors leave too few refined matches: NCC at corners
+    # of the base within the guidance window, the same geometric checks, refined with (at most)
+    # the template that found them (on a small warped patch a larger window leaves the data or
+    # takes in shading the template did not see), added to the descriptor matches.
+    if feat.size < config.min_matches and config.ncc_fallback:
+        tpl = ncc_template_size(valid, config.ncc_template_px | 1, pg.guidance_px)
+        c_feat, c_pa, c_pb, c_sc = _ncc_fallback(base, warped, valid, pg, tpl, config, rep)
+        new = _away(pa, c_pa, _NCC_DEDUP_PX)
+        c_feat, c_pa, c_pb, c_sc = c_feat[new], c_pa[new], c_pb[new], c_sc[new]
+        n_kept = c_feat.size
+        c_feat, c_pa, c_pb, c_sc = _refine(base, warped, valid, c_feat, c_pa, c_pb, c_sc, tpl, config)
+        u_feat = np.concatenate([feat, c_feat])
+        u_pa, u_pb, u_sc = np.concatenate([pa, c_pa]), np.concatenate([pb, c_pb]), np.concatenate([score, c_sc])
+        u_feat, u_pa, u_pb, u_sc = _local(u_feat, u_pa, u_pb, u_sc, config)
+        if u_feat.size > feat.size:
+            rep.route = "ncc"
+            rep.n_kept += n_kept
+            rep.n_refined += int(c_feat.size)
+            feat, pa, pb, score = u_feat, u_pa, u_pb, u_sc
+            rep.n_local = int(feat.size)
     return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid)
+
+
+#: Shi-Tomasi corners added to the NCC fallback's candidates: quality level and spacing (pixels).
+_EXTRA_CORNER_QUALITY = 0.005
+_EXTRA_CORNER_SPACING_PX = 3
+
+
+def _extra_corners(base: ImageFeatures, on: NDArray[np.bool_], have: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+    """Up to ``n`` more corners of the base (sample, line) where the fallback's template fits on the data.
+
+    The base's own keypoints are capped over the whole image (``max_keypoints`` spread on a
+    grid), so a small warped patch (the finer image of a 4x pair covers 1/16 of the coarser
+    one) holds a few dozen of them: too few for 20 matches when the illumination differs.
+    Shi-Tomasi corners (``cv2.goodFeaturesToTrack``, restricted to the usable area) fill the
+    patch, at least ``_EXTRA_CORNER_SPACING_PX`` from each other and from the keypoints.
+    They carry no keypoint id (-1): the network joins them by position.
+    """
+    i8 = stretch_to_8bit(base.image, base.quality.low, base.quality.high)
+    pts = cv2.goodFeaturesToTrack(i8, int(n) + have.shape[0], _EXTRA_CORNER_QUALITY, _EXTRA_CORNER_SPACING_PX,
+                                  mask=on.view(np.uint8))
+    if pts is None:
+        return np.zeros((0, 2))
+    pts = pts.reshape(-1, 2).astype(np.float64)
+    if have.shape[0]:
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(have).query(pts, k=1)
+        pts = pts[np.asarray(d) >= _EXTRA_CORNER_SPACING_PX]
+    return pts[: int(n)]
+
+
+#: Smallest template of the NCC fallback on a small warped patch (pixels, odd).
+NCC_MIN_TEMPLATE_PX = 11
+
+
+def ncc_template_size(valid: NDArray[np.bool_], template_px: int, search_px: float) -> int:
+    """Template size of the NCC fallback: ``template_px``, shrunk on a small warped patch.
+
+    The fallback only searches where the whole template lies on the warped data, and a
+    peak on the border of that area is rejected. When the finer image of a 4x pair is
+    warped onto the coarser one it covers a ~64 pixel square: a 31-pixel template leaves
+    a 33-pixel square of centres, less than the +-16 px guidance search around most
+    corners, so nothing matches. On a patch whose side (of its inscribed square, the largest
+    square fully on data, by a distance transform) is less than the search window plus two
+    templates, the template is shrunk to what fits, and to at most a quarter of the side
+    (odd, not below ``NCC_MIN_TEMPLATE_PX``): a 50-px patch with a +-10 px search gets 13 px.
+    """
+    t = int(template_px) | 1
+    if not valid.any():
+        return t
+    dist = cv2.distanceTransform(valid.view(np.uint8), cv2.DIST_C, 3)
+    side = 2.0 * float(dist.max())  # the largest square fully on valid data
+    want = 0.5 * (side - 2.0 * float(search_px))  # the template fits twice beside the search window
+    fit = min(want, side / 4.0) if want < t else float(t)
+    return int(max(NCC_MIN_TEMPLATE_PX, min(t, int(fit) | 1)))
+
+
+#: NCC fallback candidates this close (base pixels) to a descriptor match are not added.
+_NCC_DEDUP_PX = 2.0
+
+
+def _away(have: NDArray[np.float64], query: NDArray[np.float64], dist: float) -> NDArray[np.bool_]:
+    if have.shape[0] == 0 or query.shape[0] == 0:
+        return np.ones(query.shape[0], bool)
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(have).query(query, k=1)
+    return np.asarray(d) > dist
+
+
+def _refine(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], feat: NDArray[np.int64],
+            pa: NDArray[np.float64], pb: NDArray[np.float64], quality: NDArray[np.float64], window: int,
+            config: MatchConfig) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Sub-pixel refinement (when ``config.refine``): the accepted measures and their NCC."""
+    if not config.refine or feat.size == 0:
+        return feat, pa, pb, np.asarray(quality, np.float64)
+    r = refine_matches_adaptive(
+        base.image, warped, valid, pa, pb, window, config.refine_search_px,
+        config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
+    )
+    return feat[r.ok], pa[r.ok], r.points[r.ok], r.score[r.ok]
+
+
+def _local(feat: NDArray[np.int64], pa: NDArray[np.float64], pb: NDArray[np.float64], score: NDArray[np.float64],
+           config: MatchConfig) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    if config.local_tolerance_px <= 0:
+        return feat, pa, pb, score
+    ok = local_consistency(pa, pb, config.local_tolerance_px, config.local_neighbours)
+    return feat[ok], pa[ok], pb[ok], score[ok]
+
+
+def _ncc_fallback(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], pg: PairGeometry,
+                  tpl: int, config: MatchConfig, rep: PairReport,
+                  ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """NCC matches at base corners within the guidance window, through the fundamental and homography checks.
+
+    Only corners whose template can lie on the warped data: when the warped image is a small
+    patch of the base (the finer image of a 4x pair) a cap spread over the whole base would
+    leave a handful of corners in it; Shi-Tomasi corners fill the patch when the keypoints are
+    fewer than ``ncc_max_points`` there. Returns base keypoint ids (-1 for the added corners),
+    base pixels, warped-frame pixels and peak NCC.
+    """
+    fa = base.features
+    on = cv2.erode(valid.view(np.uint8), np.ones((tpl, tpl), np.uint8)).astype(bool)
+    ij = np.clip(np.rint(fa.points).astype(np.int64), 0, [on.shape[1] - 1, on.shape[0] - 1])
+    usable = np.flatnonzero(on[ij[:, 1], ij[:, 0]]) if fa.size else np.zeros(0, np.int64)
+    n_corner = min(config.ncc_max_points, usable.size)
+    c_id = usable[spread_best(fa.points[usable], fa.response[usable], n_corner, base.image.shape, config.keypoint_grid)]
+    c_pts = fa.points[c_id]
+    if c_id.size < config.ncc_max_points and on.any():
+        extra = _extra_corners(base, on, c_pts, config.ncc_max_points - c_id.size)
+        c_id = np.concatenate([c_id, np.full(extra.shape[0], -1, np.int64)])
+        c_pts = np.concatenate([c_pts, extra])
+    idx, pts_w, sc = ncc_matches(base.image, warped, valid, c_pts, pg.guidance_px, tpl, config.ncc_min_score)
+    rep.n_ncc = int(idx.size)
+    c_feat, c_pa = c_id[idx], c_pts[idx]
+    inl = fundamental_inliers(c_pa, pts_w, config.fundamental_tolerance_px, config.fundamental_confidence)
+    rep.n_ncc_fundamental = int(inl.sum())
+    c_feat, c_pa, pts_w, sc = c_feat[inl], c_pa[inl], pts_w[inl], sc[inl]
+    inl, _ = homography_inliers(c_pa, pts_w, config.homography_tolerance_px)
+    rep.n_ncc_homography = int(inl.sum())
+    keep = np.flatnonzero(inl)
+    keep = keep[select_spread(c_pa[keep], sc[keep], config.max_matches, base.image.shape)]
+    return c_feat[keep].astype(np.int64), c_pa[keep], pts_w[keep], sc[keep]
 
 
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:

@@ -3,8 +3,8 @@
 Thresholds are the issue's: outliers (> 2 px true error) <= 0.5 %; similar
 illumination median <= 0.2 px, p95 <= 0.5 px, every overlapping pair >= 20 matches;
 incidence 30 vs 70 deg >= 20 matches for >= 80 % of the pairs, median <= 0.5 px.
-Pairs at 4x scale whose overlap is only ~1/16 of the coarser image are a measured,
-known shortfall (docs/benchmarks/match.md) and are tested separately as xfail.
+Pairs at 4x scale, whose overlap is only ~1/16 of the coarser image, are tested
+separately (their median is in the finer image's pixels, see the test).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from mercury_dem.match import match_tile
 from mercury_dem.validate.matching import true_errors
 
 SIMILAR = ["stereo", "scale2_rot30", "scale2_finer_rot45"]
-INCIDENCE = ["inc30_70", "inc30_70_scale2", "inc30_70_scale2_finer"]
+INCIDENCE = ["inc30_70", "inc30_70_scale2", "inc30_70_scale2_finer", "inc30_70_scale4"]
 
 
 def _run(world: Any, config: MatchConfig, names: list[str]) -> tuple[list[Any], np.ndarray, Any]:
@@ -77,6 +77,27 @@ def test_incidence_30_vs_70(default_run: Any, pair_world: Any) -> None:
     assert np.median(e) <= 0.5, np.median(e)
 
 
+def test_incidence_30_vs_70_at_4x_on_a_small_patch(default_run: Any, pair_world: Any) -> None:
+    """The finer image warped onto the 4x coarser one is a ~64 px patch (50 px inscribed square):
+    descriptors leave 0 matches through the chain, and a 31-px NCC template left no room for the
+    +-10 px search (0 candidates). With the template sized to the patch, Shi-Tomasi corners filling
+    it and the refinement at the template's size, the fallback matches it (measured: 24 refined,
+    26 with propagation over 4 render seeds 25-31) with no outlier."""
+    if pair_world.renderer.startswith("toy"):
+        pytest.skip("measured on the mission renderer")
+    reports, err, matches = default_run
+    k = pair_world.names.index("inc30_70_scale4")
+    rep = reports[k]
+    assert rep.status == "matched" and rep.route == "ncc", (rep.status, rep.route, rep.reason)
+    assert rep.n_matches >= 20, rep.n_matches
+    e = err[matches.pair == k]
+    e = e[np.isfinite(e)]
+    # the issue's median <= 0.5 px holds for the class (test above); this pair alone, in its
+    # (coarser) match image's pixels: measured 0.42-0.66 px over render seeds 1, 2, 3, 2024
+    assert np.mean(e > 2.0) == 0.0, np.mean(e > 2.0)
+    assert np.median(e) <= 0.75, np.median(e)
+
+
 def test_sun_azimuth_90_is_skipped_with_reason(default_run: Any, pair_world: Any) -> None:
     rep = default_run[0][pair_world.names.index("azimuth90")]
     assert rep.status == "skipped"
@@ -113,3 +134,22 @@ def test_guidance_buys_matches_across_illumination(pair_world: Any) -> None:
     on, _, _ = _run(pair_world, cfg, ["inc30_70"])
     off, _, _ = _run(pair_world, dataclasses.replace(cfg, guided=False), ["inc30_70"])
     assert on[0].n_homography > 1.2 * off[0].n_homography
+
+
+def test_ncc_fallback_adds_to_too_few_refined_descriptor_matches(pair_world: Any) -> None:
+    """The fallback is decided after the refinement (which drops measures whose window leaves a
+    small warped patch) and its matches are added to the descriptor ones, not swapped for them:
+    on the 4x finer pair with ``min_matches`` raised above what the descriptors keep (26 refined
+    of 38), the pair gets more matches than without the fallback, none of them a mismatch in the
+    coarser image's pixels (the fallback's 13-px template works at the coarser image's resolution:
+    measured, a few of its measures are 2.0-2.2 pixels of the 4x finer image, 0.5 coarser pixels)."""
+    cfg = MatchConfig(threads=1, min_matches=40)
+    off, e_off, m_off = _run(pair_world, dataclasses.replace(cfg, ncc_fallback=False), ["scale4_finer"])
+    on, e_on, m_on = _run(pair_world, cfg, ["scale4_finer"])
+    assert on[0].n_ncc > 0 and on[0].route == "ncc", (on[0].n_ncc, on[0].route)
+    assert on[0].n_local > off[0].n_local >= 20, (on[0].n_local, off[0].n_local)
+    # the descriptor matches are kept: every refined descriptor measure of the run without the
+    # fallback is also in the run with it (same reference keypoint)
+    assert set(m_off.feature_a.tolist()) - {-1} <= set(m_on.feature_a.tolist()), "descriptor matches were replaced"
+    e = e_on[np.isfinite(e_on)] / on[0].match_px_per_ref_px  # in the coarser image's pixels
+    assert e.max() < 1.0 and np.median(e) <= 0.2, (e.max(), np.median(e))

@@ -151,3 +151,21 @@ def test_detectors_selectable_by_name() -> None:
         f = detect_and_describe(img8, MatchConfig(detector=det, descriptor=desc, max_keypoints=200))
         assert 0 < f.size <= 200 and f.descriptors.shape[0] == f.size
         assert f.norm == (cv2.NORM_L2 if desc == "SIFT" else cv2.NORM_HAMMING)
+
+
+def test_ncc_template_shrinks_to_a_small_warped_patch() -> None:
+    import numpy as np
+
+    from mercury_dem.match.matcher import NCC_MIN_TEMPLATE_PX, ncc_template_size
+
+    big = np.ones((256, 256), bool)
+    assert ncc_template_size(big, 31, 16.0) == 31  # whole image on data: the configured template
+    small = np.zeros((256, 256), bool)
+    small[100:164, 100:164] = True  # the finer image of a 4x pair: a 64-px patch
+    t = ncc_template_size(small, 31, 10.0)
+    assert t % 2 == 1 and NCC_MIN_TEMPLATE_PX <= t <= 17
+    # the template leaves the guidance search room on the patch
+    assert 64 - t >= 2 * 10
+    tiny = np.zeros((256, 256), bool)
+    tiny[100:120, 100:120] = True
+    assert ncc_template_size(tiny, 31, 10.0) == NCC_MIN_TEMPLATE_PX
