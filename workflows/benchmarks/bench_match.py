@@ -197,7 +197,7 @@ def accuracy() -> None:
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
 
 
-def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None) -> None:
+def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None, breakdown: bool = False) -> None:
     """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
     from mercury_dem.geometry.footprints import overlap_graph
     from mercury_dem.io.mission import open_mission
@@ -248,6 +248,183 @@ def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None =
     print(f"\ntruly overlapping (>= 10 %) pairs with < 20 matches: {len(bad)} of {int(ov.sum())}")
     for b in bad[:15]:
         print("  ", *b)
+    if breakdown:
+        tail_breakdown(ms, m, err, rows, truth, surface)
+
+
+def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]], truth: dict[str, TruePose],
+                   surface: Any) -> None:
+    """Where the similar-illumination class's measures > 0.5 px come from (Markdown tables).
+
+    Measures of 'similar' pairs up to 4x, broken down by: the pair's scale (match pixels per
+    reference pixel: > 1 = the match image is finer, errors in its pixels), the cameras, the
+    route and whether the measure was propagated, the refined NCC, the distance to the image
+    edge, each image's emission angle and their difference at the measure (true poses), and the
+    terrain slope there (true surface, 0.01 deg baseline). Also the true error recomputed on the
+    surface at the coarser image's resolution (what the renderer draws): the metric's share.
+    """
+    from mercury_dem.geometry.body import xyz_to_latlon
+    from mercury_dem.geometry.pose import image_to_ground
+    from mercury_dem.validate.matching import illumination_class
+
+    ids = m.image_ids
+    sim = np.array([illumination_class(r["incidence_difference_deg"], r["sun_azimuth_difference_deg"]) == "similar"
+                    and r["scale_ratio"] <= 4.0 for r in rows])
+    sel = np.flatnonzero(sim[m.pair] & np.isfinite(err)) if len(m) else np.zeros(0, np.int64)
+    if sel.size == 0:
+        return
+    e = err[sel]
+    pa = np.stack([m.sample_a, m.line_a], -1)[sel]
+    pb = np.stack([m.sample_b, m.line_b], -1)[sel]
+    ia, ib, pair = m.image_a[sel], m.image_b[sel], m.pair[sel]
+    cams = {i: truth[i].camera for i in ids if i in truth}
+
+    def per_image(points: np.ndarray, which: np.ndarray, fn: Any) -> np.ndarray:
+        out = np.full(which.size, np.nan)
+        for k in np.unique(which):
+            s = np.flatnonzero(which == k)
+            tp = truth[ids[k]]
+            g, hit = image_to_ground(tp.camera, tp.position, tp.rotation, points[s], height=surface.height)
+            out[s] = np.where(hit, fn(g, tp), np.nan)
+        return out
+
+    def emission(g: np.ndarray, tp: TruePose) -> np.ndarray:
+        n = g / np.linalg.norm(g, axis=1, keepdims=True)
+        v = tp.position - g
+        return np.degrees(np.arccos(np.clip(np.sum(n * v, 1) / np.linalg.norm(v, axis=1), -1, 1)))
+
+    def slope(g: np.ndarray, tp: TruePose) -> np.ndarray:
+        lat, lon, _ = xyz_to_latlon(g)
+        dd = 0.01
+        h0 = surface.height(lat, lon)
+        dy = np.radians(dd) * np.linalg.norm(g, axis=1)
+        dx = dy * np.cos(np.radians(lat))
+        return np.degrees(np.arctan(np.hypot((surface.height(lat + dd, lon) - h0) / dy,
+                                             (surface.height(lat, lon + dd) - h0) / dx)))
+
+    def edge(points: np.ndarray, which: np.ndarray) -> np.ndarray:
+        w = np.array([cams[ids[k]].samples for k in which])
+        h = np.array([cams[ids[k]].lines for k in which])
+        return np.minimum.reduce([points[:, 0], points[:, 1], w - 1 - points[:, 0], h - 1 - points[:, 1]])
+
+    # the metric on the surface the renderer draws (roughness octaves below 2 coarser pixels left out)
+    e_res = np.full(sel.size, np.nan)
+    for k in np.unique(pair):
+        s = np.flatnonzero(pair == k)
+        res = max(float(ms.catalog.set_index("image_id").loc[x, "pixel_scale_m"]) for x in (rows[k]["ref_id"], rows[k]["match_id"]))
+
+        def h_res(la: Any, lo: Any, res: float = res) -> Any:
+            return surface.height(la, lo, res)
+
+        e_res[s] = true_errors(ids, ia[s], ib[s], pa[s], pb[s], truth, h_res)
+    d = np.abs(e_res - e)
+    print(f"\nsimilar illumination up to 4x: {sel.size} measures, median {np.median(e):.3f} px, p95 "
+          f"{np.percentile(e, 95):.3f} px, > 0.5 px {100 * np.mean(e > 0.5):.1f} %; the true error on the surface "
+          f"drawn at the coarser image's resolution differs by median {np.nanmedian(d):.4f} px, p95 "
+          f"{np.nanpercentile(d, 95):.4f} px")
+    mpr = np.array([r["match_px_per_ref_px"] for r in rows])[pair]
+    nac = np.array(["NAC" in cams[i].name for i in ids])
+    route = np.array([{"guided": 0.0, "ncc": 1.0}.get(r["route"], 2.0) for r in rows])[pair]
+    ea = per_image(pa, ia, emission)
+    eb = per_image(pb, ib, emission)
+    keys = {
+        "scale (match px per ref px)": (mpr, [0, 0.6, 0.87, 1.15, 1.7, 2.5, 5], None),
+        "cameras (ref-match)": (2.0 * nac[ia] + nac[ib], [0, 1, 2, 3, 4], ["WAC-WAC", "WAC-NAC", "NAC-WAC", "NAC-NAC"]),
+        "route": (route, [0, 1, 2], ["guided", "ncc"]),
+        "propagated": (m.propagated[sel].astype(float), [0, 1, 2, 3], ["own chain", "anchor of the kept image", "anchor of the warped image"]),
+        "refined NCC": (m.score[sel], [-1, 0.7, 0.8, 0.9, 0.95, 1.01], None),
+        "distance to the ref image edge px": (edge(pa, ia), [0, 10, 20, 40, 80, 1e9], None),
+        "distance to the match image edge px": (edge(pb, ib), [0, 10, 20, 40, 80, 1e9], None),
+        "emission ref deg": (ea, [0, 10, 20, 30, 45, 90], None),
+        "emission match deg": (eb, [0, 10, 20, 30, 45, 90], None),
+        "emission difference deg": (np.abs(ea - eb), [0, 5, 10, 20, 30, 90], None),
+        "slope deg": (per_image(pa, ia, slope), [0, 5, 10, 20, 30, 90], None),
+    }
+    n_tail = max(int(np.sum(e > 0.5)), 1)
+    for name, (key, bins, labels) in keys.items():
+        print(f"\n| {name} | measures | median px | p95 px | > 0.5 px | share of the > 0.5 px |\n|---|---|---|---|---|---|")
+        for j, (lo, hi) in enumerate(zip(bins[:-1], bins[1:])):
+            s = (key >= lo) & (key < hi)
+            if s.sum() == 0:
+                continue
+            lab = labels[j] if labels else f"{lo:g}-{hi:g}"
+            print(f"| {lab} | {s.sum()} | {np.median(e[s]):.3f} | {np.percentile(e[s], 95):.3f} | "
+                  f"{100 * np.mean(e[s] > 0.5):.1f} % | {100 * np.sum(e[s] > 0.5) / n_tail:.1f} % |")
+
+
+def convergence_study() -> None:
+    """True error vs the two views' convergence (emission 0 vs 0-38 deg, same sun, same scale).
+
+    A nadir view and one tilted north by ``em`` degrees (same range, WAC 256^2, 1.8 km/pixel,
+    sun 45 deg from the east), matched with the defaults. Variants: the mission renderer;
+    noise-free; noise-free with a pure Lambert law (no emission dependence of the brightness);
+    and that with the relief scaled by 0 and 0.5. Separates what the metric, the noise, the
+    photometry and the relief contribute to the error of convergent pairs.
+    """
+    from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
+    from mercury_dem.geometry.pose import look_at_rotation
+    from mercury_dem.synth.render import RenderSettings, render_image
+    from mercury_dem.synth.terrain import Surface, SurfaceParams
+
+    class Scaled:
+        """The truth surface with its relief scaled by ``k`` (albedo unchanged)."""
+
+        def __init__(self, s: Any, k: float) -> None:
+            self.s, self.k, self.radius_m = s, k, s.radius_m
+
+        def sample_grid(self, grid: Any, dirs: Any) -> Any:
+            h, a = self.s.sample_grid(grid, dirs)
+            return h * self.k, a
+
+        def height_unit(self, u: Any, r: Any = None) -> Any:
+            return self.s.height_unit(u, r) * self.k
+
+        def albedo_unit(self, u: Any, r: Any = None) -> Any:
+            return self.s.albedo_unit(u, r)
+
+        def height(self, la: Any, lo: Any, r: Any = None) -> Any:
+            return self.s.height(la, lo, r) * self.k
+
+    base = Surface(SurfaceParams(seed=42))
+    cam = mdis_wac(256)
+    up = latlon_to_unit(5.0, 3.0)
+    east = np.cross([0.0, 0.0, 1.0], up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    centre = latlon_to_xyz(5.0, 3.0)
+    alt = 1.79e3 / cam.ifov_rad
+    sun = centre + 5.8e10 * (np.cos(np.radians(45)) * up + np.sin(np.radians(45)) * east)
+    quiet = dict(gain_e_per_dn=1e6, read_noise_dn=0.0)
+    variants = {
+        "mission renderer": (1.0, RenderSettings()),
+        "noise-free": (1.0, RenderSettings(**quiet)),
+        "noise-free, Lambert": (1.0, RenderSettings(lambert_weight=1.0, **quiet)),
+        "noise-free, Lambert, relief x 0.5": (0.5, RenderSettings(lambert_weight=1.0, **quiet)),
+        "noise-free, Lambert, flat": (0.0, RenderSettings(lambert_weight=1.0, **quiet)),
+    }
+    print("| renderer | emission 0 vs | matches | median px | p95 px | > 0.5 px |\n|---|---|---|---|---|---|")
+    for name, (k, rs) in variants.items():
+        surface = Scaled(base, k)
+        rng = np.random.default_rng(7)
+        for em in (0, 10, 20, 30, 38):
+            images, geom, truth = {}, {}, {}
+            for j, e_deg in enumerate((0.0, float(em))):
+                c = centre + alt * (np.cos(np.radians(e_deg)) * up + np.sin(np.radians(e_deg)) * north)
+                r = look_at_rotation(c, centre, east)
+                images[f"v{j}"] = render_image(surface, cam, c, r, sun, rng, rs)
+                r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
+                geom[f"v{j}"] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, sun)
+                truth[f"v{j}"] = TruePose(cam, c, r)
+            m, reps = match_tile(images, geom, [("v0", "v1")], MatchConfig(threads=2))
+            pa = np.stack([m.sample_a, m.line_a], -1)
+            pb = np.stack([m.sample_b, m.line_b], -1)
+            e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
+            e = e[np.isfinite(e)]
+            if e.size:
+                print(f"| {name} | {em} | {e.size} | {np.median(e):.3f} | {np.percentile(e, 95):.3f} | "
+                      f"{100 * np.mean(e > 0.5):.1f} % |")
+            else:
+                print(f"| {name} | {em} | 0 | - | - | - |")
 
 
 def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = None, verbose: bool = True,
@@ -359,6 +536,10 @@ def main() -> None:
     p.add_argument("--accuracy", action="store_true", help="run the accuracy study instead of the speed benchmark")
     p.add_argument("--mission", help="run the accuracy study on every overlapping pair of this mission store")
     p.add_argument("--max-pairs", type=int, default=0, help="with --mission: a seeded random sample of the pairs")
+    p.add_argument("--breakdown", action="store_true",
+                   help="with --mission: where the similar class's measures > 0.5 px come from")
+    p.add_argument("--convergence", action="store_true",
+                   help="true error vs the views' convergence, with the renderer's noise, photometry and relief varied")
     p.add_argument("--sizes", default="512,1024")
     p.add_argument("--images", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
@@ -369,8 +550,10 @@ def main() -> None:
         tracks_study(*a.tracks, tracks=False)
         print()
         tracks_study(*a.tracks, tracks=True)
+    elif a.convergence:
+        convergence_study()
     elif a.mission:
-        mission_accuracy(a.mission, a.max_pairs)
+        mission_accuracy(a.mission, a.max_pairs, breakdown=a.breakdown)
     elif a.accuracy:
         accuracy()
     else:
