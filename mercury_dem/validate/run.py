@@ -87,6 +87,50 @@ def true_point_positions(network: Any, mission: Any, points: NDArray[np.int64]) 
     return out
 
 
+def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mission: Any,
+                       positions: NDArray[np.float64] | None = None) -> dict[str, NDArray[Any]]:
+    """Per image: pointing errors of the a-priori and the given (adjusted) attitudes against the truth.
+
+    Arrays, one entry per image: ``a_priori_urad``/``adjusted_urad`` (total angle),
+    ``adjusted_relative_urad`` (common rotation removed), the ``*_boresight_urad`` and
+    ``*_twist_urad`` components, ``a_priori_px``/``adjusted_px`` (:func:`image_space_error_px`,
+    the image's own pixels), ``ifov_urad`` and ``instrument``. ``positions`` are the
+    solution's positions (default: the a-priori ones). The report's ``validation`` block
+    and :func:`mercury_dem.viz.pointing_errors` are both built from this.
+    """
+    ids = [str(i) for i in image_ids]
+    rotations = np.asarray(rotations, np.float64).reshape(-1, 3, 3)
+    true_c = np.array([mission.true_pose(i)[0] for i in ids]).reshape(-1, 3)
+    true_r = np.array([mission.true_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
+    apri_c = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
+    apri_r = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
+    pos = apri_c if positions is None else np.asarray(positions, np.float64).reshape(-1, 3)
+    cams = [mission.camera(i) for i in ids]
+    adj_bore, adj_twist = pointing_error_components_urad(rotations, true_r)
+    apr_bore, apr_twist = pointing_error_components_urad(apri_r, true_r)
+    surface = mission.surface()
+    catalog = getattr(mission, "catalog", None)
+    if catalog is not None and {"image_id", "instrument"} <= set(catalog.columns):
+        instrument_of = catalog.set_index("image_id")["instrument"]
+        instruments = np.array([str(instrument_of.get(i, "")) for i in ids])
+    else:  # a mission without a catalog table: the camera names
+        instruments = np.array([str(getattr(c, "name", "")) for c in cams])
+    return {
+        "a_priori_urad": pointing_error_urad(apri_r, true_r),
+        "adjusted_urad": pointing_error_urad(rotations, true_r),
+        "adjusted_relative_urad": (common_rotation_removed_urad(rotations, true_r) if ids
+                                   else np.zeros(0)),
+        "a_priori_boresight_urad": apr_bore, "adjusted_boresight_urad": adj_bore,
+        "a_priori_twist_urad": apr_twist, "adjusted_twist_urad": adj_twist,
+        "a_priori_px": np.array([image_space_error_px(c, apri_c[k], apri_r[k], true_c[k], true_r[k],
+                                                      surface.height) for k, c in enumerate(cams)]),
+        "adjusted_px": np.array([image_space_error_px(c, pos[k], rotations[k], true_c[k], true_r[k],
+                                                      surface.height) for k, c in enumerate(cams)]),
+        "ifov_urad": np.array([c.ifov_rad for c in cams]) * 1e6,
+        "instrument": instruments,
+    }
+
+
 def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float64], mission: Any,
                  min_measures: NDArray[np.int64] | None = None,
                  positions: NDArray[np.float64] | None = None) -> dict[str, Any]:
@@ -100,23 +144,11 @@ def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float
     ``positions`` are the solution's positions (default: the a-priori ones).
     """
     ids = [str(i) for i in image_ids]
-    true_c = np.array([mission.true_pose(i)[0] for i in ids]).reshape(-1, 3)
-    true_r = np.array([mission.true_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
-    apri_c = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
-    apri_r = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
-    pos = apri_c if positions is None else np.asarray(positions, np.float64).reshape(-1, 3)
-    cams = [mission.camera(i) for i in ids]
-    ifov = np.array([c.ifov_rad for c in cams]) * 1e6
-    adj_err = pointing_error_urad(rotations, true_r)
-    apr_err = pointing_error_urad(apri_r, true_r)
-    rel_err = common_rotation_removed_urad(rotations, true_r)
-    adj_bore, adj_twist = pointing_error_components_urad(rotations, true_r)
-    apr_bore, apr_twist = pointing_error_components_urad(apri_r, true_r)
-    surface = mission.surface()
-    img_adj = np.array([image_space_error_px(c, pos[k], rotations[k], true_c[k], true_r[k], surface.height)
-                        for k, c in enumerate(cams)])
-    img_apr = np.array([image_space_error_px(c, apri_c[k], apri_r[k], true_c[k], true_r[k], surface.height)
-                        for k, c in enumerate(cams)])
+    e = per_image_pointing(ids, rotations, mission, positions)
+    adj_err, apr_err, rel_err = e["adjusted_urad"], e["a_priori_urad"], e["adjusted_relative_urad"]
+    adj_bore, adj_twist = e["adjusted_boresight_urad"], e["adjusted_twist_urad"]
+    apr_bore, apr_twist = e["a_priori_boresight_urad"], e["a_priori_twist_urad"]
+    img_adj, img_apr, ifov, instruments = e["adjusted_px"], e["a_priori_px"], e["ifov_urad"], e["instrument"]
     well = np.ones(len(ids), bool) if min_measures is None else (min_measures >= 30)
     pts = np.flatnonzero(np.all(np.isfinite(network.adjusted_xyz), axis=1) & ~network.point_rejected)
     truth = true_point_positions(network, mission, pts)
@@ -127,12 +159,6 @@ def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float
         x = x[np.isfinite(x)]
         return float(np.sqrt(np.mean(x**2))) if x.size else None
 
-    catalog = getattr(mission, "catalog", None)
-    if catalog is not None and {"image_id", "instrument"} <= set(catalog.columns):
-        instrument_of = catalog.set_index("image_id")["instrument"]
-        instruments = np.array([str(instrument_of.get(i, "")) for i in ids])
-    else:  # a mission without a catalog table: the camera names
-        instruments = np.array([str(getattr(c, "name", "")) for c in cams])
     by_instrument = {
         str(name): {"images": int((instruments == name).sum()),
                     "a_priori_rms": rms(img_apr[instruments == name]),

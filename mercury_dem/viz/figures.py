@@ -102,28 +102,33 @@ def sigma0_figure(history: pd.DataFrame) -> Figure:
     return fig
 
 
-def pointing_figure(errors: pd.DataFrame) -> Figure:
-    """Pointing error per image vs truth: a-priori against adjusted (µrad, log-log), and their histograms."""
+def pointing_figure(errors: pd.DataFrame, goal_px: float = 0.5) -> Figure:
+    """Pointing error per image vs truth, in each image's own pixels (its IFOV): a-priori against
+    adjusted (log-log, coloured by the image's measures) with the goal line, and their histograms.
+
+    Pixels, not angles: the twist about the boresight is part of the angle but moves the
+    pixels of a narrow image very little, so the angle overstates what matters for mapping
+    (``errors`` from :func:`mercury_dem.viz.pointing_errors`, which also has the angles).
+    """
     fig = Figure(figsize=(10, 4), layout="constrained")
     a, b = fig.subplots(1, 2)
-    x, y = errors["a_priori_urad"].to_numpy(float), errors["adjusted_urad"].to_numpy(float)
-    ifov = float(errors["ifov_urad"].mean()) if len(errors) else np.nan
+    x, y = errors["a_priori_px"].to_numpy(float), errors["adjusted_px"].to_numpy(float)
     sc = a.scatter(x, y, c=np.log10(np.maximum(errors["n_measures"].to_numpy(float), 1)), s=14, cmap="viridis")
     fig.colorbar(sc, ax=a, label="log10 measures")
     both = np.concatenate([x, y])
     both = both[np.isfinite(both) & (both > 0)]
-    lim = [max(float(both.min()) * 0.5, 1e-1), float(both.max()) * 2] if both.size else [1.0, 1e4]
+    lim = [max(float(both.min()) * 0.5, 1e-3), float(both.max()) * 2] if both.size else [1e-2, 1e2]
     a.plot(lim, lim, "k--", lw=0.8, label="no change")
-    if np.isfinite(ifov):
-        a.axhline(ifov, color="r", lw=0.8, label=f"1 IFOV ({ifov:.0f} µrad)")
-    a.set(xscale="log", yscale="log", xlim=lim, ylim=lim, xlabel="a-priori error (µrad)",
-          ylabel="adjusted error (µrad)", title="pointing error per image")
+    a.axhline(goal_px, color="r", lw=0.8, label=f"goal {goal_px:g} px")
+    a.set(xscale="log", yscale="log", xlim=lim, ylim=lim, xlabel="a-priori error (px of the image)",
+          ylabel="adjusted error (px of the image)", title="pointing error per image")
     a.legend(fontsize="small")
     edges = np.geomspace(lim[0], lim[1], 30)
     for v, name, c in ((x, "a-priori", "#999999"), (y, "adjusted", "#1f77b4")):
+        v = v[np.isfinite(v)]
         rms = float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
-        b.hist(v, bins=edges, alpha=0.7, color=c, label=f"{name} (RMS {rms:.0f} µrad)")
-    b.set(xscale="log", xlabel="pointing error (µrad)", ylabel="images", title="before / after")
+        b.hist(v, bins=edges, alpha=0.7, color=c, label=f"{name} (RMS {rms:.2f} px)")
+    b.set(xscale="log", xlabel="pointing error (px of the image)", ylabel="images", title="before / after")
     b.legend(fontsize="small")
     return fig
 

@@ -83,6 +83,12 @@ def test_pointing_errors_match_the_report_validation(tiny_run: Path, tiny_missio
     assert np.sqrt(np.mean(pe["a_priori_urad"] ** 2)) == pytest.approx(v["a_priori_rms"], rel=1e-9)
     assert np.sqrt(np.mean(pe["adjusted_urad"] ** 2)) == pytest.approx(v["adjusted_rms"], rel=1e-9)
     assert (pe["ifov_urad"] > 0).all()
+    px = json.loads((tiny_run / "report.json").read_text())["validation"]["image_space_error_px"]
+    assert np.sqrt(np.nanmean(pe["a_priori_px"] ** 2)) == pytest.approx(px["a_priori_rms"], rel=1e-9)
+    assert np.sqrt(np.nanmean(pe["adjusted_px"] ** 2)) == pytest.approx(px["adjusted_rms"], rel=1e-9)
+    for name, row in px["by_instrument"].items():
+        sel = pe[pe["instrument"] == name]
+        assert len(sel) == row["images"]
 
 
 def test_problem_images(tiny_run: Path) -> None:
