@@ -25,10 +25,12 @@ Search
 ------
 For a query direction at latitude phi and an angular radius a, every point within a
 lies in the bands covering [phi - a, phi + a] and, unless the cap reaches a pole,
-within longitude +-asin(sin a / cos phi) (the bounding box of a spherical cap). The
-k-NN search starts with a cap expected to hold ~2k points and doubles it until the
-k-th distance found lies inside the scanned cap (then the k found are exactly the k
-nearest) or the cap exceeds ``ang_max`` (the pixel is marked for the kd-tree).
+within longitude +-asin(sin a / cos phi) (the bounding box of a spherical cap). Every
+point within the cap is a candidate, so as soon as k candidates lie within it they are
+exactly the k nearest. The k-NN search tries a cap slightly above the previous pixel's
+k-th distance (``GROW``), then one that surely holds k points (triangle inequality),
+else (a block's first pixel) a cap expected to hold ~2k points, and doubles it until
+k lie within or the cap exceeds ``ang_max`` (the pixel is marked for the kd-tree).
 Distances are chords between footprints on the 2439.4 km datum sphere, metres.
 
 A pixel's result depends only on its own centre and the index (the scan order is
@@ -41,6 +43,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -52,6 +55,20 @@ BLOCK = 256
 
 #: Candidates buffered per pixel before ranking (beyond: ranked while scanning).
 BUFFER = 2048
+
+#: Mean points per cell where the cloud lies, and band height / cell width. A query scans
+#: whole bands (one contiguous run of points each) over the cells its cap's longitudes
+#: touch: narrow cells cost nothing but the ``cell_start`` entries and trim the overhang.
+POINTS_PER_CELL = 1.5
+CELL_ASPECT = 2.0
+
+#: First k-NN cap of a pixel: this factor x the previous pixel's k-th distance (the
+#: neighbouring pixel's k-th distance is rarely much shorter); the triangle-inequality
+#: bound is the second try, then doubling.
+GROW = 1.15
+
+#: Up to this many values, top-k selection and sorting count ranks instead of inserting.
+RANK_MAX = 64
 
 #: Status of a pixel in the kernels' output.
 OK, NEEDS_FALLBACK = 0, 1
@@ -130,6 +147,28 @@ def _latlon_body(fp, rs, lat, lon):  # pragma: no cover - compiled
         lon[p] = 0.0 if t >= 2.0 * math.pi else t
 
 
+def _prepare_body(p, rs, fp, r, lat, lon, bad):  # pragma: no cover - compiled
+    for i in prange(p.shape[0]):
+        x = p[i, 0]
+        y = p[i, 1]
+        z = p[i, 2]
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            bad[i] = 1
+            continue
+        rr = math.sqrt((x * x + z * z) + y * y)  # numpy's einsum('ij,ij->i') order: the same bits
+        r[i] = rr
+        if not rr > 0.0:
+            bad[i] = 2
+            continue
+        f = rs / rr
+        fp[i, 0] = x * f
+        fp[i, 1] = y * f
+        fp[i, 2] = z * f
+        lat[i] = math.asin(min(1.0, max(-1.0, fp[i, 2] / rs)))
+        t = math.atan2(fp[i, 1], fp[i, 0]) % (2.0 * math.pi)
+        lon[i] = 0.0 if t >= 2.0 * math.pi else t
+
+
 def _cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band_first, out):  # pragma: no cover
     nb = band_ncell.size
     for p in prange(lat.size):
@@ -150,7 +189,7 @@ def _gather_body(order, fp, radius, xyz_out, r_out):  # pragma: no cover - compi
         r_out[p] = radius[i]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _counting_order(cell, cell_start):  # pragma: no cover - compiled
     """Stable order of points by cell, given the cells' start offsets."""
     pos = cell_start[:-1].copy()
@@ -162,9 +201,10 @@ def _counting_order(cell, cell_start):  # pragma: no cover - compiled
     return order
 
 
-_latlon = numba.njit(parallel=True, cache=True)(_latlon_body)
-_cell_of = numba.njit(parallel=True, cache=True)(_cell_body)
-_gather = numba.njit(parallel=True, cache=True)(_gather_body)
+_latlon = numba.njit(parallel=True, cache=True, nogil=True)(_latlon_body)
+_prepare = numba.njit(parallel=True, cache=True, nogil=True)(_prepare_body)
+_cell_of = numba.njit(parallel=True, cache=True, nogil=True)(_cell_body)
+_gather = numba.njit(parallel=True, cache=True, nogil=True)(_gather_body)
 
 
 def _lon_extent(lon: NDArray[np.float64]) -> tuple[float, float]:
@@ -189,8 +229,27 @@ def _lon_extent(lon: NDArray[np.float64]) -> tuple[float, float]:
     return float(origin), float(min(2 * math.pi, u.max() * (1 + 1e-12) + 1e-12))
 
 
+def footprints(points: NDArray[np.float64], sphere_radius: float) -> dict[str, NDArray[Any]]:
+    """Radii, footprints on the sphere and their latitude/longitude, in one compiled pass.
+
+    Returns dict: ``radius`` (N,) = |p| (m), ``footprint`` (N, 3) = p / |p| x sphere_radius,
+    ``lat`` (N,) and ``lon`` (N,) of the footprints (radians, lon in [0, 2 pi)), ``bad``
+    (N,) uint8: 0 valid, 1 non-finite coordinate, 2 at the centre (the other outputs of a
+    bad point are undefined). The same arithmetic (and bits) as ``np.sqrt(np.einsum('ij,ij->i', p, p))`` and
+    ``p * (R / r)``, without the numpy version's temporaries and passes.
+    """
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    n = p.shape[0]
+    out = {"radius": np.empty(n), "footprint": np.empty((n, 3)), "lat": np.empty(n), "lon": np.empty(n),
+           "bad": np.zeros(n, dtype=np.uint8)}
+    _run(_prepare, -1, p, float(sphere_radius), out["footprint"], out["radius"], out["lat"], out["lon"], out["bad"])
+    return out
+
+
 def build_buckets(
-    footprint: NDArray[np.float64], radius: NDArray[np.float64], sphere_radius: float, points_per_cell: float = 3.0
+    footprint: NDArray[np.float64], radius: NDArray[np.float64], sphere_radius: float,
+    points_per_cell: float = POINTS_PER_CELL, aspect: float = CELL_ASPECT,
+    latlon: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> SphereBuckets:
     """Bucket a validated cloud.
 
@@ -200,22 +259,28 @@ def build_buckets(
     radius : (N,) float64, the points' radii (m)
     sphere_radius : float, m
     points_per_cell : target mean occupancy of a cell where the cloud lies
+    aspect : band height / cell width (a band's cells are ``aspect`` times narrower than it is high)
+    latlon : the footprints' (lat, lon) in radians if already known (:func:`footprints`)
     """
     n = footprint.shape[0]
     fp = np.ascontiguousarray(footprint, dtype=np.float64)
-    lat, lon = np.empty(n), np.empty(n)
-    _run(_latlon, -1, fp, float(sphere_radius), lat, lon)
+    if latlon is None:
+        lat, lon = np.empty(n), np.empty(n)
+        _run(_latlon, -1, fp, float(sphere_radius), lat, lon)
+    else:
+        lat, lon = latlon
     density = _occupied_density(lat, lon)
     lon0, lon_span = _lon_extent(lon)
-    s = math.sqrt(points_per_cell / density)
+    s = math.sqrt(points_per_cell / density)  # cell edge (radians) of a square cell
     lat_lo, lat_hi = float(lat.min()), float(lat.max())
     for _ in range(8):  # grow cells until their count is at most ~4 per point
-        nb = max(1, int(math.ceil((lat_hi - lat_lo) / s)))
-        band_h = (lat_hi - lat_lo) / nb if lat_hi > lat_lo else s
+        sh = s * math.sqrt(aspect)
+        nb = max(1, int(math.ceil((lat_hi - lat_lo) / sh)))
+        band_h = (lat_hi - lat_lo) / nb if lat_hi > lat_lo else sh
         lo_edge = lat_lo + band_h * np.arange(nb)
         hi_edge = lo_edge + band_h
         cosmax = np.where((lo_edge <= 0) & (hi_edge >= 0), 1.0, np.maximum(np.cos(lo_edge), np.cos(hi_edge)))
-        ncell = np.clip(np.floor(lon_span * cosmax / s), 1, None).astype(np.int64)
+        ncell = np.clip(np.floor(lon_span * cosmax / (s / math.sqrt(aspect))), 1, None).astype(np.int64)
         if ncell.sum() <= 4 * n + 1024:
             break
         s *= math.sqrt(ncell.sum() / (4 * n + 1024))
@@ -322,6 +387,32 @@ def _insert(dk2, ik, m, k, d2, i):  # pragma: no cover
     return m
 
 
+@numba.njit(cache=True, inline="always")
+def _topk(bd2, bi, m, k, dk2, ik):  # pragma: no cover
+    """The min(k, m) smallest (bd2[j], bi[j]) of j < m, ascending, into (dk2, ik); returns how many.
+
+    Same result as inserting them one by one with :func:`_insert`. Up to ``RANK_MAX``
+    candidates, each one's rank is counted (an O(m^2) loop without data-dependent
+    branches, several times faster than insertion's unpredictable shifts at m ~ 10-30).
+    """
+    if m > RANK_MAX:
+        mk = 0
+        for j in range(m):
+            mk = _insert(dk2, ik, mk, k, bd2[j], bi[j])
+        return mk
+    for a in range(m):
+        da = bd2[a]
+        ia = bi[a]
+        r = 0
+        for b in range(m):
+            db = bd2[b]
+            r += (db < da) | ((db == da) & (bi[b] < ia))
+        if r < k:
+            dk2[r] = da
+            ik[r] = ia
+    return min(m, k)
+
+
 @numba.njit(cache=True)
 def _scan(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pragma: no cover
     """Keep the k smallest squared distances <= d2max (sorted, with indices); count those <= r2count.
@@ -368,28 +459,41 @@ def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no
     return m, cnt
 
 
-@numba.njit(cache=True, inline="always")
-def _centre(lat_deg, lon_deg, rs):  # pragma: no cover
-    """(phi, lam) in radians (lam in [0, 2 pi)) and the point on the sphere of radius rs (m)."""
-    phi = math.radians(lat_deg)
-    lam = math.radians(lon_deg) % (2.0 * math.pi)
-    if lam >= 2.0 * math.pi:
-        lam = 0.0
-    c = rs * math.cos(phi)
-    return phi, lam, c * math.cos(lam), c * math.sin(lam), rs * math.sin(phi)
+@numba.njit(cache=True, nogil=True)
+def _centres(lat_deg, lon_deg, rs, phi, c, z, lam, cl, sl):  # pragma: no cover
+    """Pixel centres on the sphere of radius rs (m) from latitudes and longitudes (degrees).
 
-
-@numba.njit(cache=True, inline="always")
-def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k, a0,
-         ang_max, rs,
-         r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
-    """Exact k nearest (ascending in dk2/ik) by doubling caps from a0.
-
-    ``t2`` is a guess of the k-th squared distance (e.g. 1.5 x the previous pixel's):
-    when at least k candidates lie within it, only those are ranked (the ranking,
-    not the result, is what the guess saves). Returns (done, count within r2count).
+    Per latitude: phi (radians), c = rs cos(phi), z = rs sin(phi); per longitude: lam in
+    [0, 2 pi) and its cosine and sine. A centre is (c cos(lam), c sin(lam), z): the same
+    operations whether the centres come as a grid (rows x columns) or as a list.
     """
-    a = a0
+    for i in range(lat_deg.size):
+        f = math.radians(lat_deg[i])
+        phi[i] = f
+        c[i] = rs * math.cos(f)
+        z[i] = rs * math.sin(f)
+    for j in range(lon_deg.size):
+        t = math.radians(lon_deg[j]) % (2.0 * math.pi)
+        if t >= 2.0 * math.pi:
+            t = 0.0
+        lam[j] = t
+        cl[j] = math.cos(t)
+        sl[j] = math.sin(t)
+
+
+@numba.njit(cache=True, inline="always")
+def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k, a_first,
+         a_second, ang_max, rs,
+         r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
+    """Exact k nearest (ascending in dk2/ik): caps a_first, then a_second, then doubling.
+
+    A cap of angle a is scanned whole (every point within a is a candidate), so as soon
+    as k candidates lie within it they are the k nearest: any cap sequence gives the
+    same result, only the cost differs. ``t2`` is a guess of the k-th squared distance
+    (e.g. 1.5 x the previous pixel's): when at least k candidates lie within it, only
+    those are ranked. Returns (done, count within r2count).
+    """
+    a = a_first
     while True:
         nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
         if a >= math.pi:
@@ -403,30 +507,128 @@ def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, 
         else:
             mk = 0
             if t2 < cap2:
-                for j in range(m):
+                ms = 0
+                for j in range(m):  # move the candidates within t2 to the front
                     if bd2[j] <= t2:
-                        mk = _insert(dk2, ik, mk, k, bd2[j], bi[j])
+                        d, i = bd2[j], bi[j]
+                        bd2[j], bi[j] = bd2[ms], bi[ms]
+                        bd2[ms], bi[ms] = d, i
+                        ms += 1
+                if ms >= k:
+                    mk = _topk(bd2, bi, ms, k, dk2, ik)
             if mk < k:
-                mk = 0
-                for j in range(m):
-                    mk = _insert(dk2, ik, mk, k, bd2[j], bi[j])
+                mk = _topk(bd2, bi, m, k, dk2, ik)
         if mk >= k:
             return True, cnt
         if a >= ang_max:
             return False, cnt
-        a = min(2.0 * a, ang_max)
+        if a < a_second:
+            a = a_second
+        else:
+            a = min(2.0 * a, ang_max)
+
+
+@numba.njit(cache=True, inline="always")
+def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
+    """The k smallest (bd2[j], bi[j]) of j < m (k <= m) into (dk2[:k], ik[:k]) in any order.
+
+    Returns (smallest, k-th smallest) squared distance. The set is the one :func:`_topk`
+    gives (ties by point index). When only a few are in excess, the largest are dropped
+    one at a time (m - k passes over m values, without insertion's unpredictable
+    shifts); otherwise ranked with :func:`_topk`.
+    """
+    if m - k > 8:
+        _topk(bd2, bi, m, k, dk2, ik)
+        return dk2[0], dk2[k - 1]
+    for j in range(m):
+        dk2[j] = bd2[j]
+        ik[j] = bi[j]
+    while m > k:
+        jmax = 0
+        dmax = dk2[0]
+        imax = ik[0]
+        for j in range(1, m):
+            d = dk2[j]
+            i = ik[j]
+            if d > dmax or (d == dmax and i > imax):
+                jmax = j
+                dmax = d
+                imax = i
+        m -= 1
+        dk2[jmax] = dk2[m]
+        ik[jmax] = ik[m]
+    lo = dk2[0]
+    hi = dk2[0]
+    for j in range(1, k):
+        lo = min(lo, dk2[j])
+        hi = max(hi, dk2[j])
+    return lo, hi
+
+
+@numba.njit(cache=True, inline="always")
+def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k,
+             a_first, a_second, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
+    """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
+
+    ``dk2``/``ik`` need room for ``BUFFER`` values. Returns (done, count within r2count,
+    smallest squared distance, k-th smallest squared distance).
+    """
+    a = a_first
+    while True:
+        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
+        if a >= math.pi:
+            cap2 = np.inf
+        else:
+            ch = 2.0 * rs * math.sin(0.5 * a)
+            cap2 = ch * ch
+        m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
+        if m > bd2.size:
+            mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
+            if mk >= k:
+                return True, cnt, dk2[0], dk2[k - 1]
+        elif m >= k:
+            ms = m
+            if t2 < cap2:
+                ms = 0
+                for j in range(m):  # move the candidates within t2 to the front
+                    if bd2[j] <= t2:
+                        d, i = bd2[j], bi[j]
+                        bd2[j], bi[j] = bd2[ms], bi[ms]
+                        bd2[ms], bi[ms] = d, i
+                        ms += 1
+                if ms < k:
+                    ms = m
+            lo, hi = _smallest_set(bd2, bi, ms, k, dk2, ik)
+            return True, cnt, lo, hi
+        if a >= ang_max:
+            return False, cnt, 0.0, 0.0
+        if a < a_second:
+            a = a_second
+        else:
+            a = min(2.0 * a, ang_max)
 
 
 @numba.njit(cache=True)
-def _median_filtered(r, n, sigma):  # pragma: no cover
-    """1-sigma filtered median of r[:n] (sorted in place) and the spread of the kept run."""
-    for i in range(1, n):  # insertion sort
-        v = r[i]
-        j = i - 1
-        while j >= 0 and r[j] > v:
-            r[j + 1] = r[j]
-            j -= 1
-        r[j + 1] = v
+def _median_filtered(r, s, n, sigma):  # pragma: no cover
+    """1-sigma filtered median of r[:n] (sorted in place; s: scratch of n) and the spread of the kept run."""
+    if n <= RANK_MAX:  # sort by counting ranks (no data-dependent branches; ties by position)
+        for a in range(n):
+            v = r[a]
+            q = 0
+            for b in range(n):
+                w = r[b]
+                q += (w < v) | ((w == v) & (b < a))
+            s[q] = v
+        for a in range(n):
+            r[a] = s[a]
+    else:
+        for i in range(1, n):  # insertion sort
+            v = r[i]
+            j = i - 1
+            while j >= 0 and r[j] > v:
+                r[j + 1] = r[j]
+                j -= 1
+            r[j + 1] = v
     if n % 2:
         med = r[n // 2]
     else:
@@ -465,52 +667,74 @@ def _median_filtered(r, n, sigma):  # pragma: no cover
     return value, math.sqrt(max(t2 / nk - t1 * t1, 0.0))
 
 
-def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, lat, lon, k,
-                   sigma, search_r,
-                   a_min, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
-    P = lat.size
+@numba.njit(cache=True, inline="always")
+def _angle(chord, rs):  # pragma: no cover
+    """Angle (radians) of a chord on the sphere of radius rs; pi when longer than the diameter."""
+    if chord >= 2.0 * rs:
+        return math.pi
+    return 2.0 * math.asin(chord / (2.0 * rs))
+
+
+def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start,
+                   phi_r, c_r, z_r, lam_c, cl_c, sl_c, paired, k, sigma, search_r,
+                   a_min, a0, ang_max, rs, grow, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
+    ncol = lam_c.size
+    P = phi_r.size if paired else phi_r.size * ncol
     nblk = (P + BLOCK - 1) // BLOCK
     r2count = search_r * search_r
     for blk in prange(nblk):
         ranges = np.empty((2 * band_ncell.size + 2, 2), dtype=np.int64)
-        dk2 = np.empty(k)
-        ik = np.empty(k, dtype=np.int64)
+        dk2 = np.empty(max(k, BUFFER))
+        ik = np.empty(max(k, BUFFER), dtype=np.int64)
         rr = np.empty(k)
+        rs_scratch = np.empty(k)
         bd2 = np.empty(BUFFER)
         bi = np.empty(BUFFER, dtype=np.int64)
         t2 = np.inf
         dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
         px = py = pz = 0.0
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, lam, qx, qy, qz = _centre(lat[p], lon[p], rs)
-            a = a0
+            if paired:
+                i = p
+                j = p
+            else:
+                i = p // ncol
+                j = p - i * ncol
+            phi = phi_r[i]
+            lam = lam_c[j]
+            qx = c_r[i] * cl_c[j]
+            qy = c_r[i] * sl_c[j]
+            qz = z_r[i]
+            a_first = a0
+            a_second = a0
             if dprev >= 0.0:
                 # The previous pixel's k nearest lie within dprev + |q - q_prev| of this one
-                # (triangle inequality): a cap that surely holds k points, no doubling.
+                # (triangle inequality): a cap that surely holds k points (second try). The
+                # first try is a little above the previous k-th distance: it usually holds k.
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
-                if bound < 2.0 * rs:
-                    ab = max(2.0 * math.asin(bound / (2.0 * rs)), a_min)
-                    if ab < a:
-                        a = ab
-            done, cnt = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam,
-                             qx, qy, qz, k, a,
-                             ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
+                ab = max(_angle(bound, rs), a_min)
+                if ab < a_second:
+                    a_second = ab
+                a_first = min(max(_angle(grow * dprev, rs), a_min), a_second)
+            done, cnt, d2near, d2k = _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first,
+                                              cell_start, phi, lam, qx, qy, qz, k, a_first, a_second,
+                                              ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
             if not done:
                 status[p] = NEEDS_FALLBACK
                 t2 = np.inf
                 dprev = -1.0
                 continue
-            t2 = 1.5 * dk2[k - 1]
-            dprev = math.sqrt(dk2[k - 1])
+            t2 = 1.5 * d2k
+            dprev = math.sqrt(d2k)
             px, py, pz = qx, qy, qz
             status[p] = OK
             for i in range(k):
                 rr[i] = radius[ik[i]]
-            v, sp = _median_filtered(rr, k, sigma)
+            v, sp = _median_filtered(rr, rs_scratch, k, sigma)
             out_r[p] = v
             out_spread[p] = sp
             out_count[p] = cnt
-            out_near[p] = math.sqrt(dk2[0])
+            out_near[p] = math.sqrt(d2near)
 
 
 @numba.njit(cache=True)
@@ -540,10 +764,11 @@ def _weighted(radius, ik, d, w, n):  # pragma: no cover
     return ref + m, (math.sqrt(sv / sw) if used >= 2 else np.nan)
 
 
-def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, lat, lon, kmax,
-                  kfb, search_r,
+def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start,
+                  phi_r, c_r, z_r, lam_c, cl_c, sl_c, paired, kmax, kfb, search_r,
                   a_r, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
-    P = lat.size
+    ncol = lam_c.size
+    P = phi_r.size if paired else phi_r.size * ncol
     nblk = (P + BLOCK - 1) // BLOCK
     r2 = search_r * search_r
     kb = max(kmax, kfb)
@@ -556,7 +781,17 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
         bd2 = np.empty(BUFFER)
         bi = np.empty(BUFFER, dtype=np.int64)
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, lam, qx, qy, qz = _centre(lat[p], lon[p], rs)
+            if paired:
+                i = p
+                j = p
+            else:
+                i = p // ncol
+                j = p - i * ncol
+            phi = phi_r[i]
+            lam = lam_c[j]
+            qx = c_r[i] * cl_c[j]
+            qy = c_r[i] * sl_c[j]
+            qz = z_r[i]
             nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a_r, ranges)
             m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
             if m > 0:
@@ -565,7 +800,7 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
                     w[i] = ((search_r - d[i]) / (search_r * d[i])) ** 2 if d[i] > 0 else 0.0
             else:
                 done, _ = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam,
-                               qx, qy, qz, kfb, a0,
+                               qx, qy, qz, kfb, a0, a0,
                                ang_max, rs, r2, ranges, dk2, ik, bd2, bi, np.inf)
                 if not done:
                     status[p] = NEEDS_FALLBACK
@@ -582,8 +817,8 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
             out_near[p] = d[0]
 
 
-_median11_kernel = numba.njit(parallel=True, cache=True)(_median11_body)
-_shepard_kernel = numba.njit(parallel=True, cache=True)(_shepard_body)
+_median11_kernel = numba.njit(parallel=True, cache=True, nogil=True)(_median11_body)
+_shepard_kernel = numba.njit(parallel=True, cache=True, nogil=True)(_shepard_body)
 
 
 def _run(kernel, threads: int, *args) -> None:
@@ -603,44 +838,58 @@ def _outputs(P: int) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np
     return np.empty(P), np.zeros(P, dtype=np.int32), np.empty(P), np.empty(P), np.zeros(P, dtype=np.uint8)
 
 
+def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], rs: float, grid: bool
+                   ) -> tuple[int, tuple[NDArray[np.float64], ...]]:
+    """(number of pixels, the kernels' centre arrays) for a list of centres or a grid of them."""
+    lat = np.ascontiguousarray(np.ravel(lat_deg), dtype=np.float64)
+    lon = np.ascontiguousarray(np.ravel(lon_deg), dtype=np.float64)
+    if not grid and lat.size != lon.size:
+        raise ValueError(f"{lat.size} latitudes but {lon.size} longitudes")
+    rows = tuple(np.empty(lat.size) for _ in range(3))
+    cols = tuple(np.empty(lon.size) for _ in range(3))
+    _centres(lat, lon, float(rs), *rows, *cols)
+    return (lat.size * lon.size if grid else lat.size), (*rows, *cols, not grid)
+
+
 def median11_search(
     b: SphereBuckets, lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], k: int, sigma: float,
-    search_r: float, ang_max: float, threads: int = -1,
+    search_r: float, ang_max: float, threads: int = -1, *, grid: bool = False,
 ) -> dict[str, NDArray[np.generic]]:
-    """median11 at pixel centres (P,) (degrees): k nearest, 1-sigma filter about the median radius.
+    """median11 at pixel centres (degrees): k nearest, 1-sigma filter about the median radius.
 
-    Returns dict of (P,) arrays: ``radius`` (m), ``count`` (points within ``search_r``),
-    ``nearest`` (chord to the nearest point, m), ``spread`` (m; NaN under two kept points),
-    ``status`` (``OK`` or ``NEEDS_FALLBACK`` where the k nearest are beyond ``ang_max`` radians:
-    the other outputs are then undefined).
+    The centres are ``(lat_deg[p], lon_deg[p])`` (P,) or, with ``grid=True``, every
+    ``(lat_deg[i], lon_deg[j])`` row by row (P = rows x columns; the trigonometry of the
+    centres is then done once per row and per column). Returns dict of (P,) arrays:
+    ``radius`` (m), ``count`` (points within ``search_r``), ``nearest`` (chord to the
+    nearest point, m), ``spread`` (m; NaN under two kept points), ``status`` (``OK`` or
+    ``NEEDS_FALLBACK`` where the k nearest are beyond ``ang_max`` radians: the other
+    outputs are then undefined).
     """
-    lat = np.ascontiguousarray(lat_deg, dtype=np.float64)
-    lon = np.ascontiguousarray(lon_deg, dtype=np.float64)
-    out = _outputs(lat.size)
+    P, centres = _pixel_centres(lat_deg, lon_deg, b.sphere_radius, grid)
+    out = _outputs(P)
     a_r = 2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius)))
     a_min = min(a_r * (1 + 1e-6), math.pi)
     a0 = min(max(b.start_angle(k), a_min), math.pi)
     _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, b.band_h, b.lon0, b.lon_span, b.band_ncell, b.band_first,
-         b.cell_start, lat, lon, int(k), float(sigma), float(search_r), a_min, a0, max(a0, min(ang_max, math.pi)),
-         b.sphere_radius, *out)
+         b.cell_start, *centres, int(k), float(sigma), float(search_r), a_min, a0, max(a0, min(ang_max, math.pi)),
+         b.sphere_radius, GROW, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
 
 
 def shepard_search(
     b: SphereBuckets, lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], kmax: int, kfb: int,
-    search_r: float, ang_max: float, threads: int = -1,
+    search_r: float, ang_max: float, threads: int = -1, *, grid: bool = False,
 ) -> dict[str, NDArray[np.generic]]:
-    """Modified Shepard at pixel centres (P,) (degrees); outputs as :func:`median11_search`.
+    """Modified Shepard at pixel centres (degrees); centres and outputs as :func:`median11_search`.
 
     Weights ``((R - d) / (R d))**2`` over the (at most ``kmax`` nearest) points within
     ``R = search_r``; where none, the ``kfb`` nearest with weights ``1 / d**2``.
     """
-    lat = np.ascontiguousarray(lat_deg, dtype=np.float64)
-    lon = np.ascontiguousarray(lon_deg, dtype=np.float64)
-    out = _outputs(lat.size)
+    P, centres = _pixel_centres(lat_deg, lon_deg, b.sphere_radius, grid)
+    out = _outputs(P)
     a_r = min(2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius))), math.pi)
     a0 = min(max(b.start_angle(kfb), a_r), math.pi)
     _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, b.band_h, b.lon0, b.lon_span, b.band_ncell, b.band_first,
-         b.cell_start, lat, lon, int(kmax), int(kfb), float(search_r), a_r, a0, max(a0, min(ang_max, math.pi)),
+         b.cell_start, *centres, int(kmax), int(kfb), float(search_r), a_r, a0, max(a0, min(ang_max, math.pi)),
          b.sphere_radius, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))

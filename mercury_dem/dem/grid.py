@@ -50,7 +50,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from mercury_dem.dem.buckets import NEEDS_FALLBACK, SphereBuckets, build_buckets, median11_search, shepard_search
+from mercury_dem.dem.buckets import (
+    NEEDS_FALLBACK,
+    SphereBuckets,
+    build_buckets,
+    footprints,
+    median11_search,
+    shepard_search,
+)
 from mercury_dem.dem.filters import smooth_height
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
@@ -167,6 +174,12 @@ class PointIndex:
         # Ship the buckets only: a worker rebuilds the tree if it ever needs it.
         return {"buckets": self.buckets}
 
+    def __sizeof__(self) -> int:
+        """Bytes held by the index's arrays (``sys.getsizeof``, hence ``dask.sizeof``, count them)."""
+        b = self.buckets
+        arrays = (b.xyz, b.radius, b.order, b.band_ncell, b.band_first, b.cell_start)
+        return object.__sizeof__(self) + sum(int(a.nbytes) for a in arrays)
+
 
 def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
     """Validate a point cloud and index it.
@@ -185,16 +198,17 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
         raise GridError(f"the point cloud must have shape (N, 3) body-fixed metres, got {p.shape}")
     if p.shape[0] == 0:
         raise GridError("the point cloud is empty: nothing to grid (did the adjustment keep any points?)")
-    bad = ~np.isfinite(p).all(axis=1)
+    f = footprints(p, DATUM_RADIUS_M)
+    bad = f["bad"]
     if bad.any():
-        raise GridError(
-            f"the point cloud holds {int(bad.sum())} non-finite points (first at row {int(np.argmax(bad))})"
-        )
-    r = np.sqrt(np.einsum("ij,ij->i", p, p))
-    if (r <= 0).any():
-        raise GridError(f"the point cloud holds {int((r <= 0).sum())} points at the body centre")
-    footprint = p * (DATUM_RADIUS_M / r)[:, None]
-    return PointIndex(buckets=build_buckets(footprint, r, DATUM_RADIUS_M))
+        nonfinite = bad == 1
+        if nonfinite.any():
+            raise GridError(
+                f"the point cloud holds {int(nonfinite.sum())} non-finite points "
+                f"(first at row {int(np.argmax(nonfinite))})"
+            )
+        raise GridError(f"the point cloud holds {int((bad == 2).sum())} points at the body centre")
+    return PointIndex(buckets=build_buckets(f["footprint"], f["radius"], DATUM_RADIUS_M, latlon=(f["lat"], f["lon"])))
 
 
 def _threads(cfg: Any) -> int:
@@ -363,23 +377,37 @@ def grid_pixels(
     """
     lat = np.asarray(lat_deg, dtype=np.float64).ravel()
     lon = np.asarray(lon_deg, dtype=np.float64).ravel()
-    search_r = _search_radius(cfg)
     if use_kdtree:
-        res = _kdtree_pixels(index, lat, lon, cfg, search_r)
+        res = _kdtree_pixels(index, lat, lon, cfg, _search_radius(cfg))
+        return _layers(res, cfg)
+    return _bucket_pixels(index, lat, lon, cfg, grid=False)
+
+
+def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: Any, *,
+                   grid: bool) -> dict[str, NDArray[Any]]:
+    """:func:`grid_pixels` by the bucket search; ``grid=True``: every (lat[i], lon[j]), row-major."""
+    search_r = _search_radius(cfg)
+    if cfg.method == "median11":
+        k = min(int(cfg.neighbours), index.n_points)
+        res = median11_search(index.buckets, lat, lon, k, cfg.sigma_filter, search_r,
+                              _give_up_angle(index, cfg, k), _threads(cfg), grid=grid)
     else:
-        if cfg.method == "median11":
-            k = min(int(cfg.neighbours), index.n_points)
-            res = median11_search(index.buckets, lat, lon, k, cfg.sigma_filter, search_r,
-                                  _give_up_angle(index, cfg, k), _threads(cfg))
+        kf = min(int(cfg.shepard_fallback_neighbours), index.n_points)
+        res = shepard_search(index.buckets, lat, lon, min(int(cfg.shepard_max_points), index.n_points), kf,
+                             search_r, _give_up_angle(index, cfg, kf), _threads(cfg), grid=grid)
+    far = np.flatnonzero(res.pop("status") == NEEDS_FALLBACK)
+    if far.size:
+        if grid:
+            flat = far // lon.size, far % lon.size
+            fb = _kdtree_pixels(index, lat[flat[0]], lon[flat[1]], cfg, search_r)
         else:
-            kf = min(int(cfg.shepard_fallback_neighbours), index.n_points)
-            res = shepard_search(index.buckets, lat, lon, min(int(cfg.shepard_max_points), index.n_points), kf,
-                                 search_r, _give_up_angle(index, cfg, kf), _threads(cfg))
-        far = np.flatnonzero(res.pop("status") == NEEDS_FALLBACK)
-        if far.size:
             fb = _kdtree_pixels(index, lat[far], lon[far], cfg, search_r)
-            for key, v in fb.items():
-                res[key][far] = v
+        for key, v in fb.items():
+            res[key][far] = v
+    return _layers(res, cfg)
+
+
+def _layers(res: dict[str, NDArray[Any]], cfg: Any) -> dict[str, NDArray[Any]]:
     gap = res["nearest"] > cfg.max_distance_m
     return {
         "height": np.where(gap, np.nan, res["radius"] - DATUM_RADIUS_M),
@@ -420,10 +448,10 @@ def grid_chunk(
     else:
         col_ok = (cols >= 0) & (cols < nc)
     rr, cc = rows[row_ok], cols[col_ok]
-    lat2, lon2 = np.meshgrid(grid.lat_centres(rr), grid.lon_centres(cc), indexing="ij")
-    res = grid_pixels(index, lat2, lon2, cfg)
+    shape = (rr.size, cc.size)
+    res = _bucket_pixels(index, grid.lat_centres(rr), grid.lon_centres(cc), cfg, grid=True)
     height = np.full((rows.size, cols.size), np.nan)
-    height[np.ix_(row_ok, col_ok)] = res["height"].reshape(lat2.shape)
+    height[np.ix_(row_ok, col_ok)] = res["height"].reshape(shape)
     if cfg.smoothing_passes > 0 and cfg.smoothing_size > 1:
         height = smooth_height(height, cfg.smoothing_size, cfg.smoothing_passes)
     core = (slice(h, h + r1 - r0), slice(h, h + c1 - c0))
@@ -436,7 +464,7 @@ def grid_chunk(
     csel = np.searchsorted(ci, np.arange(h, h + c1 - c0))
 
     def core_of(a: NDArray[Any]) -> NDArray[Any]:
-        return a.reshape(lat2.shape)[np.ix_(rsel, csel)]
+        return a.reshape(shape)[np.ix_(rsel, csel)]
 
     return {
         "elevation": height.astype(np.float32),
