@@ -137,3 +137,42 @@ def test_store_is_atomic_with_zarr_completion_mark(serial_store):
         ds = xr.open_zarr(path, consolidated=False)
     assert ds.attrs["complete"] is True
     assert (path.parent / "coverage.zarr").exists() and not (path.parent / "coverage.zarr" / ".complete").exists()
+
+
+@pytest.mark.parametrize("chunk_size", [48, 512])
+def test_direct_store_layout_equals_xarray_template(tmp_path, chunk_size):
+    """create_store (zarr API) writes the same metadata and coordinates as the xarray template."""
+    import xarray as xr
+
+    from mercury_dem.dem.grid import GridSpec
+    from mercury_dem.pipeline.dem_stage import create_store, dem_template
+
+    cfg = DemConfig(pixels_per_degree=1, lat_min=-60, lat_max=60, chunk_size=chunk_size)
+    grid = GridSpec.from_config(cfg)
+    a, b = tmp_path / "a.zarr", tmp_path / "b.zarr"
+    dem_template(grid, cfg, {"source": "test"}).to_zarr(str(a), mode="w", compute=False, consolidated=False,
+                                                         zarr_format=3)
+    create_store(str(b), grid, cfg, {"source": "test"})
+    files_a = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    files_b = sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    assert files_a == files_b
+    for f in files_a:
+        if f.name == "zarr.json":
+            assert json.loads((a / f).read_text()) == json.loads((b / f).read_text()), str(f)
+    da, db = (xr.open_zarr(str(p), consolidated=False, decode_coords="all") for p in (a, b))
+    xr.testing.assert_identical(da, db)
+
+
+def test_point_index_reports_its_size_to_dask(global_cloud):
+    """Dask's memory accounting of the scattered index counts its arrays (not ~50 bytes of object)."""
+    import warnings
+
+    from dask.sizeof import sizeof
+
+    index = build_point_index(global_cloud)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        n = sizeof(index)
+    b = index.buckets
+    assert n >= b.xyz.nbytes + b.radius.nbytes + b.order.nbytes + b.cell_start.nbytes
+    assert n < 2 * (b.xyz.nbytes + b.radius.nbytes + b.order.nbytes + b.cell_start.nbytes) + 10_000
