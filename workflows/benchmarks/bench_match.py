@@ -259,7 +259,8 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
     Measures of 'similar' pairs up to 4x, broken down by: the pair's scale (match pixels per
     reference pixel: > 1 = the match image is finer, errors in its pixels), the cameras, the
     route and whether the measure was propagated, the refined NCC, the distance to the image
-    edge, each image's emission angle and their difference at the measure (true poses), and the
+    edge, each image's emission angle, their difference and the angle between the two views'
+    rays at the measure (true poses), and the
     terrain slope there (true surface, 0.01 deg baseline). Also the true error recomputed on the
     surface at the coarser image's resolution (what the renderer draws): the metric's share.
     """
@@ -302,6 +303,19 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
         return np.degrees(np.arctan(np.hypot((surface.height(lat + dd, lon) - h0) / dy,
                                              (surface.height(lat, lon + dd) - h0) / dx)))
 
+    def convergence(points: np.ndarray, which: np.ndarray, other: np.ndarray) -> np.ndarray:
+        """Angle (deg) between the two views' rays at the ground point of each measure."""
+        out = np.full(which.size, np.nan)
+        for k in np.unique(which):
+            s = np.flatnonzero(which == k)
+            tp = truth[ids[k]]
+            g, hit = image_to_ground(tp.camera, tp.position, tp.rotation, points[s], height=surface.height)
+            va = tp.position - g
+            vb = np.array([truth[ids[j]].position for j in other[s]]) - g
+            cos = np.sum(va * vb, 1) / (np.linalg.norm(va, axis=1) * np.linalg.norm(vb, axis=1))
+            out[s] = np.where(hit, np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), np.nan)
+        return out
+
     def edge(points: np.ndarray, which: np.ndarray) -> np.ndarray:
         w = np.array([cams[ids[k]].samples for k in which])
         h = np.array([cams[ids[k]].lines for k in which])
@@ -338,6 +352,7 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
         "emission ref deg": (ea, [0, 10, 20, 30, 45, 90], None),
         "emission match deg": (eb, [0, 10, 20, 30, 45, 90], None),
         "emission difference deg": (np.abs(ea - eb), [0, 5, 10, 20, 30, 90], None),
+        "convergence of the two views deg": (convergence(pa, ia, ib), [0, 10, 20, 30, 45, 90], None),
         "slope deg": (per_image(pa, ia, slope), [0, 5, 10, 20, 30, 90], None),
     }
     n_tail = max(int(np.sum(e > 0.5)), 1)
