@@ -310,7 +310,7 @@ def _ray_term(
 
 
 @numba.njit(cache=True, nogil=True)
-def crater_heights(
+def _sum_crater_terms(
     units: NDArray[np.float64],
     table: NDArray[np.float64],
     cell_deg: float,
@@ -320,8 +320,10 @@ def crater_heights(
     members: NDArray[np.int64],
     cand: NDArray[np.float64],
     body_radius_m: float,
+    albedo: bool,
 ) -> NDArray[np.float64]:
-    """Summed crater relief (m) at unit vectors (N, 3).
+    """Sum over the craters reaching each unit vector of their relief (``albedo=False``, m)
+    or of their halo/ray albedo boost (``albedo=True``).
 
     Points are visited in order of their index cell so the candidate lists
     stay in cache (a large gain for scattered points).
@@ -336,7 +338,7 @@ def crater_heights(
         i = order[ii]
         px, py, pz = units[i, 0], units[i, 1], units[i, 2]
         c = cells[i]
-        h = 0.0
+        total = 0.0
         for m in range(starts[c], starts[c + 1]):
             dx = px - cand[m, 0]
             dy = py - cand[m, 1]
@@ -344,9 +346,28 @@ def crater_heights(
             chord2 = dx * dx + dy * dy + dz * dz
             if chord2 >= cand[m, 3]:
                 continue
-            h += _height_term(table, members[m], chord2, body_radius_m)
-        out[i] = h
+            if albedo:
+                total += _ray_term(table, members[m], px, py, pz, chord2, body_radius_m)
+            else:
+                total += _height_term(table, members[m], chord2, body_radius_m)
+        out[i] = total
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def crater_heights(
+    units: NDArray[np.float64],
+    table: NDArray[np.float64],
+    cell_deg: float,
+    n_lat: int,
+    n_lon: int,
+    starts: NDArray[np.int64],
+    members: NDArray[np.int64],
+    cand: NDArray[np.float64],
+    body_radius_m: float,
+) -> NDArray[np.float64]:
+    """Summed crater relief (m) at unit vectors (N, 3)."""
+    return _sum_crater_terms(units, table, cell_deg, n_lat, n_lon, starts, members, cand, body_radius_m, False)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -362,27 +383,7 @@ def ray_albedo(
     body_radius_m: float,
 ) -> NDArray[np.float64]:
     """Relative albedo boost (>= 0) of fresh-crater haloes and rays at unit vectors (N, 3)."""
-    n = units.shape[0]
-    out = np.zeros(n)
-    cells = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        cells[i] = _cell_of(units[i, 0], units[i, 1], units[i, 2], cell_deg, n_lat, n_lon)
-    order = _order_by_cell(cells, n_lat * n_lon)
-    for ii in range(n):
-        i = order[ii]
-        px, py, pz = units[i, 0], units[i, 1], units[i, 2]
-        c = cells[i]
-        boost = 0.0
-        for m in range(starts[c], starts[c + 1]):
-            dx = px - cand[m, 0]
-            dy = py - cand[m, 1]
-            dz = pz - cand[m, 2]
-            chord2 = dx * dx + dy * dy + dz * dz
-            if chord2 >= cand[m, 3]:
-                continue
-            boost += _ray_term(table, members[m], px, py, pz, chord2, body_radius_m)
-        out[i] = boost
-    return out
+    return _sum_crater_terms(units, table, cell_deg, n_lat, n_lon, starts, members, cand, body_radius_m, True)
 
 
 # --------------------------------------------------------------------------- local grids

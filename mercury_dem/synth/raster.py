@@ -58,6 +58,24 @@ def grid_directions(
     return out
 
 
+@numba.njit(cache=True, nogil=True, fastmath=True, inline="always")
+def grid_normal(points: NDArray[np.float64], j0: int, j: int, j1: int, i0: int, i: int,
+                i1: int) -> tuple[float, float, float]:
+    """Outward unit normal at node (j, i) of a grid of points (ny, nx, 3) (x = east, y = north):
+    the cross product of the central differences along i (i0 -> i1) and along j (j0 -> j1)."""
+    ax = points[j, i1, 0] - points[j, i0, 0]
+    ay = points[j, i1, 1] - points[j, i0, 1]
+    az = points[j, i1, 2] - points[j, i0, 2]
+    bx = points[j1, i, 0] - points[j0, i, 0]
+    by = points[j1, i, 1] - points[j0, i, 1]
+    bz = points[j1, i, 2] - points[j0, i, 2]
+    cx = ay * bz - az * by
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    n = 1.0 / np.sqrt(cx * cx + cy * cy + cz * cz)
+    return cx * n, cy * n, cz * n
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def node_fields(
     points: NDArray[np.float64], lit: NDArray[np.float64], albedo: NDArray[np.float64],
@@ -77,19 +95,10 @@ def node_fields(
         j0, j1 = max(j - 1, 0), min(j + 1, ny - 1)
         for i in range(nx):
             i0, i1 = max(i - 1, 0), min(i + 1, nx - 1)
-            ax = points[j, i1, 0] - points[j, i0, 0]
-            ay = points[j, i1, 1] - points[j, i0, 1]
-            az = points[j, i1, 2] - points[j, i0, 2]
-            bx = points[j1, i, 0] - points[j0, i, 0]
-            by = points[j1, i, 1] - points[j0, i, 1]
-            bz = points[j1, i, 2] - points[j0, i, 2]
-            cx = ay * bz - az * by
-            cy = az * bx - ax * bz
-            cz = ax * by - ay * bx
-            n = 1.0 / np.sqrt(cx * cx + cy * cy + cz * cz)
-            out[j, i, 0] = cx * n
-            out[j, i, 1] = cy * n
-            out[j, i, 2] = cz * n
+            cx, cy, cz = grid_normal(points, j0, j, j1, i0, i, i1)
+            out[j, i, 0] = cx
+            out[j, i, 1] = cy
+            out[j, i, 2] = cz
             out[j, i, 3] = lit[j, i]
             dx = points[j, i, 0] - position[0]
             dy = points[j, i, 1] - position[1]

@@ -258,20 +258,8 @@ def _grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
     for j in range(ny):
         j0, j1 = max(j - 1, 0), min(j + 1, ny - 1)
         for i in range(nx):
-            i0, i1 = max(i - 1, 0), min(i + 1, nx - 1)
-            ax = points[j, i1, 0] - points[j, i0, 0]
-            ay = points[j, i1, 1] - points[j, i0, 1]
-            az = points[j, i1, 2] - points[j, i0, 2]
-            bx = points[j1, i, 0] - points[j0, i, 0]
-            by = points[j1, i, 1] - points[j0, i, 1]
-            bz = points[j1, i, 2] - points[j0, i, 2]
-            cx = ay * bz - az * by
-            cy = az * bx - ax * bz
-            cz = ax * by - ay * bx
-            n = np.sqrt(cx * cx + cy * cy + cz * cz)
-            out[0, j, i] = cx / n
-            out[1, j, i] = cy / n
-            out[2, j, i] = cz / n
+            out[0, j, i], out[1, j, i], out[2, j, i] = rs.grid_normal(
+                points, j0, j, j1, max(i - 1, 0), i, min(i + 1, nx - 1))
     return out
 
 
