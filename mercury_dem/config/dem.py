@@ -10,6 +10,7 @@ metres above the 2439.4 km datum sphere.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from mercury_dem.config.base import ConfigSection, param
 
@@ -18,10 +19,17 @@ from mercury_dem.config.base import ConfigSection, param
 class DemConfig(ConfigSection):
     # --- the grid ---------------------------------------------------------------------------
     pixels_per_degree: float = param(64.0, "Output grid resolution", unit="pixel/deg", lo=0.01, hi=4096.0)
-    lat_min: float = param(-90.0, "Southern edge of the grid", unit="deg", lo=-90.0, hi=90.0)
-    lat_max: float = param(90.0, "Northern edge of the grid", unit="deg", lo=-90.0, hi=90.0)
-    lon_min: float = param(0.0, "Western edge of the grid (east-positive)", unit="deg", lo=-360.0, hi=360.0)
-    lon_max: float = param(360.0, "Eastern edge of the grid (east-positive)", unit="deg", lo=-360.0, hi=720.0)
+    # Bounds left unset (None) are taken from the control points: their footprint plus
+    # max_distance_m, snapped outward to whole degrees (mercury_dem.dem.extent); all four
+    # unset on a global cloud give the globe. Set them to fix the map's extent.
+    lat_min: float | None = param(None, "Southern edge of the grid; unset: from the points", unit="deg",
+                                  lo=-90.0, hi=90.0)
+    lat_max: float | None = param(None, "Northern edge of the grid; unset: from the points", unit="deg",
+                                  lo=-90.0, hi=90.0)
+    lon_min: float | None = param(None, "Western edge of the grid (east-positive); unset: from the points",
+                                  unit="deg", lo=-360.0, hi=360.0)
+    lon_max: float | None = param(None, "Eastern edge of the grid (east-positive); unset: from the points",
+                                  unit="deg", lo=-360.0, hi=720.0)
     # --- the interpolator -------------------------------------------------------------------
     method: str = param("median11", "Gridding method", choices=("median11", "shepard"))
     neighbours: int = param(11, "Nearest points used per pixel by median11", lo=1, hi=1000)
@@ -88,13 +96,37 @@ class DemConfig(ConfigSection):
 
         return max(1.0, 2.0 * math.pi * 2439.4 / 360.0 / self.pixels_per_degree)
 
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(lat_min, lat_max, lon_min, lon_max) with unset bounds at the globe's (-90, 90, 0, 360)."""
+        return (-90.0 if self.lat_min is None else self.lat_min, 90.0 if self.lat_max is None else self.lat_max,
+                0.0 if self.lon_min is None else self.lon_min, 360.0 if self.lon_max is None else self.lon_max)
+
+    @property
+    def extent_from_points(self) -> bool:
+        """True when some bound is unset and comes from the point cloud (:meth:`with_extent_of`)."""
+        return None in (self.lat_min, self.lat_max, self.lon_min, self.lon_max)
+
+    def with_extent_of(self, points_xyz: Any) -> DemConfig:
+        """This configuration with its unset bounds taken from a point cloud (see
+        :func:`mercury_dem.dem.extent.points_extent`); set bounds are kept."""
+        if not self.extent_from_points:
+            return self
+        import dataclasses
+
+        from mercury_dem.dem.extent import points_extent
+
+        auto = points_extent(points_xyz, self.max_distance_m, self.pixels_per_degree)
+        names = ("lat_min", "lat_max", "lon_min", "lon_max")
+        return dataclasses.replace(self, **{n: a for n, a in zip(names, auto) if getattr(self, n) is None})
+
     def __post_init__(self) -> None:
         super().__post_init__()
         from mercury_dem.exceptions import ConfigError
 
-        if self.lat_min >= self.lat_max:
+        if self.lat_min is not None and self.lat_max is not None and self.lat_min >= self.lat_max:
             raise ConfigError(f"config key 'dem.lat_min' ({self.lat_min}) must be below 'dem.lat_max' ({self.lat_max})")
-        if self.lon_min >= self.lon_max or self.lon_max - self.lon_min > 360.0:
+        if self.lon_min is not None and self.lon_max is not None and (
+                self.lon_min >= self.lon_max or self.lon_max - self.lon_min > 360.0):
             raise ConfigError(
                 f"config keys 'dem.lon_min'/'dem.lon_max' ({self.lon_min}, {self.lon_max}) must span (0, 360] degrees"
             )

@@ -96,8 +96,8 @@ class GridSpec:
 
     @classmethod
     def from_config(cls, cfg: Any) -> GridSpec:
-        """The grid of a :class:`~mercury_dem.config.dem.DemConfig`."""
-        return cls(cfg.pixels_per_degree, cfg.lat_min, cfg.lat_max, cfg.lon_min, cfg.lon_max)
+        """The grid of a :class:`~mercury_dem.config.dem.DemConfig` (unset bounds: the globe's)."""
+        return cls(cfg.pixels_per_degree, *cfg.bounds())
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -31,9 +31,11 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
 
     net = read_network(store.network_path("global", 0))
     pts = point_cloud(net, adjusted=True)
+    # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
+    dem_cfg = config.dem.with_extent_of(pts) if pts.shape[0] else config.dem
     # an existing complete DEM is reused (resume); products are always rewritten
     if not store.dem_path.exists():
-        grid_summary = grid_dem(pts, config, store.dem_path, client, attrs={"source": "global adjusted control points"})
+        grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, attrs={"source": "global adjusted control points"})
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
     truth = mission.surface().height if getattr(mission, "has_truth", False) else None
@@ -53,7 +55,7 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
         tmp = store.root / "dem_apriori.zarr"
         shutil.rmtree(tmp, ignore_errors=True)
         try:
-            grid_dem(apri, config, tmp, client, coverage=False, attrs={"source": "a-priori control points"})
+            grid_dem(apri, dem_cfg, tmp, client, coverage=False, attrs={"source": "a-priori control points"})
             ds = open_dem(tmp)
             validation["a_priori"] = dem_accuracy(
                 ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth,

@@ -298,9 +298,11 @@ def grid_dem(
     out_path = Path(out_path)
     if out_path.exists() and not overwrite:
         raise StoreError(f"{out_path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    grid = GridSpec.from_config(cfg)
     pts = np.asarray(points_xyz, dtype=np.float64)
     n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
+    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's footprint (mercury_dem.dem.extent)
+        cfg = cfg.with_extent_of(pts)
+    grid = GridSpec.from_config(cfg)
     est = check_memory(grid, max(n_points, 0), cfg)
     if n_points == 0:
         build_point_index(pts)  # raises the empty-cloud error before anything is created
@@ -336,6 +338,7 @@ def grid_dem(
             "path": str(out_path),
             "shape": list(grid.shape),
             "pixels_per_degree": grid.pixels_per_degree,
+            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
             "method": cfg.method,
             "n_points": index.n_points,
             "n_chunks": len(chunks),
