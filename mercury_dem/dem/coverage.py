@@ -106,7 +106,8 @@ def sinusoidal_grid(pixel_km: float, radius_m: float = DATUM_RADIUS_M) -> tuple[
     return x, y
 
 
-def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1) -> CoverageResult:
+def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1,
+                   bounds: tuple[float, float, float, float] | None = None) -> CoverageResult:
     """Coverage of a point cloud on a sinusoidal equal-area grid.
 
     Parameters
@@ -115,6 +116,10 @@ def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1) -> Cove
         footprints on the datum sphere (distances are horizontal)
     pixel_km : pixel edge, km (reference: 1 km)
     threads : kd-tree query threads (-1 = all cores)
+    bounds : (lat_min, lat_max, lon_min, lon_max) degrees of the DEM's map, or None for
+        the whole planet (the reference's global figures). The map pixels are then those
+        whose centre lies inside these bounds (rows outside are cropped): a regional DEM
+        gets the coverage of its own area, and the nearest distances are computed only there.
 
     Returns
     -------
@@ -122,18 +127,27 @@ def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1) -> Cove
     """
     rk = DATUM_RADIUS_M / 1000.0
     x, y = sinusoidal_grid(pixel_km)
+    if bounds is not None:  # crop the rows to the map's latitudes
+        lat_deg = np.degrees(y / rk)
+        y = y[(lat_deg >= bounds[0]) & (lat_deg <= bounds[1])]
     nx, ny = x.size, y.size
     # Bin the points.
     fp = index.tree.data / DATUM_RADIUS_M
     lat = np.arcsin(np.clip(fp[:, 2], -1.0, 1.0))
     lon = np.arctan2(fp[:, 1], fp[:, 0])
     px = np.clip(((rk * lon * np.cos(lat) + math.pi * rk) / pixel_km).astype(np.int64), 0, nx - 1)
-    py = np.clip(((math.pi * rk / 2 - rk * lat) / pixel_km).astype(np.int64), 0, ny - 1)
-    count = np.bincount(py * nx + px, minlength=nx * ny).reshape(ny, nx).astype(np.int32)
-    # Map pixels on the planet.
+    row0 = int(round((math.pi * rk / 2 - y[0]) / pixel_km - 0.5)) if ny else 0  # global row of y[0]
+    py = ((math.pi * rk / 2 - rk * lat) / pixel_km).astype(np.int64) - row0
+    keep = (py >= 0) & (py < ny) if bounds is not None else np.ones(py.size, bool)
+    py = np.clip(py, 0, max(ny - 1, 0))
+    count = np.bincount(py[keep] * nx + px[keep], minlength=nx * ny).reshape(ny, nx).astype(np.int32)
+    # Map pixels on the planet (and inside the bounds).
     lat_c = y / rk  # radians
     half_width = math.pi * rk * np.cos(lat_c)
     on = (np.abs(x)[None, :] <= half_width[:, None]) | (count > 0)
+    if bounds is not None and bounds[3] - bounds[2] < 360.0:
+        lon_c = np.degrees(x[None, :] / (rk * np.maximum(np.cos(lat_c), 1e-12))[:, None])
+        on &= np.mod(lon_c - bounds[2], 360.0) <= bounds[3] - bounds[2]
     count[~on] = -1
     nearest = np.full((ny, nx), np.nan, dtype=np.float32)
     for r0 in range(0, ny, ROW_BLOCK):

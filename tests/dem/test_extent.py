@@ -90,3 +90,28 @@ def test_grid_dem_with_unset_bounds_maps_the_cloud_not_the_globe(tmp_path) -> No
     assert ds["elevation"].shape == (13 * 8, 13 * 8)
     inside = ds["elevation"].sel(lat=slice(4.0, -5.0), lon=slice(11.0, 20.0)).values
     assert np.isfinite(inside).all()
+
+
+def test_coverage_of_a_regional_map_is_the_global_coverage_cut_to_its_area() -> None:
+    from mercury_dem.dem.coverage import point_coverage
+    from mercury_dem.dem.grid import build_point_index
+
+    pts, lat, lon = _cloud((-5.5, 4.5), (-8.0, 6.0), n=5000)  # across the seam
+    index = build_point_index(pts)
+    ext = points_extent(pts, MARGIN, 8.0)
+    whole = point_coverage(index, 20.0)
+    part = point_coverage(index, 20.0, bounds=ext)
+    s_whole, s_part = whole.summary(), part.summary()
+    assert s_part["occupied_pixels"] == s_whole["occupied_pixels"]
+    assert s_part["map_pixels"] < 0.05 * s_whole["map_pixels"]
+    # the same pixels get the same counts and nearest distances
+    rows = np.flatnonzero(np.isin(whole.y_km, part.y_km))
+    on = part.count >= 0
+    assert np.array_equal(whole.count[rows][on], part.count[on])
+    assert np.array_equal(whole.nearest_km[rows][on], part.nearest_km[on])
+    # every map pixel lies inside the bounds
+    rk = DATUM_RADIUS_M / 1000.0
+    la = np.degrees(part.y_km / rk)[:, None] * np.ones_like(part.x_km)[None, :]
+    lo = np.degrees(part.x_km[None, :] / (rk * np.cos(np.radians(la))))
+    assert np.all((la[on] >= ext[0]) & (la[on] <= ext[1]))
+    assert np.all(np.mod(lo[on] - ext[2], 360.0) <= ext[3] - ext[2])
