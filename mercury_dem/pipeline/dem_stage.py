@@ -119,10 +119,8 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None) 
     ds = xr.Dataset(
         data_vars,
         coords={
-            "lat": ("lat", grid.lat_centres(), {"units": "degrees_north", "standard_name": "latitude",
-                                                 "long_name": "planetocentric latitude of the pixel centre"}),
-            "lon": ("lon", grid.lon_centres(), {"units": "degrees_east", "standard_name": "longitude",
-                                                 "long_name": "east longitude of the pixel centre"}),
+            "lat": ("lat", grid.lat_centres(), dict(_COORD_ATTRS["lat"])),
+            "lon": ("lon", grid.lon_centres(), dict(_COORD_ATTRS["lon"])),
         },
     )
     ds = ds.rio.set_spatial_dims(x_dim="lon", y_dim="lat")
@@ -133,31 +131,7 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None) 
     for name in LAYERS:
         ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref"})
         ds[name].attrs.pop("grid_mapping", None)
-    ds.attrs.update(
-        {
-            "title": "Mercury DEM gridded from a control point cloud",
-            "Conventions": "CF-1.8",
-            "datum_radius_m": DATUM_RADIUS_M,
-            "height_reference": (
-                "elevation is metres above a sphere of radius 2439.4 km (the MESSENGER DEM datum); the CRS "
-                f"{CRS_GEOGRAPHIC} is the IAU 2015 sphere of radius {IAU_SPHERE_RADIUS_M:.0f} m and only "
-                "georeferences latitude/longitude: heights never refer to it"
-            ),
-            "crs_code": CRS_GEOGRAPHIC,
-            "pixels_per_degree": grid.pixels_per_degree,
-            "pixel_size_m": grid.pixel_size_m,
-            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
-            "pixel_registration": "lat/lon are pixel centres; row 0 is the northernmost",
-            "method": cfg.method,
-            "gridding": json.dumps(
-                {k: getattr(cfg, k) for k in ("method", "neighbours", "sigma_filter", "search_radius_factor",
-                                              "shepard_fallback_neighbours", "shepard_max_points",
-                                              "max_distance_m", "smoothing_passes", "smoothing_size")}
-            ),
-        }
-    )
-    if attrs:
-        ds.attrs.update(attrs)
+    ds.attrs.update(_root_attrs(grid, cfg, attrs))
     return ds
 
 
