@@ -7,6 +7,7 @@ mode runs the same graph, in the same order of dependencies, in this process.
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -110,6 +111,48 @@ def default_workers() -> tuple[int, int]:
     return max(1, n), 1
 
 
+#: Logged by ``distributed.sizeof`` when the size probe that ``distributed.comm`` runs on every
+#: outgoing message (``safe_sizeof(msg, default_size=-1)``) fails.
+COMM_SIZE_PROBE_WARNING = "Defaulting to -1 B"
+
+
+class _CommSizeProbeFilter(logging.Filter):
+    """Drop distributed's warning that the pre-send size probe of a comm message failed.
+
+    A worker answering the performance report's profile request sends the call-tree
+    profile, a dict nested deeper than ``dask.sizeof`` recurses (RecursionError). distributed
+    expects this (``distributed/comm/utils.py``): the probe returns -1 and the message
+    is serialised off the event loop, nothing is lost. Every run printed two such
+    warnings at the end of its cascade; only that exact message is dropped, any other
+    sizeof failure (a task result whose size cannot be measured) is still logged.
+    """
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return COMM_SIZE_PROBE_WARNING not in record.getMessage()
+
+
+def quiet_comm_size_probe() -> bool:
+    """Install :class:`_CommSizeProbeFilter` on the ``distributed.sizeof`` logger of this process (idempotent)."""
+    logger = logging.getLogger("distributed.sizeof")
+    if not any(isinstance(f, _CommSizeProbeFilter) for f in logger.filters):
+        logger.addFilter(_CommSizeProbeFilter())
+    return True
+
+
+def _quiet_workers(client: Any) -> None:
+    """The filter in this process and on every worker, present and future (a worker plugin)."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class QuietCommSizeProbe(WorkerPlugin):
+        name = "mercury-dem-quiet-comm-size-probe"
+
+        def setup(self, worker: Any) -> None:
+            quiet_comm_size_probe()
+
+    quiet_comm_size_probe()
+    client.register_plugin(QuietCommSizeProbe())
+
+
 def connect(
     cfg: ExecutionConfig,
     scheduler: str | None = None,
@@ -129,6 +172,7 @@ def connect(
         from distributed import Client
 
         client = Client(scheduler_file=scheduler_file, security=security)
+        _quiet_workers(client)
         return Connection(client, "scheduler-file", description=f"scheduler file {scheduler_file}")
     if target == "sync":
         return Connection(SyncClient(), "sync", description="in-process, synchronous")
@@ -148,6 +192,7 @@ def connect(
             processes=True,
         )
         client = Client(cluster, security=security)
+        _quiet_workers(client)
         return Connection(
             client, "local", cluster=cluster, uses_resources=True,
             description=f"LocalCluster {nw} workers x {nt} threads on {cfg.host}",
@@ -155,4 +200,5 @@ def connect(
     from distributed import Client
 
     client = Client(target, security=security)
+    _quiet_workers(client)
     return Connection(client, "scheduler", description=f"scheduler {target}")
