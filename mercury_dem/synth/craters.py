@@ -310,7 +310,7 @@ def _ray_term(
 
 
 @numba.njit(cache=True, nogil=True)
-def _sum_crater_terms(
+def crater_sum(
     units: NDArray[np.float64],
     table: NDArray[np.float64],
     cell_deg: float,
@@ -352,38 +352,6 @@ def _sum_crater_terms(
                 total += _height_term(table, members[m], chord2, body_radius_m)
         out[i] = total
     return out
-
-
-@numba.njit(cache=True, nogil=True)
-def crater_heights(
-    units: NDArray[np.float64],
-    table: NDArray[np.float64],
-    cell_deg: float,
-    n_lat: int,
-    n_lon: int,
-    starts: NDArray[np.int64],
-    members: NDArray[np.int64],
-    cand: NDArray[np.float64],
-    body_radius_m: float,
-) -> NDArray[np.float64]:
-    """Summed crater relief (m) at unit vectors (N, 3)."""
-    return _sum_crater_terms(units, table, cell_deg, n_lat, n_lon, starts, members, cand, body_radius_m, False)
-
-
-@numba.njit(cache=True, nogil=True)
-def ray_albedo(
-    units: NDArray[np.float64],
-    table: NDArray[np.float64],
-    cell_deg: float,
-    n_lat: int,
-    n_lon: int,
-    starts: NDArray[np.int64],
-    members: NDArray[np.int64],
-    cand: NDArray[np.float64],
-    body_radius_m: float,
-) -> NDArray[np.float64]:
-    """Relative albedo boost (>= 0) of fresh-crater haloes and rays at unit vectors (N, 3)."""
-    return _sum_crater_terms(units, table, cell_deg, n_lat, n_lon, starts, members, cand, body_radius_m, True)
 
 
 # --------------------------------------------------------------------------- local grids
@@ -478,7 +446,7 @@ def crater_heights_grid(
 ) -> NDArray[np.float64]:
     """Summed crater relief (m) at the nodes (ny, nx) of a local gnomonic grid, crater by crater.
 
-    The same relief as :func:`crater_heights` at ``units`` (up to the order of the
+    The same relief as :func:`crater_sum` (``albedo=False``) at ``units`` (up to the order of the
     sum): each candidate crater ``ids`` visits only the nodes of its box.
     ``frame`` rows: the grid's centre, east and north unit vectors; the grid's
     node (j, i) sits at plane coordinates (x0 + i g, y0 + j g) on the plane tangent
@@ -509,7 +477,7 @@ def ray_albedo_grid(
     units: NDArray[np.float64], table: NDArray[np.float64], ids: NDArray[np.int64], reach_rad: NDArray[np.float64],
     frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, body_radius_m: float,
 ) -> NDArray[np.float64]:
-    """Albedo boost of haloes and rays (as :func:`ray_albedo`) at the nodes of a local grid, crater by crater."""
+    """Albedo boost of haloes and rays (as :func:`crater_sum` (``albedo=True``)) at the nodes of a local grid, crater by crater."""
     ny, nx = units.shape[0], units.shape[1]
     out = np.zeros((ny, nx))
     for q in range(ids.shape[0]):

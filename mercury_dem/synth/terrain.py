@@ -188,8 +188,8 @@ class Surface:
         shape = u.shape[:-1]
         flat = np.ascontiguousarray(u.reshape(-1, 3))
         ix = self._height_index
-        h = cr.crater_heights(
-            flat, self.craters, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m
+        h = cr.crater_sum(
+            flat, self.craters, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m, False
         )
         return self._compose_height(flat, h, resolution_m).reshape(shape)
 
@@ -217,8 +217,8 @@ class Surface:
         shape = u.shape[:-1]
         flat = np.ascontiguousarray(u.reshape(-1, 3))
         ix = self._ray_index
-        boost = cr.ray_albedo(
-            flat, self._ray_table, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m
+        boost = cr.crater_sum(
+            flat, self._ray_table, ix.cell_deg, ix.n_lat, ix.n_lon, ix.starts, ix.members, ix.cand, self.radius_m, True
         )
         return self._compose_albedo(flat, boost, resolution_m).reshape(shape)
 
