@@ -482,6 +482,36 @@ def _centres(lat_deg, lon_deg, rs, phi, c, z, lam, cl, sl):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
+def _cap_chord2(a, rs):  # pragma: no cover
+    """Squared chord of a cap of angle ``a`` on the sphere of radius ``rs`` (inf for the whole sphere)."""
+    if a >= math.pi:
+        return np.inf
+    ch = 2.0 * rs * math.sin(0.5 * a)
+    return ch * ch
+
+
+@numba.njit(cache=True, inline="always")
+def _within_to_front(bd2, bi, m, t2):  # pragma: no cover
+    """Move the candidates j < m with bd2[j] <= t2 to the front (pairs swapped); return how many."""
+    ms = 0
+    for j in range(m):
+        if bd2[j] <= t2:
+            d, i = bd2[j], bi[j]
+            bd2[j], bi[j] = bd2[ms], bi[ms]
+            bd2[ms], bi[ms] = d, i
+            ms += 1
+    return ms
+
+
+@numba.njit(cache=True, inline="always")
+def _next_cap(a, a_second, ang_max):  # pragma: no cover
+    """The cap after ``a`` in the k-NN search: ``a_second``, then doubling up to ``ang_max``."""
+    if a < a_second:
+        return a_second
+    return min(2.0 * a, ang_max)
+
+
+@numba.njit(cache=True, inline="always")
 def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k, a_first,
          a_second, ang_max, rs,
          r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
@@ -496,24 +526,14 @@ def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, 
     a = a_first
     while True:
         nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
-        if a >= math.pi:
-            cap2 = np.inf
-        else:
-            ch = 2.0 * rs * math.sin(0.5 * a)
-            cap2 = ch * ch
+        cap2 = _cap_chord2(a, rs)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
             mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
         else:
             mk = 0
             if t2 < cap2:
-                ms = 0
-                for j in range(m):  # move the candidates within t2 to the front
-                    if bd2[j] <= t2:
-                        d, i = bd2[j], bi[j]
-                        bd2[j], bi[j] = bd2[ms], bi[ms]
-                        bd2[ms], bi[ms] = d, i
-                        ms += 1
+                ms = _within_to_front(bd2, bi, m, t2)
                 if ms >= k:
                     mk = _topk(bd2, bi, ms, k, dk2, ik)
             if mk < k:
@@ -522,10 +542,7 @@ def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, 
             return True, cnt
         if a >= ang_max:
             return False, cnt
-        if a < a_second:
-            a = a_second
-        else:
-            a = min(2.0 * a, ang_max)
+        a = _next_cap(a, a_second, ang_max)
 
 
 @numba.njit(cache=True, inline="always")
@@ -576,11 +593,7 @@ def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_sta
     a = a_first
     while True:
         nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
-        if a >= math.pi:
-            cap2 = np.inf
-        else:
-            ch = 2.0 * rs * math.sin(0.5 * a)
-            cap2 = ch * ch
+        cap2 = _cap_chord2(a, rs)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
             mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
@@ -589,23 +602,14 @@ def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_sta
         elif m >= k:
             ms = m
             if t2 < cap2:
-                ms = 0
-                for j in range(m):  # move the candidates within t2 to the front
-                    if bd2[j] <= t2:
-                        d, i = bd2[j], bi[j]
-                        bd2[j], bi[j] = bd2[ms], bi[ms]
-                        bd2[ms], bi[ms] = d, i
-                        ms += 1
+                ms = _within_to_front(bd2, bi, m, t2)
                 if ms < k:
                     ms = m
             lo, hi = _smallest_set(bd2, bi, ms, k, dk2, ik)
             return True, cnt, lo, hi
         if a >= ang_max:
             return False, cnt, 0.0, 0.0
-        if a < a_second:
-            a = a_second
-        else:
-            a = min(2.0 * a, ang_max)
+        a = _next_cap(a, a_second, ang_max)
 
 
 @numba.njit(cache=True)
