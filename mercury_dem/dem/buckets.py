@@ -482,6 +482,19 @@ def _centres(lat_deg, lon_deg, rs, phi, c, z, lam, cl, sl):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
+def _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r):  # pragma: no cover
+    """Pixel p's centre: (latitude, longitude, unit vector x, y, z) from the per-row/column tables;
+    ``paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid)."""
+    if paired:
+        i = p
+        j = p
+    else:
+        i = p // ncol
+        j = p - i * ncol
+    return phi_r[i], lam_c[j], c_r[i] * cl_c[j], c_r[i] * sl_c[j], z_r[i]
+
+
+@numba.njit(cache=True, inline="always")
 def _cap_chord2(a, rs):  # pragma: no cover
     """Squared chord of a cap of angle ``a`` on the sphere of radius ``rs`` (inf for the whole sphere)."""
     if a >= math.pi:
@@ -698,17 +711,7 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
         dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
         px = py = pz = 0.0
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            if paired:
-                i = p
-                j = p
-            else:
-                i = p // ncol
-                j = p - i * ncol
-            phi = phi_r[i]
-            lam = lam_c[j]
-            qx = c_r[i] * cl_c[j]
-            qy = c_r[i] * sl_c[j]
-            qz = z_r[i]
+            phi, lam, qx, qy, qz = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r)
             a_first = a0
             a_second = a0
             if dprev >= 0.0:
@@ -785,17 +788,7 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
         bd2 = np.empty(BUFFER)
         bi = np.empty(BUFFER, dtype=np.int64)
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            if paired:
-                i = p
-                j = p
-            else:
-                i = p // ncol
-                j = p - i * ncol
-            phi = phi_r[i]
-            lam = lam_c[j]
-            qx = c_r[i] * cl_c[j]
-            qy = c_r[i] * sl_c[j]
-            qz = z_r[i]
+            phi, lam, qx, qy, qz = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r)
             nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a_r, ranges)
             m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
             if m > 0:
