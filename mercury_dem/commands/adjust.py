@@ -25,6 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.geometry.tiling import N_REGIONS
     from mercury_dem.io.run_store import RunStore
+    from mercury_dem.pipeline.report import unit_message
     from mercury_dem.pipeline.stages import LEVEL_CHILD, child_ids, run_adjust_unit
 
     store = RunStore.open(args.run_dir)
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
                       f"rms {s['rms_px']:.3f} px, sigma0 {s['sigma0']:.3f}, {s['rejected']} rejected, "
                       f"{s['iterations']} iterations, {s['seconds']:.1f} s", file=sys.stdout)
             else:
-                print(f"{s['name']}: FAILED: {s['error']}", file=sys.stdout)
+                print(f"{s['name']}: FAILED: {unit_message(s['error'], s['name'])}", file=sys.stdout)
     if args.json:
         print(json.dumps(out, indent=2))
     return 0 if all(s["ok"] for s in out) else 1

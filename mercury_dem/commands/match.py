@@ -26,6 +26,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.io.atomic import is_complete
     from mercury_dem.io.mission import open_mission
     from mercury_dem.pipeline.graph import prepare_store
+    from mercury_dem.pipeline.report import unit_message
     from mercury_dem.pipeline.stages import plan_run, run_tile
 
     store = prepare_store(args.mission, args.out, config, None)
@@ -41,7 +42,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
         s = run_tile(str(store.root), t, config)
         out.append(s)
         if not args.json:
-            state = "ok" if s["ok"] else f"FAILED: {s['error']}"
+            state = "ok" if s["ok"] else f"FAILED: {unit_message(s['error'], f'tile {t}')}"
             print(f"tile {t}: {s.get('pairs', 0)} pairs, {s.get('pairs_matched', 0)} matched, "
                   f"{s.get('points', 0)} points, {s.get('measures', 0)} measures, {s.get('seconds', 0):.1f} s  {state}",
                   file=sys.stdout)

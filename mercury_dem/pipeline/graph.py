@@ -27,6 +27,7 @@ from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.tiling import N_REGIONS
 from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.pipeline.report import unit_message
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
 from mercury_dem.pipeline.stages import failure_summary, plan_run, run_adjust_unit, run_tile
 
@@ -85,12 +86,12 @@ class Progress:
         if not summary.get("ok"):
             self.failed[level] += 1
         if self.enabled:
-            state = "ok" if summary.get("ok") else f"FAILED: {summary.get('error')}"
+            name = summary.get("name") or f"{level} {summary.get('id')}"
+            state = "ok" if summary.get("ok") else f"FAILED: {unit_message(summary.get('error'), name)}"
             line = " | ".join(
                 f"{k} {self.done[k]}/{self.totals[k]}" + (f" ({self.failed[k]} failed)" if self.failed[k] else "")
                 for k in self.totals
             )
-            name = summary.get("name") or f"{level} {summary.get('id')}"
             print(f"[{line}] {name} {state}", file=self.stream, flush=True)
 
 

@@ -99,7 +99,8 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
     w(f"run {report['run']}  (mission {report['mission']})\n")
     w(f"tiles: {t['non_empty']} non-empty of {t['total']}; {t['succeeded']} succeeded, {len(t['failed'])} failed\n")
     for f in t["failed"][:10]:
-        w(f"  tile {f['tile']}: {f['error']}\n")
+        name = f"tile {f['tile']}"
+        w(f"  {name}: {unit_message(f['error'], name)}\n")
     w(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n\n")
     w(f"{'level':<22}{'images':>7}{'points':>9}{'measures':>10}{'rms px':>8}{'sigma0':>8}{'rej':>7}{'iter':>5}{'s':>7}\n")
     rows = [("region", r) for r in report["levels"]["region"]] + [("hemisphere", r) for r in report["levels"]["hemisphere"]]
@@ -108,7 +109,7 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
     for _, r in rows:
         name = r.get("name") or str(r.get("id"))
         if not r.get("ok"):
-            w(f"{name:<22} FAILED: {r.get('error')}\n")
+            w(f"{name:<22} FAILED: {unit_message(r.get('error'), name)}\n")
             continue
         w(f"{name:<22}{r.get('images', 0):>7}{r.get('points', 0):>9}{r.get('measures', 0):>10}"
           f"{_f(r.get('rms_px')):>8}{_f(r.get('sigma0')):>8}{r.get('rejected', 0):>7}{r.get('iterations', 0):>5}"
@@ -126,11 +127,33 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         w(f"point error vs truth (m): median {_f(pe['median'], '.1f')}, p95 {_f(pe['p95'], '.1f')} ({pe['points']} points)\n")
         d = v.get("dem")
         if d:
-            w(f"DEM vs truth (m): {json_short(d)}\n")
+            w(dem_validation_table(d))
     tm = report.get("timings", {})
     w("\ntimings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()) + "\n")
 
 
-def json_short(d: dict[str, Any]) -> str:
-    keys = ("rmse_m", "bias_m", "p05_m", "p50_m", "p95_m")
-    return ", ".join(f"{k} {_f(d.get(k), '.1f')}" for k in keys if k in d) or str(d)[:200]
+def unit_message(error: Any, name: str) -> str:
+    """``error`` without a leading ``"<name>: "`` (messages in report.json name their unit; lines that
+    already start with the unit's name print the rest)."""
+    text = str(error)
+    for prefix in (f"{name}: ", f"{name.replace(' ', '')}: "):
+        if text.startswith(prefix):
+            return text[len(prefix):]
+    return text
+
+
+def dem_validation_table(d: dict[str, Any]) -> str:
+    """``validation.dem`` as a table: one row per DEM (adjusted, a-priori), DEM minus truth in metres."""
+    cols = (("rmse_m", "RMSE"), ("bias_m", "bias"), ("std_m", "std"), ("p5_m", "p5"), ("p50_m", "p50"),
+            ("p95_m", "p95"))
+    out = ["\nDEM minus truth (m)" + "".join(f"{label:>9}" for _, label in cols) + f"{'pixels':>11}\n"]
+    for key, label in (("adjusted", "adjusted points"), ("a_priori", "a-priori points")):
+        row = d.get(key)
+        if not isinstance(row, dict):
+            continue
+        if row.get("error"):
+            out.append(f"  {label:<17} {row['error']}\n")
+            continue
+        out.append(f"  {label:<17}" + "".join(f"{_f(row.get(k), '.0f'):>9}" for k, _ in cols)
+                   + f"{row.get('n_compared', 0):>11}\n")
+    return "".join(out)

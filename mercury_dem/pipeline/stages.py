@@ -286,6 +286,22 @@ def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
     return summary
 
 
+def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: str, config: Config) -> str:
+    """Why a unit has nothing to merge: each failed child named with its own error, the empty ones counted."""
+    failed = []
+    empty = 0
+    for c in child_ids(level, unit_id, config):
+        if not store.unit_complete(child_level, c):
+            empty += 1
+            continue
+        err = store.read_summary(child_level, c).get("error") or "no network"
+        failed.append(str(err))
+    parts = "; ".join(failed[:5]) + (f"; ... {len(failed) - 5} more" if len(failed) > 5 else "")
+    return (f"no successful {child_level} network to merge: {len(failed)} failed"
+            + (f" ({parts})" if failed else "") + f", {empty} without images or not run"
+            + " — images in no other network keep their a-priori pointing")
+
+
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> dict[str, Any]:
     from mercury_dem.pipeline.adjust_adapter import adjust_network
     from mercury_dem.io.mission import open_mission
@@ -296,7 +312,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     kids = [c for c in child_ids(level, unit_id, config)
             if store.unit_complete(child_level, c) and store.read_summary(child_level, c).get("ok")]
     if not kids:
-        raise _NoInput(f"no successful {child_level} network to merge (all empty or failed)")
+        raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
     nets = []
     for c in kids:
         net = read_network(store.network_path(child_level, c))

@@ -40,6 +40,11 @@ def test_report_contract(sync_run: tuple[Path, dict[str, Any]]) -> None:
         if row["ok"]:
             for key in ("images", "points", "measures", "rms_px", "sigma0", "rejected", "iterations", "seconds"):
                 assert key in row, key
+    tile_errors = [f["error"] for f in t["failed"]]
+    for row in levels["region"]:
+        if not row["ok"]:  # a region with nothing to merge names its failed tiles and their reasons
+            assert "no successful tile network to merge" in row["error"]
+            assert any(e in row["error"] for e in tile_errors), row["error"]
     im = report["images"]
     assert im["input"] == im["controlled"] + len(im["uncontrolled"])
     assert {"plan", "tile", "region", "hemisphere", "global", "total"} <= set(report["timings"])
@@ -158,6 +163,16 @@ def test_report_command(sync_run: tuple[Path, dict[str, Any]], capsys: pytest.Ca
     assert main(["report", str(run)]) == 0
     out = capsys.readouterr().out
     assert "global" in out and "pointing error vs truth" in out
+    for f in report["tiles"]["failed"]:  # each failure printed once, named once
+        name = f"tile {f['tile']}"
+        assert f"  {name}: {f['error'][len(name) + 2:]}" in out
+        assert f"{name}: {name}:" not in out
+    dem = report["validation"]["dem"]
+    rows = [line.split() for line in out.splitlines() if line.strip().startswith(("adjusted points", "a-priori points"))]
+    assert [r[0] for r in rows] == ["adjusted", "a-priori"]
+    for r, key in zip(rows, ("adjusted", "a_priori")):  # RMSE and bias as in report.json, in metres
+        assert float(r[2]) == pytest.approx(dem[key]["rmse_m"], abs=0.5)
+        assert float(r[3]) == pytest.approx(dem[key]["bias_m"], abs=0.5)
     assert main(["report", str(run), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["tiles"] == report["tiles"]
 
