@@ -20,7 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pyproj  # noqa: E402
-from matplotlib import colors  # noqa: E402
+from matplotlib import colors, ticker  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M  # noqa: E402
@@ -201,6 +201,12 @@ def _finish(fig: Any, path: str | Path) -> Path:
     return Path(path)
 
 
+def east_longitude_label(x: float, _pos: object = None) -> str:
+    """Tick label of an east longitude axis: a map across the 0/360 seam runs on past 360 (or below
+    0) to stay continuous, its labels say the longitude itself (365 -> 5)."""
+    return f"{round(float(x), 6) % 360.0:g}"
+
+
 def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
                      lon: NDArray[np.float64], path: str | Path, title: str, exaggeration: float) -> Path:
     """Annotated colour-coded elevation over shaded relief: axes in degrees, colour ramp, scale bar."""
@@ -212,6 +218,7 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
     fig, ax, cax = _map_figure(aspect_hw, "vertical", labels=True)
     ax.set_facecolor("0.85")
     ax.imshow(rgba, extent=extent, interpolation="nearest", aspect="equal")
+    ax.xaxis.set_major_formatter(ticker.FuncFormatter(east_longitude_label))
     ax.set_xlabel("east longitude (deg)")
     ax.set_ylabel("planetocentric latitude (deg)")
     ax.set_title(title)

@@ -100,6 +100,14 @@ def test_browse_pngs_look_like_the_dem(dem_dir, products):
         assert img[..., :3].std() > 0.05  # not blank
 
 
+def test_longitude_ticks_across_the_seam_say_the_longitude():
+    # A regional map across 0/360 runs on past 360 to stay continuous; its ticks must not say 365.
+    from mercury_dem.products.browse import east_longitude_label
+
+    assert [east_longitude_label(x) for x in (340.0, 355.0, 360.0, 365.0, 372.5, -10.0)] == [
+        "340", "355", "0", "5", "12.5", "350"]
+
+
 def test_statistics_and_accuracy_json(dem_dir, products):
     stats = json.loads((dem_dir / "products/statistics.json").read_text())
     assert stats["resample"]["factor"] == 2
