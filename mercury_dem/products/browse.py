@@ -245,14 +245,49 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
     return _finish(fig, path)
 
 
+def robinson_central_meridian(h: NDArray[np.floating], lon: NDArray[np.float64]) -> float:
+    """Central meridian of the global map: 180 (the reference's 0-360 E map) when the data span
+    most longitudes, else the middle of the longitudes holding data (a regional DEM across
+    0/360 would otherwise be split between both edges of the map)."""
+    has = np.isfinite(h).any(axis=0)
+    if not has.any():
+        return 180.0
+    lons = np.mod(np.asarray(lon, np.float64)[has], 360.0)
+    # The data's span is the complement of the largest empty gap between occupied longitudes.
+    u = np.unique(np.round(lons, 6))
+    gaps = np.diff(np.r_[u, u[0] + 360.0])
+    k = int(np.argmax(gaps))
+    if gaps[k] < 60.0:  # data nearly all round: keep the reference's map
+        return 180.0
+    start, span = u[(k + 1) % u.size], 360.0 - gaps[k]
+    return float(np.mod(round(start + span / 2.0), 360.0))  # a whole degree
+
+
+def robinson_crs(central_meridian: float) -> str:
+    """Robinson on the Mercury sphere: the IAU code for a central meridian of 180, else a PROJ string."""
+    if central_meridian == 180.0:
+        return CRS_ROBINSON_180
+    return f"+proj=robin +lon_0={central_meridian:g} +R={DATUM_RADIUS_M:g} +units=m +no_defs +type=crs"
+
+
 def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
-                       lon: NDArray[np.float64], path: str | Path, width: int, title: str) -> Path:
-    """Global colour-coded shaded relief in Robinson projection (central meridian 180) with graticule."""
+                       lon: NDArray[np.float64], path: str | Path, width: int, title: str | None = None,
+                       central_meridian: float | None = None) -> Path:
+    """Global colour-coded shaded relief in Robinson projection with graticule.
+
+    The central meridian is 180 (0-360 E) unless the data are regional
+    (:func:`robinson_central_meridian`); the title says which.
+    """
     vmin, vmax = _limits(h)
-    fwd = pyproj.Transformer.from_crs(CRS_GEOGRAPHIC, CRS_ROBINSON_180, always_xy=True)
-    inv = pyproj.Transformer.from_crs(CRS_ROBINSON_180, CRS_GEOGRAPHIC, always_xy=True)
-    xmax = abs(fwd.transform(0.0, 0.0)[0])  # lon 0 is 180 deg from the central meridian
-    ymax = abs(fwd.transform(180.0, 90.0)[1])
+    lon0 = robinson_central_meridian(h, lon) if central_meridian is None else float(central_meridian) % 360.0
+    lon0 = lon0 - 360.0 if lon0 > 180.0 else lon0  # PROJ's range; 180 stays 180
+    if title is None:
+        title = ("Mercury DEM, Robinson projection (0-360°E, centred on 180°E)" if lon0 == 180.0
+                 else f"Mercury DEM, Robinson projection centred on {lon0 % 360.0:g}°E (the data's longitudes)")
+    fwd = pyproj.Transformer.from_crs(CRS_GEOGRAPHIC, robinson_crs(lon0), always_xy=True)
+    inv = pyproj.Transformer.from_crs(robinson_crs(lon0), CRS_GEOGRAPHIC, always_xy=True)
+    xmax = abs(fwd.transform(lon0 + 180.0, 0.0)[0])  # the antimeridian of the centre
+    ymax = abs(fwd.transform(lon0, 90.0)[1])
     nx = int(width)
     ny = int(round(nx * ymax / xmax))
     xs = np.linspace(-xmax, xmax, nx)
@@ -272,18 +307,21 @@ def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat
     rgba[nodata] = (0.75, 0.75, 0.75, 1.0)
     fig, ax, cax = _map_figure(1.02 * ymax / (1.01 * xmax), "horizontal", labels=False)
     ax.imshow(rgba, extent=(-xmax, xmax, -ymax, ymax), interpolation="nearest")
+    west, east = lon0 - 180.0 + 1e-4, lon0 + 180.0 - 1e-4  # the map's two edges
     for g in range(-60, 61, 30):  # parallels
-        px, py = fwd.transform(np.linspace(0, 359.9999, 361), np.full(361, float(g)))
+        px, py = fwd.transform(np.linspace(west, east, 361), np.full(361, float(g)))
         ax.plot(px, py, color="k", lw=0.4, alpha=0.5)
-    # The outline: both poles' lines and the 0/360 meridian on either side.
+    # The outline: both poles' lines and the antimeridian on either side.
     edge_lat = np.linspace(-90, 90, 181)
-    for lon_e in (0.0, 359.9999):
+    for lon_e in (west, east):
         px, py = fwd.transform(np.full(181, lon_e), edge_lat)
         ax.plot(px, py, color="k", lw=0.8)
     for lat_e in (-90.0, 90.0):
-        px, py = fwd.transform(np.linspace(0, 359.9999, 361), np.full(361, lat_e))
+        px, py = fwd.transform(np.linspace(west, east, 361), np.full(361, lat_e))
         ax.plot(px, py, color="k", lw=0.8)
-    for g in range(30, 331, 30):  # meridians
+    for g in range(0, 360, 30):  # meridians (not the map's edges)
+        if abs((g - lon0 + 180.0) % 360.0 - 180.0) > 179.0:
+            continue
         px, py = fwd.transform(np.full(181, float(g)), np.linspace(-90, 90, 181))
         ax.plot(px, py, color="k", lw=0.4, alpha=0.5)
         if g % 60 == 0:

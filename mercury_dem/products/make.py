@@ -161,8 +161,7 @@ def make_products(
         title += " (cropped to the data)"
     files.append(str(browse.write_colour_png(ch, cs, clat, clon, out / "browse/colour_hillshade.png", title, ex)))
     files.append(str(browse.write_robinson_png(
-        h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600),
-        "Mercury DEM, Robinson projection (0-360°E, centred on 180°E)")))
+        h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600))))
     summary["browse_exaggeration"] = ex
 
     # Coverage (reference 001), when the DEM stage stored it.

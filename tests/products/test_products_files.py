@@ -108,6 +108,22 @@ def test_longitude_ticks_across_the_seam_say_the_longitude():
         "340", "355", "0", "5", "12.5", "350"]
 
 
+def test_robinson_map_is_centred_on_regional_data():
+    # Global data keep the reference's 0-360 E map; a regional DEM is centred on its longitudes,
+    # across the seam too (it would be split between the map's two edges otherwise).
+    from mercury_dem.products.browse import robinson_central_meridian
+
+    lon = np.arange(0.5, 360.0, 1.0)
+    h = np.full((3, lon.size), np.nan)
+    assert robinson_central_meridian(np.zeros_like(h), lon) == 180.0
+    h[:, (lon > 100) & (lon < 140)] = 1.0
+    assert robinson_central_meridian(h, lon) == 120.0
+    h[:] = np.nan
+    h[:, (lon > 340) | (lon < 18)] = 1.0
+    assert robinson_central_meridian(h, lon) == 359.0
+    assert robinson_central_meridian(h, lon - 360.0) == 359.0  # the same map on -180..180
+
+
 def test_statistics_and_accuracy_json(dem_dir, products):
     stats = json.loads((dem_dir / "products/statistics.json").read_text())
     assert stats["resample"]["factor"] == 2
