@@ -24,6 +24,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing product files")
 
 
+def _run_truth(d: Path) -> Any:
+    """The truth height of DIR's mission when DIR is a run of a mission with truth (as ``mercury-dem run``
+    gives its products), else None. A run whose mission has moved gets its products without truth."""
+    import json
+    import sys
+
+    run_json = d / "run.json"
+    if not run_json.is_file():
+        return None
+    try:
+        from mercury_dem.io.mission import open_mission
+
+        mission = open_mission(json.loads(run_json.read_text())["mission"])
+    except (MercuryDemError, OSError, KeyError, ValueError) as exc:
+        print(f"note: no truth for the products (the run's mission cannot be opened: {exc})", file=sys.stderr)
+        return None
+    return mission.surface().height if getattr(mission, "has_truth", False) else None
+
+
 def run(args: argparse.Namespace, config: Any) -> int:
     from mercury_dem.products.make import make_products
     from mercury_dem.products.profile import parse_profile
@@ -34,8 +53,14 @@ def run(args: argparse.Namespace, config: Any) -> int:
         raise ProfileError(f"--profile: {exc}") from None
     d = Path(args.dir)
     out = Path(args.out) if args.out else d / "products"
-    summary = make_products(d / "dem.zarr", out, config, profiles=profiles, overwrite=args.overwrite)
+    truth = _run_truth(d)
+    summary = make_products(d / "dem.zarr", out, config, truth_height=truth, profiles=profiles,
+                            overwrite=args.overwrite)
     print(summary["table"])
+    if summary.get("accuracy"):
+        a = summary["accuracy"]
+        print(f"DEM minus truth (m): RMSE {a['rmse_m']:.0f}, bias {a['bias_m']:.0f}, std {a['std_m']:.0f}, "
+              f"p5/p50/p95 {a['p5_m']:.0f} / {a['p50_m']:.0f} / {a['p95_m']:.0f} (accuracy.json; profiles show the truth)")
     if summary["coverage"]:
         c = summary["coverage"]
         n = c["nearest_point_km"]

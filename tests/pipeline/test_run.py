@@ -110,6 +110,23 @@ def test_dem_store_and_products(sync_run: tuple[Path, dict[str, Any]]) -> None:
     assert d["adjusted"]["n_compared"] > 0 and d["a_priori"]["n_compared"] > 0
 
 
+def test_products_command_on_a_run_compares_with_the_truth(sync_run: tuple[Path, dict[str, Any]], tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    # 'mercury-dem products RUN' finds the run's mission: the same accuracy as the run's report,
+    # and profiles that carry the truth beside the DEM.
+    run, report = sync_run
+    out = tmp_path / "products"
+    assert main(["products", str(run), "--out", str(out), "--profile", "0,-5,10,5"]) == 0
+    assert "DEM minus truth (m): RMSE" in capsys.readouterr().out
+    acc = json.loads((out / "accuracy.json").read_text())
+    assert acc["rmse_m"] == pytest.approx(report["validation"]["dem"]["adjusted"]["rmse_m"], rel=1e-9)
+    prof = np.genfromtxt(out / "profile_1.csv", delimiter=",", names=True)
+    ok = np.isfinite(prof["elevation_m"])
+    assert ok.any() and np.isfinite(prof["truth_m"]).all()
+    rmse = float(np.sqrt(np.mean((prof["elevation_m"][ok] - prof["truth_m"][ok]) ** 2)))
+    assert rmse < 3 * acc["rmse_m"] + 200.0  # the profile is the DEM against the same truth
+
+
 def test_resume_skips_finished_units_and_gives_the_same_result(
     sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path, tmp_path: Path
 ) -> None:
