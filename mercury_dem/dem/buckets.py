@@ -439,10 +439,28 @@ def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no
     """Squared distances <= cap2 into (bd2, bi); returns (how many there were, count <= r2count).
 
     More than ``bd2.size`` means the buffer overflowed (only its first entries are stored).
+    When every point of the ranges fits in the buffer, each one is stored and the
+    position advanced by the test's 0/1 (no data-dependent branch: about half the
+    tests go either way, so a branch is mispredicted about half the time).
     """
     m = 0
     cnt = 0
     nbuf = bd2.size
+    tot = 0
+    for t in range(nr):
+        tot += ranges[t, 1] - ranges[t, 0]
+    if tot <= nbuf:
+        for t in range(nr):
+            for i in range(ranges[t, 0], ranges[t, 1]):
+                dx = xyz[i, 0] - qx
+                dy = xyz[i, 1] - qy
+                dz = xyz[i, 2] - qz
+                d2 = dx * dx + dy * dy + dz * dz
+                cnt += d2 <= r2count
+                bd2[m] = d2
+                bi[m] = i
+                m += d2 <= cap2
+        return m, cnt
     for t in range(nr):
         for i in range(ranges[t, 0], ranges[t, 1]):
             dx = xyz[i, 0] - qx
@@ -625,10 +643,55 @@ def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_sta
         a = _next_cap(a, a_second, ang_max)
 
 
+@numba.njit(cache=True, inline="always")
+def _sort11(r):  # pragma: no cover
+    """Sort r[:11] ascending in place with a 35-comparator sorting network (min/max pairs, no
+    branches; checked on all 2**11 0/1 inputs in the tests). Same values as any sort."""
+    v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10]
+    v0, v9 = min(v0, v9), max(v0, v9)
+    v1, v6 = min(v1, v6), max(v1, v6)
+    v2, v4 = min(v2, v4), max(v2, v4)
+    v3, v7 = min(v3, v7), max(v3, v7)
+    v5, v8 = min(v5, v8), max(v5, v8)
+    v0, v1 = min(v0, v1), max(v0, v1)
+    v3, v5 = min(v3, v5), max(v3, v5)
+    v4, v10 = min(v4, v10), max(v4, v10)
+    v6, v9 = min(v6, v9), max(v6, v9)
+    v7, v8 = min(v7, v8), max(v7, v8)
+    v1, v3 = min(v1, v3), max(v1, v3)
+    v2, v5 = min(v2, v5), max(v2, v5)
+    v4, v7 = min(v4, v7), max(v4, v7)
+    v8, v10 = min(v8, v10), max(v8, v10)
+    v0, v4 = min(v0, v4), max(v0, v4)
+    v1, v2 = min(v1, v2), max(v1, v2)
+    v3, v7 = min(v3, v7), max(v3, v7)
+    v5, v9 = min(v5, v9), max(v5, v9)
+    v6, v8 = min(v6, v8), max(v6, v8)
+    v0, v1 = min(v0, v1), max(v0, v1)
+    v2, v6 = min(v2, v6), max(v2, v6)
+    v4, v5 = min(v4, v5), max(v4, v5)
+    v7, v8 = min(v7, v8), max(v7, v8)
+    v9, v10 = min(v9, v10), max(v9, v10)
+    v2, v4 = min(v2, v4), max(v2, v4)
+    v3, v6 = min(v3, v6), max(v3, v6)
+    v5, v7 = min(v5, v7), max(v5, v7)
+    v8, v9 = min(v8, v9), max(v8, v9)
+    v1, v2 = min(v1, v2), max(v1, v2)
+    v3, v4 = min(v3, v4), max(v3, v4)
+    v5, v6 = min(v5, v6), max(v5, v6)
+    v7, v8 = min(v7, v8), max(v7, v8)
+    v2, v3 = min(v2, v3), max(v2, v3)
+    v4, v5 = min(v4, v5), max(v4, v5)
+    v6, v7 = min(v6, v7), max(v6, v7)
+    r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10] = v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10
+
+
 @numba.njit(cache=True)
 def _median_filtered(r, s, n, sigma):  # pragma: no cover
     """1-sigma filtered median of r[:n] (sorted in place; s: scratch of n) and the spread of the kept run."""
-    if n <= RANK_MAX:  # sort by counting ranks (no data-dependent branches; ties by position)
+    if n == 11:
+        _sort11(r)
+    elif n <= RANK_MAX:  # sort by counting ranks (no data-dependent branches; ties by position)
         for a in range(n):
             v = r[a]
             q = 0
@@ -790,7 +853,11 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
             phi, lam, qx, qy, qz = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r)
             nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a_r, ranges)
-            m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
+            m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, r2, r2, bd2, bi)
+            if m > bd2.size:
+                m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
+            else:
+                m = _topk(bd2, bi, m, kmax, dk2, ik)
             if m > 0:
                 for i in range(m):
                     d[i] = math.sqrt(dk2[i])

@@ -187,3 +187,22 @@ def test_bucket_search_equals_kdtree(method, lat_range, lon_range):
     for key in fast:
         np.testing.assert_allclose(fast[key], ref[key], rtol=0, atol=1e-6, err_msg=key)
     assert np.isfinite(fast["height"]).sum() > 100
+
+
+def test_sort11_network_sorts():
+    """The 11-value sorting network of the median11 kernel sorts every 0/1 input (hence, by the
+    0-1 principle, every input) and random radii with ties exactly as np.sort does."""
+    import itertools
+
+    from mercury_dem.dem.buckets import _sort11
+
+    for bits in itertools.product((0.0, 1.0), repeat=11):
+        r = np.array(bits)
+        _sort11(r)
+        assert np.all(np.diff(r) >= 0), bits
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        r = DATUM_RADIUS_M + np.round(rng.normal(0, 50, 11), 1)  # rounded: ties occur
+        want = np.sort(r)
+        _sort11(r)
+        np.testing.assert_array_equal(r, want)
