@@ -245,6 +245,32 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
     return _finish(fig, path)
 
 
+def write_error_png(error: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
+                    path: str | Path, title: str) -> Path:
+    """DEM minus truth on the map (degrees, diverging colours symmetric about 0 at the 98th percentile
+    of |error|), with the bias and RMSE in a corner: where the DEM is high, low, or without value."""
+    v = error[np.isfinite(error)]
+    lim = float(np.percentile(np.abs(v), 98)) if v.size else 1.0
+    lim = lim if lim > 0 else 1.0
+    rgba = plt.get_cmap("RdBu_r")(colors.Normalize(-lim, lim)(np.where(np.isfinite(error), error, 0.0)))
+    rgba[~np.isfinite(error)] = (0.85, 0.85, 0.85, 1.0)
+    dlat, dlon, _ = _spacing(lat, lon)
+    extent = (lon[0] - dlon / 2, lon[-1] + dlon / 2, lat[-1] - dlat / 2, lat[0] + dlat / 2)
+    fig, ax, cax = _map_figure((extent[3] - extent[2]) / (extent[1] - extent[0]), "vertical", labels=True)
+    ax.imshow(rgba, extent=extent, interpolation="nearest", aspect="equal")
+    ax.xaxis.set_major_formatter(ticker.FuncFormatter(east_longitude_label))
+    ax.set_xlabel("east longitude (deg)")
+    ax.set_ylabel("planetocentric latitude (deg)")
+    ax.set_title(title)
+    sm = plt.cm.ScalarMappable(norm=colors.Normalize(-lim, lim), cmap="RdBu_r")
+    fig.colorbar(sm, cax=cax).set_label("DEM minus truth (m); grey: no value")
+    if v.size:
+        ax.text(0.99, 0.01, f"bias {v.mean():.0f} m, RMSE {np.sqrt(np.mean(v ** 2)):.0f} m (unweighted, this grid)",
+                transform=ax.transAxes, ha="right", va="bottom", fontsize=8,
+                bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none"})
+    return _finish(fig, path)
+
+
 def robinson_central_meridian(h: NDArray[np.floating], lon: NDArray[np.float64]) -> float:
     """Central meridian of the global map: 180 (the reference's 0-360 E map) when the data span
     most longitudes, else the middle of the longitudes holding data (a regional DEM across

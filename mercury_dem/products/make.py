@@ -13,6 +13,7 @@ Reads ``dem.zarr`` (and ``coverage.zarr`` beside it when present) and writes int
     coverage.json                reference 001 point-cloud coverage (with coverage.zarr)
     accuracy.json                DEM minus truth (when a truth height is given)
     profile_<n>.png/.csv         elevation profiles (when asked)
+    browse/error_vs_truth.png    DEM minus truth map (when the truth is given)
 
 Existing files are never replaced without ``overwrite``.
 """
@@ -100,7 +101,7 @@ def make_products(
     ds = open_dem(dem_path)
     planned = list(PRODUCT_FILES) + [f"profile_{i + 1}.png" for i in range(len(profiles))]
     if truth_height is not None:
-        planned.append("accuracy.json")
+        planned += ["accuracy.json", "browse/error_vs_truth.png"]
     if not overwrite:
         for rel in planned:
             if (out / rel).exists():
@@ -184,6 +185,17 @@ def make_products(
         acc = dem_accuracy(elev, lat, lon, truth_height, ds.distance_to_nearest_point.values)
         files.append(str(atomic_write_json(out / "accuracy.json", acc)))
         summary["accuracy"] = acc
+        glat, glon = np.meshgrid(blat, blon, indexing="ij")
+        err = h - np.asarray(truth_height(glat, glon), dtype=np.float64)
+        err[~np.isfinite(h)] = np.nan
+        e_shade = np.zeros_like(err)
+        if np.isfinite(err).mean() < 0.5:
+            err, _, elat, elon = browse.crop_to_data(err, e_shade, blat, blon)
+        else:
+            elat, elon = blat, blon
+        files.append(str(browse.write_error_png(
+            err, elat, elon, out / "browse/error_vs_truth.png",
+            f"DEM minus truth at browse resolution ({abs(float(blat[1] - blat[0])) if blat.size > 1 else 0:.3g}°/pixel)")))
 
     # Profiles.
     summary["profiles"] = []

@@ -94,7 +94,7 @@ def test_browse_pngs_look_like_the_dem(dem_dir, products):
     # Grey level is a monotone stretch of elevation.
     r = np.corrcoef(grey[..., 0][ok], np.clip(elev[ok], *np.percentile(elev[ok], [1, 99])))[0, 1]
     assert r > 0.999
-    for name in ("hillshade", "colour_hillshade", "robinson", "coverage_distance"):
+    for name in ("hillshade", "colour_hillshade", "robinson", "coverage_distance", "error_vs_truth"):
         img = mpimg.imread(dem_dir / f"products/browse/{name}.png")
         assert img.shape[0] > 100 and img.shape[1] > 300
         assert img[..., :3].std() > 0.05  # not blank
@@ -106,6 +106,23 @@ def test_longitude_ticks_across_the_seam_say_the_longitude():
 
     assert [east_longitude_label(x) for x in (340.0, 355.0, 360.0, 365.0, 372.5, -10.0)] == [
         "340", "355", "0", "5", "12.5", "350"]
+
+
+def test_error_map_shows_high_red_low_blue_and_gaps_grey(tmp_path):
+    from mercury_dem.products.browse import write_error_png
+
+    lat = np.linspace(9.5, -9.5, 20)
+    lon = np.linspace(0.5, 39.5, 40)
+    err = np.where(lon < 20, 300.0, -300.0)[None, :].repeat(20, axis=0)
+    err[:, 18:22] = np.nan
+    img = mpimg.imread(write_error_png(err, lat, lon, tmp_path / "e.png", "t"))[..., :3]
+    # The map axes sit in the middle of the figure: sample its left, centre and right thirds on the equator row.
+    row = img[img.shape[0] // 2]
+    coloured = np.flatnonzero(np.ptp(row, axis=1) > 0.2)  # red or blue pixels (grey has r = g = b)
+    left, right = row[coloured[0] + 5], row[coloured[coloured < img.shape[1] * 0.8][-1] - 5]
+    assert left[0] > left[2] + 0.2 and right[2] > right[0] + 0.2  # DEM high = red, low = blue
+    mid = row[(coloured[0] + coloured[coloured < img.shape[1] * 0.8][-1]) // 2]
+    assert np.ptp(mid) < 0.02 and 0.8 < mid[0] < 0.9  # no value = light grey
 
 
 def test_robinson_map_is_centred_on_regional_data():
