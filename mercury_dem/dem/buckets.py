@@ -119,20 +119,52 @@ class SphereBuckets:
         return math.sqrt((2.0 * k + 4.0) / (math.pi * self.density))
 
 
-def _occupied_density(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> float:
+@numba.njit(cache=True, nogil=True)
+def _occupancy(lat, lon, c, nlat, nlon, nbin):  # pragma: no cover - compiled
+    """One pass over the footprints: coarse lat/lon cells holding points (``nlat x nlon`` of
+    edge c radians), 2 pi / nbin longitude bins holding points, and the latitude range."""
+    occ = np.zeros(nlat * nlon, dtype=np.bool_)
+    lon_occ = np.zeros(nbin, dtype=np.bool_)
+    lat_lo = np.inf
+    lat_hi = -np.inf
+    for p in range(lat.size):
+        f = lat[p]
+        t = lon[p]
+        i = min(max(int((f + math.pi / 2) / c), 0), nlat - 1)
+        j = min(max(int(t / c), 0), nlon - 1)
+        occ[i * nlon + j] = True
+        lon_occ[min(int(t / (2 * math.pi) * nbin), nbin - 1)] = True
+        lat_lo = min(lat_lo, f)
+        lat_hi = max(lat_hi, f)
+    return occ, lon_occ, lat_lo, lat_hi
+
+
+@numba.njit(cache=True, nogil=True)
+def _max_from(lon, origin):  # pragma: no cover - compiled
+    """max over points of (lon - origin) mod 2 pi (numpy's floored modulo)."""
+    u = -np.inf
+    for p in range(lon.size):
+        u = max(u, (lon[p] - origin) % (2 * math.pi))
+    return u
+
+
+#: Longitude bins (0.5 degree) of :func:`_lon_extent`.
+LON_BINS = 720
+
+
+def _coarse_edge(n: int) -> float:
+    """Edge (radians) of :func:`_occupied_density`'s coarse cells: ~20 points per cell for a global cloud."""
+    return math.radians(min(15.0, max(0.5, math.sqrt(41253.0 / max(n / 20.0, 1.0)))))
+
+
+def _occupied_density(occ: NDArray[np.bool_], c: float, n: int) -> float:
     """Points per steradian over the area of the coarse lat/lon cells holding points.
 
-    The coarse cell edge gives about 20 points per cell for a global cloud (0.5-15 deg),
-    so a regional cloud is not diluted over the whole sphere.
+    ``occ``: the (nlat x nlon) occupancy of cells of edge ``c`` (:func:`_occupancy`), so a
+    regional cloud is not diluted over the whole sphere.
     """
-    n = lat.size
-    c = math.radians(min(15.0, max(0.5, math.sqrt(41253.0 / max(n / 20.0, 1.0)))))
     nlat = int(math.ceil(math.pi / c))
     nlon = int(math.ceil(2 * math.pi / c))
-    i = np.clip(((lat + math.pi / 2) / c).astype(np.int64), 0, nlat - 1)
-    j = np.clip((lon / c).astype(np.int64), 0, nlon - 1)
-    occ = np.zeros(nlat * nlon, dtype=bool)
-    occ[i * nlon + j] = True
     edges = np.minimum(-math.pi / 2 + np.arange(nlat + 1) * c, math.pi / 2)
     band_area = (np.sin(edges[1:]) - np.sin(edges[:-1])) * c  # last lon cell may be narrower: ignored
     area = float((occ.reshape(nlat, nlon).sum(axis=1) * band_area).sum())
@@ -207,14 +239,13 @@ _cell_of = numba.njit(parallel=True, cache=True, nogil=True)(_cell_body)
 _gather = numba.njit(parallel=True, cache=True, nogil=True)(_gather_body)
 
 
-def _lon_extent(lon: NDArray[np.float64]) -> tuple[float, float]:
+def _lon_extent(occ: NDArray[np.bool_], lon: NDArray[np.float64]) -> tuple[float, float]:
     """(origin, span) in radians of the smallest longitude interval holding every point.
 
-    The complement of the widest empty gap of a 0.5-degree histogram; the whole circle
-    (origin 0) when no gap is wider than 5 degrees.
+    The complement of the widest empty gap of the 0.5-degree occupancy ``occ``
+    (:func:`_occupancy`); the whole circle (origin 0) when no gap is wider than 5 degrees.
     """
-    nbin = 720
-    occ = np.bincount(np.minimum((lon / (2 * math.pi) * nbin).astype(np.int64), nbin - 1), minlength=nbin) > 0
+    nbin = occ.size
     if occ.all():
         return 0.0, 2 * math.pi
     # widest circular run of empty bins
@@ -225,8 +256,7 @@ def _lon_extent(lon: NDArray[np.float64]) -> tuple[float, float]:
     if gaps[g] * 360.0 / nbin < 5.0:
         return 0.0, 2 * math.pi
     origin = (idx[g + 1] % nbin) * 2 * math.pi / nbin
-    u = np.mod(lon - origin, 2 * math.pi)
-    return float(origin), float(min(2 * math.pi, u.max() * (1 + 1e-12) + 1e-12))
+    return float(origin), float(min(2 * math.pi, _max_from(lon, origin) * (1 + 1e-12) + 1e-12))
 
 
 def footprints(points: NDArray[np.float64], sphere_radius: float) -> dict[str, NDArray[Any]]:
@@ -269,10 +299,13 @@ def build_buckets(
         _run(_latlon, -1, fp, float(sphere_radius), lat, lon)
     else:
         lat, lon = latlon
-    density = _occupied_density(lat, lon)
-    lon0, lon_span = _lon_extent(lon)
+    c = _coarse_edge(n)
+    occ, lon_occ, lat_lo, lat_hi = _occupancy(lat, lon, c, int(math.ceil(math.pi / c)),
+                                              int(math.ceil(2 * math.pi / c)), LON_BINS)
+    lat_lo, lat_hi = float(lat_lo), float(lat_hi)
+    density = _occupied_density(occ, c, n)
+    lon0, lon_span = _lon_extent(lon_occ, lon)
     s = math.sqrt(points_per_cell / density)  # cell edge (radians) of a square cell
-    lat_lo, lat_hi = float(lat.min()), float(lat.max())
     for _ in range(8):  # grow cells until their count is at most ~4 per point
         sh = s * math.sqrt(aspect)
         nb = max(1, int(math.ceil((lat_hi - lat_lo) / sh)))
