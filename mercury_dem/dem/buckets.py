@@ -171,15 +171,7 @@ def _occupied_density(occ: NDArray[np.bool_], c: float, n: int) -> float:
     return n / max(area, 1e-30)
 
 
-def _latlon_body(fp, rs, lat, lon):  # pragma: no cover - compiled
-    for p in prange(fp.shape[0]):
-        z = fp[p, 2] / rs
-        lat[p] = math.asin(min(1.0, max(-1.0, z)))
-        t = math.atan2(fp[p, 1], fp[p, 0]) % (2.0 * math.pi)
-        lon[p] = 0.0 if t >= 2.0 * math.pi else t
-
-
-def _prepare_body(p, rs, fp, r, lat, lon, bad):  # pragma: no cover - compiled
+def _prepare_body(p, rs, r, lat, lon, bad):  # pragma: no cover - compiled
     for i in prange(p.shape[0]):
         x = p[i, 0]
         y = p[i, 1]
@@ -192,12 +184,9 @@ def _prepare_body(p, rs, fp, r, lat, lon, bad):  # pragma: no cover - compiled
         if not rr > 0.0:
             bad[i] = 2
             continue
-        f = rs / rr
-        fp[i, 0] = x * f
-        fp[i, 1] = y * f
-        fp[i, 2] = z * f
-        lat[i] = math.asin(min(1.0, max(-1.0, fp[i, 2] / rs)))
-        t = math.atan2(fp[i, 1], fp[i, 0]) % (2.0 * math.pi)
+        f = rs / rr  # the footprint is p * f (stored later, in bucket order, by _gather)
+        lat[i] = math.asin(min(1.0, max(-1.0, (z * f) / rs)))
+        t = math.atan2(y * f, x * f) % (2.0 * math.pi)
         lon[i] = 0.0 if t >= 2.0 * math.pi else t
 
 
@@ -212,13 +201,15 @@ def _cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band_first, o
         out[p] = band_first[b] + min(max(j, 0), nc - 1)
 
 
-def _gather_body(order, fp, radius, xyz_out, r_out):  # pragma: no cover - compiled
+def _gather_body(order, pts, rs, radius, xyz_out, r_out):  # pragma: no cover - compiled
     for p in prange(order.size):
         i = order[p]
-        xyz_out[p, 0] = fp[i, 0]
-        xyz_out[p, 1] = fp[i, 1]
-        xyz_out[p, 2] = fp[i, 2]
-        r_out[p] = radius[i]
+        r = radius[i]
+        f = rs / r  # footprint = point x (rs / |p|), as in _prepare_body
+        xyz_out[p, 0] = pts[i, 0] * f
+        xyz_out[p, 1] = pts[i, 1] * f
+        xyz_out[p, 2] = pts[i, 2] * f
+        r_out[p] = r
 
 
 @numba.njit(cache=True, nogil=True)
@@ -233,7 +224,6 @@ def _counting_order(cell, cell_start):  # pragma: no cover - compiled
     return order
 
 
-_latlon = numba.njit(parallel=True, cache=True, nogil=True)(_latlon_body)
 _prepare = numba.njit(parallel=True, cache=True, nogil=True)(_prepare_body)
 _cell_of = numba.njit(parallel=True, cache=True, nogil=True)(_cell_body)
 _gather = numba.njit(parallel=True, cache=True, nogil=True)(_gather_body)
@@ -260,45 +250,42 @@ def _lon_extent(occ: NDArray[np.bool_], lon: NDArray[np.float64]) -> tuple[float
 
 
 def footprints(points: NDArray[np.float64], sphere_radius: float) -> dict[str, NDArray[Any]]:
-    """Radii, footprints on the sphere and their latitude/longitude, in one compiled pass.
+    """Radii of the points and the latitude/longitude of their footprints, in one compiled pass.
 
-    Returns dict: ``radius`` (N,) = |p| (m), ``footprint`` (N, 3) = p / |p| x sphere_radius,
-    ``lat`` (N,) and ``lon`` (N,) of the footprints (radians, lon in [0, 2 pi)), ``bad``
-    (N,) uint8: 0 valid, 1 non-finite coordinate, 2 at the centre (the other outputs of a
-    bad point are undefined). The same arithmetic (and bits) as ``np.sqrt(np.einsum('ij,ij->i', p, p))`` and
-    ``p * (R / r)``, without the numpy version's temporaries and passes.
+    Returns dict: ``radius`` (N,) = |p| (m), ``lat`` (N,) and ``lon`` (N,) of the footprints
+    ``p / |p| x sphere_radius`` (radians, lon in [0, 2 pi)), ``bad`` (N,) uint8: 0 valid, 1
+    non-finite coordinate, 2 at the centre (the other outputs of a bad point are undefined).
+    The same arithmetic (and bits) as ``np.sqrt(np.einsum('ij,ij->i', p, p))`` and
+    ``p * (R / r)``, without the numpy version's temporaries and passes. The footprints
+    themselves are only written once, in bucket order (:func:`build_buckets`).
     """
     p = np.ascontiguousarray(points, dtype=np.float64)
     n = p.shape[0]
-    out = {"radius": np.empty(n), "footprint": np.empty((n, 3)), "lat": np.empty(n), "lon": np.empty(n),
-           "bad": np.zeros(n, dtype=np.uint8)}
-    _run(_prepare, -1, p, float(sphere_radius), out["footprint"], out["radius"], out["lat"], out["lon"], out["bad"])
+    out = {"radius": np.empty(n), "lat": np.empty(n), "lon": np.empty(n), "bad": np.zeros(n, dtype=np.uint8)}
+    _run(_prepare, -1, p, float(sphere_radius), out["radius"], out["lat"], out["lon"], out["bad"])
     return out
 
 
 def build_buckets(
-    footprint: NDArray[np.float64], radius: NDArray[np.float64], sphere_radius: float,
+    points: NDArray[np.float64], sphere_radius: float,
     points_per_cell: float = POINTS_PER_CELL, aspect: float = CELL_ASPECT,
-    latlon: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    prepared: dict[str, NDArray[Any]] | None = None,
 ) -> SphereBuckets:
-    """Bucket a validated cloud.
+    """Bucket a validated cloud (finite points, none at the centre).
 
     Parameters
     ----------
-    footprint : (N, 3) float64, points projected on the sphere of ``sphere_radius`` (m)
-    radius : (N,) float64, the points' radii (m)
+    points : (N, 3) float64, body-fixed points (m); they are bucketed by their footprints
+        ``p / |p| x sphere_radius``
     sphere_radius : float, m
     points_per_cell : target mean occupancy of a cell where the cloud lies
     aspect : band height / cell width (a band's cells are ``aspect`` times narrower than it is high)
-    latlon : the footprints' (lat, lon) in radians if already known (:func:`footprints`)
+    prepared : :func:`footprints` of ``points`` if already computed (radius, lat, lon)
     """
-    n = footprint.shape[0]
-    fp = np.ascontiguousarray(footprint, dtype=np.float64)
-    if latlon is None:
-        lat, lon = np.empty(n), np.empty(n)
-        _run(_latlon, -1, fp, float(sphere_radius), lat, lon)
-    else:
-        lat, lon = latlon
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    n = pts.shape[0]
+    f = footprints(pts, sphere_radius) if prepared is None else prepared
+    lat, lon, radius = f["lat"], f["lon"], f["radius"]
     c = _coarse_edge(n)
     occ, lon_occ, lat_lo, lat_hi = _occupancy(lat, lon, c, int(math.ceil(math.pi / c)),
                                               int(math.ceil(2 * math.pi / c)), LON_BINS)
@@ -326,7 +313,7 @@ def build_buckets(
     np.cumsum(counts, out=cell_start[1:])
     order = _counting_order(cell, cell_start)
     xyz, rad = np.empty((n, 3)), np.empty(n)
-    _run(_gather, -1, order, fp, np.ascontiguousarray(radius, dtype=np.float64), xyz, rad)
+    _run(_gather, -1, order, pts, float(sphere_radius), radius, xyz, rad)
     return SphereBuckets(
         xyz=xyz,
         radius=rad,

@@ -208,7 +208,7 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
                 f"(first at row {int(np.argmax(nonfinite))})"
             )
         raise GridError(f"the point cloud holds {int((bad == 2).sum())} points at the body centre")
-    return PointIndex(buckets=build_buckets(f["footprint"], f["radius"], DATUM_RADIUS_M, latlon=(f["lat"], f["lon"])))
+    return PointIndex(buckets=build_buckets(p, DATUM_RADIUS_M, prepared=f))
 
 
 def _threads(cfg: Any) -> int:
