@@ -186,7 +186,8 @@ def _prepare_body(p, rs, r, lat, lon, bad):  # pragma: no cover - compiled
             continue
         f = rs / rr  # the footprint is p * f (stored later, in bucket order, by _gather)
         lat[i] = math.asin(min(1.0, max(-1.0, (z * f) / rs)))
-        t = math.atan2(y * f, x * f) % (2.0 * math.pi)
+        t = math.atan2(y * f, x * f)
+        t = t + 2.0 * math.pi if t < 0.0 else t + 0.0  # Python's t % 2 pi for t in [-pi, pi], -0.0 -> 0.0 included
         lon[i] = 0.0 if t >= 2.0 * math.pi else t
 
 
