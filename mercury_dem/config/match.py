@@ -115,6 +115,11 @@ class MatchConfig(ConfigSection):
     refine: bool = param(True, "Sub-pixel refinement of every measure on the pre-transformed images")
     refine_window_px: int = param(21, "Refinement correlation window (odd)", unit="px", lo=5, hi=101)
     refine_search_px: int = param(3, "Refinement integer search radius around the matched position", unit="px", lo=1, hi=32)
+    refine_normalize_sigma_px: float = param(
+        2.0, "Refinement positions found on both images locally normalized ((DN - local mean) / local std, Gaussian "
+        "weights of this sigma; removes the smooth shading that differs between views and suns); the score stays the "
+        "NCC of the DN windows. 0 = on the DN", unit="px", lo=0.0, hi=50.0,
+    )
     refine_iterations: int = param(
         4, "Gauss-Newton (Lucas-Kanade, gain and offset) steps after the correlation peak fit", lo=0, hi=50
     )

@@ -68,6 +68,7 @@ def ncc_matches(
     window_px: float,
     template_px: int,
     min_score: float,
+    offset: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
     """Area-based matches of reference corners in the warped match image.
 
@@ -77,9 +78,11 @@ def ncc_matches(
     warped : ndarray (lines, samples) float32, match image in the reference geometry
     valid : ndarray bool, where ``warped`` is inside the match image
     corners : ndarray (K, 2), reference corner positions (sample, line)
-    window_px : search half-width around each corner's own position
+    window_px : search half-width around each corner's own position (plus ``offset``)
     template_px : odd template size
     min_score : lowest NCC peak accepted
+    offset : (sample, line) displacement predicted for every corner (rounded to whole pixels),
+        e.g. from the pair's matches so far; the search window is centred on corner + offset
 
     Returns
     -------
@@ -89,6 +92,7 @@ def ncc_matches(
     """
     half = template_px // 2
     r = int(np.ceil(window_px))
+    ox, oy = (int(v) for v in np.rint(np.asarray(offset, np.float64)))
     h, w = ref.shape
     # Template centres whose whole template lies on valid warped data.
     centre_ok = cv2.erode(valid.view(np.uint8), np.ones((template_px, template_px), np.uint8)).astype(bool)
@@ -101,8 +105,8 @@ def ncc_matches(
         t = ref[l - half : l + half + 1, s - half : s + half + 1]
         if float(t.std()) <= 1e-6:
             continue
-        s0, s1 = max(s - r - half, 0), min(s + r + half + 1, w)
-        l0, l1 = max(l - r - half, 0), min(l + r + half + 1, h)
+        s0, s1 = max(s + ox - r - half, 0), min(s + ox + r + half + 1, w)
+        l0, l1 = max(l + oy - r - half, 0), min(l + oy + r + half + 1, h)
         if s1 - s0 < template_px + 2 or l1 - l0 < template_px + 2:
             continue
         res = cv2.matchTemplate(warped[l0:l1, s0:s1], t, cv2.TM_CCOEFF_NORMED)

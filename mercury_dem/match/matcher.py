@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Iterator, Mapping, Sequence
 
 import cv2
@@ -54,7 +54,7 @@ from mercury_dem.match.pretransform import (
     pair_geometry,
     warp_to_reference,
 )
-from mercury_dem.match.refine import refine_matches_adaptive
+from mercury_dem.match.refine import local_normalize, refine_matches_adaptive
 from mercury_dem.match.tracks import propagate_pair
 
 #: Routes a pair can take (``PairReport.route``).
@@ -69,13 +69,15 @@ _DETECTION_BORDER_PX = 4  # keypoints this close to the edge of the warped data 
 class ImageFeatures:
     """An image prepared once per tile: quality, float DN and features in its own geometry.
 
-    ``described`` is False when the features were not computed (yet).
+    ``described`` is False when the features were not computed (yet); ``pattern`` is the image
+    locally normalized for the refinement (:func:`local_normalize`), None when not used.
     """
 
     quality: ImageQuality
     image: NDArray[np.float32]
     features: Features
     described: bool = True
+    pattern: NDArray[np.float32] | None = None
 
 
 @dataclass
@@ -163,7 +165,7 @@ class _PairState:
     score: NDArray[np.float64]
     other_exact: NDArray[np.float64] | None = None  # (K, 2) original pixels where feat_other >= 0
     kind: NDArray[np.int8] | None = None  # (K,) PairResult.propagated; None = all 0
-    warped: Any = None  # (warped partner, valid mask) kept for the propagation, or None
+    warped: Any = None  # (warped partner, valid mask, its pattern or None) kept for the propagation, or None
 
     def take(self, keep: NDArray[Any]) -> None:
         if self.kind is None:
@@ -228,15 +230,29 @@ def prepare_image(
         return ImageFeatures(ImageQuality(False, reason, 0, 0, 0), np.zeros((0, 0), np.float32), empty)
     q = image_quality(arr, config)
     f32 = np.nan_to_num(arr.astype(np.float32, copy=False))
-    if not q.ok or not describe:
-        return ImageFeatures(q, f32, empty, described=q.ok and describe)
+    if not q.ok:
+        return ImageFeatures(q, f32, empty, described=False)
+    pattern = _pattern(f32, config)
+    if not describe:
+        return ImageFeatures(q, f32, empty, described=False, pattern=pattern)
     feats = detect_and_describe(stretch_to_8bit(f32, q.low, q.high), config)
-    return ImageFeatures(q, f32, feats)
+    return ImageFeatures(q, f32, feats, pattern=pattern)
+
+
+def _pattern(image: NDArray[np.float32], config: MatchConfig) -> NDArray[np.float32] | None:
+    """The image the refinement finds positions on (locally normalized), or None (on the DN)."""
+    if not _pattern_on(config):
+        return None
+    return local_normalize(image, config.refine_normalize_sigma_px)
+
+
+def _pattern_on(config: MatchConfig) -> bool:
+    return bool(config.refine and config.refine_normalize_sigma_px > 0)
 
 
 def _describe(im: ImageFeatures, config: MatchConfig) -> ImageFeatures:
     feats = detect_and_describe(stretch_to_8bit(im.image, im.quality.low, im.quality.high), config)
-    return ImageFeatures(im.quality, im.image, feats)
+    return ImageFeatures(im.quality, im.image, feats, pattern=im.pattern)
 
 
 def _fail(report: PairReport, reason: str, status: str = "failed") -> PairResult:
@@ -328,6 +344,8 @@ def _match_pair(
         rep.own_geometry = "ref"
     if not base.described:
         base = _describe(base, config)
+    if base.pattern is None and _pattern_on(config):  # features prepared elsewhere without it
+        base = replace(base, pattern=_pattern(base.image, config))
     feat, pa, pb, score, warped = _match_core(base, other, base_geom, other_geom, pg, config, rep)
     return _PairState(swap, pg, base, other, other_geom, feat, np.full(feat.size, -1, np.int64), pa, pb, score,
                       warped=warped if keep_warped else None)
@@ -375,6 +393,7 @@ def _match_core(
     fa = base.features
     h = pg.homography
     warped, valid = warp_to_reference(other.image, h, base.image.shape, pg.match_px_per_ref_px, config.psf_sigma_px)
+    wpat = _pattern(warped, config)
     if config.pretransform:
         w8 = stretch_to_8bit(warped, other.quality.low, other.quality.high)
         det_mask = cv2.erode(valid.view(np.uint8), np.ones((2 * _DETECTION_BORDER_PX + 1,) * 2, np.uint8))
@@ -412,7 +431,7 @@ def _match_core(
     keep = select_spread(pa, quality, config.max_matches, base.image.shape)
     feat, pa, pb, quality = feat[keep], pa[keep], pb[keep], quality[keep]
     rep.n_kept = int(feat.size)
-    feat, pa, pb, score = _refine(base, warped, valid, feat, pa, pb, quality, config.refine_window_px | 1, config)
+    feat, pa, pb, score = _refine(base, warped, valid, wpat, feat, pa, pb, quality, config.refine_window_px | 1, config)
     rep.n_refined = int(feat.size)
     feat, pa, pb, score = _local(feat, pa, pb, score, config)
     rep.n_local = int(feat.size)
@@ -423,11 +442,11 @@ def _match_core(
     # takes in shading the template did not see), added to the descriptor matches.
     if feat.size < config.min_matches and config.ncc_fallback:
         tpl = ncc_template_size(valid, config.ncc_template_px | 1, pg.guidance_px)
-        c_feat, c_pa, c_pb, c_sc = _ncc_fallback(base, warped, valid, pg, tpl, config, rep)
+        c_feat, c_pa, c_pb, c_sc = _ncc_fallback(base, warped, valid, pg, tpl, config, rep, pa, pb)
         new = _away(pa, c_pa, _NCC_DEDUP_PX)
         c_feat, c_pa, c_pb, c_sc = c_feat[new], c_pa[new], c_pb[new], c_sc[new]
         n_kept = c_feat.size
-        c_feat, c_pa, c_pb, c_sc = _refine(base, warped, valid, c_feat, c_pa, c_pb, c_sc, tpl, config)
+        c_feat, c_pa, c_pb, c_sc = _refine(base, warped, valid, wpat, c_feat, c_pa, c_pb, c_sc, tpl, config)
         u_feat = np.concatenate([feat, c_feat])
         u_pa, u_pb, u_sc = np.concatenate([pa, c_pa]), np.concatenate([pb, c_pb]), np.concatenate([score, c_sc])
         u_feat, u_pa, u_pb, u_sc = _local(u_feat, u_pa, u_pb, u_sc, config)
@@ -437,7 +456,7 @@ def _match_core(
             rep.n_refined += int(c_feat.size)
             feat, pa, pb, score = u_feat, u_pa, u_pb, u_sc
             rep.n_local = int(feat.size)
-    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid)
+    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid, wpat)
 
 
 #: Shi-Tomasi corners added to the NCC fallback's candidates: quality level and spacing (pixels).
@@ -453,24 +472,56 @@ def _extra_corners(base: ImageFeatures, on: NDArray[np.bool_], have: NDArray[np.
     one) holds a few dozen of them: too few for 20 matches when the illumination differs.
     Shi-Tomasi corners (``cv2.goodFeaturesToTrack``, restricted to the usable area) fill the
     patch, at least ``_EXTRA_CORNER_SPACING_PX`` from each other and from the keypoints.
+    Those are local maxima of the corner strength, one per ~6 px on these smooth images: a
+    40-px patch gives 15-25. The rest is seeded on a grid (like ISIS autoseed): in every
+    ``_EXTRA_GRID_CELL_PX`` cell of the usable area, its strongest pixel when its corner
+    strength passes the same quality level, the strongest cells first.
     They carry no keypoint id (-1): the network joins them by position.
     """
     i8 = stretch_to_8bit(base.image, base.quality.low, base.quality.high)
     pts = cv2.goodFeaturesToTrack(i8, int(n) + have.shape[0], _EXTRA_CORNER_QUALITY, _EXTRA_CORNER_SPACING_PX,
                                   mask=on.view(np.uint8))
-    if pts is None:
-        return np.zeros((0, 2))
-    pts = pts.reshape(-1, 2).astype(np.float64)
-    if have.shape[0]:
+    pts = np.zeros((0, 2)) if pts is None else pts.reshape(-1, 2).astype(np.float64)
+    if pts.shape[0] + have.shape[0] < n:
+        pts = np.concatenate([pts, _grid_seeds(i8, on)])
+    if have.shape[0] or pts.shape[0]:
         from scipy.spatial import cKDTree
 
-        d, _ = cKDTree(have).query(pts, k=1)
-        pts = pts[np.asarray(d) >= _EXTRA_CORNER_SPACING_PX]
+        taken = have.copy()
+        keep = np.zeros(pts.shape[0], bool)
+        for k in range(pts.shape[0]):  # greedy, in order: corners first, then the strongest cells
+            if taken.shape[0] == 0 or cKDTree(taken).query(pts[k], k=1)[0] >= _EXTRA_CORNER_SPACING_PX:
+                keep[k] = True
+                taken = np.concatenate([taken, pts[k : k + 1]])
+                if keep.sum() >= n:
+                    break
+        pts = pts[keep]
     return pts[: int(n)]
 
 
+#: Cell size of the NCC fallback's grid seeds on a patch with too few corners (pixels).
+_EXTRA_GRID_CELL_PX = 4
+
+
+def _grid_seeds(i8: NDArray[np.uint8], on: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """The strongest pixel (min eigenvalue, Shi-Tomasi) of each grid cell of ``on`` above the quality level."""
+    eig = np.where(on, cv2.cornerMinEigenVal(i8, 3), 0.0)
+    top = float(eig.max())
+    if top <= 0:
+        return np.zeros((0, 2))
+    c = _EXTRA_GRID_CELL_PX
+    hc, wc = eig.shape[0] // c, eig.shape[1] // c
+    blk = eig[: hc * c, : wc * c].reshape(hc, c, wc, c).transpose(0, 2, 1, 3).reshape(hc, wc, c * c)
+    arg, val = blk.argmax(axis=-1), blk.max(axis=-1)
+    ys, xs = np.nonzero(val > _EXTRA_CORNER_QUALITY * top)
+    order = np.argsort(-val[ys, xs], kind="stable")
+    ys, xs = ys[order], xs[order]
+    a = arg[ys, xs]
+    return np.stack([xs * c + a % c, ys * c + a // c], axis=-1).astype(np.float64)
+
+
 #: Smallest template of the NCC fallback on a small warped patch (pixels, odd).
-NCC_MIN_TEMPLATE_PX = 11
+NCC_MIN_TEMPLATE_PX = 9
 
 
 def ncc_template_size(valid: NDArray[np.bool_], template_px: int, search_px: float) -> int:
@@ -508,7 +559,8 @@ def _away(have: NDArray[np.float64], query: NDArray[np.float64], dist: float) ->
     return np.asarray(d) > dist
 
 
-def _refine(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], feat: NDArray[np.int64],
+def _refine(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_],
+            warped_pattern: NDArray[np.float32] | None, feat: NDArray[np.int64],
             pa: NDArray[np.float64], pb: NDArray[np.float64], quality: NDArray[np.float64], window: int,
             config: MatchConfig) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Sub-pixel refinement (when ``config.refine``): the accepted measures and their NCC."""
@@ -517,6 +569,7 @@ def _refine(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.
     r = refine_matches_adaptive(
         base.image, warped, valid, pa, pb, window, config.refine_search_px,
         config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
+        ref_pattern=base.pattern if warped_pattern is not None else None, warped_pattern=warped_pattern,
     )
     return feat[r.ok], pa[r.ok], r.points[r.ok], r.score[r.ok]
 
@@ -530,18 +583,68 @@ def _local(feat: NDArray[np.int64], pa: NDArray[np.float64], pb: NDArray[np.floa
 
 
 def _ncc_fallback(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], pg: PairGeometry,
-                  tpl: int, config: MatchConfig, rep: PairReport,
+                  tpl: int, config: MatchConfig, rep: PairReport, pa_have: NDArray[np.float64],
+                  pb_have: NDArray[np.float64],
                   ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """NCC matches at base corners within the guidance window, through the fundamental and homography checks.
 
     Only corners whose template can lie on the warped data: when the warped image is a small
     patch of the base (the finer image of a 4x pair) a cap spread over the whole base would
-    leave a handful of corners in it; Shi-Tomasi corners fill the patch when the keypoints are
-    fewer than ``ncc_max_points`` there. Returns base keypoint ids (-1 for the added corners),
-    base pixels, warped-frame pixels and peak NCC.
+    leave a handful of corners in it; Shi-Tomasi corners and grid seeds fill the patch when the
+    keypoints are fewer than ``ncc_max_points`` there. Where the template lies is predicted:
+    with at least ``_NCC_PREDICT_MIN`` matches so far (the descriptors' ``pa_have`` ->
+    ``pb_have``, else a first pass over the guidance window) the corners are those whose template
+    fits on the data at corner + their median displacement, searched within a few pixels of it
+    (``_ncc_predicted_radius``): on a thin overlap the corners near its edge, whose true match
+    the guidance window's corners (chosen at their own position) miss by the pointing offset,
+    are then found too. The pass with more matches through the checks is kept. Returns base
+    keypoint ids (-1 for the added corners), base pixels, warped-frame pixels and peak NCC.
     """
-    fa = base.features
     on = cv2.erode(valid.view(np.uint8), np.ones((tpl, tpl), np.uint8)).astype(bool)
+    best = None
+    if pa_have.shape[0] < _NCC_PREDICT_MIN:
+        best = _ncc_pass(base, warped, valid, on, (0.0, 0.0), pg.guidance_px, tpl, config)
+        pa_have, pb_have = best[1], best[2]
+    if pa_have.shape[0] >= _NCC_PREDICT_MIN:
+        d = pb_have - pa_have
+        offset = np.median(d, axis=0)
+        radius = min(pg.guidance_px, _ncc_predicted_radius(d, offset))
+        second = _ncc_pass(base, warped, valid, _shifted(on, offset), offset, radius, tpl, config)
+        if best is None or second[0].size > best[0].size:
+            best = second
+    c_feat, c_pa, pts_w, sc, counts = best
+    rep.n_ncc, rep.n_ncc_fundamental, rep.n_ncc_homography = counts
+    return c_feat, c_pa, pts_w, sc
+
+
+#: Matches needed to predict the NCC fallback's search position from their median displacement.
+_NCC_PREDICT_MIN = 5
+
+
+def _ncc_predicted_radius(d: NDArray[np.float64], offset: NDArray[np.float64]) -> float:
+    """Search half-width around a predicted position: 3 px plus 3 robust sigmas of the displacements (at
+    least 0.5 px: the first pass's integer peaks can all agree while relief parallax still varies)."""
+    spread = 1.4826 * float(np.median(np.linalg.norm(d - offset, axis=1)))
+    return 3.0 + 3.0 * max(spread, 0.5)
+
+
+def _shifted(mask: NDArray[np.bool_], offset: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """``out[y, x] = mask[y + oy, x + ox]`` (offset rounded), False where that leaves the mask."""
+    ox, oy = (int(v) for v in np.rint(offset))
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    ys, xs = slice(max(0, -oy), min(h, h - oy)), slice(max(0, -ox), min(w, w - ox))
+    yd, xd = slice(max(0, oy), min(h, h + oy)), slice(max(0, ox), min(w, w + ox))
+    if ys.stop > ys.start and xs.stop > xs.start:
+        out[ys, xs] = mask[yd, xd]
+    return out
+
+
+def _ncc_pass(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], on: NDArray[np.bool_],
+              offset: Any, radius: float, tpl: int, config: MatchConfig) -> Any:
+    """One NCC search at the corners usable in ``on``: ids, base and warped pixels, scores (after
+    F and H) and the counts (NCC peaks, F inliers, H inliers)."""
+    fa = base.features
     ij = np.clip(np.rint(fa.points).astype(np.int64), 0, [on.shape[1] - 1, on.shape[0] - 1])
     usable = np.flatnonzero(on[ij[:, 1], ij[:, 0]]) if fa.size else np.zeros(0, np.int64)
     n_corner = min(config.ncc_max_points, usable.size)
@@ -551,17 +654,18 @@ def _ncc_fallback(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArr
         extra = _extra_corners(base, on, c_pts, config.ncc_max_points - c_id.size)
         c_id = np.concatenate([c_id, np.full(extra.shape[0], -1, np.int64)])
         c_pts = np.concatenate([c_pts, extra])
-    idx, pts_w, sc = ncc_matches(base.image, warped, valid, c_pts, pg.guidance_px, tpl, config.ncc_min_score)
-    rep.n_ncc = int(idx.size)
+    idx, pts_w, sc = ncc_matches(base.image, warped, valid, c_pts, radius, tpl, config.ncc_min_score,
+                                 (float(offset[0]), float(offset[1])))
+    n_ncc = int(idx.size)
     c_feat, c_pa = c_id[idx], c_pts[idx]
     inl = fundamental_inliers(c_pa, pts_w, config.fundamental_tolerance_px, config.fundamental_confidence)
-    rep.n_ncc_fundamental = int(inl.sum())
+    n_f = int(inl.sum())
     c_feat, c_pa, pts_w, sc = c_feat[inl], c_pa[inl], pts_w[inl], sc[inl]
     inl, _ = homography_inliers(c_pa, pts_w, config.homography_tolerance_px)
-    rep.n_ncc_homography = int(inl.sum())
+    n_h = int(inl.sum())
     keep = np.flatnonzero(inl)
     keep = keep[select_spread(c_pa[keep], sc[keep], config.max_matches, base.image.shape)]
-    return c_feat[keep].astype(np.int64), c_pa[keep], pts_w[keep], sc[keep]
+    return c_feat[keep].astype(np.int64), c_pa[keep], pts_w[keep], sc[keep], (n_ncc, n_f, n_h)
 
 
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:
@@ -641,7 +745,8 @@ def match_tile(
     propagate = tracks and config.refine
     # the warped partners are kept for the propagation when they all fit in the budget, else re-warped
     largest = max((geometry[x].camera.lines * geometry[x].camera.samples for x in needed), default=0)
-    keep_warped = propagate and len(pairs) * largest * 5 <= _KEEP_WARPED_BYTES
+    per_px = 5 + (4 if _pattern_on(config) else 0)  # float32 + mask (+ float32 pattern)
+    keep_warped = propagate and len(pairs) * largest * per_px <= _KEEP_WARPED_BYTES
     anchors: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
 
     def extend(k: int) -> None:
@@ -678,7 +783,7 @@ def match_tile(
 
 
 _NONE = np.zeros(0, np.int64)
-#: Memory the warped partners (float32 + bool mask) of a tile may take between phases 1 and 2.
+#: Memory the warped partners (float32 + bool mask + float32 pattern) of a tile may take between phases 1 and 2.
 _KEEP_WARPED_BYTES = 256 * 2**20
 _NO_ANCHORS = (_NONE, _NONE)
 #: Lowest NCC of a propagated match: measured on the tiny mission, propagated matches with a
@@ -686,6 +791,8 @@ _NO_ANCHORS = (_NONE, _NONE)
 PROPAGATE_MIN_SCORE = 0.7
 #: Integer search radius of propagation: the start is predicted from the pair's own matches.
 PROPAGATE_SEARCH_PX = 2
+#: Smallest refinement window of a propagated anchor near the edge of a small overlap (as phase 1's).
+PROPAGATE_MIN_WINDOW_PX = 11
 #: Pairs with fewer matches after the chain neither give anchors nor receive them.
 _PROPAGATE_MIN_MATCHES = 8
 
@@ -731,11 +838,13 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
     rev_orig = st.other.features.points[rev]
     rev_pair = apply_homography(np.linalg.inv(h), rev_orig) if rev.size else np.zeros((0, 2))
     if st.warped is not None:
-        warped, valid = st.warped
+        warped, valid, wpat = st.warped
         st.warped = None
     else:
         warped, valid = warp_to_reference(st.other.image, h, st.base.image.shape, st.pg.match_px_per_ref_px,
                                           config.psf_sigma_px)
+        wpat = _pattern(warped, config)
+    bpat = st.base.pattern if wpat is not None else None
     prop = propagate_pair(
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
         config.refine_window_px | 1, min(config.refine_search_px, PROPAGATE_SEARCH_PX), config.refine_iterations,
@@ -743,6 +852,8 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
         max_candidates=max(config.max_matches - st.pa.shape[0], 0) + max(config.max_matches // 8, 1),
         forward_priority=fwd_count.astype(np.float64),
         reverse_priority=rev_count.astype(np.float64),
+        base_pattern=bpat, warped_pattern=wpat if bpat is not None else None,
+        min_window=PROPAGATE_MIN_WINDOW_PX,
     )
     nf, nr = prop.forward.size, prop.reverse.size
     if nf + nr == 0:

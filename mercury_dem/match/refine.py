@@ -15,6 +15,15 @@ Written with numpy instead of a per-measure loop over ``cv2.matchTemplate`` /
 over hundreds of measures per pair. Here the loop runs over the (2 * search + 1)^2
 shifts and the iterations only, each a vectorized operation over all measures.
 Bilinear sampling is done in numpy (``cv2.remap`` quantizes positions to 1/32 pixel).
+
+The positions can be found on other images than the score (``ref_pattern``,
+``warped_pattern``): the matcher passes both images locally normalized
+(:func:`local_normalize`, a band-pass that keeps the texture at a few pixels and
+drops the smooth shading), while the score stays the NCC of the DN windows. Measured
+on the tiny mission (docs/benchmarks/match.md, session 4): shading that differs between
+two views -- slopes seen foreshortened by convergent views, or lit from another sun
+elevation -- pulls a 21-px DN window off its centre; on the normalized images the
+similar-illumination tail (p95) drops by about a third and the 30/70 median by half.
 """
 
 from __future__ import annotations
@@ -71,6 +80,22 @@ def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], hal
     return (top + fy * (bot - top)).astype(np.float32, copy=False)
 
 
+def local_normalize(image: NDArray[np.float32], sigma_px: float) -> NDArray[np.float32]:
+    """``(image - local mean) / local std`` with Gaussian weights of ``sigma_px`` (float32).
+
+    A contrast-normalizing band-pass: the shading at scales above a few ``sigma_px``
+    (which changes with the view and the sun) is removed and every neighbourhood gets
+    unit contrast. The variance gets a floor of 1e-3 of its image mean, so flat areas
+    stay near 0 instead of amplifying their noise. Two OpenCV Gaussian blurs.
+    """
+    img = np.asarray(image, np.float32)
+    m = cv2.GaussianBlur(img, (0, 0), float(sigma_px))
+    v = cv2.GaussianBlur(img * img, (0, 0), float(sigma_px)) - m * m
+    np.maximum(v, 0.0, out=v)
+    floor = 1e-3 * float(v.mean()) + 1e-12
+    return ((img - m) / np.sqrt(v + floor)).astype(np.float32, copy=False)
+
+
 def _normalize(p: NDArray[np.float32]) -> NDArray[np.float32]:
     q = p - p.mean(axis=(1, 2), keepdims=True)
     n = np.sqrt(np.sum(q * q, axis=(1, 2), keepdims=True))
@@ -99,6 +124,8 @@ def refine_matches(
     iterations: int = 4,
     min_score: float = 0.5,
     max_shift_px: float = 2.5,
+    ref_pattern: NDArray[np.float32] | None = None,
+    warped_pattern: NDArray[np.float32] | None = None,
 ) -> Refined:
     """Refine the warped-frame position of every match (see the module docstring).
 
@@ -114,6 +141,9 @@ def refine_matches(
     iterations : Gauss-Newton polishing steps (0 = parabola only)
     min_score : lowest accepted NCC at the refined position
     max_shift_px : largest accepted move from the start position
+    ref_pattern, warped_pattern : images (same shapes) the positions are found on, e.g.
+        :func:`local_normalize` of ``ref`` and ``warped``; None = ``ref``, ``warped``. The
+        score (and ``min_score``) is always the NCC of ``ref`` and ``warped`` at the result
     """
     n = points_ref.shape[0]
     if n == 0:
@@ -122,17 +152,34 @@ def refine_matches(
     h, w = ref.shape
     pa = np.asarray(points_ref, np.float64)
     pb = np.asarray(points_warped, np.float64)
+    # The template must lie in the reference image.
     inside = (
         (pa[:, 0] - half - 1 >= 0) & (pa[:, 1] - half - 1 >= 0) & (pa[:, 0] + half + 2 < w) & (pa[:, 1] + half + 2 < h)
     )
-    # The searched patches must lie in the image (sampling clamps at its border); validity of the
-    # warped data is checked at the final position only, so matches near the edge of a small
-    # overlap survive as long as their own window is on data.
+    # The searched patches must lie in the image (sampling clamps at its border). When some come
+    # closer to the image border than the search reaches -- a small overlap along the edge of the
+    # coarser image of a pair -- all images are padded (replicated; ``valid`` False there) and the
+    # measures refined on them: validity of the warped data is checked at the final position only,
+    # so a match survives as long as its own window is on data.
     reach = half + search + 2
-    inside &= (pb[:, 0] - reach >= 0) & (pb[:, 1] - reach >= 0) & (pb[:, 0] + reach < w) & (pb[:, 1] + reach < h)
-    t_raw = sample_patches(ref, pa, half)
+    near = ~((pb[:, 0] - reach >= 0) & (pb[:, 1] - reach >= 0) & (pb[:, 0] + reach < w) & (pb[:, 1] + reach < h))
+    far = ~((pb[:, 0] + reach >= 0) & (pb[:, 1] + reach >= 0) & (pb[:, 0] - reach < w) & (pb[:, 1] - reach < h))
+    if (near & ~far & inside).any():
+        p = 2 * reach + 2  # no measure is near the border of the padded images: no second padding
+
+        def pad(im: NDArray[np.float32] | None) -> NDArray[np.float32] | None:
+            return None if im is None else cv2.copyMakeBorder(im, p, p, p, p, cv2.BORDER_REPLICATE)
+
+        valid_p = cv2.copyMakeBorder(valid.view(np.uint8), p, p, p, p, cv2.BORDER_CONSTANT, value=0).view(bool)
+        r = refine_matches(pad(ref), pad(warped), valid_p, pa + p, np.where(far[:, None], np.nan, pb + p), window,
+                           search, iterations, min_score, max_shift_px, pad(ref_pattern), pad(warped_pattern))
+        keep = inside & ~far
+        return Refined(r.points - p, r.score, r.ok & keep, r.on_data & keep, r.window)
+    rp = ref if ref_pattern is None else ref_pattern
+    wp = warped if warped_pattern is None else warped_pattern
+    t_raw = sample_patches(rp, pa, half)
     tmpl = _normalize(t_raw)
-    big = sample_patches(warped, pb, half + search)
+    big = sample_patches(wp, pb, half + search)
     k = 2 * search + 1
     # All (2 search + 1)^2 windows of every measure as rows of one array, so the correlations
     # are a single batched matrix product and the window sums plain row sums.
@@ -164,7 +211,7 @@ def refine_matches(
     t_col = t_raw.reshape(n, -1, 1).astype(np.float64)
     ones = np.ones((n, window * window))
     for _ in range(iterations):
-        p = sample_patches(warped, pb + d, half + 1).astype(np.float64)
+        p = sample_patches(wp, pb + d, half + 1).astype(np.float64)
         gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
         gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
         c = p[:, 1:-1, 1:-1]
@@ -179,12 +226,17 @@ def refine_matches(
         step = np.clip(np.nan_to_num(step), -1.0, 1.0)
         d = d + step
     final = pb + d
+    if ref_pattern is not None:
+        tmpl = _normalize(sample_patches(ref, pa, half))
     score = np.sum(_normalize(sample_patches(warped, final, half)) * tmpl, axis=(1, 2)).astype(np.float64)
     moved = np.hypot(d[:, 0], d[:, 1])
+    # The window's bilinear support must be valid data; the ring one pixel beyond it (the last
+    # Gauss-Newton step's central differences) may lie outside, as ``valid_region`` keeps ``valid``
+    # a pixel inside the match image (and the warp replicates its border).
     f = np.nan_to_num(final, nan=-1e9)
-    lo = np.floor(f).astype(np.int64) - half - 1
-    hi = np.ceil(f).astype(np.int64) + half + 1
-    on_data = (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
+    lo = np.floor(f).astype(np.int64) - half
+    hi = np.ceil(f).astype(np.int64) + half
+    on_data = (lo[:, 0] >= 1) & (lo[:, 1] >= 1) & (hi[:, 0] < w - 1) & (hi[:, 1] < h - 1)
     on_data &= _box_count(valid, lo, hi) == (hi - lo + 1).prod(axis=1)
     inside &= on_data
     ok = inside & interior & np.isfinite(final).all(axis=1) & (score >= min_score) & (moved <= max_shift_px)
@@ -203,6 +255,8 @@ def refine_matches_adaptive(
     min_score: float = 0.5,
     max_shift_px: float = 2.5,
     min_window: int = 11,
+    ref_pattern: NDArray[np.float32] | None = None,
+    warped_pattern: NDArray[np.float32] | None = None,
 ) -> Refined:
     """:func:`refine_matches`, retrying with smaller windows the measures whose window left the data.
 
@@ -214,7 +268,8 @@ def refine_matches_adaptive(
     same acceptance rules (a smaller window is less precise, but such a measure was
     lost otherwise). ``window`` in the result says which size each measure used.
     """
-    r = refine_matches(ref, warped, valid, points_ref, points_warped, window, search, iterations, min_score, max_shift_px)
+    r = refine_matches(ref, warped, valid, points_ref, points_warped, window, search, iterations, min_score, max_shift_px,
+                       ref_pattern, warped_pattern)
     if r.on_data is None or r.on_data.all():
         return r
     points, score, ok, used = r.points.copy(), r.score.copy(), r.ok.copy(), r.window.copy()
@@ -223,7 +278,7 @@ def refine_matches_adaptive(
     while todo.size and w > min_window:
         w = max(min_window, int(round(w * 0.7)) | 1)
         s = refine_matches(ref, warped, valid, points_ref[todo], points_warped[todo], w, search, iterations,
-                           min_score, max_shift_px)
+                           min_score, max_shift_px, ref_pattern, warped_pattern)
         points[todo], score[todo], ok[todo], used[todo] = s.points, s.score, s.ok, w
         todo = todo[~s.on_data]
     return Refined(points, score, ok, ~np.isin(np.arange(ok.size), todo), used)

@@ -124,6 +124,9 @@ def propagate_pair(
     max_candidates: int = 0,
     forward_priority: NDArray[np.float64] | None = None,
     reverse_priority: NDArray[np.float64] | None = None,
+    base_pattern: NDArray[np.float32] | None = None,
+    warped_pattern: NDArray[np.float32] | None = None,
+    min_window: int = 0,
 ) -> Propagated:
     """Match anchors into one pair whose own matches ``pa`` <-> ``pb`` give the displacement field.
 
@@ -143,6 +146,11 @@ def propagate_pair(
     max_candidates : when > 0, at most this many anchors of each direction are refined (those
         on the partner's data, the highest ``*_priority`` first, spread over an 8 x 8 grid)
     forward_priority, reverse_priority : (F,), (R,) larger first (default: equal)
+    base_pattern, warped_pattern : the images positions are found on (as the ``*_pattern`` of
+        :func:`refine_matches`, both or neither); None = ``base``, ``warped``
+    min_window : anchors whose ``window`` (template or search area) leaves the data are refined
+        with windows ~30 % smaller down to this size, as :func:`refine_matches_adaptive` does in
+        phase 1 (0 = ``window`` only)
 
     Returns
     -------
@@ -152,35 +160,49 @@ def propagate_pair(
     if pa.shape[0] < 4:
         return Propagated(*empty, *empty)
     d_pair = pb - pa
-    half = window // 2
     everywhere = np.ones(base.shape, bool)
+    # window sizes tried, largest first (as refine_matches_adaptive: ~30 % smaller down to min_window)
+    sizes = [int(window) | 1]
+    while 0 < min_window < sizes[-1]:
+        sizes.append(max(int(min_window) | 1, int(round(sizes[-1] * 0.7)) | 1))
 
-    def run(fixed_img, moving_img, moving_valid, fixed_valid, fixed, field, taken, sign, prio):
+    def run(fixed_img, moving_img, moving_valid, fixed_valid, fixed, field, taken, sign, prio, fixed_pat, moving_pat):
         if fixed.shape[0] == 0:
             return empty
-        cand = np.flatnonzero(_away_from(taken, fixed, dedup_px) & _window_on(fixed_valid, fixed, half + 1))
+        cand = np.flatnonzero(_away_from(taken, fixed, dedup_px) & _window_on(fixed_valid, fixed, sizes[-1] // 2 + 1))
         if cand.size == 0:
             return empty
         # the displacement field (warped - base) around each anchor, from the pair's matches on
         # the anchor's own side (base positions for forward anchors, warped ones for reverse)
         med, spread = predict_displacement(field, d_pair, fixed[cand], neighbours)
         start = fixed[cand] + sign * med
-        # only anchors whose whole search area is on the partner's data are refined
-        reach = _window_on(moving_valid, start, half + search + 1)
-        cand, start, spread = cand[reach], start[reach], spread[reach]
+        # each anchor gets the largest window whose template and whole search area are on data
+        # (near the edge of a small overlap only the smaller ones fit); the others are not refined
+        size = np.zeros(cand.size, np.int64)
+        for wsz in sizes:
+            fits = (size == 0) & _window_on(moving_valid, start, wsz // 2 + search + 1)
+            fits &= _window_on(fixed_valid, fixed[cand], wsz // 2 + 1)
+            size[fits] = wsz
+        reach = size > 0
+        cand, start, spread, size = cand[reach], start[reach], spread[reach], size[reach]
         if cand.size == 0:
             return empty
         if 0 < max_candidates < cand.size:
             p = np.zeros(cand.size) if prio is None else np.asarray(prio, np.float64)[cand]
             keep = spread_best(start, p, max_candidates, base.shape, 8)
-            cand, start, spread = cand[keep], start[keep], spread[keep]
-        r = refine_matches(fixed_img, moving_img, moving_valid, fixed[cand], start, window, search, iterations,
-                           min_score, float(search))
-        dev = np.linalg.norm(r.points - start, axis=1)
-        ok = r.ok & (dev <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px))
-        return cand[ok], r.points[ok], r.score[ok]
+            cand, start, spread, size = cand[keep], start[keep], spread[keep], size[keep]
+        points, score, ok = np.zeros((cand.size, 2)), np.zeros(cand.size), np.zeros(cand.size, bool)
+        for wsz in np.unique(size):
+            g = np.flatnonzero(size == wsz)
+            r = refine_matches(fixed_img, moving_img, moving_valid, fixed[cand[g]], start[g], int(wsz), search,
+                               iterations, min_score, float(search), fixed_pat, moving_pat)
+            points[g], score[g], ok[g] = r.points, r.score, r.ok
+        dev = np.linalg.norm(points - start, axis=1)
+        ok &= dev <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px)
+        return cand[ok], points[ok], score[ok]
 
-    fwd = run(base, warped, valid, everywhere, forward, pa, pa, +1, forward_priority)
+    fwd = run(base, warped, valid, everywhere, forward, pa, pa, +1, forward_priority, base_pattern, warped_pattern)
     # a partner anchor at a feature just matched forward would be a second measure of it
-    rev = run(warped, base, everywhere, valid, reverse, pb, np.concatenate([pb, fwd[1]]), -1, reverse_priority)
+    rev = run(warped, base, everywhere, valid, reverse, pb, np.concatenate([pb, fwd[1]]), -1, reverse_priority,
+              warped_pattern, base_pattern)
     return Propagated(*fwd, *rev)

@@ -106,9 +106,10 @@ def test_tracks_give_points_of_three_and_more_rays(four_views: dict[str, Any]) -
     m1, reps, net1 = _network(w, tracks=True)
     rays0 = np.bincount(net0.measure_point)
     rays1 = np.bincount(net1.measure_point)
-    # measured: 3+ rays for 62 % of the points without propagation, 86 % with it; all 4 rays 34 % -> 60 %
+    # measured (session 4): 3+ rays for 62 % of the points without propagation, 75 % with it; all 4 rays
+    # 35 % -> 50 % (77 % and 53 % before the refinement kept the measures near the image borders, mostly 2-ray)
     hist = (rays_histogram(net0.measure_point), rays_histogram(net1.measure_point))
-    assert np.mean(rays1 >= 3) >= 0.75 and np.mean(rays1 >= 3) > np.mean(rays0 >= 3) + 0.1, hist
+    assert np.mean(rays1 >= 3) >= 0.70 and np.mean(rays1 >= 3) > np.mean(rays0 >= 3) + 0.1, hist
     assert np.mean(rays1 == 4) > 1.4 * np.mean(rays0 == 4), hist
     assert all(r.n_matches <= 400 for r in reps) and sum(r.n_propagated for r in reps) > 0
     # propagated matches are as true as the chain's (noise-limited: 0.1-0.3 px)
