@@ -636,16 +636,22 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 @numba.njit(cache=True, inline="always")
 def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k,
-             a_first, a_second, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
+             a_first, cap2_first, a_second, bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi,
+             t2):  # pragma: no cover
     """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
 
-    ``dk2``/``ik`` need room for ``BUFFER`` values. Returns (done, count within r2count,
-    smallest squared distance, k-th smallest squared distance).
+    The first cap's squared chord is ``cap2_first`` when > 0 (a chord the caller knows, saving
+    the angle's round trip), else that of ``a_first``. ``a_second`` < 0: the second cap is
+    computed only if the first fails, from the chord ``bound`` (>= 0) not below ``a_min`` and
+    not above ``a_second``'s absolute value. Any cap scanned whole is exact (only the cost
+    differs), so these shortcuts never change the result. ``dk2``/``ik`` need room for
+    ``BUFFER`` values. Returns (done, count within r2count, smallest squared distance, k-th
+    smallest squared distance).
     """
     a = a_first
+    cap2 = cap2_first if cap2_first > 0.0 else _cap_chord2(a, rs)
     while True:
         nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
-        cap2 = _cap_chord2(a, rs)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
             mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
@@ -661,7 +667,12 @@ def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_sta
             return True, cnt, lo, hi
         if a >= ang_max:
             return False, cnt, 0.0, 0.0
+        if a_second < 0.0:
+            a_second = -a_second
+            if bound >= 0.0:
+                a_second = min(a_second, max(_angle(bound, rs), a_min))
         a = _next_cap(a, a_second, ang_max)
+        cap2 = _cap_chord2(a, rs)
 
 
 @numba.njit(cache=True, inline="always")
@@ -797,19 +808,23 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
             phi, lam, qx, qy, qz = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r)
             a_first = a0
-            a_second = a0
+            cap2_first = -1.0
+            bound = -1.0
             if dprev >= 0.0:
-                # The previous pixel's k nearest lie within dprev + |q - q_prev| of this one
-                # (triangle inequality): a cap that surely holds k points (second try). The
-                # first try is a little above the previous k-th distance: it usually holds k.
+                # The first try is a little above the previous k-th distance: it usually holds k
+                # (its squared chord is known: no angle round trip). The previous pixel's k nearest
+                # lie within dprev + |q - q_prev| of this one (triangle inequality): a cap that
+                # surely holds k points, the second try (its angle computed only if needed).
+                g = grow * dprev
+                a_first = _angle(g, rs)
+                if a_first < a_min:
+                    a_first = a_min
+                else:
+                    cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
-                ab = max(_angle(bound, rs), a_min)
-                if ab < a_second:
-                    a_second = ab
-                a_first = min(max(_angle(grow * dprev, rs), a_min), a_second)
             done, cnt, d2near, d2k = _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first,
-                                              cell_start, phi, lam, qx, qy, qz, k, a_first, a_second,
-                                              ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
+                                              cell_start, phi, lam, qx, qy, qz, k, a_first, cap2_first, -a0,
+                                              bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
             if not done:
                 status[p] = NEEDS_FALLBACK
                 t2 = np.inf
