@@ -130,6 +130,22 @@ class MatchConfig(ConfigSection):
         1.5, "Measures the refinement moves farther than this are dropped (it jumped to another peak)",
         unit="px", lo=0.1, hi=64.0,
     )
+    flow_refine: bool = param(
+        True, "After the refinement, read each measure's partner position from a dense DIS optical flow of the "
+        "pair (8-px patches, variational refinement; on the locally normalized images): follows the relief "
+        "parallax inside the correlation window of convergent views. Needs refine_normalize_sigma_px > 0",
+    )
+    flow_min_convergence_deg: float = param(
+        20.0, "Only pairs whose views converge (angle between the two cameras' rays at the overlap centre) by at "
+        "least this use the flow (below it the window's parallax is small)", unit="deg", lo=0.0, hi=180.0,
+    )
+    flow_tolerance_px: float = param(
+        1.0, "Measures whose flow position and refined position differ by more than this are dropped", unit="px",
+        lo=0.01, hi=100.0,
+    )
+    flow_variational_iterations: int = param(
+        10, "Iterations of DIS's variational refinement per scale", lo=0, hi=100
+    )
     local_tolerance_px: float = param(
         1.0, "After refinement, drop matches whose displacement differs from their neighbours' median by more "
         "than this (0 = off)", unit="px", lo=0.0, hi=100.0,

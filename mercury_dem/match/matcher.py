@@ -38,6 +38,7 @@ from mercury_dem.match.features import (
     spread_best,
     stretch_to_8bit,
 )
+from mercury_dem.match.flow import Flow, base_position, dense_flow, flow_at
 from mercury_dem.match.guided import candidate_mask, knn_both_ways, ncc_matches
 from mercury_dem.match.outliers import (
     fundamental_inliers,
@@ -99,6 +100,7 @@ class PairReport:
     sun_azimuth_difference_deg: float = float("nan")
     homography_fit_rms_px: float = float("nan")
     guidance_px: float = float("nan")
+    convergence_deg: float = float("nan")
     n_keypoints_ref: int = 0
     n_keypoints_match: int = 0
     n_ratio: int = 0
@@ -111,6 +113,8 @@ class PairReport:
     n_kept: int = 0
     n_refined: int = 0
     n_local: int = 0
+    n_flow: int = 0
+    n_flow_dropped: int = 0
     n_propagated: int = 0
     n_matches: int = 0
     seconds: float = 0.0
@@ -165,7 +169,7 @@ class _PairState:
     score: NDArray[np.float64]
     other_exact: NDArray[np.float64] | None = None  # (K, 2) original pixels where feat_other >= 0
     kind: NDArray[np.int8] | None = None  # (K,) PairResult.propagated; None = all 0
-    warped: Any = None  # (warped partner, valid mask, its pattern or None) kept for the propagation, or None
+    warped: Any = None  # (warped partner, valid mask, its pattern or None, Flow or None) kept for the propagation
 
     def take(self, keep: NDArray[Any]) -> None:
         if self.kind is None:
@@ -456,7 +460,24 @@ def _match_core(
             rep.n_refined += int(c_feat.size)
             feat, pa, pb, score = u_feat, u_pa, u_pb, u_sc
             rep.n_local = int(feat.size)
-    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid, wpat)
+    flow = None
+    if _flow_on(config, pg) and feat.size and wpat is not None and base.pattern is not None:
+        flow = dense_flow(base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations)
+        if flow is not None:
+            d, usable = flow_at(flow, pa)
+            q = pa + d
+            agree = np.linalg.norm(q - pb, axis=1) <= config.flow_tolerance_px
+            move, drop = usable & agree, usable & ~agree
+            pb = np.where(move[:, None], q, pb)
+            keep = ~drop
+            feat, pa, pb, score = feat[keep], pa[keep], pb[keep], np.asarray(score)[keep]
+            rep.n_flow, rep.n_flow_dropped = int(move.sum()), int(drop.sum())
+    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid, wpat, flow)
+
+
+def _flow_on(config: MatchConfig, pg: PairGeometry) -> bool:
+    """Whether the pair's measures are read from the dense flow (see ``MatchConfig.flow_refine``)."""
+    return bool(config.flow_refine and _pattern_on(config) and not pg.convergence_deg < config.flow_min_convergence_deg)
 
 
 #: Shi-Tomasi corners added to the NCC fallback's candidates: quality level and spacing (pixels).
@@ -678,6 +699,7 @@ def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:
     rep.sun_azimuth_difference_deg = pg.sun_azimuth_difference_deg
     rep.homography_fit_rms_px = pg.fit_rms_px
     rep.guidance_px = pg.guidance_px
+    rep.convergence_deg = pg.convergence_deg
 
 
 class _OpenCVThreads:
@@ -745,7 +767,7 @@ def match_tile(
     propagate = tracks and config.refine
     # the warped partners are kept for the propagation when they all fit in the budget, else re-warped
     largest = max((geometry[x].camera.lines * geometry[x].camera.samples for x in needed), default=0)
-    per_px = 5 + (4 if _pattern_on(config) else 0)  # float32 + mask (+ float32 pattern)
+    per_px = 5 + (4 if _pattern_on(config) else 0) + (9 if config.flow_refine else 0)  # (+ pattern, flow)
     keep_warped = propagate and len(pairs) * largest * per_px <= _KEEP_WARPED_BYTES
     anchors: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
 
@@ -837,13 +859,16 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
     h = st.pg.homography
     rev_orig = st.other.features.points[rev]
     rev_pair = apply_homography(np.linalg.inv(h), rev_orig) if rev.size else np.zeros((0, 2))
+    flow: Flow | None = None
     if st.warped is not None:
-        warped, valid, wpat = st.warped
+        warped, valid, wpat, flow = st.warped
         st.warped = None
     else:
         warped, valid = warp_to_reference(st.other.image, h, st.base.image.shape, st.pg.match_px_per_ref_px,
                                           config.psf_sigma_px)
         wpat = _pattern(warped, config)
+        if _flow_on(config, st.pg) and wpat is not None and st.base.pattern is not None:
+            flow = dense_flow(st.base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations)
     bpat = st.base.pattern if wpat is not None else None
     prop = propagate_pair(
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
@@ -855,6 +880,8 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
         base_pattern=bpat, warped_pattern=wpat if bpat is not None else None,
         min_window=PROPAGATE_MIN_WINDOW_PX,
     )
+    if flow is not None:
+        prop = _propagated_on_flow(prop, flow, st.base.features.points[fwd], rev_pair, config, rep)
     nf, nr = prop.forward.size, prop.reverse.size
     if nf + nr == 0:
         return
@@ -869,6 +896,25 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
     kind = st.kind if st.kind is not None else np.zeros(st.pa.shape[0] - nf - nr, np.int8)
     st.kind = np.concatenate([kind, np.ones(nf, np.int8), np.full(nr, 2, np.int8)])
     rep.n_propagated = nf + nr
+
+
+def _propagated_on_flow(prop: Any, flow: Flow, fwd_pts: NDArray[np.float64], rev_pts: NDArray[np.float64],
+                        config: MatchConfig, rep: PairReport) -> Any:
+    """Propagated matches read from the pair's flow as phase 1's are: the partner position of a
+    forward anchor (base side fixed) at ``base + flow(base)``, the base position of a reverse one
+    (partner side fixed) where ``base + flow(base)`` reaches it; those the flow contradicts by more
+    than ``flow_tolerance_px`` dropped, those where it is not usable kept as refined."""
+    d, uf = flow_at(flow, fwd_pts[prop.forward])
+    qf = fwd_pts[prop.forward] + d
+    af = np.linalg.norm(qf - prop.forward_points, axis=1) <= config.flow_tolerance_px
+    qr, ur = base_position(flow, rev_pts[prop.reverse], prop.reverse_points)
+    ar = np.linalg.norm(qr - prop.reverse_points, axis=1) <= config.flow_tolerance_px
+    kf, kr = ~(uf & ~af), ~(ur & ~ar)
+    rep.n_flow += int((uf & af).sum() + (ur & ar).sum())
+    rep.n_flow_dropped += int((~kf).sum() + (~kr).sum())
+    fp = np.where((uf & af)[:, None], qf, prop.forward_points)
+    rp = np.where((ur & ar)[:, None], qr, prop.reverse_points)
+    return type(prop)(prop.forward[kf], fp[kf], prop.forward_score[kf], prop.reverse[kr], rp[kr], prop.reverse_score[kr])
 
 
 def _priorities(pairs: Sequence[tuple[str, str]], states: Sequence[Any], index: Mapping[str, int]) -> list[NDArray[np.int64]]:

@@ -67,6 +67,8 @@ class PairGeometry:
     sun_azimuth_difference_deg : difference of the local sun azimuths, 0..180
     guidance_px : guidance window half-width, reference pixels: ``guidance_sigmas`` times the
         combined pointing and position error of both images, plus ``guidance_margin_px``
+    convergence_deg : angle between the two cameras' rays at the overlap centre (0 = the same view
+        direction; the relief's parallax left by the datum pre-transform grows with it)
     """
 
     homography: NDArray[np.float64]
@@ -78,6 +80,7 @@ class PairGeometry:
     incidence_match_deg: float
     sun_azimuth_difference_deg: float
     guidance_px: float
+    convergence_deg: float = float("nan")
 
 
 def sun_azimuth_deg(ground: NDArray[np.float64], sun: NDArray[np.float64]) -> float:
@@ -162,6 +165,8 @@ def pair_geometry(
     sig_r = ang_r / cam_r.ifov_rad
     sig_m = ang_m / cam_m.ifov_rad / max(scale, 1e-9)
     guidance = guidance_sigmas * float(np.hypot(sig_r, sig_m)) + guidance_margin_px
+    ray_r, ray_m = (ref.position - g) / range_r, (match.position - g) / range_m
+    convergence = float(np.degrees(np.arccos(np.clip(ray_r @ ray_m, -1.0, 1.0))))
     return PairGeometry(
         homography=h,
         fit_rms_px=fit_rms,
@@ -172,6 +177,7 @@ def pair_geometry(
         incidence_match_deg=inc_m,
         sun_azimuth_difference_deg=daz,
         guidance_px=guidance,
+        convergence_deg=convergence,
     )
 
 

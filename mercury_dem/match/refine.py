@@ -63,7 +63,9 @@ def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], hal
     Every pixel of one patch shares the centre's fractional offset, so a patch is
     one integer block of (2*half+2)^2 pixels (gathered through a strided window
     view, a single fancy index) blended with four scalar weights. Blocks that
-    would leave the image are clamped to its border (callers check validity).
+    would leave the image take its border pixels there (replicated, as
+    ``cv2.BORDER_REPLICATE``; callers check validity); non-finite centres give the
+    image's corner block.
     """
     h, w = image.shape
     size = 2 * half + 1
@@ -72,9 +74,17 @@ def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], hal
     y0 = np.floor(c[:, 1]) - half
     fx = (c[:, 0] - np.floor(c[:, 0])).astype(np.float32)[:, None, None]
     fy = (c[:, 1] - np.floor(c[:, 1])).astype(np.float32)[:, None, None]
-    xi = np.clip(np.nan_to_num(x0, nan=0.0), 0, w - size - 1).astype(np.intp)
-    yi = np.clip(np.nan_to_num(y0, nan=0.0), 0, h - size - 1).astype(np.intp)
+    x0 = np.clip(np.nan_to_num(x0, nan=0.0), -size - 2, w + 1).astype(np.intp)
+    y0 = np.clip(np.nan_to_num(y0, nan=0.0), -size - 2, h + 1).astype(np.intp)
+    xi = np.clip(x0, 0, w - size - 1)
+    yi = np.clip(y0, 0, h - size - 1)
     blocks = np.lib.stride_tricks.sliding_window_view(image, (size + 1, size + 1))[yi, xi]
+    off = np.flatnonzero((xi != x0) | (yi != y0))
+    if off.size:  # blocks over the border: per-pixel indices clipped to the image
+        r = np.arange(size + 1)
+        xs = np.clip(x0[off, None] + r, 0, w - 1)
+        ys = np.clip(y0[off, None] + r, 0, h - 1)
+        blocks[off] = image[ys[:, :, None], xs[:, None, :]]
     top = blocks[:, :-1, :-1] + fx * (blocks[:, :-1, 1:] - blocks[:, :-1, :-1])
     bot = blocks[:, 1:, :-1] + fx * (blocks[:, 1:, 1:] - blocks[:, 1:, :-1])
     return (top + fy * (bot - top)).astype(np.float32, copy=False)
@@ -156,25 +166,9 @@ def refine_matches(
     inside = (
         (pa[:, 0] - half - 1 >= 0) & (pa[:, 1] - half - 1 >= 0) & (pa[:, 0] + half + 2 < w) & (pa[:, 1] + half + 2 < h)
     )
-    # The searched patches must lie in the image (sampling clamps at its border). When some come
-    # closer to the image border than the search reaches -- a small overlap along the edge of the
-    # coarser image of a pair -- all images are padded (replicated; ``valid`` False there) and the
-    # measures refined on them: validity of the warped data is checked at the final position only,
-    # so a match survives as long as its own window is on data.
-    reach = half + search + 2
-    near = ~((pb[:, 0] - reach >= 0) & (pb[:, 1] - reach >= 0) & (pb[:, 0] + reach < w) & (pb[:, 1] + reach < h))
-    far = ~((pb[:, 0] + reach >= 0) & (pb[:, 1] + reach >= 0) & (pb[:, 0] - reach < w) & (pb[:, 1] - reach < h))
-    if (near & ~far & inside).any():
-        p = 2 * reach + 2  # no measure is near the border of the padded images: no second padding
-
-        def pad(im: NDArray[np.float32] | None) -> NDArray[np.float32] | None:
-            return None if im is None else cv2.copyMakeBorder(im, p, p, p, p, cv2.BORDER_REPLICATE)
-
-        valid_p = cv2.copyMakeBorder(valid.view(np.uint8), p, p, p, p, cv2.BORDER_CONSTANT, value=0).view(bool)
-        r = refine_matches(pad(ref), pad(warped), valid_p, pa + p, np.where(far[:, None], np.nan, pb + p), window,
-                           search, iterations, min_score, max_shift_px, pad(ref_pattern), pad(warped_pattern))
-        keep = inside & ~far
-        return Refined(r.points - p, r.score, r.ok & keep, r.on_data & keep, r.window)
+    # The searched patches may leave the image (sampling replicates its border pixels there): validity
+    # of the warped data is checked at the final position only, so a match near the image border or
+    # the edge of a small overlap survives as long as its own window is on data.
     rp = ref if ref_pattern is None else ref_pattern
     wp = warped if warped_pattern is None else warped_pattern
     t_raw = sample_patches(rp, pa, half)

@@ -111,13 +111,17 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
     print(f"# bench_match speed: {n_images} mutually overlapping images per tile, all pairs; best of {repeats}")
     print("Wall seconds per pair (CPU seconds of the process in brackets: the machine is shared, CPU time is the")
     print("steadier figure at 1 thread). Ours includes computing every image's own features once.\n")
-    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours without track propagation: ratio wall, CPU | ours matches/pair | floor F-inliers/pair |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("(The tile's views converge by < 2 deg, so the dense-flow step, for pairs converging by >= "
+          f"{MatchConfig().flow_min_convergence_deg:g} deg, does not run by default; the column 'flow on every pair' "
+          "forces it, flow_min_convergence_deg=0.)\n")
+    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours without track propagation: ratio wall, CPU | ours with the flow on every pair: ratio wall, CPU | ours matches/pair | floor F-inliers/pair |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
         images, geom, pairs, _ = _tile(n, n_images, rng)
         for threads in (1, 2):
             cfg = MatchConfig(threads=threads)
-            t_ours, t_floor, c_ours, c_floor, t_pw, c_pw = [], [], [], [], [], []
+            cfg_flow = dataclasses.replace(cfg, flow_min_convergence_deg=0.0)
+            t_ours, t_floor, c_ours, c_floor, t_pw, c_pw, t_fl, c_fl = [], [], [], [], [], [], [], []
             for _ in range(repeats):
                 t0, c0 = time.perf_counter(), time.process_time()
                 m, reps = match_tile(images, geom, pairs, cfg)
@@ -127,6 +131,10 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
                 match_tile(images, geom, pairs, cfg, tracks=False)
                 t_pw.append(time.perf_counter() - t0)
                 c_pw.append(time.process_time() - c0)
+                t0, c0 = time.perf_counter(), time.process_time()
+                match_tile(images, geom, pairs, cfg_flow)
+                t_fl.append(time.perf_counter() - t0)
+                c_fl.append(time.process_time() - c0)
                 old = cv2.getNumThreads()
                 cv2.setNumThreads(threads)
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -138,8 +146,9 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
             o, f = min(t_ours) / k, min(t_floor) / k
             co, cf = min(c_ours) / k, min(c_floor) / k
             pw, cpw = min(t_pw) / k, min(c_pw) / k
+            fw, cfw = min(t_fl) / k, min(c_fl) / k
             print(f"| {n}^2 | {threads} | {k} | {o:.3f} ({co:.3f}) | {f:.3f} ({cf:.3f}) | {o / f:.2f} | {co / cf:.2f} | "
-                  f"{pw / f:.2f}, {cpw / cf:.2f} | "
+                  f"{pw / f:.2f}, {cpw / cf:.2f} | {fw / f:.2f}, {cfw / cf:.2f} | "
                   f"{np.mean([r.n_matches for r in reps]):.0f} | {np.mean(fl):.0f} |", flush=True)
 
 
@@ -174,6 +183,10 @@ def accuracy() -> None:
         "guidance off": dataclasses.replace(base, guided=False),
         "NCC fallback off": dataclasses.replace(base, ncc_fallback=False),
         "refinement off": dataclasses.replace(base, refine=False),
+        "refinement on the DN (no local normalization, no dense flow)": dataclasses.replace(
+            base, refine_normalize_sigma_px=0.0),
+        "dense flow off": dataclasses.replace(base, flow_refine=False),
+        "dense flow on every pair (flow_min_convergence_deg=0)": dataclasses.replace(base, flow_min_convergence_deg=0.0),
         "track propagation off": base,
     }
     for title, cfg in variants.items():
@@ -183,16 +196,17 @@ def accuracy() -> None:
         err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
         rows = [r.as_row() for r in reps]
         print(f"\n### {title}\n")
-        print("| pair | status | route | matches | chain ratio>sym>F>H | ncc | kept>refined>local | propagated | scale | d-inc | d-az | median px | p95 px | > 2 px |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("| pair | status | route | matches | chain ratio>sym>F>H | ncc | kept>refined>local | flow moved/dropped | propagated | scale | d-inc | d-az | conv. deg | median px | p95 px | > 2 px |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for k, (name, r) in enumerate(zip([s.name for s in scene], reps)):
             e = err[m.pair == k]
             med = f"{np.median(e):.3f}" if e.size else "-"
             p95 = f"{np.percentile(e, 95):.3f}" if e.size else "-"
             out = f"{100 * np.mean(e > 2):.1f}%" if e.size else "-"
             print(f"| {name} | {r.status} | {r.route} | {r.n_matches} | {r.n_ratio}>{r.n_symmetry}>{r.n_fundamental}>"
-                  f"{r.n_homography} | {r.n_ncc}>{r.n_ncc_homography} | {r.n_kept}>{r.n_refined}>{r.n_local} | {r.n_propagated} | {r.scale_ratio:.1f} | "
-                  f"{r.incidence_difference_deg:.0f} | {r.sun_azimuth_difference_deg:.0f} | {med} | {p95} | {out} |")
+                  f"{r.n_homography} | {r.n_ncc}>{r.n_ncc_homography} | {r.n_kept}>{r.n_refined}>{r.n_local} | {r.n_flow}/{r.n_flow_dropped} | "
+                  f"{r.n_propagated} | {r.scale_ratio:.1f} | {r.incidence_difference_deg:.0f} | {r.sun_azimuth_difference_deg:.0f} | "
+                  f"{r.convergence_deg:.0f} | {med} | {p95} | {out} |")
         print()
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
 
