@@ -170,6 +170,7 @@ class _PairState:
     other_exact: NDArray[np.float64] | None = None  # (K, 2) original pixels where feat_other >= 0
     kind: NDArray[np.int8] | None = None  # (K,) PairResult.propagated; None = all 0
     warped: Any = None  # (warped partner, valid mask, its pattern or None, Flow or None) kept for the propagation
+    flow_used: bool = False  # the pair's measures were read from the dense flow
 
     def take(self, keep: NDArray[Any]) -> None:
         if self.kind is None:
@@ -352,7 +353,7 @@ def _match_pair(
         base = replace(base, pattern=_pattern(base.image, config))
     feat, pa, pb, score, warped = _match_core(base, other, base_geom, other_geom, pg, config, rep)
     return _PairState(swap, pg, base, other, other_geom, feat, np.full(feat.size, -1, np.int64), pa, pb, score,
-                      warped=warped if keep_warped else None)
+                      warped=warped if keep_warped else None, flow_used=warped[3] is not None)
 
 
 def _finish(st: _PairState, config: MatchConfig, rep: PairReport) -> PairResult:
@@ -462,17 +463,27 @@ def _match_core(
             rep.n_local = int(feat.size)
     flow = None
     if _flow_on(config, pg) and feat.size and wpat is not None and base.pattern is not None:
-        flow = dense_flow(base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations)
+        flow = dense_flow(base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations,
+                          initial=np.median(pb - pa, axis=0))
         if flow is not None:
             d, usable = flow_at(flow, pa)
             q = pa + d
             agree = np.linalg.norm(q - pb, axis=1) <= config.flow_tolerance_px
-            move, drop = usable & agree, usable & ~agree
-            pb = np.where(move[:, None], q, pb)
-            keep = ~drop
-            feat, pa, pb, score = feat[keep], pa[keep], pb[keep], np.asarray(score)[keep]
-            rep.n_flow, rep.n_flow_dropped = int(move.sum()), int(drop.sum())
+            if agree[usable].mean() < FLOW_MIN_AGREEMENT if usable.any() else True:
+                flow = None  # the flow contradicts most refined measures: it failed, not they
+            else:
+                move, drop = usable & agree, usable & ~agree
+                pb = np.where(move[:, None], q, pb)
+                keep = ~drop
+                feat, pa, pb, score = feat[keep], pa[keep], pb[keep], np.asarray(score)[keep]
+                rep.n_flow, rep.n_flow_dropped = int(move.sum()), int(drop.sum())
     return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid, wpat, flow)
+
+
+#: Least share of a pair's measures (where the flow is usable) whose flow position agrees with the
+#: refined one for the flow to be used: below it the flow is taken to have failed (e.g. a thin
+#: strip where DIS lost the pointing offset) and the refined positions are kept.
+FLOW_MIN_AGREEMENT = 0.5
 
 
 def _flow_on(config: MatchConfig, pg: PairGeometry) -> bool:
@@ -867,8 +878,9 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
         warped, valid = warp_to_reference(st.other.image, h, st.base.image.shape, st.pg.match_px_per_ref_px,
                                           config.psf_sigma_px)
         wpat = _pattern(warped, config)
-        if _flow_on(config, st.pg) and wpat is not None and st.base.pattern is not None:
-            flow = dense_flow(st.base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations)
+        if st.flow_used and wpat is not None and st.base.pattern is not None:
+            flow = dense_flow(st.base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations,
+                              initial=np.median(st.pb - st.pa, axis=0))
     bpat = st.base.pattern if wpat is not None else None
     prop = propagate_pair(
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
