@@ -337,9 +337,10 @@ def build_buckets(
 
 
 @numba.njit(cache=True, inline="always")
-def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, out):  # pragma: no cover
+def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a, out):  # pragma: no cover
     """Contiguous runs of sorted points that hold every point within angle a of (phi, lam).
 
+    ``cp`` is ``math.cos(phi)`` (from the row's table: one cosine per row, not per pixel).
     Writes ``[start, end)`` pairs into ``out`` (at least 2 x bands rows); returns their number.
     """
     nb = band_ncell.size
@@ -354,7 +355,6 @@ def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, ph
     dl = math.pi
     if not full:
         sa = math.sin(ae)
-        cp = math.cos(phi)
         if sa >= cp:
             full = True
         else:
@@ -499,17 +499,18 @@ def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no
 
 
 @numba.njit(cache=True, nogil=True)
-def _centres(lat_deg, lon_deg, rs, phi, c, z, lam, cl, sl):  # pragma: no cover
+def _centres(lat_deg, lon_deg, rs, phi, c, z, cp, lam, cl, sl):  # pragma: no cover
     """Pixel centres on the sphere of radius rs (m) from latitudes and longitudes (degrees).
 
-    Per latitude: phi (radians), c = rs cos(phi), z = rs sin(phi); per longitude: lam in
+    Per latitude: phi (radians), c = rs cos(phi), z = rs sin(phi), cp = cos(phi); per longitude: lam in
     [0, 2 pi) and its cosine and sine. A centre is (c cos(lam), c sin(lam), z): the same
     operations whether the centres come as a grid (rows x columns) or as a list.
     """
     for i in range(lat_deg.size):
         f = math.radians(lat_deg[i])
         phi[i] = f
-        c[i] = rs * math.cos(f)
+        cp[i] = math.cos(f)
+        c[i] = rs * cp[i]
         z[i] = rs * math.sin(f)
     for j in range(lon_deg.size):
         t = math.radians(lon_deg[j]) % (2.0 * math.pi)
@@ -521,7 +522,7 @@ def _centres(lat_deg, lon_deg, rs, phi, c, z, lam, cl, sl):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r):  # pragma: no cover
+def _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r):  # pragma: no cover
     """Pixel p's centre: (latitude, longitude, unit vector x, y, z) from the per-row/column tables;
     ``paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid)."""
     if paired:
@@ -530,7 +531,7 @@ def _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r):  # pragma: no 
     else:
         i = p // ncol
         j = p - i * ncol
-    return phi_r[i], lam_c[j], c_r[i] * cl_c[j], c_r[i] * sl_c[j], z_r[i]
+    return phi_r[i], lam_c[j], c_r[i] * cl_c[j], c_r[i] * sl_c[j], z_r[i], cp_r[i]
 
 
 @numba.njit(cache=True, inline="always")
@@ -564,7 +565,7 @@ def _next_cap(a, a_second, ang_max):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k, a_first,
+def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, qx, qy, qz, k, a_first,
          a_second, ang_max, rs,
          r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
     """Exact k nearest (ascending in dk2/ik): caps a_first, then a_second, then doubling.
@@ -577,7 +578,7 @@ def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, 
     """
     a = a_first
     while True:
-        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
+        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a, ranges)
         cap2 = _cap_chord2(a, rs)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
@@ -635,7 +636,7 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, qx, qy, qz, k,
+def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, qx, qy, qz, k,
              a_first, cap2_first, a_second, bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi,
              t2):  # pragma: no cover
     """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
@@ -651,7 +652,7 @@ def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_sta
     a = a_first
     cap2 = cap2_first if cap2_first > 0.0 else _cap_chord2(a, rs)
     while True:
-        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a, ranges)
+        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a, ranges)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
             mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
@@ -788,7 +789,7 @@ def _angle(chord, rs):  # pragma: no cover
 
 
 def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start,
-                   phi_r, c_r, z_r, lam_c, cl_c, sl_c, paired, k, sigma, search_r,
+                   phi_r, c_r, z_r, cp_r, lam_c, cl_c, sl_c, paired, k, sigma, search_r,
                    a_min, a0, ang_max, rs, grow, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
     ncol = lam_c.size
     P = phi_r.size if paired else phi_r.size * ncol
@@ -806,7 +807,7 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
         dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
         px = py = pz = 0.0
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, lam, qx, qy, qz = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r)
+            phi, lam, qx, qy, qz, cp = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r)
             a_first = a0
             cap2_first = -1.0
             bound = -1.0
@@ -823,7 +824,7 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
                     cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
             done, cnt, d2near, d2k = _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first,
-                                              cell_start, phi, lam, qx, qy, qz, k, a_first, cap2_first, -a0,
+                                              cell_start, phi, cp, lam, qx, qy, qz, k, a_first, cap2_first, -a0,
                                               bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
             if not done:
                 status[p] = NEEDS_FALLBACK
@@ -871,7 +872,7 @@ def _weighted(radius, ik, d, w, n):  # pragma: no cover
 
 
 def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start,
-                  phi_r, c_r, z_r, lam_c, cl_c, sl_c, paired, kmax, kfb, search_r,
+                  phi_r, c_r, z_r, cp_r, lam_c, cl_c, sl_c, paired, kmax, kfb, search_r,
                   a_r, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
     ncol = lam_c.size
     P = phi_r.size if paired else phi_r.size * ncol
@@ -887,8 +888,8 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
         bd2 = np.empty(BUFFER)
         bi = np.empty(BUFFER, dtype=np.int64)
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, lam, qx, qy, qz = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r)
-            nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam, a_r, ranges)
+            phi, lam, qx, qy, qz, cp = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r)
+            nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a_r, ranges)
             m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, r2, r2, bd2, bi)
             if m > bd2.size:
                 m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
@@ -899,7 +900,7 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
                     d[i] = math.sqrt(dk2[i])
                     w[i] = ((search_r - d[i]) / (search_r * d[i])) ** 2 if d[i] > 0 else 0.0
             else:
-                done, _ = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, lam,
+                done, _ = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam,
                                qx, qy, qz, kfb, a0, a0,
                                ang_max, rs, r2, ranges, dk2, ik, bd2, bi, np.inf)
                 if not done:
@@ -945,7 +946,7 @@ def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating],
     lon = np.ascontiguousarray(np.ravel(lon_deg), dtype=np.float64)
     if not grid and lat.size != lon.size:
         raise ValueError(f"{lat.size} latitudes but {lon.size} longitudes")
-    rows = tuple(np.empty(lat.size) for _ in range(3))
+    rows = tuple(np.empty(lat.size) for _ in range(4))
     cols = tuple(np.empty(lon.size) for _ in range(3))
     _centres(lat, lon, float(rs), *rows, *cols)
     return (lat.size * lon.size if grid else lat.size), (*rows, *cols, not grid)
