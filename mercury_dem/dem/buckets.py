@@ -70,6 +70,9 @@ GROW = 1.15
 #: Up to this many values, top-k selection and sorting count ranks instead of inserting.
 RANK_MAX = 64
 
+#: Below this (radians) the search bounds a cap's sine and angle by cheap series (conservatively).
+SMALL_ANGLE = 0.01
+
 #: Status of a pixel in the kernels' output.
 OK, NEEDS_FALLBACK = 0, 1
 
@@ -354,7 +357,8 @@ def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, ph
     full = ae >= math.pi or phi + ae >= 0.5 * math.pi or phi - ae <= -0.5 * math.pi
     dl = math.pi
     if not full:
-        sa = math.sin(ae)
+        # sin(ae) <= ae: for small caps ae itself (a conservative bound, one sine fewer per cap)
+        sa = ae if ae < SMALL_ANGLE else math.sin(ae)
         if sa >= cp:
             full = True
         else:
@@ -781,6 +785,17 @@ def _median_filtered(r, s, n, sigma):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
+def _angle_up(chord, rs):  # pragma: no cover
+    """An upper bound of :func:`_angle` without the arcsine for small caps: with x = chord / 2 rs
+    < SMALL_ANGLE, 2 asin(x) = 2 (x + x^3/6 + 3 x^5/40 + ...) <= 2 x (1 + x^2 / 5). A cap at
+    least as wide as needed is exact all the same (only its cost differs)."""
+    x = chord / (2.0 * rs)
+    if x < SMALL_ANGLE:
+        return 2.0 * x * (1.0 + 0.2 * x * x)
+    return _angle(chord, rs)
+
+
+@numba.njit(cache=True, inline="always")
 def _angle(chord, rs):  # pragma: no cover
     """Angle (radians) of a chord on the sphere of radius rs; pi when longer than the diameter."""
     if chord >= 2.0 * rs:
@@ -817,9 +832,11 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
                 # lie within dprev + |q - q_prev| of this one (triangle inequality): a cap that
                 # surely holds k points, the second try (its angle computed only if needed).
                 g = grow * dprev
-                a_first = _angle(g, rs)
+                a_first = _angle_up(g, rs)
                 if a_first < a_min:
                     a_first = a_min
+                elif a_first >= ang_max:  # never beyond the last cap: the kd-tree decision is that cap's
+                    a_first = ang_max
                 else:
                     cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
