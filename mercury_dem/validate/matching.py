@@ -256,6 +256,44 @@ def standard_pairs(
     ]
 
 
+def convergent_views(
+    surface: Any, emissions_deg: Sequence[float], rng: np.random.Generator, render_settings: Any = None,
+    lat_deg: float = 5.0, lon_deg: float = 3.0,
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, TruePose]]:
+    """Views of one site from the same range, tilted north by ``emissions_deg`` (WAC 256^2, 1.8 km/pixel,
+    sun 45 deg from the east): the convergence study's scene (``bench_match.py --convergence``).
+
+    Rendered with ``render_settings`` (default: the mission renderer); a-priori poses perturbed as the
+    missions' (450 µrad, 100 m). Returns (images, geometries, true poses) keyed ``v0``, ``v1``, ...
+    """
+    from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
+    from mercury_dem.geometry.camera import mdis_wac
+    from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
+    from mercury_dem.match import ImageGeometry
+    from mercury_dem.synth.render import render_image
+
+    cam = mdis_wac(256)
+    up = latlon_to_unit(lat_deg, lon_deg)
+    east = np.cross([0.0, 0.0, 1.0], up)
+    east /= np.linalg.norm(east)
+    north = np.cross(up, east)
+    centre = latlon_to_xyz(lat_deg, lon_deg)
+    alt = 1.79e3 / cam.ifov_rad
+    sun = centre + 5.8e10 * (np.cos(np.radians(45)) * up + np.sin(np.radians(45)) * east)
+    images: dict[str, Any] = {}
+    geom: dict[str, Any] = {}
+    truth: dict[str, TruePose] = {}
+    for j, e_deg in enumerate(emissions_deg):
+        c = centre + alt * (np.cos(np.radians(e_deg)) * up + np.sin(np.radians(e_deg)) * north)
+        r = look_at_rotation(c, centre, east)
+        images[f"v{j}"] = (render_image(surface, cam, c, r, sun, rng) if render_settings is None
+                           else render_image(surface, cam, c, r, sun, rng, render_settings))
+        r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
+        geom[f"v{j}"] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, sun)
+        truth[f"v{j}"] = TruePose(cam, c, r)
+    return images, geom, truth
+
+
 # --------------------------------------------------------------------------- control networks
 def network_true_errors(
     image_ids: Sequence[str],

@@ -160,32 +160,11 @@ def convergent_pair() -> dict[str, Any]:
     """Two views converging by 35 deg (emission 10 and 45 deg, north-south, same range and sun; WAC 256^2,
     1.8 km/pixel), rendered with the mission renderer (as ``bench_match.py --convergence``)."""
     pytest.importorskip("mercury_dem.synth.render")
-    from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
-    from mercury_dem.geometry.camera import mdis_wac
-    from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
-    from mercury_dem.match import ImageGeometry
-    from mercury_dem.synth.render import render_image
     from mercury_dem.synth.terrain import Surface, SurfaceParams
-    from mercury_dem.validate.matching import TruePose
+    from mercury_dem.validate.matching import convergent_views
 
     surface = Surface(SurfaceParams(seed=42))
-    cam = mdis_wac(256)
-    up = latlon_to_unit(5.0, 3.0)
-    east = np.cross([0.0, 0.0, 1.0], up)
-    east /= np.linalg.norm(east)
-    north = np.cross(up, east)
-    centre = latlon_to_xyz(5.0, 3.0)
-    alt = 1.79e3 / cam.ifov_rad
-    sun = centre + 5.8e10 * (np.cos(np.radians(45)) * up + np.sin(np.radians(45)) * east)
-    rng = np.random.default_rng(7)
-    images, geom, truth = {}, {}, {}
-    for j, e_deg in enumerate((10.0, 45.0)):
-        c = centre + alt * (np.cos(np.radians(e_deg)) * up + np.sin(np.radians(e_deg)) * north)
-        r = look_at_rotation(c, centre, east)
-        images[f"v{j}"] = render_image(surface, cam, c, r, sun, rng)
-        r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
-        geom[f"v{j}"] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, sun)
-        truth[f"v{j}"] = TruePose(cam, c, r)
+    images, geom, truth = convergent_views(surface, (10.0, 45.0), np.random.default_rng(7))
     return {"images": images, "geom": geom, "truth": truth, "height": surface.height}
 
 

@@ -390,10 +390,9 @@ def convergence_study() -> None:
     and that with the relief scaled by 0 and 0.5. Separates what the metric, the noise, the
     photometry and the relief contribute to the error of convergent pairs.
     """
-    from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
-    from mercury_dem.geometry.pose import look_at_rotation
-    from mercury_dem.synth.render import RenderSettings, render_image
+    from mercury_dem.synth.render import RenderSettings
     from mercury_dem.synth.terrain import Surface, SurfaceParams
+    from mercury_dem.validate.matching import convergent_views
 
     class Scaled:
         """The truth surface with its relief scaled by ``k`` (albedo unchanged)."""
@@ -415,14 +414,6 @@ def convergence_study() -> None:
             return self.s.height(la, lo, r) * self.k
 
     base = Surface(SurfaceParams(seed=42))
-    cam = mdis_wac(256)
-    up = latlon_to_unit(5.0, 3.0)
-    east = np.cross([0.0, 0.0, 1.0], up)
-    east /= np.linalg.norm(east)
-    north = np.cross(up, east)
-    centre = latlon_to_xyz(5.0, 3.0)
-    alt = 1.79e3 / cam.ifov_rad
-    sun = centre + 5.8e10 * (np.cos(np.radians(45)) * up + np.sin(np.radians(45)) * east)
     quiet = dict(gain_e_per_dn=1e6, read_noise_dn=0.0)
     variants = {
         "mission renderer": (1.0, RenderSettings()),
@@ -436,14 +427,7 @@ def convergence_study() -> None:
         surface = Scaled(base, k)
         rng = np.random.default_rng(7)
         for em in (0, 10, 20, 30, 38):
-            images, geom, truth = {}, {}, {}
-            for j, e_deg in enumerate((0.0, float(em))):
-                c = centre + alt * (np.cos(np.radians(e_deg)) * up + np.sin(np.radians(e_deg)) * north)
-                r = look_at_rotation(c, centre, east)
-                images[f"v{j}"] = render_image(surface, cam, c, r, sun, rng, rs)
-                r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
-                geom[f"v{j}"] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, sun)
-                truth[f"v{j}"] = TruePose(cam, c, r)
+            images, geom, truth = convergent_views(surface, (0.0, float(em)), rng, rs)
             m, reps = match_tile(images, geom, [("v0", "v1")], MatchConfig(threads=2))
             pa = np.stack([m.sample_a, m.line_a], -1)
             pb = np.stack([m.sample_b, m.line_b], -1)
