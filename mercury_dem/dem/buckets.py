@@ -614,23 +614,48 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
     if m - k > 8:
         _topk(bd2, bi, m, k, dk2, ik)
         return dk2[0], dk2[k - 1]
+    m0 = m
     for j in range(m):
         dk2[j] = bd2[j]
         ik[j] = bi[j]
+    # Distances alone first: m - k times, the largest is found (a branch-free max pass, then its
+    # first position) and dropped. The set is the tie-aware one unless the last value dropped (the
+    # smallest dropped) equals a kept one -- a tie at the k-th place, as with duplicated points:
+    # then the drops are redone with ties broken by point index.
+    dlast = -1.0
     while m > k:
-        jmax = 0
         dmax = dk2[0]
-        imax = ik[0]
         for j in range(1, m):
-            d = dk2[j]
-            i = ik[j]
-            if d > dmax or (d == dmax and i > imax):
-                jmax = j
-                dmax = d
-                imax = i
+            dmax = max(dmax, dk2[j])
+        jmax = 0
+        while dk2[jmax] != dmax:
+            jmax += 1
         m -= 1
         dk2[jmax] = dk2[m]
         ik[jmax] = ik[m]
+        dlast = dmax
+    tie = False
+    for j in range(k):
+        tie |= dk2[j] == dlast
+    if tie:
+        m = m0
+        for j in range(m):
+            dk2[j] = bd2[j]
+            ik[j] = bi[j]
+        while m > k:
+            jmax = 0
+            dmax = dk2[0]
+            imax = ik[0]
+            for j in range(1, m):
+                d = dk2[j]
+                i = ik[j]
+                if d > dmax or (d == dmax and i > imax):
+                    jmax = j
+                    dmax = d
+                    imax = i
+            m -= 1
+            dk2[jmax] = dk2[m]
+            ik[jmax] = ik[m]
     lo = dk2[0]
     hi = dk2[0]
     for j in range(1, k):

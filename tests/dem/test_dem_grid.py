@@ -206,3 +206,29 @@ def test_sort11_network_sorts():
         want = np.sort(r)
         _sort11(r)
         np.testing.assert_array_equal(r, want)
+
+
+def test_smallest_set_breaks_ties_by_point_index():
+    """The k-NN selection of the median11 kernel keeps the k smallest distances, ties at the k-th
+    place broken by point index (as the sorted (distance, index) order does), whether the
+    distances are distinct or heavily tied (duplicated points)."""
+    from mercury_dem.dem.buckets import _smallest_set
+
+    rng = np.random.default_rng(5)
+    k = 11
+    n_tie_cases = 0
+    for trial in range(3000):
+        m = int(rng.integers(k, k + 9))  # the drop-the-largest range (m - k <= 8)
+        if trial % 2:
+            d2 = rng.integers(0, 6, m).astype(float)  # few values: ties everywhere
+        else:
+            d2 = rng.uniform(0.0, 1.0, m)
+        idx = rng.permutation(1000)[:m].astype(np.int64)
+        want = sorted(zip(d2, idx))[:k]
+        n_tie_cases += m > k and want[-1][0] == sorted(zip(d2, idx))[k][0]
+        dk2 = np.empty(m)
+        ik = np.empty(m, dtype=np.int64)
+        lo, hi = _smallest_set(d2.copy(), idx.copy(), m, k, dk2, ik)
+        assert sorted(zip(dk2[:k], ik[:k])) == want
+        assert (lo, hi) == (want[0][0], want[-1][0])
+    assert n_tie_cases > 100  # the tie path was exercised
