@@ -126,15 +126,20 @@ def test_dashboard_follows_a_live_run(tiny_mission_path: Path, tmp_path: Path) -
         snap1 = _wait("a first finished tile with others pending", first, 240)
         dom1 = dict(map(tuple, driver.execute_script(JS_DOM)))
         driver.save_screenshot(str(tmp_path / "dashboard-1.png"))
-        n1 = sum(s != "pending" for s in snap1["state"])
+        # Count what the page showed as well as the model read a moment before it (a tile can finish
+        # in between): the second snapshot must have more finished tiles than either.
+        n1 = max(sum(s != "pending" for s in dom1.values()), sum(s != "pending" for s in snap1["state"]))
 
         def second() -> Any:
             m = model()
             return m if m and sum(s != "pending" for s in m["state"]) > n1 else None
 
         snap2 = _wait("another tile to finish", second, 240)
-        time.sleep(1.0)  # let the Div update land as well
-        dom2 = dict(map(tuple, driver.execute_script(JS_DOM)))
+        def page_caught_up() -> Any:  # the Div update lands after the model's
+            d = dict(map(tuple, driver.execute_script(JS_DOM)))
+            return d if sum(s != "pending" for s in d.values()) > n1 else None
+
+        dom2 = _wait("the page to show the newly finished tile", page_caught_up, 30)
         driver.save_screenshot(str(tmp_path / "dashboard-2.png"))
     finally:
         if driver is not None:
