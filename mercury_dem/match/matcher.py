@@ -463,12 +463,9 @@ def _match_core(
             rep.n_local = int(feat.size)
     flow = None
     if _flow_on(config, pg) and feat.size and wpat is not None and base.pattern is not None:
-        flow = dense_flow(base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations,
-                          initial=np.median(pb - pa, axis=0))
+        flow = _pair_flow(base.pattern, wpat, valid, pa, pb, config)
         if flow is not None:
-            d, usable = flow_at(flow, pa)
-            q = pa + d
-            agree = np.linalg.norm(q - pb, axis=1) <= config.flow_tolerance_px
+            q, usable, agree = _read_flow(flow, pa, pb, config)
             if agree[usable].mean() < FLOW_MIN_AGREEMENT if usable.any() else True:
                 flow = None  # the flow contradicts most refined measures: it failed, not they
             else:
@@ -484,6 +481,22 @@ def _match_core(
 #: refined one for the flow to be used: below it the flow is taken to have failed (e.g. a thin
 #: strip where DIS lost the pointing offset) and the refined positions are kept.
 FLOW_MIN_AGREEMENT = 0.5
+
+
+def _pair_flow(base_pattern: NDArray[np.float32], warped_pattern: NDArray[np.float32], valid: NDArray[np.bool_],
+               pa: NDArray[np.float64], pb: NDArray[np.float64], config: MatchConfig) -> Flow | None:
+    """The pair's dense flow, started from its measures' median displacement."""
+    return dense_flow(base_pattern, warped_pattern, valid, variational_iterations=config.flow_variational_iterations,
+                      initial=np.median(pb - pa, axis=0))
+
+
+def _read_flow(flow: Flow, base_pts: NDArray[np.float64], partner_pts: NDArray[np.float64], config: MatchConfig,
+               ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Partner positions read from the flow at ``base_pts``, where the flow is usable, and where they
+    agree with ``partner_pts`` within ``flow_tolerance_px``."""
+    d, usable = flow_at(flow, base_pts)
+    q = base_pts + d
+    return q, usable, np.linalg.norm(q - partner_pts, axis=1) <= config.flow_tolerance_px
 
 
 def _flow_on(config: MatchConfig, pg: PairGeometry) -> bool:
@@ -516,19 +529,35 @@ def _extra_corners(base: ImageFeatures, on: NDArray[np.bool_], have: NDArray[np.
     pts = np.zeros((0, 2)) if pts is None else pts.reshape(-1, 2).astype(np.float64)
     if pts.shape[0] + have.shape[0] < n:
         pts = np.concatenate([pts, _grid_seeds(i8, on)])
-    if have.shape[0] or pts.shape[0]:
-        from scipy.spatial import cKDTree
+    return pts[_spaced(pts, have, _EXTRA_CORNER_SPACING_PX, int(n))]
 
-        taken = have.copy()
-        keep = np.zeros(pts.shape[0], bool)
-        for k in range(pts.shape[0]):  # greedy, in order: corners first, then the strongest cells
-            if taken.shape[0] == 0 or cKDTree(taken).query(pts[k], k=1)[0] >= _EXTRA_CORNER_SPACING_PX:
-                keep[k] = True
-                taken = np.concatenate([taken, pts[k : k + 1]])
-                if keep.sum() >= n:
-                    break
-        pts = pts[keep]
-    return pts[: int(n)]
+
+def _spaced(pts: NDArray[np.float64], have: NDArray[np.float64], spacing: float, n: int) -> NDArray[np.int64]:
+    """Indices of at most ``n`` of ``pts``, taken greedily in order, each at least ``spacing`` from
+    ``have`` and from those taken before it (corners first, then the strongest grid cells).
+
+    The neighbours closer than ``spacing`` are found once with kd-trees; the greedy pass then only
+    marks them (a Python loop over the points, no tree rebuilt per point).
+    """
+    if pts.shape[0] == 0 or n <= 0:
+        return np.zeros(0, np.int64)
+    from scipy.spatial import cKDTree
+
+    r = float(np.nextafter(spacing, 0.0))  # closer than spacing <=> within r (query_ball_point is <=)
+    blocked = np.zeros(pts.shape[0], bool)
+    if have.shape[0]:
+        d, _ = cKDTree(have).query(pts, k=1)
+        blocked = np.asarray(d) < spacing
+    near = cKDTree(pts).query_ball_point(pts, r)
+    keep: list[int] = []
+    for k in range(pts.shape[0]):
+        if blocked[k]:
+            continue
+        keep.append(k)
+        if len(keep) >= n:
+            break
+        blocked[near[k]] = True
+    return np.asarray(keep, np.int64)
 
 
 #: Cell size of the NCC fallback's grid seeds on a patch with too few corners (pixels).
@@ -879,8 +908,7 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
                                           config.psf_sigma_px)
         wpat = _pattern(warped, config)
         if st.flow_used and wpat is not None and st.base.pattern is not None:
-            flow = dense_flow(st.base.pattern, wpat, valid, variational_iterations=config.flow_variational_iterations,
-                              initial=np.median(st.pb - st.pa, axis=0))
+            flow = _pair_flow(st.base.pattern, wpat, valid, st.pa, st.pb, config)
     bpat = st.base.pattern if wpat is not None else None
     prop = propagate_pair(
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
@@ -916,9 +944,7 @@ def _propagated_on_flow(prop: Any, flow: Flow, fwd_pts: NDArray[np.float64], rev
     forward anchor (base side fixed) at ``base + flow(base)``, the base position of a reverse one
     (partner side fixed) where ``base + flow(base)`` reaches it; those the flow contradicts by more
     than ``flow_tolerance_px`` dropped, those where it is not usable kept as refined."""
-    d, uf = flow_at(flow, fwd_pts[prop.forward])
-    qf = fwd_pts[prop.forward] + d
-    af = np.linalg.norm(qf - prop.forward_points, axis=1) <= config.flow_tolerance_px
+    qf, uf, af = _read_flow(flow, fwd_pts[prop.forward], prop.forward_points, config)
     qr, ur = base_position(flow, rev_pts[prop.reverse], prop.reverse_points)
     ar = np.linalg.norm(qr - prop.reverse_points, axis=1) <= config.flow_tolerance_px
     kf, kr = ~(uf & ~af), ~(ur & ~ar)
