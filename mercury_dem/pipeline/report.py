@@ -135,11 +135,8 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
 def unit_message(error: Any, name: str) -> str:
     """``error`` without a leading ``"<name>: "`` (messages in report.json name their unit; lines that
     already start with the unit's name print the rest)."""
-    text = str(error)
-    for prefix in (f"{name}: ", f"{name.replace(' ', '')}: "):
-        if text.startswith(prefix):
-            return text[len(prefix):]
-    return text
+    text, prefix = str(error), f"{name}: "
+    return text[len(prefix):] if text.startswith(prefix) else text
 
 
 def dem_validation_table(d: dict[str, Any]) -> str:
