@@ -19,7 +19,9 @@ Points are bucketed by their footprint's latitude into bands of height ``band_h`
 cell is about ``band_h`` wide on the ground at the band's widest latitude. Points are
 stored sorted by cell, band after band, so the cells of a band in a longitude interval
 are one contiguous run of points. The cell size follows the cloud's density (about
-``points_per_cell`` points per cell over the area the cloud occupies).
+``points_per_cell`` points per cell over the area the cloud occupies). The sort is a
+stable counting sort in two levels, by band then by cell within each band
+(:func:`_bucket_order`), so that no pass writes points to random places in memory.
 
 Search
 ------
@@ -125,9 +127,11 @@ class SphereBuckets:
 @numba.njit(cache=True, nogil=True)
 def _occupancy(lat, lon, c, nlat, nlon, nbin):  # pragma: no cover - compiled
     """One pass over the footprints: coarse lat/lon cells holding points (``nlat x nlon`` of
-    edge c radians), 2 pi / nbin longitude bins holding points, and the latitude range."""
+    edge c radians), the least and greatest longitude in each 2 pi / nbin longitude bin
+    (+inf / -inf where empty), and the latitude range."""
     occ = np.zeros(nlat * nlon, dtype=np.bool_)
-    lon_occ = np.zeros(nbin, dtype=np.bool_)
+    bin_lo = np.full(nbin, np.inf)
+    bin_hi = np.full(nbin, -np.inf)
     lat_lo = np.inf
     lat_hi = -np.inf
     for p in range(lat.size):
@@ -136,19 +140,28 @@ def _occupancy(lat, lon, c, nlat, nlon, nbin):  # pragma: no cover - compiled
         i = min(max(int((f + math.pi / 2) / c), 0), nlat - 1)
         j = min(max(int(t / c), 0), nlon - 1)
         occ[i * nlon + j] = True
-        lon_occ[min(int(t / (2 * math.pi) * nbin), nbin - 1)] = True
+        q = min(int(t / (2 * math.pi) * nbin), nbin - 1)
+        bin_lo[q] = min(bin_lo[q], t)
+        bin_hi[q] = max(bin_hi[q], t)
         lat_lo = min(lat_lo, f)
         lat_hi = max(lat_hi, f)
-    return occ, lon_occ, lat_lo, lat_hi
+    return occ, bin_lo, bin_hi, lat_lo, lat_hi
 
 
-@numba.njit(cache=True, nogil=True)
-def _max_from(lon, origin):  # pragma: no cover - compiled
-    """max over points of (lon - origin) mod 2 pi (numpy's floored modulo)."""
-    u = -np.inf
-    for p in range(lon.size):
-        u = max(u, (lon[p] - origin) % (2 * math.pi))
-    return u
+def _max_from(bin_lo: NDArray[np.float64], bin_hi: NDArray[np.float64], origin: float) -> float:
+    """max over the points of (lon - origin) mod 2 pi (numpy's floored modulo), from each
+    longitude bin's least and greatest longitude (:func:`_occupancy`; no pass over the points).
+
+    The modulo increases with lon on either side of ``origin``, so a bin whose points are all
+    on one side reaches its maximum at its greatest longitude: the exact value of a pass over
+    the points. A bin with points on both sides (only by rounding at a bin edge) would need
+    the greatest point below ``origin``: then 2 pi, a span that surely holds every point.
+    """
+    occupied = np.isfinite(bin_hi)
+    lo, hi = bin_lo[occupied], bin_hi[occupied]
+    if np.any((lo < origin) & (hi >= origin)):
+        return 2 * math.pi
+    return float(np.max(np.mod(hi - origin, 2 * math.pi)))
 
 
 #: Longitude bins (0.5 degree) of :func:`_lon_extent`.
@@ -187,58 +200,126 @@ def _prepare_body(p, rs, r, lat, lon, bad):  # pragma: no cover - compiled
         if not rr > 0.0:
             bad[i] = 2
             continue
-        f = rs / rr  # the footprint is p * f (stored later, in bucket order, by _gather)
+        f = rs / rr  # the footprint is p * f (stored later, in bucket order, by _band_scatter)
         lat[i] = math.asin(min(1.0, max(-1.0, (z * f) / rs)))
         t = math.atan2(y * f, x * f)
         t = t + 2.0 * math.pi if t < 0.0 else t + 0.0  # Python's t % 2 pi for t in [-pi, pi], -0.0 -> 0.0 included
         lon[i] = 0.0 if t >= 2.0 * math.pi else t
 
 
-def _cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band_first, out):  # pragma: no cover
+#: Points per work item of the bucketing passes (each counts its points per band).
+SORT_CHUNK = 65536
+
+
+def _band_cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band, local, hist):  # pragma: no cover
+    """Pass 1 of bucketing: each point's band and cell within its band; points per band in each chunk."""
     nb = band_ncell.size
-    for p in prange(lat.size):
-        b = int(math.floor((lat[p] - lat0) / band_h))
-        b = min(max(b, 0), nb - 1)
+    n = lat.size
+    for ch in prange(hist.shape[0]):
+        for p in range(ch * SORT_CHUNK, min(n, (ch + 1) * SORT_CHUNK)):
+            b = int(math.floor((lat[p] - lat0) / band_h))
+            b = min(max(b, 0), nb - 1)
+            nc = band_ncell[b]
+            u = (lon[p] - lon0) % (2.0 * math.pi)
+            j = int(math.floor(u / (lon_span / nc)))
+            band[p] = b
+            local[p] = min(max(j, 0), nc - 1)
+            hist[ch, b] += 1
+
+
+def _band_scatter_body(pts, radius, rs, band, local, offset, xyz_out, r_out, order, local_out):  # pragma: no cover
+    """Pass 2: points into band order (stable), each chunk from its own offsets; footprints made here."""
+    n = band.size
+    for ch in prange(offset.shape[0]):
+        pos = offset[ch].copy()
+        for p in range(ch * SORT_CHUNK, min(n, (ch + 1) * SORT_CHUNK)):
+            b = band[p]
+            d = pos[b]
+            pos[b] = d + 1
+            r = radius[p]
+            f = rs / r  # footprint = point x (rs / |p|), as in _prepare_body
+            xyz_out[d, 0] = pts[p, 0] * f
+            xyz_out[d, 1] = pts[p, 1] * f
+            xyz_out[d, 2] = pts[p, 2] * f
+            r_out[d] = r
+            order[d] = p
+            local_out[d] = local[p]
+
+
+def _cell_sort_body(band_start, band_ncell, band_first, xyz, r, order, local, cell_start):  # pragma: no cover
+    """Pass 3: within each band (a contiguous run after pass 2), a stable counting sort by cell."""
+    for b in prange(band_ncell.size):
+        s = band_start[b]
+        m = band_start[b + 1] - s
         nc = band_ncell[b]
-        u = (lon[p] - lon0) % (2.0 * math.pi)
-        j = int(math.floor(u / (lon_span / nc)))
-        out[p] = band_first[b] + min(max(j, 0), nc - 1)
-
-
-def _gather_body(order, pts, rs, radius, xyz_out, r_out):  # pragma: no cover - compiled
-    for p in prange(order.size):
-        i = order[p]
-        r = radius[i]
-        f = rs / r  # footprint = point x (rs / |p|), as in _prepare_body
-        xyz_out[p, 0] = pts[i, 0] * f
-        xyz_out[p, 1] = pts[i, 1] * f
-        xyz_out[p, 2] = pts[i, 2] * f
-        r_out[p] = r
-
-
-@numba.njit(cache=True, nogil=True)
-def _counting_order(cell, cell_start):  # pragma: no cover - compiled
-    """Stable order of points by cell, given the cells' start offsets."""
-    pos = cell_start[:-1].copy()
-    order = np.empty(cell.size, dtype=np.int64)
-    for p in range(cell.size):
-        c = cell[p]
-        order[pos[c]] = p
-        pos[c] += 1
-    return order
+        f = band_first[b]
+        pos = np.zeros(nc + 1, dtype=np.int64)
+        for t in range(m):
+            pos[local[s + t] + 1] += 1
+        for j in range(nc):
+            pos[j + 1] += pos[j]
+        for j in range(nc):
+            cell_start[f + j] = s + pos[j]
+        xs = xyz[s:s + m].copy()
+        rs_ = r[s:s + m].copy()
+        os_ = order[s:s + m].copy()
+        ls = local[s:s + m].copy()
+        for t in range(m):
+            j = ls[t]
+            d = s + pos[j]
+            pos[j] += 1
+            xyz[d, 0] = xs[t, 0]
+            xyz[d, 1] = xs[t, 1]
+            xyz[d, 2] = xs[t, 2]
+            r[d] = rs_[t]
+            order[d] = os_[t]
 
 
 _prepare = numba.njit(parallel=True, cache=True, nogil=True)(_prepare_body)
-_cell_of = numba.njit(parallel=True, cache=True, nogil=True)(_cell_body)
-_gather = numba.njit(parallel=True, cache=True, nogil=True)(_gather_body)
+_band_cell = numba.njit(parallel=True, cache=True, nogil=True)(_band_cell_body)
+_band_scatter = numba.njit(parallel=True, cache=True, nogil=True)(_band_scatter_body)
+_cell_sort = numba.njit(parallel=True, cache=True, nogil=True)(_cell_sort_body)
 
 
-def _lon_extent(occ: NDArray[np.bool_], lon: NDArray[np.float64]) -> tuple[float, float]:
+def _bucket_order(pts, radius, lat, lon, rs, lat0, band_h, lon0, lon_span, ncell, band_first):
+    """Points sorted by cell (stable): footprints, radii, input rows and the cells' starts.
+
+    Why three passes and not one counting sort by cell: a single sort writes (or gathers)
+    each point at a random place in arrays of tens of MB, one cache miss per point, which
+    made it most of the index's time. Sorting by band first (a few hundred to a few
+    thousand runs written in sequence), then by cell inside each band (a run small enough
+    for the cache, bands in parallel) gives the same stable order for a fraction of it.
+    """
+    n = lat.size
+    nb = ncell.size
+    nch = max(1, -(-n // SORT_CHUNK))
+    band = np.empty(n, dtype=np.int32)
+    local = np.empty(n, dtype=np.int32)
+    hist = np.zeros((nch, nb), dtype=np.int64)
+    _run(_band_cell, -1, lat, lon, lat0, band_h, lon0, lon_span, ncell, band, local, hist)
+    per_band = hist.sum(axis=0)
+    band_start = np.zeros(nb + 1, dtype=np.int64)
+    np.cumsum(per_band, out=band_start[1:])
+    offset = band_start[:-1][None, :] + np.cumsum(hist, axis=0) - hist  # chunk ch's first slot in each band
+    xyz, rad = np.empty((n, 3)), np.empty(n)
+    order = np.empty(n, dtype=np.int64)
+    local_sorted = np.empty(n, dtype=np.int32)
+    _run(_band_scatter, -1, pts, radius, float(rs), band, local, offset, xyz, rad, order, local_sorted)
+    del band, local
+    cell_start = np.empty(int(band_first[-1]) + 1, dtype=np.int64)
+    cell_start[-1] = n
+    _run(_cell_sort, -1, band_start, ncell, band_first, xyz, rad, order, local_sorted, cell_start)
+    return xyz, rad, order, cell_start
+
+
+def _lon_extent(bin_lo: NDArray[np.float64], bin_hi: NDArray[np.float64]) -> tuple[float, float]:
     """(origin, span) in radians of the smallest longitude interval holding every point.
 
-    The complement of the widest empty gap of the 0.5-degree occupancy ``occ``
-    (:func:`_occupancy`); the whole circle (origin 0) when no gap is wider than 5 degrees.
+    The complement of the widest empty gap of the 0.5-degree longitude bins (their least and
+    greatest longitudes from :func:`_occupancy`); the whole circle (origin 0) when no gap is
+    wider than 5 degrees.
     """
+    occ = np.isfinite(bin_hi)
     nbin = occ.size
     if occ.all():
         return 0.0, 2 * math.pi
@@ -250,7 +331,7 @@ def _lon_extent(occ: NDArray[np.bool_], lon: NDArray[np.float64]) -> tuple[float
     if gaps[g] * 360.0 / nbin < 5.0:
         return 0.0, 2 * math.pi
     origin = (idx[g + 1] % nbin) * 2 * math.pi / nbin
-    return float(origin), float(min(2 * math.pi, _max_from(lon, origin) * (1 + 1e-12) + 1e-12))
+    return float(origin), float(min(2 * math.pi, _max_from(bin_lo, bin_hi, origin) * (1 + 1e-12) + 1e-12))
 
 
 def footprints(points: NDArray[np.float64], sphere_radius: float) -> dict[str, NDArray[Any]]:
@@ -291,11 +372,11 @@ def build_buckets(
     f = footprints(pts, sphere_radius) if prepared is None else prepared
     lat, lon, radius = f["lat"], f["lon"], f["radius"]
     c = _coarse_edge(n)
-    occ, lon_occ, lat_lo, lat_hi = _occupancy(lat, lon, c, int(math.ceil(math.pi / c)),
-                                              int(math.ceil(2 * math.pi / c)), LON_BINS)
+    occ, bin_lo, bin_hi, lat_lo, lat_hi = _occupancy(lat, lon, c, int(math.ceil(math.pi / c)),
+                                                     int(math.ceil(2 * math.pi / c)), LON_BINS)
     lat_lo, lat_hi = float(lat_lo), float(lat_hi)
     density = _occupied_density(occ, c, n)
-    lon0, lon_span = _lon_extent(lon_occ, lon)
+    lon0, lon_span = _lon_extent(bin_lo, bin_hi)
     s = math.sqrt(points_per_cell / density)  # cell edge (radians) of a square cell
     for _ in range(8):  # grow cells until their count is at most ~4 per point
         sh = s * math.sqrt(aspect)
@@ -310,14 +391,8 @@ def build_buckets(
         s *= math.sqrt(ncell.sum() / (4 * n + 1024))
     band_first = np.zeros(nb + 1, dtype=np.int64)
     np.cumsum(ncell, out=band_first[1:])
-    cell = np.empty(n, dtype=np.int64)
-    _run(_cell_of, -1, lat, lon, lat_lo, band_h, lon0, lon_span, ncell, band_first, cell)
-    counts = np.bincount(cell, minlength=int(band_first[-1]))
-    cell_start = np.zeros(counts.size + 1, dtype=np.int64)
-    np.cumsum(counts, out=cell_start[1:])
-    order = _counting_order(cell, cell_start)
-    xyz, rad = np.empty((n, 3)), np.empty(n)
-    _run(_gather, -1, order, pts, float(sphere_radius), radius, xyz, rad)
+    xyz, rad, order, cell_start = _bucket_order(pts, radius, lat, lon, sphere_radius, lat_lo, band_h, lon0, lon_span,
+                                                ncell, band_first)
     return SphereBuckets(
         xyz=xyz,
         radius=rad,
@@ -340,16 +415,22 @@ def build_buckets(
 
 
 @numba.njit(cache=True, inline="always")
-def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a, out):  # pragma: no cover
-    """Contiguous runs of sorted points that hold every point within angle a of (phi, lam).
+def _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, out):  # pragma: no cover
+    """Contiguous runs of sorted points that hold every point within angle a of (phi, u).
 
-    ``cp`` is ``math.cos(phi)`` (from the row's table: one cosine per row, not per pixel).
+    ``u`` is the query's east longitude from the cells' origin, in [0, 2 pi) (per column:
+    ``(lam - lon0) mod 2 pi``), ``icp`` is ``1 / cos(phi)`` (per row), ``inv_bh`` is 1 / the
+    band height and ``band_invw[b]`` the cells per radian of band b (its cells / lon_span):
+    reciprocals so the search multiplies instead of dividing. Bands and cells found with
+    them are those of the division, or one further out: the cap is widened by 1e-9 of itself
+    plus 1e-12 rad, far more than the few ulps the reciprocal can shift a boundary by, so
+    the runs still hold the whole cap (a wider run only costs time, never changes a result).
     Writes ``[start, end)`` pairs into ``out`` (at least 2 x bands rows); returns their number.
     """
-    nb = band_ncell.size
+    nb = band_invw.size
     ae = a * (1.0 + 1e-9) + 1e-12
-    b0 = int(math.floor((phi - ae - lat0) / band_h))
-    b1 = int(math.floor((phi + ae - lat0) / band_h))
+    b0 = int(math.floor((phi - ae - lat0) * inv_bh))
+    b1 = int(math.floor((phi + ae - lat0) * inv_bh))
     if b0 < 0:
         b0 = 0
     if b1 > nb - 1:
@@ -359,34 +440,49 @@ def _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, ph
     if not full:
         # sin(ae) <= ae: for small caps ae itself (a conservative bound, one sine fewer per cap)
         sa = ae if ae < SMALL_ANGLE else math.sin(ae)
-        if sa >= cp:
+        x = sa * icp
+        if x >= 1.0:
             full = True
         else:
-            dl = math.asin(sa / cp) * (1.0 + 1e-9) + 1e-12
+            # asin(x) = x + x^3/6 + 3 x^5/40 + ... <= x (1 + x^2 / 5) for small x (no arcsine per cap)
+            dl = (x * (1.0 + 0.2 * x * x) if x < SMALL_ANGLE else math.asin(x)) * (1.0 + 1e-9) + 1e-12
             full = dl >= math.pi
-    u = (lam - lon0) % (2.0 * math.pi)  # query longitude from the cells' origin
     n = 0
-    for b in range(b0, b1 + 1):
-        nc = band_ncell[b]
-        f = band_first[b]
-        if full:
-            out[n, 0] = cell_start[f]
-            out[n, 1] = cell_start[f + nc]
+    if full:
+        for b in range(b0, b1 + 1):
+            out[n, 0] = cell_start[band_first[b]]
+            out[n, 1] = cell_start[band_first[b + 1]]
             n += 1
-            continue
-        w = lon_span / nc
-        # the interval [u - dl, u + dl] and its copies one turn away, cut to the cells [0, lon_span)
-        for shift in (-2.0 * math.pi, 0.0, 2.0 * math.pi):
-            u0 = u - dl + shift
-            u1 = u + dl + shift
-            if u1 < 0.0 or u0 >= lon_span:
-                continue
-            j0 = 0 if u0 <= 0.0 else int(math.floor(u0 / w))
-            j1 = nc - 1 if u1 >= lon_span else int(math.floor(u1 / w))
-            if j0 > nc - 1:
-                j0 = nc - 1
-            if j1 > nc - 1:
-                j1 = nc - 1
+        return n
+    # the interval [u - dl, u + dl] and its copies one turn away, cut to the cells [0, lon_span):
+    # shorter than a turn, it meets [0, 2 pi) in at most two pieces, the same for every band
+    # (u is in [0, 2 pi): the copy one turn up or down is the only other one that can meet it)
+    ua = u - dl
+    ub = u + dl
+    va = vb = 0.0
+    two = False
+    if ua < 0.0:  # the piece below 0 wraps to the top
+        va = ua + 2.0 * math.pi
+        vb = min(ub + 2.0 * math.pi, 2.0 * math.pi)
+        two = va < lon_span
+    elif ub >= 2.0 * math.pi:  # the piece above 2 pi wraps to the bottom
+        va = 0.0
+        vb = ub - 2.0 * math.pi
+        two = True
+    one = ua < lon_span
+    for b in range(b0, b1 + 1):
+        f = band_first[b]
+        last = band_first[b + 1] - f - 1
+        iw = band_invw[b]
+        if one:
+            j0 = 0 if ua <= 0.0 else min(int(math.floor(ua * iw)), last)
+            j1 = last if ub >= lon_span else min(int(math.floor(ub * iw)), last)
+            out[n, 0] = cell_start[f + j0]
+            out[n, 1] = cell_start[f + j1 + 1]
+            n += 1
+        if two:
+            j0 = 0 if va <= 0.0 else min(int(math.floor(va * iw)), last)
+            j1 = last if vb >= lon_span else min(int(math.floor(vb * iw)), last)
             out[n, 0] = cell_start[f + j0]
             out[n, 1] = cell_start[f + j1 + 1]
             n += 1
@@ -503,31 +599,34 @@ def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no
 
 
 @numba.njit(cache=True, nogil=True)
-def _centres(lat_deg, lon_deg, rs, phi, c, z, cp, lam, cl, sl):  # pragma: no cover
+def _centres(lat_deg, lon_deg, rs, lon0, phi, c, z, icp, u, cl, sl):  # pragma: no cover
     """Pixel centres on the sphere of radius rs (m) from latitudes and longitudes (degrees).
 
-    Per latitude: phi (radians), c = rs cos(phi), z = rs sin(phi), cp = cos(phi); per longitude: lam in
-    [0, 2 pi) and its cosine and sine. A centre is (c cos(lam), c sin(lam), z): the same
-    operations whether the centres come as a grid (rows x columns) or as a list.
+    Per latitude: phi (radians), c = rs cos(phi), z = rs sin(phi), icp = 1 / cos(phi); per
+    longitude: lam in [0, 2 pi), its cosine and sine, and u = (lam - lon0) mod 2 pi, the
+    longitude from the cells' origin lon0 (the search's). A centre is (c cos(lam), c sin(lam), z):
+    the same operations whether the centres come as a grid (rows x columns) or as a list.
     """
     for i in range(lat_deg.size):
         f = math.radians(lat_deg[i])
         phi[i] = f
-        cp[i] = math.cos(f)
-        c[i] = rs * cp[i]
+        cp = math.cos(f)
+        icp[i] = 1.0 / cp
+        c[i] = rs * cp
         z[i] = rs * math.sin(f)
     for j in range(lon_deg.size):
         t = math.radians(lon_deg[j]) % (2.0 * math.pi)
         if t >= 2.0 * math.pi:
             t = 0.0
-        lam[j] = t
+        u[j] = (t - lon0) % (2.0 * math.pi)
         cl[j] = math.cos(t)
         sl[j] = math.sin(t)
 
 
 @numba.njit(cache=True, inline="always")
-def _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r):  # pragma: no cover
-    """Pixel p's centre: (latitude, longitude, unit vector x, y, z) from the per-row/column tables;
+def _centre(p, paired, ncol, phi_r, u_c, c_r, cl_c, sl_c, z_r, icp_r):  # pragma: no cover
+    """Pixel p's centre: (latitude, longitude from the cells' origin, x, y, z, 1 / cos(latitude)) from
+    the per-row/column tables;
     ``paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid)."""
     if paired:
         i = p
@@ -535,7 +634,7 @@ def _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r):  # pragm
     else:
         i = p // ncol
         j = p - i * ncol
-    return phi_r[i], lam_c[j], c_r[i] * cl_c[j], c_r[i] * sl_c[j], z_r[i], cp_r[i]
+    return phi_r[i], u_c[j], c_r[i] * cl_c[j], c_r[i] * sl_c[j], z_r[i], icp_r[i]
 
 
 @numba.njit(cache=True, inline="always")
@@ -569,7 +668,7 @@ def _next_cap(a, a_second, ang_max):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, qx, qy, qz, k, a_first,
+def _knn(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, qx, qy, qz, k, a_first,
          a_second, ang_max, rs,
          r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
     """Exact k nearest (ascending in dk2/ik): caps a_first, then a_second, then doubling.
@@ -582,7 +681,7 @@ def _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, 
     """
     a = a_first
     while True:
-        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a, ranges)
+        nr = _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, ranges)
         cap2 = _cap_chord2(a, rs)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
@@ -665,7 +764,7 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, qx, qy, qz, k,
+def _knn_set(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, qx, qy, qz, k,
              a_first, cap2_first, a_second, bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi,
              t2):  # pragma: no cover
     """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
@@ -681,7 +780,7 @@ def _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_sta
     a = a_first
     cap2 = cap2_first if cap2_first > 0.0 else _cap_chord2(a, rs)
     while True:
-        nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a, ranges)
+        nr = _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, ranges)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
             mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
@@ -828,15 +927,15 @@ def _angle(chord, rs):  # pragma: no cover
     return 2.0 * math.asin(chord / (2.0 * rs))
 
 
-def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start,
-                   phi_r, c_r, z_r, cp_r, lam_c, cl_c, sl_c, paired, k, sigma, search_r,
+def _median11_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start,
+                   phi_r, c_r, z_r, icp_r, u_c, cl_c, sl_c, paired, k, sigma, search_r,
                    a_min, a0, ang_max, rs, grow, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
-    ncol = lam_c.size
+    ncol = u_c.size
     P = phi_r.size if paired else phi_r.size * ncol
     nblk = (P + BLOCK - 1) // BLOCK
     r2count = search_r * search_r
     for blk in prange(nblk):
-        ranges = np.empty((2 * band_ncell.size + 2, 2), dtype=np.int64)
+        ranges = np.empty((2 * band_invw.size + 2, 2), dtype=np.int64)
         dk2 = np.empty(max(k, BUFFER))
         ik = np.empty(max(k, BUFFER), dtype=np.int64)
         rr = np.empty(k)
@@ -847,7 +946,7 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
         dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
         px = py = pz = 0.0
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, lam, qx, qy, qz, cp = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r)
+            phi, u, qx, qy, qz, icp = _centre(p, paired, ncol, phi_r, u_c, c_r, cl_c, sl_c, z_r, icp_r)
             a_first = a0
             cap2_first = -1.0
             bound = -1.0
@@ -865,8 +964,8 @@ def _median11_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_f
                 else:
                     cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
-            done, cnt, d2near, d2k = _knn_set(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first,
-                                              cell_start, phi, cp, lam, qx, qy, qz, k, a_first, cap2_first, -a0,
+            done, cnt, d2near, d2k = _knn_set(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first,
+                                              cell_start, phi, icp, u, qx, qy, qz, k, a_first, cap2_first, -a0,
                                               bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
             if not done:
                 status[p] = NEEDS_FALLBACK
@@ -913,16 +1012,16 @@ def _weighted(radius, ik, d, w, n):  # pragma: no cover
     return ref + m, (math.sqrt(sv / sw) if used >= 2 else np.nan)
 
 
-def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start,
-                  phi_r, c_r, z_r, cp_r, lam_c, cl_c, sl_c, paired, kmax, kfb, search_r,
+def _shepard_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start,
+                  phi_r, c_r, z_r, icp_r, u_c, cl_c, sl_c, paired, kmax, kfb, search_r,
                   a_r, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
-    ncol = lam_c.size
+    ncol = u_c.size
     P = phi_r.size if paired else phi_r.size * ncol
     nblk = (P + BLOCK - 1) // BLOCK
     r2 = search_r * search_r
     kb = max(kmax, kfb)
     for blk in prange(nblk):
-        ranges = np.empty((2 * band_ncell.size + 2, 2), dtype=np.int64)
+        ranges = np.empty((2 * band_invw.size + 2, 2), dtype=np.int64)
         dk2 = np.empty(kb)
         ik = np.empty(kb, dtype=np.int64)
         d = np.empty(kb)
@@ -930,8 +1029,8 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
         bd2 = np.empty(BUFFER)
         bi = np.empty(BUFFER, dtype=np.int64)
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, lam, qx, qy, qz, cp = _centre(p, paired, ncol, phi_r, lam_c, c_r, cl_c, sl_c, z_r, cp_r)
-            nr = _ranges(lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam, a_r, ranges)
+            phi, u, qx, qy, qz, icp = _centre(p, paired, ncol, phi_r, u_c, c_r, cl_c, sl_c, z_r, icp_r)
+            nr = _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a_r, ranges)
             m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, r2, r2, bd2, bi)
             if m > bd2.size:
                 m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
@@ -942,7 +1041,7 @@ def _shepard_body(xyz, radius, lat0, band_h, lon0, lon_span, band_ncell, band_fi
                     d[i] = math.sqrt(dk2[i])
                     w[i] = ((search_r - d[i]) / (search_r * d[i])) ** 2 if d[i] > 0 else 0.0
             else:
-                done, _ = _knn(xyz, lat0, band_h, lon0, lon_span, band_ncell, band_first, cell_start, phi, cp, lam,
+                done, _ = _knn(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u,
                                qx, qy, qz, kfb, a0, a0,
                                ang_max, rs, r2, ranges, dk2, ik, bd2, bi, np.inf)
                 if not done:
@@ -981,7 +1080,7 @@ def _outputs(P: int) -> tuple[NDArray[np.float64], NDArray[np.int32], NDArray[np
     return np.empty(P), np.zeros(P, dtype=np.int32), np.empty(P), np.empty(P), np.zeros(P, dtype=np.uint8)
 
 
-def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], rs: float, grid: bool
+def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], b: SphereBuckets, grid: bool
                    ) -> tuple[int, tuple[NDArray[np.float64], ...]]:
     """(number of pixels, the kernels' centre arrays) for a list of centres or a grid of them."""
     lat = np.ascontiguousarray(np.ravel(lat_deg), dtype=np.float64)
@@ -990,7 +1089,7 @@ def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating],
         raise ValueError(f"{lat.size} latitudes but {lon.size} longitudes")
     rows = tuple(np.empty(lat.size) for _ in range(4))
     cols = tuple(np.empty(lon.size) for _ in range(3))
-    _centres(lat, lon, float(rs), *rows, *cols)
+    _centres(lat, lon, b.sphere_radius, b.lon0, *rows, *cols)
     return (lat.size * lon.size if grid else lat.size), (*rows, *cols, not grid)
 
 
@@ -1008,12 +1107,12 @@ def median11_search(
     ``NEEDS_FALLBACK`` where the k nearest are beyond ``ang_max`` radians: the other
     outputs are then undefined).
     """
-    P, centres = _pixel_centres(lat_deg, lon_deg, b.sphere_radius, grid)
+    P, centres = _pixel_centres(lat_deg, lon_deg, b, grid)
     out = _outputs(P)
     a_r = 2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius)))
     a_min = min(a_r * (1 + 1e-6), math.pi)
     a0 = min(max(b.start_angle(k), a_min), math.pi)
-    _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, b.band_h, b.lon0, b.lon_span, b.band_ncell, b.band_first,
+    _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon0, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
          b.cell_start, *centres, int(k), float(sigma), float(search_r), a_min, a0, max(a0, min(ang_max, math.pi)),
          b.sphere_radius, GROW, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
@@ -1028,11 +1127,11 @@ def shepard_search(
     Weights ``((R - d) / (R d))**2`` over the (at most ``kmax`` nearest) points within
     ``R = search_r``; where none, the ``kfb`` nearest with weights ``1 / d**2``.
     """
-    P, centres = _pixel_centres(lat_deg, lon_deg, b.sphere_radius, grid)
+    P, centres = _pixel_centres(lat_deg, lon_deg, b, grid)
     out = _outputs(P)
     a_r = min(2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius))), math.pi)
     a0 = min(max(b.start_angle(kfb), a_r), math.pi)
-    _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, b.band_h, b.lon0, b.lon_span, b.band_ncell, b.band_first,
+    _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon0, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
          b.cell_start, *centres, int(kmax), int(kfb), float(search_r), a_r, a0, max(a0, min(ang_max, math.pi)),
          b.sphere_radius, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
