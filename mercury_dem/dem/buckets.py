@@ -187,11 +187,13 @@ def _occupied_density(occ: NDArray[np.bool_], c: float, n: int) -> float:
     return n / max(area, 1e-30)
 
 
-def _prepare_body(p, rs, r, lat, lon, bad):  # pragma: no cover - compiled
+def _prepare_body(p, rs, r, sine, x_out, y_out, bad):  # pragma: no cover - compiled
     for i in prange(p.shape[0]):
         x = p[i, 0]
         y = p[i, 1]
         z = p[i, 2]
+        x_out[i] = x  # contiguous copies for numpy's arctan2 (SIMD only on contiguous input)
+        y_out[i] = y
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             bad[i] = 1
             continue
@@ -200,9 +202,12 @@ def _prepare_body(p, rs, r, lat, lon, bad):  # pragma: no cover - compiled
         if not rr > 0.0:
             bad[i] = 2
             continue
-        f = rs / rr  # the footprint is p * f (stored later, in bucket order, by _band_scatter)
-        lat[i] = math.asin(min(1.0, max(-1.0, (z * f) / rs)))
-        t = math.atan2(y * f, x * f)
+        sine[i] = min(1.0, max(-1.0, z / rr))  # its arcsine is taken by numpy
+
+
+def _wrap_lon_body(lon):  # pragma: no cover - compiled
+    for i in prange(lon.size):
+        t = lon[i]
         t = t + 2.0 * math.pi if t < 0.0 else t + 0.0  # Python's t % 2 pi for t in [-pi, pi], -0.0 -> 0.0 included
         lon[i] = 0.0 if t >= 2.0 * math.pi else t
 
@@ -237,7 +242,7 @@ def _band_scatter_body(pts, radius, rs, band, local, offset, xyz_out, r_out, ord
             d = pos[b]
             pos[b] = d + 1
             r = radius[p]
-            f = rs / r  # footprint = point x (rs / |p|), as in _prepare_body
+            f = rs / r  # footprint = point x (rs / |p|)
             xyz_out[d, 0] = pts[p, 0] * f
             xyz_out[d, 1] = pts[p, 1] * f
             xyz_out[d, 2] = pts[p, 2] * f
@@ -276,6 +281,7 @@ def _cell_sort_body(band_start, band_ncell, band_first, xyz, r, order, local, ce
 
 
 _prepare = numba.njit(parallel=True, cache=True, nogil=True)(_prepare_body)
+_wrap_lon = numba.njit(parallel=True, cache=True, nogil=True)(_wrap_lon_body)
 _band_cell = numba.njit(parallel=True, cache=True, nogil=True)(_band_cell_body)
 _band_scatter = numba.njit(parallel=True, cache=True, nogil=True)(_band_scatter_body)
 _cell_sort = numba.njit(parallel=True, cache=True, nogil=True)(_cell_sort_body)
@@ -335,19 +341,26 @@ def _lon_extent(bin_lo: NDArray[np.float64], bin_hi: NDArray[np.float64]) -> tup
 
 
 def footprints(points: NDArray[np.float64], sphere_radius: float) -> dict[str, NDArray[Any]]:
-    """Radii of the points and the latitude/longitude of their footprints, in one compiled pass.
+    """Radii of the points and the latitude/longitude of their footprints.
 
     Returns dict: ``radius`` (N,) = |p| (m), ``lat`` (N,) and ``lon`` (N,) of the footprints
     ``p / |p| x sphere_radius`` (radians, lon in [0, 2 pi)), ``bad`` (N,) uint8: 0 valid, 1
     non-finite coordinate, 2 at the centre (the other outputs of a bad point are undefined).
-    The same arithmetic (and bits) as ``np.sqrt(np.einsum('ij,ij->i', p, p))`` and
-    ``p * (R / r)``, without the numpy version's temporaries and passes. The footprints
-    themselves are only written once, in bucket order (:func:`build_buckets`).
+    The radius is the same arithmetic (and bits) as ``np.sqrt(np.einsum('ij,ij->i', p, p))``,
+    in one compiled pass without the numpy version's temporaries. The arcsine and arctangent
+    are numpy's: on CPUs with AVX-512 numpy evaluates them with SIMD, 3-5 times faster than
+    the scalar libm calls of a compiled loop (they were most of this function's time). The
+    footprints themselves are only written once, in bucket order (:func:`build_buckets`).
     """
     p = np.ascontiguousarray(points, dtype=np.float64)
     n = p.shape[0]
     out = {"radius": np.empty(n), "lat": np.empty(n), "lon": np.empty(n), "bad": np.zeros(n, dtype=np.uint8)}
-    _run(_prepare, -1, p, float(sphere_radius), out["radius"], out["lat"], out["lon"], out["bad"])
+    y = np.empty(n)
+    _run(_prepare, -1, p, float(sphere_radius), out["radius"], out["lat"], out["lon"], y, out["bad"])
+    with np.errstate(invalid="ignore"):  # non-finite points give NaN here; they are flagged in ``bad``
+        np.arcsin(out["lat"], out=out["lat"])
+        np.arctan2(y, out["lon"], out=out["lon"])
+    _run(_wrap_lon, -1, out["lon"])
     return out
 
 
