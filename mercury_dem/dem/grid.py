@@ -450,21 +450,18 @@ def grid_chunk(
     rr, cc = rows[row_ok], cols[col_ok]
     shape = (rr.size, cc.size)
     res = _bucket_pixels(index, grid.lat_centres(rr), grid.lon_centres(cc), cfg, grid=True)
+    # The in-grid rows (columns) of the haloed block are one run, starting at ro (co).
+    ro = int(np.argmax(row_ok))
+    co = int(np.argmax(col_ok))
     height = np.full((rows.size, cols.size), np.nan)
-    height[np.ix_(row_ok, col_ok)] = res["height"].reshape(shape)
+    height[ro : ro + shape[0], co : co + shape[1]] = res["height"].reshape(shape)
     if cfg.smoothing_passes > 0 and cfg.smoothing_size > 1:
         height = smooth_height(height, cfg.smoothing_size, cfg.smoothing_passes)
-    core = (slice(h, h + r1 - r0), slice(h, h + c1 - c0))
-    height = height[core]
-    # The unsmoothed layers were computed on the in-grid part of the haloed block only:
-    # find the core's rows/columns within it.
-    ri = np.flatnonzero(row_ok)
-    ci = np.flatnonzero(col_ok)
-    rsel = np.searchsorted(ri, np.arange(h, h + r1 - r0))
-    csel = np.searchsorted(ci, np.arange(h, h + c1 - c0))
+    height = height[h : h + r1 - r0, h : h + c1 - c0]
 
     def core_of(a: NDArray[Any]) -> NDArray[Any]:
-        return a.reshape(shape)[np.ix_(rsel, csel)]
+        """The chunk's own pixels of an unsmoothed layer (computed on the in-grid block)."""
+        return a.reshape(shape)[h - ro : h - ro + r1 - r0, h - co : h - co + c1 - c0]
 
     return {
         "elevation": height.astype(np.float32),
