@@ -428,7 +428,7 @@ def build_buckets(
 
 
 @numba.njit(cache=True, inline="always")
-def _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, out):  # pragma: no cover
+def _ranges(lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, out):  # pragma: no cover
     """Contiguous runs of sorted points that hold every point within angle a of (phi, u).
 
     ``u`` is the query's east longitude from the cells' origin, in [0, 2 pi) (per column:
@@ -684,7 +684,7 @@ def _next_cap(a, a_second, ang_max):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, qx, qy, qz, k, a_first,
+def _knn(xyz, lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, qx, qy, qz, k, a_first,
          a_second, ang_max, rs,
          r2count, ranges, dk2, ik, bd2, bi, t2):  # pragma: no cover
     """Exact k nearest (ascending in dk2/ik): caps a_first, then a_second, then doubling.
@@ -697,7 +697,7 @@ def _knn(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, p
     """
     a = a_first
     while True:
-        nr = _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, ranges)
+        nr = _ranges(lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, ranges)
         cap2 = _cap_chord2(a, rs)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
@@ -780,7 +780,7 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn_set(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, qx, qy, qz, k,
+def _knn_set(xyz, lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, qx, qy, qz, k,
              a_first, cap2_first, a_second, bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi,
              t2):  # pragma: no cover
     """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
@@ -796,7 +796,7 @@ def _knn_set(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_star
     a = a_first
     cap2 = cap2_first if cap2_first > 0.0 else _cap_chord2(a, rs)
     while True:
-        nr = _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, ranges)
+        nr = _ranges(lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, ranges)
         m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
             mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
@@ -943,7 +943,7 @@ def _angle(chord, rs):  # pragma: no cover
     return 2.0 * math.asin(chord / (2.0 * rs))
 
 
-def _median11_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start,
+def _median11_body(xyz, radius, lat0, inv_bh, lon_span, band_invw, band_first, cell_start,
                    phi_r, c_r, z_r, icp_r, u_c, cl_c, sl_c, paired, k, sigma, search_r,
                    a_min, a0, ang_max, rs, grow, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
     ncol = u_c.size
@@ -980,7 +980,7 @@ def _median11_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_fi
                 else:
                     cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
-            done, cnt, d2near, d2k = _knn_set(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first,
+            done, cnt, d2near, d2k = _knn_set(xyz, lat0, inv_bh, lon_span, band_invw, band_first,
                                               cell_start, phi, icp, u, qx, qy, qz, k, a_first, cap2_first, -a0,
                                               bound, a_min, ang_max, rs, r2count, ranges, dk2, ik, bd2, bi, t2)
             if not done:
@@ -1028,7 +1028,7 @@ def _weighted(radius, ik, d, w, n):  # pragma: no cover
     return ref + m, (math.sqrt(sv / sw) if used >= 2 else np.nan)
 
 
-def _shepard_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start,
+def _shepard_body(xyz, radius, lat0, inv_bh, lon_span, band_invw, band_first, cell_start,
                   phi_r, c_r, z_r, icp_r, u_c, cl_c, sl_c, paired, kmax, kfb, search_r,
                   a_r, a0, ang_max, rs, out_r, out_count, out_near, out_spread, status):  # pragma: no cover
     ncol = u_c.size
@@ -1046,7 +1046,7 @@ def _shepard_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_fir
         bi = np.empty(BUFFER, dtype=np.int64)
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
             phi, u, qx, qy, qz, icp = _centre(p, paired, ncol, phi_r, u_c, c_r, cl_c, sl_c, z_r, icp_r)
-            nr = _ranges(lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u, a_r, ranges)
+            nr = _ranges(lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, a_r, ranges)
             m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, r2, r2, bd2, bi)
             if m > bd2.size:
                 m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
@@ -1057,7 +1057,7 @@ def _shepard_body(xyz, radius, lat0, inv_bh, lon0, lon_span, band_invw, band_fir
                     d[i] = math.sqrt(dk2[i])
                     w[i] = ((search_r - d[i]) / (search_r * d[i])) ** 2 if d[i] > 0 else 0.0
             else:
-                done, _ = _knn(xyz, lat0, inv_bh, lon0, lon_span, band_invw, band_first, cell_start, phi, icp, u,
+                done, _ = _knn(xyz, lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u,
                                qx, qy, qz, kfb, a0, a0,
                                ang_max, rs, r2, ranges, dk2, ik, bd2, bi, np.inf)
                 if not done:
@@ -1128,7 +1128,7 @@ def median11_search(
     a_r = 2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius)))
     a_min = min(a_r * (1 + 1e-6), math.pi)
     a0 = min(max(b.start_angle(k), a_min), math.pi)
-    _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon0, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
+    _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
          b.cell_start, *centres, int(k), float(sigma), float(search_r), a_min, a0, max(a0, min(ang_max, math.pi)),
          b.sphere_radius, GROW, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
@@ -1147,7 +1147,7 @@ def shepard_search(
     out = _outputs(P)
     a_r = min(2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius))), math.pi)
     a0 = min(max(b.start_angle(kfb), a_r), math.pi)
-    _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon0, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
+    _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
          b.cell_start, *centres, int(kmax), int(kfb), float(search_r), a_r, a0, max(a0, min(ang_max, math.pi)),
          b.sphere_radius, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
