@@ -187,7 +187,7 @@ def _occupied_density(occ: NDArray[np.bool_], c: float, n: int) -> float:
     return n / max(area, 1e-30)
 
 
-def _prepare_body(p, rs, r, sine, x_out, y_out, bad):  # pragma: no cover - compiled
+def _prepare_body(p, r, sine, x_out, y_out, bad):  # pragma: no cover - compiled
     for i in prange(p.shape[0]):
         x = p[i, 0]
         y = p[i, 1]
@@ -356,7 +356,7 @@ def footprints(points: NDArray[np.float64], sphere_radius: float) -> dict[str, N
     n = p.shape[0]
     out = {"radius": np.empty(n), "lat": np.empty(n), "lon": np.empty(n), "bad": np.zeros(n, dtype=np.uint8)}
     y = np.empty(n)
-    _run(_prepare, -1, p, float(sphere_radius), out["radius"], out["lat"], out["lon"], y, out["bad"])
+    _run(_prepare, -1, p, out["radius"], out["lat"], out["lon"], y, out["bad"])
     with np.errstate(invalid="ignore"):  # non-finite points give NaN here; they are flagged in ``bad``
         np.arcsin(out["lat"], out=out["lat"])
         np.arctan2(y, out["lon"], out=out["lon"])
@@ -428,6 +428,17 @@ def build_buckets(
 
 
 @numba.njit(cache=True, inline="always")
+def _band_run(lo, hi, iw, last, lon_span, f, cell_start, out, n):  # pragma: no cover
+    """Append to ``out`` the run of sorted points in the cells of the band starting at cell f
+    (cells 0..last, iw cells per radian) that meet the longitudes [lo, hi]; return the count."""
+    j0 = 0 if lo <= 0.0 else min(int(math.floor(lo * iw)), last)
+    j1 = last if hi >= lon_span else min(int(math.floor(hi * iw)), last)
+    out[n, 0] = cell_start[f + j0]
+    out[n, 1] = cell_start[f + j1 + 1]
+    return n + 1
+
+
+@numba.njit(cache=True, inline="always")
 def _ranges(lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp, u, a, out):  # pragma: no cover
     """Contiguous runs of sorted points that hold every point within angle a of (phi, u).
 
@@ -472,33 +483,24 @@ def _ranges(lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi, icp,
     # (u is in [0, 2 pi): the copy one turn up or down is the only other one that can meet it)
     ua = u - dl
     ub = u + dl
+    one = ua < lon_span
     va = vb = 0.0
     two = False
-    if ua < 0.0:  # the piece below 0 wraps to the top
+    if ua < 0.0:  # the piece below 0 wraps to the top: [ua + 2 pi, 2 pi)
         va = ua + 2.0 * math.pi
-        vb = min(ub + 2.0 * math.pi, 2.0 * math.pi)
+        vb = 2.0 * math.pi
         two = va < lon_span
-    elif ub >= 2.0 * math.pi:  # the piece above 2 pi wraps to the bottom
-        va = 0.0
+    elif ub >= 2.0 * math.pi:  # the piece above 2 pi wraps to the bottom: [0, ub - 2 pi]
         vb = ub - 2.0 * math.pi
         two = True
-    one = ua < lon_span
     for b in range(b0, b1 + 1):
         f = band_first[b]
         last = band_first[b + 1] - f - 1
         iw = band_invw[b]
         if one:
-            j0 = 0 if ua <= 0.0 else min(int(math.floor(ua * iw)), last)
-            j1 = last if ub >= lon_span else min(int(math.floor(ub * iw)), last)
-            out[n, 0] = cell_start[f + j0]
-            out[n, 1] = cell_start[f + j1 + 1]
-            n += 1
+            n = _band_run(ua, ub, iw, last, lon_span, f, cell_start, out, n)
         if two:
-            j0 = 0 if va <= 0.0 else min(int(math.floor(va * iw)), last)
-            j1 = last if vb >= lon_span else min(int(math.floor(vb * iw)), last)
-            out[n, 0] = cell_start[f + j0]
-            out[n, 1] = cell_start[f + j1 + 1]
-            n += 1
+            n = _band_run(va, vb, iw, last, lon_span, f, cell_start, out, n)
     return n
 
 
@@ -1109,6 +1111,13 @@ def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating],
     return (lat.size * lon.size if grid else lat.size), (*rows, *cols, not grid)
 
 
+def _search_tables(b: SphereBuckets) -> tuple[Any, ...]:
+    """The index as the kernels read it: points, radii, the bands' origin and 1 / height, the
+    longitude span, each band's cells per radian, the bands' first cells and the cells' starts."""
+    return (b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
+            b.cell_start)
+
+
 def median11_search(
     b: SphereBuckets, lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], k: int, sigma: float,
     search_r: float, ang_max: float, threads: int = -1, *, grid: bool = False,
@@ -1128,9 +1137,8 @@ def median11_search(
     a_r = 2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius)))
     a_min = min(a_r * (1 + 1e-6), math.pi)
     a0 = min(max(b.start_angle(k), a_min), math.pi)
-    _run(_median11_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
-         b.cell_start, *centres, int(k), float(sigma), float(search_r), a_min, a0, max(a0, min(ang_max, math.pi)),
-         b.sphere_radius, GROW, *out)
+    _run(_median11_kernel, threads, *_search_tables(b), *centres, int(k), float(sigma), float(search_r), a_min, a0,
+         max(a0, min(ang_max, math.pi)), b.sphere_radius, GROW, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
 
 
@@ -1147,7 +1155,6 @@ def shepard_search(
     out = _outputs(P)
     a_r = min(2.0 * math.asin(min(1.0, search_r / (2.0 * b.sphere_radius))), math.pi)
     a0 = min(max(b.start_angle(kfb), a_r), math.pi)
-    _run(_shepard_kernel, threads, b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
-         b.cell_start, *centres, int(kmax), int(kfb), float(search_r), a_r, a0, max(a0, min(ang_max, math.pi)),
-         b.sphere_radius, *out)
+    _run(_shepard_kernel, threads, *_search_tables(b), *centres, int(kmax), int(kfb), float(search_r), a_r, a0,
+         max(a0, min(ang_max, math.pi)), b.sphere_radius, *out)
     return dict(zip(("radius", "count", "nearest", "spread", "status"), out))
