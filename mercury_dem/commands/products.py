@@ -68,5 +68,7 @@ def run(args: argparse.Namespace, config: Any) -> int:
               f"hold >= 1 point; of those {100 * c['share_with_1']:.2f} % one, {100 * c['share_with_2']:.2f} % two, "
               f"{100 * c['share_with_3_or_more']:.2f} % three or more; nearest point {n['min']:.3f} / {n['mean']:.2f} "
               f"+- {n['std']:.2f} / {n['max']:.1f} km (min / mean +- std / max)")
+    for rel, why in summary["skipped"].items():
+        print(f"not written: {out / rel} ({why})")
     print(f"{len(summary['files'])} files in {out} ({summary['seconds']:.1f} s)")
     return 0

@@ -46,6 +46,7 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
         "coverage": grid_summary.get("coverage"),
         "statistics": products.get("statistics"),
         "files": [str(f) for f in products.get("files", [])],
+        "products_skipped": products.get("skipped", {}),
     }
     if truth is not None:
         from mercury_dem.dem.accuracy import dem_accuracy
@@ -64,6 +65,9 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         out["validation"] = validation
-    if stream is not None and products.get("table"):
-        print(products["table"], file=stream)
+    if stream is not None:
+        if products.get("table"):
+            print(products["table"], file=stream)
+        for rel, why in out["products_skipped"].items():
+            print(f"not written: products/{rel} ({why})", file=stream)
     return out

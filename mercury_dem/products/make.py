@@ -88,7 +88,8 @@ def make_products(
     -------
     dict: ``files`` (paths written), ``statistics`` (dict), ``table`` (printable str),
     ``coverage`` (dict or None), ``accuracy`` (dict or None), ``pds`` (descriptions),
-    ``profiles``, ``seconds``.
+    ``skipped`` (product file -> why it was not written: a PDS product whose latitudes the
+    map does not reach), ``profiles``, ``seconds``.
 
     Raises
     ------
@@ -122,22 +123,37 @@ def make_products(
     # GeoTIFFs.
     files.append(str(write_dem_geotiff(elev, lat, lon, out / "dem.tif", cog=cfg.cog)))
     pds: dict[str, Any] = {}
-    if (np.abs(lat) < cfg.polar_cut_lat).any():
+    skipped: dict[str, str] = {}
+    cut = cfg.polar_cut_lat
+    span = f"the map's pixel centres span latitudes {lat.min():.2f} to {lat.max():.2f} deg"
+
+    def skip(rel: str, why: str) -> None:
+        skipped[rel] = why
+        if overwrite:  # a product an earlier call wrote for another map must not linger beside this one's
+            (out / rel).unlink(missing_ok=True)
+
+    if (np.abs(lat) < cut).any():
         pds["equirectangular"] = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif",
-                                                           cfg.polar_cut_lat, cog=cfg.cog)
+                                                           cut, cog=cfg.cog)
         files.append(pds["equirectangular"]["path"])
+    else:
+        pds["equirectangular"] = None
+        skip("pds/equirectangular.tif", f"{span}, none within +-{cut:g} deg (dem.polar_cut_lat)")
     for name, north in (("north_polar", True), ("south_polar", False)):
-        covers = lat.max() >= cfg.polar_cut_lat if north else lat.min() <= -cfg.polar_cut_lat
+        covers = lat.max() >= cut if north else lat.min() <= -cut
         if not covers:
             pds[name] = None
+            skip(f"pds/{name}.tif", f"{span}, none {'north' if north else 'south'} of "
+                                    f"{'' if north else '-'}{cut:g} deg (dem.polar_cut_lat)")
             continue
-        cap = reproject_polar(elev, lat, lon, north, cfg.polar_cut_lat)
+        cap = reproject_polar(elev, lat, lon, north, cut)
         p = write_raster(cap["values"], cap["x"], cap["y"], cap["crs"], out / f"pds/{name}.tif", cog=cfg.cog,
-                         tags={"UNITS": "m", "DATUM_RADIUS_M": "2439400.0", "LATITUDE_LIMIT_DEG": str(cfg.polar_cut_lat)})
+                         tags={"UNITS": "m", "DATUM_RADIUS_M": "2439400.0", "LATITUDE_LIMIT_DEG": str(cut)})
         pds[name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
                      "valid_fraction_in_cap": cap["valid_fraction"]}
         files.append(str(p))
     summary["pds"] = pds
+    summary["skipped"] = skipped
 
     # Statistics (reference Table 1).
     stats = dem_statistics(elev, lat, lon, pixel_km=cfg.stats_pixel_km, polar_cut=cfg.polar_cut_lat,

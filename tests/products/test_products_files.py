@@ -14,7 +14,7 @@ import rasterio
 from products_synthetic import CFG, NOISE_M, truth_height
 
 from mercury_dem.exceptions import GridError, StoreError
-from mercury_dem.geometry.body import CRS_GEOGRAPHIC
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC, latlon_to_xyz
 from mercury_dem.products.make import make_products, open_dem
 
 
@@ -180,3 +180,27 @@ def test_missing_store_and_memory_limit(tmp_path, dem_dir):
     tiny = dataclasses.replace(CFG, memory_limit_gb=0.001)
     with pytest.raises(GridError, match=r"needs about .* GB"):
         make_products(dem_dir / "dem.zarr", tmp_path / "p", tiny)
+
+
+def test_regional_map_names_the_caps_it_does_not_reach(tmp_path, dem_dir, products):
+    # An equatorial map has no polar caps: their products are named with the reason, not silently absent,
+    # and a cap left by an earlier products call (another map) is removed on overwrite.
+    import dataclasses
+
+    from mercury_dem.pipeline.dem_stage import grid_dem
+
+    rng = np.random.default_rng(5)
+    lat, lon = rng.uniform(-20, 20, 20_000), rng.uniform(100, 140, 20_000)
+    cfg = dataclasses.replace(CFG, lat_min=-20.0, lat_max=20.0, lon_min=100.0, lon_max=140.0)
+    grid_dem(latlon_to_xyz(lat, lon, truth_height(lat, lon)), cfg, tmp_path / "dem.zarr", coverage=False)
+    out = tmp_path / "products"
+    (out / "pds").mkdir(parents=True)
+    shutil.copy(dem_dir / "products/pds/north_polar.tif", out / "pds/north_polar.tif")
+    summary = make_products(tmp_path / "dem.zarr", out, cfg, overwrite=True)
+    assert summary["pds"]["north_polar"] is None and summary["pds"]["south_polar"] is None
+    assert set(summary["skipped"]) == {"pds/north_polar.tif", "pds/south_polar.tif"}
+    assert "none north of 65 deg" in summary["skipped"]["pds/north_polar.tif"]
+    assert "-19.75 to 19.75" in summary["skipped"]["pds/south_polar.tif"]
+    assert not (out / "pds/north_polar.tif").exists()
+    assert (out / "pds/equirectangular.tif").exists()
+    assert products["skipped"] == {}  # the global map writes every product
