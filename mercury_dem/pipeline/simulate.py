@@ -363,11 +363,15 @@ def _sleep(seconds: float, *deps: Any) -> float:
 def sleep_cluster(n_workers: int) -> Any:
     """An in-process LocalCluster of single-threaded workers (inproc transport, no port, no dashboard).
 
-    Sleep tasks release the GIL, so threads stand in for worker processes.
+    Sleep tasks release the GIL, so threads stand in for worker processes. The workers have no
+    memory limit: in-process workers each measure the whole process's memory against their share
+    of the machine's (24 GiB / 16 workers = 1.5 GiB), so a caller that already holds more (a test
+    session after other tests) had every worker paused and the replay hung.
     """
     from distributed import LocalCluster
 
-    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None)
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None,
+                        memory_limit=0)
 
 
 def replay_on_dask(client: Any, graph: CascadeGraph, durations: Mapping[str, float],

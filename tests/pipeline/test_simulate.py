@@ -130,7 +130,16 @@ def test_n_workers_of_report() -> None:
     assert n_workers_of({"execution": {"mode": "sync", "description": "in-process, synchronous"}}) == 1
 
 
-@pytest.mark.slow  # timing-based; hung for 600 s once inside the full suite on a loaded machine (passes alone in ~7 s)
+def test_sleep_cluster_workers_are_never_paused_for_memory() -> None:
+    # In-process workers measure the whole process's memory; with a limit (the machine's / n) a caller
+    # holding more than that share had every worker paused, and the replay below hung for 600 s.
+    pytest.importorskip("distributed")
+    with sleep_cluster(16) as cluster:
+        limits = {w.memory_manager.memory_limit for w in cluster.workers.values()}
+    assert limits == {None}
+
+
+@pytest.mark.slow  # timing-based (sleep tasks on 16 and 3 in-process workers)
 def test_replay_on_dask_makespan_near_critical_path() -> None:
     distributed = pytest.importorskip("distributed")
     # 12 tiles of 30 deg over 5 regions of both hemispheres: the run's shape, small enough for 16 threads
