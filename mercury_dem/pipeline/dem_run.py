@@ -65,9 +65,6 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         out["validation"] = validation
-    if stream is not None:
-        if products.get("table"):
-            print(products["table"], file=stream)
-        for rel, why in out["products_skipped"].items():
-            print(f"not written: products/{rel} ({why})", file=stream)
+    if stream is not None and products.get("table"):
+        print(products["table"], file=stream)
     return out

@@ -128,6 +128,8 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         d = v.get("dem")
         if d:
             w(dem_validation_table(d))
+    for rel, why in ((report.get("dem") or {}).get("products_skipped") or {}).items():
+        w(f"not written: products/{rel} ({why})\n")
     tm = report.get("timings", {})
     w("\ntimings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()) + "\n")
 

@@ -364,9 +364,9 @@ def sleep_cluster(n_workers: int) -> Any:
     """An in-process LocalCluster of single-threaded workers (inproc transport, no port, no dashboard).
 
     Sleep tasks release the GIL, so threads stand in for worker processes. The workers have no
-    memory limit: in-process workers each measure the whole process's memory against their share
-    of the machine's (24 GiB / 16 workers = 1.5 GiB), so a caller that already holds more (a test
-    session after other tests) had every worker paused and the replay hung.
+    memory limit: in-process workers each measure the whole process's memory against their 1/n
+    share of the machine's (1.5 GiB for 16 workers on 24 GiB), so a caller already holding more (a
+    test session after other tests) had every worker paused and the replay hung.
     """
     from distributed import LocalCluster
 

@@ -127,24 +127,23 @@ def make_products(
     cut = cfg.polar_cut_lat
     span = f"the map's pixel centres span latitudes {lat.min():.2f} to {lat.max():.2f} deg"
 
-    def skip(rel: str, why: str) -> None:
-        skipped[rel] = why
+    def skip(name: str, where: str) -> None:
+        """PDS product ``name`` is not made: the map has no latitudes ``where``."""
+        pds[name] = None
+        skipped[f"pds/{name}.tif"] = f"{span}, none {where} (dem.polar_cut_lat)"
         if overwrite:  # a product an earlier call wrote for another map must not linger beside this one's
-            (out / rel).unlink(missing_ok=True)
+            (out / f"pds/{name}.tif").unlink(missing_ok=True)
 
     if (np.abs(lat) < cut).any():
         pds["equirectangular"] = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif",
                                                            cut, cog=cfg.cog)
         files.append(pds["equirectangular"]["path"])
     else:
-        pds["equirectangular"] = None
-        skip("pds/equirectangular.tif", f"{span}, none within +-{cut:g} deg (dem.polar_cut_lat)")
+        skip("equirectangular", f"within +-{cut:g} deg")
     for name, north in (("north_polar", True), ("south_polar", False)):
         covers = lat.max() >= cut if north else lat.min() <= -cut
         if not covers:
-            pds[name] = None
-            skip(f"pds/{name}.tif", f"{span}, none {'north' if north else 'south'} of "
-                                    f"{'' if north else '-'}{cut:g} deg (dem.polar_cut_lat)")
+            skip(name, f"north of {cut:g} deg" if north else f"south of -{cut:g} deg")
             continue
         cap = reproject_polar(elev, lat, lon, north, cut)
         p = write_raster(cap["values"], cap["x"], cap["y"], cap["crs"], out / f"pds/{name}.tif", cog=cfg.cog,

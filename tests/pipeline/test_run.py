@@ -108,6 +108,12 @@ def test_dem_store_and_products(sync_run: tuple[Path, dict[str, Any]]) -> None:
     assert (run / "products").is_dir() and any((run / "products").glob("*.tif"))
     d = report["validation"]["dem"]
     assert d["adjusted"]["n_compared"] > 0 and d["a_priori"]["n_compared"] > 0
+    # The tiny mission's map stays inside +-65 deg: the caps are named as not written, and are not there.
+    assert np.abs(ds["lat"].values).max() < 65.0
+    caps = {"pds/north_polar.tif", "pds/south_polar.tif"}
+    assert set(report["dem"]["products_skipped"]) == caps
+    assert not any((run / "products" / rel).exists() for rel in caps)
+    assert (run / "products/pds/equirectangular.tif").exists()
 
 
 def test_products_command_on_a_run_compares_with_the_truth(sync_run: tuple[Path, dict[str, Any]], tmp_path: Path,
@@ -190,6 +196,8 @@ def test_report_command(sync_run: tuple[Path, dict[str, Any]], capsys: pytest.Ca
     for r, key in zip(rows, ("adjusted", "a_priori")):  # RMSE and bias as in report.json, in metres
         assert float(r[2]) == pytest.approx(dem[key]["rmse_m"], abs=0.5)
         assert float(r[3]) == pytest.approx(dem[key]["bias_m"], abs=0.5)
+    for rel, why in report["dem"]["products_skipped"].items():
+        assert f"not written: products/{rel} ({why})" in out
     assert main(["report", str(run), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["tiles"] == report["tiles"]
 
