@@ -25,6 +25,6 @@ def tiny_mission_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def tiny_mission(tiny_mission_path: Path):
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
 
     return open_mission(tiny_mission_path)

@@ -13,16 +13,21 @@ HELP = "summarise a mission (images by instrument, scales, angles, images per ti
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("mission", metavar="MISSION", help="mission directory (from 'mercury-dem synth')")
+    p.add_argument("mission", metavar="MISSION", help="mission directory (from 'mercury-dem synth' or 'mercury-dem ingest')")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--coverage-map", metavar="PNG",
                    help="where to write the coverage map (default: MISSION_coverage.png beside the mission)")
     p.add_argument("--step-deg", type=float, help="grid step of the coverage count (default from the mission size)")
+    p.add_argument("--radius-km", type=float,
+                   help="sphere the per-image statistics (--json) are evaluated on (default: the body's datum; "
+                        "e.g. 2440 to compare with an ISIS cube's CameraStatistics made on that sphere)")
+    p.add_argument("--pixel-step", type=int, default=1,
+                   help="evaluate the per-image statistics at every N-th pixel (default 1: all, as camstats)")
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.io.mission import open_mission
-    from mercury_dem.synth.info import coverage_map, mission_summary
+    from mercury_dem.mission import open_mission
+    from mercury_dem.mission.summary import coverage_map, image_statistics, mission_summary
 
     mission = open_mission(args.mission)
     summary, cov = mission_summary(mission, args.step_deg)
@@ -30,12 +35,16 @@ def run(args: argparse.Namespace, config: Config) -> int:
     coverage_map(cov, png, title=f"{mission.path.name}: {summary['images']} images")
     summary["coverage_map"] = str(png)
     if args.json:
+        radius = None if args.radius_km is None else args.radius_km * 1000.0
+        summary["image_statistics"] = image_statistics(mission, radius, max(1, args.pixel_step))
         print(json.dumps(summary, indent=2))
         return 0
     c = summary["coverage"]
     per_tile = summary["images_per_tile"]
     lines = [
-        f"mission      {summary['mission']} (preset {summary['preset']}, truth: {'yes' if summary['has_truth'] else 'no'})",
+        f"mission      {summary['mission']} ({summary['body']['name'].title()}, "
+        + (f"preset {summary['preset']}" if summary['preset'] else f"source {summary['source']}")
+        + f", truth: {'yes' if summary['has_truth'] else 'no'})",
         f"images       {summary['images']}  " + ", ".join(f"{k}: {v}" for k, v in summary["images_by_instrument"].items())
         + f"  size {', '.join(summary['image_size'])}",
         f"pixel scale  {summary['pixel_scale_m'][0]:.0f} - {summary['pixel_scale_m'][1]:.0f} m/pixel",

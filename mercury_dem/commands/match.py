@@ -24,7 +24,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     import shutil
 
     from mercury_dem.io.atomic import is_complete
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
     from mercury_dem.pipeline.graph import prepare_store
     from mercury_dem.pipeline.report import unit_message
     from mercury_dem.pipeline.stages import plan_run, run_tile

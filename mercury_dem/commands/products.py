@@ -34,13 +34,13 @@ def _run_truth(d: Path) -> Any:
     if not run_json.is_file():
         return None
     try:
-        from mercury_dem.io.mission import open_mission
+        from mercury_dem.mission import open_mission
 
         mission = open_mission(json.loads(run_json.read_text())["mission"])
     except (MercuryDemError, OSError, KeyError, ValueError) as exc:
         print(f"note: no truth for the products (the run's mission cannot be opened: {exc})", file=sys.stderr)
         return None
-    return mission.surface().height if getattr(mission, "has_truth", False) else None
+    return mission.truth.surface().height if mission.truth is not None else None
 
 
 def run(args: argparse.Namespace, config: Any) -> int:

@@ -41,7 +41,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     grid = TileGrid(size)
     tile_ids = None
     if args.mission:
-        from mercury_dem.io.mission import open_mission
+        from mercury_dem.mission import open_mission
 
         mission = open_mission(args.mission)
         tile_ids = grid.tile_of(mission.catalog["center_lat"].to_numpy(), mission.catalog["center_lon"].to_numpy())

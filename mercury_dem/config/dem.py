@@ -106,7 +106,7 @@ class DemConfig(ConfigSection):
         """True when some bound is unset and comes from the point cloud (:meth:`with_extent_of`)."""
         return None in (self.lat_min, self.lat_max, self.lon_min, self.lon_max)
 
-    def with_extent_of(self, points_xyz: Any) -> DemConfig:
+    def with_extent_of(self, points_xyz: Any, datum_radius_m: float | None = None) -> DemConfig:
         """This configuration with its unset bounds taken from a point cloud (see
         :func:`mercury_dem.dem.extent.points_extent`); set bounds are kept."""
         if not self.extent_from_points:
@@ -115,7 +115,10 @@ class DemConfig(ConfigSection):
 
         from mercury_dem.dem.extent import points_extent
 
-        auto = points_extent(points_xyz, self.max_distance_m, self.pixels_per_degree)
+        if datum_radius_m is None:
+            auto = points_extent(points_xyz, self.max_distance_m, self.pixels_per_degree)
+        else:
+            auto = points_extent(points_xyz, self.max_distance_m, self.pixels_per_degree, datum_radius_m)
         names = ("lat_min", "lat_max", "lon_min", "lon_max")
         return dataclasses.replace(self, **{n: a for n, a in zip(names, auto) if getattr(self, n) is None})
 

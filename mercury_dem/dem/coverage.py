@@ -125,14 +125,14 @@ def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1,
     -------
     CoverageResult
     """
-    rk = DATUM_RADIUS_M / 1000.0
+    rk = index.datum_radius_m / 1000.0
     x, y = sinusoidal_grid(pixel_km)
     if bounds is not None:  # crop the rows to the map's latitudes
         lat_deg = np.degrees(y / rk)
         y = y[(lat_deg >= bounds[0]) & (lat_deg <= bounds[1])]
     nx, ny = x.size, y.size
     # Bin the points.
-    fp = index.tree.data / DATUM_RADIUS_M
+    fp = index.tree.data / index.datum_radius_m
     lat = np.arcsin(np.clip(fp[:, 2], -1.0, 1.0))
     lon = np.arctan2(fp[:, 1], fp[:, 0])
     px = np.clip(((rk * lon * np.cos(lat) + math.pi * rk) / pixel_km).astype(np.int64), 0, nx - 1)
@@ -156,7 +156,7 @@ def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1,
         la = lat_c[r0 + rows]
         cl = np.maximum(np.cos(la), 1e-12)
         lo = np.clip(x[cols] / (rk * cl), -math.pi, math.pi)
-        q = latlon_to_unit(np.degrees(la), np.degrees(lo)) * DATUM_RADIUS_M
+        q = latlon_to_unit(np.degrees(la), np.degrees(lo)) * index.datum_radius_m
         d, _ = index.tree.query(q, k=1, workers=threads)
         nearest[r0 + rows, cols] = d / 1000.0
     return CoverageResult(pixel_km=pixel_km, x_km=x, y_km=y, count=count, nearest_km=nearest)

@@ -37,7 +37,7 @@ def whole_pixel_step(pixels_per_degree: float, max_step: int = 360) -> int:
 
 
 def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
-                  pixels_per_degree: float) -> tuple[float, float, float, float]:
+                  pixels_per_degree: float, datum_radius_m: float = DATUM_RADIUS_M) -> tuple[float, float, float, float]:
     """(lat_min, lat_max, lon_min, lon_max) in degrees covering the points plus ``margin_m``.
 
     Bounds are snapped outward to multiples of :func:`whole_pixel_step` degrees (whole
@@ -51,7 +51,7 @@ def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
         raise GridError("the point cloud is empty: no extent to grid (did the adjustment keep any points?)")
     d = whole_pixel_step(pixels_per_degree)
     lat, lon = xyz_to_latlon(p)[:2]
-    margin_deg = math.degrees(margin_m / DATUM_RADIUS_M)
+    margin_deg = math.degrees(margin_m / datum_radius_m)
     lo = max(-90.0, float(lat.min()) - margin_deg)
     hi = min(90.0, float(lat.max()) + margin_deg)
     lat_min = max(-90.0, -90.0 + math.floor((lo + 90.0) / d + 1e-9) * d)

@@ -84,6 +84,7 @@ class GridSpec:
     lat_max: float = 90.0
     lon_min: float = 0.0
     lon_max: float = 360.0
+    datum_radius_m: float = DATUM_RADIUS_M
 
     def __post_init__(self) -> None:
         for name, span in (("latitude", self.lat_max - self.lat_min), ("longitude", self.lon_max - self.lon_min)):
@@ -95,9 +96,9 @@ class GridSpec:
                 )
 
     @classmethod
-    def from_config(cls, cfg: Any) -> GridSpec:
+    def from_config(cls, cfg: Any, datum_radius_m: float = DATUM_RADIUS_M) -> GridSpec:
         """The grid of a :class:`~mercury_dem.config.dem.DemConfig` (unset bounds: the globe's)."""
-        return cls(cfg.pixels_per_degree, *cfg.bounds())
+        return cls(cfg.pixels_per_degree, *cfg.bounds(), datum_radius_m=datum_radius_m)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -115,7 +116,7 @@ class GridSpec:
     @property
     def pixel_size_m(self) -> float:
         """North-south pixel size on the datum sphere, metres."""
-        return 2.0 * math.pi * DATUM_RADIUS_M / 360.0 / self.pixels_per_degree
+        return 2.0 * math.pi * self.datum_radius_m / 360.0 / self.pixels_per_degree
 
     def lat_centres(self, rows: NDArray[np.integer] | None = None) -> NDArray[np.float64]:
         """Latitudes (deg) of the pixel centres of global row indices (all rows by default)."""
@@ -149,6 +150,7 @@ class PointIndex:
     """
 
     buckets: SphereBuckets
+    datum_radius_m: float = DATUM_RADIUS_M
 
     @property
     def radius(self) -> NDArray[np.float64]:
@@ -181,12 +183,13 @@ class PointIndex:
         return object.__sizeof__(self) + sum(int(a.nbytes) for a in arrays)
 
 
-def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
+def build_point_index(points_xyz: NDArray[np.floating], datum_radius_m: float = DATUM_RADIUS_M) -> PointIndex:
     """Validate a point cloud and index it.
 
     Parameters
     ----------
     points_xyz : ndarray of shape (N, 3), body-fixed metres
+    datum_radius_m : the body's datum sphere: footprints lie on it, heights are measured from it
 
     Raises
     ------
@@ -198,7 +201,7 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
         raise GridError(f"the point cloud must have shape (N, 3) body-fixed metres, got {p.shape}")
     if p.shape[0] == 0:
         raise GridError("the point cloud is empty: nothing to grid (did the adjustment keep any points?)")
-    f = footprints(p, DATUM_RADIUS_M)
+    f = footprints(p, datum_radius_m)
     bad = f["bad"]
     if bad.any():
         nonfinite = bad == 1
@@ -208,7 +211,7 @@ def build_point_index(points_xyz: NDArray[np.floating]) -> PointIndex:
                 f"(first at row {int(np.argmax(nonfinite))})"
             )
         raise GridError(f"the point cloud holds {int((bad == 2).sum())} points at the body centre")
-    return PointIndex(buckets=build_buckets(p, DATUM_RADIUS_M, prepared=f))
+    return PointIndex(buckets=build_buckets(p, datum_radius_m, prepared=f), datum_radius_m=float(datum_radius_m))
 
 
 def _threads(cfg: Any) -> int:
@@ -314,9 +317,9 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
     return {"radius": value, "nearest": nearest, "spread": spread, "count": count, "count_capped": count == kmax}
 
 
-def _search_radius(cfg: Any) -> float:
+def _search_radius(index: PointIndex, cfg: Any) -> float:
     """Radial search radius R (m): ``search_radius_factor`` x the north-south pixel size."""
-    return cfg.search_radius_factor * 2.0 * math.pi * DATUM_RADIUS_M / 360.0 / cfg.pixels_per_degree
+    return cfg.search_radius_factor * 2.0 * math.pi * index.datum_radius_m / 360.0 / cfg.pixels_per_degree
 
 
 def _give_up_angle(index: PointIndex, cfg: Any, k: int) -> float:
@@ -325,7 +328,7 @@ def _give_up_angle(index: PointIndex, cfg: Any, k: int) -> float:
     Twice the no-value distance or 8 x the starting cap, whichever is larger: pixels
     beyond it are in gaps far from every point, rare, and cheaper for the tree.
     """
-    a_gap = 2.0 * math.asin(min(1.0, cfg.max_distance_m / (2.0 * DATUM_RADIUS_M)))
+    a_gap = 2.0 * math.asin(min(1.0, cfg.max_distance_m / (2.0 * index.datum_radius_m)))
     return min(math.pi, max(2.0 * a_gap, 8.0 * index.buckets.start_angle(k)))
 
 
@@ -338,7 +341,7 @@ def _kdtree_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.
     kernel = _median11 if cfg.method == "median11" else _shepard
     for s in range(0, P, QUERY_BATCH):
         sl = slice(s, min(s + QUERY_BATCH, P))
-        q = latlon_to_unit(lat[sl], lon[sl]) * DATUM_RADIUS_M
+        q = latlon_to_unit(lat[sl], lon[sl]) * index.datum_radius_m
         res = kernel(index, q, cfg, search_r)
         count = res["count"]
         capped = res["count_capped"]
@@ -378,15 +381,15 @@ def grid_pixels(
     lat = np.asarray(lat_deg, dtype=np.float64).ravel()
     lon = np.asarray(lon_deg, dtype=np.float64).ravel()
     if use_kdtree:
-        res = _kdtree_pixels(index, lat, lon, cfg, _search_radius(cfg))
-        return _layers(res, cfg)
+        res = _kdtree_pixels(index, lat, lon, cfg, _search_radius(index, cfg))
+        return _layers(res, cfg, index.datum_radius_m)
     return _bucket_pixels(index, lat, lon, cfg, grid=False)
 
 
 def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: Any, *,
                    grid: bool) -> dict[str, NDArray[Any]]:
     """:func:`grid_pixels` by the bucket search; ``grid=True``: every (lat[i], lon[j]), row-major."""
-    search_r = _search_radius(cfg)
+    search_r = _search_radius(index, cfg)
     if cfg.method == "median11":
         k = min(int(cfg.neighbours), index.n_points)
         res = median11_search(index.buckets, lat, lon, k, cfg.sigma_filter, search_r,
@@ -404,13 +407,13 @@ def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.
             fb = _kdtree_pixels(index, lat[far], lon[far], cfg, search_r)
         for key, v in fb.items():
             res[key][far] = v
-    return _layers(res, cfg)
+    return _layers(res, cfg, index.datum_radius_m)
 
 
-def _layers(res: dict[str, NDArray[Any]], cfg: Any) -> dict[str, NDArray[Any]]:
+def _layers(res: dict[str, NDArray[Any]], cfg: Any, datum_radius_m: float) -> dict[str, NDArray[Any]]:
     gap = res["nearest"] > cfg.max_distance_m
     return {
-        "height": np.where(gap, np.nan, res["radius"] - DATUM_RADIUS_M),
+        "height": np.where(gap, np.nan, res["radius"] - datum_radius_m),
         "point_count": res["count"].astype(np.int32, copy=False),
         "distance_to_nearest_point": res["nearest"],
         "spread": np.where(gap, np.nan, res["spread"]),
@@ -465,7 +468,7 @@ def grid_chunk(
 
     return {
         "elevation": height.astype(np.float32),
-        "radius": (DATUM_RADIUS_M + height).astype(np.float32),
+        "radius": (index.datum_radius_m + height).astype(np.float32),
         "point_count": core_of(res["point_count"]).astype(np.int32),
         "distance_to_nearest_point": core_of(res["distance_to_nearest_point"]).astype(np.float32),
         "spread": core_of(res["spread"]).astype(np.float32),

@@ -1,4 +1,10 @@
-"""The target body: Mercury as a sphere, and latitude/longitude/height <-> body-fixed XYZ.
+"""The target body (a sphere with a datum), and latitude/longitude/height <-> body-fixed XYZ.
+
+:class:`Body` is what a mission says about its target: name, NAIF id, the IAU
+sphere radius, the datum radius heights refer to, and the IAU 2015 CRS codes of
+its products. :data:`MERCURY` is the default; :data:`MOON` the first other body.
+Stage code takes the body from the mission (``mission.body``); the module
+constants below are Mercury's and remain only as defaults of pure functions.
 
 Conventions (see docs/conventions.md):
 
@@ -16,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from dataclasses import dataclass
+
 #: Datum radius of the MESSENGER global DEM (Becker et al. 2016), metres.
 DATUM_RADIUS_M: float = 2_439_400.0
 #: Radius of the IAU 2015 Mercury sphere (the CRS `IAU_2015:19900`), metres.
@@ -32,6 +40,75 @@ CRS_NORTH_POLAR_STEREOGRAPHIC = "IAU_2015:19930"
 CRS_SOUTH_POLAR_STEREOGRAPHIC = "IAU_2015:19935"
 #: Sphere with the DEM datum radius 2439.4 km (pyproj knows it as ESRI:104974).
 CRS_DATUM_GEOGRAPHIC = "ESRI:104974"
+
+
+@dataclass(frozen=True)
+class Body:
+    """A target body as the pipeline sees it: a sphere for geometry, a datum for heights.
+
+    Parameters
+    ----------
+    name : upper-case body name as SPICE/ISIS spell it (``MERCURY``, ``MOON``)
+    naif_id : NAIF body id (199, 301)
+    radius_m : radius of the body's IAU 2015 sphere, metres (the sphere of its IAU CRS codes)
+    datum_radius_m : radius of the sphere heights are measured from, metres
+    iau_code : the IAU 2015 code of its geographic sphere CRS (``naif_id * 100``); the other
+        products' codes follow the IAU 2015 scheme (``+10`` equirectangular clon 0, ``+15``
+        clon 180, ``+30``/``+35`` north/south polar stereographic, ``+55`` Robinson clon 180)
+    datum_crs : a geographic CRS whose sphere has the datum radius, when one is catalogued
+    """
+
+    name: str
+    naif_id: int
+    radius_m: float
+    datum_radius_m: float
+    iau_code: int
+    datum_crs: str | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.radius_m > 0 and self.datum_radius_m > 0):
+            raise ValueError(f"body {self.name}: radii must be > 0 (got {self.radius_m}, {self.datum_radius_m})")
+
+    def crs(self, kind: str = "geographic") -> str:
+        """The IAU 2015 CRS code of a product kind: geographic, equirectangular, equirectangular_180,
+        north_polar, south_polar, robinson_180."""
+        offsets = {"geographic": 0, "equirectangular": 10, "equirectangular_180": 15, "north_polar": 30,
+                   "south_polar": 35, "robinson_180": 55}
+        if kind not in offsets:
+            raise ValueError(f"unknown CRS kind {kind!r}; choose one of {sorted(offsets)}")
+        return f"IAU_2015:{self.iau_code + offsets[kind]}"
+
+    def to_dict(self) -> dict[str, object]:
+        return {"name": self.name, "naif_id": self.naif_id, "radius_m": self.radius_m,
+                "datum_radius_m": self.datum_radius_m, "iau_code": self.iau_code, "datum_crs": self.datum_crs}
+
+    @staticmethod
+    def from_dict(d: dict[str, object]) -> "Body":
+        """A body from :meth:`to_dict`'s mapping; a known name alone gives the catalogued body."""
+        name = str(d.get("name", "")).upper()
+        if set(d) <= {"name"}:
+            return body_by_name(name)
+        try:
+            return Body(name=name, naif_id=int(d["naif_id"]), radius_m=float(d["radius_m"]),  # type: ignore[arg-type]
+                        datum_radius_m=float(d["datum_radius_m"]), iau_code=int(d["iau_code"]),  # type: ignore[arg-type]
+                        datum_crs=None if d.get("datum_crs") is None else str(d["datum_crs"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"body {name or '?'}: bad or missing field ({exc})") from None
+
+
+#: Mercury: the IAU 2015 sphere and the 2439.4 km datum of the MESSENGER global DEM.
+MERCURY = Body("MERCURY", 199, IAU_SPHERE_RADIUS_M, DATUM_RADIUS_M, 19900, CRS_DATUM_GEOGRAPHIC)
+#: The Moon: the IAU 2015 sphere (1737.4 km), which is also the LOLA datum.
+MOON = Body("MOON", 301, 1_737_400.0, 1_737_400.0, 30100, "IAU_2015:30100")
+BODIES = {b.name: b for b in (MERCURY, MOON)}
+
+
+def body_by_name(name: str) -> Body:
+    """A catalogued body by name (case-insensitive): MERCURY or MOON."""
+    try:
+        return BODIES[str(name).strip().upper()]
+    except KeyError:
+        raise ValueError(f"unknown body {name!r}; known bodies: {sorted(BODIES)}") from None
 
 
 def wrap_longitude(lon_deg: ArrayLike) -> NDArray[np.float64]:

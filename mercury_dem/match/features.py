@@ -66,12 +66,17 @@ class Features:
         return int(self.points.shape[0])
 
 
-def image_quality(image: NDArray[Any], config: MatchConfig) -> ImageQuality:
+def image_quality(image: NDArray[Any], config: MatchConfig, saturation: float | None = None,
+                  dn_scale: float = 1.0) -> ImageQuality:
     """Robust DN range of an image and whether it is usable for matching.
 
     The percentiles are taken on every second pixel of every second line (a
     statistic, not the detector input), which is 4x cheaper and the same to
     within a DN on real-sized images.
+
+    ``saturation`` (the image's own saturation value, in its units; NaN = none; None =
+    ``config.saturated_dn``) and ``dn_scale`` (image units per 12-bit DN of the config's
+    thresholds) are the image's radiometry (:mod:`mercury_dem.mission.radiometry`).
     """
     img = np.asarray(image)
     if img.ndim != 2 or img.size == 0:
@@ -83,16 +88,18 @@ def image_quality(image: NDArray[Any], config: MatchConfig) -> ImageQuality:
         if not finite.any():
             return ImageQuality(False, "blank (no finite pixels)", 0.0, 0.0, 0.0)
         sub = sub[finite]
-    sat = float(np.mean(sub >= config.saturated_dn))
+    sat_value = float(config.saturated_dn) if saturation is None else float(saturation)
+    sat = float(np.mean(sub >= sat_value)) if np.isfinite(sat_value) else 0.0
     lo, hi = np.percentile(sub, [config.stretch_low_percentile, config.stretch_high_percentile])
     lo, hi = float(lo), float(hi)
     if float(sub.max()) == float(sub.min()):
         return ImageQuality(False, f"blank (all pixels {float(sub.min()):g} DN)", lo, hi, sat)
     if sat > config.max_saturated_fraction:
-        return ImageQuality(False, f"saturated ({100 * sat:.0f}% of pixels >= {config.saturated_dn} DN)", lo, hi, sat)
-    if hi - lo < config.min_dynamic_range_dn:
+        return ImageQuality(False, f"saturated ({100 * sat:.0f}% of pixels >= {sat_value:g})", lo, hi, sat)
+    if hi - lo < config.min_dynamic_range_dn * dn_scale:
         return ImageQuality(
-            False, f"textureless (robust DN range {hi - lo:.1f} < {config.min_dynamic_range_dn:g})", lo, hi, sat
+            False, f"textureless (robust range {hi - lo:.4g} < {config.min_dynamic_range_dn * dn_scale:.4g}, "
+            f"{config.min_dynamic_range_dn:g} DN of 12 bits)", lo, hi, sat
         )
     return ImageQuality(True, "", lo, hi, sat)
 

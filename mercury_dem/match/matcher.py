@@ -219,12 +219,14 @@ class TileMatches:
 
 
 def prepare_image(
-    image: NDArray[Any] | None, camera_shape: tuple[int, int], config: MatchConfig, describe: bool = True
+    image: NDArray[Any] | None, camera_shape: tuple[int, int], config: MatchConfig, describe: bool = True,
+    radiometry: tuple[float, float] | None = None,
 ) -> ImageFeatures:
     """Quality check, float conversion and (if ``describe``) features in the image's own geometry.
 
     ``camera_shape`` is (lines, samples) of the image's camera; a different array
     shape (truncated or corrupt image) or ``None`` (unreadable) gives a failed quality.
+    ``radiometry`` is the image's (saturation, dn_scale) (see :func:`image_quality`); None = 12-bit DN.
     """
     empty = Features(np.zeros((0, 2)), np.zeros(0, np.float32), np.zeros((0, 128), np.float32), cv2.NORM_L2)
     if image is None:
@@ -233,7 +235,7 @@ def prepare_image(
     if arr.shape != tuple(camera_shape):
         reason = f"shape {arr.shape} does not match its camera {tuple(camera_shape)} (truncated or corrupt)"
         return ImageFeatures(ImageQuality(False, reason, 0, 0, 0), np.zeros((0, 0), np.float32), empty)
-    q = image_quality(arr, config)
+    q = image_quality(arr, config) if radiometry is None else image_quality(arr, config, *radiometry)
     f32 = np.nan_to_num(arr.astype(np.float32, copy=False))
     if not q.ok:
         return ImageFeatures(q, f32, empty, described=False)
@@ -761,6 +763,7 @@ def match_tile(
     pairs: Sequence[tuple[str, str]],
     config: MatchConfig,
     tracks: bool = True,
+    radiometry: Mapping[str, tuple[float, float]] | None = None,
 ) -> tuple[TileMatches, list[PairReport]]:
     """Match every pair of a tile.
 
@@ -774,6 +777,7 @@ def match_tile(
         to all its other pairs and prefer multi-pair anchors when thinning to ``max_matches``
         (:mod:`mercury_dem.match.tracks`), so the network gets points of 3+ rays; needs
         ``config.refine``
+    radiometry : image id -> (saturation, dn_scale) of its pixels (:func:`image_quality`); missing = 12-bit DN
 
     Returns
     -------
@@ -790,7 +794,8 @@ def match_tile(
 
     def prep(image_id: str) -> ImageFeatures:
         cam = geometry[image_id].camera
-        return prepare_image(images[image_id], (cam.lines, cam.samples), config)
+        return prepare_image(images[image_id], (cam.lines, cam.samples), config,
+                             radiometry=(radiometry or {}).get(image_id))
 
     def run(k: int) -> tuple[PairReport, PairResult | _PairState]:
         a, b = pairs[k]

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.pose import illumination_angles, image_to_ground, project
 
 
@@ -35,20 +36,24 @@ class ImageGeometry:
     position : ndarray (3,), spacecraft position, body-fixed metres
     rotation : ndarray (3, 3), body-fixed -> camera (``v_cam = R @ (X - C)``)
     sun_position : ndarray (3,), Sun position, body-fixed metres
+    datum_radius_m : the body's datum sphere, the surface of the pre-transform
     """
 
     camera: FramingCamera
     position: NDArray[np.float64]
     rotation: NDArray[np.float64]
     sun_position: NDArray[np.float64]
+    datum_radius_m: float = DATUM_RADIUS_M
 
     @staticmethod
-    def of(camera: FramingCamera, position: ArrayLike, rotation: ArrayLike, sun_position: ArrayLike) -> "ImageGeometry":
+    def of(camera: FramingCamera, position: ArrayLike, rotation: ArrayLike, sun_position: ArrayLike,
+           datum_radius_m: float = DATUM_RADIUS_M) -> "ImageGeometry":
         return ImageGeometry(
             camera,
             np.asarray(position, dtype=np.float64).reshape(3),
             np.asarray(rotation, dtype=np.float64).reshape(3, 3),
             np.asarray(sun_position, dtype=np.float64).reshape(3),
+            float(datum_radius_m),
         )
 
 
@@ -127,7 +132,7 @@ def pair_geometry(
     t = (np.arange(grid) + 0.5) / grid
     ss, ll = np.meshgrid(t * cam_r.samples - 0.5, t * cam_r.lines - 0.5)
     px_r = np.stack([ss.ravel(), ll.ravel()], axis=-1)
-    ground, hit = image_to_ground(cam_r, ref.position, ref.rotation, px_r)
+    ground, hit = image_to_ground(cam_r, ref.position, ref.rotation, px_r, datum_radius_m=ref.datum_radius_m)
     if hit.sum() < 4:
         return "reference image does not see the body at enough grid points for the pre-transform"
     px_m, depth = project(cam_m, match.position, match.rotation, ground[hit])

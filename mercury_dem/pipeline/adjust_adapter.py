@@ -18,7 +18,7 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M
 
 
-def on_datum(xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+def on_datum(xyz: NDArray[np.float64], datum_radius_m: float = DATUM_RADIUS_M) -> NDArray[np.float64]:
     """Points moved radially onto the datum sphere (direction kept; zero vectors kept as they are).
 
     The a-priori point of a control point is, as in ISIS with an ellipsoid shape,
@@ -31,7 +31,7 @@ def on_datum(xyz: NDArray[np.float64]) -> NDArray[np.float64]:
     """
     xyz = np.asarray(xyz, np.float64)
     r = np.linalg.norm(xyz, axis=-1, keepdims=True)
-    return np.where(r > 0, xyz * (DATUM_RADIUS_M / np.where(r > 0, r, 1.0)), xyz)
+    return np.where(r > 0, xyz * (datum_radius_m / np.where(r > 0, r, 1.0)), xyz)
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,7 @@ def adjust_network(
     *,
     initial_rotations: NDArray[np.float64] | None = None,
     rms_flag_px: float = 2.0,
+    datum_radius_m: float = DATUM_RADIUS_M,
 ) -> UnitAdjustment:
     """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
 
@@ -74,7 +75,7 @@ def adjust_network(
     )
     if cfg.point_prior_center == "datum":
         held = np.asarray(problem.held_points, bool)[:, None]
-        problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points)))
+        problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
     result = bundle_adjust(problem, cfg)
     adjusted = network_with_result(network, result, measure_index)
     ids = np.asarray(network.image_ids).astype(str)

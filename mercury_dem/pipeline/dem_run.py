@@ -10,6 +10,7 @@ import numpy as np
 
 from mercury_dem.config import Config
 from mercury_dem.io.run_store import RunStore
+from mercury_dem.mission import Mission
 
 
 def point_cloud(network: Any, adjusted: bool = True) -> np.ndarray:
@@ -19,7 +20,7 @@ def point_cloud(network: Any, adjusted: bool = True) -> np.ndarray:
     return np.asarray(xyz[ok])
 
 
-def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
+def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
     """Grid ``dem.zarr`` from the global network, then the products; returns the report's ``dem`` block.
 
     With truth, the a-priori (unadjusted) points are gridded too (into a
@@ -32,13 +33,15 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
     net = read_network(store.network_path("global", 0))
     pts = point_cloud(net, adjusted=True)
     # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
-    dem_cfg = config.dem.with_extent_of(pts) if pts.shape[0] else config.dem
+    body = mission.body
+    dem_cfg = config.dem.with_extent_of(pts, body.datum_radius_m) if pts.shape[0] else config.dem
     # an existing complete DEM is reused (resume); products are always rewritten
     if not store.dem_path.exists():
-        grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, attrs={"source": "global adjusted control points"})
+        grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body,
+                                attrs={"source": "global adjusted control points"})
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
-    truth = mission.surface().height if getattr(mission, "has_truth", False) else None
+    truth = mission.truth.surface().height if mission.truth is not None else None
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
     out: dict[str, Any] = {
         "points": int(pts.shape[0]),
@@ -56,7 +59,8 @@ def run_dem_stage(store: RunStore, mission: Any, config: Config, client: Any, st
         tmp = store.root / "dem_apriori.zarr"
         shutil.rmtree(tmp, ignore_errors=True)
         try:
-            grid_dem(apri, dem_cfg, tmp, client, coverage=False, attrs={"source": "a-priori control points"})
+            grid_dem(apri, dem_cfg, tmp, client, coverage=False, body=body,
+                     attrs={"source": "a-priori control points"})
             ds = open_dem(tmp)
             validation["a_priori"] = dem_accuracy(
                 ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth,

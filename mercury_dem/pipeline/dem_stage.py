@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.exceptions import GridError, StoreError
-from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, IAU_SPHERE_RADIUS_M
+from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.products.make import make_products, open_dem
 
@@ -48,7 +48,7 @@ __all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "ch
 
 ATTRS: dict[str, dict[str, str]] = {
     "elevation": {
-        "long_name": "elevation above the 2439.4 km datum sphere",
+        "long_name": "elevation above the body's datum sphere (root attribute datum_radius_m)",
         "standard_name": "height_above_reference_ellipsoid",
         "units": "m",
     },
@@ -103,7 +103,7 @@ def check_memory(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
     return est
 
 
-def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None) -> xr.Dataset:
+def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, body: Body = MERCURY) -> xr.Dataset:
     """The lazy (Dask-backed, never computed) Dataset that defines the store's layout."""
     import dask.array as da
     import pyproj
@@ -124,29 +124,37 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None) 
         },
     )
     ds = ds.rio.set_spatial_dims(x_dim="lon", y_dim="lat")
-    ds = ds.rio.write_crs(CRS_GEOGRAPHIC)
-    crs = pyproj.CRS.from_user_input(CRS_GEOGRAPHIC)
-    ds["spatial_ref"].attrs["crs_code"] = CRS_GEOGRAPHIC
+    code = body.crs("geographic")
+    ds = ds.rio.write_crs(code)
+    crs = pyproj.CRS.from_user_input(code)
+    ds["spatial_ref"].attrs["crs_code"] = code
     ds["spatial_ref"].attrs["crs_wkt2"] = crs.to_wkt("WKT2_2019")
     for name in LAYERS:
         ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref",
                                   "compressors": layer_compressors()})
         ds[name].attrs.pop("grid_mapping", None)
-    ds.attrs.update(_root_attrs(grid, cfg, attrs))
+    ds.attrs.update(_root_attrs(grid, cfg, attrs, body))
     return ds
 
 
-def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None) -> dict[str, Any]:
-    out = {
-        "title": "Mercury DEM gridded from a control point cloud",
-        "Conventions": "CF-1.8",
-        "datum_radius_m": DATUM_RADIUS_M,
-        "height_reference": (
-            "elevation is metres above a sphere of radius 2439.4 km (the MESSENGER DEM datum); the CRS "
-            f"{CRS_GEOGRAPHIC} is the IAU 2015 sphere of radius {IAU_SPHERE_RADIUS_M:.0f} m and only "
+def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body = MERCURY) -> dict[str, Any]:
+    code = body.crs("geographic")
+    if body.datum_radius_m == body.radius_m:
+        reference = (f"elevation is metres above the {body.name.title()} IAU 2015 sphere of radius "
+                     f"{body.datum_radius_m / 1000:g} km, the sphere of the CRS {code}")
+    else:
+        reference = (
+            f"elevation is metres above a sphere of radius {body.datum_radius_m / 1000:g} km (the datum); the CRS "
+            f"{code} is the IAU 2015 sphere of radius {body.radius_m:.0f} m and only "
             "georeferences latitude/longitude: heights never refer to it"
-        ),
-        "crs_code": CRS_GEOGRAPHIC,
+        )
+    out = {
+        "title": f"{body.name.title()} DEM gridded from a control point cloud",
+        "Conventions": "CF-1.8",
+        "body": json.dumps(body.to_dict()),
+        "datum_radius_m": body.datum_radius_m,
+        "height_reference": reference,
+        "crs_code": code,
         "pixels_per_degree": grid.pixels_per_degree,
         "pixel_size_m": grid.pixel_size_m,
         "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
@@ -170,9 +178,9 @@ _COORD_ATTRS = {
 }
 
 
-@functools.lru_cache(maxsize=1)
-def _spatial_ref_attrs() -> dict[str, Any]:
-    """The ``spatial_ref`` attributes rioxarray writes for the Mercury CRS, plus its code and WKT2.
+@functools.lru_cache(maxsize=4)
+def _spatial_ref_attrs(code: str) -> dict[str, Any]:
+    """The ``spatial_ref`` attributes rioxarray writes for a CRS code, plus the code and its WKT2.
 
     A constant of the CRS (computed once per process: pyproj and rioxarray take ~0.1 s).
     """
@@ -180,9 +188,9 @@ def _spatial_ref_attrs() -> dict[str, Any]:
     import rioxarray  # noqa: F401  (registers the .rio accessor)
 
     ds = xr.Dataset(coords={"lat": [0.0], "lon": [0.0]}).rio.set_spatial_dims(x_dim="lon", y_dim="lat")
-    out = dict(ds.rio.write_crs(CRS_GEOGRAPHIC)["spatial_ref"].attrs)
-    out["crs_code"] = CRS_GEOGRAPHIC
-    out["crs_wkt2"] = pyproj.CRS.from_user_input(CRS_GEOGRAPHIC).to_wkt("WKT2_2019")
+    out = dict(ds.rio.write_crs(code)["spatial_ref"].attrs)
+    out["crs_code"] = code
+    out["crs_wkt2"] = pyproj.CRS.from_user_input(code).to_wkt("WKT2_2019")
     return out
 
 
@@ -205,7 +213,7 @@ _NAN_FILL_ATTR = base64.standard_b64encode(np.array(np.nan, dtype="<f8").tobytes
 
 
 def create_store(
-    store: str, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None
+    store: str, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, body: Body = MERCURY
 ) -> tuple[zarr.Group, dict[str, zarr.Array]]:
     """Create the empty ``dem.zarr`` layout with zarr directly: the same metadata as
     ``dem_template(grid, cfg, attrs).to_zarr(store, compute=False)`` (a test checks it)
@@ -216,13 +224,13 @@ def create_store(
     """
     nr, nc = grid.shape
     cs = cfg.chunk_size
-    group = zarr.open_group(store, mode="w", zarr_format=3, attributes=_root_attrs(grid, cfg, attrs))
+    group = zarr.open_group(store, mode="w", zarr_format=3, attributes=_root_attrs(grid, cfg, attrs, body))
     for name, values in (("lat", grid.lat_centres()), ("lon", grid.lon_centres())):
         arr = group.create_array(name, shape=values.shape, chunks=values.shape, dtype=np.float64,
                                  fill_value=np.nan, dimension_names=[name],
                                  attributes={**_COORD_ATTRS[name], "_FillValue": _NAN_FILL_ATTR})
         arr[...] = values
-    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=_spatial_ref_attrs())
+    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=_spatial_ref_attrs(body.crs("geographic")))
     layers: dict[str, zarr.Array] = {}
     for name, dtype in LAYERS.items():
         integer = np.dtype(dtype).kind == "i"
@@ -273,6 +281,7 @@ def grid_dem(
     overwrite: bool = False,
     attrs: dict[str, Any] | None = None,
     coverage: bool = True,
+    body: Body = MERCURY,
 ) -> dict[str, Any]:
     """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
 
@@ -286,6 +295,7 @@ def grid_dem(
     overwrite : replace an existing store (only once the new one is complete)
     attrs : extra global attributes (e.g. run id, source of the points)
     coverage : also compute the point-cloud coverage into ``coverage.zarr`` beside the store
+    body : the target: heights above its datum sphere, its IAU 2015 CRS
 
     Returns
     -------
@@ -305,17 +315,17 @@ def grid_dem(
     pts = np.asarray(points_xyz, dtype=np.float64)
     n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
     if n_points and cfg.extent_from_points:  # unset bounds: the cloud's footprint (mercury_dem.dem.extent)
-        cfg = cfg.with_extent_of(pts)
-    grid = GridSpec.from_config(cfg)
+        cfg = cfg.with_extent_of(pts, body.datum_radius_m)
+    grid = GridSpec.from_config(cfg, body.datum_radius_m)
     est = check_memory(grid, max(n_points, 0), cfg)
     if n_points == 0:
-        build_point_index(pts)  # raises the empty-cloud error before anything is created
+        build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error before anything is created
     chunks = grid.chunks(cfg.chunk_size)
     with atomic_store(out_path, overwrite=overwrite) as tmp, ThreadPoolExecutor(max_workers=2) as pool:
         store = str(tmp)
         # The index (compiled, GIL released) builds while this thread writes the store's template.
-        index_job = pool.submit(build_point_index, pts)
-        group, layer_arrays = create_store(store, grid, cfg, attrs)
+        index_job = pool.submit(build_point_index, pts, body.datum_radius_m)
+        group, layer_arrays = create_store(store, grid, cfg, attrs, body)
         index = index_job.result()
         if client is None:
             # Two chunks in flight: one in the compiled kernel (all its threads, GIL released),

@@ -149,7 +149,7 @@ def run_pipeline(
     dem: bool = True,
 ) -> dict[str, Any]:
     """Run (or resume) the whole job; return the report (also written to ``RUN/report.json``)."""
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
     from mercury_dem.pipeline.report import build_report, write_report
 
     t_start = time.perf_counter()

@@ -9,6 +9,11 @@ controlled, uncontrolled: [ids], excluded: {id: reason}}; ``timings``; ``config`
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 from typing import Any, TextIO
 
 import numpy as np
@@ -26,7 +31,7 @@ def _level_row(s: dict[str, Any]) -> dict[str, Any]:
     return {k: s.get(k) for k in LEVEL_KEYS if k in s or k in ("id", "ok", "error")}
 
 
-def build_report(store: RunStore, mission: Any, config: Config, plan: dict[str, Any],
+def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[str, Any],
                  summaries: dict[str, list[dict[str, Any]]], timings: dict[str, float], conn: Any,
                  dem_summary: dict[str, Any] | None) -> dict[str, Any]:
     from mercury_dem.pipeline.graph import versions
@@ -56,7 +61,7 @@ def build_report(store: RunStore, mission: Any, config: Config, plan: dict[str, 
         sid, rot, pos, table = read_solution(store.solution_path("global", 0))
         nmeas = table["n_measures"].to_numpy()
         controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
-        if getattr(mission, "has_truth", False):
+        if mission.truth is not None:
             from mercury_dem.network.store import read_network
             from mercury_dem.validate.run import validate_run
 

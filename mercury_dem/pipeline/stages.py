@@ -26,6 +26,7 @@ from mercury_dem.geometry.pose import validate_pose
 from mercury_dem.geometry.tiling import TileGrid, region_name
 from mercury_dem.io.atomic import atomic_directory, atomic_write_json
 from mercury_dem.io.run_store import RunStore, read_solution, write_solution
+from mercury_dem.mission import Mission, open_mission
 
 #: Point ids of tile t start at t * POINT_ID_STRIDE, so ids stay unique when tiles merge.
 POINT_ID_STRIDE = 10_000_000
@@ -45,7 +46,7 @@ def unit_name(level: str, unit_id: int) -> str:
 
 
 # --------------------------------------------------------------------------- plan
-def plan_run(store: RunStore, mission: Any, config: Config) -> dict[str, Any]:
+def plan_run(store: RunStore, mission: Mission, config: Config) -> dict[str, Any]:
     """Tile of every image and the a-priori overlap graph, written to ``RUN/plan``.
 
     Images whose geometry is unusable (NaN, non-orthonormal rotation) are kept in
@@ -85,7 +86,7 @@ def plan_run(store: RunStore, mission: Any, config: Config) -> dict[str, Any]:
     good = np.flatnonzero(ok)
     graph = overlap_graph(
         cameras, cam_idx[good], positions[good], rotations[good],
-        min_fraction=config.tiling.min_overlap_fraction,
+        min_fraction=config.tiling.min_overlap_fraction, radius_m=mission.body.datum_radius_m,
     ) if cameras else None
     i = good[graph.i] if graph is not None else np.zeros(0, np.int64)
     j = good[graph.j] if graph is not None else np.zeros(0, np.int64)
@@ -135,7 +136,7 @@ def tile_pairs(images: pd.DataFrame, pairs: pd.DataFrame, tile_id: int) -> list[
     return out
 
 
-def _geometry(mission: Any, image_ids: list[str]) -> tuple[dict[str, Any], list[Any], np.ndarray, np.ndarray, np.ndarray]:
+def _geometry(mission: Mission, image_ids: list[str]) -> tuple[dict[str, Any], list[Any], np.ndarray, np.ndarray, np.ndarray]:
     from mercury_dem.match.pretransform import ImageGeometry
 
     geom: dict[str, Any] = {}
@@ -143,7 +144,7 @@ def _geometry(mission: Any, image_ids: list[str]) -> tuple[dict[str, Any], list[
     for image_id in image_ids:
         cam = mission.camera(image_id)
         c, r = mission.a_priori_pose(image_id)
-        geom[image_id] = ImageGeometry.of(cam, c, r, mission.sun_position(image_id))
+        geom[image_id] = ImageGeometry.of(cam, c, r, mission.sun_position(image_id), mission.body.datum_radius_m)
         cameras.append(cam)
         positions.append(c)
         rotations.append(r)
@@ -181,7 +182,6 @@ def _no_points_reason(tile_id: int, s: dict[str, Any]) -> str:
 
 
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
-    from mercury_dem.io.mission import open_mission
     from mercury_dem.match.matcher import iter_rows, match_tile
     from mercury_dem.network.build import build_network
 
@@ -200,7 +200,8 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
             pixels[image_id] = None
             image_errors[image_id] = str(exc)
     geom, cameras, positions, rotations, ids = _geometry(mission, involved)
-    matches, reports = match_tile(pixels, geom, pair_list, config.match)
+    radiometry = {i: (r.saturation, r.dn_scale) for i in involved for r in [mission.radiometry(i)]}
+    matches, reports = match_tile(pixels, geom, pair_list, config.match, radiometry=radiometry)
     rows = pd.DataFrame(list(iter_rows(reports)))
     failures: dict[str, int] = {}
     if len(rows):
@@ -213,6 +214,7 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
         point_id_start=int(tile_id) * POINT_ID_STRIDE,
         sigma_px=config.network.measure_sigma_px,
         metadata={"level": "tile", "tile_id": str(tile_id)},
+        datum_radius_m=mission.body.datum_radius_m,
     )
     net = built.network
     return {
@@ -304,7 +306,6 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> dict[str, Any]:
     from mercury_dem.pipeline.adjust_adapter import adjust_network
-    from mercury_dem.io.mission import open_mission
     from mercury_dem.network.merge import merge_networks
     from mercury_dem.network.store import read_network
 
@@ -337,7 +338,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     if child_level != "tile":
         start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
     adj = adjust_network(merged, cameras, positions, rotations, adjust_config_for(mission, config),
-                         initial_rotations=start_rot)
+                         initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m)
     return {
         "children": kids,
         **adj.summary,
@@ -352,7 +353,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     }
 
 
-def adjust_config_for(mission: Any, config: Config) -> Any:
+def adjust_config_for(mission: Mission, config: Config) -> Any:
     """The adjustment configuration for a mission: its declared a-priori pointing sigma when asked.
 
     A mission (like SPICE with its CK quality) may state how wrong its a-priori
@@ -364,7 +365,7 @@ def adjust_config_for(mission: Any, config: Config) -> Any:
     import dataclasses
 
     cfg = config.adjust
-    sigma_urad = getattr(mission, "meta", {}).get("pointing_sigma_urad")
+    sigma_urad = mission.meta.get("pointing_sigma_urad")
     if cfg.pointing_sigma_from_mission and sigma_urad:
         cfg = dataclasses.replace(cfg, pointing_sigma_deg=float(np.degrees(float(sigma_urad) * 1e-6)))
     return cfg

@@ -23,12 +23,12 @@ import pyproj  # noqa: E402
 from matplotlib import colors, ticker  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M  # noqa: E402
+from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, Body  # noqa: E402
 from mercury_dem.products.sampling import sample_bilinear  # noqa: E402
 from mercury_dem.products.stats import block_centres, block_mean  # noqa: E402
 
 #: Robinson, central meridian 180 (the map runs 0..360 E like the reference's Fig. 1).
-CRS_ROBINSON_180 = "IAU_2015:19955"
+CRS_ROBINSON_180 = MERCURY.crs("robinson_180")
 CMAP = "turbo"
 
 
@@ -289,16 +289,16 @@ def robinson_central_meridian(h: NDArray[np.floating], lon: NDArray[np.float64])
     return float(np.mod(round(start + span / 2.0), 360.0))  # a whole degree
 
 
-def robinson_crs(central_meridian: float) -> str:
-    """Robinson on the Mercury sphere: the IAU code for a central meridian of 180, else a PROJ string."""
+def robinson_crs(central_meridian: float, body: Body = MERCURY) -> str:
+    """Robinson on the body's IAU sphere: the IAU code for a central meridian of 180, else a PROJ string."""
     if central_meridian == 180.0:
-        return CRS_ROBINSON_180
-    return f"+proj=robin +lon_0={central_meridian:g} +R={DATUM_RADIUS_M:g} +units=m +no_defs +type=crs"
+        return body.crs("robinson_180")
+    return f"+proj=robin +lon_0={central_meridian:g} +R={body.radius_m:g} +units=m +no_defs +type=crs"
 
 
 def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
                        lon: NDArray[np.float64], path: str | Path, width: int, title: str | None = None,
-                       central_meridian: float | None = None) -> Path:
+                       central_meridian: float | None = None, body: Body = MERCURY) -> Path:
     """Global colour-coded shaded relief in Robinson projection with graticule.
 
     The central meridian is 180 (0-360 E) unless the data are regional
@@ -308,10 +308,12 @@ def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat
     lon0 = robinson_central_meridian(h, lon) if central_meridian is None else float(central_meridian) % 360.0
     lon0 = lon0 - 360.0 if lon0 > 180.0 else lon0  # PROJ's range; 180 stays 180
     if title is None:
-        title = ("Mercury DEM, Robinson projection (0-360°E, centred on 180°E)" if lon0 == 180.0
-                 else f"Mercury DEM, Robinson projection centred on {lon0 % 360.0:g}°E (the data's longitudes)")
-    fwd = pyproj.Transformer.from_crs(CRS_GEOGRAPHIC, robinson_crs(lon0), always_xy=True)
-    inv = pyproj.Transformer.from_crs(robinson_crs(lon0), CRS_GEOGRAPHIC, always_xy=True)
+        name = body.name.title()
+        title = (f"{name} DEM, Robinson projection (0-360°E, centred on 180°E)" if lon0 == 180.0
+                 else f"{name} DEM, Robinson projection centred on {lon0 % 360.0:g}°E (the data's longitudes)")
+    geographic = body.crs("geographic")
+    fwd = pyproj.Transformer.from_crs(geographic, robinson_crs(lon0, body), always_xy=True)
+    inv = pyproj.Transformer.from_crs(robinson_crs(lon0, body), geographic, always_xy=True)
     xmax = abs(fwd.transform(lon0 + 180.0, 0.0)[0])  # the antimeridian of the centre
     ymax = abs(fwd.transform(lon0, 90.0)[1])
     nx = int(width)

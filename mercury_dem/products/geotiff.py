@@ -18,18 +18,23 @@ import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
 
-from mercury_dem.geometry.body import (
-    CRS_EQUIRECTANGULAR_180,
-    CRS_GEOGRAPHIC,
-    DATUM_RADIUS_M,
-    IAU_SPHERE_RADIUS_M,
-)
+from mercury_dem.geometry.body import MERCURY, Body
 
-HEIGHT_TAGS = {
-    "UNITS": "m",
-    "DATUM_RADIUS_M": f"{DATUM_RADIUS_M:.1f}",
-    "HEIGHT_REFERENCE": "elevation above a 2439.4 km sphere; the CRS sphere (2440.53 km) georeferences lat/lon only",
-}
+
+def height_tags(body: Body = MERCURY) -> dict[str, str]:
+    """The metadata tags that state what a raster's values are heights above."""
+    same = body.datum_radius_m == body.radius_m
+    return {
+        "UNITS": "m",
+        "BODY": body.name,
+        "DATUM_RADIUS_M": f"{body.datum_radius_m:.1f}",
+        "HEIGHT_REFERENCE": (f"elevation above the {body.datum_radius_m / 1000:g} km IAU sphere of the CRS" if same else
+                             f"elevation above a {body.datum_radius_m / 1000:g} km sphere; the CRS sphere "
+                             f"({body.radius_m / 1000:g} km) georeferences lat/lon only"),
+    }
+
+
+HEIGHT_TAGS = height_tags(MERCURY)
 
 
 def write_raster(
@@ -68,14 +73,14 @@ def write_raster(
 
 
 def write_dem_geotiff(elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating],
-                      path: str | Path, cog: bool = True) -> Path:
-    """The DEM as a (cloud-optimised) GeoTIFF in the geographic CRS IAU_2015:19900 (degrees)."""
-    return write_raster(elevation, lon, lat, CRS_GEOGRAPHIC, path, cog=cog, tags=HEIGHT_TAGS)
+                      path: str | Path, cog: bool = True, body: Body = MERCURY) -> Path:
+    """The DEM as a (cloud-optimised) GeoTIFF in the body's IAU 2015 geographic CRS (degrees)."""
+    return write_raster(elevation, lon, lat, body.crs("geographic"), path, cog=cog, tags=height_tags(body))
 
 
 def write_pds_equirectangular(
     elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating], path: str | Path,
-    cut_lat: float = 65.0, cog: bool = True
+    cut_lat: float = 65.0, cog: bool = True, body: Body = MERCURY
 ) -> dict[str, Any]:
     """PDS-style equirectangular product: the rows with |lat| < ``cut_lat``, projected.
 
@@ -88,11 +93,12 @@ def write_pds_equirectangular(
     rows = np.abs(lat) < cut_lat
     if not rows.any():
         raise ValueError(f"the DEM has no rows within +-{cut_lat} deg of latitude")
-    R = IAU_SPHERE_RADIUS_M
+    R = body.radius_m
+    crs = body.crs("equirectangular_180")
     x = R * np.radians(np.asarray(lon, dtype=np.float64) - 180.0)
     y = R * np.radians(lat[rows])
-    p = write_raster(np.asarray(elevation)[rows], x, y, CRS_EQUIRECTANGULAR_180, path, cog=cog,
-                     tags={**HEIGHT_TAGS, "LATITUDE_LIMIT_DEG": f"{cut_lat}", "CENTER_LONGITUDE": "180"})
-    return {"path": str(p), "shape": [int(rows.sum()), int(len(lon))], "crs": CRS_EQUIRECTANGULAR_180,
+    p = write_raster(np.asarray(elevation)[rows], x, y, crs, path, cog=cog,
+                     tags={**height_tags(body), "LATITUDE_LIMIT_DEG": f"{cut_lat}", "CENTER_LONGITUDE": "180"})
+    return {"path": str(p), "shape": [int(rows.sum()), int(len(lon))], "crs": crs,
             "lat_range_deg": [float(lat[rows].min()), float(lat[rows].max())],
             "pixel_m": float(R * math.radians(abs(lat[1] - lat[0]))) if lat.size > 1 else None}

@@ -31,9 +31,10 @@ import xarray as xr
 
 from mercury_dem.dem.accuracy import dem_accuracy
 from mercury_dem.exceptions import GridError, StoreError
+from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
 from mercury_dem.products import browse
-from mercury_dem.products.geotiff import write_dem_geotiff, write_pds_equirectangular, write_raster
+from mercury_dem.products.geotiff import height_tags, write_dem_geotiff, write_pds_equirectangular, write_raster
 from mercury_dem.products.polar import reproject_polar
 from mercury_dem.products.profile import elevation_profile, write_profile
 from mercury_dem.products.stats import dem_statistics, format_statistics_table
@@ -60,6 +61,17 @@ def open_dem(path: str | Path) -> xr.Dataset:
     return ds
 
 
+def dem_body(ds: xr.Dataset) -> Body:
+    """The body a DEM store was gridded for (root attribute ``body``; stores without one are Mercury's)."""
+    raw = ds.attrs.get("body")
+    if not raw:
+        return MERCURY
+    try:
+        return Body.from_dict(json.loads(raw) if isinstance(raw, str) else raw)
+    except (ValueError, TypeError) as exc:
+        raise StoreError(f"the DEM store's body attribute is invalid ({exc})") from None
+
+
 def _dem_config(config: Any) -> Any:
     return getattr(config, "dem", config)
 
@@ -80,7 +92,7 @@ def make_products(
     dem_path : ``dem.zarr`` written by :func:`mercury_dem.pipeline.dem_stage.grid_dem`
     out_dir : products directory (e.g. ``RUN/products``)
     config : Config or DemConfig
-    truth_height : optional callable (lat, lon) -> m above the 2439.4 km datum; adds accuracy.json
+    truth_height : optional callable (lat, lon) -> m above the body's datum; adds accuracy.json
     profiles : (lat1, lon1, lat2, lon2) tuples, degrees
     overwrite : replace existing product files
 
@@ -100,6 +112,7 @@ def make_products(
     cfg = _dem_config(config)
     dem_path, out = Path(dem_path), Path(out_dir)
     ds = open_dem(dem_path)
+    body = dem_body(ds)
     planned = list(PRODUCT_FILES) + [f"profile_{i + 1}.png" for i in range(len(profiles))]
     if truth_height is not None:
         planned += ["accuracy.json", "browse/error_vs_truth.png"]
@@ -121,7 +134,7 @@ def make_products(
     summary: dict[str, Any] = {"dem": str(dem_path), "shape": [H, W]}
 
     # GeoTIFFs.
-    files.append(str(write_dem_geotiff(elev, lat, lon, out / "dem.tif", cog=cfg.cog)))
+    files.append(str(write_dem_geotiff(elev, lat, lon, out / "dem.tif", cog=cfg.cog, body=body)))
     pds: dict[str, Any] = {}
     skipped: dict[str, str] = {}
     cut = cfg.polar_cut_lat
@@ -136,7 +149,7 @@ def make_products(
 
     if (np.abs(lat) < cut).any():
         pds["equirectangular"] = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif",
-                                                           cut, cog=cfg.cog)
+                                                           cut, cog=cfg.cog, body=body)
         files.append(pds["equirectangular"]["path"])
     else:
         skip("equirectangular", f"within +-{cut:g} deg")
@@ -145,9 +158,9 @@ def make_products(
         if not covers:
             skip(name, f"north of {cut:g} deg" if north else f"south of -{cut:g} deg")
             continue
-        cap = reproject_polar(elev, lat, lon, north, cut)
+        cap = reproject_polar(elev, lat, lon, north, cut, body=body)
         p = write_raster(cap["values"], cap["x"], cap["y"], cap["crs"], out / f"pds/{name}.tif", cog=cfg.cog,
-                         tags={"UNITS": "m", "DATUM_RADIUS_M": "2439400.0", "LATITUDE_LIMIT_DEG": str(cut)})
+                         tags={**height_tags(body), "LATITUDE_LIMIT_DEG": str(cut)})
         pds[name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
                      "valid_fraction_in_cap": cap["valid_fraction"]}
         files.append(str(p))
@@ -156,7 +169,7 @@ def make_products(
 
     # Statistics (reference Table 1).
     stats = dem_statistics(elev, lat, lon, pixel_km=cfg.stats_pixel_km, polar_cut=cfg.polar_cut_lat,
-                           south_limit=cfg.south_polar_stats_limit)
+                           south_limit=cfg.south_polar_stats_limit, radius_m=body.datum_radius_m)
     table = format_statistics_table(stats)
     files.append(str(atomic_write_json(out / "statistics.json", stats)))
     files.append(str(atomic_write_text(out / "statistics.txt", table + "\n")))
@@ -170,14 +183,14 @@ def make_products(
     files.append(str(browse.write_greyscale_png(h, out / "browse/greyscale.png")))
     files.append(str(browse.write_hillshade_png(shade, out / "browse/hillshade.png")))
     ppd = float(ds.attrs.get("pixels_per_degree", 1.0 / abs(lat[1] - lat[0]) if H > 1 else 1.0))
-    title = f"Mercury DEM ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief"
+    title = f"{body.name.title()} DEM ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief"
     ch, cs, clat, clon = h, shade, blat, blon
     if np.isfinite(h).mean() < 0.5:  # mostly empty map: show where the data are
         ch, cs, clat, clon = browse.crop_to_data(h, shade, blat, blon)
         title += " (cropped to the data)"
     files.append(str(browse.write_colour_png(ch, cs, clat, clon, out / "browse/colour_hillshade.png", title, ex)))
     files.append(str(browse.write_robinson_png(
-        h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600))))
+        h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600), body=body)))
     summary["browse_exaggeration"] = ex
 
     # Coverage (reference 001), when the DEM stage stored it.

@@ -18,18 +18,14 @@ import numpy as np
 import pyproj
 from numpy.typing import NDArray
 
-from mercury_dem.geometry.body import (
-    CRS_GEOGRAPHIC,
-    CRS_NORTH_POLAR_STEREOGRAPHIC,
-    CRS_SOUTH_POLAR_STEREOGRAPHIC,
-    IAU_SPHERE_RADIUS_M,
-)
+from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.products.sampling import sample_bilinear
 
 
-def polar_grid(cut_lat: float, pixel_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Pixel-centre x (W,) and y (H,, descending) of a square stereographic grid enclosing the cap."""
-    rho = 2.0 * IAU_SPHERE_RADIUS_M * math.tan(math.radians(90.0 - cut_lat) / 2.0)
+def polar_grid(cut_lat: float, pixel_m: float, radius_m: float = MERCURY.radius_m) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Pixel-centre x (W,) and y (H,, descending) of a square stereographic grid enclosing the cap
+    (``radius_m``: the CRS sphere)."""
+    rho = 2.0 * radius_m * math.tan(math.radians(90.0 - cut_lat) / 2.0)
     n = int(math.ceil(2.0 * rho / pixel_m))
     x = (np.arange(n) + 0.5 - n / 2.0) * pixel_m
     return x, x[::-1].copy()
@@ -42,6 +38,7 @@ def reproject_polar(
     north: bool,
     cut_lat: float = 65.0,
     pixel_m: float | None = None,
+    body: Body = MERCURY,
 ) -> dict[str, Any]:
     """Reproject one polar cap of an equirectangular DEM.
 
@@ -59,10 +56,10 @@ def reproject_polar(
     ``valid_fraction`` (share of the cap's pixels holding a value).
     """
     if pixel_m is None:
-        pixel_m = IAU_SPHERE_RADIUS_M * math.radians(abs(float(lat[1] - lat[0])))
-    crs = CRS_NORTH_POLAR_STEREOGRAPHIC if north else CRS_SOUTH_POLAR_STEREOGRAPHIC
-    x, y = polar_grid(cut_lat, pixel_m)
-    tr = pyproj.Transformer.from_crs(crs, CRS_GEOGRAPHIC, always_xy=True)
+        pixel_m = body.radius_m * math.radians(abs(float(lat[1] - lat[0])))
+    crs = body.crs("north_polar" if north else "south_polar")
+    x, y = polar_grid(cut_lat, pixel_m, body.radius_m)
+    tr = pyproj.Transformer.from_crs(crs, body.crs("geographic"), always_xy=True)
     values = np.full((y.size, x.size), np.nan, dtype=np.float32)
     n_cap = 0
     step = max(1, (1 << 20) // max(x.size, 1))

@@ -16,10 +16,11 @@ from numpy.typing import NDArray
 
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.exceptions import ConfigError, StoreError
-from mercury_dem.geometry.body import DATUM_RADIUS_M
+from mercury_dem.geometry.body import MERCURY
 from mercury_dem.io.atomic import atomic_directory
-from mercury_dem.io.mission import dem_axes, init_store, write_tables, write_truth_dem
-from mercury_dem.synth.mission import catalog_from_poses, perturb_poses, plan_mission, true_poses
+from mercury_dem.mission.store import MissionWriter
+from mercury_dem.mission.truth import dem_axes, write_truth_dem, write_truth_tables
+from mercury_dem.synth.mission import catalog_from_poses, mission_cameras, perturb_poses, plan_mission, true_poses
 from mercury_dem.synth.parallel import cached_surface, render_all
 from mercury_dem.synth.presets import MissionDesign, get_preset
 from mercury_dem.synth.terrain import Surface
@@ -95,12 +96,13 @@ def generate_mission(
     t0 = time.perf_counter()
     design = design or get_preset(config.preset)
     params = replace(design.surface, seed=config.seed)
-    radius = DATUM_RADIUS_M
+    body = MERCURY
+    radius = body.datum_radius_m
     plan = plan_mission(design, config.seed, radius)
     c_true, r_true = true_poses(plan)
     rng = np.random.default_rng([config.seed, 0xA991])
     c_apr, r_apr, omega = perturb_poses(c_true, r_true, config.pointing_sigma_urad * 1e-6, config.position_sigma_m, rng)
-    catalog = catalog_from_poses(plan, c_apr, r_apr, tile_size_deg, radius)
+    catalog = catalog_from_poses(plan, c_apr, r_apr, tile_size_deg, body)
     truth = plan.copy()
     for k, ax in enumerate("xyz"):
         truth[f"pointing_error_{ax}_rad"] = omega[:, k]
@@ -111,13 +113,13 @@ def generate_mission(
     if idx is not None:
         plan, catalog, truth = (t.iloc[idx].reset_index(drop=True) for t in (plan, catalog, truth))
     meta = {
+        "source": "synthetic",
         "preset": design.name,
         "seed": config.seed,
         "pointing_sigma_urad": config.pointing_sigma_urad,
         "position_sigma_m": config.position_sigma_m,
         "tile_size_deg": tile_size_deg,
         "datum_radius_m": radius,
-        "n_images": len(catalog),
         "n_images_design": n_design,
         "image_size": design.samples,
         "area_deg": list(design.area_deg) if design.area_deg else None,
@@ -131,7 +133,7 @@ def generate_mission(
                     "(coverage, tiles and statistics are those of the subset, not of the design)",
         }
     with atomic_directory(out, overwrite=overwrite) as tmp:
-        init_store(tmp)
+        writer = MissionWriter(tmp)
         timings = render_all(tmp, plan, params.to_dict(), radius, design.render, config.seed, workers=workers,
                              client=client, progress=progress, scheduler=scheduler)
         surface = cached_surface(params.to_dict(), radius)
@@ -139,7 +141,9 @@ def generate_mission(
         height, lat_max, lon_min, ppd = truth_dem_grid(surface, design)
         write_truth_dem(tmp, height, lat_max, lon_min, ppd, radius)
         t_dem = time.perf_counter() - t_dem
-        write_tables(tmp, meta, catalog, truth, {"params": params.to_dict(), "radius_m": radius})
+        write_truth_tables(tmp, truth, {"params": params.to_dict(), "radius_m": radius,
+                                        "factory": "mercury_dem.synth.terrain:surface_from_dict"})
+        writer.finish(meta, body, mission_cameras(plan)[0], catalog)
     secs = np.array([s for _, s in timings])
     return {
         "path": str(out),

@@ -24,15 +24,11 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit, xyz_to_latlon
+from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, Body, latlon_to_unit, xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera, camera_preset
-from mercury_dem.geometry.pose import (
-    illumination_angles,
-    intersect_sphere,
-    look_at_rotation,
-    rotation_from_angles,
-)
-from mercury_dem.geometry.tiling import TileGrid
+from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
+from mercury_dem.mission.catalog import ROTATION_COLUMNS, build_catalog
+from mercury_dem.mission.radiometry import DN12
 from mercury_dem.synth.presets import MissionDesign
 
 #: Range of Mercury's distance from the sun, metres (0.31-0.47 AU).
@@ -41,7 +37,6 @@ SUN_DISTANCE_M = (4.6e10, 7.0e10)
 IMAGE_INTERVAL_S = 600.0
 START_TIME_S = 2.0e8
 
-ROTATION_COLUMNS = [f"rotation_{i}{j}" for i in range(3) for j in range(3)]
 
 
 def fibonacci_sphere(n: int) -> NDArray[np.float64]:
@@ -199,31 +194,11 @@ def perturb_poses(
     return positions + dpos, rotation_from_angles(omega) @ rotations, omega
 
 
-def label_geometry(
-    camera: FramingCamera,
-    positions: NDArray[np.float64],
-    rotations: NDArray[np.float64],
-    suns: NDArray[np.float64],
-    radius_m: float = DATUM_RADIUS_M,
-) -> dict[str, NDArray[np.float64]]:
-    """Centre lat/lon, pixel scale and angles of images sharing one camera (the label convention:
-    boresight-centre ray on the datum sphere)."""
-    n = positions.shape[0]
-    centre_px = np.array([(camera.samples - 1) / 2.0, (camera.lines - 1) / 2.0])
-    look = camera.pixel_to_camera(centre_px)
-    d = np.einsum("nji,j->ni", rotations, look)  # R^T v
-    ground, hit = intersect_sphere(positions, d, np.full(n, radius_m))
-    lat, lon, _ = xyz_to_latlon(ground, radius_m)
-    slant = np.linalg.norm(ground - positions, axis=-1)
-    inc, emi, phase = illumination_angles(ground, positions, suns)
-    return {
-        "center_lat": lat,
-        "center_lon": lon,
-        "pixel_scale_m": slant * camera.ifov_rad,
-        "incidence_deg": inc,
-        "emission_deg": emi,
-        "phase_deg": phase,
-    }
+def mission_cameras(plan: pd.DataFrame) -> tuple[dict[str, FramingCamera], list[str]]:
+    """The camera table of a plan (one MDIS preset per instrument and image size) and each image's camera id."""
+    ids = [f"{inst}@{int(s)}" for inst, s in zip(plan["instrument"].astype(str), plan["samples"])]
+    cameras = {k: camera_preset(k.partition("@")[0], int(k.partition("@")[2])) for k in sorted(set(ids))}
+    return cameras, ids
 
 
 def catalog_from_poses(
@@ -231,41 +206,16 @@ def catalog_from_poses(
     positions: NDArray[np.float64],
     rotations: NDArray[np.float64],
     tile_size_deg: float = 10.0,
-    radius_m: float = DATUM_RADIUS_M,
+    body: Body = MERCURY,
 ) -> pd.DataFrame:
-    """The image catalog (CONTRACTS.md columns) from a plan and its A-PRIORI poses."""
+    """The image catalog of a plan from its A-PRIORI poses (the mission's one catalog builder)."""
+    cameras, cam_ids = mission_cameras(plan)
     n = len(plan)
-    cat = pd.DataFrame({
-        "image_id": plan["image_id"].astype(str).to_numpy(),
-        "instrument": plan["instrument"].astype(str).to_numpy(),
-        "samples": plan["samples"].to_numpy(np.int64),
-        "lines": plan["lines"].to_numpy(np.int64),
-    })
-    sums = np.zeros(n, np.int64)
-    geo = {k: np.zeros(n) for k in ("center_lat", "center_lon", "pixel_scale_m", "incidence_deg", "emission_deg", "phase_deg")}
-    suns = plan[[f"sun_{a}" for a in "xyz"]].to_numpy(np.float64)
-    for (inst, samples), idx in plan.groupby(["instrument", "samples"]).indices.items():
-        cam = camera_preset(str(inst), int(samples))
-        sums[idx] = cam.summing
-        g = label_geometry(cam, positions[idx], rotations[idx], suns[idx], radius_m)
-        for k in geo:
-            geo[k][idx] = g[k]
-    cat["summing"] = sums
-    cat["time"] = plan["time"].to_numpy(np.float64)
-    for k, ax in enumerate("xyz"):
-        cat[f"position_{ax}"] = positions[:, k]
-    flat = rotations.reshape(-1, 9)
-    for k, col in enumerate(ROTATION_COLUMNS):
-        cat[col] = flat[:, k]
-    for k, ax in enumerate("xyz"):
-        cat[f"sun_{ax}"] = suns[:, k]
-    for k, v in geo.items():
-        cat[k] = v
-    ok = np.isfinite(geo["center_lat"])
-    tile = np.full(n, -1, np.int64)
-    tile[ok] = TileGrid(tile_size_deg).tile_of(geo["center_lat"][ok], geo["center_lon"][ok])
-    cat["tile_id"] = tile
-    return cat
+    return build_catalog(
+        plan["image_id"].astype(str).to_numpy(), plan["instrument"].astype(str).to_numpy(), cameras, cam_ids,
+        plan["time"].to_numpy(np.float64), positions, rotations,
+        plan[[f"sun_{a}" for a in "xyz"]].to_numpy(np.float64), body, tile_size_deg, [DN12] * n,
+    )
 
 
 __all__ = [
@@ -273,6 +223,6 @@ __all__ = [
     "perturb_poses",
     "true_poses",
     "catalog_from_poses",
-    "label_geometry",
+    "mission_cameras",
     "fibonacci_sphere",
 ]

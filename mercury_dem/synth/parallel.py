@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from mercury_dem.geometry.camera import camera_preset
-from mercury_dem.io.mission import write_image
+from mercury_dem.mission.store import write_image
 from mercury_dem.synth.render import RenderSettings, render_image
 from mercury_dem.synth.terrain import Surface, SurfaceParams
 

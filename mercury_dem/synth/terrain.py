@@ -302,3 +302,8 @@ class Surface:
             "age": t[:, cr.C_AGE],
             "rays": t[:, cr.C_RAYLEN] > 0,
         }
+
+
+def surface_from_dict(d: dict[str, Any]) -> Surface:
+    """The truth surface of a mission's ``truth/surface.json`` (``params`` and ``radius_m``)."""
+    return Surface(SurfaceParams.from_dict(d["params"]), radius_m=d["radius_m"])

@@ -5,6 +5,11 @@ Only validation reads the mission's truth; the pipeline itself never does.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 from typing import Any
 
 import numpy as np
@@ -65,7 +70,7 @@ def image_space_error_px(camera: Any, position: NDArray[np.float64], rotation: N
     return float(np.sqrt(np.mean(np.sum((proj - px[hit]) ** 2, axis=-1))))
 
 
-def true_point_positions(network: Any, mission: Any, points: NDArray[np.int64]) -> NDArray[np.float64]:
+def true_point_positions(network: Any, mission: Mission, points: NDArray[np.int64]) -> NDArray[np.float64]:
     """True body-fixed position of points: the first active measure's pixel through the true pose onto the true surface."""
     active = network.active_measures() if hasattr(network, "active_measures") else ~network.measure_rejected
     m_point, m_image = network.measure_point[active], network.measure_image[active]
@@ -77,17 +82,17 @@ def true_point_positions(network: Any, mission: Any, points: NDArray[np.int64]) 
     out = np.full((points.size, 3), np.nan)
     sel = first_of[points]
     ok = sel >= 0
-    surface = mission.surface()
+    surface = mission.need_truth().surface()
     for img in np.unique(m_image[sel[ok]]):
         rows = np.flatnonzero(ok)[m_image[sel[ok]] == img]
         image_id = str(network.image_ids[img])
-        c, r = mission.true_pose(image_id)
+        c, r = mission.need_truth().true_pose(image_id)
         xyz, _ = image_to_ground(mission.camera(image_id), c, r, px[sel[rows]], height=surface.height)
         out[rows] = xyz
     return out
 
 
-def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mission: Any,
+def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mission: Mission,
                        positions: NDArray[np.float64] | None = None) -> dict[str, NDArray[Any]]:
     """Per image: pointing errors of the a-priori and the given (adjusted) attitudes against the truth.
 
@@ -100,15 +105,15 @@ def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mis
     """
     ids = [str(i) for i in image_ids]
     rotations = np.asarray(rotations, np.float64).reshape(-1, 3, 3)
-    true_c = np.array([mission.true_pose(i)[0] for i in ids]).reshape(-1, 3)
-    true_r = np.array([mission.true_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
+    true_c = np.array([mission.need_truth().true_pose(i)[0] for i in ids]).reshape(-1, 3)
+    true_r = np.array([mission.need_truth().true_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
     apri_c = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
     apri_r = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
     pos = apri_c if positions is None else np.asarray(positions, np.float64).reshape(-1, 3)
     cams = [mission.camera(i) for i in ids]
     adj_bore, adj_twist = pointing_error_components_urad(rotations, true_r)
     apr_bore, apr_twist = pointing_error_components_urad(apri_r, true_r)
-    surface = mission.surface()
+    surface = mission.need_truth().surface()
     catalog = getattr(mission, "catalog", None)
     if catalog is not None and {"image_id", "instrument"} <= set(catalog.columns):
         instrument_of = catalog.set_index("image_id")["instrument"]
@@ -131,7 +136,7 @@ def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mis
     }
 
 
-def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float64], mission: Any,
+def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float64], mission: Mission,
                  min_measures: NDArray[np.int64] | None = None,
                  positions: NDArray[np.float64] | None = None) -> dict[str, Any]:
     """The ``validation`` block of report.json: pointing (a-priori vs adjusted) and point errors.

@@ -7,6 +7,11 @@ tables of :mod:`mercury_dem.viz`.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 from pathlib import Path
 from typing import Any
 
@@ -26,10 +31,10 @@ def signed_lon(lon: Any) -> Any:
     return (np.asarray(lon, dtype=np.float64) + 180.0) % 360.0 - 180.0
 
 
-def coverage_figure(mission: Any, step_deg: float | None = None) -> Figure:
+def coverage_figure(mission: Mission, step_deg: float | None = None) -> Figure:
     """Number of images (a-priori pose) seeing each point of the mission's area."""
-    from mercury_dem.synth.coverage import mission_coverage
-    from mercury_dem.synth.info import coverage_step_deg
+    from mercury_dem.mission.coverage import mission_coverage
+    from mercury_dem.mission.summary import coverage_step_deg
 
     area = mission.meta.get("area_deg")
     step = step_deg or coverage_step_deg(len(mission.catalog))
@@ -179,18 +184,18 @@ def hillshade_figure(run: str | Path | RunStore, exaggeration: float | None = No
     return fig
 
 
-def dem_error(run: str | Path | RunStore, mission: Any) -> dict[str, Any]:
+def dem_error(run: str | Path | RunStore, mission: Mission) -> dict[str, Any]:
     """DEM minus the synthetic truth: lat, lon, error (m, NaN in gaps), distance_to_nearest_point (m)."""
     ds = _dem(run)
     lat, lon = ds["lat"].values, ds["lon"].values
     la, lo = np.meshgrid(lat, lon, indexing="ij")
-    truth = mission.surface().height(la, np.mod(lo, 360.0))
+    truth = mission.need_truth().surface().height(la, np.mod(lo, 360.0))
     err = ds["elevation"].values.astype(np.float64) - truth
     dist = ds["distance_to_nearest_point"].values if "distance_to_nearest_point" in ds else np.full(err.shape, np.nan)
     return {"lat": lat, "lon": lon, "error": err, "distance_to_nearest_point": dist}
 
 
-def dem_validation_figure(run: str | Path | RunStore, mission: Any) -> Figure:
+def dem_validation_figure(run: str | Path | RunStore, mission: Mission) -> Figure:
     """DEM minus truth: map, histogram, and error against the distance to the nearest control point."""
     d = dem_error(run, mission)
     err, lat, lon = d["error"], d["lat"], d["lon"]

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 from pathlib import Path
 from typing import Any
 
@@ -86,7 +91,7 @@ def point_residuals(network: Any) -> pd.DataFrame:
                          "rms_px": rms, "n_active": count})
 
 
-def image_residuals(network: Any, mission: Any | None = None) -> pd.DataFrame:
+def image_residuals(network: Any, mission: Mission | None = None) -> pd.DataFrame:
     """Per image of an adjusted network: image_id, rms_px, n_active, and (with the mission) the
     image centre lat, lon (deg, east -180..180) from the catalog."""
     active = network.active_measures() & np.all(np.isfinite(network.residuals), axis=1)

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +19,7 @@ from mercury_dem.validate.run import per_image_pointing
 from mercury_dem.viz.status import as_store
 
 
-def pointing_errors(run: str | Path | RunStore, mission: Any, level: str = "global", unit_id: int = 0) -> pd.DataFrame:
+def pointing_errors(run: str | Path | RunStore, mission: Mission, level: str = "global", unit_id: int = 0) -> pd.DataFrame:
     """Per image of a unit's solution against the truth: image_id, instrument, n_measures,
     a_priori_px, adjusted_px (the error in the image's own pixels: a pixel grid through
     the true pose onto the true surface, re-projected with the pose; the figure the
@@ -27,7 +32,7 @@ def pointing_errors(run: str | Path | RunStore, mission: Any, level: str = "glob
     are left out. Needs a mission with truth.
     """
     store = as_store(run)
-    if not getattr(mission, "has_truth", False):
+    if mission.truth is None:
         raise StoreError(f"mission {getattr(mission, 'path', '?')} has no truth; pointing errors need a synthetic mission")
     path = store.solution_path(level, unit_id)
     if not (store.unit_complete(level, unit_id) and path.is_file()):

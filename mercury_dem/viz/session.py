@@ -3,6 +3,11 @@ background, and following a run's progress from its store."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 import sys
 import threading
 import time
@@ -15,7 +20,7 @@ import pandas as pd
 from mercury_dem.viz.status import STATES, level_progress, unit_status
 
 
-def area_config(mission: Any, pixels_per_degree: float = 4.0, margin_deg: float = 10.0,
+def area_config(mission: Mission, pixels_per_degree: float = 4.0, margin_deg: float = 10.0,
                 overrides: dict[str, Any] | None = None) -> Any:
     """A configuration whose DEM covers the mission's area (``mission.json`` ``area_deg``) plus a margin.
 

@@ -28,7 +28,7 @@ TINY_CONFIG = {
 @pytest.fixture(scope="module")
 def mission(request: pytest.FixtureRequest) -> Path:
     try:
-        import mercury_dem.io.mission  # noqa: F401
+        import mercury_dem.mission  # noqa: F401
         import mercury_dem.pipeline.graph  # noqa: F401
         import mercury_dem.synth.generate  # noqa: F401
     except Exception as exc:  # noqa: BLE001 - any import failure means the pipeline cannot run yet

@@ -158,7 +158,7 @@ def test_resume_skips_finished_units_and_gives_the_same_result(
 def test_corrupt_image_is_named_and_the_run_goes_on(tiny_mission_path: Path, tmp_path: Path) -> None:
     mission = tmp_path / "mission"
     shutil.copytree(tiny_mission_path, mission)
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
 
     victim = open_mission(mission).image_ids[0]
     chunks = [p for p in (mission / "images.zarr" / victim).rglob("*") if p.is_file() and p.name != "zarr.json"]
@@ -211,7 +211,7 @@ def test_global_solution_does_not_depend_on_the_tile_size(sync_run: tuple[Path, 
     and merged. The two solutions must agree far better than either agrees with the
     truth (~0.37 px): measured 0.09 px RMS apart in each image's pixels (2026-11-22).
     """
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
     from mercury_dem.validate.run import image_space_error_px
 
     run10, rep10 = sync_run
@@ -224,7 +224,7 @@ def test_global_solution_does_not_depend_on_the_tile_size(sync_run: tuple[Path, 
     ids15, rot15, pos15, _ = read_solution(RunStore(tmp_path / "tiles15").solution_path("global", 0))
     assert set(map(str, ids10)) == set(map(str, ids15))
     mission = open_mission(tiny_mission_path)
-    height = mission.surface().height
+    height = mission.need_truth().surface().height
     at10 = {str(i): k for k, i in enumerate(ids10)}
     apart = np.array([
         image_space_error_px(mission.camera(str(i)), pos15[k], rot15[k], pos10[at10[str(i)]], rot10[at10[str(i)]], height)

@@ -13,8 +13,9 @@ from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.pose import angles_from_rotation, project
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import COMPLETE_MARKER
-from mercury_dem.io.mission import CATALOG_COLUMNS, open_mission
-from mercury_dem.synth.coverage import mission_coverage
+from mercury_dem.mission import open_mission
+from mercury_dem.mission.catalog import CATALOG_COLUMNS
+from mercury_dem.mission.coverage import mission_coverage
 from mercury_dem.synth.mission import perturb_poses, plan_mission, true_poses
 from mercury_dem.synth.presets import get_preset
 
@@ -83,17 +84,17 @@ def test_tiny_coverage_as_designed(tiny_mission):
 def test_truth_is_kept_apart_and_consistent(tiny_mission):
     assert tiny_mission.has_truth
     assert not any(c.startswith("true_") for c in tiny_mission.catalog.columns)
-    surf = tiny_mission.surface()
-    dem = tiny_mission.truth_dem()
+    surf = tiny_mission.truth.surface()
+    dem = tiny_mission.truth.dem()
     assert dem.dims == ("lat", "lon") and dem.shape == (240, 240)
     i, j = 37, 201
     lat, lon = float(dem.lat[i]), float(dem.lon[j])
     assert float(dem[i, j]) == pytest.approx(float(surf.height(lat, lon)), abs=0.01)
     # The image was rendered from the true pose: a-priori differs from it by the injected error.
     image_id = tiny_mission.image_ids[0]
-    c_t, r_t = tiny_mission.true_pose(image_id)
+    c_t, r_t = tiny_mission.truth.true_pose(image_id)
     c_a, r_a = tiny_mission.a_priori_pose(image_id)
-    t = tiny_mission.truth_poses.iloc[0]
+    t = tiny_mission.truth.poses.iloc[0]
     omega = angles_from_rotation(r_a @ r_t.T)
     assert np.allclose(omega, [t[f"pointing_error_{a}_rad"] for a in "xyz"], atol=1e-12)
     assert np.allclose(c_a - c_t, [t[f"position_error_{a}_m"] for a in "xyz"], atol=1e-6)
@@ -119,7 +120,7 @@ def test_a_priori_errors_have_the_configured_statistics():
 
 
 def test_tiny_mission_a_priori_errors_match_its_config(tiny_mission):
-    t = tiny_mission.truth_poses
+    t = tiny_mission.truth.poses
     om = t[[f"pointing_error_{a}_rad" for a in "xyz"]].to_numpy()
     n = om.size
     sigma = tiny_mission.meta["pointing_sigma_urad"] * 1e-6

@@ -7,7 +7,7 @@ import pytest
 
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.exceptions import StoreError
-from mercury_dem.io.mission import open_mission
+from mercury_dem.mission import open_mission
 from mercury_dem.synth.generate import generate_mission
 from mercury_dem.synth.presets import MissionDesign
 from mercury_dem.synth.terrain import SurfaceParams
@@ -29,7 +29,7 @@ def test_dask_generation_equals_the_plain_loop(tmp_path):
     assert a.image_ids == b.image_ids
     for image_id in a.image_ids:
         assert np.array_equal(a.read_image(image_id), b.read_image(image_id))
-    assert np.array_equal(a.truth_dem().values, b.truth_dem().values)
+    assert np.array_equal(a.truth.dem().values, b.truth.dem().values)
 
 
 def test_a_failed_generation_leaves_nothing_behind(tmp_path, monkeypatch):
@@ -63,6 +63,6 @@ def test_a_partial_mission_is_the_same_images_and_is_marked(tmp_path):
     for image_id in b.image_ids:
         assert np.array_equal(a.read_image(image_id), b.read_image(image_id))
         assert np.allclose(a.a_priori_pose(image_id)[1], b.a_priori_pose(image_id)[1], rtol=0, atol=0)
-    assert len(b.truth_poses) == 2
+    assert len(b.truth.poses) == 2
     with pytest.raises(ConfigError, match="selects none"):
         generate_mission(tmp_path / "none", cfg, design=MINI, images="50:60")

@@ -214,7 +214,7 @@ def accuracy() -> None:
 def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None, breakdown: bool = False) -> None:
     """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
     from mercury_dem.geometry.footprints import overlap_graph
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
 
     ms = open_mission(path)
     ids = ms.image_ids
@@ -236,8 +236,8 @@ def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None =
     used = sorted({x for p in pairs for x in p})
     images = {i: ms.read_image(i) for i in used}
     geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, p, r in zip(ids, cams, pos, rot) if i in images}
-    truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(ids, cams) if i in images}
-    surface = ms.surface()
+    truth = {i: TruePose(c, *ms.need_truth().true_pose(i)) for i, c in zip(ids, cams) if i in images}
+    surface = ms.need_truth().surface()
     overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
     t0 = time.perf_counter()
     m, reps = match_tile(images, geom, pairs, config or MatchConfig(threads=2))
@@ -451,7 +451,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     (:func:`mercury_dem.validate.matching.network_true_errors`).
     """
     from mercury_dem.config import Config
-    from mercury_dem.io.mission import open_mission
+    from mercury_dem.mission import open_mission
     from mercury_dem.network.build import build_network
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.pipeline.stages import tile_pairs
@@ -463,7 +463,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     store = RunStore(run_dir)
     images, pairs, info = store.read_plan()
     tiles = sorted(set(images.loc[images["excluded_reason"] == "", "tile_id"].tolist()))
-    surface = ms.surface()
+    surface = ms.need_truth().surface()
     rays_all: list[np.ndarray] = []
     errs: list[np.ndarray] = []
     pair_err: list[np.ndarray] = []
@@ -483,7 +483,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         cams = [ms.camera(i) for i in involved]
         poses = [ms.a_priori_pose(i) for i in involved]
         geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, (p, r) in zip(involved, cams, poses)}
-        truth = {i: TruePose(c, *ms.true_pose(i)) for i, c in zip(involved, cams)}
+        truth = {i: TruePose(c, *ms.need_truth().true_pose(i)) for i, c in zip(involved, cams)}
         t0 = time.perf_counter()
         m, reps = match_tile(pix, geom, pl, mcfg, tracks=tracks)
         t_match += time.perf_counter() - t0

@@ -9,6 +9,11 @@ that see it. Used by ``mercury-dem info`` and the tests of the presets.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
+
 from collections.abc import Sequence
 from typing import Any
 
@@ -83,12 +88,12 @@ def coverage(
 
 
 def mission_coverage(
-    mission: Any, step_deg: float = 1.0, bounds: tuple[float, float, float, float] | None = None
+    mission: Mission, step_deg: float = 1.0, bounds: tuple[float, float, float, float] | None = None
 ) -> dict[str, NDArray[Any]]:
     """Coverage of a mission (a-priori poses) on a lat/lon grid: lat, lon, count, convergence_deg."""
     lat, lon = grid_points(step_deg, bounds)
     ids = mission.image_ids
     cams = [mission.camera(i) for i in ids]
     pos, rot = mission.a_priori_poses()
-    count, conv, _ = coverage(cams, pos, rot, lat, np.mod(lon, 360.0))
+    count, conv, _ = coverage(cams, pos, rot, lat, np.mod(lon, 360.0), mission.body.datum_radius_m)
     return {"lat": lat, "lon": lon, "count": count, "convergence_deg": conv}

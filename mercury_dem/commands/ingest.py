@@ -1,0 +1,40 @@
+"""``mercury-dem ingest MISSION FILE...``: a mission from ISIS cubes with SPICE and/or images with CSM ISDs."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from mercury_dem.config import Config
+
+NAME = "ingest"
+HELP = "build a mission from real images: ISIS cubes after spiceinit attach=true, or images beside CSM ISDs"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mission", metavar="MISSION", help="mission directory to create")
+    p.add_argument("files", metavar="FILE", nargs="+",
+                   help="cubes (.cub), ISDs (.json) or images with an ISD of the same stem; globs allowed")
+    p.add_argument("--isd-dir", metavar="DIR", help="where the ISDs of the given image files are")
+    p.add_argument("--min-scale-m", type=float, help="drop images with a finer pixel scale (seed 000: 75)")
+    p.add_argument("--max-scale-m", type=float, help="drop images with a coarser pixel scale (seed 000: 800)")
+    p.add_argument("--instrument", action="append", metavar="NAME",
+                   help="keep only this instrument (e.g. MDIS-NAC); repeat for several")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing MISSION")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.mission.ingest import describe, ingest_mission
+
+    summary = ingest_mission(
+        args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
+        instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
+    )
+    if args.json:
+        cat = summary.pop("catalog")
+        summary["images_table"] = json.loads(cat.to_json(orient="records"))
+        print(json.dumps(summary, indent=2))
+    else:
+        print(describe(summary))
+    return 0

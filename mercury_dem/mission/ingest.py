@@ -1,0 +1,369 @@
+"""Ingest: a mission from real images — ISIS cubes with SPICE attached, or images beside CSM ISDs.
+
+:func:`ingest_mission` is the stage runner behind ``mercury-dem ingest``. For each input:
+
+* ``*.cub`` — an ISIS3 level-1 cube after ``spiceinit attach=true``: label, pixels (special
+  pixels -> NaN), the exterior orientation at the exposure centre from its SPICE tables
+  (:mod:`mercury_dem.sources`) and the camera from its ``NaifKeywords``
+  (:func:`mercury_dem.geometry.naif_camera.camera_from_naif`: focal plane map, distortion,
+  AlphaCube crop/reduce, the look direction);
+* ``*.json`` — a CSM frame ISD (ALE or usgscsm layout, :func:`mercury_dem.geometry.isd.read_isd`)
+  with its image beside it (or in ``--isd-dir``'s counterpart): any GDAL-readable raster (PDS3
+  ``.IMG``, GeoTIFF, PNG) or an ISIS cube, matched by file stem (``X.json`` <-> ``X.png``, or
+  ``X_anything.png`` when exactly one such image exists).
+
+Every input that cannot be used is rejected with a reason naming the file and what to do
+(no SPICE: "run spiceinit attach=true"; image size != camera size; unknown distortion model;
+another body than the rest) and the others go on; the selection of seed 000 (pixel scale
+range, instruments) is applied after geometry is known. The mission directory is written
+under a temporary name and renamed when complete (nothing half-written is left).
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.exceptions import MercuryDemError, StoreError
+from mercury_dem.geometry.body import Body, body_by_name
+from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.io.atomic import atomic_directory
+from mercury_dem.mission.cameras import camera_to_dict
+from mercury_dem.mission.catalog import build_catalog
+from mercury_dem.mission.radiometry import Radiometry, float_radiometry, radiometry_of_dtype, robust_range
+from mercury_dem.mission.store import MissionWriter
+
+IMAGE_SUFFIXES = (".cub", ".img", ".tif", ".tiff", ".png", ".jp2", ".jpg")
+
+
+@dataclass
+class SourceImage:
+    """One image read from its files: pixels, camera, a-priori pose, sun, and where it came from."""
+
+    image_id: str
+    instrument: str
+    camera: FramingCamera
+    position: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+    sun: NDArray[np.float64]
+    time: float
+    body: Body
+    pixels: NDArray[Any]
+    files: list[str]
+    serial_number: str | None = None
+    bits: int | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+class IngestError(MercuryDemError):
+    """One input cannot become an image of the mission (the message names the file and why)."""
+
+
+def expand_inputs(patterns: Sequence[str]) -> list[Path]:
+    """Files named by paths or globs, in a stable order; a pattern matching nothing is an error."""
+    out: list[Path] = []
+    for pat in patterns:
+        hits = sorted(glob.glob(pat)) if any(ch in pat for ch in "*?[") else [pat]
+        if not hits:
+            raise StoreError(f"ingest: {pat!r} matches no file")
+        for h in hits:
+            p = Path(h)
+            if p not in out:
+                out.append(p)
+    return out
+
+
+def _body_of(name: str | None, source: str) -> Body:
+    if not name:
+        raise IngestError(f"{source}: the target body is not named (TargetName / target_name)")
+    try:
+        return body_by_name(name)
+    except ValueError as exc:
+        raise IngestError(f"{source}: {exc}") from None
+
+
+def _instrument_name(spacecraft: str | None, instrument: str | None) -> str:
+    sc = (spacecraft or "").strip().upper().replace(" ", "")
+    inst = (instrument or "").strip().upper()
+    if sc.startswith("MESSENGER") and inst.startswith("MDIS"):
+        return inst  # MDIS-NAC / MDIS-WAC, the synthetic missions' names
+    return f"{sc}/{inst}" if sc else inst or "UNKNOWN"
+
+
+def read_cube_image(path: Path) -> SourceImage:
+    """A cube with SPICE attached -> one image (IngestError naming the cube otherwise)."""
+    from mercury_dem.geometry.naif_camera import camera_from_naif
+    from mercury_dem.sources.isis_cube import naif_keywords, open_cube, read_pixels
+    from mercury_dem.sources.isis_cube import alpha_cube as cube_alpha
+    from mercury_dem.sources.isis_spice import cube_spice
+
+    cube = open_cube(path)
+    spice = cube_spice(cube)  # CubeError "... run spiceinit attach=true" when there is no SPICE
+    body = _body_of(cube.target_name, str(path))
+    keywords = naif_keywords(cube)
+    name = _instrument_name(cube.spacecraft_name, cube.instrument_id)
+    camera, inst_to_cam = camera_from_naif(
+        keywords, spice.ik_code, cube.samples, cube.lines, name=name, summing=cube.summing or 1,
+        alpha=cube_alpha(cube),
+    )
+    pixels, valid = read_pixels(cube)
+    if cube.pixel_type == "Real":
+        image: NDArray[Any] = np.where(valid, pixels, np.nan).astype(np.float32)
+        bits = None
+    else:
+        image, bits = _integer_image(pixels, valid, cube.pixel_type)
+    return SourceImage(
+        image_id=path.name.split(".")[0], instrument=name, camera=camera, position=spice.position,
+        rotation=inst_to_cam @ spice.body_to_instrument, sun=spice.sun_position, time=spice.et, body=body,
+        pixels=image, files=[str(path)], serial_number=spice.serial_number, bits=bits,
+    )
+
+
+def _integer_image(pixels: NDArray[np.float32], valid: NDArray[np.bool_], pixel_type: str) -> tuple[NDArray[Any], int | None]:
+    """Integer DN of a cube as the smallest type the mission stores; invalid pixels become NaN floats."""
+    if not valid.all():
+        return np.where(valid, pixels, np.nan).astype(np.float32), None
+    top = float(np.nanmax(pixels)) if pixels.size else 0.0
+    if pixel_type == "UnsignedByte":
+        return pixels.astype(np.uint8), 8
+    if float(np.nanmin(pixels)) >= 0 and top <= 65535 and np.all(pixels == np.round(pixels)):
+        return pixels.astype(np.uint16), None
+    return pixels.astype(np.float32), None
+
+
+def _find_image(isd: Path, image_dirs: Sequence[Path]) -> Path:
+    stem = isd.stem
+    for d in image_dirs:
+        exact = [d / f"{stem}{s}" for s in IMAGE_SUFFIXES if (d / f"{stem}{s}").is_file()]
+        exact += [d / f"{stem}{s.upper()}" for s in IMAGE_SUFFIXES if (d / f"{stem}{s.upper()}").is_file()]
+        if exact:
+            return exact[0]
+    cands = []
+    for d in image_dirs:
+        if d.is_dir():
+            cands += [p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                      and p.stem.startswith(stem) and len(p.stem) > len(stem) and not p.stem[len(stem)].isalnum()]
+    if len(cands) == 1:
+        return cands[0]
+    where = ", ".join(str(d) for d in image_dirs)
+    if not cands:
+        raise IngestError(f"ISD {isd}: no image named {stem}.* or {stem}_*.* in {where}; put the image beside its "
+                          "ISD (same stem) or pass the image files with --isd-dir pointing at the ISDs")
+    raise IngestError(f"ISD {isd}: several images could be its image ({', '.join(sorted(str(c) for c in cands))}); "
+                      "rename them so one has the ISD's stem")
+
+
+def _read_raster(path: Path) -> NDArray[Any]:
+    """The first band of any raster GDAL reads (nodata -> NaN in a float image)."""
+    if path.suffix.lower() == ".cub":
+        from mercury_dem.sources.isis_cube import open_cube, read_pixels
+
+        cube = open_cube(path)
+        px, valid = read_pixels(cube)
+        return np.where(valid, px, np.nan).astype(np.float32) if cube.pixel_type == "Real" or not valid.all() \
+            else _integer_image(px, valid, cube.pixel_type)[0]
+    import rasterio
+    from rasterio.errors import RasterioIOError
+
+    try:
+        with rasterio.open(path) as src:
+            band = src.read(1, masked=True)
+    except (RasterioIOError, ValueError, OSError) as exc:
+        raise IngestError(f"image {path}: GDAL cannot read it ({exc})") from None
+    data = np.asarray(band.data)
+    mask = np.ma.getmaskarray(band)
+    if data.dtype in (np.uint8, np.uint16, np.int16) and not mask.any():
+        return data
+    return np.where(mask, np.nan, data.astype(np.float32)).astype(np.float32)
+
+
+def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
+    """A CSM frame ISD and its image -> one image."""
+    from mercury_dem.geometry.isd import read_isd
+
+    try:
+        raw = json.loads(isd_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise IngestError(f"ISD {isd_path}: not readable JSON ({exc})") from None
+    if not isinstance(raw, dict):
+        raise IngestError(f"ISD {isd_path}: the top level is not a JSON object")
+    g = read_isd(isd_path)
+    target = raw.get("name_target") or raw.get("target_name")
+    body = _body_of(str(target) if target else None, str(isd_path))
+    image_path = _find_image(isd_path, image_dirs)
+    image = _read_raster(image_path)
+    name = _instrument_name(str(raw.get("name_platform") or raw.get("spacecraft_name") or ""),
+                            str(raw.get("name_sensor") or raw.get("instrument_id") or ""))
+    cam = g.camera
+    if image.shape != (cam.lines, cam.samples):
+        raise IngestError(f"image {image_path}: {image.shape[1]} x {image.shape[0]} pixels, but its ISD {isd_path} "
+                          f"describes {cam.samples} x {cam.lines}; give the image the ISD was made for")
+    return SourceImage(
+        image_id=isd_path.stem, instrument=name, camera=cam, position=g.position, rotation=g.rotation,
+        sun=g.sun_position if g.sun_position is not None else np.full(3, np.nan), time=g.ephemeris_time,
+        body=body, pixels=image, files=[str(isd_path), str(image_path)],
+        bits=8 if image.dtype == np.uint8 else None, notes=list(g.warnings),
+    )
+
+
+def camera_key(camera: FramingCamera) -> str:
+    """A camera id: the instrument name and a short hash of every field (equal cameras share one id)."""
+    blob = json.dumps(camera_to_dict(camera), sort_keys=True).encode()
+    return f"{camera.name}-{hashlib.sha1(blob).hexdigest()[:8]}"
+
+
+def _radiometry(images: list[SourceImage]) -> list[Radiometry]:
+    floats = [im for im in images if im.pixels.dtype.kind == "f"]
+    shared = float_radiometry([robust_range(im.pixels) for im in floats]) if floats else None
+    out = []
+    for im in images:
+        out.append(shared if im.pixels.dtype.kind == "f" else radiometry_of_dtype(im.pixels.dtype, im.bits))  # type: ignore[arg-type]
+    return out
+
+
+def ingest_mission(
+    out: str | Path,
+    inputs: Sequence[str],
+    *,
+    isd_dir: str | Path | None = None,
+    min_scale_m: float | None = None,
+    max_scale_m: float | None = None,
+    instruments: Sequence[str] | None = None,
+    tile_size_deg: float = 10.0,
+    overwrite: bool = False,
+) -> dict[str, Any]:
+    """Build the mission at ``out`` from cubes and/or ISDs; return a summary (images, rejected, seconds).
+
+    ``inputs`` are cube, ISD or image paths (globs allowed). An image file given without an ISD is
+    paired with the ISD of its stem in ``isd_dir`` (or beside it). Rejected inputs are listed with
+    their reason; with no usable image at all, StoreError (nothing is written).
+    """
+    t0 = time.perf_counter()
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise StoreError(f"{out} already exists; pass --overwrite to replace it (or choose another MISSION)")
+    files = expand_inputs(inputs)
+    isd_dirs = [Path(isd_dir)] if isd_dir is not None else []
+    images: list[SourceImage] = []
+    rejected: dict[str, str] = {}
+    seen_isds: set[Path] = set()
+    for f in files:
+        try:
+            suffix = f.suffix.lower()
+            if not f.is_file():
+                raise IngestError(f"{f}: no such file")
+            if suffix == ".cub" and not isd_dirs:
+                images.append(read_cube_image(f))
+            elif suffix == ".json":
+                seen_isds.add(f.resolve())
+                images.append(read_isd_image(f, [f.parent, *isd_dirs]))
+            elif suffix in IMAGE_SUFFIXES:
+                isd = next((d / f"{f.stem}.json" for d in [*isd_dirs, f.parent] if (d / f"{f.stem}.json").is_file()), None)
+                if isd is None:
+                    raise IngestError(f"{f}: an image without geometry (no {f.stem}.json ISD beside it or in "
+                                      "--isd-dir); give a cube with SPICE attached or the image's CSM ISD")
+                if isd.resolve() in seen_isds:
+                    continue
+                seen_isds.add(isd.resolve())
+                images.append(read_isd_image(isd, [f.parent]))
+            else:
+                raise IngestError(f"{f}: not a cube (.cub), an ISD (.json) or an image ({', '.join(IMAGE_SUFFIXES)})")
+        except MercuryDemError as exc:
+            rejected[str(f)] = str(exc)
+    images = _dedupe(images, rejected)
+    if images:
+        bodies = sorted({im.body.name for im in images})
+        if len(bodies) > 1:
+            main = max(bodies, key=lambda b: sum(im.body.name == b for im in images))
+            for im in [im for im in images if im.body.name != main]:
+                rejected[im.files[0]] = f"{im.files[0]}: target {im.body.name}, but the mission's body is {main}"
+            images = [im for im in images if im.body.name == main]
+    if not images:
+        detail = "; ".join(f"{k}: {v}" for k, v in list(rejected.items())[:5])
+        raise StoreError(f"ingest: no usable image among {len(files)} inputs ({detail})")
+    body = images[0].body
+    cameras = {camera_key(im.camera): im.camera for im in images}
+    cam_ids = [camera_key(im.camera) for im in images]
+    catalog = build_catalog(
+        [im.image_id for im in images], [im.instrument for im in images], cameras, cam_ids,
+        np.array([im.time for im in images]), np.array([im.position for im in images]),
+        np.array([im.rotation for im in images]), np.array([im.sun for im in images]),
+        body, tile_size_deg, _radiometry(images),
+        extra={"serial_number": [im.serial_number or "" for im in images]},
+    )
+    keep = np.ones(len(images), bool)
+    scale = catalog["pixel_scale_m"].to_numpy()
+    for k, im in enumerate(images):
+        why = None
+        if not np.isfinite(catalog["center_lat"].iat[k]):
+            why = "its centre pixel does not see the body (a-priori pointing off the limb?)"
+        elif min_scale_m is not None and not scale[k] >= min_scale_m:
+            why = f"pixel scale {scale[k]:.1f} m is below --min-scale-m {min_scale_m:g}"
+        elif max_scale_m is not None and not scale[k] <= max_scale_m:
+            why = f"pixel scale {scale[k]:.1f} m is above --max-scale-m {max_scale_m:g}"
+        elif instruments and im.instrument not in instruments:
+            why = f"instrument {im.instrument} is not among --instrument {', '.join(instruments)}"
+        if why:
+            keep[k] = False
+            rejected[im.files[0]] = f"{im.image_id}: {why}"
+    if not keep.any():
+        detail = "; ".join(f"{k}: {v}" for k, v in list(rejected.items())[:5])
+        raise StoreError(f"ingest: every image was rejected ({detail})")
+    images = [im for im, k in zip(images, keep) if k]
+    catalog = catalog[keep].reset_index(drop=True)
+    cameras = {k: c for k, c in cameras.items() if k in set(catalog["camera_id"])}
+    meta = {"source": "ingest", "tile_size_deg": tile_size_deg, "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "selection": {"min_scale_m": min_scale_m, "max_scale_m": max_scale_m,
+                          "instruments": list(instruments) if instruments else None},
+            "rejected": rejected}
+    with atomic_directory(out, overwrite=overwrite) as tmp:
+        writer = MissionWriter(tmp)
+        for im in images:
+            writer.write_image(tmp, im.image_id, im.pixels)
+        writer.finish(meta, body, cameras, catalog,
+                      sources={im.image_id: {"files": im.files, "serial_number": im.serial_number, "notes": im.notes}
+                               for im in images})
+    return {
+        "path": str(out), "body": body.name, "images": len(images), "inputs": len(files),
+        "rejected": rejected, "cameras": sorted(cameras), "seconds": time.perf_counter() - t0,
+        "catalog": catalog,
+    }
+
+
+def _dedupe(images: list[SourceImage], rejected: dict[str, str]) -> list[SourceImage]:
+    out: list[SourceImage] = []
+    seen: dict[str, str] = {}
+    for im in images:
+        if im.image_id in seen:
+            rejected[im.files[0]] = (f"{im.image_id}: the same image id as {seen[im.image_id]}; "
+                                     "give each image once")
+            continue
+        seen[im.image_id] = im.files[0]
+        out.append(im)
+    return out
+
+
+def describe(summary: dict[str, Any]) -> str:
+    """The printed summary of an ingest."""
+    cat = summary["catalog"]
+    lines = [f"mission {summary['path']}: {summary['images']} images of {summary['body']} "
+             f"from {summary['inputs']} inputs ({summary['seconds']:.1f} s)"]
+    for _, r in cat.iterrows():
+        lines.append(f"  {r['image_id']:<28s} {r['instrument']:<18s} {r['samples']}x{r['lines']}  "
+                     f"centre {r['center_lat']:8.3f} {r['center_lon']:8.3f}  {r['pixel_scale_m']:8.1f} m/px  "
+                     f"inc {r['incidence_deg']:5.1f} emi {r['emission_deg']:5.1f} tile {r['tile_id']}")
+    for f, why in summary["rejected"].items():
+        lines.append(f"  rejected {f}: {why}")
+    if not math.isfinite(float(cat["incidence_deg"].iloc[0])):
+        lines.append("  (no sun position in the geometry: incidence and phase are unknown)")
+    return "\n".join(lines)

@@ -1,0 +1,304 @@
+"""The mission store: the seam between where images come from and every stage.
+
+A mission is the same on disk whether ``mercury-dem synth`` or ``mercury-dem ingest``
+wrote it (both through :class:`MissionWriter`)::
+
+    MISSION/
+      mission.json      format, version, source, body, counts, the writer's facts
+      cameras.json      the camera table: camera id -> camera fields (mercury_dem.mission.cameras)
+      catalog.parquet   one row per image (mercury_dem.mission.catalog.CATALOG_COLUMNS): ids, camera id,
+                        time, A-PRIORI pose, sun, centre, pixel scale, angles, tile, footprint, radiometry
+      images.zarr/      one Zarr v3 array per image id (one chunk per image): uint8, uint16, int16
+                        or float32; in float images NaN marks invalid (ISIS special) pixels
+      sources.json      (ingested missions) image id -> the files it was read from
+      truth/            (synthetic missions) read only by validation: mercury_dem.mission.truth
+      .complete         written last (mercury_dem.io.atomic)
+
+Version 1 missions (synthetic, before the camera table) are read too: their cameras
+are the MDIS presets named by instrument and size, their body Mercury, their pixels
+12-bit DN.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from mercury_dem.exceptions import StoreError
+from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.camera import FramingCamera, camera_preset
+from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_write_json, is_complete
+from mercury_dem.mission.cameras import camera_from_dict, camera_to_dict
+from mercury_dem.mission.catalog import (
+    CATALOG_COLUMNS,
+    CATALOG_COLUMNS_V1,
+    FOOTPRINT_COLUMNS,
+    POSITION_COLUMNS,
+    ROTATION_COLUMNS,
+    SUN_COLUMNS,
+)
+from mercury_dem.mission.radiometry import DN12, Radiometry
+from mercury_dem.mission.truth import SyntheticTruth, open_truth
+
+FORMAT = "mercury-dem-mission"
+VERSION = 2
+IMAGE_DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.int16), np.dtype(np.float32))
+
+
+# --------------------------------------------------------------------------- writing
+class MissionWriter:
+    """Writes a mission directory under construction (inside :func:`~mercury_dem.io.atomic.atomic_directory`).
+
+    ``write_image`` is safe from parallel workers (one array per image);
+    ``finish`` writes the tables last.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        import zarr
+
+        self.root = Path(root)
+        zarr.open_group(str(self.root / "images.zarr"), mode="w")
+
+    @staticmethod
+    def write_image(root: str | Path, image_id: str, image: NDArray[Any]) -> None:
+        """Write one image as ``images.zarr/<image_id>``; NaN marks invalid pixels of a float image."""
+        write_image(root, image_id, image)
+
+    def finish(
+        self,
+        meta: dict[str, Any],
+        body: Body,
+        cameras: dict[str, FramingCamera],
+        catalog: pd.DataFrame,
+        sources: dict[str, Any] | None = None,
+    ) -> None:
+        """Write cameras.json, catalog.parquet, sources.json and mission.json (last)."""
+        missing = [c for c in CATALOG_COLUMNS if c not in catalog.columns]
+        if missing:
+            raise StoreError(f"catalog lacks columns {missing}; the mission would not be readable")
+        unknown = sorted(set(catalog["camera_id"].astype(str)) - set(cameras))
+        if unknown:
+            raise StoreError(f"catalog names cameras {unknown} that are not in the camera table")
+        atomic_write_json(self.root / "cameras.json", {k: camera_to_dict(c) for k, c in cameras.items()})
+        extra = [c for c in catalog.columns if c not in CATALOG_COLUMNS]
+        catalog[CATALOG_COLUMNS + extra].to_parquet(self.root / "catalog.parquet", index=False)
+        if sources is not None:
+            atomic_write_json(self.root / "sources.json", sources)
+        atomic_write_json(self.root / "mission.json", {
+            "format": FORMAT, "version": VERSION, **meta, "body": body.to_dict(), "n_images": int(len(catalog)),
+        })
+
+
+def write_image(root: str | Path, image_id: str, image: NDArray[Any]) -> None:
+    """Write one image as its own array ``images.zarr/<image_id>`` (safe from parallel workers)."""
+    import zarr
+
+    img = np.asarray(image)
+    if img.ndim != 2 or img.dtype not in IMAGE_DTYPES:
+        raise StoreError(f"image {image_id}: expected a 2-D array of {[str(d) for d in IMAGE_DTYPES]}, "
+                         f"got {img.dtype} {img.shape}")
+    arr = zarr.create_array(
+        store=str(Path(root) / "images.zarr" / image_id), shape=img.shape, chunks=img.shape, dtype=img.dtype,
+        overwrite=True,
+    )
+    arr[...] = img
+
+
+# --------------------------------------------------------------------------- reading
+class Mission:
+    """A mission on disk: catalog, camera table, body, image reader; truth when synthetic.
+
+    Use :func:`open_mission`. Attributes: ``path``, ``meta`` (mission.json), ``catalog``
+    (DataFrame, a-priori geometry only), ``body`` (:class:`~mercury_dem.geometry.body.Body`),
+    ``cameras`` (camera id -> camera), ``truth`` (:class:`SyntheticTruth` or None).
+    """
+
+    def __init__(self, path: Path, meta: dict[str, Any], catalog: pd.DataFrame,
+                 cameras: dict[str, FramingCamera], body: Body) -> None:
+        self.path = path
+        self.meta = meta
+        self.catalog = catalog
+        self.cameras = cameras
+        self.body = body
+        self._row = {str(i): k for k, i in enumerate(catalog["image_id"])}
+        self._pos = catalog[POSITION_COLUMNS].to_numpy(np.float64)
+        self._rot = catalog[ROTATION_COLUMNS].to_numpy(np.float64).reshape(-1, 3, 3)
+        self._sun = catalog[SUN_COLUMNS].to_numpy(np.float64)
+        self._cam = catalog["camera_id"].astype(str).to_numpy()
+
+    def __repr__(self) -> str:
+        return (f"Mission({str(self.path)!r}, {len(self.catalog)} images, body={self.body.name}, "
+                f"source={self.meta.get('source', 'synthetic')!r})")
+
+    def __len__(self) -> int:
+        return len(self.catalog)
+
+    @property
+    def image_ids(self) -> list[str]:
+        return [str(i) for i in self.catalog["image_id"]]
+
+    @property
+    def tile_size_deg(self) -> float:
+        return float(self.meta.get("tile_size_deg", 10.0))
+
+    def _index(self, image_id: str) -> int:
+        try:
+            return self._row[str(image_id)]
+        except KeyError:
+            raise StoreError(f"image {image_id!r} is not in the catalog of mission {self.path}") from None
+
+    def camera(self, image_id: str) -> FramingCamera:
+        """The camera model of an image (from the mission's camera table)."""
+        return self.cameras[self._cam[self._index(image_id)]]
+
+    def a_priori_pose(self, image_id: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(position (3,) body-fixed m, rotation (3, 3) body->camera) as SPICE gives them."""
+        k = self._index(image_id)
+        return self._pos[k].copy(), self._rot[k].copy()
+
+    def a_priori_poses(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """All a-priori positions (N, 3) and rotations (N, 3, 3), catalog order."""
+        return self._pos.copy(), self._rot.copy()
+
+    def sun_position(self, image_id: str) -> NDArray[np.float64]:
+        """Sun position (3,) body-fixed metres at the image time."""
+        return self._sun[self._index(image_id)].copy()
+
+    def radiometry(self, image_id: str) -> Radiometry:
+        """What the image's pixel values mean (kind, saturation, DN scale)."""
+        k = self._index(image_id)
+        c = self.catalog
+        return Radiometry(str(c["pixel_kind"].iat[k]), float(c["saturation"].iat[k]), float(c["dn_scale"].iat[k]))
+
+    def read_image(self, image_id: str) -> NDArray[Any]:
+        """Pixels (lines, samples) as stored (uint8/uint16/int16 DN or float32 with NaN = invalid).
+
+        StoreError naming the image when the array is missing, corrupt or the wrong shape.
+        """
+        import zarr
+
+        k = self._index(image_id)
+        p = self.path / "images.zarr" / str(image_id)
+        try:
+            arr = zarr.open_array(str(p), mode="r")
+            data = np.asarray(arr[...])
+        except Exception as exc:  # zarr raises several types for missing/corrupt arrays
+            raise StoreError(
+                f"image {image_id}: cannot read {p} ({type(exc).__name__}: {exc}); "
+                f"regenerate or re-ingest the mission"
+            ) from None
+        shape = (int(self.catalog["lines"].iat[k]), int(self.catalog["samples"].iat[k]))
+        if data.ndim != 2 or data.dtype not in IMAGE_DTYPES:
+            raise StoreError(f"image {image_id}: {p} holds {data.dtype} {data.shape}, expected a 2-D image")
+        if data.shape != shape:
+            raise StoreError(f"image {image_id}: {p} is {data.shape}, its camera is {shape} (lines, samples)")
+        return data
+
+    def read_image_masked(self, image_id: str) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+        """(pixels as float32 with NaN at invalid pixels, validity mask) of an image."""
+        data = self.read_image(image_id)
+        f = data.astype(np.float32, copy=False)
+        valid = np.isfinite(f)
+        return f, valid
+
+    @cached_property
+    def truth(self) -> SyntheticTruth | None:
+        """The truth of a synthetic mission (validation only); None for real images."""
+        return open_truth(self.path, self.catalog["image_id"])
+
+    @property
+    def has_truth(self) -> bool:
+        return self.truth is not None
+
+    def need_truth(self) -> SyntheticTruth:
+        """The truth, or StoreError when the mission has none (real images)."""
+        t = self.truth
+        if t is None:
+            raise StoreError(f"mission {self.path} has no truth/ (only synthetic missions do)")
+        return t
+
+
+def _v1_cameras(catalog: pd.DataFrame) -> tuple[pd.DataFrame, dict[str, FramingCamera]]:
+    """Camera table and radiometry of a version-1 (synthetic) catalog: MDIS presets, 12-bit DN."""
+    cat = catalog.copy()
+    keys = [f"{i}@{int(s)}" for i, s in zip(cat["instrument"].astype(str), cat["samples"])]
+    cameras = {}
+    for key in sorted(set(keys)):
+        inst, _, samples = key.partition("@")
+        cameras[key] = camera_preset(inst, int(samples))
+    cat["camera_id"] = keys
+    for k in FOOTPRINT_COLUMNS:
+        cat[k] = np.nan
+    cat["pixel_kind"], cat["saturation"], cat["dn_scale"] = DN12.pixel_kind, DN12.saturation, DN12.dn_scale
+    return cat, cameras
+
+
+def open_mission(path: str | Path) -> Mission:
+    """Open a complete mission directory.
+
+    Raises
+    ------
+    StoreError
+        when the directory is missing, was not written to completion (interrupted
+        generation), is not a mission, or its tables are missing or inconsistent.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise StoreError(f"mission {p} does not exist; create one with 'mercury-dem synth {p}' "
+                         f"or 'mercury-dem ingest {p} FILE...'")
+    if not p.is_dir():
+        raise StoreError(f"mission {p} is not a directory")
+    if not is_complete(p):
+        raise StoreError(
+            f"mission {p} is incomplete (no {COMPLETE_MARKER} marker: its writing was interrupted); "
+            "delete it and write it again"
+        )
+    try:
+        meta = json.loads((p / "mission.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise StoreError(f"mission {p}: cannot read mission.json ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise StoreError(f"{p} is not a mercury-dem mission (mission.json format "
+                         f"{meta.get('format') if isinstance(meta, dict) else None!r})")
+    try:
+        version = int(meta.get("version", -1))
+    except (TypeError, ValueError):
+        version = -1
+    if version > VERSION or version < 1:
+        raise StoreError(f"mission {p} has format version {meta.get('version')!r}; this reader reads 1..{VERSION}")
+    try:
+        catalog = pd.read_parquet(p / "catalog.parquet")
+    except Exception as exc:  # pyarrow raises its own error types
+        raise StoreError(f"mission {p}: cannot read catalog.parquet ({exc})") from None
+    need = CATALOG_COLUMNS if version >= 2 else CATALOG_COLUMNS_V1
+    missing = [c for c in need if c not in catalog.columns]
+    if missing:
+        raise StoreError(f"mission {p}: catalog.parquet lacks columns {missing}")
+    if catalog["image_id"].duplicated().any():
+        dup = catalog["image_id"][catalog["image_id"].duplicated()].tolist()[:5]
+        raise StoreError(f"mission {p}: duplicate image ids in the catalog, e.g. {dup}")
+    if version == 1:
+        catalog, cameras = _v1_cameras(catalog)
+        body = MERCURY
+    else:
+        try:
+            table = json.loads((p / "cameras.json").read_text())
+        except (OSError, ValueError) as exc:
+            raise StoreError(f"mission {p}: cannot read cameras.json ({exc})") from None
+        if not isinstance(table, dict):
+            raise StoreError(f"mission {p}: cameras.json is not an object of camera id -> camera")
+        cameras = {str(k): camera_from_dict(v, f"mission {p}: cameras.json camera {k!r}") for k, v in table.items()}
+        unknown = sorted(set(catalog["camera_id"].astype(str)) - set(cameras))
+        if unknown:
+            raise StoreError(f"mission {p}: catalog names cameras {unknown[:5]} that cameras.json lacks")
+        try:
+            body = Body.from_dict(meta["body"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise StoreError(f"mission {p}: mission.json has no valid body ({exc})") from None
+    return Mission(p, meta, catalog, cameras, body)
