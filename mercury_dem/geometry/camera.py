@@ -374,3 +374,84 @@ def camera_preset(name: str, samples: int = 1024) -> FramingCamera:
         return PRESETS[name](samples)
     except KeyError:
         raise GeometryError(f"unknown camera preset {name!r}; choose one of {sorted(PRESETS)}") from None
+
+
+# -- serialisation ----------------------------------------------------------------
+
+_INT_FIELDS = ("summing", "samples", "lines")
+_FLOAT_FIELDS = ("focal_length_mm", "pixel_pitch_mm", "boresight_sample", "boresight_line")
+
+
+def camera_to_dict(cam: FramingCamera) -> dict[str, Any]:
+    """A JSON-safe dict of a camera (plain ints, floats, lists, str); :func:`camera_from_dict` inverts it.
+
+    Floats are Python floats, which JSON writes with ``repr``: the round trip is exact.
+    """
+    d: dict[str, Any] = {"name": str(cam.name)}
+    d.update({k: int(getattr(cam, k)) for k in _INT_FIELDS})
+    d.update({k: float(getattr(cam, k)) for k in _FLOAT_FIELDS})
+    d["focal_plane_map"] = [float(c) for c in cam.focal_plane_map] or None
+    model = cam.distortion_model
+    dist: dict[str, Any] = {"model": model}
+    if model == "transverse":
+        dist["x"] = [float(c) for c in cam.distortion_x]
+        dist["y"] = [float(c) for c in cam.distortion_y]
+    elif model == "apollo_metric":
+        a = cam.apollo_distortion
+        assert a is not None
+        dist["principal_point_mm"] = [float(c) for c in a.principal_point_mm]
+        dist["radial"] = [float(c) for c in a.radial]
+        dist["decentering"] = [float(c) for c in a.decentering]
+    d["distortion"] = dist
+    return d
+
+
+def _dict_numbers(d: Mapping[str, Any], key: str, n: int | None, where: str) -> tuple[float, ...]:
+    v = d.get(key)
+    if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n) or not all(
+        isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in v
+    ):
+        want = f"a list of {n} finite numbers" if n is not None else "a list of finite numbers"
+        raise GeometryError(f"camera dict: field '{where}{key}' must be {want}, got {v!r}")
+    return tuple(float(c) for c in v)
+
+
+def camera_from_dict(d: Mapping[str, Any]) -> FramingCamera:
+    """The camera of :func:`camera_to_dict`; a missing or malformed field raises GeometryError naming it."""
+    if not isinstance(d, Mapping):
+        raise GeometryError(f"camera dict: expected a mapping, got {type(d).__name__}")
+    known = {"name", "focal_plane_map", "distortion", *_INT_FIELDS, *_FLOAT_FIELDS}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise GeometryError(f"camera dict: unknown field(s) {unknown}")
+    for key in sorted(known - {"focal_plane_map"}):
+        if key not in d:
+            raise GeometryError(f"camera dict: field '{key}' is missing")
+    if not isinstance(d["name"], str):
+        raise GeometryError(f"camera dict: field 'name' must be a string, got {d['name']!r}")
+    kw: dict[str, Any] = {"name": d["name"]}
+    for key in _INT_FIELDS:
+        v = d[key]
+        if not isinstance(v, int) or isinstance(v, bool):
+            raise GeometryError(f"camera dict: field '{key}' must be an integer, got {v!r}")
+        kw[key] = v
+    for key in _FLOAT_FIELDS:
+        v = d[key]
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise GeometryError(f"camera dict: field '{key}' must be a finite number, got {v!r}")
+        kw[key] = float(v)
+    if d.get("focal_plane_map") is not None:
+        kw["focal_plane_map"] = _dict_numbers(d, "focal_plane_map", 4, "")
+    dist = d["distortion"]
+    if not isinstance(dist, Mapping) or dist.get("model") not in DISTORTION_MODELS:
+        raise GeometryError(f"camera dict: field 'distortion.model' must be one of {list(DISTORTION_MODELS)}, "
+                            f"got {dist.get('model') if isinstance(dist, Mapping) else dist!r}")
+    if dist["model"] == "transverse":
+        kw["distortion_x"] = _dict_numbers(dist, "x", 10, "distortion.")
+        kw["distortion_y"] = _dict_numbers(dist, "y", 10, "distortion.")
+    elif dist["model"] == "apollo_metric":
+        pp = _dict_numbers(dist, "principal_point_mm", 2, "distortion.")
+        k = _dict_numbers(dist, "radial", 3, "distortion.")
+        j = _dict_numbers(dist, "decentering", 3, "distortion.")
+        kw["apollo_distortion"] = ApolloMetricDistortion((pp[0], pp[1]), (k[0], k[1], k[2]), (j[0], j[1], j[2]))
+    return FramingCamera(**kw)
