@@ -7,11 +7,12 @@ rotation ``rotation_from_angles(omega) @ R_apriori``, as in
 
 Projection of point X in image i (camera K_i):
 ``v = R_i (X - C_i)``, focal plane ``x = f v_x / v_z``, ``y = f v_y / v_z`` (mm),
-distorted ``(x_d, y_d) = D(x, y)`` (the MDIS transverse polynomial), pixel
-``(s0 + x_d / p, l0 + y_d / p)``. Residual = (computed - measured) / sigma.
+distorted ``(x_d, y_d) = D(x, y)`` (the camera's distortion model), pixel
+``(s0, l0) + L^-1 (x_d, y_d)`` (``L = p I`` for the MDIS presets: ``(s0 + x_d / p, l0 + y_d / p)``).
+Residual = (computed - measured) / sigma.
 
 Jacobians (analytic, chain rule through ``camera.distortion_jacobian``):
-``d pix / d v = (1/p) J_D (f / v_z) [[1, 0, -v_x/v_z], [0, 1, -v_y/v_z]]``; the
+``d pix / d v = L^-1 J_D (f / v_z) [[1, 0, -v_x/v_z], [0, 1, -v_y/v_z]]``; the
 pointing step is applied on the left, ``R <- exp([d]x) R``, so
 ``d v / d d = -[v]x``; ``d v / d dC = -R``; ``d v / d X = R``.
 
@@ -150,7 +151,11 @@ class FramingModel:
                 dxy[:, 1, 1] = f * iz
                 dxy[:, 0, 2] = -x * iz
                 dxy[:, 1, 2] = -y * iz
-                dpix = np.matmul(cam.distortion_jacobian(x, y), dxy) * (inv_s / p)[:, None, None]  # (n, 2, 3)
+                jd = cam.distortion_jacobian(x, y)
+                if cam.focal_plane_map:  # general pixel <- focal-plane affine: d(pixel)/d(x_d) = L^-1
+                    dpix = np.matmul(np.matmul(cam.focal_to_pixel_matrix(), jd), dxy) * inv_s[:, None, None]
+                else:  # L = p I (kept in this form: the MDIS presets' numbers do not change)
+                    dpix = np.matmul(jd, dxy) * (inv_s / p)[:, None, None]  # (n, 2, 3)
                 jc[idx, :, 0:3] = -np.matmul(dpix, skew(v))  # type: ignore[index]
                 jpp = np.matmul(dpix, r_i)
                 jp[idx] = jpp  # type: ignore[index]

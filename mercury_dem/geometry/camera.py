@@ -1,27 +1,46 @@
-"""The framing camera: camera frame <-> image pixels, with MDIS-style distortion.
+"""The framing camera: camera frame <-> image pixels, with lens distortion.
 
 Frames and pixels (docs/conventions.md):
 
 * camera frame: +Z the boresight (looking out of the camera), +X along increasing
-  sample, +Y along increasing line; a point is visible when its Z > 0;
+  sample, +Y along increasing line; a point is visible when its Z > 0. An
+  instrument whose NAIF frame looks along -Z (Apollo Metric) is turned into this
+  frame by the fixed rotation that :func:`mercury_dem.geometry.naif_camera.camera_from_naif`
+  returns with the camera;
 * focal plane: millimetres, ``x = f * X / Z``, ``y = f * Y / Z`` (undistorted);
-* distortion: the CSM/ISIS "transverse" polynomial of MDIS, mapping undistorted
-  focal-plane millimetres to distorted ones with the ten terms
-  ``1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3``;
+* distortion (:attr:`FramingCamera.distortion_model`): ``transverse``, the CSM/ISIS
+  polynomial of MDIS mapping undistorted focal-plane millimetres to distorted ones
+  with the ten terms ``1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3``;
+  ``apollo_metric``, ISIS's radial + decentering model about a principal point
+  (:class:`mercury_dem.geometry.distortion.ApolloMetricDistortion`); or ``none``;
 * pixels: 0-based, the centre of the first pixel at (sample, line) = (0, 0); ISIS
   is 1-based and CSM puts 0.5 at the first pixel centre: both are converted at the
-  boundary only. ``sample = boresight_sample + x_d / p``, ``line = boresight_line + y_d / p``
-  with ``p`` the pixel pitch times the summing.
+  boundary only. Image pixel -> distorted focal plane is one 2-D affine map,
+  ``(x_d, y_d) = L @ (sample - boresight_sample, line - boresight_line)``; ``L`` is
+  ``p * I`` with ``p`` the pixel pitch times the summing (the MDIS presets, computed
+  as ``sample = boresight_sample + x_d / p``) unless ``focal_plane_map`` gives a
+  general ``L`` (a detector with a reversed or rotated axis, a cropped/reduced cube).
+
+Written here rather than taken from ISIS or usgscsm (C++ libraries with SPICE
+dependencies): the adjustment needs vectorised projections and their analytic
+Jacobians, which neither exposes, and only a few fixed models are needed.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError
+from mercury_dem.geometry.distortion import ApolloMetricDistortion, newton_inverse
+
+#: The distortion models a :class:`FramingCamera` can carry.
+DISTORTION_MODELS = ("none", "transverse", "apollo_metric")
 
 #: MDIS-NAC transverse distortion coefficients (NAIF kernel msgr_mdis_v160.ti,
 #: INS-236820_OD_T_X / _Y, as carried by the CSM ISD of EN1072174528M).
@@ -59,12 +78,28 @@ class FramingCamera:
     Parameters
     ----------
     name : instrument name, e.g. ``"MDIS-NAC"``
-    focal_length_mm : focal length, millimetres
+    focal_length_mm : focal length, millimetres (positive; the camera looks along +Z)
     pixel_pitch_mm : detector pixel pitch before summing, millimetres
     summing : on-chip pixel summing (1, 2, 4, ...); the image pixel is ``summing`` detector pixels
     samples, lines : image size in pixels (after summing)
-    boresight_sample, boresight_line : image pixel (0-based centre convention) of the optical axis
-    distortion_x, distortion_y : transverse polynomial coefficients (10 each) or empty for none
+    boresight_sample, boresight_line : image pixel (0-based centre convention) of the origin of the
+        distorted focal plane: the translation part of the pixel -> focal-plane affine. It is the
+        optical axis when the distortion has no constant term (MDIS); for ``apollo_metric`` the
+        optical axis is at the distorted point ``principal_point_mm`` instead.
+    distortion_x, distortion_y : ``transverse`` polynomial coefficients (10 each) or empty
+    focal_plane_map : empty, or the linear part ``L`` of image pixel -> distorted focal plane
+        as four numbers ``(dx/ds, dx/dl, dy/ds, dy/dl)``, mm per image pixel (row-major 2 x 2).
+        Empty means ``L = pixel_size_mm * I`` (square pixels, x along samples, y along lines).
+    apollo_distortion : the ``apollo_metric`` model, or None
+
+    Notes
+    -----
+    The whole image pixel -> distorted focal plane map is the affine
+    ``(x_d, y_d) = L @ (s - boresight_sample, l - boresight_line)``
+    (:attr:`pixel_to_focal_affine`). For a general ``L``, :attr:`pixel_size_mm` is
+    ``sqrt(|det L|)`` (the side of the square of equal area) and :attr:`ifov_rad`
+    that over the focal length; ``pixel_pitch_mm`` and ``summing`` then only
+    describe the detector (a reduced cube's pixel is larger than pitch x summing).
     """
 
     name: str
@@ -77,6 +112,8 @@ class FramingCamera:
     boresight_line: float
     distortion_x: tuple[float, ...] = field(default=())
     distortion_y: tuple[float, ...] = field(default=())
+    focal_plane_map: tuple[float, ...] = field(default=())
+    apollo_distortion: ApolloMetricDistortion | None = None
 
     def __post_init__(self) -> None:
         if not (self.focal_length_mm > 0 and np.isfinite(self.focal_length_mm)):
@@ -89,11 +126,27 @@ class FramingCamera:
             raise GeometryError(
                 f"camera {self.name}: distortion_x/distortion_y need 10 coefficients each (or none)"
             )
+        if self.apollo_distortion is not None and self.distortion_x:
+            raise GeometryError(f"camera {self.name}: give either transverse distortion_x/_y or "
+                                "apollo_distortion, not both")
+        if self.focal_plane_map:
+            m = self.focal_plane_map
+            if len(m) != 4 or not all(math.isfinite(float(c)) for c in m):
+                raise GeometryError(f"camera {self.name}: focal_plane_map needs 4 finite numbers "
+                                    f"(dx/ds, dx/dl, dy/ds, dy/dl), got {m!r}")
+            if not abs(m[0] * m[3] - m[1] * m[2]) > 0:
+                raise GeometryError(f"camera {self.name}: focal_plane_map {m!r} is singular")
 
     # -- derived quantities -------------------------------------------------
     @property
     def pixel_size_mm(self) -> float:
-        """Size of one image pixel in the focal plane (pitch x summing), millimetres."""
+        """Size of one image pixel in the focal plane, millimetres.
+
+        Pitch x summing; ``sqrt(|det L|)`` for a general ``focal_plane_map``.
+        """
+        if self.focal_plane_map:
+            m = self.focal_plane_map
+            return math.sqrt(abs(m[0] * m[3] - m[1] * m[2]))
         return self.pixel_pitch_mm * self.summing
 
     @property
@@ -107,14 +160,45 @@ class FramingCamera:
         return self.focal_length_mm / self.pixel_size_mm
 
     @property
+    def distortion_model(self) -> str:
+        """``"transverse"``, ``"apollo_metric"`` or ``"none"``."""
+        if len(self.distortion_x) == 10:
+            return "transverse"
+        if self.apollo_distortion is not None:
+            return "apollo_metric"
+        return "none"
+
+    @property
     def has_distortion(self) -> bool:
-        return len(self.distortion_x) == 10
+        return self.distortion_model != "none"
+
+    @property
+    def pixel_to_focal_affine(self) -> NDArray[np.float64]:
+        """Image pixel (s, l, 1) -> distorted focal plane (x_d, y_d) mm, shape (2, 3)."""
+        lin = self.pixel_to_focal_matrix()
+        b = np.array([self.boresight_sample, self.boresight_line])
+        return np.concatenate([lin, -(lin @ b)[:, None]], axis=1)
+
+    def pixel_to_focal_matrix(self) -> NDArray[np.float64]:
+        """The linear part ``L`` of :attr:`pixel_to_focal_affine`, mm per pixel, shape (2, 2)."""
+        if self.focal_plane_map:
+            return np.array(self.focal_plane_map, dtype=np.float64).reshape(2, 2)
+        return np.eye(2) * self.pixel_size_mm
+
+    def focal_to_pixel_matrix(self) -> NDArray[np.float64]:
+        """``L^-1``, pixels per mm, shape (2, 2): d(sample, line)/d(x_d, y_d)."""
+        if not self.focal_plane_map:
+            return np.eye(2) / self.pixel_size_mm
+        a, b, c, d = self.focal_plane_map
+        det = a * d - b * c
+        return np.array([[d / det, -b / det], [-c / det, a / det]])
 
     def with_size(self, samples: int) -> "FramingCamera":
         """The same camera read out at ``samples`` x ``samples`` by on-chip summing.
 
         The detector is ``samples * summing`` pixels wide; a smaller readout sums
-        more detector pixels (MDIS sums 2x2 to make 512 x 512 images).
+        more detector pixels (MDIS sums 2x2 to make 512 x 512 images). A general
+        ``focal_plane_map`` is scaled by the change of summing.
         """
         detector = self.samples * self.summing
         if samples < 1 or detector % samples:
@@ -122,6 +206,9 @@ class FramingCamera:
                 f"camera {self.name}: image size {samples} does not divide the {detector}-pixel detector"
             )
         summing = detector // samples
+        fmap = self.focal_plane_map
+        if fmap:
+            fmap = tuple(float(c) * summing / self.summing for c in fmap)
         return replace(
             self,
             summing=summing,
@@ -129,22 +216,30 @@ class FramingCamera:
             lines=samples,
             boresight_sample=(self.boresight_sample + 0.5) * self.summing / summing - 0.5,
             boresight_line=(self.boresight_line + 0.5) * self.summing / summing - 0.5,
+            focal_plane_map=fmap,
         )
 
     # -- distortion ---------------------------------------------------------
     def distort(self, x: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Undistorted focal-plane mm -> distorted focal-plane mm."""
+        """Undistorted focal-plane mm -> distorted focal-plane mm.
+
+        Closed form for ``transverse``; a Newton iteration for ``apollo_metric``.
+        """
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
+        if self.apollo_distortion is not None:
+            return self.apollo_distortion.distort(x, y)
         if not self.has_distortion:
             return x, y
         t = _poly_terms(x, y)
         return t @ np.asarray(self.distortion_x), t @ np.asarray(self.distortion_y)
 
     def distortion_jacobian(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
-        """d(x_d, y_d)/d(x, y), shape (..., 2, 2)."""
+        """d(x_d, y_d)/d(x, y) at undistorted points (x, y) mm, shape (..., 2, 2). Analytic."""
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
+        if self.apollo_distortion is not None:
+            return self.apollo_distortion.distort_jacobian(x, y)
         jac = np.zeros(x.shape + (2, 2))
         if not self.has_distortion:
             jac[..., 0, 0] = 1.0
@@ -159,23 +254,18 @@ class FramingCamera:
     def undistort(
         self, xd: ArrayLike, yd: ArrayLike, tol_mm: float = 1e-12, max_iter: int = 20
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Distorted -> undistorted focal-plane mm by Newton iteration on :meth:`distort`."""
+        """Distorted -> undistorted focal-plane mm.
+
+        ``transverse``: Newton iteration on :meth:`distort` (to ``tol_mm``, at most
+        ``max_iter`` steps); ``apollo_metric``: closed form.
+        """
         xd = np.asarray(xd, dtype=np.float64)
         yd = np.asarray(yd, dtype=np.float64)
+        if self.apollo_distortion is not None:
+            return self.apollo_distortion.undistort(xd, yd)
         if not self.has_distortion:
             return xd, yd
-        x, y = xd.copy(), yd.copy()
-        for _ in range(max_iter):
-            fx, fy = self.distort(x, y)
-            rx, ry = fx - xd, fy - yd
-            j = self.distortion_jacobian(x, y)
-            det = j[..., 0, 0] * j[..., 1, 1] - j[..., 0, 1] * j[..., 1, 0]
-            dx = (j[..., 1, 1] * rx - j[..., 0, 1] * ry) / det
-            dy = (-j[..., 1, 0] * rx + j[..., 0, 0] * ry) / det
-            x, y = x - dx, y - dy
-            if np.all(np.abs(dx) < tol_mm) and np.all(np.abs(dy) < tol_mm):
-                break
-        return x, y
+        return newton_inverse(self.distort, self.distortion_jacobian, xd, yd, xd, yd, tol_mm, max_iter)
 
     # -- camera frame <-> pixels -------------------------------------------
     def camera_to_pixel(self, v_cam: ArrayLike) -> NDArray[np.float64]:
@@ -190,15 +280,24 @@ class FramingCamera:
             x = self.focal_length_mm * v[..., 0] / zsafe
             y = self.focal_length_mm * v[..., 1] / zsafe
         xd, yd = self.distort(x, y)
+        if self.focal_plane_map:
+            m = self.focal_to_pixel_matrix()
+            return np.stack([self.boresight_sample + (m[0, 0] * xd + m[0, 1] * yd),
+                             self.boresight_line + (m[1, 0] * xd + m[1, 1] * yd)], axis=-1)
         p = self.pixel_size_mm
         return np.stack([self.boresight_sample + xd / p, self.boresight_line + yd / p], axis=-1)
 
     def pixel_to_camera(self, pixels: ArrayLike) -> NDArray[np.float64]:
         """Unit camera-frame look vectors (..., 3) of pixels (sample, line) (..., 2)."""
         px = np.asarray(pixels, dtype=np.float64)
-        p = self.pixel_size_mm
-        xd = (px[..., 0] - self.boresight_sample) * p
-        yd = (px[..., 1] - self.boresight_line) * p
+        if self.focal_plane_map:
+            a, b, c, d = self.focal_plane_map
+            ds, dl = px[..., 0] - self.boresight_sample, px[..., 1] - self.boresight_line
+            xd, yd = a * ds + b * dl, c * ds + d * dl
+        else:
+            p = self.pixel_size_mm
+            xd = (px[..., 0] - self.boresight_sample) * p
+            yd = (px[..., 1] - self.boresight_line) * p
         x, y = self.undistort(xd, yd)
         v = np.stack([x, y, np.full_like(x, self.focal_length_mm)], axis=-1)
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
@@ -275,3 +374,84 @@ def camera_preset(name: str, samples: int = 1024) -> FramingCamera:
         return PRESETS[name](samples)
     except KeyError:
         raise GeometryError(f"unknown camera preset {name!r}; choose one of {sorted(PRESETS)}") from None
+
+
+# -- serialisation ----------------------------------------------------------------
+
+_INT_FIELDS = ("summing", "samples", "lines")
+_FLOAT_FIELDS = ("focal_length_mm", "pixel_pitch_mm", "boresight_sample", "boresight_line")
+
+
+def camera_to_dict(cam: FramingCamera) -> dict[str, Any]:
+    """A JSON-safe dict of a camera (plain ints, floats, lists, str); :func:`camera_from_dict` inverts it.
+
+    Floats are Python floats, which JSON writes with ``repr``: the round trip is exact.
+    """
+    d: dict[str, Any] = {"name": str(cam.name)}
+    d.update({k: int(getattr(cam, k)) for k in _INT_FIELDS})
+    d.update({k: float(getattr(cam, k)) for k in _FLOAT_FIELDS})
+    d["focal_plane_map"] = [float(c) for c in cam.focal_plane_map] or None
+    model = cam.distortion_model
+    dist: dict[str, Any] = {"model": model}
+    if model == "transverse":
+        dist["x"] = [float(c) for c in cam.distortion_x]
+        dist["y"] = [float(c) for c in cam.distortion_y]
+    elif model == "apollo_metric":
+        a = cam.apollo_distortion
+        assert a is not None
+        dist["principal_point_mm"] = [float(c) for c in a.principal_point_mm]
+        dist["radial"] = [float(c) for c in a.radial]
+        dist["decentering"] = [float(c) for c in a.decentering]
+    d["distortion"] = dist
+    return d
+
+
+def _dict_numbers(d: Mapping[str, Any], key: str, n: int | None, where: str) -> tuple[float, ...]:
+    v = d.get(key)
+    if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n) or not all(
+        isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in v
+    ):
+        want = f"a list of {n} finite numbers" if n is not None else "a list of finite numbers"
+        raise GeometryError(f"camera dict: field '{where}{key}' must be {want}, got {v!r}")
+    return tuple(float(c) for c in v)
+
+
+def camera_from_dict(d: Mapping[str, Any]) -> FramingCamera:
+    """The camera of :func:`camera_to_dict`; a missing or malformed field raises GeometryError naming it."""
+    if not isinstance(d, Mapping):
+        raise GeometryError(f"camera dict: expected a mapping, got {type(d).__name__}")
+    known = {"name", "focal_plane_map", "distortion", *_INT_FIELDS, *_FLOAT_FIELDS}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise GeometryError(f"camera dict: unknown field(s) {unknown}")
+    for key in sorted(known - {"focal_plane_map"}):
+        if key not in d:
+            raise GeometryError(f"camera dict: field '{key}' is missing")
+    if not isinstance(d["name"], str):
+        raise GeometryError(f"camera dict: field 'name' must be a string, got {d['name']!r}")
+    kw: dict[str, Any] = {"name": d["name"]}
+    for key in _INT_FIELDS:
+        v = d[key]
+        if not isinstance(v, int) or isinstance(v, bool):
+            raise GeometryError(f"camera dict: field '{key}' must be an integer, got {v!r}")
+        kw[key] = v
+    for key in _FLOAT_FIELDS:
+        v = d[key]
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise GeometryError(f"camera dict: field '{key}' must be a finite number, got {v!r}")
+        kw[key] = float(v)
+    if d.get("focal_plane_map") is not None:
+        kw["focal_plane_map"] = _dict_numbers(d, "focal_plane_map", 4, "")
+    dist = d["distortion"]
+    if not isinstance(dist, Mapping) or dist.get("model") not in DISTORTION_MODELS:
+        raise GeometryError(f"camera dict: field 'distortion.model' must be one of {list(DISTORTION_MODELS)}, "
+                            f"got {dist.get('model') if isinstance(dist, Mapping) else dist!r}")
+    if dist["model"] == "transverse":
+        kw["distortion_x"] = _dict_numbers(dist, "x", 10, "distortion.")
+        kw["distortion_y"] = _dict_numbers(dist, "y", 10, "distortion.")
+    elif dist["model"] == "apollo_metric":
+        pp = _dict_numbers(dist, "principal_point_mm", 2, "distortion.")
+        k = _dict_numbers(dist, "radial", 3, "distortion.")
+        j = _dict_numbers(dist, "decentering", 3, "distortion.")
+        kw["apollo_distortion"] = ApolloMetricDistortion((pp[0], pp[1]), (k[0], k[1], k[2]), (j[0], j[1], j[2]))
+    return FramingCamera(**kw)

@@ -322,6 +322,11 @@ def _render_supersampled(
     sun_position: ArrayLike,
     settings: RenderSettings,
 ) -> NDArray[np.float64]:
+    if camera.focal_plane_map or camera.distortion_model == "apollo_metric":
+        # the compiled projection knows only L = p I and the transverse polynomial
+        raise GeometryError(f"camera {camera.name}: rendering supports square-pixel cameras with 'transverse' "
+                            f"or no distortion, not a general focal_plane_map or "
+                            f"'{camera.distortion_model}' distortion")
     c = np.asarray(position, dtype=np.float64)
     r = np.ascontiguousarray(rotation, dtype=np.float64)
     sun = np.asarray(sun_position, dtype=np.float64)
