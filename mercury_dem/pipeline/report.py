@@ -69,10 +69,12 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
             keep = nmeas > 0
             validation = validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep], positions=pos[keep])
     cset = set(controlled)
+    uncontrolled = [i for i in ids_all if i not in cset]
     report["images"] = {
         "input": len(ids_all),
         "controlled": len(controlled),
-        "uncontrolled": [i for i in ids_all if i not in cset],
+        "uncontrolled": uncontrolled,
+        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, bool(glob and glob[0].get("ok"))),
         "excluded": plan.get("excluded", {}),
     }
     report["timings"] = {k: float(v) for k, v in timings.items()}
@@ -86,6 +88,46 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
             validation["dem"] = dem_summary.pop("validation")
         report["validation"] = validation
     return report
+
+
+def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], global_ok: bool) -> dict[str, str]:
+    """Why each uncontrolled image is: excluded, no a-priori overlap, no pair matched, or all measures rejected."""
+    import pandas as pd
+
+    if not ids:
+        return {}
+    images, pairs, _ = store.read_plan()
+    excluded = plan.get("excluded", {})
+    partners: dict[str, int] = {}
+    for a, b in zip(pairs["image_i"].astype(str), pairs["image_j"].astype(str)):
+        partners[a] = partners.get(a, 0) + 1
+        partners[b] = partners.get(b, 0) + 1
+    rows = []
+    for t in store.completed_units("tile"):
+        p = store.unit_dir("tile", t) / "pairs.parquet"
+        if p.is_file():
+            rows.append(pd.read_parquet(p, columns=["ref_id", "match_id", "status", "reason"]))
+    tried = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["ref_id", "match_id", "status", "reason"])
+    out = {}
+    for i in ids:
+        if i in excluded:
+            out[i] = f"excluded: {excluded[i]}"
+            continue
+        if partners.get(i, 0) == 0:
+            out[i] = ("no a-priori overlap with any other image: its footprint shares no ground with the others "
+                      "(add images that overlap it, or accept it as uncontrolled)")
+            continue
+        mine = tried[(tried["ref_id"].astype(str) == i) | (tried["match_id"].astype(str) == i)]
+        matched = mine[mine["status"] == "matched"]
+        if len(mine) and not len(matched):
+            why = "; ".join(sorted({str(r)[:120] for r in mine["reason"]})[:3])
+            out[i] = f"none of its {len(mine)} overlapping pairs matched ({why})"
+        elif not global_ok:
+            out[i] = "the global adjustment failed (see levels.global.error)"
+        else:
+            out[i] = (f"{len(matched)} of its pairs matched, but none of its measures survived the merge and the "
+                      "adjustment's outlier rejection")
+    return out
 
 
 def write_report(store: RunStore, report: dict[str, Any]) -> None:
@@ -106,7 +148,12 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
     for f in t["failed"][:10]:
         name = f"tile {f['tile']}"
         w(f"  {name}: {unit_message(f['error'], name)}\n")
-    w(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n\n")
+    w(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n")
+    reasons = im.get("uncontrolled_reasons") or {}
+    for i in im["uncontrolled"][:10]:
+        if i in reasons:
+            w(f"  uncontrolled {i}: {reasons[i]}\n")
+    w("\n")
     w(f"{'level':<22}{'images':>7}{'points':>9}{'measures':>10}{'rms px':>8}{'sigma0':>8}{'rej':>7}{'iter':>5}{'s':>7}\n")
     rows = [("region", r) for r in report["levels"]["region"]] + [("hemisphere", r) for r in report["levels"]["hemisphere"]]
     if report["levels"]["global"]:

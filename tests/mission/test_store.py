@@ -28,7 +28,7 @@ def test_camera_from_bad_dict_names_field() -> None:
     d = camera_to_dict(mdis_nac(512))
     with pytest.raises(StoreError, match="focal_length_mm"):
         camera_from_dict({**d, "focal_length_mm": float("nan")}, "cams")
-    with pytest.raises(StoreError, match="unknown camera fields"):
+    with pytest.raises(StoreError, match="unknown field"):
         camera_from_dict({**d, "colour": 1}, "cams")
 
 
