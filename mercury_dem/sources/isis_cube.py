@@ -33,16 +33,23 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pvl
 from numpy.typing import NDArray
-from pvl.decoder import OmniDecoder
-from pvl.grammar import OmniGrammar
+
+with warnings.catch_warnings():
+    # pvl 1.3 warns on import: ImportWarning when the optional 'multidict' package is absent (we do
+    # not use it) and PendingDeprecationWarning for its own pvl.collections.Units class.
+    warnings.simplefilter("ignore", ImportWarning)
+    warnings.simplefilter("ignore", PendingDeprecationWarning)
+    import pvl
+    from pvl.decoder import OmniDecoder
+    from pvl.grammar import OmniGrammar
 
 from mercury_dem.exceptions import CubeError
 
