@@ -276,6 +276,10 @@ def open_cube(path: str | Path) -> IsisCube:
         raise _fault(p, f"IsisCube/Core/Pixels/ByteOrder must be Lsb or Msb, got {order!r}")
     base = label_float(p, pix, "Base", "IsisCube/Core/Pixels/", 0.0)
     mult = label_float(p, pix, "Multiplier", "IsisCube/Core/Pixels/", 1.0)
+    if ptype != "Real":
+        top = abs(base) + abs(mult) * {"SignedWord": 32767, "UnsignedWord": 65522, "UnsignedByte": 254}[ptype]
+        if not top < float(np.finfo(np.float32).max):
+            raise _fault(p, f"Base {base} and Multiplier {mult} take {ptype} values beyond float32")
     start = label_int(p, core, "StartByte", "IsisCube/Core/", 1)
     fmt = _opt_str(core, "Format")
     if fmt == "Tile":
