@@ -73,7 +73,8 @@ def mutated_cube(draw: st.DrawFn) -> bytes:
             if lo >= hi:
                 continue
             buf = bytearray(data)
-            for pos, byte in draw(st.lists(st.tuples(st.integers(lo, hi - 1), st.integers(0, 255)), min_size=1, max_size=8)):
+            flips = st.lists(st.tuples(st.integers(lo, hi - 1), st.integers(0, 255)), min_size=1, max_size=8)
+            for pos, byte in draw(flips):
                 buf[pos] = byte
             data = bytes(buf)
     return data
