@@ -103,9 +103,7 @@ def _instrument_name(spacecraft: str | None, instrument: str | None) -> str:
 def read_cube_image(path: Path) -> SourceImage:
     """A cube with SPICE attached -> one image (IngestError naming the cube otherwise)."""
     from mercury_dem.geometry.naif_camera import camera_from_naif
-    from mercury_dem.sources.isis_cube import naif_keywords, open_cube, read_pixels
-    from mercury_dem.sources.isis_cube import alpha_cube as cube_alpha
-    from mercury_dem.sources.isis_spice import cube_spice
+    from mercury_dem.sources import cube_spice, naif_keywords, open_cube, read_pixels
 
     cube = open_cube(path)
     spice = cube_spice(cube)  # CubeError "... run spiceinit attach=true" when there is no SPICE
@@ -114,7 +112,7 @@ def read_cube_image(path: Path) -> SourceImage:
     name = _instrument_name(cube.spacecraft_name, cube.instrument_id)
     camera, inst_to_cam = camera_from_naif(
         keywords, spice.ik_code, cube.samples, cube.lines, name=name, summing=cube.summing or 1,
-        alpha=cube_alpha(cube),
+        alpha=cube.label["IsisCube"].get("AlphaCube"),
     )
     pixels, valid = read_pixels(cube)
     if cube.pixel_type == "Real":
@@ -166,7 +164,7 @@ def _find_image(isd: Path, image_dirs: Sequence[Path]) -> Path:
 def _read_raster(path: Path) -> NDArray[Any]:
     """The first band of any raster GDAL reads (nodata -> NaN in a float image)."""
     if path.suffix.lower() == ".cub":
-        from mercury_dem.sources.isis_cube import open_cube, read_pixels
+        from mercury_dem.sources import open_cube, read_pixels
 
         cube = open_cube(path)
         px, valid = read_pixels(cube)
