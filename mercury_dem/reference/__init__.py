@@ -13,6 +13,13 @@ the rest are pure functions. See docs/design/reference.md.
 
 from __future__ import annotations
 
+from mercury_dem.reference.compare import (
+    compare_dem_with_harmonics,
+    compare_dem_with_shots,
+    compare_heights,
+    difference_statistics,
+    residuals_at_shots,
+)
 from mercury_dem.reference.lola import AltimetryShots, read_altimetry_csv, read_lola_ldem
 from mercury_dem.reference.sampling import sample_grid, sample_reference_dem
 from mercury_dem.reference.sha import ShapeHarmonics, evaluate, evaluate_grid, read_shadr
@@ -20,11 +27,16 @@ from mercury_dem.reference.sha import ShapeHarmonics, evaluate, evaluate_grid, r
 __all__ = [
     "AltimetryShots",
     "ShapeHarmonics",
+    "compare_dem_with_harmonics",
+    "compare_dem_with_shots",
+    "compare_heights",
+    "difference_statistics",
     "evaluate",
     "evaluate_grid",
     "read_altimetry_csv",
     "read_lola_ldem",
     "read_shadr",
+    "residuals_at_shots",
     "sample_grid",
     "sample_reference_dem",
 ]
