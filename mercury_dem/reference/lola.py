@@ -275,11 +275,15 @@ def parse_altimetry_csv(
         "radius_m": radius[keep],
     }
     if "range" in where:
-        data["range_m"] = _numeric(col("range"))[keep] * scale
+        rng_m = _numeric(col("range"))[keep] * scale
+        data["range_m"] = np.where(np.isfinite(rng_m), rng_m, np.nan)
     for key, out in (("sc_lat", "sc_lat"), ("sc_lon", "sc_lon"), ("sc_radius", "sc_radius_m")):
         if key in where:
             v = _numeric(col(key))[keep]
-            data[out] = wrap_longitude(v) if key == "sc_lon" else v * (scale if key == "sc_radius" else 1.0)
+            v[~np.isfinite(v)] = np.nan  # ancillary columns are kept, not validated: NaN, never inf
+            if key == "sc_lon":
+                v[np.isfinite(v)] = wrap_longitude(v[np.isfinite(v)])
+            data[out] = v * (scale if key == "sc_radius" else 1.0)
     if flag is not None:
         data["flag"] = flag[keep].astype(np.int64)
     table = pd.DataFrame(data)

@@ -159,3 +159,11 @@ def test_unreadable_files(tmp_path):
 
 def test_headerless_layout_has_29_columns():
     assert len(LOLA_RDR_COLUMNS) == 29
+
+
+def test_ancillary_columns_not_finite_become_nan():
+    """Found by the fuzzer: an infinite spacecraft longitude warned in the longitude fold."""
+    text = "utc,lat,lon,radius,sc_lon,sc_radius,range\n2011-04-01T00:00:00,1,2,2439.0,1e999,nan,inf\n"
+    s = parse_altimetry_csv(text, MERCURY_M)
+    row = s.table.iloc[0]
+    assert np.isnan(row["sc_lon"]) and np.isnan(row["sc_radius_m"]) and np.isnan(row["range_m"])
