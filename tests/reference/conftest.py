@@ -14,7 +14,7 @@ SHARED_DATA = ROOT / ".." / "shared" / "data"
 SHA_TAB = REAL / "GTMES_150V05_SHA.TAB"
 ORACLE_POINTS = REAL / "gtmes150v05_l148_oracle_points.csv"
 ORACLE_TIF = SHARED_DATA / "mla" / "gtmes150v05_l148_height_m_0p5deg_DERIVED.tif"
-LOLA_DIR = SHARED_DATA / "moon" / "lola"
+LOLA_DIR = REAL  # copies of ../shared/data/moon/lola (public domain, SOURCE.md)
 
 
 def shared(path: Path) -> Path:
