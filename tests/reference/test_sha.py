@@ -89,7 +89,7 @@ def test_four_pi_normalised_legendre(l_, m_, closed_form):
     lat = np.array([-70.0, -5.0, 0.0, 30.0, 88.0])
     got = evaluate(_single(l_, m_, c=1.0), lat, np.zeros_like(lat), lmax=None)
     t, u = np.sin(np.radians(lat)), np.cos(np.radians(lat))
-    np.testing.assert_allclose(got, [closed_form(a, b) for a, b in zip(t, u)], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(got, [closed_form(a, b) for a, b in zip(t, u, strict=True)], rtol=1e-12, atol=1e-14)
 
 
 def test_normalisation_integral_is_four_pi():
