@@ -43,3 +43,11 @@ class AdjustmentError(MercuryDemError):
 
 class GridError(MercuryDemError, ValueError):
     """A DEM cannot be gridded as asked (no points, grid too large for memory)."""
+
+
+class ReferenceDataError(MercuryDemError, ValueError):
+    """A reference-height file (altimetry shots, shape harmonics, reference DEM) is unreadable.
+
+    The message names the file and the fault (line, column, value) so the user can
+    fetch a fresh copy or fix the column mapping.
+    """
