@@ -20,6 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-scale-m", type=float, help="drop images with a coarser pixel scale (seed 000: 800)")
     p.add_argument("--instrument", action="append", metavar="NAME",
                    help="keep only this instrument (e.g. MDIS-NAC); repeat for several")
+    p.add_argument("--pointing-sigma-urad", type=float, metavar="URAD",
+                   help="how wrong the a-priori pointing may be (1 sigma per axis): sizes the matcher's guidance "
+                        "window and weights the adjustment's pointing constraint (default: the configuration's)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing MISSION")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
@@ -30,6 +33,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     summary = ingest_mission(
         args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
         instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
+        pointing_sigma_urad=args.pointing_sigma_urad,
     )
     if args.json:
         cat = summary.pop("catalog")

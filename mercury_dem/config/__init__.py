@@ -20,6 +20,7 @@ from mercury_dem.config.dem import DemConfig
 from mercury_dem.config.execution import ExecutionConfig
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.config.network import NetworkConfig
+from mercury_dem.config.reference import ReferenceConfig
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.config.tiling import TilingConfig
 from mercury_dem.exceptions import ConfigError
@@ -34,6 +35,7 @@ class Config(ConfigSection):
     adjust: AdjustConfig = section(AdjustConfig, "Bundle adjustment at every level")
     dem: DemConfig = section(DemConfig, "DEM gridding")
     execution: ExecutionConfig = section(ExecutionConfig, "Execution on Dask")
+    reference: ReferenceConfig = section(ReferenceConfig, "Reference heights the DEM is compared with (real missions)")
 
 
 def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:

@@ -93,6 +93,10 @@ class MatchConfig(ConfigSection):
         100.0, "A-priori spacecraft position uncertainty per axis (1 sigma), seen as an angle from the camera",
         unit="m", lo=0.0, hi=1e7,
     )
+    pointing_sigma_from_mission: bool = param(
+        True, "Use the mission's declared a-priori pointing uncertainty (mission.json pointing_sigma_urad: synth's "
+        "injected sigma, or 'ingest --pointing-sigma-urad') instead of pointing_sigma_urad when it has one",
+    )
     guidance_sigmas: float = param(3.0, "Guidance window half-width in pointing sigmas", lo=0.5, hi=20.0)
     guidance_margin_px: float = param(
         8.0, "Added to the guidance half-width for relief parallax and model error", unit="px", lo=0.0, hi=1e4

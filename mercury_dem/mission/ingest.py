@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.exceptions import MercuryDemError, StoreError
+from mercury_dem.exceptions import IsdError, MercuryDemError, StoreError
 from mercury_dem.geometry.body import Body, body_by_name
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.io.atomic import atomic_directory
@@ -173,9 +173,15 @@ def _read_raster(path: Path) -> NDArray[Any]:
     import rasterio
     from rasterio.errors import RasterioIOError
 
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
     try:
-        with rasterio.open(path) as src:
-            band = src.read(1, masked=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # raw images carry no map georeferencing
+            with rasterio.open(path) as src:
+                band = src.read(1, masked=True)
     except (RasterioIOError, ValueError, OSError) as exc:
         raise IngestError(f"image {path}: GDAL cannot read it ({exc})") from None
     data = np.asarray(band.data)
@@ -195,7 +201,15 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
         raise IngestError(f"ISD {isd_path}: not readable JSON ({exc})") from None
     if not isinstance(raw, dict):
         raise IngestError(f"ISD {isd_path}: the top level is not a JSON object")
-    g = read_isd(isd_path)
+    notes: list[str] = []
+    try:
+        g = read_isd(isd_path)
+    except IsdError as exc:
+        if "sun_position" not in str(exc):
+            raise
+        # The geometry is usable without the Sun (matching then knows no illumination angles).
+        g = read_isd(isd_path, require_sun=False)
+        notes.append(f"sun position not used ({exc}); incidence and phase are unknown")
     target = raw.get("name_target") or raw.get("target_name")
     body = _body_of(str(target) if target else None, str(isd_path))
     image_path = _find_image(isd_path, image_dirs)
@@ -210,7 +224,7 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
         image_id=isd_path.stem, instrument=name, camera=cam, position=g.position, rotation=g.rotation,
         sun=g.sun_position if g.sun_position is not None else np.full(3, np.nan), time=g.ephemeris_time,
         body=body, pixels=image, files=[str(isd_path), str(image_path)],
-        bits=8 if image.dtype == np.uint8 else None, notes=list(g.warnings),
+        bits=8 if image.dtype == np.uint8 else None, notes=notes + list(g.warnings),
     )
 
 
@@ -239,11 +253,14 @@ def ingest_mission(
     instruments: Sequence[str] | None = None,
     tile_size_deg: float = 10.0,
     overwrite: bool = False,
+    pointing_sigma_urad: float | None = None,
 ) -> dict[str, Any]:
     """Build the mission at ``out`` from cubes and/or ISDs; return a summary (images, rejected, seconds).
 
     ``inputs`` are cube, ISD or image paths (globs allowed). An image file given without an ISD is
-    paired with the ISD of its stem in ``isd_dir`` (or beside it). Rejected inputs are listed with
+    paired with the ISD of its stem in ``isd_dir`` (or beside it). ``pointing_sigma_urad`` records how wrong
+    the a-priori pointing may be (1 sigma per axis): matching sizes its guidance window from it and the
+    adjustment weights its pointing constraint by it (``*.pointing_sigma_from_mission``). Rejected inputs are listed with
     their reason; with no usable image at all, StoreError (nothing is written).
     """
     t0 = time.perf_counter()
@@ -324,6 +341,10 @@ def ingest_mission(
             "selection": {"min_scale_m": min_scale_m, "max_scale_m": max_scale_m,
                           "instruments": list(instruments) if instruments else None},
             "rejected": rejected}
+    if pointing_sigma_urad is not None:
+        if not (math.isfinite(pointing_sigma_urad) and pointing_sigma_urad > 0):
+            raise StoreError(f"ingest: --pointing-sigma-urad must be a positive number, got {pointing_sigma_urad}")
+        meta["pointing_sigma_urad"] = float(pointing_sigma_urad)
     with atomic_directory(out, overwrite=overwrite) as tmp:
         writer = MissionWriter(tmp)
         for im in images:

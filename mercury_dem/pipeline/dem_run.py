@@ -51,6 +51,11 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         "files": [str(f) for f in products.get("files", [])],
         "products_skipped": products.get("skipped", {}),
     }
+    ref = config.reference
+    if ref.dem or ref.altimetry or ref.shape_harmonics:
+        from mercury_dem.pipeline.reference_check import compare_with_references
+
+        out["reference"] = compare_with_references(open_dem(store.dem_path), body, ref)
     if truth is not None:
         from mercury_dem.dem.accuracy import dem_accuracy
 

@@ -180,6 +180,9 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         d = v.get("dem")
         if d:
             w(dem_validation_table(d))
+    from mercury_dem.pipeline.reference_check import reference_table
+
+    w(reference_table((report.get("dem") or {}).get("reference") or {}))
     for rel, why in ((report.get("dem") or {}).get("products_skipped") or {}).items():
         w(f"not written: products/{rel} ({why})\n")
     tm = report.get("timings", {})

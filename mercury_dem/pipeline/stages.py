@@ -201,7 +201,7 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
             image_errors[image_id] = str(exc)
     geom, cameras, positions, rotations, ids = _geometry(mission, involved)
     radiometry = {i: (r.saturation, r.dn_scale) for i in involved for r in [mission.radiometry(i)]}
-    matches, reports = match_tile(pixels, geom, pair_list, config.match, radiometry=radiometry)
+    matches, reports = match_tile(pixels, geom, pair_list, match_config_for(mission, config), radiometry=radiometry)
     rows = pd.DataFrame(list(iter_rows(reports)))
     failures: dict[str, int] = {}
     if len(rows):
@@ -351,6 +351,18 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
             },
         },
     }
+
+
+def match_config_for(mission: Mission, config: Config) -> Any:
+    """The matching configuration for a mission: the guidance window from its declared a-priori pointing
+    uncertainty when it has one (real SPICE pointing of another instrument can be 10x worse than MDIS's)."""
+    import dataclasses
+
+    cfg = config.match
+    sigma_urad = mission.meta.get("pointing_sigma_urad")
+    if cfg.pointing_sigma_from_mission and sigma_urad:
+        cfg = dataclasses.replace(cfg, pointing_sigma_urad=float(sigma_urad))
+    return cfg
 
 
 def adjust_config_for(mission: Mission, config: Config) -> Any:
