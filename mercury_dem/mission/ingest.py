@@ -92,12 +92,29 @@ def _body_of(name: str | None, source: str) -> Body:
         raise IngestError(f"{source}: {exc}") from None
 
 
+#: Instrument names as the labels and ISDs spell them -> the names the missions use.
+_INSTRUMENT_ALIASES = {
+    "MSGR_MDIS_NAC": "MDIS-NAC", "MSGR_MDIS_WAC": "MDIS-WAC",
+    "MERCURY DUAL IMAGING SYSTEM NARROW ANGLE CAMERA": "MDIS-NAC",
+    "MERCURY DUAL IMAGING SYSTEM WIDE ANGLE CAMERA": "MDIS-WAC",
+}
+
+
 def _instrument_name(spacecraft: str | None, instrument: str | None) -> str:
     sc = (spacecraft or "").strip().upper().replace(" ", "")
     inst = (instrument or "").strip().upper()
-    if sc.startswith("MESSENGER") and inst.startswith("MDIS"):
+    inst = _INSTRUMENT_ALIASES.get(inst, inst)
+    if inst.startswith("MDIS"):
         return inst  # MDIS-NAC / MDIS-WAC, the synthetic missions' names
     return f"{sc}/{inst}" if sc else inst or "UNKNOWN"
+
+
+def _isd_names(raw: dict[str, Any]) -> tuple[str, str]:
+    """(spacecraft, instrument) of an ISD: the specific keys first (knoten ISDs name a generic platform)."""
+    generic = {"", "GENERIC PLATFORM", "GENERIC SENSOR"}
+    sc = next((str(raw[k]) for k in ("spacecraft_name", "name_platform") if str(raw.get(k) or "").upper() not in generic), "")
+    inst = next((str(raw[k]) for k in ("instrument_id", "name_sensor") if str(raw.get(k) or "").upper() not in generic), "")
+    return sc, inst
 
 
 def read_cube_image(path: Path) -> SourceImage:
@@ -201,21 +218,18 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
         raise IngestError(f"ISD {isd_path}: not readable JSON ({exc})") from None
     if not isinstance(raw, dict):
         raise IngestError(f"ISD {isd_path}: the top level is not a JSON object")
-    notes: list[str] = []
     try:
         g = read_isd(isd_path)
     except IsdError as exc:
         if "sun_position" not in str(exc):
             raise
         # The geometry is usable without the Sun (matching then knows no illumination angles).
-        g = read_isd(isd_path, require_sun=False)
-        notes.append(f"sun position not used ({exc}); incidence and phase are unknown")
+        g = read_isd(isd_path, require_sun=False)  # its warnings say the Sun was not used
     target = raw.get("name_target") or raw.get("target_name")
     body = _body_of(str(target) if target else None, str(isd_path))
     image_path = _find_image(isd_path, image_dirs)
     image = _read_raster(image_path)
-    name = _instrument_name(str(raw.get("name_platform") or raw.get("spacecraft_name") or ""),
-                            str(raw.get("name_sensor") or raw.get("instrument_id") or ""))
+    name = _instrument_name(*_isd_names(raw))
     cam = g.camera
     if image.shape != (cam.lines, cam.samples):
         raise IngestError(f"image {image_path}: {image.shape[1]} x {image.shape[0]} pixels, but its ISD {isd_path} "
@@ -224,7 +238,7 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
         image_id=isd_path.stem, instrument=name, camera=cam, position=g.position, rotation=g.rotation,
         sun=g.sun_position if g.sun_position is not None else np.full(3, np.nan), time=g.ephemeris_time,
         body=body, pixels=image, files=[str(isd_path), str(image_path)],
-        bits=8 if image.dtype == np.uint8 else None, notes=notes + list(g.warnings),
+        bits=8 if image.dtype == np.uint8 else None, notes=list(g.warnings),
     )
 
 

@@ -15,7 +15,6 @@ from mercury_dem.mission import open_mission
 from mercury_dem.mission.ingest import ingest_mission
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real"
-SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "data"
 MDIS_LEV1 = REAL / "EN0240208184M.lev1.cub"
 APOLLO = [REAL / f"AS15-M-{n}_crop.cub" for n in ("0297", "0298", "0299", "0300")]
 
@@ -102,18 +101,23 @@ def test_selection_by_pixel_scale(tmp_path: Path) -> None:
     assert s["images"] == 1
 
 
-@pytest.mark.skipif(not (SHARED / "mdis" / "EN0213023991M.json").exists(), reason="../shared/data is absent")
 def test_stereo_pair_from_isds_and_8bit_images(tmp_path: Path) -> None:
-    d = SHARED / "mdis"
-    pix = d / "EN0213023991M_EN0213110924M"
-    work = tmp_path / "in"
-    work.mkdir()
-    for stem in ("EN0213023991M", "EN0213110924M"):
-        shutil.copy(d / f"{stem}.json", work / f"{stem}.json")
-        shutil.copy(pix / f"{stem}_recovered_from_notebook_8bit.png", work / f"{stem}_recovered_from_notebook_8bit.png")
-    s = ingest_mission(tmp_path / "m", [str(work / "*.json")])
+    s = ingest_mission(tmp_path / "m", [str(REAL / "mdis_stereo" / "*.json")])
     m = open_mission(s["path"])
     assert len(m) == 2, s["rejected"]
     cat = m.catalog.set_index("image_id")
     assert abs(cat.loc["EN0213023991M", "center_lat"] - 31.96) < 0.2
     assert m.radiometry("EN0213023991M").pixel_kind == "uint8"
+    assert set(cat["instrument"]) == {"MDIS-NAC"}
+
+
+def test_image_of_the_wrong_size_is_rejected(tmp_path: Path) -> None:
+    import numpy as np
+    from PIL import Image
+
+    work = tmp_path / "in"
+    work.mkdir()
+    shutil.copy(REAL / "mdis_stereo" / "EN0213023991M.json", work / "EN0213023991M.json")
+    Image.fromarray(np.zeros((100, 120), np.uint8)).save(work / "EN0213023991M.png")
+    with pytest.raises(StoreError, match="120 x 100 pixels.*512 x 512"):
+        ingest_mission(tmp_path / "m", [str(work / "EN0213023991M.json")])
