@@ -28,3 +28,20 @@ def tiny_mission(tiny_mission_path: Path):
     from mercury_dem.mission import open_mission
 
     return open_mission(tiny_mission_path)
+
+
+#: Fixtures that run the whole pipeline: a test using one is an end-to-end (integration) test.
+_WHOLE_RUN_FIXTURES = {"sync_run", "tiny_run"}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark end-to-end tests ``integration`` so ``pytest -m "not integration"`` is the fast inner loop.
+
+    Tests that use a whole-run fixture, or live in a module that runs the pipeline itself
+    (tests/pipeline/test_run.py, test_execution.py, tests/cluster), are marked here; others mark themselves.
+    """
+    whole_run_modules = {"test_run.py", "test_execution.py", "test_tiny_mission_on_local_cluster.py",
+                         "test_jobqueue.py", "test_browser.py", "test_notebooks.py"}
+    for item in items:
+        if _WHOLE_RUN_FIXTURES & set(getattr(item, "fixturenames", ())) or item.path.name in whole_run_modules:
+            item.add_marker(pytest.mark.integration)

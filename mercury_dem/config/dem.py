@@ -87,14 +87,13 @@ class DemConfig(ConfigSection):
     cog: bool = param(True, "Write the GeoTIFFs cloud-optimised (COG driver)")
     profile_samples: int = param(1000, "Samples along an elevation profile", lo=2, hi=1_000_000)
 
-    @property
-    def coverage_pixel_km_effective(self) -> float:
-        """``coverage_pixel_km``, with 0 resolved to max(1 km, the DEM's north-south pixel size)."""
+    def coverage_pixel_km_for(self, datum_radius_m: float) -> float:
+        """``coverage_pixel_km``, with 0 resolved to max(1 km, the DEM's north-south pixel size on the datum)."""
         if self.coverage_pixel_km > 0:
             return self.coverage_pixel_km
         import math
 
-        return max(1.0, 2.0 * math.pi * 2439.4 / 360.0 / self.pixels_per_degree)
+        return max(1.0, 2.0 * math.pi * datum_radius_m / 1000.0 / 360.0 / self.pixels_per_degree)
 
     def bounds(self) -> tuple[float, float, float, float]:
         """(lat_min, lat_max, lon_min, lon_max) with unset bounds at the globe's (-90, 90, 0, 360)."""

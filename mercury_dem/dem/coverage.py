@@ -39,6 +39,7 @@ class CoverageResult:
     x_km, y_km : (W,), (H,) pixel-centre coordinates of the sinusoidal grid, km
     count : (H, W) int32, points per map pixel (-1 off the planet)
     nearest_km : (H, W) float32, distance from the pixel centre to the nearest point, km (NaN off the planet)
+    radius_m : the sphere of the sinusoidal projection (the body's datum), metres
     """
 
     pixel_km: float
@@ -46,6 +47,7 @@ class CoverageResult:
     y_km: NDArray[np.float64]
     count: NDArray[np.int32]
     nearest_km: NDArray[np.float32]
+    radius_m: float = DATUM_RADIUS_M
 
     def summary(self) -> dict[str, Any]:
         """The reference's figures, as a JSON-safe dict."""
@@ -59,7 +61,7 @@ class CoverageResult:
             return float(mask.sum() / occupied) if occupied else math.nan
 
         return {
-            "grid": "sinusoidal equal-area, central meridian 0, sphere R = 2439.4 km",
+            "grid": f"sinusoidal equal-area, central meridian 0, sphere R = {self.radius_m / 1000:g} km",
             "pixel_km": self.pixel_km,
             "map_pixels": n_map,
             "map_area_km2": n_map * self.pixel_km**2,
@@ -91,7 +93,7 @@ class CoverageResult:
                                             "units": "km"}),
             },
             coords={"x": ("x", self.x_km, {"units": "km"}), "y": ("y", self.y_km, {"units": "km"})},
-            attrs={"projection": "sinusoidal, central meridian 0, R = 2439.4 km (equal-area)",
+            attrs={"projection": f"sinusoidal, central meridian 0, R = {self.radius_m / 1000:g} km (equal-area)",
                    "pixel_km": self.pixel_km},
         )
 
@@ -126,7 +128,7 @@ def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1,
     CoverageResult
     """
     rk = index.datum_radius_m / 1000.0
-    x, y = sinusoidal_grid(pixel_km)
+    x, y = sinusoidal_grid(pixel_km, index.datum_radius_m)
     if bounds is not None:  # crop the rows to the map's latitudes
         lat_deg = np.degrees(y / rk)
         y = y[(lat_deg >= bounds[0]) & (lat_deg <= bounds[1])]
@@ -159,4 +161,5 @@ def point_coverage(index: Any, pixel_km: float = 1.0, threads: int = -1,
         q = latlon_to_unit(np.degrees(la), np.degrees(lo)) * index.datum_radius_m
         d, _ = index.tree.query(q, k=1, workers=threads)
         nearest[r0 + rows, cols] = d / 1000.0
-    return CoverageResult(pixel_km=pixel_km, x_km=x, y_km=y, count=count, nearest_km=nearest)
+    return CoverageResult(pixel_km=pixel_km, x_km=x, y_km=y, count=count, nearest_km=nearest,
+                          radius_m=index.datum_radius_m)

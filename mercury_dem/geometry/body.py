@@ -19,10 +19,11 @@ Conventions (see docs/conventions.md):
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-from dataclasses import dataclass
 
 #: Datum radius of the MESSENGER global DEM (Becker et al. 2016), metres.
 DATUM_RADIUS_M: float = 2_439_400.0
@@ -85,14 +86,19 @@ class Body:
     @staticmethod
     def from_dict(d: dict[str, object]) -> "Body":
         """A body from :meth:`to_dict`'s mapping; a known name alone gives the catalogued body."""
+        if not isinstance(d, dict):
+            raise ValueError(f"a body is an object of name, naif_id, radius_m, ...; got {type(d).__name__}")
         name = str(d.get("name", "")).upper()
         if set(d) <= {"name"}:
             return body_by_name(name)
         try:
-            return Body(name=name, naif_id=int(d["naif_id"]), radius_m=float(d["radius_m"]),  # type: ignore[arg-type]
+            body = Body(name=name, naif_id=int(d["naif_id"]), radius_m=float(d["radius_m"]),  # type: ignore[arg-type]
                         datum_radius_m=float(d["datum_radius_m"]), iau_code=int(d["iau_code"]),  # type: ignore[arg-type]
                         datum_crs=None if d.get("datum_crs") is None else str(d["datum_crs"]))
-        except (KeyError, TypeError, ValueError) as exc:
+            if not (math.isfinite(body.radius_m) and math.isfinite(body.datum_radius_m)):
+                raise ValueError("radii must be finite")
+            return body
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ValueError(f"body {name or '?'}: bad or missing field ({exc})") from None
 
 

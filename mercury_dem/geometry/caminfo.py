@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from mercury_dem.exceptions import GeometryError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera
-from mercury_dem.geometry.pose import illumination_angles, image_to_ground, pixel_rays, pixel_scale_m
+from mercury_dem.geometry.pose import illumination_angles, image_to_ground, intersect_sphere, pixel_rays
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,48 @@ def _latlon(v: NDArray[np.float64]) -> tuple[float, float]:
     return float(lat), float(lon)
 
 
+def centre_geometry(
+    camera: FramingCamera,
+    positions: NDArray[np.float64],
+    rotations: NDArray[np.float64],
+    suns: NDArray[np.float64],
+    radius_m: float,
+    centre_pixel: tuple[float, float] | None = None,
+) -> dict[str, NDArray[np.float64]]:
+    """Centre lat/lon, pixel scale and angles of N images sharing one camera (the labels' convention).
+
+    The one definition of these label quantities: the mission catalog builder
+    (:func:`mercury_dem.mission.catalog.build_catalog`) and :func:`compute_caminfo` both use it.
+
+    Parameters
+    ----------
+    positions : (N, 3) body-fixed metres; rotations : (N, 3, 3) body -> camera;
+    suns : (N, 3) body-fixed metres; radius_m : the sphere the centre ray meets;
+    centre_pixel : (sample, line), 0-based; default the image centre ((samples-1)/2, (lines-1)/2).
+    Also returns the centre ``ground`` points (N, 3) and ``slant_distance_m``.
+    NaN where the centre ray misses the sphere.
+    """
+    n = positions.shape[0]
+    centre_px = np.array(centre_pixel if centre_pixel is not None
+                         else ((camera.samples - 1) / 2.0, (camera.lines - 1) / 2.0), dtype=np.float64)
+    look = camera.pixel_to_camera(centre_px)
+    d = np.einsum("nji,j->ni", rotations, look)  # R^T v
+    ground, _ = intersect_sphere(positions, d, np.full(n, radius_m))
+    lat, lon, _ = xyz_to_latlon(ground, radius_m)
+    slant = np.linalg.norm(ground - positions, axis=-1)
+    inc, emi, phase = illumination_angles(ground, positions, suns)
+    return {
+        "center_lat": lat,
+        "center_lon": lon,
+        "pixel_scale_m": slant * camera.ifov_rad,
+        "incidence_deg": inc,
+        "emission_deg": emi,
+        "phase_deg": phase,
+        "ground": ground,
+        "slant_distance_m": slant,
+    }
+
+
 def compute_caminfo(
     camera: FramingCamera,
     position: ArrayLike,
@@ -121,18 +163,16 @@ def compute_caminfo(
     corners = ((0.0, 0.0), (s1, 0.0), (0.0, l1), (s1, l1))
     pixels = np.array([(cs, cl), *corners])
     ground, _ = image_to_ground(camera, c, r, pixels, datum_radius_m=radius_m)
-    centre = ground[0]
-    clat, clon = _latlon(centre)
     corner_ll = [_latlon(g) for g in ground[1:]]
-    slant = float(np.linalg.norm(centre - c))  # NaN when off the body
     sun = None if sun_position is None else np.asarray(sun_position, dtype=np.float64)
-    inc = emi = pha = math.nan
-    if np.all(np.isfinite(centre)):
-        # Without a Sun, any far point stands in for it: only the emission is kept.
-        angles = illumination_angles(centre, c, sun if sun is not None else 1e3 * c)
-        inc, emi, pha = (float(a) for a in angles)
-        if sun is None:
-            inc = pha = math.nan
+    # Without a Sun, any far point stands in for it: only the emission is kept.
+    g = centre_geometry(camera, c[None], r[None], (sun if sun is not None else 1e3 * c)[None], radius_m, (cs, cl))
+    centre = g["ground"][0]
+    clat, clon = _latlon(centre)
+    slant = float(g["slant_distance_m"][0])  # NaN when off the body
+    inc, emi, pha = (float(g[k][0]) for k in ("incidence_deg", "emission_deg", "phase_deg"))
+    if sun is None:
+        inc = pha = math.nan
     sc_lat, sc_lon = _latlon(c)
     sun_lat, sun_lon = _latlon(sun) if sun is not None else (math.nan, math.nan)
     ra = dec = math.nan
@@ -151,7 +191,7 @@ def compute_caminfo(
         corner_lat=tuple(p[0] for p in corner_ll),
         corner_lon=tuple(p[1] for p in corner_ll),
         slant_distance_m=slant,
-        pixel_scale_m=float(pixel_scale_m(camera, slant)),
+        pixel_scale_m=float(g["pixel_scale_m"][0]),
         incidence_deg=inc,
         emission_deg=emi,
         phase_deg=pha,

@@ -79,6 +79,17 @@ class ImageFeatures:
     features: Features
     described: bool = True
     pattern: NDArray[np.float32] | None = None
+    detect_mask: NDArray[np.uint8] | None = None  # where keypoints may be; None = everywhere
+
+
+def _detect_mask(image: NDArray[Any]) -> NDArray[np.uint8] | None:
+    """Valid pixels (finite, i.e. not ISIS special pixels) shrunk by the detection border; None when all are."""
+    if image.dtype.kind != "f":
+        return None
+    valid = np.isfinite(image)
+    if valid.all():
+        return None
+    return cv2.erode(valid.view(np.uint8), np.ones((2 * _DETECTION_BORDER_PX + 1,) * 2, np.uint8))
 
 
 @dataclass
@@ -236,14 +247,15 @@ def prepare_image(
         reason = f"shape {arr.shape} does not match its camera {tuple(camera_shape)} (truncated or corrupt)"
         return ImageFeatures(ImageQuality(False, reason, 0, 0, 0), np.zeros((0, 0), np.float32), empty)
     q = image_quality(arr, config) if radiometry is None else image_quality(arr, config, *radiometry)
+    mask = _detect_mask(arr)
     f32 = np.nan_to_num(arr.astype(np.float32, copy=False))
     if not q.ok:
         return ImageFeatures(q, f32, empty, described=False)
     pattern = _pattern(f32, config)
     if not describe:
-        return ImageFeatures(q, f32, empty, described=False, pattern=pattern)
-    feats = detect_and_describe(stretch_to_8bit(f32, q.low, q.high), config)
-    return ImageFeatures(q, f32, feats, pattern=pattern)
+        return ImageFeatures(q, f32, empty, described=False, pattern=pattern, detect_mask=mask)
+    feats = detect_and_describe(stretch_to_8bit(f32, q.low, q.high), config, mask)
+    return ImageFeatures(q, f32, feats, pattern=pattern, detect_mask=mask)
 
 
 def _pattern(image: NDArray[np.float32], config: MatchConfig) -> NDArray[np.float32] | None:
@@ -258,8 +270,8 @@ def _pattern_on(config: MatchConfig) -> bool:
 
 
 def _describe(im: ImageFeatures, config: MatchConfig) -> ImageFeatures:
-    feats = detect_and_describe(stretch_to_8bit(im.image, im.quality.low, im.quality.high), config)
-    return ImageFeatures(im.quality, im.image, feats, pattern=im.pattern)
+    feats = detect_and_describe(stretch_to_8bit(im.image, im.quality.low, im.quality.high), config, im.detect_mask)
+    return ImageFeatures(im.quality, im.image, feats, pattern=im.pattern, detect_mask=im.detect_mask)
 
 
 def _fail(report: PairReport, reason: str, status: str = "failed") -> PairResult:

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from mercury_dem.geometry.body import Body, xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.footprints import image_footprints
+from mercury_dem.geometry.caminfo import centre_geometry
 from mercury_dem.geometry.pose import illumination_angles, intersect_sphere
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.mission.radiometry import RADIOMETRY_COLUMNS, Radiometry
@@ -48,39 +49,6 @@ CATALOG_COLUMNS_V1 = (
     ["image_id", "instrument", "samples", "lines", "summing", "time"]
     + POSITION_COLUMNS + ROTATION_COLUMNS + SUN_COLUMNS + GEOMETRY_COLUMNS + ["tile_id"]
 )
-
-
-def centre_geometry(
-    camera: FramingCamera,
-    positions: NDArray[np.float64],
-    rotations: NDArray[np.float64],
-    suns: NDArray[np.float64],
-    radius_m: float,
-) -> dict[str, NDArray[np.float64]]:
-    """Centre lat/lon, pixel scale and angles of N images sharing one camera.
-
-    Parameters
-    ----------
-    positions : (N, 3) body-fixed metres; rotations : (N, 3, 3) body -> camera;
-    suns : (N, 3) body-fixed metres; radius_m : the sphere the centre ray meets.
-    NaN where the centre ray misses the sphere.
-    """
-    n = positions.shape[0]
-    centre_px = np.array([(camera.samples - 1) / 2.0, (camera.lines - 1) / 2.0])
-    look = camera.pixel_to_camera(centre_px)
-    d = np.einsum("nji,j->ni", rotations, look)  # R^T v
-    ground, _ = intersect_sphere(positions, d, np.full(n, radius_m))
-    lat, lon, _ = xyz_to_latlon(ground, radius_m)
-    slant = np.linalg.norm(ground - positions, axis=-1)
-    inc, emi, phase = illumination_angles(ground, positions, suns)
-    return {
-        "center_lat": lat,
-        "center_lon": lon,
-        "pixel_scale_m": slant * camera.ifov_rad,
-        "incidence_deg": inc,
-        "emission_deg": emi,
-        "phase_deg": phase,
-    }
 
 
 def footprint_extent(

@@ -22,6 +22,7 @@ are the MDIS presets named by instrument and size, their body Mercury, their pix
 from __future__ import annotations
 
 import json
+import math
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -283,6 +284,10 @@ def open_mission(path: str | Path) -> Mission:
     if catalog["image_id"].duplicated().any():
         dup = catalog["image_id"][catalog["image_id"].duplicated()].tolist()[:5]
         raise StoreError(f"mission {p}: duplicate image ids in the catalog, e.g. {dup}")
+    for key in ("pointing_sigma_urad", "position_sigma_m", "tile_size_deg"):
+        v = meta.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0):
+            raise StoreError(f"mission {p}: mission.json {key} must be a positive number, got {v!r}")
     if version == 1:
         catalog, cameras = _v1_cameras(catalog)
         body = MERCURY

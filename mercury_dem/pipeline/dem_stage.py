@@ -341,7 +341,7 @@ def grid_dem(
             results = client.gather(futures)
         cov_summary = None
         if coverage:
-            cov = point_coverage(index, cfg.coverage_pixel_km_effective, threads=cfg.query_threads or -1,
+            cov = point_coverage(index, cfg.coverage_pixel_km_for(body.datum_radius_m), threads=cfg.query_threads or -1,
                                  bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
             cov_summary = cov.summary()
             write_coverage(cov, out_path.parent / "coverage.zarr", overwrite=True)

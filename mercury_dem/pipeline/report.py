@@ -106,7 +106,9 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
     for t in store.completed_units("tile"):
         p = store.unit_dir("tile", t) / "pairs.parquet"
         if p.is_file():
-            rows.append(pd.read_parquet(p, columns=["ref_id", "match_id", "status", "reason"]))
+            t = pd.read_parquet(p)  # a tile without pairs wrote a table without columns
+            if {"ref_id", "match_id", "status", "reason"} <= set(t.columns):
+                rows.append(t[["ref_id", "match_id", "status", "reason"]])
     tried = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["ref_id", "match_id", "status", "reason"])
     out = {}
     for i in ids:

@@ -45,8 +45,7 @@ def _spacing(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> tuple[float,
     return dlat, dlon, abs(dlon * lon.size - 360.0) < 1e-6
 
 
-def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64]
-               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64], radius_m: float = DATUM_RADIUS_M) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """East and north height gradients (m/m) by central differences; columns wrap on a global grid."""
     dlat, dlon, wrap = _spacing(lat, lon)
     z = np.asarray(h, dtype=np.float64)
@@ -55,21 +54,21 @@ def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[n
     else:
         ex = np.gradient(z, axis=1) if z.shape[1] > 1 else np.zeros_like(z)
     ny = -np.gradient(z, axis=0) if z.shape[0] > 1 else np.zeros_like(z)  # rows run north to south
-    dx = DATUM_RADIUS_M * np.maximum(np.cos(np.radians(lat)), 1e-3)[:, None] * math.radians(dlon)
-    dy = DATUM_RADIUS_M * math.radians(dlat)
+    dx = radius_m * np.maximum(np.cos(np.radians(lat)), 1e-3)[:, None] * math.radians(dlon)
+    dy = radius_m * math.radians(dlat)
     return ex / dx, ny / dy
 
 
 def hillshade(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
-              azimuth_deg: float = 315.0, altitude_deg: float = 45.0, exaggeration: float = 1.0
-              ) -> NDArray[np.float64]:
+              azimuth_deg: float = 315.0, altitude_deg: float = 45.0, exaggeration: float = 1.0,
+              radius_m: float = DATUM_RADIUS_M) -> NDArray[np.float64]:
     """Lambertian shaded relief in [0, 1] (NaN where no value or next to a gap).
 
     The surface normal ``(-dz/de, -dz/dn, 1)`` (east, north, up; true metric spacing
     per row, heights times ``exaggeration``) dotted with the unit vector to a sun at
     ``azimuth_deg`` (clockwise from north; 315 = north-west) and ``altitude_deg``.
     """
-    ge, gn = _gradients(h, lat, lon)
+    ge, gn = _gradients(h, lat, lon, radius_m)
     ge, gn = ge * exaggeration, gn * exaggeration
     az, alt = math.radians(azimuth_deg), math.radians(altitude_deg)
     sun = (math.sin(az) * math.cos(alt), math.cos(az) * math.cos(alt), math.sin(alt))
@@ -78,9 +77,9 @@ def hillshade(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np
 
 
 def auto_exaggeration(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
-                      target_deg: float = 12.0) -> float:
+                      target_deg: float = 12.0, radius_m: float = DATUM_RADIUS_M) -> float:
     """A vertical exaggeration (1..200) making the 90th-percentile browse slope about ``target_deg``."""
-    ge, gn = _gradients(h, lat, lon)
+    ge, gn = _gradients(h, lat, lon, radius_m)
     g = np.hypot(ge, gn)[np.abs(lat) < 75.0]
     g = g[np.isfinite(g)]
     if g.size == 0:
@@ -208,7 +207,8 @@ def east_longitude_label(x: float, _pos: object = None) -> str:
 
 
 def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
-                     lon: NDArray[np.float64], path: str | Path, title: str, exaggeration: float) -> Path:
+                     lon: NDArray[np.float64], path: str | Path, title: str, exaggeration: float,
+                     radius_m: float = DATUM_RADIUS_M) -> Path:
     """Annotated colour-coded elevation over shaded relief: axes in degrees, colour ramp, scale bar."""
     vmin, vmax = _limits(h)
     rgba = colour_relief(h, shade, vmin, vmax)
@@ -224,11 +224,11 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
     ax.set_title(title)
     sm = plt.cm.ScalarMappable(norm=colors.Normalize(vmin, vmax), cmap=CMAP)
     cb = fig.colorbar(sm, cax=cax)
-    cb.set_label("elevation above 2439.4 km datum (m)")
+    cb.set_label(f"elevation above {radius_m / 1000:g} km datum (m)")
     # Scale bar: equirectangular is true to scale along the parallel of the map's latitude nearest
     # the equator; the bar is drawn in the lower left and says which latitude it holds for.
     lat_ref = float(np.clip(0.0, extent[2], extent[3]))
-    km_per_deg = DATUM_RADIUS_M * math.radians(1.0) / 1000.0 * max(math.cos(math.radians(lat_ref)), 1e-3)
+    km_per_deg = radius_m * math.radians(1.0) / 1000.0 * max(math.cos(math.radians(lat_ref)), 1e-3)
     span_km = (extent[1] - extent[0]) * km_per_deg
     length_km = _nice_length(span_km / 5.0)
     y_bar = extent[2] + 0.07 * (extent[3] - extent[2])

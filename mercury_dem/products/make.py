@@ -178,8 +178,9 @@ def make_products(
 
     # Browse images.
     h, blat, blon = browse.browse_grid(elev, lat, lon, cfg.browse_width)
-    ex = browse.auto_exaggeration(h, blat, blon)
-    shade = browse.hillshade(h, blat, blon, exaggeration=ex)
+    R = body.datum_radius_m
+    ex = browse.auto_exaggeration(h, blat, blon, radius_m=R)
+    shade = browse.hillshade(h, blat, blon, exaggeration=ex, radius_m=R)
     files.append(str(browse.write_greyscale_png(h, out / "browse/greyscale.png")))
     files.append(str(browse.write_hillshade_png(shade, out / "browse/hillshade.png")))
     ppd = float(ds.attrs.get("pixels_per_degree", 1.0 / abs(lat[1] - lat[0]) if H > 1 else 1.0))
@@ -188,7 +189,7 @@ def make_products(
     if np.isfinite(h).mean() < 0.5:  # mostly empty map: show where the data are
         ch, cs, clat, clon = browse.crop_to_data(h, shade, blat, blon)
         title += " (cropped to the data)"
-    files.append(str(browse.write_colour_png(ch, cs, clat, clon, out / "browse/colour_hillshade.png", title, ex)))
+    files.append(str(browse.write_colour_png(ch, cs, clat, clon, out / "browse/colour_hillshade.png", title, ex, radius_m=R)))
     files.append(str(browse.write_robinson_png(
         h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600), body=body)))
     summary["browse_exaggeration"] = ex
@@ -228,7 +229,7 @@ def make_products(
     # Profiles.
     summary["profiles"] = []
     for i, ends in enumerate(profiles):
-        prof = elevation_profile(elev, lat, lon, ends, cfg.profile_samples)
+        prof = elevation_profile(elev, lat, lon, ends, cfg.profile_samples, radius_m=body.datum_radius_m)
         info = write_profile(prof, out / f"profile_{i + 1}.png", out / f"profile_{i + 1}.csv", truth_height)
         files += [info["png"], info["csv"]]
         summary["profiles"].append(info)

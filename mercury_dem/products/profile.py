@@ -35,7 +35,7 @@ def parse_profile(text: str) -> tuple[float, float, float, float]:
 
 def elevation_profile(
     elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating],
-    ends: tuple[float, float, float, float], n: int = 1000,
+    ends: tuple[float, float, float, float], n: int = 1000, radius_m: float = DATUM_RADIUS_M,
 ) -> dict[str, NDArray[np.float64]]:
     """Sample the DEM along the great circle between two points.
 
@@ -51,9 +51,9 @@ def elevation_profile(
         pts = np.repeat(a[None, :], n, axis=0)
     else:
         pts = (np.sin((1 - t) * omega)[:, None] * a + np.sin(t * omega)[:, None] * b) / math.sin(omega)
-    plat, plon, _ = xyz_to_latlon(pts * DATUM_RADIUS_M)
+    plat, plon, _ = xyz_to_latlon(pts * radius_m, radius_m)
     elev = sample_bilinear(elevation, lat, lon, plat, plon).astype(np.float64)
-    return {"distance_km": t * omega * DATUM_RADIUS_M / 1000.0, "lat": plat, "lon": plon, "elevation": elev}
+    return {"distance_km": t * omega * radius_m / 1000.0, "radius_m": np.full(1, radius_m), "lat": plat, "lon": plon, "elevation": elev}
 
 
 def write_profile(profile: dict[str, NDArray[np.float64]], png: str | Path, csv: str | Path,
@@ -76,7 +76,7 @@ def write_profile(profile: dict[str, NDArray[np.float64]], png: str | Path, csv:
     ends = (profile["lat"][0], profile["lon"][0], profile["lat"][-1], profile["lon"][-1])
     ax.set_title("Elevation profile from ({:.2f}°, {:.2f}°E) to ({:.2f}°, {:.2f}°E)".format(*ends))
     ax.set_xlabel("distance along the great circle (km)")
-    ax.set_ylabel("elevation above 2439.4 km datum (m)")
+    ax.set_ylabel(f"elevation above {float(profile.get('radius_m', [DATUM_RADIUS_M])[0]) / 1000:g} km datum (m)")
     ax.grid(alpha=0.3)
     fig.savefig(png, dpi=100)
     plt.close(fig)
