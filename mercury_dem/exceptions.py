@@ -25,6 +25,10 @@ class IsdError(GeometryError):
     """A CSM/ALE image support data (ISD) file lacks a key or has a bad value."""
 
 
+class CubeError(GeometryError):
+    """An ISIS3 cube is unreadable, truncated, or lacks what is asked of it (a table, SPICE)."""
+
+
 class StoreError(MercuryDemError):
     """A mission or run store is missing, incomplete or would be overwritten."""
 

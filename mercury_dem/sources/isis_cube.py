@@ -1,0 +1,393 @@
+"""ISIS3 cubes read without ISIS: the label and the pixels.
+
+Why here: ISIS is a large C++ install with its own data area; GDAL's ISIS3 driver reads
+pixels but not the attached SPICE tables, and ``ale`` needs SPICE kernels. A cube that
+``spiceinit attach=true`` has processed carries everything we need (pixels, SPICE
+tables, NAIF keywords), so a small reader of the documented layout is enough.
+
+Layout facts used (``../shared/data/README.md``, "Real pixels", and the ISIS3 sources:
+``Cube/CubeTileHandler.cpp``, ``Cube/CubeIoHandler.cpp``, ``SpecialPixel/SpecialPixel.h``):
+
+* The label is PVL text at byte 0 ending at a line ``End`` (then zero padding up to
+  ``Object = Label``'s ``Bytes``). ``Object = IsisCube`` / ``Object = Core`` holds
+  ``StartByte`` (1-based), ``Format`` (``Tile`` or ``BandSequential``), ``TileSamples``/
+  ``TileLines``, ``Group = Dimensions`` (``Samples``, ``Lines``, ``Bands``) and
+  ``Group = Pixels`` (``Type``, ``ByteOrder`` Lsb/Msb, ``Base``, ``Multiplier``).
+* ``Tile``: the band is cut into TileSamples x TileLines tiles stored whole, sample-tile
+  fastest, then line-tile, then band; tiles at the right and bottom edges are padded to
+  full size (so a band occupies ceil(S/ts) * ceil(L/tl) * ts * tl pixels).
+  ``BandSequential`` is the same with one tile per band (ts = S, tl = L).
+* Physical value = Base + Multiplier * stored value for the integer types; ``Real`` pixels
+  are used as stored (ISIS ignores Base/Multiplier for them).
+* Special pixels (ISIS Null, Lrs, Lis, His, Hrs): Real bit patterns 0xFF7FFFFB..0xFF7FFFFF
+  and anything below VALID_MIN4 = 0xFF7FFFFA (ISIS calls the unknown ones, NaN and -inf
+  Lrs); SignedWord -32768..-32764 (below -32752 is special); UnsignedWord 0, 1, 2,
+  65534, 65535 (3..65522 valid, the rest Lrs); UnsignedByte 0 (Null) and 255 (Hrs).
+
+Pixel convention: arrays are (lines, samples); our pixel (0, 0) is ISIS pixel (1, 1).
+Every fault is a :class:`~mercury_dem.exceptions.CubeError` naming the file; sizes are
+checked against the file size before anything is allocated.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+with warnings.catch_warnings():
+    # pvl 1.3 warns on import: ImportWarning when the optional 'multidict' package is absent (we do
+    # not use it) and PendingDeprecationWarning for its own pvl.collections.Units class.
+    warnings.simplefilter("ignore", ImportWarning)
+    warnings.simplefilter("ignore", PendingDeprecationWarning)
+    import pvl
+    from pvl.decoder import OmniDecoder
+    from pvl.grammar import OmniGrammar
+
+from mercury_dem.exceptions import CubeError
+
+#: Bytes of one stored pixel, by ISIS pixel type.
+PIXEL_BYTES = {"Real": 4, "SignedWord": 2, "UnsignedWord": 2, "UnsignedByte": 1}
+#: The ISIS special-pixel kinds in the order of their codes.
+SPECIAL_KINDS = ("Null", "Lrs", "Lis", "His", "Hrs")
+#: Largest label we look for the ``End`` line in (labels are a few tens of kB).
+MAX_LABEL_BYTES = 16 * 2**20
+
+_END_LINE = re.compile(rb"(?m)^End[ \t]*\r?$")
+_DTYPE_CHAR = {"Real": "f4", "SignedWord": "i2", "UnsignedWord": "u2", "UnsignedByte": "u1"}
+
+
+class _StringTimeDecoder(OmniDecoder):
+    """PVL decoder that keeps date-times as the strings written (serial numbers need them)."""
+
+    def decode_datetime(self, value: str) -> Any:
+        raise ValueError(value)
+
+
+@dataclass(frozen=True, eq=False)
+class IsisCube:
+    """An ISIS3 cube's label and the facts needed to read it.
+
+    Attributes
+    ----------
+    path : the cube file
+    label : the whole PVL label (a mapping; ``label["IsisCube"]["Core"]`` ...)
+    samples, lines, bands : image size
+    pixel_type : ``"Real"``, ``"SignedWord"``, ``"UnsignedWord"`` or ``"UnsignedByte"``
+    byte_order : ``"Lsb"`` or ``"Msb"``
+    base, multiplier : physical value = base + multiplier * stored (integer types)
+    core_start_byte : 1-based byte of the first pixel (ISIS ``StartByte``)
+    core_format : ``"Tile"`` or ``"BandSequential"``
+    tile_samples, tile_lines : tile size; for BandSequential the band size (one tile a band)
+    file_size : bytes of the file when it was opened
+    spacecraft_name, instrument_id, target_name, start_time : from ``Group = Instrument``
+        (``start_time`` the string as written, UTC)
+    spacecraft_clock_count : ``SpacecraftClockCount`` when present
+    exposure_duration_s : ``ExposureDuration`` in seconds (label unit ms) when present
+    summing : detector summing when the label says it (MDIS: PixelBinningMode x 2 when
+        FpuBinningMode = 1, as ISIS's MdisCamera; else ``Summing``/``SummingMode``)
+    filter : ``BandBin`` ``Name`` or ``FilterName`` when present
+    """
+
+    path: Path
+    label: Mapping[str, Any]
+    samples: int
+    lines: int
+    bands: int
+    pixel_type: str
+    byte_order: str
+    base: float
+    multiplier: float
+    core_start_byte: int
+    core_format: str
+    tile_samples: int
+    tile_lines: int
+    file_size: int
+    spacecraft_name: str | None = None
+    instrument_id: str | None = None
+    target_name: str | None = None
+    start_time: str | None = None
+    spacecraft_clock_count: str | None = None
+    exposure_duration_s: float | None = None
+    summing: int | None = None
+    filter: str | None = None
+
+    @property
+    def band_bytes(self) -> int:
+        """Stored bytes of one band, padding of the edge tiles included."""
+        nts = -(-self.samples // self.tile_samples)
+        ntl = -(-self.lines // self.tile_lines)
+        return nts * ntl * self.tile_samples * self.tile_lines * PIXEL_BYTES[self.pixel_type]
+
+
+# -- label access with errors that name the file -------------------------------------
+
+def _fault(path: Path, what: str, todo: str = "the file is damaged or not an ISIS3 cube; "
+           "re-export it with ISIS (e.g. cubeatt) or fetch it again") -> CubeError:
+    return CubeError(f"ISIS cube {path}: {what}; {todo}")
+
+
+def _group(path: Path, node: Any, name: str, where: str) -> Mapping[str, Any]:
+    value = node.get(name) if isinstance(node, Mapping) else None
+    if not isinstance(value, Mapping):
+        raise _fault(path, f"label has no {where}{name}")
+    return value
+
+
+def _scalar(value: Any) -> Any:
+    """The value of a PVL quantity (``1 <MS>``) or the value itself."""
+    return value.value if hasattr(value, "units") and hasattr(value, "value") else value
+
+
+def label_int(path: Path, node: Mapping[str, Any], key: str, where: str, minimum: int = 0) -> int:
+    """An integer keyword >= ``minimum``; CubeError naming the file otherwise."""
+    value = _scalar(node.get(key)) if isinstance(node, Mapping) else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value != int(value) or value < minimum:
+        raise _fault(path, f"{where}{key} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def label_float(path: Path, node: Mapping[str, Any], key: str, where: str, default: float | None = None) -> float:
+    """A finite number keyword (``default`` when absent and a default is given)."""
+    if default is not None and (not isinstance(node, Mapping) or key not in node):
+        return default
+    value = _scalar(node.get(key)) if isinstance(node, Mapping) else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise _fault(path, f"{where}{key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _opt_str(node: Any, key: str) -> str | None:
+    if not isinstance(node, Mapping) or key not in node:
+        return None
+    value = _scalar(node[key])
+    if isinstance(value, (list, tuple)):
+        return ", ".join(str(v) for v in value)
+    return None if value is None else str(value)
+
+
+def _opt_number(node: Any, key: str) -> float | None:
+    value = _scalar(node.get(key)) if isinstance(node, Mapping) else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+# -- opening ------------------------------------------------------------------------
+
+def read_label_text(path: Path, file_size: int) -> str:
+    """The label text from byte 0 through its ``End`` line."""
+    limit = min(file_size, MAX_LABEL_BYTES)
+    try:
+        with open(path, "rb") as fh:
+            head = b""
+            size = 65536
+            while True:
+                head = fh.read(min(size, limit))
+                m = _END_LINE.search(head)
+                if m or len(head) >= limit:
+                    break
+                fh.seek(0)
+                size *= 4
+    except OSError as exc:
+        raise CubeError(f"ISIS cube {path}: cannot be read ({exc.strerror or exc}); check the path") from None
+    if not head.startswith(b"Object") and b"IsisCube" not in head[:4096]:
+        raise _fault(path, "no PVL label at byte 0 (not an ISIS3 cube)", "give the path of a .cub file")
+    if m is None:
+        raise _fault(path, f"label has no 'End' line in its first {limit} bytes (truncated or not a cube)")
+    raw = head[: m.end()]
+    if b"\0" in raw:
+        raw = raw.split(b"\0", 1)[0]
+    return raw.decode("utf-8", errors="replace")
+
+
+def parse_label(path: Path, text: str) -> Mapping[str, Any]:
+    """The PVL label as a mapping; CubeError for text pvl cannot parse."""
+    try:
+        grammar = OmniGrammar()
+        return pvl.loads(text, grammar=grammar, decoder=_StringTimeDecoder(grammar=grammar))
+    except Exception as exc:  # pvl raises many types (LexerError, ParseError, ValueError ...)
+        first = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        raise _fault(path, f"label is not valid PVL ({first})") from None
+
+
+def _summing(inst: Mapping[str, Any] | None) -> int | None:
+    if not isinstance(inst, Mapping):
+        return None
+    fpu, pix = _opt_number(inst, "FpuBinningMode"), _opt_number(inst, "PixelBinningMode")
+    if fpu is not None and pix is not None:  # MDIS, as ISIS's MdisCamera
+        s = 1 if pix == 0 else int(pix)
+        return s * 2 if fpu == 1 else s
+    for key in ("Summing", "SummingMode", "SampleDetectorSumming"):
+        v = _opt_number(inst, key)
+        if v is not None and v >= 1 and v == int(v):
+            return int(v)
+    return None
+
+
+def open_cube(path: str | Path) -> IsisCube:
+    """Parse an ISIS3 cube's label and check that its pixels are all in the file.
+
+    Parameters
+    ----------
+    path : the ``.cub`` file (attached label; detached labels are not supported)
+
+    Returns
+    -------
+    IsisCube
+
+    Raises
+    ------
+    CubeError
+        naming the file, when it cannot be read, has no ``IsisCube`` object, an
+        unparseable label, an unknown pixel type or format, sizes <= 0, or a core that
+        runs past the end of the file (truncated).
+    """
+    p = Path(path)
+    try:
+        file_size = p.stat().st_size
+    except OSError as exc:
+        raise CubeError(f"ISIS cube {p}: cannot be read ({exc.strerror or exc}); check the path") from None
+    label = parse_label(p, read_label_text(p, file_size))
+    cube = _group(p, label, "IsisCube", "")
+    core = _group(p, cube, "Core", "IsisCube/")
+    if "^Core" in core or "^Core" in cube:
+        raise _fault(p, "has a detached core (^Core)", "merge it into one file with ISIS cubeatt")
+    dims = _group(p, core, "Dimensions", "IsisCube/Core/")
+    pix = _group(p, core, "Pixels", "IsisCube/Core/")
+    where = "IsisCube/Core/Dimensions/"
+    samples = label_int(p, dims, "Samples", where, 1)
+    lines = label_int(p, dims, "Lines", where, 1)
+    bands = label_int(p, dims, "Bands", where, 1)
+    ptype = _opt_str(pix, "Type")
+    if ptype not in PIXEL_BYTES:
+        raise _fault(p, f"pixel type {ptype!r} is not supported (only {', '.join(PIXEL_BYTES)})",
+                     "convert it with ISIS cubeatt (e.g. to real)")
+    order = (_opt_str(pix, "ByteOrder") or "Lsb").capitalize()
+    if order not in ("Lsb", "Msb"):
+        raise _fault(p, f"IsisCube/Core/Pixels/ByteOrder must be Lsb or Msb, got {order!r}")
+    base = label_float(p, pix, "Base", "IsisCube/Core/Pixels/", 0.0)
+    mult = label_float(p, pix, "Multiplier", "IsisCube/Core/Pixels/", 1.0)
+    start = label_int(p, core, "StartByte", "IsisCube/Core/", 1)
+    fmt = _opt_str(core, "Format")
+    if fmt == "Tile":
+        ts = label_int(p, core, "TileSamples", "IsisCube/Core/", 1)
+        tl = label_int(p, core, "TileLines", "IsisCube/Core/", 1)
+    elif fmt == "BandSequential":
+        ts, tl = samples, lines
+    else:
+        raise _fault(p, f"core format {fmt!r} is not supported (Tile or BandSequential)")
+    out = IsisCube(path=p, label=label, samples=samples, lines=lines, bands=bands, pixel_type=ptype,
+                   byte_order=order, base=base, multiplier=mult, core_start_byte=start, core_format=fmt,
+                   tile_samples=ts, tile_lines=tl, file_size=file_size)
+    end = start - 1 + out.band_bytes * bands
+    if end > file_size:
+        raise _fault(p, f"truncated: its {samples} x {lines} x {bands} {ptype} core ends at byte {end} "
+                        f"but the file has {file_size} bytes", "fetch or copy the file again")
+    inst = cube.get("Instrument")
+    exp = _opt_number(inst, "ExposureDuration")
+    bandbin = cube.get("BandBin")
+    return replace(
+        out,
+        spacecraft_name=_opt_str(inst, "SpacecraftName"),
+        instrument_id=_opt_str(inst, "InstrumentId"),
+        target_name=_opt_str(inst, "TargetName"),
+        start_time=_opt_str(inst, "StartTime"),
+        spacecraft_clock_count=_opt_str(inst, "SpacecraftClockCount"),
+        exposure_duration_s=None if exp is None else exp / 1000.0,
+        summing=_summing(inst),
+        filter=_opt_str(bandbin, "Name") or _opt_str(bandbin, "FilterName"),
+    )
+
+
+# -- pixels -----------------------------------------------------------------------
+
+def _read_bytes(cube: IsisCube, offset: int, count: int) -> bytes:
+    try:
+        with open(cube.path, "rb") as fh:
+            fh.seek(offset)
+            data = fh.read(count)
+    except OSError as exc:
+        raise CubeError(f"ISIS cube {cube.path}: cannot be read ({exc.strerror or exc}); check the path") from None
+    if len(data) != count:
+        raise _fault(cube.path, f"truncated: {count} bytes wanted at byte {offset}, {len(data)} there",
+                     "fetch or copy the file again")
+    return data
+
+
+def _stored_band(cube: IsisCube, band: int) -> NDArray[Any]:
+    """The stored values of one band, (lines, samples), in the file's type and byte order."""
+    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or not 1 <= band <= cube.bands:
+        raise CubeError(f"ISIS cube {cube.path}: band {band!r} does not exist (it has bands 1..{cube.bands}); "
+                        "ask for one of those")
+    offset = cube.core_start_byte - 1 + (int(band) - 1) * cube.band_bytes
+    data = _read_bytes(cube, offset, cube.band_bytes)
+    dtype = np.dtype(("<" if cube.byte_order == "Lsb" else ">") + _DTYPE_CHAR[cube.pixel_type])
+    ts, tl = cube.tile_samples, cube.tile_lines
+    nts, ntl = -(-cube.samples // ts), -(-cube.lines // tl)
+    tiles = np.frombuffer(data, dtype=dtype).reshape(ntl, nts, tl, ts)
+    return tiles.transpose(0, 2, 1, 3).reshape(ntl * tl, nts * ts)[: cube.lines, : cube.samples]
+
+
+def _special_codes(cube: IsisCube, stored: NDArray[Any]) -> NDArray[np.int8]:
+    """0 for a valid pixel, 1..5 for Null, Lrs, Lis, His, Hrs (ISIS's classification)."""
+    code = np.zeros(stored.shape, np.int8)
+    t = cube.pixel_type
+    if t == "Real":
+        bits = stored.astype(stored.dtype.newbyteorder("="), copy=False).view(np.uint32)
+        valid = stored >= np.float32(np.frombuffer(np.uint32(0xFF7FFFFA).tobytes(), np.float32)[0])
+        code[~valid] = 2  # ISIS: any other value below VALID_MIN4 (NaN, -inf) is Lrs
+        for k, pattern in enumerate((0xFF7FFFFB, 0xFF7FFFFC, 0xFF7FFFFD, 0xFF7FFFFE, 0xFF7FFFFF), start=1):
+            code[bits == pattern] = k
+        code[np.isposinf(stored)] = 5  # a float32 image cannot carry +inf as a value
+    elif t == "SignedWord":
+        v = stored.astype(np.int32)
+        code[v < -32752] = 2
+        for k in range(1, 6):
+            code[v == -32769 + k] = k
+    elif t == "UnsignedWord":
+        v = stored.astype(np.int32)
+        code[(v < 3) | (v > 65522)] = 2
+        code[v == 0], code[v == 2], code[v == 65534], code[v == 65535] = 1, 3, 4, 5
+    else:
+        code[stored == 0], code[stored == 255] = 1, 5
+    return code
+
+
+def read_pixels(cube: IsisCube, band: int = 1) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """One band's pixel values, special pixels masked.
+
+    Parameters
+    ----------
+    cube : from :func:`open_cube`
+    band : 1-based band number (ISIS's numbering, as in the label)
+
+    Returns
+    -------
+    image : ndarray of shape (lines, samples), float32; Base + Multiplier * stored for
+        integer types, NaN at special pixels. ``image[0, 0]`` is ISIS pixel (1, 1).
+    valid : ndarray of shape (lines, samples), bool; False at ISIS special pixels
+        (Null, Lrs, Lis, His, Hrs; see :func:`special_pixel_counts`)
+    """
+    stored = _stored_band(cube, band)
+    valid = _special_codes(cube, stored) == 0
+    if cube.pixel_type == "Real":
+        image = stored.astype(np.float32)
+    else:
+        image = (cube.base + cube.multiplier * stored.astype(np.float64)).astype(np.float32)
+    image[~valid] = np.nan
+    return image, valid
+
+
+def special_pixel_counts(cube: IsisCube, band: int = 1) -> dict[str, int]:
+    """How many pixels of a band are of each ISIS special kind (``Null``, ``Lrs``, ``Lis``, ``His``, ``Hrs``)."""
+    counts = np.bincount(_special_codes(cube, _stored_band(cube, band)).ravel(), minlength=6)
+    return {kind: int(counts[k]) for k, kind in enumerate(SPECIAL_KINDS, start=1)}

@@ -1,0 +1,231 @@
+"""Attached tables, NAIF keywords and the AlphaCube crop of an ISIS3 cube.
+
+Layout facts (``../shared/data/README.md``; ISIS3 ``Table/Table.cpp``,
+``TableRecord/TableRecord.cpp``, ``TableField/TableField.cpp``, ``AlphaCube/AlphaCube.cpp``):
+
+* ``Object = Table`` at the label's top level: ``Name``, ``StartByte`` (1-based),
+  ``Bytes``, ``Records``, ``ByteOrder``, then one ``Group = Field`` per column
+  (``Name``, ``Type`` Double 8 / Integer 4 / Real 4 bytes / Text 1 byte per character,
+  ``Size`` values). Records are packed back to back with no padding;
+  ``Bytes = Records * record size``. Text fields are NUL-padded character arrays.
+* ``Object = NaifKeywords``: the NAIF kernel-pool values spiceinit used (lists are tuples here).
+* ``Group = AlphaCube`` (in ``IsisCube``): a crop/reduce of the original ("alpha") image
+  to this ("beta") one. With ISIS 1-based pixel-centre coordinates,
+  ``alpha = slope * (beta - 0.5) + AlphaStartingSample``,
+  ``slope = (AlphaEndingSample - AlphaStartingSample) / BetaSamples`` (likewise lines): the
+  starting/ending values are the alpha positions of the beta image's outer pixel edges.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mercury_dem.exceptions import CubeError
+from mercury_dem.sources.isis_cube import IsisCube, _fault, _read_bytes, _scalar, label_float, label_int
+
+_FIELD_TYPES = {"Double": ("f8", 8), "Integer": ("i4", 4), "Real": ("f4", 4), "Text": ("S", 1)}
+#: Largest ``Size`` of one field (values per record) accepted.
+MAX_FIELD_SIZE = 2**20
+
+
+@dataclass(frozen=True, eq=False)
+class CubeTable:
+    """One attached ISIS table.
+
+    Attributes
+    ----------
+    name : the table's ``Name``
+    records : number of records
+    columns : field name -> ndarray of shape (records,) (``Size`` 1, or Text: str) or
+        (records, size); numbers as float64 (Double), int32 (Integer), float32 (Real)
+    keywords : the table object's keywords other than its fields (e.g.
+        ``TimeDependentFrames``, ``CkTableStartTime``), lists as tuples
+    """
+
+    name: str
+    records: int
+    columns: dict[str, NDArray[Any]]
+    keywords: dict[str, Any]
+
+
+def _plain(value: Any) -> Any:
+    """A PVL value as plain Python: quantities lose their unit, lists become tuples."""
+    value = _scalar(value)
+    if isinstance(value, (list, tuple, set)):
+        return tuple(_plain(v) for v in value)
+    return value
+
+
+def _find_table(cube: IsisCube, name: str) -> Mapping[str, Any] | None:
+    items = cube.label.items() if isinstance(cube.label, Mapping) else ()
+    for key, node in items:
+        if key == "Table" and isinstance(node, Mapping) and str(_scalar(node.get("Name"))) == name:
+            return node
+    return None
+
+
+def table_names(cube: IsisCube) -> tuple[str, ...]:
+    """Names of the tables attached to a cube, in label order."""
+    return tuple(str(_scalar(n.get("Name"))) for k, n in cube.label.items()
+                 if k == "Table" and isinstance(n, Mapping))
+
+
+def read_table(cube: IsisCube, name: str) -> CubeTable:
+    """Read one attached table.
+
+    Parameters
+    ----------
+    cube : from :func:`~mercury_dem.sources.isis_cube.open_cube`
+    name : the table's ``Name`` (e.g. ``"InstrumentPointing"``, ``"CameraStatistics"``)
+
+    Raises
+    ------
+    CubeError
+        naming the file and the table when it is missing, its fields are invalid, its size
+        disagrees with its records, or its bytes run past the end of the file.
+    """
+    node = _find_table(cube, name)
+    if node is None:
+        raise CubeError(f"ISIS cube {cube.path}: has no table named {name!r} (it has: "
+                        f"{', '.join(table_names(cube)) or 'none'}); run the ISIS program that makes it "
+                        "(e.g. spiceinit attach=true for the SPICE tables)")
+    where = f"Table {name}: "
+    records = label_int(cube.path, node, "Records", where, 0)
+    start = label_int(cube.path, node, "StartByte", where, 1)
+    nbytes = label_int(cube.path, node, "Bytes", where, 0)
+    order = str(_scalar(node.get("ByteOrder", "Lsb"))).capitalize()
+    if order not in ("Lsb", "Msb"):
+        raise _fault(cube.path, f"{where}ByteOrder must be Lsb or Msb, got {order!r}")
+    fields: list[tuple[str, str, int]] = []
+    for key, group in node.items():
+        if key != "Field" or not isinstance(group, Mapping):
+            continue
+        fname = str(_scalar(group.get("Name")))
+        ftype = str(_scalar(group.get("Type")))
+        if ftype not in _FIELD_TYPES:
+            raise _fault(cube.path, f"{where}field {fname!r} has unknown type {ftype!r}")
+        size = label_int(cube.path, group, "Size", f"{where}field {fname!r} ", 1)
+        if size > MAX_FIELD_SIZE:
+            raise _fault(cube.path, f"{where}field {fname!r} Size {size} is absurd")
+        if any(f[0] == fname for f in fields):
+            raise _fault(cube.path, f"{where}field {fname!r} appears twice")
+        fields.append((fname, ftype, size))
+    if not fields:
+        raise _fault(cube.path, f"{where}has no Field groups")
+    record_bytes = sum(_FIELD_TYPES[t][1] * s for _, t, s in fields)
+    if records * record_bytes != nbytes:
+        raise _fault(cube.path, f"{where}Bytes = {nbytes} but {records} records of {record_bytes} bytes "
+                                f"make {records * record_bytes}")
+    if start - 1 + nbytes > cube.file_size:
+        raise _fault(cube.path, f"truncated: table {name!r} ends at byte {start - 1 + nbytes}, the file has "
+                                f"{cube.file_size}", "fetch or copy the file again")
+    endian = "<" if order == "Lsb" else ">"
+    dtype = np.dtype([(f, (f"S{s}" if t == "Text" else endian + _FIELD_TYPES[t][0],
+                           () if (s == 1 or t == "Text") else (s,))) for f, t, s in fields])
+    data = np.frombuffer(_read_bytes(cube, start - 1, nbytes), dtype=dtype, count=records)
+    columns: dict[str, NDArray[Any]] = {}
+    for f, t, _ in fields:
+        col = data[f]
+        if t == "Text":
+            columns[f] = np.array([v.rstrip(b"\0 ").decode("utf-8", errors="replace") for v in col], dtype=str)
+        else:
+            columns[f] = col.astype(col.dtype.newbyteorder("="))
+    keywords = {k: _plain(v) for k, v in node.items() if k != "Field"}
+    return CubeTable(name=name, records=records, columns=columns, keywords=keywords)
+
+
+def naif_keywords(cube: IsisCube) -> dict[str, Any]:
+    """The ``NaifKeywords`` object: NAIF kernel-pool name -> value (float, int, str, bool or tuple).
+
+    Raises CubeError naming the file when the cube has none (spiceinit writes it).
+    """
+    node = cube.label.get("NaifKeywords") if isinstance(cube.label, Mapping) else None
+    if not isinstance(node, Mapping):
+        raise CubeError(f"ISIS cube {cube.path}: has no NaifKeywords object; run spiceinit attach=true on it")
+    return {str(k): _plain(v) for k, v in node.items()}
+
+
+@dataclass(frozen=True)
+class AlphaCube:
+    """Where this cube's pixels sit in the original image (ISIS ``Group = AlphaCube``).
+
+    The starting/ending values are ISIS's (1-based, pixel centres at integers, so the original
+    image's outer edge is 0.5); :meth:`beta_to_alpha` converts in our 0-based convention.
+    """
+
+    alpha_samples: int
+    alpha_lines: int
+    alpha_starting_sample: float
+    alpha_starting_line: float
+    alpha_ending_sample: float
+    alpha_ending_line: float
+    beta_samples: int
+    beta_lines: int
+
+    def _slopes(self) -> tuple[float, float]:
+        return ((self.alpha_ending_sample - self.alpha_starting_sample) / self.beta_samples,
+                (self.alpha_ending_line - self.alpha_starting_line) / self.beta_lines)
+
+    def beta_to_alpha(self, sample: ArrayLike, line: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Original-image (alpha) pixel of a pixel of this cube (beta); both 0-based, centre of the first pixel 0.
+
+        Parameters
+        ----------
+        sample, line : array_like, this cube's pixel coordinates (any matching shapes)
+
+        Returns
+        -------
+        (sample, line) in the original image, float64 arrays of the broadcast shape.
+        The cube's outer edge (-0.5, size - 0.5) maps onto AlphaStarting - 1 and AlphaEnding - 1.
+        """
+        ss, sl = self._slopes()
+        s = np.asarray(sample, np.float64)
+        ln = np.asarray(line, np.float64)
+        # ISIS: alpha_isis = slope * (beta_isis - 0.5) + start, with isis = ours + 1.
+        return ss * (s + 0.5) + self.alpha_starting_sample - 1.0, sl * (ln + 0.5) + self.alpha_starting_line - 1.0
+
+    def alpha_to_beta(self, sample: ArrayLike, line: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Inverse of :meth:`beta_to_alpha` (0-based both)."""
+        ss, sl = self._slopes()
+        s = np.asarray(sample, np.float64)
+        ln = np.asarray(line, np.float64)
+        return (s + 1.0 - self.alpha_starting_sample) / ss - 0.5, (ln + 1.0 - self.alpha_starting_line) / sl - 0.5
+
+
+def alpha_cube(cube: IsisCube) -> AlphaCube | None:
+    """The cube's AlphaCube group, or None when it was never cropped or reduced.
+
+    Raises CubeError naming the file when the group is inconsistent (non-positive sizes,
+    ending <= starting, BetaSamples/BetaLines not the cube's size).
+    """
+    group = cube.label["IsisCube"].get("AlphaCube")
+    if group is None:
+        return None
+    if not isinstance(group, Mapping):
+        raise _fault(cube.path, "IsisCube/AlphaCube is not a group")
+    w = "IsisCube/AlphaCube/"
+    p = cube.path
+    ac = AlphaCube(
+        alpha_samples=label_int(p, group, "AlphaSamples", w, 1),
+        alpha_lines=label_int(p, group, "AlphaLines", w, 1),
+        alpha_starting_sample=label_float(p, group, "AlphaStartingSample", w),
+        alpha_starting_line=label_float(p, group, "AlphaStartingLine", w),
+        alpha_ending_sample=label_float(p, group, "AlphaEndingSample", w),
+        alpha_ending_line=label_float(p, group, "AlphaEndingLine", w),
+        beta_samples=label_int(p, group, "BetaSamples", w, 1),
+        beta_lines=label_int(p, group, "BetaLines", w, 1),
+    )
+    if not (ac.alpha_ending_sample > ac.alpha_starting_sample and ac.alpha_ending_line > ac.alpha_starting_line):
+        raise _fault(p, f"{w}ending sample/line must exceed the starting ones ({ac})")
+    if (ac.beta_samples, ac.beta_lines) != (cube.samples, cube.lines):
+        raise _fault(p, f"{w}BetaSamples x BetaLines = {ac.beta_samples} x {ac.beta_lines} is not the cube's "
+                        f"size {cube.samples} x {cube.lines}")
+    if not all(math.isfinite(v) for v in (ac.alpha_starting_sample, ac.alpha_ending_sample)):
+        raise _fault(p, f"{w}values must be finite")
+    return ac
