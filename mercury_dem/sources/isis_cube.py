@@ -1,4 +1,4 @@
-"""ISIS3 cubes read without ISIS: the label and the pixels.
+"""ISIS3 cubes read without ISIS: the label (pixels in :mod:`~mercury_dem.sources.isis_pixels`).
 
 Why here: ISIS is a large C++ install with its own data area; GDAL's ISIS3 driver reads
 pixels but not the attached SPICE tables, and ``ale`` needs SPICE kernels. A cube that
@@ -13,18 +13,9 @@ Layout facts used (``../shared/data/README.md``, "Real pixels", and the ISIS3 so
   ``StartByte`` (1-based), ``Format`` (``Tile`` or ``BandSequential``), ``TileSamples``/
   ``TileLines``, ``Group = Dimensions`` (``Samples``, ``Lines``, ``Bands``) and
   ``Group = Pixels`` (``Type``, ``ByteOrder`` Lsb/Msb, ``Base``, ``Multiplier``).
-* ``Tile``: the band is cut into TileSamples x TileLines tiles stored whole, sample-tile
-  fastest, then line-tile, then band; tiles at the right and bottom edges are padded to
-  full size (so a band occupies ceil(S/ts) * ceil(L/tl) * ts * tl pixels).
-  ``BandSequential`` is the same with one tile per band (ts = S, tl = L).
-* Physical value = Base + Multiplier * stored value for the integer types; ``Real`` pixels
-  are used as stored (ISIS ignores Base/Multiplier for them).
-* Special pixels (ISIS Null, Lrs, Lis, His, Hrs): Real bit patterns 0xFF7FFFFB..0xFF7FFFFF
-  and anything below VALID_MIN4 = 0xFF7FFFFA (ISIS calls the unknown ones, NaN and -inf
-  Lrs); SignedWord -32768..-32764 (below -32752 is special); UnsignedWord 0, 1, 2,
-  65534, 65535 (3..65522 valid, the rest Lrs); UnsignedByte 0 (Null) and 255 (Hrs).
+* The core holds Samples x Lines x Bands pixels of the type's size from ``StartByte``
+  (Tile: whole tiles, edge tiles padded); its end must lie within the file.
 
-Pixel convention: arrays are (lines, samples); our pixel (0, 0) is ISIS pixel (1, 1).
 Every fault is a :class:`~mercury_dem.exceptions.CubeError` naming the file; sizes are
 checked against the file size before anything is allocated.
 """
@@ -40,7 +31,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 with warnings.catch_warnings():
     # pvl 1.3 warns on import: ImportWarning when the optional 'multidict' package is absent (we do
@@ -55,13 +45,10 @@ from mercury_dem.exceptions import CubeError
 
 #: Bytes of one stored pixel, by ISIS pixel type.
 PIXEL_BYTES = {"Real": 4, "SignedWord": 2, "UnsignedWord": 2, "UnsignedByte": 1}
-#: The ISIS special-pixel kinds in the order of their codes.
-SPECIAL_KINDS = ("Null", "Lrs", "Lis", "His", "Hrs")
 #: Largest label we look for the ``End`` line in (labels are a few tens of kB).
 MAX_LABEL_BYTES = 16 * 2**20
 
 _END_LINE = re.compile(rb"(?m)^End[ \t]*\r?$")
-_DTYPE_CHAR = {"Real": "f4", "SignedWord": "i2", "UnsignedWord": "u2", "UnsignedByte": "u1"}
 
 
 class _StringTimeDecoder(OmniDecoder):
@@ -276,6 +263,10 @@ def open_cube(path: str | Path) -> IsisCube:
         raise _fault(p, f"IsisCube/Core/Pixels/ByteOrder must be Lsb or Msb, got {order!r}")
     base = label_float(p, pix, "Base", "IsisCube/Core/Pixels/", 0.0)
     mult = label_float(p, pix, "Multiplier", "IsisCube/Core/Pixels/", 1.0)
+    if ptype != "Real":
+        top = abs(base) + abs(mult) * {"SignedWord": 32767, "UnsignedWord": 65522, "UnsignedByte": 254}[ptype]
+        if not top < float(np.finfo(np.float32).max):
+            raise _fault(p, f"Base {base} and Multiplier {mult} take {ptype} values beyond float32")
     start = label_int(p, core, "StartByte", "IsisCube/Core/", 1)
     fmt = _opt_str(core, "Format")
     if fmt == "Tile":
@@ -308,8 +299,6 @@ def open_cube(path: str | Path) -> IsisCube:
     )
 
 
-# -- pixels -----------------------------------------------------------------------
-
 def _read_bytes(cube: IsisCube, offset: int, count: int) -> bytes:
     try:
         with open(cube.path, "rb") as fh:
@@ -321,73 +310,3 @@ def _read_bytes(cube: IsisCube, offset: int, count: int) -> bytes:
         raise _fault(cube.path, f"truncated: {count} bytes wanted at byte {offset}, {len(data)} there",
                      "fetch or copy the file again")
     return data
-
-
-def _stored_band(cube: IsisCube, band: int) -> NDArray[Any]:
-    """The stored values of one band, (lines, samples), in the file's type and byte order."""
-    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or not 1 <= band <= cube.bands:
-        raise CubeError(f"ISIS cube {cube.path}: band {band!r} does not exist (it has bands 1..{cube.bands}); "
-                        "ask for one of those")
-    offset = cube.core_start_byte - 1 + (int(band) - 1) * cube.band_bytes
-    data = _read_bytes(cube, offset, cube.band_bytes)
-    dtype = np.dtype(("<" if cube.byte_order == "Lsb" else ">") + _DTYPE_CHAR[cube.pixel_type])
-    ts, tl = cube.tile_samples, cube.tile_lines
-    nts, ntl = -(-cube.samples // ts), -(-cube.lines // tl)
-    tiles = np.frombuffer(data, dtype=dtype).reshape(ntl, nts, tl, ts)
-    return tiles.transpose(0, 2, 1, 3).reshape(ntl * tl, nts * ts)[: cube.lines, : cube.samples]
-
-
-def _special_codes(cube: IsisCube, stored: NDArray[Any]) -> NDArray[np.int8]:
-    """0 for a valid pixel, 1..5 for Null, Lrs, Lis, His, Hrs (ISIS's classification)."""
-    code = np.zeros(stored.shape, np.int8)
-    t = cube.pixel_type
-    if t == "Real":
-        bits = stored.astype(stored.dtype.newbyteorder("="), copy=False).view(np.uint32)
-        valid = stored >= np.float32(np.frombuffer(np.uint32(0xFF7FFFFA).tobytes(), np.float32)[0])
-        code[~valid] = 2  # ISIS: any other value below VALID_MIN4 (NaN, -inf) is Lrs
-        for k, pattern in enumerate((0xFF7FFFFB, 0xFF7FFFFC, 0xFF7FFFFD, 0xFF7FFFFE, 0xFF7FFFFF), start=1):
-            code[bits == pattern] = k
-        code[np.isposinf(stored)] = 5  # a float32 image cannot carry +inf as a value
-    elif t == "SignedWord":
-        v = stored.astype(np.int32)
-        code[v < -32752] = 2
-        for k in range(1, 6):
-            code[v == -32769 + k] = k
-    elif t == "UnsignedWord":
-        v = stored.astype(np.int32)
-        code[(v < 3) | (v > 65522)] = 2
-        code[v == 0], code[v == 2], code[v == 65534], code[v == 65535] = 1, 3, 4, 5
-    else:
-        code[stored == 0], code[stored == 255] = 1, 5
-    return code
-
-
-def read_pixels(cube: IsisCube, band: int = 1) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """One band's pixel values, special pixels masked.
-
-    Parameters
-    ----------
-    cube : from :func:`open_cube`
-    band : 1-based band number (ISIS's numbering, as in the label)
-
-    Returns
-    -------
-    image : ndarray of shape (lines, samples), float32; Base + Multiplier * stored for
-        integer types, NaN at special pixels. ``image[0, 0]`` is ISIS pixel (1, 1).
-    valid : ndarray of shape (lines, samples), bool; False at ISIS special pixels
-        (Null, Lrs, Lis, His, Hrs; see :func:`special_pixel_counts`)
-    """
-    stored = _stored_band(cube, band)
-    valid = _special_codes(cube, stored) == 0
-    if cube.pixel_type == "Real":
-        image = stored.astype(np.float32)
-    else:
-        image = (cube.base + cube.multiplier * stored.astype(np.float64)).astype(np.float32)
-    image[~valid] = np.nan
-    return image, valid
-
-
-def special_pixel_counts(cube: IsisCube, band: int = 1) -> dict[str, int]:
-    """How many pixels of a band are of each ISIS special kind (``Null``, ``Lrs``, ``Lis``, ``His``, ``Hrs``)."""
-    counts = np.bincount(_special_codes(cube, _stored_band(cube, band)).ravel(), minlength=6)
-    return {kind: int(counts[k]) for k, kind in enumerate(SPECIAL_KINDS, start=1)}

@@ -18,7 +18,6 @@ Layout facts (``../shared/data/README.md``; ISIS3 ``Table/Table.cpp``,
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -126,12 +125,13 @@ def read_table(cube: IsisCube, name: str) -> CubeTable:
         raise _fault(cube.path, f"truncated: table {name!r} ends at byte {start - 1 + nbytes}, the file has "
                                 f"{cube.file_size}", "fetch or copy the file again")
     endian = "<" if order == "Lsb" else ">"
-    dtype = np.dtype([(f, (f"S{s}" if t == "Text" else endian + _FIELD_TYPES[t][0],
-                           () if (s == 1 or t == "Text") else (s,))) for f, t, s in fields])
+    # numpy field names are positional (c0, c1, ...): the label's names may be anything.
+    dtype = np.dtype([(f"c{k}", (f"S{s}" if t == "Text" else endian + _FIELD_TYPES[t][0],
+                                 () if (s == 1 or t == "Text") else (s,))) for k, (_, t, s) in enumerate(fields)])
     data = np.frombuffer(_read_bytes(cube, start - 1, nbytes), dtype=dtype, count=records)
     columns: dict[str, NDArray[Any]] = {}
-    for f, t, _ in fields:
-        col = data[f]
+    for k, (f, t, _) in enumerate(fields):
+        col = data[f"c{k}"]
         if t == "Text":
             columns[f] = np.array([v.rstrip(b"\0 ").decode("utf-8", errors="replace") for v in col], dtype=str)
         else:
@@ -226,6 +226,4 @@ def alpha_cube(cube: IsisCube) -> AlphaCube | None:
     if (ac.beta_samples, ac.beta_lines) != (cube.samples, cube.lines):
         raise _fault(p, f"{w}BetaSamples x BetaLines = {ac.beta_samples} x {ac.beta_lines} is not the cube's "
                         f"size {cube.samples} x {cube.lines}")
-    if not all(math.isfinite(v) for v in (ac.alpha_starting_sample, ac.alpha_ending_sample)):
-        raise _fault(p, f"{w}values must be finite")
     return ac

@@ -16,7 +16,8 @@ def camera_statistics(path: Path) -> dict[str, tuple[float, float, float]]:
     """CameraStatistics rows: name -> (minimum, maximum, average)."""
     t = read_table(open_cube(path), "CameraStatistics")
     c = t.columns
-    return {str(n): (float(a), float(b), float(m)) for n, a, b, m in zip(c["Name"], c["Minimum"], c["Maximum"], c["Average"])}
+    rows = zip(c["Name"], c["Minimum"], c["Maximum"], c["Average"])
+    return {str(n): (float(a), float(b), float(m)) for n, a, b, m in rows}
 
 
 def test_camera_statistics_text_and_doubles() -> None:
@@ -32,7 +33,8 @@ def test_camera_statistics_text_and_doubles() -> None:
 
 def test_spice_table_layout() -> None:
     t = read_table(open_cube(MDIS_SPICE), "InstrumentPointing")
-    assert t.records == 1 and list(t.columns) == ["J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3", "AV1", "AV2", "AV3", "ET"]
+    assert t.records == 1
+    assert list(t.columns) == ["J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3", "AV1", "AV2", "AV3", "ET"]
     assert t.columns["ET"].dtype == np.float64 and t.columns["ET"].shape == (1,)
     q = np.array([t.columns[f"J2000Q{i}"][0] for i in range(4)])
     assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-12)

@@ -1,0 +1,122 @@
+"""Fuzzing the cube reader with mutated real cubes: a result or a CubeError naming the file, nothing else.
+
+Mutations: label lines deleted, duplicated or given another value (numbers huge, negative, NaN,
+broken PVL), the file truncated anywhere, bytes flipped in the label or in the tables. Every
+reader is run on each input. ``MERCURY_DEM_FUZZ_EXAMPLES`` raises the number of inputs (default
+80, about 10 s here); the inputs that found faults are kept below as ``@example`` cases.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, example, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from mercury_dem.exceptions import CubeError  # noqa: E402
+from mercury_dem.sources import (  # noqa: E402
+    alpha_cube,
+    cube_spice,
+    isis_serial_number,
+    naif_keywords,
+    open_cube,
+    read_pixels,
+    read_table,
+    special_pixel_counts,
+    table_names,
+)
+from tests.sources.cubes import APOLLO_0297, MDIS_SPICE  # noqa: E402
+
+BASES = {"mdis": MDIS_SPICE.read_bytes(), "apollo": APOLLO_0297.read_bytes()}
+#: Where the tables start in each base cube (0-based; the label says 1114113 and 1065537).
+TABLES_FROM = {"mdis": 1114112, "apollo": 1065536}
+VALUES = ["0", "-1", "-65537", "99999999999999999999", "1e308", "-1e308", "NaN", "nan", "inf", "-inf",
+          "abc", '"', "(", "(1, 2", ")", "{", "16#FF#", "", "Null", "2147483648", "1.5", "Msb", "Lsb", "Tile",
+          "BandSequential", "SignedWord", "UnsignedByte", "UnsignedWord", "Real", "End", "End_Object",
+          "(0.0, 1.0)", "1 <MS>", "IsisCube", "TRUE", "-0.0", "4a1edaaeddcbbc41"]
+COUNT = {"inputs": 0, "opened": 0, "errors": 0}
+
+
+def _label_end(data: bytes) -> int:
+    return data.index(b"\nEnd\n") + 5
+
+
+@st.composite
+def mutated_cube(draw: st.DrawFn) -> bytes:
+    name = draw(st.sampled_from(sorted(BASES)))
+    data = BASES[name]
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(st.sampled_from(["delete", "duplicate", "value", "truncate", "flip_tables", "flip_label"]))
+        end = _label_end(data) if b"\nEnd\n" in data[:200000] else 0
+        if op in ("delete", "duplicate", "value") and end:
+            lines = data[:end].decode("latin-1").split("\n")
+            i = draw(st.integers(0, len(lines) - 1))
+            if op == "delete":
+                del lines[i]
+            elif op == "duplicate":
+                lines.insert(i, lines[i])
+            elif "=" in lines[i]:
+                value = draw(st.one_of(st.sampled_from(VALUES), st.integers(-2**63, 2**63).map(str)))
+                lines[i] = lines[i].split("=", 1)[0] + "= " + value
+            new = "\n".join(lines).encode("latin-1")
+            data = new.ljust(end, b"\0") + data[end:] if len(new) <= end else new + data[len(new):]
+        elif op == "truncate" and data:
+            data = data[: draw(st.integers(0, len(data) - 1))]
+        elif op in ("flip_tables", "flip_label"):
+            lo, hi = (TABLES_FROM[name], len(data)) if op == "flip_tables" else (0, min(max(end, 1), len(data)))
+            if lo >= hi:
+                continue
+            buf = bytearray(data)
+            flips = st.lists(st.tuples(st.integers(lo, hi - 1), st.integers(0, 255)), min_size=1, max_size=8)
+            for pos, byte in draw(flips):
+                buf[pos] = byte
+            data = bytes(buf)
+    return data
+
+
+def exercise(path: Path) -> None:
+    """Every reader on ``path``: results or CubeErrors that name the file."""
+    COUNT["inputs"] += 1
+    try:
+        cube = open_cube(path)
+    except CubeError as exc:
+        assert str(path) in str(exc)
+        COUNT["errors"] += 1
+        return
+    COUNT["opened"] += 1
+    calls = [lambda: read_pixels(cube), lambda: special_pixel_counts(cube), lambda: naif_keywords(cube),
+             lambda: alpha_cube(cube), lambda: cube_spice(cube), lambda: isis_serial_number(cube.label, str(path))]
+    calls += [lambda n=n: read_table(cube, n) for n in table_names(cube)]
+    for call in calls:
+        try:
+            call()
+        except CubeError as exc:
+            assert str(path) in str(exc), str(exc)
+
+
+@pytest.fixture(scope="module")
+def fuzz_path() -> Iterator[Path]:
+    with tempfile.TemporaryDirectory(prefix="cube_fuzz_") as d:
+        yield Path(d) / "fuzzed_case.cub"
+
+
+@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "80")), deadline=None, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(data=mutated_cube())
+def test_mutated_cubes_give_results_or_cube_errors(fuzz_path: Path, data: bytes) -> None:
+    fuzz_path.write_bytes(data)
+    exercise(fuzz_path)
+
+
+def test_unmutated_bases_read_fully(tmp_path: Path) -> None:
+    for name, data in BASES.items():
+        path = tmp_path / f"{name}.cub"
+        path.write_bytes(data)
+        cube_spice(open_cube(path))
+        assert len(table_names(open_cube(path))) >= 4
