@@ -170,11 +170,12 @@ def run_adjust_isis(
     if np.all(match.camera_of_image[network.measure_image] < 0):
         known = "; ".join(f"{Path(images[c].files[0]).name}: {', '.join(k)}" for c, k in enumerate(keys[:4]))
         raise AdjustIsisError(
-            f"{net_path}: none of its {network.n_images} serial numbers (e.g. {network.image_ids[0]!r}) matches a "
+            f"{net_path}: none of its {network.n_images} serial numbers (e.g. {str(network.image_ids[0])!r}) matches a "
             f"camera ({known}); give the network's cubes or ISDs, or map files to serials with --serials")
     cut = cut_adjustable(network, match.camera_of_image, min_point_measures=2)
     sub = cut.network
     cams = [images[c] for c in cut.camera_index.tolist()]
+    outside = _measures_outside(net_path, sub, cams)
     cameras = [im.camera for im in cams]
     positions = np.array([im.position for im in cams]).reshape(-1, 3)
     rotations = np.array([im.rotation for im in cams]).reshape(-1, 3, 3)
@@ -218,6 +219,7 @@ def run_adjust_isis(
         "triangulated_points": triangulated,
         "unplaced_points": int(unplaced.sum()),
         "unmatched_serials": match.unmatched,
+        "measures_outside_image": outside,
         "unused_cameras": [str(camera_files[c]) for c in match.unused_cameras],
         "cameras": {im.image_id: {"file": im.files[0], "serial_number": im.serial_number,
                                   "distortion": im.camera.distortion_model} for im in cams},
@@ -237,6 +239,30 @@ def run_adjust_isis(
     summary["seconds"] = time.perf_counter() - t0
     atomic_write_text(report_path, _report_header(summary) + adj.text_report)
     return summary
+
+
+#: Above this fraction of an image's measures outside its pixels, the network was measured on
+#: another version of the image (a full frame vs a crop or reduction): an error, not an adjustment.
+OUTSIDE_IMAGE_LIMIT = 0.5
+
+
+def _measures_outside(net_path: Path, sub: Any, cams: list[Any]) -> dict[str, int]:
+    """Measures beyond an image's pixels (more than a pixel out), per image id; an error when most are."""
+    counts: dict[str, int] = {}
+    for k, im in enumerate(cams):
+        sel = sub.measure_image == k
+        px = sub.pixels()[sel]
+        out = int(np.sum(~im.camera.in_image(px, margin=-1.0)))
+        if out:
+            counts[im.image_id] = out
+        if out > OUTSIDE_IMAGE_LIMIT * max(1, int(sel.sum())):
+            lo, hi = np.nanmin(px, axis=0), np.nanmax(px, axis=0)
+            raise AdjustIsisError(
+                f"{net_path}: {out} of the {int(sel.sum())} measures on {im.files[0]} lie outside its "
+                f"{im.camera.samples} x {im.camera.lines} pixels (samples {lo[0] + 1:.0f}..{hi[0] + 1:.0f}, lines "
+                f"{lo[1] + 1:.0f}..{hi[1] + 1:.0f}, ISIS 1-based): the network was measured on another version of "
+                "this image (full frame vs crop or reduced cube?); give the cube the network was measured on")
+    return counts
 
 
 def _report_header(summary: dict[str, Any]) -> str:

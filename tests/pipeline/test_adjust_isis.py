@@ -251,11 +251,37 @@ def test_errors_name_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     bad_csv.write_text("nosuchfile.cub,A\n")
     err = run(str(tmp_path / "in.net"), "--cameras", *map(str, cubes), "--serials", str(bad_csv), "--out", str(tmp_path / "o.net"))
     assert "serials.csv line 1" in err and "nosuchfile.cub" in err
+    # measures of another version of the images (the full frames, 16 x larger than the crops)
+    full = net.replace(sample=net.sample * 16, line=net.line * 16)
+    write_isis_network(full, tmp_path / "full.net", target_name="Moon")
+    err = run(str(tmp_path / "full.net"), "--cameras", *map(str, cubes), "--out", str(tmp_path / "o.net"))
+    assert "full.net" in err and cubes[0].name in err and "outside" in err
     # an empty network
     empty = ControlNetwork.from_arrays(["A"], np.zeros(0, np.int64), [], [], [], [])
     write_isis_network(empty, tmp_path / "empty.net", target_name="Moon")
     err = run(str(tmp_path / "empty.net"), "--cameras", *map(str, cubes), "--out", str(tmp_path / "o.net"))
     assert "empty.net" in err and "empty" in err
+    assert not (tmp_path / "o.net").exists()
+
+
+def test_real_apollo_network_is_not_of_the_crops(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """USGS's apollo_out network: other frames (Rev 22-33, 14:00-15:37 UTC) measured on full 22900^2
+    scans; the crops (Rev 16, 01:25 UTC) match none of its serials, and mapped onto them by force
+    its measures fall outside their 500 x 500 pixels: both are errors naming the network."""
+    net = SHARED / "isis_cnet" / "apollo_out_v5.net"
+    cubes = sorted(STRIP.glob("AS15-M-0*_crop.cub"))
+    if not net.is_file() or len(cubes) < 2:
+        pytest.skip(f"{net} or the Apollo crops in {STRIP} are absent")
+    assert main(["adjust-isis", str(net), "--cameras", *map(str, cubes), "--out", str(tmp_path / "o.net")]) == 2
+    err = capsys.readouterr().err
+    assert "apollo_out_v5.net" in err and "none of its 7 serial numbers" in err
+    serials = [str(s) for s in read_isis_network(net).image_ids]
+    csv = tmp_path / "serials.csv"
+    csv.write_text("".join(f"{c.name},{s}\n" for c, s in zip(cubes, serials)))
+    assert main(["adjust-isis", str(net), "--cameras", *map(str, cubes), "--serials", str(csv),
+                 "--out", str(tmp_path / "o.net")]) == 2
+    err = capsys.readouterr().err
+    assert "apollo_out_v5.net" in err and "outside" in err and "full frame" in err
     assert not (tmp_path / "o.net").exists()
 
 
