@@ -372,6 +372,14 @@ def test_export_isis_network_adjusts_to_the_runs_solution(sync_run, tiny_mission
         d = r @ by_id[image_id].T
         worst = max(worst, float(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
     assert len(s["isds"]) == s["images"]
+    # residuals are measured - computed (ISIS ControlPoint::ComputeResiduals: muSamp - cuSamp), in pixels
+    out = read_isis_network(tmp_path / "a.net")
+    image_id, path = next(iter(s["isds"].items()))
+    g = read_isd(path, require_sun=False)
+    k = int(np.flatnonzero(out.image_ids == image_id)[0])
+    sel = (out.measure_image == k) & ~out.measure_rejected & np.isfinite(out.residuals[:, 0])
+    computed = g.camera.camera_to_pixel((out.adjusted_xyz[out.measure_point[sel]] - g.position) @ g.rotation.T)
+    assert np.abs(out.pixels()[sel] - computed - out.residuals[sel]).max() < 1e-3
     ifov = min(c.ifov_rad for c in mission.cameras.values())
     assert worst < 0.2 * ifov  # the a-priori pointing sigma is 450 urad
     shutil.rmtree(isd_dir)
