@@ -151,12 +151,15 @@ def test_unknown_mission_has_no_serial_rule() -> None:
         isis_serial_number(label, "v.cub")
 
 
-def test_raw_cube_without_spice_says_run_spiceinit(tmp_path: Path) -> None:
-    for path in (shared("mdis/EN1072174528M/EN1072174528M_raw_dn.cub"),
-                 write_cube(tmp_path / "plain.cub", np.zeros((1, 2, 2), np.float32))):
-        with pytest.raises(CubeError, match="has no InstrumentPointing table: run spiceinit attach=true") as err:
-            cube_spice(open_cube(path))
-        assert str(path) in str(err.value)
+@pytest.mark.parametrize("which", ["synthetic", "raw_dn"])
+def test_cube_without_spice_says_run_spiceinit(tmp_path: Path, which: str) -> None:
+    if which == "raw_dn":
+        path = shared("mdis/EN1072174528M/EN1072174528M_raw_dn.cub")
+    else:
+        path = write_cube(tmp_path / "plain.cub", np.zeros((1, 2, 2), np.float32))
+    with pytest.raises(CubeError, match="has no InstrumentPointing table: run spiceinit attach=true") as err:
+        cube_spice(open_cube(path))
+    assert str(path) in str(err.value)
 
 
 def test_interpolation_between_records() -> None:
