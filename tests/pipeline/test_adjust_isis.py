@@ -167,6 +167,9 @@ def test_adjust_isis_rejects_gross_outliers(tmp_path: Path, capsys: pytest.Captu
     the same recall, so the test states it in its configuration.
     """
     cubes = _apollo_cubes()
+    if len(cubes) < 3:
+        pytest.skip(f"AS15-M-0299_crop.cub is not in {STRIP}: with two images every point has two rays, and "
+                    "the along-baseline part of an outlier is absorbed into the point's height (undetectable)")
     net, _, bad, _ = _world(cubes, seed=5, outliers=0.01)
     cfg = tmp_path / "adjust.yaml"
     cfg.write_text("adjust:\n  reject_k_mad: 4.0\n")
