@@ -77,9 +77,14 @@ def problem_from_network(
 
 
 def network_with_result(network: ControlNetwork, result: AdjustmentResult, measure_index: NDArray[np.int64]) -> ControlNetwork:
-    """The network with adjusted points, residuals (NaN for measures not adjusted) and rejections recorded."""
+    """The network with adjusted points, residuals (NaN for measures not adjusted) and rejections recorded.
+
+    The engine's residuals are computed - measured; the network's column is measured - computed
+    (:mod:`mercury_dem.network.model`, and ISIS's ``ControlPoint::ComputeResiduals``), so the
+    sign is turned here.
+    """
     residuals = np.full((network.n_measures, 2), np.nan)
-    residuals[measure_index] = result.residuals_px
+    residuals[measure_index] = -result.residuals_px
     rejected = np.asarray(network.measure_rejected).copy()
     rejected[measure_index] = result.rejected
     return network.with_adjustment(result.points, residuals, measure_rejected=rejected)

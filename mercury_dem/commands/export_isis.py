@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from mercury_dem.config import Config
-from mercury_dem.exceptions import StoreError
+from mercury_dem.exceptions import MercuryDemError, StoreError
 
 NAME = "export-isis"
 HELP = "write one of a run's control networks as an ISIS3 binary control network (.net)"
@@ -35,6 +35,16 @@ def run(args: argparse.Namespace, config: Config) -> int:
         raise StoreError(f"{level} {unit} of {args.run_dir} failed and has no network: {store.read_summary(level, unit).get('error')}")
     net = read_network(path)
     write_isis_network(net, args.out, version=args.version, network_id=f"mercury-dem {level} {unit}",
-                       target_name="Mercury")
+                       target_name=_target_name(store))
     print(f"wrote {args.out}: {net.n_points} points, {net.n_measures} measures, {net.n_images} images (ISIS v{args.version})")
     return 0
+
+
+def _target_name(store) -> str:  # type: ignore[no-untyped-def]
+    """The run's body as ISIS spells a TargetName (``Mercury``, ``Moon``); Mercury when unknown."""
+    from mercury_dem.mission import open_mission
+
+    try:
+        return str(open_mission(store.read_run()["mission"]).body.name).capitalize()
+    except (KeyError, OSError, MercuryDemError):
+        return "Mercury"

@@ -117,26 +117,35 @@ def _isd_names(raw: dict[str, Any]) -> tuple[str, str]:
     return sc, inst
 
 
-def read_cube_image(path: Path) -> SourceImage:
-    """A cube with SPICE attached -> one image (IngestError naming the cube otherwise)."""
+def read_cube_image(path: Path, *, pixels: bool = True) -> SourceImage:
+    """A cube with SPICE attached -> one image (IngestError naming the cube otherwise).
+
+    ``pixels=False`` reads the geometry only (label, SPICE tables, NaifKeywords): the
+    returned image's ``pixels`` is an empty (0, 0) array and no pixel is read.
+    """
     from mercury_dem.geometry.naif_camera import camera_from_naif
-    from mercury_dem.sources import cube_spice, naif_keywords, open_cube, read_pixels
+    from mercury_dem.sources import alpha_cube, cube_spice, naif_keywords, open_cube, read_pixels
 
     cube = open_cube(path)
     spice = cube_spice(cube)  # CubeError "... run spiceinit attach=true" when there is no SPICE
     body = _body_of(cube.target_name, str(path))
     keywords = naif_keywords(cube)
     name = _instrument_name(cube.spacecraft_name, cube.instrument_id)
+    # alpha_cube() checks the group against the cube; camera_from_naif takes the ISIS keywords.
+    alpha = cube.label["IsisCube"].get("AlphaCube") if alpha_cube(cube) is not None else None
     camera, inst_to_cam = camera_from_naif(
         keywords, spice.ik_code, cube.samples, cube.lines, name=name, summing=cube.summing or 1,
-        alpha=cube.label["IsisCube"].get("AlphaCube"),
+        alpha=alpha,
     )
-    pixels, valid = read_pixels(cube)
-    if cube.pixel_type == "Real":
-        image: NDArray[Any] = np.where(valid, pixels, np.nan).astype(np.float32)
-        bits = None
+    bits: int | None = None
+    if not pixels:
+        image: NDArray[Any] = np.zeros((0, 0), np.float32)
     else:
-        image, bits = _integer_image(pixels, valid, cube.pixel_type)
+        values, valid = read_pixels(cube)
+        if cube.pixel_type == "Real":
+            image = np.where(valid, values, np.nan).astype(np.float32)
+        else:
+            image, bits = _integer_image(values, valid, cube.pixel_type)
     return SourceImage(
         image_id=path.name.split(".")[0], instrument=name, camera=camera, position=spice.position,
         rotation=inst_to_cam @ spice.body_to_instrument, sun=spice.sun_position, time=spice.et, body=body,
@@ -208,9 +217,16 @@ def _read_raster(path: Path) -> NDArray[Any]:
     return np.where(mask, np.nan, data.astype(np.float32)).astype(np.float32)
 
 
-def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
-    """A CSM frame ISD and its image -> one image."""
-    from mercury_dem.geometry.isd import read_isd
+def read_isd_image(isd_path: Path, image_dirs: Sequence[Path], *, pixels: bool = True,
+                   body: Body | None = None) -> SourceImage:
+    """A CSM frame ISD and its image -> one image.
+
+    ``pixels=False`` reads the ISD only (no image is looked for; ``pixels`` is an empty
+    (0, 0) array). An unusable sun position becomes NaN with a note instead of an error.
+    ``body`` is used when the ISD does not name its target. The serial number is the
+    ISD's own (:func:`isd_serial_number`), or None.
+    """
+    from mercury_dem.geometry.isd import isd_from_dict
 
     try:
         raw = json.loads(isd_path.read_text())
@@ -219,27 +235,59 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path]) -> SourceImage:
     if not isinstance(raw, dict):
         raise IngestError(f"ISD {isd_path}: the top level is not a JSON object")
     try:
-        g = read_isd(isd_path)
+        g = isd_from_dict(raw, source=str(isd_path))
     except IsdError as exc:
         if "sun_position" not in str(exc):
             raise
         # The geometry is usable without the Sun (matching then knows no illumination angles).
-        g = read_isd(isd_path, require_sun=False)  # its warnings say the Sun was not used
+        g = isd_from_dict(raw, source=str(isd_path), require_sun=False)  # its warnings say the Sun was not used
     target = raw.get("name_target") or raw.get("target_name")
-    body = _body_of(str(target) if target else None, str(isd_path))
-    image_path = _find_image(isd_path, image_dirs)
-    image = _read_raster(image_path)
+    if not target and body is not None:
+        target = body.name
+    the_body = _body_of(str(target) if target else None, str(isd_path))
     name = _instrument_name(*_isd_names(raw))
     cam = g.camera
-    if image.shape != (cam.lines, cam.samples):
-        raise IngestError(f"image {image_path}: {image.shape[1]} x {image.shape[0]} pixels, but its ISD {isd_path} "
-                          f"describes {cam.samples} x {cam.lines}; give the image the ISD was made for")
+    files = [str(isd_path)]
+    if pixels:
+        image_path = _find_image(isd_path, image_dirs)
+        image = _read_raster(image_path)
+        if image.shape != (cam.lines, cam.samples):
+            raise IngestError(f"image {image_path}: {image.shape[1]} x {image.shape[0]} pixels, but its ISD "
+                              f"{isd_path} describes {cam.samples} x {cam.lines}; give the image the ISD was made for")
+        files.append(str(image_path))
+    else:
+        image = np.zeros((0, 0), np.float32)
     return SourceImage(
         image_id=isd_path.stem, instrument=name, camera=cam, position=g.position, rotation=g.rotation,
         sun=g.sun_position if g.sun_position is not None else np.full(3, np.nan), time=g.ephemeris_time,
-        body=body, pixels=image, files=[str(isd_path), str(image_path)],
+        body=the_body, pixels=image, files=files, serial_number=isd_serial_number(raw),
         bits=8 if image.dtype == np.uint8 else None, notes=list(g.warnings),
     )
+
+
+def isd_serial_number(isd: dict[str, Any]) -> str | None:
+    """The ISIS serial number an ISD's keys give, or None.
+
+    An explicit ``isis_serial_number`` (or ``serial_number``) key wins. Otherwise
+    MESSENGER MDIS is formed as ISIS forms it, ``MeSSEnGeR/<MDIS-NAC|MDIS-WAC>/<clock>``,
+    when the ISD carries the start clock count (``spacecraft_clock_start_count`` or
+    ``spacecraft_clock_count``; the stop count, which differs, is not used). Apollo
+    Metric ISDs rarely carry ISIS's ``StartTime`` string verbatim: give those serials
+    with a ``file,serial`` list instead.
+    """
+    for key in ("isis_serial_number", "serial_number"):
+        value = isd.get(key)
+        if isinstance(value, str) and value.strip():
+            return value.strip()
+    clock = isd.get("spacecraft_clock_start_count") or isd.get("spacecraft_clock_count")
+    craft = str(isd.get("spacecraft_name") or isd.get("name_platform") or "").upper().replace(" ", "")
+    names = f"{isd.get('instrument_id', '')} {isd.get('name_sensor', '')}".upper()
+    if clock and craft.startswith("MESSENGER"):
+        if "NARROW ANGLE" in names or "MDIS_NAC" in names or "MDIS-NAC" in names:
+            return f"MeSSEnGeR/MDIS-NAC/{clock}"
+        if "WIDE ANGLE" in names or "MDIS_WAC" in names or "MDIS-WAC" in names:
+            return f"MeSSEnGeR/MDIS-WAC/{clock}"
+    return None
 
 
 def camera_key(camera: FramingCamera) -> str:

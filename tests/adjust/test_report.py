@@ -76,3 +76,4 @@ def test_problem_from_network_round_trip(small_network):
     out = network_with_result(net, res, idx)
     assert np.isnan(out.residuals[1]).all() and np.isfinite(out.residuals[idx]).all()
     np.testing.assert_array_equal(out.adjusted_xyz, res.points)
+    np.testing.assert_array_equal(out.residuals[idx], -res.residuals_px)  # measured - computed
