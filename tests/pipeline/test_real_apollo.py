@@ -69,3 +69,41 @@ def test_moon_dem_products_and_lola_comparison(apollo_run: Path) -> None:
     assert ldem["n"] > 1000 and abs(ldem["bias_m"]) < 400 and ldem["std_m"] < 900
     shots = next(v for k, v in ref.items() if k.startswith("altimetry:"))
     assert "no DEM pixel" in shots["error"]  # the 55 LOLA shots here lie elsewhere on the Moon: said so
+
+
+def test_adjust_isis_of_the_exported_network_gives_the_runs_solution(apollo_run: Path, tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    import math
+
+    from mercury_dem.network.isis import read_isis_network, write_isis_network
+
+    net_path = tmp_path / "apollo.net"
+    assert main(["export-isis", str(apollo_run), str(net_path), "--level", "global"]) == 0
+    cfg = tmp_path / "adjust.yaml"  # the mission's declared pointing sigma, as the run used it
+    cfg.write_text(f"adjust:\n  pointing_sigma_deg: {math.degrees(5000e-6)!r}\n")
+    capsys.readouterr()
+    cams = [str(c) for c in CUBES[:3]]
+    assert main(["adjust-isis", str(net_path), "--cameras", *cams, "--out", str(tmp_path / "out.net"),
+                 "--config", str(cfg), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    run_rms = json.loads((apollo_run / "report.json").read_text())["levels"]["global"]["rms_px"]
+    assert abs(s["rms_px"] / run_rms - 1.0) < 0.05 and s["images"] == 3
+
+    # 1 % gross outliers (20-50 px) injected into the real network: jigsawRejected
+    net = read_isis_network(net_path)
+    rng = np.random.default_rng(11)
+    idx = rng.choice(net.n_measures, max(1, round(0.01 * net.n_measures)), replace=False)
+    ang = rng.uniform(0, 2 * np.pi, idx.size)
+    shift = np.c_[np.cos(ang), np.sin(ang)] * rng.uniform(20, 50, idx.size)[:, None]
+    sample, line = np.array(net.sample, float), np.array(net.line, float)
+    sample[idx] += shift[:, 0]
+    line[idx] += shift[:, 1]
+    bad_net = net.replace(sample=sample, line=line)
+    write_isis_network(bad_net, tmp_path / "bad.net", target_name="Moon")
+    assert main(["adjust-isis", str(tmp_path / "bad.net"), "--cameras", *cams, "--out", str(tmp_path / "bad_out.net"),
+                 "--config", str(cfg), "--json"]) == 0
+    out = read_isis_network(tmp_path / "bad_out.net")
+    bad = np.zeros(net.n_measures, bool)
+    bad[idx] = True
+    rej = np.asarray(out.measure_rejected)
+    assert (rej & bad).sum() >= 0.9 * bad.sum(), f"{(rej & bad).sum()} of {bad.sum()} outliers rejected"
