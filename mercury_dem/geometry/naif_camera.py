@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError
 from mercury_dem.geometry.camera import FramingCamera
@@ -85,6 +85,23 @@ class AlphaCube:
         except KeyError as exc:
             raise GeometryError(f"AlphaCube group lacks keyword {exc.args[0]}") from None
         return cls(a_s, a_l, s0 - 0.5, l0 - 0.5, (s1 - s0) / bs, (l1 - l0) / bl)
+
+    def beta_to_alpha(self, sample: ArrayLike, line: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Original-image (alpha) pixel of a pixel of this cube (beta); both 0-based, centre of the first pixel 0.
+
+        The cube's outer edge (-0.5, size - 0.5) maps onto ISIS's AlphaStarting - 1 and AlphaEnding - 1.
+        """
+        s = np.asarray(sample, np.float64)
+        ln = np.asarray(line, np.float64)
+        return (self.start_sample + self.scale_sample * (s + 0.5) - 0.5,
+                self.start_line + self.scale_line * (ln + 0.5) - 0.5)
+
+    def alpha_to_beta(self, sample: ArrayLike, line: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Inverse of :meth:`beta_to_alpha` (0-based both)."""
+        s = np.asarray(sample, np.float64)
+        ln = np.asarray(line, np.float64)
+        return ((s + 0.5 - self.start_sample) / self.scale_sample - 0.5,
+                (ln + 0.5 - self.start_line) / self.scale_line - 0.5)
 
 
 def _number(keywords: Mapping[str, Any], key: str) -> float:

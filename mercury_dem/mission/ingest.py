@@ -131,8 +131,7 @@ def read_cube_image(path: Path, *, pixels: bool = True) -> SourceImage:
     body = _body_of(cube.target_name, str(path))
     keywords = naif_keywords(cube)
     name = _instrument_name(cube.spacecraft_name, cube.instrument_id)
-    # alpha_cube() checks the group against the cube; camera_from_naif takes the ISIS keywords.
-    alpha = cube.label["IsisCube"].get("AlphaCube") if alpha_cube(cube) is not None else None
+    alpha = alpha_cube(cube)  # checked against the cube; None when never cropped or reduced
     camera, inst_to_cam = camera_from_naif(
         keywords, spice.ik_code, cube.samples, cube.lines, name=name, summing=cube.summing or 1,
         alpha=alpha,

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import CubeError
+from mercury_dem.geometry.naif_camera import AlphaCube
 from mercury_dem.sources.isis_cube import IsisCube, _fault, _read_bytes, _scalar, label_float, label_int
 
 _FIELD_TYPES = {"Double": ("f8", 8), "Integer": ("i4", 4), "Real": ("f4", 4), "Text": ("S", 1)}
@@ -151,55 +152,9 @@ def naif_keywords(cube: IsisCube) -> dict[str, Any]:
     return {str(k): _plain(v) for k, v in node.items()}
 
 
-@dataclass(frozen=True)
-class AlphaCube:
-    """Where this cube's pixels sit in the original image (ISIS ``Group = AlphaCube``).
-
-    The starting/ending values are ISIS's (1-based, pixel centres at integers, so the original
-    image's outer edge is 0.5); :meth:`beta_to_alpha` converts in our 0-based convention.
-    """
-
-    alpha_samples: int
-    alpha_lines: int
-    alpha_starting_sample: float
-    alpha_starting_line: float
-    alpha_ending_sample: float
-    alpha_ending_line: float
-    beta_samples: int
-    beta_lines: int
-
-    def _slopes(self) -> tuple[float, float]:
-        return ((self.alpha_ending_sample - self.alpha_starting_sample) / self.beta_samples,
-                (self.alpha_ending_line - self.alpha_starting_line) / self.beta_lines)
-
-    def beta_to_alpha(self, sample: ArrayLike, line: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Original-image (alpha) pixel of a pixel of this cube (beta); both 0-based, centre of the first pixel 0.
-
-        Parameters
-        ----------
-        sample, line : array_like, this cube's pixel coordinates (any matching shapes)
-
-        Returns
-        -------
-        (sample, line) in the original image, float64 arrays of the broadcast shape.
-        The cube's outer edge (-0.5, size - 0.5) maps onto AlphaStarting - 1 and AlphaEnding - 1.
-        """
-        ss, sl = self._slopes()
-        s = np.asarray(sample, np.float64)
-        ln = np.asarray(line, np.float64)
-        # ISIS: alpha_isis = slope * (beta_isis - 0.5) + start, with isis = ours + 1.
-        return ss * (s + 0.5) + self.alpha_starting_sample - 1.0, sl * (ln + 0.5) + self.alpha_starting_line - 1.0
-
-    def alpha_to_beta(self, sample: ArrayLike, line: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Inverse of :meth:`beta_to_alpha` (0-based both)."""
-        ss, sl = self._slopes()
-        s = np.asarray(sample, np.float64)
-        ln = np.asarray(line, np.float64)
-        return (s + 1.0 - self.alpha_starting_sample) / ss - 0.5, (ln + 1.0 - self.alpha_starting_line) / sl - 0.5
-
-
 def alpha_cube(cube: IsisCube) -> AlphaCube | None:
-    """The cube's AlphaCube group, or None when it was never cropped or reduced.
+    """The cube's AlphaCube group (the camera model's :class:`~mercury_dem.geometry.naif_camera.AlphaCube`),
+    or None when it was never cropped or reduced.
 
     Raises CubeError naming the file when the group is inconsistent (non-positive sizes,
     ending <= starting, BetaSamples/BetaLines not the cube's size).
@@ -211,19 +166,14 @@ def alpha_cube(cube: IsisCube) -> AlphaCube | None:
         raise _fault(cube.path, "IsisCube/AlphaCube is not a group")
     w = "IsisCube/AlphaCube/"
     p = cube.path
-    ac = AlphaCube(
-        alpha_samples=label_int(p, group, "AlphaSamples", w, 1),
-        alpha_lines=label_int(p, group, "AlphaLines", w, 1),
-        alpha_starting_sample=label_float(p, group, "AlphaStartingSample", w),
-        alpha_starting_line=label_float(p, group, "AlphaStartingLine", w),
-        alpha_ending_sample=label_float(p, group, "AlphaEndingSample", w),
-        alpha_ending_line=label_float(p, group, "AlphaEndingLine", w),
-        beta_samples=label_int(p, group, "BetaSamples", w, 1),
-        beta_lines=label_int(p, group, "BetaLines", w, 1),
-    )
-    if not (ac.alpha_ending_sample > ac.alpha_starting_sample and ac.alpha_ending_line > ac.alpha_starting_line):
-        raise _fault(p, f"{w}ending sample/line must exceed the starting ones ({ac})")
-    if (ac.beta_samples, ac.beta_lines) != (cube.samples, cube.lines):
-        raise _fault(p, f"{w}BetaSamples x BetaLines = {ac.beta_samples} x {ac.beta_lines} is not the cube's "
+    a_s, a_l = label_int(p, group, "AlphaSamples", w, 1), label_int(p, group, "AlphaLines", w, 1)
+    s0, s1 = label_float(p, group, "AlphaStartingSample", w), label_float(p, group, "AlphaEndingSample", w)
+    l0, l1 = label_float(p, group, "AlphaStartingLine", w), label_float(p, group, "AlphaEndingLine", w)
+    bs, bl = label_int(p, group, "BetaSamples", w, 1), label_int(p, group, "BetaLines", w, 1)
+    if not (s1 > s0 and l1 > l0):
+        raise _fault(p, f"{w}ending sample/line must exceed the starting ones ({s0}..{s1}, {l0}..{l1})")
+    if (bs, bl) != (cube.samples, cube.lines):
+        raise _fault(p, f"{w}BetaSamples x BetaLines = {bs} x {bl} is not the cube's "
                         f"size {cube.samples} x {cube.lines}")
-    return ac
+    # ISIS: alpha = slope (beta - 0.5) + AlphaStarting, 1-based; ours: start = AlphaStarting - 0.5
+    return AlphaCube(a_s, a_l, s0 - 0.5, l0 - 0.5, (s1 - s0) / bs, (l1 - l0) / bl)
