@@ -16,6 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("files", metavar="FILE", nargs="+",
                    help="cubes (.cub), ISDs (.json) or images with an ISD of the same stem; globs allowed")
     p.add_argument("--isd-dir", metavar="DIR", help="where the ISDs of the given image files are")
+    p.add_argument("--image-list", metavar="CSV",
+                   help="ISD,IMAGE pairs (one a line) when an ISD's image does not share its file stem")
     p.add_argument("--min-scale-m", type=float, help="drop images with a finer pixel scale (seed 000: 75)")
     p.add_argument("--max-scale-m", type=float, help="drop images with a coarser pixel scale (seed 000: 800)")
     p.add_argument("--instrument", action="append", metavar="NAME",
@@ -33,7 +35,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     summary = ingest_mission(
         args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
         instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
-        pointing_sigma_urad=args.pointing_sigma_urad,
+        pointing_sigma_urad=args.pointing_sigma_urad, image_list=args.image_list,
     )
     if args.json:
         cat = summary.pop("catalog")

@@ -216,13 +216,37 @@ def _read_raster(path: Path) -> NDArray[Any]:
     return np.where(mask, np.nan, data.astype(np.float32)).astype(np.float32)
 
 
+def read_image_list(path: str | Path) -> dict[str, Path]:
+    """An ``ISD,IMAGE`` CSV (one pair a line; '#' comments; relative paths from the CSV's folder) ->
+    {ISD stem: image path}. StoreError naming the file and line at fault."""
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StoreError(f"--image-list {p}: cannot be read ({exc})") from None
+    out: dict[str, Path] = {}
+    for k, line in enumerate(lines, 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = [x.strip() for x in line.split(",")]
+        if len(parts) != 2 or not all(parts):
+            raise StoreError(f"--image-list {p}, line {k}: expected 'ISD,IMAGE', got {line!r}")
+        isd, image = (Path(x) if Path(x).is_absolute() else p.parent / x for x in parts)
+        if isd.stem in out:
+            raise StoreError(f"--image-list {p}, line {k}: {isd.name} is listed twice")
+        out[isd.stem] = image
+    return out
+
+
 def read_isd_image(isd_path: Path, image_dirs: Sequence[Path], *, pixels: bool = True,
-                   body: Body | None = None) -> SourceImage:
+                   body: Body | None = None, image_path: Path | None = None) -> SourceImage:
     """A CSM frame ISD and its image -> one image.
 
     ``pixels=False`` reads the ISD only (no image is looked for; ``pixels`` is an empty
     (0, 0) array). An unusable sun position becomes NaN with a note instead of an error.
-    ``body`` is used when the ISD does not name its target. The serial number is the
+    ``body`` is used when the ISD does not name its target. ``image_path`` names the image
+    (from ``--image-list``) instead of looking for it by stem. The serial number is the
     ISD's own (:func:`isd_serial_number`), or None.
     """
     from mercury_dem.geometry.isd import isd_from_dict
@@ -248,7 +272,9 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path], *, pixels: bool =
     cam = g.camera
     files = [str(isd_path)]
     if pixels:
-        image_path = _find_image(isd_path, image_dirs)
+        image_path = image_path if image_path is not None else _find_image(isd_path, image_dirs)
+        if not image_path.is_file():
+            raise IngestError(f"ISD {isd_path}: its image {image_path} does not exist")
         image = _read_raster(image_path)
         if image.shape != (cam.lines, cam.samples):
             raise IngestError(f"image {image_path}: {image.shape[1]} x {image.shape[0]} pixels, but its ISD "
@@ -315,11 +341,13 @@ def ingest_mission(
     tile_size_deg: float = 10.0,
     overwrite: bool = False,
     pointing_sigma_urad: float | None = None,
+    image_list: str | Path | None = None,
 ) -> dict[str, Any]:
     """Build the mission at ``out`` from cubes and/or ISDs; return a summary (images, rejected, seconds).
 
     ``inputs`` are cube, ISD or image paths (globs allowed). An image file given without an ISD is
-    paired with the ISD of its stem in ``isd_dir`` (or beside it). ``pointing_sigma_urad`` records how wrong
+    paired with the ISD of its stem in ``isd_dir`` (or beside it); ``image_list`` (an ``ISD,IMAGE`` CSV)
+    names an ISD's image when the stems differ. ``pointing_sigma_urad`` records how wrong
     the a-priori pointing may be (1 sigma per axis): matching sizes its guidance window from it and the
     adjustment weights its pointing constraint by it (``*.pointing_sigma_from_mission``). Rejected inputs are listed with
     their reason; with no usable image at all, StoreError (nothing is written).
@@ -329,6 +357,7 @@ def ingest_mission(
     if out.exists() and not overwrite:
         raise StoreError(f"{out} already exists; pass --overwrite to replace it (or choose another MISSION)")
     files = expand_inputs(inputs)
+    listed = read_image_list(image_list) if image_list is not None else {}
     isd_dirs = [Path(isd_dir)] if isd_dir is not None else []
     images: list[SourceImage] = []
     rejected: dict[str, str] = {}
@@ -342,7 +371,7 @@ def ingest_mission(
                 images.append(read_cube_image(f))
             elif suffix == ".json":
                 seen_isds.add(f.resolve())
-                images.append(read_isd_image(f, [f.parent, *isd_dirs]))
+                images.append(read_isd_image(f, [f.parent, *isd_dirs], image_path=listed.get(f.stem)))
             elif suffix in IMAGE_SUFFIXES:
                 isd = next((d / f"{f.stem}.json" for d in [*isd_dirs, f.parent] if (d / f"{f.stem}.json").is_file()), None)
                 if isd is None:

@@ -121,3 +121,19 @@ def test_image_of_the_wrong_size_is_rejected(tmp_path: Path) -> None:
     Image.fromarray(np.zeros((100, 120), np.uint8)).save(work / "EN0213023991M.png")
     with pytest.raises(StoreError, match="120 x 100 pixels.*512 x 512"):
         ingest_mission(tmp_path / "m", [str(work / "EN0213023991M.json")])
+
+
+def test_image_list_pairs_isds_with_images_of_other_names(tmp_path: Path) -> None:
+    work = tmp_path / "in"
+    work.mkdir()
+    src = REAL / "mdis_stereo"
+    for stem in ("EN0213023991M", "EN0213110924M"):
+        shutil.copy(src / f"{stem}.json", work / f"{stem}.json")
+        shutil.copy(src / f"{stem}_recovered_from_notebook_8bit.png", work / f"pic_{stem[-4:]}.png")
+    lst = work / "pairs.csv"
+    lst.write_text("# isd,image\nEN0213023991M.json, pic_991M.png\nEN0213110924M.json,pic_924M.png\n")
+    s = ingest_mission(tmp_path / "m", [str(work / "*.json")], image_list=lst)
+    assert s["images"] == 2, s["rejected"]
+    lst.write_text("EN0213023991M.json\n")
+    with pytest.raises(StoreError, match="pairs.csv, line 1"):
+        ingest_mission(tmp_path / "m2", [str(work / "*.json")], image_list=lst)
