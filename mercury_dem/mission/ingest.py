@@ -321,12 +321,31 @@ def camera_key(camera: FramingCamera) -> str:
     return f"{camera.name}-{hashlib.sha1(blob).hexdigest()[:8]}"
 
 
+#: Bits of the detectors whose raw DN this reads (the saturation of raw DN stored as floats).
+INSTRUMENT_BITS = {"MDIS-NAC": 12, "MDIS-WAC": 12}
+
+
+def _raw_dn(image: NDArray[Any]) -> bool:
+    """A float image whose valid values are all whole non-negative numbers holds raw DN (an EDR cube)."""
+    v = image[np.isfinite(image)]
+    return bool(v.size) and bool(np.all(v >= 0)) and bool(np.all(v == np.round(v))) and float(v.max()) <= 65535
+
+
 def _radiometry(images: list[SourceImage]) -> list[Radiometry]:
-    floats = [im for im in images if im.pixels.dtype.kind == "f"]
-    shared = float_radiometry([robust_range(im.pixels) for im in floats]) if floats else None
+    """Each image's pixel facts: integer DN by dtype; float raw DN (whole numbers) as DN of the instrument's
+    bits; other floats (I/F, radiance) share one scale from the mission's typical robust range."""
+    dn_floats = [im.pixels.dtype.kind == "f" and _raw_dn(im.pixels) for im in images]
+    calibrated = [im for im, dn in zip(images, dn_floats) if im.pixels.dtype.kind == "f" and not dn]
+    shared = float_radiometry([robust_range(im.pixels) for im in calibrated]) if calibrated else None
     out = []
-    for im in images:
-        out.append(shared if im.pixels.dtype.kind == "f" else radiometry_of_dtype(im.pixels.dtype, im.bits))  # type: ignore[arg-type]
+    for im, dn in zip(images, dn_floats):
+        if im.pixels.dtype.kind != "f":
+            out.append(radiometry_of_dtype(im.pixels.dtype, im.bits))
+        elif dn:
+            bits = INSTRUMENT_BITS.get(im.instrument)
+            out.append(Radiometry("dn", float(2 ** bits - 1) if bits else float("nan"), 1.0))
+        else:
+            out.append(shared)  # type: ignore[arg-type]
     return out
 
 

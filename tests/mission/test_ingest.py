@@ -137,3 +137,14 @@ def test_image_list_pairs_isds_with_images_of_other_names(tmp_path: Path) -> Non
     lst.write_text("EN0213023991M.json\n")
     with pytest.raises(StoreError, match="pairs.csv, line 1"):
         ingest_mission(tmp_path / "m2", [str(work / "*.json")], image_list=lst)
+
+
+def test_raw_dn_stored_as_floats_is_dn_of_the_instrument(tmp_path: Path) -> None:
+    m = open_mission(ingest_mission(tmp_path / "m", [str(REAL / "EN1072174528M_raw_dn_with_spice.cub")])["path"])
+    (i,) = m.image_ids
+    r = m.radiometry(i)
+    assert r.pixel_kind == "dn" and r.saturation == 4095.0 and r.dn_scale == 1.0
+    img = m.read_image(i)
+    assert 256 <= np.nanmin(img) and np.nanmax(img) <= 395
+    # the boresight ground point of this image (README known value, via the cube's own SPICE)
+    assert abs(m.catalog["center_lat"].iat[0] - 46.275) < 0.01 and abs(m.catalog["center_lon"].iat[0] - 248.068) < 0.01
