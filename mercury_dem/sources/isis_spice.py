@@ -45,7 +45,7 @@ from mercury_dem.sources.isis_tables import CubeTable, naif_keywords, read_table
 
 #: How far (s) the exposure time may lie outside the tables' time span.
 TIME_TOLERANCE_S = 0.01
-_SPICE_TODO = "run spiceinit attach=true on it"
+_RUN_SPICEINIT = "run spiceinit attach=true on it"
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,7 +124,7 @@ def _spice_table(cube: IsisCube, name: str) -> CubeTable:
         return read_table(cube, name)
     except CubeError as exc:
         if "has no table named" in str(exc):
-            raise CubeError(f"ISIS cube {cube.path}: has no {name} table: {_SPICE_TODO}") from None
+            raise CubeError(f"ISIS cube {cube.path}: has no {name} table: {_RUN_SPICEINIT}") from None
         raise
 
 
@@ -132,17 +132,17 @@ def _columns(cube: IsisCube, table: CubeTable, names: tuple[str, ...]) -> NDArra
     missing = [n for n in names if n not in table.columns or table.columns[n].ndim != 1]
     if missing:
         raise _fault(cube.path, f"table {table.name} lacks the columns {missing} (a polynomial table "
-                                "written by jigsaw is not supported)", f"{_SPICE_TODO} again, or use the ISD")
+                                "written by jigsaw is not supported)", f"{_RUN_SPICEINIT} again, or use the ISD")
     out = np.stack([table.columns[n].astype(np.float64) for n in names], axis=-1)
     if out.shape[0] == 0 or not np.all(np.isfinite(out)):
-        raise _fault(cube.path, f"table {table.name} has no records or non-finite values", f"{_SPICE_TODO} again")
+        raise _fault(cube.path, f"table {table.name} has no records or non-finite values", f"{_RUN_SPICEINIT} again")
     return out
 
 
 def _times(cube: IsisCube, table: CubeTable) -> NDArray[np.float64]:
     t = _columns(cube, table, ("ET",))[:, 0]
     if np.any(np.diff(t) <= 0):
-        raise _fault(cube.path, f"table {table.name} ET values do not increase", f"{_SPICE_TODO} again")
+        raise _fault(cube.path, f"table {table.name} ET values do not increase", f"{_RUN_SPICEINIT} again")
     return t
 
 
@@ -173,7 +173,7 @@ def _bracket(cube: IsisCube, table: CubeTable, times: NDArray[np.float64], et: f
     """Index i and fraction f with et = times[i] + f (times[i+1] - times[i]); one record gives (0, 0)."""
     if not times[0] - TIME_TOLERANCE_S <= et <= times[-1] + TIME_TOLERANCE_S:
         raise _fault(cube.path, f"table {table.name} covers ET {times[0]:.6f}..{times[-1]:.6f} s, not the "
-                                f"exposure time {et:.6f} s", f"{_SPICE_TODO} again")
+                                f"exposure time {et:.6f} s", f"{_RUN_SPICEINIT} again")
     if times.size == 1:
         return 0, 0.0
     i = int(np.clip(np.searchsorted(times, et) - 1, 0, times.size - 2))
@@ -186,7 +186,7 @@ def _rotation_at(cube: IsisCube, table: CubeTable, et: float) -> NDArray[np.floa
     norms = np.linalg.norm(q, axis=1)
     if np.any(np.abs(norms - 1.0) > QUATERNION_NORM_TOL):
         raise _fault(cube.path, f"table {table.name} holds non-unit quaternions (norms {norms.min():.9f}.."
-                                f"{norms.max():.9f})", f"{_SPICE_TODO} again")
+                                f"{norms.max():.9f})", f"{_RUN_SPICEINIT} again")
     i, f = _bracket(cube, table, _times(cube, table), et)
     q0 = q[i]
     if f > 0.0:
@@ -263,7 +263,7 @@ def _ik_code(cube: IsisCube, pointing: CubeTable) -> int:
     frames = _frames(pointing, "ConstantFrames") or _frames(pointing, "TimeDependentFrames")
     if not frames:
         raise _fault(cube.path, "neither Kernels/NaifIkCode nor the pointing table's frames give the "
-                                "instrument code", f"{_SPICE_TODO} again")
+                                "instrument code", f"{_RUN_SPICEINIT} again")
     return frames[0]
 
 
