@@ -210,7 +210,7 @@ def make_products(
     summary["coverage"] = None
     cov_path = dem_path.parent / "coverage.zarr"
     if cov_path.exists():
-        cov = xr.open_zarr(str(cov_path), consolidated=False)
+        cov = xr.open_zarr(str(cov_path), consolidated=False, decode_coords="all")
         cov_summary = json.loads(ds.attrs["coverage"]) if ds.attrs.get("coverage") else None
         if cov_summary:
             files.append(str(atomic_write_json(out / "coverage.json", cov_summary)))
