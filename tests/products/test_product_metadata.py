@@ -132,6 +132,8 @@ def test_dem_tif_extent_crs_and_values(run):
                                    rtol=0, atol=1e-9)
         assert src.bounds.right <= 360 and src.bounds.left >= -180
         assert _radius(src.crs) == body.datum_radius_m  # the same grid mapping as dem.zarr
+        if body is MOON:
+            assert src.crs.to_string() == body.crs("geographic")  # the datum is the IAU sphere: its code
         x, y = _centres(src)
         lon, lat = pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(src.crs.to_wkt()), body.crs("geographic"),
                                                always_xy=True).transform(x, np.zeros_like(x))
