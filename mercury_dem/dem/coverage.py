@@ -80,11 +80,18 @@ class CoverageResult:
             },
         }
 
+    def crs(self) -> str:
+        """The grid's CRS as a PROJ string: sinusoidal of the datum sphere, central meridian 0, km."""
+        return f"+proj=sinu +lon_0=0 +x_0=0 +y_0=0 +R={self.radius_m:.17g} +units=km +no_defs +type=crs"
+
     def to_dataset(self) -> Any:
-        """An xarray Dataset of the two maps (coordinates in km on the sinusoidal grid)."""
+        """An xarray Dataset of the two maps (coordinates in km on the sinusoidal grid), with its
+        CRS as a CF grid mapping ``spatial_ref`` (rioxarray; written to Zarr with the maps)."""
+        import pyproj
+        import rioxarray  # noqa: F401  (registers .rio)
         import xarray as xr
 
-        return xr.Dataset(
+        ds = xr.Dataset(
             {
                 "count": (("y", "x"), self.count, {"long_name": "control points per map pixel (-1 off the planet)",
                                                    "units": "1"}),
@@ -92,10 +99,17 @@ class CoverageResult:
                                            {"long_name": "distance from the pixel centre to the nearest control point",
                                             "units": "km"}),
             },
-            coords={"x": ("x", self.x_km, {"units": "km"}), "y": ("y", self.y_km, {"units": "km"})},
+            coords={"x": ("x", self.x_km, {"units": "km", "standard_name": "projection_x_coordinate",
+                                           "long_name": "sinusoidal easting of the pixel centre"}),
+                    "y": ("y", self.y_km, {"units": "km", "standard_name": "projection_y_coordinate",
+                                           "long_name": "sinusoidal northing of the pixel centre"})},
             attrs={"projection": f"sinusoidal, central meridian 0, R = {self.radius_m / 1000:g} km (equal-area)",
                    "pixel_km": self.pixel_km},
         )
+        ds = ds.rio.set_spatial_dims(x_dim="x", y_dim="y").rio.write_crs(self.crs())
+        ds["spatial_ref"].attrs["crs_wkt2"] = pyproj.CRS.from_user_input(self.crs()).to_wkt("WKT2_2019")
+        ds["spatial_ref"].attrs["proj4"] = self.crs()
+        return ds
 
 
 def sinusoidal_grid(pixel_km: float, radius_m: float = DATUM_RADIUS_M) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -19,6 +19,7 @@ Conventions (see docs/conventions.md):
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -79,6 +80,23 @@ class Body:
             raise ValueError(f"unknown CRS kind {kind!r}; choose one of {sorted(offsets)}")
         return f"IAU_2015:{self.iau_code + offsets[kind]}"
 
+    @property
+    def datum_is_iau_sphere(self) -> bool:
+        """True when heights are above the IAU 2015 sphere itself (the Moon; not Mercury)."""
+        return self.datum_radius_m == self.radius_m
+
+    def datum_geographic_crs(self) -> str:
+        """The geographic CRS of the datum sphere, as a CRS code or a WKT2 string (pyproj/GDAL input).
+
+        The grid mapping of a height map: its sphere is the one heights are measured from,
+        so a CF/GIS reader sees heights above the ellipsoid of the file's own CRS. Where the
+        datum is the IAU 2015 sphere this is the IAU code itself; otherwise the IAU 2015
+        geographic CRS with the sphere's radius replaced by the datum radius (same
+        planetocentric, east-positive latitude/longitude, same reference meridian; no
+        authority code: the IAU code of :meth:`crs` stays the horizontal reference).
+        """
+        return _datum_geographic_crs(self)
+
     def to_dict(self) -> dict[str, object]:
         return {"name": self.name, "naif_id": self.naif_id, "radius_m": self.radius_m,
                 "datum_radius_m": self.datum_radius_m, "iau_code": self.iau_code, "datum_crs": self.datum_crs}
@@ -107,6 +125,24 @@ MERCURY = Body("MERCURY", 199, IAU_SPHERE_RADIUS_M, DATUM_RADIUS_M, 19900, CRS_D
 #: The Moon: the IAU 2015 sphere (1737.4 km), which is also the LOLA datum.
 MOON = Body("MOON", 301, 1_737_400.0, 1_737_400.0, 30100, "IAU_2015:30100")
 BODIES = {b.name: b for b in (MERCURY, MOON)}
+
+
+@functools.lru_cache(maxsize=8)
+def _datum_geographic_crs(body: Body) -> str:
+    code = body.crs("geographic")
+    if body.datum_is_iau_sphere:
+        return code
+    import pyproj
+
+    j = pyproj.CRS.from_user_input(code).to_json_dict()
+    sphere = f"{body.name.title()} datum sphere (R = {body.datum_radius_m:.0f} m)"
+    j["name"] = f"{sphere} / Ocentric"
+    j["datum"]["name"] = sphere
+    j["datum"]["ellipsoid"] = {"name": sphere, "radius": body.datum_radius_m}
+    j.pop("id", None)
+    j["remarks"] = (f"Sphere of the height datum. Latitude/longitude are those of {code} (planetocentric, "
+                    f"east-positive); only the radius differs ({body.radius_m:.0f} m there).")
+    return pyproj.CRS.from_json_dict(j).to_wkt("WKT2_2019")
 
 
 def body_by_name(name: str) -> Body:

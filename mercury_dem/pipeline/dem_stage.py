@@ -48,7 +48,8 @@ __all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "ch
 
 ATTRS: dict[str, dict[str, str]] = {
     "elevation": {
-        "long_name": "elevation above the body's datum sphere (root attribute datum_radius_m)",
+        "long_name": "elevation above the datum sphere (root attribute datum_radius_m), the reference "
+                     "ellipsoid of the grid mapping spatial_ref",
         "standard_name": "height_above_reference_ellipsoid",
         "units": "m",
     },
@@ -106,7 +107,6 @@ def check_memory(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
 def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, body: Body = MERCURY) -> xr.Dataset:
     """The lazy (Dask-backed, never computed) Dataset that defines the store's layout."""
     import dask.array as da
-    import pyproj
     import rioxarray  # noqa: F401  (registers the .rio accessor)
 
     nr, nc = grid.shape
@@ -124,11 +124,8 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, 
         },
     )
     ds = ds.rio.set_spatial_dims(x_dim="lon", y_dim="lat")
-    code = body.crs("geographic")
-    ds = ds.rio.write_crs(code)
-    crs = pyproj.CRS.from_user_input(code)
-    ds["spatial_ref"].attrs["crs_code"] = code
-    ds["spatial_ref"].attrs["crs_wkt2"] = crs.to_wkt("WKT2_2019")
+    ds = ds.rio.write_crs(body.datum_geographic_crs())
+    ds["spatial_ref"].attrs.update(_spatial_ref_extra(body))
     for name in LAYERS:
         ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref",
                                   "compressors": layer_compressors()})
@@ -139,14 +136,14 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, 
 
 def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body = MERCURY) -> dict[str, Any]:
     code = body.crs("geographic")
-    if body.datum_radius_m == body.radius_m:
+    if body.datum_is_iau_sphere:
         reference = (f"elevation is metres above the {body.name.title()} IAU 2015 sphere of radius "
-                     f"{body.datum_radius_m / 1000:g} km, the sphere of the CRS {code}")
+                     f"{body.datum_radius_m / 1000:g} km, the sphere of the CRS {code} (grid mapping spatial_ref)")
     else:
         reference = (
-            f"elevation is metres above a sphere of radius {body.datum_radius_m / 1000:g} km (the datum); the CRS "
-            f"{code} is the IAU 2015 sphere of radius {body.radius_m:.0f} m and only "
-            "georeferences latitude/longitude: heights never refer to it"
+            f"elevation is metres above a sphere of radius {body.datum_radius_m / 1000:g} km (the datum), the "
+            f"sphere of the grid mapping spatial_ref; latitude/longitude are those of {code} (crs_code, the IAU "
+            f"2015 sphere of radius {body.radius_m:.0f} m, to which heights never refer)"
         )
     out = {
         "title": f"{body.name.title()} DEM gridded from a control point cloud",
@@ -178,19 +175,38 @@ _COORD_ATTRS = {
 }
 
 
-@functools.lru_cache(maxsize=4)
-def _spatial_ref_attrs(code: str) -> dict[str, Any]:
-    """The ``spatial_ref`` attributes rioxarray writes for a CRS code, plus the code and its WKT2.
-
-    A constant of the CRS (computed once per process: pyproj and rioxarray take ~0.1 s).
-    """
+def _spatial_ref_extra(body: Body) -> dict[str, Any]:
+    """What ``spatial_ref`` carries beside rioxarray's CF attributes: the IAU code and the WKT2."""
     import pyproj
+
+    code = body.crs("geographic")
+    out: dict[str, Any] = {
+        "crs_code": code,
+        "crs_wkt2": pyproj.CRS.from_user_input(body.datum_geographic_crs()).to_wkt("WKT2_2019"),
+    }
+    if body.datum_is_iau_sphere:
+        out["crs_note"] = f"the grid mapping is {code}, whose sphere is the height datum"
+    else:
+        out["crs_note"] = (
+            f"the grid mapping (crs_wkt, crs_wkt2, semi_major_axis) is the sphere of the height datum, "
+            f"R = {body.datum_radius_m:.0f} m; crs_code {code} is the IAU 2015 CRS of the same latitude/longitude "
+            f"(sphere R = {body.radius_m:.0f} m), given as the horizontal reference for interoperability"
+        )
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _spatial_ref_attrs(body: Body) -> dict[str, Any]:
+    """The ``spatial_ref`` attributes rioxarray writes for the body's datum-sphere CRS
+    (:meth:`Body.datum_geographic_crs`), plus the IAU code, the WKT2 and a note.
+
+    A constant of the body (computed once per process: pyproj and rioxarray take ~0.1 s).
+    """
     import rioxarray  # noqa: F401  (registers the .rio accessor)
 
     ds = xr.Dataset(coords={"lat": [0.0], "lon": [0.0]}).rio.set_spatial_dims(x_dim="lon", y_dim="lat")
-    out = dict(ds.rio.write_crs(code)["spatial_ref"].attrs)
-    out["crs_code"] = code
-    out["crs_wkt2"] = pyproj.CRS.from_user_input(code).to_wkt("WKT2_2019")
+    out = dict(ds.rio.write_crs(body.datum_geographic_crs())["spatial_ref"].attrs)
+    out.update(_spatial_ref_extra(body))
     return out
 
 
@@ -230,7 +246,7 @@ def create_store(
                                  fill_value=np.nan, dimension_names=[name],
                                  attributes={**_COORD_ATTRS[name], "_FillValue": _NAN_FILL_ATTR})
         arr[...] = values
-    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=_spatial_ref_attrs(body.crs("geographic")))
+    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=_spatial_ref_attrs(body))
     layers: dict[str, zarr.Array] = {}
     for name, dtype in LAYERS.items():
         integer = np.dtype(dtype).kind == "i"

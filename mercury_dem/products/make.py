@@ -3,8 +3,8 @@
 Reads ``dem.zarr`` (and ``coverage.zarr`` beside it when present) and writes into
 ``out_dir``::
 
-    dem.tif                      global DEM, COG, IAU_2015:19900 (degrees), float32
-    pds/equirectangular.tif      |lat| < 65, IAU_2015:19915 (metres), float32
+    dem.tif                      global DEM, COG, geographic CRS of the datum sphere (degrees), float32
+    pds/equirectangular.tif      |lat| < 65, IAU_2015:19915 (19910 across 0 deg) (metres), float32
     pds/north_polar.tif          lat >= 65, IAU_2015:19930, reprojected, float32
     pds/south_polar.tif          lat <= -65, IAU_2015:19935, reprojected, float32
     browse/greyscale.png, browse/hillshade.png, browse/colour_hillshade.png,
@@ -34,7 +34,14 @@ from mercury_dem.exceptions import GridError, StoreError
 from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
 from mercury_dem.products import browse
-from mercury_dem.products.geotiff import height_tags, write_dem_geotiff, write_pds_equirectangular, write_raster
+from mercury_dem.products.geotiff import (
+    band_description,
+    height_tags,
+    pixel_transform,
+    write_dem_geotiff,
+    write_pds_equirectangular,
+    write_raster,
+)
 from mercury_dem.products.polar import reproject_polar
 from mercury_dem.products.profile import elevation_profile, write_profile
 from mercury_dem.products.stats import dem_statistics, format_statistics_table
@@ -134,7 +141,10 @@ def make_products(
     summary: dict[str, Any] = {"dem": str(dem_path), "shape": [H, W]}
 
     # GeoTIFFs.
-    files.append(str(write_dem_geotiff(elev, lat, lon, out / "dem.tif", cog=cfg.cog, body=body)))
+    gb = ds.attrs.get("grid_bounds_deg")
+    geom = {"pixels_per_degree": ds.attrs.get("pixels_per_degree"),
+            "bounds": tuple(float(b) for b in gb) if gb is not None and len(gb) == 4 else None}
+    files.append(str(write_dem_geotiff(elev, lat, lon, out / "dem.tif", cog=cfg.cog, body=body, **geom)))
     pds: dict[str, Any] = {}
     skipped: dict[str, str] = {}
     cut = cfg.polar_cut_lat
@@ -149,7 +159,7 @@ def make_products(
 
     if (np.abs(lat) < cut).any():
         pds["equirectangular"] = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif",
-                                                           cut, cog=cfg.cog, body=body)
+                                                           cut, cog=cfg.cog, body=body, **geom)
         files.append(pds["equirectangular"]["path"])
     else:
         skip("equirectangular", f"within +-{cut:g} deg")
@@ -159,7 +169,9 @@ def make_products(
             skip(name, f"north of {cut:g} deg" if north else f"south of -{cut:g} deg")
             continue
         cap = reproject_polar(elev, lat, lon, north, cut, body=body)
-        p = write_raster(cap["values"], cap["x"], cap["y"], cap["crs"], out / f"pds/{name}.tif", cog=cfg.cog,
+        half = cap["x"].size * cap["pixel_m"] / 2.0  # square grid centred on the pole
+        p = write_raster(cap["values"], pixel_transform(-half, half, cap["pixel_m"]), cap["crs"],
+                         out / f"pds/{name}.tif", cog=cfg.cog, description=band_description(body),
                          tags={**height_tags(body), "LATITUDE_LIMIT_DEG": str(cut)})
         pds[name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
                      "valid_fraction_in_cap": cap["valid_fraction"]}
@@ -198,7 +210,7 @@ def make_products(
     summary["coverage"] = None
     cov_path = dem_path.parent / "coverage.zarr"
     if cov_path.exists():
-        cov = xr.open_zarr(str(cov_path), consolidated=False)
+        cov = xr.open_zarr(str(cov_path), consolidated=False, decode_coords="all")
         cov_summary = json.loads(ds.attrs["coverage"]) if ds.attrs.get("coverage") else None
         if cov_summary:
             files.append(str(atomic_write_json(out / "coverage.json", cov_summary)))

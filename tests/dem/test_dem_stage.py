@@ -39,7 +39,12 @@ def test_store_layout_crs_and_values(serial_store):
     # The CRS survives the round trip, as a coordinate, with its code and WKT2.
     assert "spatial_ref" in ds.coords
     assert ds.rio.crs is not None
-    assert pyproj.CRS.from_wkt(ds.spatial_ref.attrs["crs_wkt2"]) == pyproj.CRS.from_user_input(CRS_GEOGRAPHIC)
+    # Its sphere is the height datum (CF: height_above_reference_ellipsoid of the grid mapping's
+    # ellipsoid); crs_code is the IAU CRS of the same latitude/longitude.
+    assert ds.elevation.attrs["standard_name"] == "height_above_reference_ellipsoid"
+    assert pyproj.CRS.from_wkt(ds.rio.crs.to_wkt()).ellipsoid.semi_major_metre == DATUM_RADIUS_M
+    assert ds.spatial_ref.attrs["semi_major_axis"] == DATUM_RADIUS_M
+    assert pyproj.CRS.from_wkt(ds.spatial_ref.attrs["crs_wkt2"]).ellipsoid.semi_major_metre == DATUM_RADIUS_M
     assert ds.spatial_ref.attrs["crs_code"] == CRS_GEOGRAPHIC
     # Recovery of the truth (sparse cloud: ~0.6 points per 1-deg pixel, so a generous bound).
     lat, lon = np.meshgrid(ds.lat.values, ds.lon.values, indexing="ij")

@@ -27,7 +27,13 @@ def _centres(src):
 def test_geotiff_is_the_dem_with_mercury_crs(dem_dir, products):
     ds = open_dem(dem_dir / "dem.zarr")
     with rasterio.open(dem_dir / "products/dem.tif") as src:
-        assert src.crs.to_string() == CRS_GEOGRAPHIC
+        # The grid mapping of dem.zarr: the datum sphere (heights are above the CRS's own ellipsoid),
+        # with the latitude/longitude of IAU_2015:19900.
+        crs = pyproj.CRS.from_user_input(src.crs.to_wkt())
+        assert crs.is_geographic and crs.ellipsoid.semi_major_metre == 2439400.0
+        lon, lat = pyproj.Transformer.from_crs(crs, CRS_GEOGRAPHIC, always_xy=True).transform([10.0, 250.0], [-30.0, 60.0])
+        np.testing.assert_allclose([lon, lat], [[10.0, 250.0], [-30.0, 60.0]], atol=1e-9)
+        assert src.units == ("m",) and "datum" in src.descriptions[0]
         assert src.dtypes[0] == "float32" and np.isnan(src.nodata)
         assert src.overviews(1)  # cloud-optimised: overviews inside
         x, y = _centres(src)
@@ -41,9 +47,9 @@ def test_geotiff_is_the_dem_with_mercury_crs(dem_dir, products):
 def test_gdalinfo_opens_the_cog_with_mercury_crs(products, dem_dir):
     out = subprocess.run(["gdalinfo", str(dem_dir / "products/dem.tif")], capture_output=True, text=True,
                          check=True).stdout
-    assert "Mercury (2015) - Sphere / Ocentric" in out
+    assert "Mercury datum sphere (R = 2439400 m) / Ocentric" in out
     assert "LAYOUT=COG" in out
-    assert "2440530" in out
+    assert "2439400" in out and "2440530" not in out.split("Metadata:")[0]
 
 
 def test_pds_equirectangular_is_affine_cut(dem_dir, products):
