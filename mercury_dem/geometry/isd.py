@@ -50,6 +50,9 @@ from numpy.typing import ArrayLike, NDArray
 from mercury_dem.exceptions import GeometryError, IsdError
 from mercury_dem.geometry.camera import FramingCamera
 
+#: Largest magnitude any ISD number may have (the Sun is ~1e11 m away; larger values are corrupt and
+#: would overflow the geometry's squares).
+MAX_MAGNITUDE = 1e20
 #: Largest allowed | |q| - 1 | of a quaternion before it is called non-normalised.
 QUATERNION_NORM_TOL = 1e-6
 #: Largest allowed max|M M^T - I| of a rotation matrix given as nine numbers.
@@ -213,6 +216,8 @@ class _Reader:
             raise self.error(key, f"must be a number, got {value!r}") from None
         if not math.isfinite(x) or (positive and x <= 0):
             raise self.error(key, f"must be a finite{' positive' if positive else ''} number, got {x}")
+        if abs(x) > MAX_MAGNITUDE:
+            raise self.error(key, f"is {x:g}, beyond any physical value here (|x| <= {MAX_MAGNITUDE:g})")
         return x
 
     def integer(self, key: str, minimum: int) -> int:
@@ -228,13 +233,15 @@ class _Reader:
             a = np.asarray(raw, dtype=np.float64)
         except (TypeError, ValueError):
             raise self.error(key, f"must hold numbers of shape {shape}, got {str(raw)[:80]}") from None
-        want = tuple(a.shape[0] if (i == 0 and n == -1) else n for i, n in enumerate(shape))
+        want = tuple(a.shape[0] if (i == 0 and n == -1 and a.ndim) else n for i, n in enumerate(shape))
         if a.shape != want or a.size == 0:
             what = (f"a list of rows of {shape[1]} numbers" if len(shape) == 2 and shape[0] == -1
                     else f"{shape[0]} numbers" if len(shape) == 1 and shape[0] > 0 else f"shape {shape}")
             raise self.error(key, f"must be {what}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
             raise self.error(key, f"holds NaN or infinite values: {a.tolist()}")
+        if np.any(np.abs(a) > MAX_MAGNITUDE):
+            raise self.error(key, f"holds a value beyond any physical value here (|x| <= {MAX_MAGNITUDE:g})")
         return a
 
     def unit_scale(self, key: str, default: str) -> float:
@@ -272,7 +279,8 @@ def _at_time(r: _Reader, table: str, column: str, width: int, et: float) -> NDAr
 
 
 def _unit_quaternion(r: _Reader, key: str, q: NDArray[np.float64]) -> NDArray[np.float64]:
-    norm = float(np.linalg.norm(q))
+    # a component beyond 1 cannot be part of a unit quaternion (and would overflow the norm when huge)
+    norm = float(np.linalg.norm(q)) if np.all(np.abs(q) <= 1.0 + QUATERNION_NORM_TOL) else math.inf
     if abs(norm - 1.0) > QUATERNION_NORM_TOL:
         raise r.error(key, f"is not a unit quaternion (norm {norm:.9f}, tolerance {QUATERNION_NORM_TOL:g}); "
                            "the ISD is corrupt or hand-edited: regenerate it")
