@@ -66,7 +66,6 @@ def write_isis_radius_cube(
     (``dem.zarr`` attributes). Raises StoreError when the written label is not what ISIS needs.
     """
     import rasterio
-    import rasterio.shutil
     from rasterio.io import MemoryFile
 
     path = Path(path)
@@ -92,6 +91,8 @@ def write_isis_radius_cube(
             with mf.open(driver="GTiff", width=W, height=H, count=1, dtype="float32", crs=crs, transform=transform,
                          nodata=ISIS_NULL_REAL) as gt:
                 gt.write(radius, 1)
+            del radius  # the in-memory GeoTIFF holds it (memory: dem.memory_limit_gb allows 5 maps)
+            # rasterio.open, not rasterio.shutil.copy: the latter upper-cases option values (TARGET_NAME).
             with mf.open() as src, rasterio.open(tmp, "w", driver="ISIS3", width=W, height=H, count=1,
                                                  dtype="float32", crs=src.crs, transform=src.transform,
                                                  nodata=ISIS_NULL_REAL, **opts) as dst:
@@ -201,12 +202,11 @@ def write_pds4_label(tif: str | Path, body: Body, bounding_degrees: tuple[float,
             problems.append(f"size/type {b.driver} {b.width}x{b.height}x{b.count} {b.dtypes}")
         if not b.transform.almost_equals(a.transform, precision=1e-6):
             problems.append(f"transform {tuple(b.transform)[:6]} != {tuple(a.transform)[:6]}")
-        if b.crs is None or not pyproj.CRS.from_wkt(b.crs.to_wkt()).equals(pyproj.CRS.from_wkt(a.crs.to_wkt()),
-                                                                            ignore_axis_order=True):
-            cb, ca = pyproj.CRS.from_wkt(b.crs.to_wkt()) if b.crs else None, pyproj.CRS.from_wkt(a.crs.to_wkt())
-            # GDAL writes the projection from its parameters: accept the same map (same sphere and points).
-            if cb is None or cb.ellipsoid.semi_major_metre != ca.ellipsoid.semi_major_metre or not _same_map(ca, cb, a):
-                problems.append("CRS")
+        ca = pyproj.CRS.from_wkt(a.crs.to_wkt())
+        cb = pyproj.CRS.from_wkt(b.crs.to_wkt()) if b.crs is not None else None
+        # GDAL rebuilds the CRS from the label's projection parameters: the same sphere and the same map suffice.
+        if cb is None or cb.ellipsoid.semi_major_metre != ca.ellipsoid.semi_major_metre or not _same_map(ca, cb, a):
+            problems.append(f"CRS {cb.name if cb else None!r} is not the map of {ca.name!r}")
         if b.units[0].lower() != (a.units[0] or "").lower():
             problems.append(f"units {b.units} != {a.units}")
         rows = sorted({0, a.height // 2, a.height - 1})
