@@ -25,6 +25,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 import uuid
@@ -186,9 +187,16 @@ def write_pds4_label(tif: str | Path, body: Body, bounding_degrees: tuple[float,
     xml = tif.with_suffix(".xml")
     tmp = _tmp_name(xml, ".xml")
     try:
-        # rasterio upper-cases creation option values: only pass options where that is harmless.
-        rasterio.shutil.copy(str(tif), str(tmp), driver="PDS4", CREATE_LABEL_ONLY="YES",
-                             BOUNDING_DEGREES=",".join(repr(float(b)) for b in bounding_degrees))
+        # rasterio upper-cases creation option values: only pass options where that is harmless. GDAL warns
+        # of each template variable it leaves for the archive (${LOGICAL_IDENTIFIER}, ...): not news here.
+        quiet = logging.getLogger("rasterio._env")
+        level = quiet.level
+        quiet.setLevel(logging.ERROR)
+        try:
+            rasterio.shutil.copy(str(tif), str(tmp), driver="PDS4", CREATE_LABEL_ONLY="YES",
+                                 BOUNDING_DEGREES=",".join(repr(float(b)) for b in bounding_degrees))
+        finally:
+            quiet.setLevel(level)
         text = _fix_target(tmp.read_text(encoding="utf-8"), body, xml.name)
         if f"<file_name>{tif.name}</file_name>" not in text:
             raise StoreError(f"GDAL's PDS4 label for {tif} does not reference {tif.name}")
