@@ -113,11 +113,14 @@ def write_raster(
     tags: dict[str, str] | None = None,
     description: str = "elevation",
     units: str = "m",
+    raw: bool = False,
 ) -> Path:
     """Write a float32 single-band raster (NaN nodata) with an exact affine ``transform``.
 
     ``cog`` selects GDAL's COG driver (tiled, overviews, DEFLATE with the float
-    predictor); otherwise a tiled DEFLATE GTiff. The band gets ``units`` and
+    predictor); otherwise a tiled DEFLATE GTiff. ``raw``: an uncompressed, striped GTiff
+    whose pixels are one contiguous array (what a PDS4 label can describe in place;
+    overrides ``cog``). The band gets ``units`` and
     ``description``; ``tags`` go to the dataset metadata.
     """
     import rasterio
@@ -131,7 +134,13 @@ def write_raster(
     profile: dict[str, Any] = {"width": arr.shape[1], "height": arr.shape[0], "count": 1, "dtype": "float32",
                                "crs": CRS.from_user_input(crs), "transform": transform, "nodata": np.nan,
                                "compress": "DEFLATE", "predictor": 3}
-    if cog:
+    if raw:
+        # GDAL defers all-nodata (or all-zero) strips of an uncompressed file to its end unless told
+        # otherwise: the strips must be in order for the pixels to be one contiguous array.
+        profile.update({"driver": "GTiff", "compress": "NONE", "tiled": False, "interleave": "band",
+                        "@WRITE_EMPTY_TILES_SYNCHRONOUSLY": "YES"})
+        del profile["predictor"]
+    elif cog:
         profile["driver"] = "COG"
     else:
         profile.update(driver="GTiff", tiled=True)
@@ -167,6 +176,7 @@ def write_pds_equirectangular(
     elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating], path: str | Path,
     cut_lat: float = 65.0, cog: bool = True, body: Body = MERCURY, *,
     pixels_per_degree: float | None = None, bounds: tuple[float, float, float, float] | None = None,
+    raw: bool = False,
 ) -> dict[str, Any]:
     """PDS-style equirectangular product: the rows with |lat| < ``cut_lat``, projected.
 
@@ -190,9 +200,11 @@ def write_pds_equirectangular(
     transform = pixel_transform(R * math.radians(west_edge(lon_min, lon_max, clon) - clon),
                                 R * math.radians(north_deg), res)
     sel = slice(int(rows[0]), int(rows[-1]) + 1)
-    p = write_raster(np.asarray(elevation)[sel], transform, crs, path, cog=cog,
+    p = write_raster(np.asarray(elevation)[sel], transform, crs, path, cog=cog, raw=raw,
                      tags={**height_tags(body), "LATITUDE_LIMIT_DEG": f"{cut_lat}", "CENTER_LONGITUDE": f"{clon:g}"},
                      description=band_description(body))
+    west = west_edge(lon_min, lon_max, clon)
     return {"path": str(p), "shape": [int(rows.size), int(len(lon))], "crs": crs, "center_longitude": clon,
             "lat_range_deg": [float(lat[rows].min()), float(lat[rows].max())],
+            "bounding_degrees": [west, north_deg - rows.size / ppd, west + (lon_max - lon_min), north_deg],
             "pixel_m": res}

@@ -7,6 +7,10 @@ Reads ``dem.zarr`` (and ``coverage.zarr`` beside it when present) and writes int
     pds/equirectangular.tif      |lat| < 65, IAU_2015:19915 (19910 across 0 deg) (metres), float32
     pds/north_polar.tif          lat >= 65, IAU_2015:19930, reprojected, float32
     pds/south_polar.tif          lat <= -65, IAU_2015:19935, reprojected, float32
+                                 (the pds/*.tif are uncompressed, striped: PDS4 describes them in place)
+    pds/<name>.xml               PDS4 label of each pds/<name>.tif (GDAL's PDS4 driver, label only)
+    isis/dem_radius.cub          ISIS3 shape model: planetocentric radius (m), Real, ISIS Null for no value,
+                                 Equirectangular Mapping group of the IAU sphere, TargetName = the body
     browse/greyscale.png, browse/hillshade.png, browse/colour_hillshade.png,
     browse/robinson.png, browse/coverage_distance.png (with coverage.zarr)
     statistics.json              reference 000 Table 1 (+ the printed table)
@@ -42,6 +46,7 @@ from mercury_dem.products.geotiff import (
     write_pds_equirectangular,
     write_raster,
 )
+from mercury_dem.products.planetary import write_isis_radius_cube, write_pds4_label
 from mercury_dem.products.polar import reproject_polar
 from mercury_dem.products.profile import elevation_profile, write_profile
 from mercury_dem.products.stats import dem_statistics, format_statistics_table
@@ -49,6 +54,7 @@ from mercury_dem.products.stats import dem_statistics, format_statistics_table
 #: Files always written (relative to the products directory).
 PRODUCT_FILES = (
     "dem.tif", "pds/equirectangular.tif", "pds/north_polar.tif", "pds/south_polar.tif",
+    "pds/equirectangular.xml", "pds/north_polar.xml", "pds/south_polar.xml", "isis/dem_radius.cub",
     "browse/greyscale.png", "browse/hillshade.png", "browse/colour_hillshade.png", "browse/robinson.png",
     "statistics.json", "statistics.txt",
 )
@@ -106,9 +112,10 @@ def make_products(
     Returns
     -------
     dict: ``files`` (paths written), ``statistics`` (dict), ``table`` (printable str),
-    ``coverage`` (dict or None), ``accuracy`` (dict or None), ``pds`` (descriptions),
+    ``coverage`` (dict or None), ``accuracy`` (dict or None), ``pds`` (descriptions, each
+    with its PDS4 label under ``pds4``), ``isis`` (the radius cube's description),
     ``skipped`` (product file -> why it was not written: a PDS product whose latitudes the
-    map does not reach), ``profiles``, ``seconds``.
+    map does not reach; its .xml label is not written either), ``profiles``, ``seconds``.
 
     Raises
     ------
@@ -156,11 +163,14 @@ def make_products(
         skipped[f"pds/{name}.tif"] = f"{span}, none {where} (dem.polar_cut_lat)"
         if overwrite:  # a product an earlier call wrote for another map must not linger beside this one's
             (out / f"pds/{name}.tif").unlink(missing_ok=True)
+            (out / f"pds/{name}.xml").unlink(missing_ok=True)
 
     if (np.abs(lat) < cut).any():
-        pds["equirectangular"] = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif",
-                                                           cut, cog=cfg.cog, body=body, **geom)
-        files.append(pds["equirectangular"]["path"])
+        eq = write_pds_equirectangular(elev, lat, lon, out / "pds/equirectangular.tif", cut, body=body, raw=True,
+                                       **geom)
+        eq["pds4"] = write_pds4_label(eq["path"], body, tuple(eq["bounding_degrees"]))
+        pds["equirectangular"] = eq
+        files += [eq["path"], eq["pds4"]["path"]]
     else:
         skip("equirectangular", f"within +-{cut:g} deg")
     for name, north in (("north_polar", True), ("south_polar", False)):
@@ -171,13 +181,18 @@ def make_products(
         cap = reproject_polar(elev, lat, lon, north, cut, body=body)
         half = cap["x"].size * cap["pixel_m"] / 2.0  # square grid centred on the pole
         p = write_raster(cap["values"], pixel_transform(-half, half, cap["pixel_m"]), cap["crs"],
-                         out / f"pds/{name}.tif", cog=cfg.cog, description=band_description(body),
+                         out / f"pds/{name}.tif", raw=True, description=band_description(body),
                          tags={**height_tags(body), "LATITUDE_LIMIT_DEG": str(cut)})
+        label = write_pds4_label(p, body, (0.0, cut, 360.0, 90.0) if north else (0.0, -90.0, 360.0, -cut))
         pds[name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
-                     "valid_fraction_in_cap": cap["valid_fraction"]}
-        files.append(str(p))
+                     "valid_fraction_in_cap": cap["valid_fraction"], "pds4": label}
+        files += [str(p), label["path"]]
     summary["pds"] = pds
     summary["skipped"] = skipped
+
+    # ISIS shape model (radii, all latitudes).
+    summary["isis"] = write_isis_radius_cube(elev, lat, lon, out / "isis/dem_radius.cub", body, **geom)
+    files.append(summary["isis"]["path"])
 
     # Statistics (reference Table 1).
     stats = dem_statistics(elev, lat, lon, pixel_km=cfg.stats_pixel_km, polar_cut=cfg.polar_cut_lat,
