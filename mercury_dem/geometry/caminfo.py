@@ -354,7 +354,7 @@ def compare_with_label(info: CamInfo, label: Mapping[str, float]) -> list[Compar
         if kind == "lon":
             diff = (ours - lab + 180.0) % 360.0 - 180.0
         elif kind == "rel":
-            diff = (ours - lab) / lab
+            diff = (ours - lab) / lab if lab != 0 else (0.0 if ours == 0 else math.inf)  # a label's 0 km
         else:
             diff = ours - lab
         ok = None if tol is None else bool(abs(diff) <= tol)

@@ -117,6 +117,7 @@ def test_seed_label(geometry, fuzz_path: Path) -> None:
 @example(text=SEED.replace("46.26998", "nan"))  # was: NaN passed on as a label value
 @example(text=SEED.replace("2466.63167", "1e400"))  # was: infinite radius passed to compute_caminfo
 @example(text=SEED.replace("2466.63167", "-5"))  # was: negative radius passed to compute_caminfo
+@example(text=SEED.replace("27.62593 <KM>", "0"))  # was: ZeroDivisionError in the relative difference
 @example(text=SEED.replace("(256.00000, 256.00000)", "(nan, 1e308)"))
 @example(text=SEED.replace("(256.00000, 256.00000)", "(1e400, 256)"))
 def test_damaged_label_gives_values_or_isd_error(geometry, fuzz_path: Path, text: str) -> None:
