@@ -64,22 +64,31 @@ def read_bal(path: str | Path) -> BalProblem:
         tokens = path.read_text().split()
     except OSError as exc:
         raise AdjustmentError(f"cannot read BAL file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise AdjustmentError(f"BAL file {path} is not text: {exc.reason} at byte {exc.start}") from None
     try:
+        if len(tokens) < 3:
+            raise ValueError("no header 'n_cameras n_points n_observations'")
         n_cam, n_pt, n_obs = (int(t) for t in tokens[:3])
+        if min(n_cam, n_pt, n_obs) < 0:
+            raise ValueError(f"negative count in header {' '.join(tokens[:3])}")
         need = 3 + 4 * n_obs + 9 * n_cam + 3 * n_pt
-        if len(tokens) < need:
-            raise ValueError(f"expected {need} numbers, found {len(tokens)}")
-        obs = np.array(tokens[3 : 3 + 4 * n_obs], dtype=np.float64).reshape(n_obs, 4)
+        if len(tokens) != need:
+            raise ValueError(f"the header's counts need {need} numbers, found {len(tokens)}")
+        table = np.array(tokens[3 : 3 + 4 * n_obs], dtype=str).reshape(n_obs, 4)
+        cam_idx, pt_idx = table[:, 0].astype(np.int64), table[:, 1].astype(np.int64)  # integers, not 1.5 or nan
+        obs = table[:, 2:4].astype(np.float64)
         rest = np.array(tokens[3 + 4 * n_obs : need], dtype=np.float64)
-    except ValueError as exc:
+        if not (np.all(np.isfinite(obs)) and np.all(np.isfinite(rest))):
+            raise ValueError("a value is not a finite number")
+    except (ValueError, OverflowError) as exc:
         raise AdjustmentError(f"BAL file {path} is malformed: {exc}") from None
-    cam_idx, pt_idx = obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64)
     if cam_idx.min(initial=0) < 0 or cam_idx.max(initial=-1) >= n_cam or pt_idx.min(initial=0) < 0 or pt_idx.max(initial=-1) >= n_pt:
         raise AdjustmentError(f"BAL file {path}: an observation names a camera or point beyond the header's counts")
     return BalProblem(
         camera_index=cam_idx,
         point_index=pt_idx,
-        observations=obs[:, 2:4].copy(),
+        observations=obs,
         cameras=rest[: 9 * n_cam].reshape(n_cam, 9).copy(),
         points=rest[9 * n_cam :].reshape(n_pt, 3).copy(),
     )

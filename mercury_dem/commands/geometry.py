@@ -94,6 +94,9 @@ def _label_run(g: IsdGeometry, path: str) -> tuple[dict[str, float], CamInfo, li
     centre = None
     if isinstance(ref, tuple) and len(ref) == 2 and all(isinstance(v, float) for v in ref):
         centre = (ref[0] - 1.0, ref[1] - 1.0)  # 1-based in the label (docs/design/isd-check.md)
+        if not (-0.5 <= centre[0] <= g.camera.samples - 0.5 and -0.5 <= centre[1] <= g.camera.lines - 0.5):
+            raise IsdError(f"label {path}: RA_DEC_REF_PIXEL {ref} is not a pixel of the "
+                           f"{g.camera.samples}x{g.camera.lines} image")
     info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position,
                            lab.get("radius_m", g.radius_m), g.j2000_to_body, centre_pixel=centre)
     return lab, info, compare_with_label(info, lab), centre

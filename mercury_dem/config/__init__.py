@@ -51,6 +51,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None
             text = p.read_text()
         except OSError as exc:
             raise ConfigError(f"cannot read config file {p}: {exc.strerror}") from None
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"config file {p} is not UTF-8 text: {exc.reason} at byte {exc.start}") from None
         try:
             loaded = yaml.safe_load(text)
         except yaml.YAMLError as exc:

@@ -213,10 +213,11 @@ _COMMENT = re.compile(r"/\*.*?\*/", re.S)
 _UNIT = re.compile(r"<[^>]*>")
 
 
-def _pds3_value(text: str) -> Any:
+def _pds3_value(text: str, in_tuple: bool = False) -> Any:
     text = _UNIT.sub("", text).strip()
-    if text.startswith("(") and text.endswith(")"):
-        return tuple(_pds3_value(x) for x in text[1:-1].split(","))
+    if text.startswith("(") and text.endswith(")") and not in_tuple:
+        # one level: elements are scalars (a nested sequence would not split on commas anyway)
+        return tuple(_pds3_value(x, True) for x in text[1:-1].split(","))
     if text.startswith('"') and text.endswith('"'):
         return " ".join(text[1:-1].split())
     if text.upper() in ("N/A", "UNK", "NULL"):
@@ -299,18 +300,20 @@ TOLERANCES: dict[str, tuple[str, float]] = {
 def label_values(label: Mapping[str, Any]) -> dict[str, float]:
     """The label's geometry under our quantity names and units (metres, degrees).
 
-    Keywords absent or N/A in the label are left out. Also gives ``radius_m``, the
-    sphere the label was computed on (TARGET_CENTER_DISTANCE - SPACECRAFT_ALTITUDE).
+    Keywords absent, N/A or not finite in the label are left out. Also gives ``radius_m``, the
+    sphere the label was computed on (TARGET_CENTER_DISTANCE - SPACECRAFT_ALTITUDE), when positive.
     """
     out: dict[str, float] = {}
     for name, (key, index, scale) in _LABEL_KEYS.items():
         v = label.get(key)
         if isinstance(v, tuple):
             v = v[index] if index is not None and index < len(v) else None
-        if isinstance(v, float):
+        if isinstance(v, float) and math.isfinite(v * scale):  # NaN/1e400 in a label are no values
             out[name] = v * scale
     if "target_center_distance_m" in out and "spacecraft_altitude_m" in out:
-        out["radius_m"] = out["target_center_distance_m"] - out["spacecraft_altitude_m"]
+        radius = out["target_center_distance_m"] - out["spacecraft_altitude_m"]
+        if math.isfinite(radius) and radius > 0:
+            out["radius_m"] = radius
     return out
 
 
@@ -351,7 +354,7 @@ def compare_with_label(info: CamInfo, label: Mapping[str, float]) -> list[Compar
         if kind == "lon":
             diff = (ours - lab + 180.0) % 360.0 - 180.0
         elif kind == "rel":
-            diff = (ours - lab) / lab
+            diff = (ours - lab) / lab if lab != 0 else (0.0 if ours == 0 else math.inf)  # a label's 0 km
         else:
             diff = ours - lab
         ok = None if tol is None else bool(abs(diff) <= tol)

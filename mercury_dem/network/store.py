@@ -28,7 +28,7 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from mercury_dem.exceptions import StoreError
+from mercury_dem.exceptions import NetworkError, StoreError
 from mercury_dem.io.atomic import atomic_directory, is_complete
 from mercury_dem.network.model import (
     MEASURE_COLUMNS,
@@ -159,16 +159,29 @@ class NetworkStore:
             raise StoreError(f"network store {self.path} cannot be opened as Zarr: {exc}") from exc
         if attrs.get("format") != FORMAT_NAME:
             raise StoreError(f"{self.path} is not a control network store (format {attrs.get('format')!r})")
-        if int(attrs.get("format_version", -1)) > FORMAT_VERSION:
+        version = attrs.get("format_version")
+        if not _is_count(version):
+            raise StoreError(f"network store {self.path}: attribute format_version is {version!r}, not an integer")
+        if version > FORMAT_VERSION:
             raise StoreError(
                 f"network store {self.path} has format version {attrs['format_version']}, newer than this "
                 f"mercury_dem reads ({FORMAT_VERSION}); upgrade mercury_dem"
             )
+        for key in ("n_images", "n_points", "n_measures"):
+            if not _is_count(attrs.get(key)):
+                raise StoreError(f"network store {self.path}: attribute {key} is {attrs.get(key)!r}, not a count")
+        metadata, optional = attrs.get("metadata", {}), attrs.get("optional_columns", [])
+        if not isinstance(metadata, dict):
+            raise StoreError(f"network store {self.path}: attribute metadata is not a mapping")
+        if not (isinstance(optional, list) and all(isinstance(c, str) for c in optional)):
+            raise StoreError(f"network store {self.path}: attribute optional_columns is not a list of names")
+        if attrs.get("point_id_kind") not in ("int64", "str"):
+            raise StoreError(f"network store {self.path}: attribute point_id_kind is {attrs.get('point_id_kind')!r}")
         self.attrs = attrs
         self.n_images = int(attrs["n_images"])
         self.n_points = int(attrs["n_points"])
         self.n_measures = int(attrs["n_measures"])
-        self.metadata: dict[str, str] = dict(attrs.get("metadata", {}))
+        self.metadata: dict[str, str] = {str(k): str(v) for k, v in metadata.items()}
         self._image_ids: NDArray[np.str_] | None = None
 
     def __repr__(self) -> str:
@@ -177,35 +190,72 @@ class NetworkStore:
     @property
     def image_ids(self) -> NDArray[np.str_]:
         if self._image_ids is None:
-            self._image_ids = self._strings("image_ids")
+            self._image_ids = self._strings("image_ids", self.n_images)
         return self._image_ids
 
-    def _strings(self, name: str) -> NDArray[np.str_]:
-        sub = self._group[name]
-        return decode_strings(sub["data"][...], sub["offsets"][...])
+    def _array(self, name: str, dtype: str, shape: tuple[int | None, ...]) -> NDArray[Any]:
+        """One array, checked against the dtype and shape (None: any length) it must have before it is read."""
+        try:
+            arr = self._group[name]
+        except KeyError:
+            raise StoreError(f"network store {self.path} has no column '{name}'") from None
+        except Exception as exc:  # zarr raises many types for damaged metadata
+            raise StoreError(f"network store {self.path}: column '{name}' cannot be opened: {exc}") from exc
+        if not isinstance(arr, zarr.Array):
+            raise StoreError(f"network store {self.path}: '{name}' is not an array")
+        ok_shape = len(arr.shape) == len(shape) and all(e is None or a == e for a, e in zip(arr.shape, shape))
+        if arr.dtype != np.dtype(dtype) or not ok_shape:
+            want = tuple("n" if e is None else e for e in shape)
+            raise StoreError(f"network store {self.path}: column '{name}' is {arr.dtype} {arr.shape}, "
+                             f"expected {dtype} {want}")
+        try:
+            return np.asarray(arr[...])
+        except Exception as exc:  # a damaged chunk: codec, size or decode errors of several types
+            raise StoreError(f"network store {self.path}: column '{name}' cannot be read: {exc}") from exc
+
+    def _strings(self, name: str, n: int) -> NDArray[np.str_]:
+        offsets = self._array(f"{name}/offsets", "int64", (n + 1,))
+        if offsets[0] != 0 or np.any(np.diff(offsets) < 0):
+            raise StoreError(f"network store {self.path}: '{name}/offsets' are not increasing from 0")
+        data = self._array(f"{name}/data", "uint8", (int(offsets[-1]),))
+        try:
+            return decode_strings(data, offsets)
+        except UnicodeDecodeError as exc:
+            raise StoreError(f"network store {self.path}: '{name}' is not UTF-8 ({exc.reason})") from None
 
     def column(self, name: str) -> NDArray[Any]:
         """One column as a numpy array (``point_ids`` and ``image_ids`` decoded)."""
-        try:
-            if name == "image_ids":
-                return self.image_ids
-            if name == "point_ids" and self.attrs.get("point_id_kind") == "str":
-                return self._strings("point_ids")
-            return np.asarray(self._group[name][...])
-        except KeyError as exc:
-            raise StoreError(f"network store {self.path} has no column '{name}'") from exc
+        if name == "image_ids":
+            return self.image_ids
+        if name == "point_ids":
+            if self.attrs.get("point_id_kind") == "str":
+                return self._strings("point_ids", self.n_points)
+            return self._array(name, "int64", (self.n_points,))
+        for table, rows in ((POINT_COLUMNS, self.n_points), (OPTIONAL_POINT_COLUMNS, self.n_points),
+                            (MEASURE_COLUMNS, self.n_measures)):
+            if name in table:
+                dtype, trail = table[name]
+                return self._array(name, dtype, (rows, *trail))
+        raise StoreError(f"network store {self.path} has no column '{name}'")
 
     def load(self) -> ControlNetwork:
         """The whole network in memory."""
         cols: dict[str, Any] = {name: self.column(name) for name in (*POINT_COLUMNS, *MEASURE_COLUMNS)}
         for name in OPTIONAL_POINT_COLUMNS:
             cols[name] = self.column(name) if name in self.attrs.get("optional_columns", []) else None
-        net = ControlNetwork(
-            image_ids=self.image_ids, point_ids=self.column("point_ids"), metadata=self.metadata, **cols
-        )
-        if (net.n_images, net.n_points, net.n_measures) != (self.n_images, self.n_points, self.n_measures):
-            raise StoreError(f"network store {self.path}: column lengths disagree with its attributes")
-        return net
+        for name, n in (("measure_point", self.n_points), ("measure_image", self.n_images)):
+            if cols[name].size and (cols[name].min() < 0 or cols[name].max() >= n):
+                raise StoreError(f"network store {self.path}: column '{name}' has an index outside [0, {n})")
+        try:
+            return ControlNetwork(
+                image_ids=self.image_ids, point_ids=self.column("point_ids"), metadata=self.metadata, **cols
+            )
+        except NetworkError as exc:
+            raise StoreError(f"network store {self.path}: {exc}") from None
+
+
+def _is_count(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**62
 
 
 def open_network(path: str | Path) -> NetworkStore:
