@@ -117,29 +117,26 @@ class ApolloMetricDistortion:
             if len(v) != n or not all(math.isfinite(float(c)) for c in v):
                 raise GeometryError(f"apollo_metric distortion: {name} needs {n} finite numbers, got {v!r}")
 
+    def _about_pp(self, xd: ArrayLike, yd: ArrayLike) -> tuple[NDArray[np.float64], ...]:
+        """(x, y) about the principal point, r^2 and the radial factor 1 + k1 r^2 + k2 r^4 + k3 r^6."""
+        k1, k2, k3 = self.radial
+        x = np.asarray(xd, dtype=np.float64) - self.principal_point_mm[0]
+        y = np.asarray(yd, dtype=np.float64) - self.principal_point_mm[1]
+        rr = x * x + y * y
+        return x, y, rr, 1.0 + k1 * rr + k2 * rr * rr + k3 * rr * rr * rr
+
     def undistort(self, xd: ArrayLike, yd: ArrayLike) -> Pair:
         """Distorted -> undistorted focal-plane mm (closed form; ISIS ``SetFocalPlane``)."""
-        xd = np.asarray(xd, dtype=np.float64)
-        yd = np.asarray(yd, dtype=np.float64)
-        k1, k2, k3 = self.radial
         j1, j2, t0 = self.decentering
-        x = xd - self.principal_point_mm[0]
-        y = yd - self.principal_point_mm[1]
-        rr = x * x + y * y
-        dr = 1.0 + k1 * rr + k2 * rr * rr + k3 * rr * rr * rr
+        x, y, rr, dr = self._about_pp(xd, yd)
         dt = j1 * rr + j2 * rr * rr
         return dr * x - dt * math.sin(t0), dr * y + dt * math.cos(t0)
 
     def undistort_jacobian(self, xd: ArrayLike, yd: ArrayLike) -> NDArray[np.float64]:
         """d(x_u, y_u)/d(x_d, y_d), shape (..., 2, 2)."""
-        xd = np.asarray(xd, dtype=np.float64)
-        yd = np.asarray(yd, dtype=np.float64)
         k1, k2, k3 = self.radial
         j1, j2, t0 = self.decentering
-        x = xd - self.principal_point_mm[0]
-        y = yd - self.principal_point_mm[1]
-        rr = x * x + y * y
-        dr = 1.0 + k1 * rr + k2 * rr * rr + k3 * rr * rr * rr
+        x, y, rr, dr = self._about_pp(xd, yd)
         a = 2.0 * (k1 + 2.0 * k2 * rr + 3.0 * k3 * rr * rr)  # d(dr)/dx = a x, d(dr)/dy = a y
         b = 2.0 * (j1 + 2.0 * j2 * rr)  # d(dt)/dx = b x, d(dt)/dy = b y
         s, c = math.sin(t0), math.cos(t0)

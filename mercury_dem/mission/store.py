@@ -145,8 +145,11 @@ class Mission:
         return [str(i) for i in self.catalog["image_id"]]
 
     @property
-    def tile_size_deg(self) -> float:
-        return float(self.meta.get("tile_size_deg", 10.0))
+    def pointing_sigma_urad(self) -> float | None:
+        """How wrong the a-priori pointing may be, 1 sigma per axis (µrad), when the mission says
+        (synth: the injected sigma; ingest: ``--pointing-sigma-urad``); None otherwise."""
+        v = self.meta.get("pointing_sigma_urad")
+        return None if v is None else float(v)
 
     def _index(self, image_id: str) -> int:
         try:

@@ -359,7 +359,7 @@ def match_config_for(mission: Mission, config: Config) -> Any:
     import dataclasses
 
     cfg = config.match
-    sigma_urad = mission.meta.get("pointing_sigma_urad")
+    sigma_urad = mission.pointing_sigma_urad
     if cfg.pointing_sigma_from_mission and sigma_urad:
         cfg = dataclasses.replace(cfg, pointing_sigma_urad=float(sigma_urad))
     return cfg
@@ -377,7 +377,7 @@ def adjust_config_for(mission: Mission, config: Config) -> Any:
     import dataclasses
 
     cfg = config.adjust
-    sigma_urad = mission.meta.get("pointing_sigma_urad")
+    sigma_urad = mission.pointing_sigma_urad
     if cfg.pointing_sigma_from_mission and sigma_urad:
         cfg = dataclasses.replace(cfg, pointing_sigma_deg=float(np.degrees(float(sigma_urad) * 1e-6)))
     return cfg

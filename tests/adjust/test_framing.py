@@ -26,6 +26,24 @@ def two_camera_problem():
     return AdjustmentProblem(cams, np.array([0, 1]), pos, rot, pts, mi, mp, np.zeros((16, 2)), rng.uniform(0.3, 2.0, 16))
 
 
+def assert_jacobians_match_differences(model: FramingModel, st: FramingState, jc: np.ndarray, jp: np.ndarray) -> None:
+    """The camera (``jc``) and point (``jp``) Jacobians of ``model`` at ``st`` equal central differences."""
+    n_img, c = st.omega.shape[0], model.camera_dim
+    n_pt = st.points.shape[0]
+    zero_p, zero_c = np.zeros((n_pt, 3)), np.zeros((n_img, c))
+    for k in range(c):
+        h = 1e-7 if k < 3 else 1e-3
+        d = np.zeros((n_img, c))
+        d[:, k] = h
+        num = (model.residuals(model.retract(st, d, zero_p)) - model.residuals(model.retract(st, -d, zero_p))) / (2 * h)
+        np.testing.assert_allclose(num, jc[:, :, k], rtol=1e-5, atol=1e-6 * np.abs(jc[:, :, k]).max())
+    for k in range(3):
+        d = np.zeros((n_pt, 3))
+        d[:, k] = 1e-3
+        num = (model.residuals(model.retract(st, zero_c, d)) - model.residuals(model.retract(st, zero_c, -d))) / 2e-3
+        np.testing.assert_allclose(num, jp[:, :, k], rtol=1e-5, atol=1e-6 * np.abs(jp).max())
+
+
 @pytest.mark.parametrize("position_sigma", [None, 50.0])
 def test_jacobians_match_finite_differences(two_camera_problem, position_sigma):
     prob = two_camera_problem
@@ -35,20 +53,10 @@ def test_jacobians_match_finite_differences(two_camera_problem, position_sigma):
     st = FramingState(rng.normal(0, 1e-3, (2, 3)), rng.normal(0, 30, (2, 3)), prob.points + rng.normal(0, 10, (8, 3)))
     r, jc, jp = model.linearize(st)
     assert np.allclose(r, model.residuals(st))
-    zero_p, zero_c = np.zeros((8, 3)), np.zeros((2, c))
-    for k in range(c):
-        h = 1e-7 if k < 3 else 1e-3
-        d = np.zeros((2, c))
-        d[:, k] = h
-        num = (model.residuals(model.retract(st, d, zero_p)) - model.residuals(model.retract(st, -d, zero_p))) / (2 * h)
-        np.testing.assert_allclose(num, jc[:, :, k], rtol=1e-5, atol=1e-6 * np.abs(jc[:, :, k]).max())
-    for k in range(3):
-        d = np.zeros((8, 3))
-        d[:, k] = 1e-3
-        num = (model.residuals(model.retract(st, zero_c, d)) - model.residuals(model.retract(st, zero_c, -d))) / 2e-3
-        np.testing.assert_allclose(num, jp[:, :, k], rtol=1e-5, atol=1e-6 * np.abs(jp).max())
+    assert_jacobians_match_differences(model, st, jc, jp)
     # the camera prior's Jacobian (inverse left Jacobian of SO(3) for the pointing part)
     pr, pj = model.camera_prior(st)
+    zero_p = np.zeros_like(st.points)
     for k in range(c):
         h = 1e-7 if k < 3 else 1e-3
         d = np.zeros((2, c))

@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from mercury_dem.adjust.bal import BalProblem, bal_cost, read_bal
 from mercury_dem.exceptions import AdjustmentError
+from tests.fuzzing import mutate_lines
 
 
 def _seed_text() -> str:
@@ -42,32 +43,23 @@ TOKENS = ("nan", "-nan", "inf", "-inf", "1e308", "1e400", "-1", "-7", "0", "2", 
           "1.5", "-0", "0x10", "1_000", "abc", "", "\x00", "٣", "4.", "+3", "1e18", "9223372036854775808")
 
 
+def _edit_bal(draw: st.DrawFn, how: str, lines: list[str], i: int) -> list[str]:
+    if how == "token":
+        toks = lines[i].split() or [""]
+        toks[draw(st.integers(0, len(toks) - 1))] = draw(st.sampled_from(TOKENS) | st.text(max_size=6))
+        lines[i] = " ".join(toks)
+    elif how == "header":
+        toks = lines[0].split() + ["0", "0", "0"]
+        toks[draw(st.integers(0, 2))] = draw(st.sampled_from(TOKENS) | st.integers(-5, 40).map(str))
+        lines[0] = " ".join(toks[:3])
+    else:
+        lines[i] = draw(st.text(max_size=20))
+    return lines
+
+
 @st.composite
 def mutated_bal(draw: st.DrawFn) -> str:
-    lines = SEED.splitlines()
-    for _ in range(draw(st.integers(1, 4))):
-        how = draw(st.sampled_from(("truncate", "delete", "duplicate", "token", "header", "bytes")))
-        if not lines:
-            break
-        i = draw(st.integers(0, len(lines) - 1))
-        if how == "truncate":
-            text = "\n".join(lines)
-            lines = text[: draw(st.integers(0, len(text)))].splitlines()
-        elif how == "delete":
-            del lines[i]
-        elif how == "duplicate":
-            lines.insert(i, lines[i])
-        elif how == "token":
-            toks = lines[i].split() or [""]
-            toks[draw(st.integers(0, len(toks) - 1))] = draw(st.sampled_from(TOKENS) | st.text(max_size=6))
-            lines[i] = " ".join(toks)
-        elif how == "header":
-            toks = lines[0].split() + ["0", "0", "0"]
-            toks[draw(st.integers(0, 2))] = draw(st.sampled_from(TOKENS) | st.integers(-5, 40).map(str))
-            lines[0] = " ".join(toks[:3])
-        else:
-            lines[i] = draw(st.text(max_size=20))
-    return "\n".join(lines)
+    return mutate_lines(draw, SEED, ("token", "header", "bytes"), _edit_bal)
 
 
 @pytest.fixture(scope="module")

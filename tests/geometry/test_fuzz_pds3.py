@@ -22,6 +22,7 @@ from mercury_dem.commands.geometry import _label_run
 from mercury_dem.exceptions import IsdError
 from mercury_dem.geometry.caminfo import label_values, parse_pds3_label
 from mercury_dem.geometry.isd import read_isd
+from tests.fuzzing import mutate_lines
 
 ISD = Path(__file__).resolve().parents[1] / "data" / "real" / "EN1072174528M_ale_isd.json"
 
@@ -62,33 +63,23 @@ TOKENS = ("nan", "NaN", "inf", "-inf", "1e400", "-1e400", "0", "-2466.6", "1e308
           '"', "/*", "*/", "=", "END", "OBJECT = X", "END_OBJECT", "<KM>", "(1,", ",)", "()", "(,)", "\x00", "\ufffd")
 
 
+def _edit_label(draw: st.DrawFn, how: str, lines: list[str], i: int) -> list[str]:
+    key = lines[i].split("=", 1)[0]
+    if how == "value":
+        lines[i] = f"{key}= {draw(st.sampled_from(TOKENS) | st.text(max_size=8))}"
+    elif how == "insert":
+        lines.insert(i, draw(st.sampled_from(TOKENS)))
+    elif how == "text":
+        lines[i] = draw(st.text(max_size=30))
+    else:
+        depth = draw(st.integers(1, 5000))
+        lines[i] = f"{key}= " + "(" * depth + "1" + ")" * depth
+    return lines
+
+
 @st.composite
 def mutated_label(draw: st.DrawFn) -> str:
-    lines = SEED.splitlines()
-    for _ in range(draw(st.integers(1, 4))):
-        how = draw(st.sampled_from(("truncate", "delete", "duplicate", "value", "insert", "text", "deep")))
-        if not lines:
-            break
-        i = draw(st.integers(0, len(lines) - 1))
-        if how == "truncate":
-            text = "\n".join(lines)
-            lines = text[: draw(st.integers(0, len(text)))].splitlines()
-        elif how == "delete":
-            del lines[i]
-        elif how == "duplicate":
-            lines.insert(i, lines[i])
-        elif how == "value":
-            key = lines[i].split("=", 1)[0]
-            lines[i] = f"{key}= {draw(st.sampled_from(TOKENS) | st.text(max_size=8))}"
-        elif how == "insert":
-            lines.insert(i, draw(st.sampled_from(TOKENS)))
-        elif how == "text":
-            lines[i] = draw(st.text(max_size=30))
-        else:
-            depth = draw(st.integers(1, 5000))
-            key = lines[i].split("=", 1)[0]
-            lines[i] = f"{key}= " + "(" * depth + "1" + ")" * depth
-    return "\n".join(lines)
+    return mutate_lines(draw, SEED, ("value", "insert", "text", "deep"), _edit_label)
 
 
 @pytest.fixture(scope="module")

@@ -18,12 +18,10 @@ import pytest
 import rasterio
 import xarray as xr
 
-from mercury_dem.config.dem import DemConfig
-from mercury_dem.geometry.body import MERCURY, MOON, latlon_to_xyz
+from mercury_dem.geometry.body import MERCURY, MOON
 from mercury_dem.products.sampling import sample_bilinear
+from tests.products.regional import LAT, PPD, regional_products
 
-PPD = 3  # not a power of two: 1/3 is inexact, so float coordinate differences give unequal x/y sizes
-LAT = (-75.0, 75.0)
 CASES = {
     "mercury_across_0": (MERCURY, (-15.0, 15.0)),
     "moon_across_0": (MOON, (-15.0, 15.0)),
@@ -33,29 +31,13 @@ CASES = {
 TIFS = ("dem.tif", "pds/equirectangular.tif", "pds/north_polar.tif", "pds/south_polar.tif")
 
 
-def _height(lat, lon):
-    la, lo = np.radians(lat), np.radians(lon)
-    return 1500.0 * np.sin(2 * la) * np.cos(3 * lo) + 800.0 * np.cos(la) * np.sin(2 * lo + 0.3)
-
-
 @pytest.fixture(scope="module", params=list(CASES))
 def run(request, tmp_path_factory):
     """(body, lon bounds, run dir): dem.zarr + coverage.zarr + products of a small regional DEM."""
-    from mercury_dem.pipeline.dem_stage import grid_dem
-    from mercury_dem.products.make import make_products
-
-    body, (lon_min, lon_max) = CASES[request.param]
-    rng = np.random.default_rng(5)
-    n = 12_000
-    lat = np.degrees(np.arcsin(rng.uniform(math.sin(math.radians(-76)), math.sin(math.radians(76)), n)))
-    lon = rng.uniform(lon_min - 1, lon_max + 1, n)
-    pts = latlon_to_xyz(lat, lon, _height(lat, lon), datum_radius_m=body.datum_radius_m)
-    cfg = DemConfig(pixels_per_degree=PPD, chunk_size=64, max_distance_m=100_000.0, coverage_pixel_km=100.0,
-                    stats_pixel_km=60.0, browse_width=120, lat_min=LAT[0], lat_max=LAT[1], lon_min=lon_min,
-                    lon_max=lon_max)
+    body, lons = CASES[request.param]
     d = tmp_path_factory.mktemp(request.param)
-    grid_dem(pts, cfg, d / "dem.zarr", body=body)
-    make_products(d / "dem.zarr", d / "products", cfg)
+    regional_products(body, lons, d, seed=5, max_distance_m=100_000.0)
+    lon_min, lon_max = lons
     return body, (lon_min, lon_max), d
 
 
