@@ -196,8 +196,60 @@ def read_label_text(path: Path, file_size: int) -> str:
     return raw.decode("utf-8", errors="replace")
 
 
+_AGGREGATE = re.compile(r"(?i)^\s*(Object|Group)\s*=\s*(.*?)\s*$")
+_END_AGGREGATE = re.compile(r"(?i)^\s*End_(Object|Group)\b\s*(?:=\s*(.*?)\s*)?$")
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_:]*")
+
+
+def check_label_structure(path: Path, text: str) -> None:
+    """Check, in one pass over the lines, that every ``Object``/``Group`` has a name and a matching end.
+
+    Why our own pass before :mod:`pvl`: pvl 1.3's permissive parser (the one the real MDIS
+    labels need, for their ``-`` line continuations) does not return on some malformed
+    labels (an ``Object =`` with no name made it loop for hours inside a fuzz test; found by
+    ``tests/sources/test_fuzz.py``). ISIS itself refuses such labels, so refusing them here
+    first costs nothing and bounds the time pvl can take. Lines inside double-quoted
+    strings and ``/* */`` comments are skipped.
+    """
+    stack: list[tuple[str, str, int]] = []
+    in_string = in_comment = False
+    for number, line in enumerate(text.splitlines(), start=1):
+        if in_comment:
+            if "*/" not in line:
+                continue
+            line, in_comment = line.split("*/", 1)[1], False
+        starts_in_string = in_string
+        if line.count('"') % 2:
+            in_string = not in_string
+        if starts_in_string:
+            continue
+        if "/*" in line and "*/" not in line.split("/*", 1)[1]:
+            in_comment = True
+        m = _AGGREGATE.match(line)
+        if m:
+            kind, name = m.group(1).capitalize(), m.group(2).strip('"')
+            if not _NAME.fullmatch(name):
+                raise _fault(path, f"label line {number}: {kind} has no valid name ({m.group(2)!r})",
+                             "the label is damaged; fetch or copy the cube again")
+            stack.append((kind, name, number))
+            continue
+        m = _END_AGGREGATE.match(line)
+        if m:
+            kind = m.group(1).capitalize()
+            if not stack or stack[-1][0] != kind:
+                opened = f"the open {stack[-1][0]} {stack[-1][1]} (line {stack[-1][2]})" if stack else "nothing open"
+                raise _fault(path, f"label line {number}: End_{kind} does not close {opened}",
+                             "the label is damaged; fetch or copy the cube again")
+            stack.pop()
+    if stack:
+        kind, name, number = stack[-1]
+        raise _fault(path, f"label: {kind} {name} (line {number}) has no End_{kind}",
+                     "the label is damaged; fetch or copy the cube again")
+
+
 def parse_label(path: Path, text: str) -> Mapping[str, Any]:
-    """The PVL label as a mapping; CubeError for text pvl cannot parse."""
+    """The PVL label as a mapping; CubeError for text pvl cannot parse (or that would not return from it)."""
+    check_label_structure(path, text)
     try:
         grammar = OmniGrammar()
         return pvl.loads(text, grammar=grammar, decoder=_StringTimeDecoder(grammar=grammar))

@@ -68,6 +68,10 @@ SEEDS = [
     _edit("apollo", "BetaSamples         = 500", "BetaSamples         = NaN"),
     _edit("apollo", 'ObservationType  = Nadir', 'ObservationType  = "Nadir'),  # unterminated quote
     BASES["mdis"][: 1114113 + 30],  # truncated inside the first table
+    # An aggregation with no name: pvl's permissive parser did not return on it (CI hung for 90 min).
+    _edit("mdis", "Object = Table\n  Name                 = InstrumentPosition",
+          "Object = \n  Name                 = InstrumentPosition"),
+    _edit("mdis", "End_Group", "End_Object"),  # aggregations that do not nest
 ]
 
 
@@ -149,6 +153,8 @@ def fuzz_path() -> Iterator[Path]:
 @example(data=SEEDS[9])
 @example(data=SEEDS[10])
 @example(data=SEEDS[11])
+@example(data=SEEDS[12])
+@example(data=SEEDS[13])
 def test_mutated_cubes_give_results_or_cube_errors(fuzz_path: Path, data: bytes) -> None:
     fuzz_path.write_bytes(data)
     exercise(fuzz_path)
