@@ -361,17 +361,18 @@ def _sleep(seconds: float, *deps: Any) -> float:
 
 
 def sleep_cluster(n_workers: int) -> Any:
-    """An in-process LocalCluster of single-threaded workers (inproc transport, no port, no dashboard).
+    """An in-process LocalCluster of single-threaded workers (inproc transport; the dashboard on a free loopback port).
 
     Sleep tasks release the GIL, so threads stand in for worker processes. The workers have no
     memory limit: in-process workers each measure the whole process's memory against their 1/n
     share of the machine's (1.5 GiB for 16 workers on 24 GiB), so a caller already holding more (a
-    test session after other tests) had every worker paused and the replay hung.
+    test session after other tests) had every worker paused and the replay hung. ``dashboard_address=None``
+    still means Dask's default 8787, and a busy 8787 is a warning (an error in the tests): a free port.
     """
     from distributed import LocalCluster
 
-    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None,
-                        memory_limit=0)
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False,
+                        dashboard_address="127.0.0.1:0", memory_limit=0)
 
 
 def replay_on_dask(client: Any, graph: CascadeGraph, durations: Mapping[str, float],
