@@ -8,8 +8,9 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # Debian packages the project needs at run or test time (installed with apt when missing):
-# SuiteSparse for CHOLMOD, gdal-bin for gdalinfo/gdal_grid checks, Chromium for the dashboard browser test.
-DEB_PACKAGES := libsuitesparse-dev gdal-bin chromium chromium-driver
+# SuiteSparse for CHOLMOD, gdal-bin for gdalinfo/gdal_grid checks, Chromium for the dashboard browser test,
+# SLURM and munge for the one-node SLURM the batch-system test starts (tests/pipeline/test_slurm.py).
+DEB_PACKAGES := libsuitesparse-dev gdal-bin chromium chromium-driver slurm-wlm munge
 DEMO_DIR ?= demo_output
 
 .PHONY: setup system-deps test test-slow demo clean

@@ -50,7 +50,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(list(argv) if argv is not None else None)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # Everything after a first '--' is a command for a subcommand that runs one (PASSTHROUGH, e.g. 'cluster').
+    rest: list[str] = []
+    if "--" in argv:
+        i = argv.index("--")
+        argv, rest = argv[:i], argv[i + 1:]
+    args = parser.parse_args(argv)
+    if rest and not getattr(args._module, "PASSTHROUGH", False):
+        parser.error(f"'mercury-dem {args.command}' takes no command after '--' (got {' '.join(rest)!r})")
+    args.passthrough = rest
     try:
         config = load_config(args.config)
         return int(args._module.run(args, config) or 0)

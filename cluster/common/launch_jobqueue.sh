@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Run mercury-dem on a SLURM or PBS cluster: the Dask scheduler runs here (a login node, or a
 # small long job: see driver.* in cluster/slurm/ and cluster/pbs/), the workers run as batch
-# jobs shaped by cluster/KIND/jobqueue.yaml, and 'mercury-dem run' drives the pipeline.
+# jobs shaped by mercury_dem/cluster/KIND.yaml (the package defaults), and 'mercury-dem run' drives the pipeline.
 #
 #   cluster/common/launch_jobqueue.sh {slurm|pbs} MISSION RUN [--jobs N | --adapt MIN:MAX] [--no-tls]
 #       [--tls-dir D] [--scheduler-host H] [--wait-workers K] [-- EXTRA mercury-dem run ARGS]
@@ -9,7 +9,7 @@
 #
 # Writes RUN (the run store) and RUN.dask/ (scheduler.json, logs/, tls/; override with
 # DASK_DIR=...). Environment: PYTHON (default python3: the project's venv), MERCURY_DEM
-# (default mercury-dem), DASK_CONFIG (default: cluster/KIND). TLS is on by default.
+# (default mercury-dem), DASK_CONFIG (a site YAML overriding the package defaults). TLS is on.
 # The dashboard binds to 127.0.0.1:8787 here: ssh -L 8787:127.0.0.1:8787 THIS-HOST.
 # The run resumes when launched again with the same MISSION and RUN.
 set -euo pipefail
@@ -43,6 +43,6 @@ command -v "$submit" >/dev/null || { echo "launch: $submit not found: is this a 
 [ -e "$mission" ] || { echo "launch: mission $mission does not exist (make one with mercury-dem synth)" >&2; exit 1; }
 
 dask_dir="${DASK_DIR:-$run.dask}"
-export DASK_CONFIG="${DASK_CONFIG:-$cluster/$kind}"
+# The job shape: the package's mercury_dem/cluster/KIND.yaml, overridden by any DASK_CONFIG YAML or DASK_JOBQUEUE__* variable.
 exec "$PYTHON" "$cluster/jobqueue_launch.py" "$kind" --dask-dir "$dask_dir" "${launcher_args[@]+"${launcher_args[@]}"}" -- \
   "$MERCURY_DEM" run "$mission" --out "$run" --scheduler-file "$dask_dir/scheduler.json" "${run_args[@]+"${run_args[@]}"}"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Run mercury-dem on a SLURM cluster: scheduler here, workers as SLURM batch jobs shaped by
-# jobqueue.yaml (next to this file), then 'mercury-dem run --scheduler-file'.
+# mercury_dem/cluster/KIND.yaml (site overrides: DASK_CONFIG), then 'mercury-dem run --scheduler-file'.
 #
 #   cluster/slurm/launch.sh MISSION RUN [--jobs N | --adapt MIN:MAX] [--no-tls] [--tls-dir D]
 #                        [--scheduler-host H] [--wait-workers K] [-- EXTRA mercury-dem run ARGS]

@@ -200,7 +200,7 @@ def test_workers_and_scheduler_arguments_parse_with_dask_cli(kind: str) -> None:
     assert spec["scheduler"]["service"]["type"] == "ClusterIP"
     assert int(sctx.params["port"]) == 8786
     # Same worker size as the HPC configurations (one worker = cores/processes, memory/processes).
-    slurm = yaml.safe_load((CLUSTER / "slurm" / "jobqueue.yaml").read_text())["jobqueue"]["slurm"]
+    slurm = yaml.safe_load((REPO / "mercury_dem" / "cluster" / "slurm.yaml").read_text())["jobqueue"]["slurm"]
     assert wctx.params["nthreads"] == slurm["cores"] // slurm["processes"]
     assert pod_limit == _bytes(slurm["memory"]) // slurm["processes"]
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -11,15 +12,19 @@ import pytest
 from mercury_dem.config import Config, load_config
 
 
+#: The configuration the pipeline tests use, as YAML would give it (tests that run the CLI write it out).
+TINY_OVERRIDES: dict[str, Any] = {
+    "dem": {
+        "pixels_per_degree": 4.0, "lat_min": -20.0, "lat_max": 30.0, "lon_min": -25.0, "lon_max": 25.0,
+        "chunk_size": 64, "browse_width": 256, "stats_pixel_km": 20.0, "coverage_pixel_km": 20.0,
+    },
+    "execution": {"retries": 2},
+}
+
+
 def tiny_config(**sections: dict[str, Any]) -> Config:
     """The configuration the pipeline tests use: a small DEM over the tiny mission's area."""
-    base: dict[str, Any] = {
-        "dem": {
-            "pixels_per_degree": 4.0, "lat_min": -20.0, "lat_max": 30.0, "lon_min": -25.0, "lon_max": 25.0,
-            "chunk_size": 64, "browse_width": 256, "stats_pixel_km": 20.0, "coverage_pixel_km": 20.0,
-        },
-        "execution": {"retries": 2},
-    }
+    base: dict[str, Any] = copy.deepcopy(TINY_OVERRIDES)
     for k, v in sections.items():
         base.setdefault(k, {}).update(v)
     return load_config(overrides=base)
