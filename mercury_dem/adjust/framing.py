@@ -99,11 +99,18 @@ class FramingModel:
         ]
         self._inv_sigma = 1.0 / problem.measure_sigma
         sig = [s for s in point_sigma_m]
-        rows = [i for i, s in enumerate(sig) if s is not None]
+        per_point = problem.point_radius_sigma
+        has_per_point = per_point is not None and bool(np.any(np.isfinite(per_point)))
+        rows = [i for i, s in enumerate(sig) if s is not None or (i == 2 and has_per_point)]
         if rows:
             frames = enu_frames(problem.points)  # (n_pt, 3, 3) columns e, n, u
-            scale = np.array([1.0 / sig[i] for i in rows])  # type: ignore[operator]
-            self._point_prior_jac = frames.transpose(0, 2, 1)[:, rows, :] * scale[None, :, None]
+            # (n_pt, rows) inverse sigmas; a per-point radius sigma (altimetry) replaces the configured one
+            scale = np.array([[0.0 if sig[i] is None else 1.0 / sig[i] for i in rows]] * self.n_points)  # type: ignore[operator]
+            if has_per_point:
+                k = rows.index(2)
+                given = np.isfinite(per_point)  # type: ignore[arg-type]
+                scale[given, k] = 1.0 / per_point[given]  # type: ignore[index]
+            self._point_prior_jac = frames.transpose(0, 2, 1)[:, rows, :] * scale[:, :, None]
         else:
             self._point_prior_jac = None
 

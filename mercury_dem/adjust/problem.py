@@ -46,6 +46,11 @@ class AdjustmentProblem:
     point_ids : (n_pt,) point ids, int or str (default 0..n_pt-1)
     held_images : (n_img,) bool, images whose pointing (and position) are fixed
     held_points : (n_pt,) bool, points fixed (ground control)
+    point_radius_sigma : (n_pt,) float or None, a per-point radius constraint (1 sigma, metres)
+        centred on the point's a-priori radius, replacing the configured ``radius_sigma_m`` where
+        finite (NaN: the configured one). How ground truth from laser altimetry enters the
+        adjustment: the a-priori point sits at the altimetry's radius with the altimetry's sigma
+        (:func:`mercury_dem.altimetry.constraints.altimetry_radius_priors`).
     """
 
     cameras: tuple[FramingCamera, ...]
@@ -64,6 +69,7 @@ class AdjustmentProblem:
     #: (n_img, 3, 3) rotations to start the iteration from (e.g. a lower level's solution);
     #: None starts at ``rotations``, which stay the centre of the pointing constraint either way.
     initial_rotations: NDArray[np.float64] | None = None
+    point_radius_sigma: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         n_img, n_pt = len(self.positions), len(self.points)
@@ -89,6 +95,12 @@ class AdjustmentProblem:
             if init.shape != (n_img, 3, 3) or not np.all(np.isfinite(init)):
                 raise AdjustmentError(f"initial_rotations must be finite, of shape ({n_img}, 3, 3), got {init.shape}")
             set_(self, "initial_rotations", init)
+        if self.point_radius_sigma is not None:
+            sig = np.asarray(self.point_radius_sigma, np.float64)
+            if sig.shape != (n_pt,) or np.any(sig[np.isfinite(sig)] <= 0) or np.any(np.isinf(sig)):
+                raise AdjustmentError(f"point_radius_sigma must have shape ({n_pt},) with values > 0 or NaN "
+                                      f"(no altimetry constraint), got shape {sig.shape}")
+            set_(self, "point_radius_sigma", sig)
         self.validate()
 
     @property

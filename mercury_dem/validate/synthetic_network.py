@@ -39,6 +39,7 @@ class SyntheticNetwork:
     true_rotations : (n_img, 3, 3); true_positions : (n_img, 3) m; true_points : (n_pt, 3) m
     outlier : (M,) bool, measures displaced by a gross error
     pointing_error : (n_img, 3) rad, the a-priori pointing error injected (rotation vector, camera frame)
+    relief_m, relief_seed : the true surface's relief parameters (:meth:`true_radius`)
     """
 
     problem: AdjustmentProblem
@@ -47,6 +48,12 @@ class SyntheticNetwork:
     true_points: NDArray[np.float64]
     outlier: NDArray[np.bool_]
     pointing_error: NDArray[np.float64]
+    relief_m: float = 0.0
+    relief_seed: int = 0
+
+    def true_radius(self, unit: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The true surface's radius (m) along body-fixed unit vectors (N, 3): e.g. simulated altimetry."""
+        return DATUM_RADIUS_M + _relief(np.asarray(unit, np.float64).reshape(-1, 3), self.relief_m, self.relief_seed)
 
 
 def _relief(unit: NDArray[np.float64], relief_m: float, seed: int) -> NDArray[np.float64]:
@@ -184,7 +191,8 @@ def make_synthetic_network(
         measure_image=meas_img, measure_point=meas_pt, measures=measures, measure_sigma=measure_sigma_px,
         image_ids=tuple(f"SYN{i:07d}" for i in range(n_img)),
     )
-    return SyntheticNetwork(problem, rot_true, positions, points, outlier, eps)
+    return SyntheticNetwork(problem, rot_true, positions, points, outlier, eps, relief_m=float(relief_m),
+                            relief_seed=seed)
 
 
 def intersect_rays(
