@@ -42,6 +42,18 @@ class AdjustConfig(ConfigSection):
     min_point_measures: int = param(2, "Points with fewer accepted measures are flagged and not adjusted", lo=1, hi=100)
     min_image_measures: int = param(3, "Images with fewer accepted measures are flagged as weak", lo=0, hi=100000)
     allow_islands: bool = param(False, "Adjust networks whose image graph is disconnected (otherwise an error)")
+    # -- laser altimetry --------------------------------------------------------
+    altimetry_levels: tuple[str, ...] = param(
+        ("global",), "Levels whose adjustment constrains the tie points' radii to the mission's laser altimetry, "
+        "when the mission has any (region, hemisphere, global; empty: never, the heights then float on the datum)"
+    )
+    altimetry_search_m: float = param(1000.0, "Shots within this ground distance of a tie point constrain it", unit="m",
+                                      lo=1.0, hi=1e6)
+    altimetry_min_shots: int = param(6, "Fewer shots around a tie point leave it unconstrained", lo=3, hi=100000)
+    altimetry_horizontal_sigma_m: float = param(
+        50.0, "How far the first pass's tie points may be from their true place; times the slope it widens the "
+        "altimetry constraint", unit="m", lo=0.0, hi=1e6
+    )
     # -- solver ----------------------------------------------------------------
     max_iterations: int = param(30, "Levenberg-Marquardt iteration limit", lo=1, hi=10000)
     sigma0_tolerance: float = param(1e-5, "Converged when sigma0 changes by less than this, relative", lo=0.0, hi=1.0)

@@ -55,6 +55,7 @@ def adjust_network(
     initial_rotations: NDArray[np.float64] | None = None,
     rms_flag_px: float = 2.0,
     datum_radius_m: float = DATUM_RADIUS_M,
+    altimetry: Any = None,
 ) -> UnitAdjustment:
     """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
 
@@ -64,6 +65,10 @@ def adjust_network(
     Islands (disconnected groups of images) are adjusted together, each held by
     its a-priori constraints, and reported by id; images whose RMS residual
     exceeds ``rms_flag_px`` are flagged.
+
+    ``altimetry`` (:class:`~mercury_dem.altimetry.constraints.AltimetryShotsArrays`): the tie
+    points near shots get radius constraints from them
+    (:func:`~mercury_dem.altimetry.constraints.bundle_adjust_with_altimetry`, two passes).
     """
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.adjust.network import network_with_result, problem_from_network
@@ -76,7 +81,17 @@ def adjust_network(
     if cfg.point_prior_center == "datum":
         held = np.asarray(problem.held_points, bool)[:, None]
         problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
-    result = bundle_adjust(problem, cfg)
+    altimetry_summary: dict[str, Any] | None = None
+    if altimetry is not None and len(altimetry.radius_m):
+        from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry
+
+        result, priors = bundle_adjust_with_altimetry(
+            problem, cfg, altimetry, search_radius_m=cfg.altimetry_search_m, min_shots=cfg.altimetry_min_shots,
+            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m,
+        )
+        altimetry_summary = {"shots": int(len(altimetry.radius_m)), **priors.summary()}
+    else:
+        result = bundle_adjust(problem, cfg)
     adjusted = network_with_result(network, result, measure_index)
     ids = np.asarray(network.image_ids).astype(str)
     rms_img = np.asarray(result.rms_per_image, dtype=np.float64)
@@ -104,6 +119,8 @@ def adjust_network(
         "flagged_images": flagged,
         "islands": islands if len(islands) > 1 else [],
     }
+    if altimetry_summary is not None:
+        summary["altimetry"] = altimetry_summary
     return UnitAdjustment(
         network=adjusted,
         rotations=np.asarray(result.rotations),
