@@ -5,6 +5,12 @@ mean absolute error and the 5/50/95 percentiles of the error, and the error as a
 function of the distance from the pixel to its nearest control point. The result
 is a JSON-safe dict the run report stores under ``validation.dem``.
 
+The long-wavelength shape of the error (a block bent by the adjustment: poles high,
+mid-latitudes low) is reported twice: by latitude band (``error_vs_latitude``), and, when the
+DEM covers most of the sphere, as a least-squares fit of real spherical harmonics up to
+``shape_lmax`` (``low_degree``: the RMS over the sphere of each degree's part, the zonal
+coefficients, and the error left once they are removed).
+
 Statistics are area-weighted (weight ``cos(lat)`` per equirectangular pixel), so
 the crowded polar rows of the grid count for the area they cover; the count of
 pixels compared is reported unweighted.
@@ -21,6 +27,56 @@ from numpy.typing import NDArray
 
 #: Default distance-to-nearest-point bins for the error-vs-distance table, km.
 DISTANCE_BINS_KM: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, math.inf)
+#: Latitude bands of the error-vs-latitude table, degrees.
+LATITUDE_BANDS_DEG: tuple[float, ...] = (-90.0, -60.0, -30.0, -10.0, 10.0, 30.0, 60.0, 90.0)
+#: The spherical-harmonic fit of the error needs this share of the sphere covered (below it the
+#: low degrees are not separable from each other).
+MIN_SPHERE_FRACTION = 0.5
+
+
+def real_harmonics(lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], lmax: int) -> tuple[
+        NDArray[np.float64], list[tuple[int, int, str]]]:
+    """4π-normalised real spherical harmonics (each has mean square 1 over the sphere) at points.
+
+    Returns the (n, (lmax+1)²) design matrix and its columns' (degree, order, "cos"/"sin").
+    Built on :func:`scipy.special.lpmv` (fine at the low degrees used here; the GTMES evaluation
+    in :mod:`mercury_dem.reference.sha` has its own stable recursion for high degrees).
+    """
+    from scipy.special import lpmv
+
+    x = np.sin(np.radians(lat_deg))
+    lam = np.radians(lon_deg)
+    cols, names = [], []
+    for ell in range(lmax + 1):
+        for m in range(ell + 1):
+            norm = math.sqrt((1 if m == 0 else 2) * (2 * ell + 1) * math.factorial(ell - m) / math.factorial(ell + m))
+            p = norm * lpmv(m, ell, x)
+            cols.append(p * np.cos(m * lam))
+            names.append((ell, m, "cos"))
+            if m > 0:
+                cols.append(p * np.sin(m * lam))
+                names.append((ell, m, "sin"))
+    return np.stack(cols, axis=1), names
+
+
+def low_degree_shape(err: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64],
+                     w: NDArray[np.float64], lmax: int, max_samples: int = 200_000) -> dict[str, Any]:
+    """Weighted least-squares fit of degrees 0..lmax to the error (see the module docstring)."""
+    step = max(1, int(math.ceil(err.size / max_samples)))
+    e, la, lo, ww = err[::step], lat[::step], lon[::step], w[::step]
+    design, names = real_harmonics(la, lo, lmax)
+    sw = np.sqrt(ww)
+    coef, *_ = np.linalg.lstsq(design * sw[:, None], e * sw, rcond=None)
+    resid = e - design @ coef
+    degree_rms = [float(math.sqrt(sum(c * c for c, (ell, _, _) in zip(coef, names) if ell == d)))
+                  for d in range(lmax + 1)]
+    return {
+        "lmax": lmax,
+        "degree_rms_m": degree_rms,
+        "zonal_m": [float(c) for c, (ell, m, _) in zip(coef, names) if m == 0],
+        "rmse_after_removal_m": float(math.sqrt(float((ww * resid * resid).sum() / ww.sum()))),
+        "samples": int(e.size),
+    }
 
 
 def weighted_percentiles(values: NDArray[np.float64], weights: NDArray[np.float64],
@@ -65,6 +121,8 @@ def dem_accuracy(
     *,
     distance_bins_km: Sequence[float] = DISTANCE_BINS_KM,
     max_pixels: int = 4_000_000,
+    latitude_bands_deg: Sequence[float] = LATITUDE_BANDS_DEG,
+    shape_lmax: int = 4,
 ) -> dict[str, Any]:
     """DEM minus truth statistics.
 
@@ -78,13 +136,18 @@ def dem_accuracy(
     distance_bins_km : bin edges of the error-vs-distance table
     max_pixels : compare at most about this many pixels; a larger grid is compared on
         a regular subsample (every s-th row and column), recorded as ``stride``
+    latitude_bands_deg : band edges of the error-vs-latitude table
+    shape_lmax : highest degree of the spherical-harmonic fit of the error (0: none)
 
     Returns
     -------
     dict: ``n_pixels``, ``n_compared``, ``n_no_value``, ``stride``, ``rmse_m``, ``bias_m``,
     ``std_m``, ``mae_m``, ``p5_m``, ``p50_m``, ``p95_m``, ``weighting``, and
     ``error_vs_distance`` (a list of per-bin dicts with ``distance_km_min/max``,
-    ``n``, ``rmse_m``, ``bias_m``, ...) when ``distance_m`` is given.
+    ``n``, ``rmse_m``, ``bias_m``, ...) when ``distance_m`` is given; ``error_vs_latitude``
+    (per band ``lat_min/lat_max``, ``n``, ``rmse_m``, ``bias_m``, ...); ``low_degree`` (see
+    :func:`low_degree_shape`) when the compared pixels cover at least
+    :data:`MIN_SPHERE_FRACTION` of the sphere, else ``None``.
     """
     elev = np.asarray(elevation)
     H, W = elev.shape
@@ -109,6 +172,21 @@ def dem_accuracy(
     s = _summary(err, w)
     out["n_compared"] = s.pop("n")
     out.update(s)
+    lat_ok = lat2[ok]
+    bands = np.asarray(latitude_bands_deg, dtype=np.float64)
+    band = np.digitize(lat_ok, bands[1:-1])
+    out["error_vs_latitude"] = [
+        {"lat_min": float(bands[b]), "lat_max": float(bands[b + 1]), **_summary(err[band == b], w[band == b])}
+        for b in range(len(bands) - 1)
+    ]
+    # Share of the sphere the compared pixels cover: each pixel's area on the unit sphere over 4π.
+    dlat = np.radians(abs(float(la[1] - la[0]))) if la.size > 1 else 0.0
+    dlon = np.radians(abs(float(lo[1] - lo[0]))) if lo.size > 1 else 0.0
+    fraction = float(w.sum() * dlat * dlon / (4 * math.pi))
+    out["sphere_fraction"] = fraction
+    out["low_degree"] = (low_degree_shape(err, lat_ok, lon2[ok], w, shape_lmax)
+                         if shape_lmax > 0 and fraction >= MIN_SPHERE_FRACTION and err.size > (shape_lmax + 1) ** 2
+                         else None)
     if distance_m is not None:
         d = np.asarray(distance_m, dtype=np.float64)[::stride, ::stride][ok] / 1000.0
         edges = np.asarray(distance_bins_km, dtype=np.float64)

@@ -212,4 +212,15 @@ def dem_validation_table(d: dict[str, Any]) -> str:
             continue
         out.append(f"  {label:<17}" + "".join(f"{_f(row.get(k), '.0f'):>9}" for k, _ in cols)
                    + f"{row.get('n_compared', 0):>11}\n")
+    adjusted = d.get("adjusted")
+    if isinstance(adjusted, dict) and adjusted.get("error_vs_latitude"):
+        bands = [b for b in adjusted["error_vs_latitude"] if b.get("n")]
+        out.append("  by latitude (bias/RMSE m): " + ", ".join(
+            f"{b['lat_min']:.0f}..{b['lat_max']:.0f} {_f(b.get('bias_m'), '.0f')}/{_f(b.get('rmse_m'), '.0f')}"
+            for b in bands) + "\n")
+    low = adjusted.get("low_degree") if isinstance(adjusted, dict) else None
+    if isinstance(low, dict):
+        out.append("  long wavelengths: RMS of degrees 0.." + str(low["lmax"]) + " = "
+                   + " / ".join(_f(v, ".0f") for v in low["degree_rms_m"])
+                   + f" m; RMSE without them {_f(low.get('rmse_after_removal_m'), '.0f')} m\n")
     return "".join(out)

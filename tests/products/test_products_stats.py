@@ -136,3 +136,37 @@ def test_crop_to_data_keeps_a_patch_across_the_seam_whole():
     assert clon[0] == pytest.approx(-11.5) and clon[-1] == pytest.approx(11.5)
     assert clat[0] == pytest.approx(11.5) and clat[-1] == pytest.approx(-11.5)
     assert np.isfinite(ch).sum() == patch.sum()
+
+
+def test_accuracy_finds_an_injected_bending_of_the_block():
+    """Poles high, mid-latitudes low (a degree-2 zonal error of known size) plus noise: the latitude bands
+    and the spherical-harmonic fit both recover it, and removing it leaves the noise."""
+    rng = np.random.default_rng(1)
+    lat, lon = _global(1)
+    la2, lo2 = np.meshgrid(lat, lon, indexing="ij")
+    x = np.sin(np.radians(la2))
+    p2 = np.sqrt(5.0) * 0.5 * (3 * x**2 - 1)  # 4π-normalised zonal degree 2 (mean square 1)
+    truth = lambda la, lo: np.zeros_like(la)  # noqa: E731
+    dem = 300.0 * p2 + 40.0 + rng.normal(0, 20.0, la2.shape)
+    acc = dem_accuracy(dem, lat, lon, truth, shape_lmax=4)
+    low = acc["low_degree"]
+    assert acc["sphere_fraction"] == pytest.approx(1.0, abs=0.01)
+    assert low["zonal_m"][0] == pytest.approx(40.0, abs=2.0)
+    assert abs(low["zonal_m"][2]) == pytest.approx(300.0, rel=0.02)
+    assert low["degree_rms_m"][2] == pytest.approx(300.0, rel=0.02)
+    assert max(low["degree_rms_m"][1], low["degree_rms_m"][3], low["degree_rms_m"][4]) < 5.0
+    assert low["rmse_after_removal_m"] == pytest.approx(20.0, rel=0.05)
+    bands = {(b["lat_min"], b["lat_max"]): b for b in acc["error_vs_latitude"]}
+    # P2 at the poles is sqrt(5) = 2.24 times the amplitude; at the equator -sqrt(5)/2.
+    assert bands[(60.0, 90.0)]["bias_m"] > 40.0 + 1.5 * 300.0
+    assert bands[(-10.0, 10.0)]["bias_m"] == pytest.approx(40.0 - 300.0 * np.sqrt(5) / 2, abs=15.0)
+
+
+def test_accuracy_of_a_regional_dem_has_no_harmonic_fit():
+    lat = np.arange(-9.5, 10.0, 1.0)
+    lon = np.arange(0.5, 20.0, 1.0)
+    dem = np.zeros((lat.size, lon.size)) + 3.0
+    acc = dem_accuracy(dem, lat, lon, lambda la, lo: np.zeros_like(la))
+    assert acc["low_degree"] is None and acc["sphere_fraction"] < 0.02
+    band = [b for b in acc["error_vs_latitude"] if b["n"]]
+    assert [(b["lat_min"], b["lat_max"]) for b in band] == [(-10.0, 10.0)] and band[0]["bias_m"] == pytest.approx(3.0)
