@@ -337,8 +337,10 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     start_rot = None
     if child_level != "tile":
         start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
-    adj = adjust_network(merged, cameras, positions, rotations, adjust_config_for(mission, config),
-                         initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m)
+    adjust_cfg = adjust_config_for(mission, config)
+    adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
+                         initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
+                         altimetry=unit_altimetry(mission, merged, level, adjust_cfg))
     return {
         "children": kids,
         **adj.summary,
@@ -351,6 +353,35 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
             },
         },
     }
+
+
+def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) -> Any:
+    """The mission's altimetry shots around a unit's tie points, when this level is constrained by them.
+
+    None when the level is not in ``adjust.altimetry_levels`` or the mission has no altimetry. Only
+    the tiles holding the unit's points are read (the store keeps one row group per tile).
+    """
+    if level not in adjust_cfg.altimetry_levels:
+        return None
+    store = getattr(mission, "altimetry", None)
+    if store is None or not getattr(store, "n_shots", 0):
+        return None
+    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
+    from mercury_dem.geometry.tiling import TileGrid
+
+    # The tiles' a-priori points (the merged children's adjusted points would do as well: the tiles read
+    # only need to hold them).
+    xyz = np.asarray(network.apriori_xyz, np.float64)
+    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    lat = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
+    lon = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) % 360.0
+    tiles = sorted(set(TileGrid(store.tile_size_deg).tile_of(lat, lon).tolist()) & set(store.tiles))
+    if not tiles:
+        return None
+    columns = ["lat", "lon", "radius_m", "sigma_m"]
+    table = (store.read(columns) if len(tiles) > len(store.tiles) // 2
+             else pd.concat([store.read_tile(t, columns) for t in tiles], ignore_index=True))
+    return AltimetryShotsArrays.from_table(table)
 
 
 def match_config_for(mission: Mission, config: Config) -> Any:
