@@ -328,14 +328,23 @@ def open_altimetry(path: str | Path) -> AltimetryStore:
     if meta.get("version") != VERSION:
         raise StoreError(f"altimetry store {p} has version {meta.get('version')!r}; this reader reads {VERSION}")
     try:
-        TileGrid(float(meta["tile_size_deg"]))
+        for key, kind in (("tiles", dict), ("row_groups", dict), ("dropped", dict), ("sources", list)):
+            if not isinstance(meta[key], kind):
+                raise TypeError(f"{key} is not a {kind.__name__}")
+        if isinstance(meta["tile_size_deg"], bool) or isinstance(meta["n_shots"], bool):
+            raise TypeError("tile_size_deg and n_shots must be numbers")
+        grid = TileGrid(float(meta["tile_size_deg"]))
         n_shots = int(meta["n_shots"])
         int(meta["n_tracks"])
-        tiles = {int(k): int(v) for k, v in dict(meta["tiles"]).items()}
-        row_groups = {int(k): [int(i) for i in v] for k, v in dict(meta["row_groups"]).items()}
-        {str(k): int(v) for k, v in dict(meta["dropped"]).items()}
-        if not isinstance(meta["sources"], list):
-            raise TypeError("sources is not a list")
+        tiles = {int(k): int(v) for k, v in meta["tiles"].items()}
+        row_groups = {int(k): [int(i) for i in v] for k, v in meta["row_groups"].items()}
+        for k, v in meta["dropped"].items():
+            if isinstance(v, bool) or int(v) < 0:
+                raise ValueError(f"dropped {k!r} is {v!r}")
+        if not all(isinstance(s, dict) for s in meta["sources"]):
+            raise TypeError("sources are not objects")
+        if any(not 0 <= t < grid.n_tiles for t in tiles) or any(v < 0 for v in tiles.values()):
+            raise ValueError("a tile id or count is out of range")
     except (KeyError, TypeError, ValueError, ConfigError, OverflowError) as exc:
         raise StoreError(f"altimetry store {p}: {META_FILE} is invalid ({type(exc).__name__}: {exc})") from None
     try:
