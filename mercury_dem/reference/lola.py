@@ -9,7 +9,10 @@ this reader needs are found by name, whatever their case, spacing or punctuation
 :data:`COLUMN_ALIASES`). A file without a header row must have the 29 columns of the LOLA
 query tool's point-per-row table (:data:`LOLA_RDR_COLUMNS`; identified from the real files:
 radii in km, spacecraft 55–57 km above the shots, the flag column all zero, the detector
-channel 1–5); any other layout needs a header row or ``columns=``.
+channel 1–5); any other layout needs a header row or ``columns=``. MLA RDR tables
+(``MLASCIRDR*.TAB``) have a header row with ``geoc_long, geoc_lat, altitude`` (km above a
+2440 km sphere, :data:`MLA_ALTITUDE_REFERENCE_M`), ``EphemerisTime``, ``chn`` (channel ≥ 5:
+noise, dropped as ``flagged``), ``UTC``, ``Sat_long``, ``Sat_lat``, … (docs/design/altimetry.md).
 
 Units and conventions: latitude planetocentric, longitude east folded into [0, 360), radius
 in metres from the body's centre of mass (the table's km × 1000 unless ``radius_unit="m"``).

@@ -117,6 +117,21 @@ def test_ingest_apollo_with_real_lola_shots(tmp_path: Path, capsys: pytest.Captu
         bare.read_altimetry()
 
 
+def test_ingest_mercury_cube_with_an_mla_like_table(tmp_path: Path) -> None:
+    """An MLA-RDR-like table (its header, made-up values) read against the mission's body, Mercury."""
+    header = "geoc_long,geoc_lat,altitude,EphemerisTime,MET,frm,chn,UTC,TOF_ns_ET,Sat_long,Sat_lat,Sat_alt"
+    rows = [f"{50 + 0.001 * i:.4f},{77 + 0.01 * i:.4f},{-2.0 + 0.001 * i:.4f},{3.9e8 + 0.125 * i},{i},{i % 8},"
+            f"{7 if i == 5 else 1},2012-03-14T00:00:{0.125 * i:06.3f},2.7e6,50.0,77.0,300.0" for i in range(40)]
+    tab = tmp_path / "MLASCIRDR1203140000.TAB"
+    tab.write_text(header + "\n" + "\n".join(rows) + "\n")
+    s = ingest_mission(tmp_path / "m", [str(REAL / "EN0240208184M.lev1.cub")], altimetry=[str(tab)])
+    assert s["body"] == "MERCURY" and s["altimetry"]["n_shots"] == 39
+    m = open_mission(s["path"])
+    shots = m.read_altimetry()
+    assert shots["radius_m"].between(2_437_900.0, 2_438_100.0).all() and (shots["sigma_m"] == 1.0).all()
+    assert m.altimetry.dropped["flagged"] == 1 and m.altimetry.n_tracks == 1
+
+
 def test_bad_shot_tables_are_counted_or_refused(tmp_path: Path) -> None:
     """Wrong columns: an error naming the file. NaNs and off-body shots: counted drops. A profile of
     two shots: kept as a profile of two (the registration decides what is too short), never merged."""
