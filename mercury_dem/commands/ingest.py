@@ -25,6 +25,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pointing-sigma-urad", type=float, metavar="URAD",
                    help="how wrong the a-priori pointing may be (1 sigma per axis): sizes the matcher's guidance "
                         "window and weights the adjustment's pointing constraint (default: the configuration's)")
+    p.add_argument("--altimetry", nargs="+", metavar="CSV",
+                   help="LOLA/MLA RDR shot tables (CSV) to keep with the mission (read against the mission's body)")
+    p.add_argument("--altimetry-sigma-m", type=float, metavar="M",
+                   help="1-sigma height uncertainty given to each shot (default 1 m: the laser's range precision)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing MISSION")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
@@ -36,6 +40,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
         args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
         instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
         pointing_sigma_urad=args.pointing_sigma_urad, image_list=args.image_list,
+        altimetry=args.altimetry, altimetry_sigma_m=args.altimetry_sigma_m,
     )
     if args.json:
         cat = summary.pop("catalog")

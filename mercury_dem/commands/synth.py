@@ -35,6 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="generate only the first N images of the design (a PARTIAL mission, marked so in mission.json)")
     sel.add_argument("--images", metavar="A:B",
                      help="generate only images A..B-1 of the design (a PARTIAL mission, marked so in mission.json)")
+    p.add_argument("--shape-harmonics", metavar="SHA_TAB",
+                   help="opt-in: take the surface's long wavelengths from this PDS SHADR shape table (MLA's "
+                        "GTMES_150V05_SHA.TAB) instead of the synthetic long-wave relief and polar depression")
+    p.add_argument("--shape-lmax", type=int, default=148, metavar="L",
+                   help="degree to which --shape-harmonics is expanded (default 148, GTMES's usable degree)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -58,10 +63,19 @@ def run(args: argparse.Namespace, config: Config) -> int:
         if not args.quiet and (done == total or done % max(5, total // 10) == 0):
             print(f"rendered {done}/{total} images", file=sys.stderr)
 
+    design = None
+    if args.shape_harmonics:
+        from dataclasses import replace
+
+        from mercury_dem.synth.presets import get_preset
+        from mercury_dem.synth.terrain import with_shape_harmonics
+
+        base = get_preset(cfg.preset)
+        design = replace(base, surface=with_shape_harmonics(base.surface, args.shape_harmonics, args.shape_lmax))
     summary = generate_mission(
         args.out, cfg, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
         workers=max(1, args.workers), progress=progress, scheduler=args.scheduler,
-        images=args.images if args.images is not None else args.limit,
+        images=args.images if args.images is not None else args.limit, design=design,
     )
     print(json.dumps(summary, indent=2))
     return 0

@@ -361,6 +361,8 @@ def ingest_mission(
     overwrite: bool = False,
     pointing_sigma_urad: float | None = None,
     image_list: str | Path | None = None,
+    altimetry: Sequence[str] | None = None,
+    altimetry_sigma_m: float | None = None,
 ) -> dict[str, Any]:
     """Build the mission at ``out`` from cubes and/or ISDs; return a summary (images, rejected, seconds).
 
@@ -370,6 +372,11 @@ def ingest_mission(
     the a-priori pointing may be (1 sigma per axis): matching sizes its guidance window from it and the
     adjustment weights its pointing constraint by it (``*.pointing_sigma_from_mission``). Rejected inputs are listed with
     their reason; with no usable image at all, StoreError (nothing is written).
+
+    ``altimetry`` names LOLA/MLA RDR shot tables (CSV, globs allowed) read against the mission's body
+    (its datum radius ± 25 km) into the mission's altimetry store (``MISSION/altimetry``, partitioned by
+    tile); each shot gets ``altimetry_sigma_m`` (default 1 m) as its height sigma. A table that cannot be
+    read is listed among the rejected inputs with the reader's reason.
     """
     t0 = time.perf_counter()
     out = Path(out)
@@ -454,10 +461,15 @@ def ingest_mission(
         if not (math.isfinite(pointing_sigma_urad) and pointing_sigma_urad > 0):
             raise StoreError(f"ingest: --pointing-sigma-urad must be a positive number, got {pointing_sigma_urad}")
         meta["pointing_sigma_urad"] = float(pointing_sigma_urad)
+    alt_table, alt_sources = _read_altimetry(altimetry or [], body, altimetry_sigma_m, rejected)
+    if alt_sources:
+        meta["altimetry"] = {"n_shots": int(len(alt_table)), "files": [s.name for s in alt_sources]}
     with atomic_directory(out, overwrite=overwrite) as tmp:
         writer = MissionWriter(tmp)
         for im in images:
             writer.write_image(tmp, im.image_id, im.pixels)
+        if alt_sources:
+            writer.write_altimetry(alt_table, sources=alt_sources, body=body, tile_size_deg=tile_size_deg)
         writer.finish(meta, body, cameras, catalog,
                       sources={im.image_id: {"files": im.files, "serial_number": im.serial_number, "notes": im.notes}
                                for im in images})
@@ -465,7 +477,31 @@ def ingest_mission(
         "path": str(out), "body": body.name, "images": len(images), "inputs": len(files),
         "rejected": rejected, "cameras": sorted(cameras), "seconds": time.perf_counter() - t0,
         "catalog": catalog,
+        "altimetry": None if not alt_sources else {
+            "n_shots": int(len(alt_table)), "n_tracks": int(alt_table["track_id"].nunique()) if len(alt_table) else 0,
+            "sources": [s.to_dict() for s in alt_sources]},
     }
+
+
+def _read_altimetry(patterns: Sequence[str], body: Body, sigma_m: float | None,
+                    rejected: dict[str, str]) -> tuple[Any, list[Any]]:
+    """The shot tables named by ``patterns`` as one table (+ their sources); unreadable ones go to ``rejected``."""
+    from mercury_dem.altimetry.store import DEFAULT_SIGMA_M, combine_shots, shots_from_files
+
+    if not patterns:
+        return None, []
+    tables, sources = [], []
+    for f in expand_inputs(patterns):
+        try:
+            t, src = shots_from_files([f], body.datum_radius_m)
+        except MercuryDemError as exc:
+            rejected[str(f)] = f"altimetry: {exc}"
+            continue
+        tables.append(t.drop(columns=["sigma_m", "source_id"]))
+        sources.extend(src)
+    if not sources:
+        return None, []
+    return combine_shots(tables, sources, DEFAULT_SIGMA_M if sigma_m is None else sigma_m), sources
 
 
 def _dedupe(images: list[SourceImage], rejected: dict[str, str]) -> list[SourceImage]:
@@ -490,6 +526,12 @@ def describe(summary: dict[str, Any]) -> str:
         lines.append(f"  {r['image_id']:<28s} {r['instrument']:<18s} {r['samples']}x{r['lines']}  "
                      f"centre {r['center_lat']:8.3f} {r['center_lon']:8.3f}  {r['pixel_scale_m']:8.1f} m/px  "
                      f"inc {r['incidence_deg']:5.1f} emi {r['emission_deg']:5.1f} tile {r['tile_id']}")
+    alt = summary.get("altimetry")
+    if alt:
+        lines.append(f"  altimetry: {alt['n_shots']} shots in {alt['n_tracks']} profiles from {len(alt['sources'])} files")
+        for s in alt["sources"]:
+            drops = ", ".join(f"{k} {v}" for k, v in s["dropped"].items() if v)
+            lines.append(f"    {s['name']}: {s['n_shots']} of {s['n_rows']} rows" + (f" (dropped: {drops})" if drops else ""))
     for f, why in summary["rejected"].items():
         lines.append(f"  rejected {f}: {why}")
     if not math.isfinite(float(cat["incidence_deg"].iloc[0])):

@@ -11,6 +11,8 @@ wrote it (both through :class:`MissionWriter`)::
       images.zarr/      one Zarr v3 array per image id (one chunk per image): uint8, uint16, int16
                         or float32; in float images NaN marks invalid (ISIS special) pixels
       sources.json      (ingested missions) image id -> the files it was read from
+      altimetry/        (optional) laser-altimeter shots, Parquet partitioned by tile
+                        (mercury_dem.altimetry.store): ``mission.altimetry``
       truth/            (synthetic missions) read only by validation: mercury_dem.mission.truth
       .complete         written last (mercury_dem.io.atomic)
 
@@ -70,6 +72,14 @@ class MissionWriter:
     def write_image(root: str | Path, image_id: str, image: NDArray[Any]) -> None:
         """Write one image as ``images.zarr/<image_id>``; NaN marks invalid pixels of a float image."""
         write_image(root, image_id, image)
+
+    def write_altimetry(self, table: pd.DataFrame, *, sources: Any, body: Body, tile_size_deg: float = 10.0,
+                        extra: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Write the mission's altimetry store ``altimetry/`` (see :mod:`mercury_dem.altimetry.store`)."""
+        from mercury_dem.altimetry.store import write_altimetry
+
+        return write_altimetry(self.root / "altimetry", table, sources=sources, body_radius_m=body.datum_radius_m,
+                               tile_size_deg=tile_size_deg, extra=extra)
 
     def finish(
         self,
@@ -210,6 +220,25 @@ class Mission:
         f = data.astype(np.float32, copy=False)
         valid = np.isfinite(f)
         return f, valid
+
+    @cached_property
+    def altimetry(self) -> Any:
+        """The mission's laser-altimeter shots (:class:`mercury_dem.altimetry.store.AltimetryStore`), or None.
+
+        StoreError when ``altimetry/`` exists but is incomplete or corrupt.
+        """
+        from mercury_dem.altimetry.store import open_altimetry
+
+        p = self.path / "altimetry"
+        return open_altimetry(p) if p.exists() else None
+
+    def read_altimetry(self, tile_id: int | None = None, columns: Any = None) -> pd.DataFrame:
+        """Shots of the whole mission or of one tile; StoreError when the mission has no altimetry."""
+        store = self.altimetry
+        if store is None:
+            raise StoreError(f"mission {self.path} has no altimetry; add it with 'mercury-dem ingest ... "
+                             "--altimetry CSV...' (or a synth preset that simulates it)")
+        return store.read(columns) if tile_id is None else store.read_tile(tile_id, columns)
 
     @cached_property
     def truth(self) -> SyntheticTruth | None:

@@ -92,6 +92,8 @@ def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[di
         },
         "has_truth": bool(mission.has_truth),
         "partial": mission.meta.get("partial"),
+        # counts from altimetry.json only (cheap: the shots are not read)
+        "altimetry": mission.altimetry.summary() if mission.altimetry is not None else None,
     }
     return summary, cov
 

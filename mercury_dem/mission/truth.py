@@ -5,6 +5,7 @@ pipeline's stages never read it; validation and reports do. Stored under
 ``MISSION/truth/``::
 
     poses.parquet   true positions and rotations, injected errors, design columns
+    altimetry_profiles.parquet  (when the mission has simulated altimetry) the orbit error of each profile
     surface.json    the surface generator's parameters + its datum radius
     dem.zarr/       the truth DEM: height (lat, lon), equirectangular, pixel-is-area
 
@@ -101,6 +102,13 @@ class SyntheticTruth:
         """image_id, true_position_*, true_rotation_*, pointing_error_* (rad), ... in catalog order."""
         t = pd.read_parquet(self.path / "poses.parquet")
         return t.set_index("image_id").loc[self._ids].reset_index()
+
+    @cached_property
+    def altimetry_profiles(self) -> pd.DataFrame | None:
+        """The orbit error injected into each simulated altimetry profile (track_id, along_m, cross_m,
+        radial_m, and east_m/north_m/up_m at the profile's middle shot lat_mid/lon_mid), or None."""
+        p = self.path / "altimetry_profiles.parquet"
+        return pd.read_parquet(p) if p.is_file() else None
 
     @cached_property
     def _arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

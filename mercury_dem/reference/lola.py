@@ -9,7 +9,10 @@ this reader needs are found by name, whatever their case, spacing or punctuation
 :data:`COLUMN_ALIASES`). A file without a header row must have the 29 columns of the LOLA
 query tool's point-per-row table (:data:`LOLA_RDR_COLUMNS`; identified from the real files:
 radii in km, spacecraft 55–57 km above the shots, the flag column all zero, the detector
-channel 1–5); any other layout needs a header row or ``columns=``.
+channel 1–5); any other layout needs a header row or ``columns=``. MLA RDR tables
+(``MLASCIRDR*.TAB``) have a header row with ``geoc_long, geoc_lat, altitude`` (km above a
+2440 km sphere, :data:`MLA_ALTITUDE_REFERENCE_M`), ``EphemerisTime``, ``chn`` (channel ≥ 5:
+noise, dropped as ``flagged``), ``UTC``, ``Sat_long``, ``Sat_lat``, … (docs/design/altimetry.md).
 
 Units and conventions: latitude planetocentric, longitude east folded into [0, 360), radius
 in metres from the body's centre of mass (the table's km × 1000 unless ``radius_unit="m"``).
@@ -44,6 +47,8 @@ from mercury_dem.reference.sampling import sample_reference_dem
 __all__ = [
     "COLUMN_ALIASES",
     "LOLA_RDR_COLUMNS",
+    "MLA_ALTITUDE_REFERENCE_M",
+    "MLA_BAD_CHANNEL",
     "MOON_RADIUS_M",
     "AltimetryShots",
     "assign_tracks",
@@ -73,16 +78,28 @@ LOLA_RDR_COLUMNS: tuple[str, ...] = (
 COLUMN_ALIASES: Mapping[str, tuple[str, ...]] = {
     "time": ("coordinateduniversaltime", "utc", "utctime", "time", "datetime", "ephemeristime", "et"),
     "lon": ("ptlongitude", "longitude", "lon", "long", "targetlongitude", "eastlongitude", "longitudedeg",
-            "ptlongitudedeg", "lone"),
-    "lat": ("ptlatitude", "latitude", "lat", "targetlatitude", "latitudedeg", "ptlatitudedeg"),
+            "ptlongitudedeg", "lone", "geoclong", "geoclon"),
+    "lat": ("ptlatitude", "latitude", "lat", "targetlatitude", "latitudedeg", "ptlatitudedeg", "geoclat"),
     "radius": ("ptradius", "radius", "ptradiuskm", "radiuskm", "planetradius", "targetradius", "rad"),
     "flag": ("flg", "flag", "shotflag", "ptflag", "flags"),
     "range": ("ptrange", "range", "rangekm", "ptrangekm"),
-    "sc_lon": ("sclongitude", "sclon", "spacecraftlongitude"),
-    "sc_lat": ("sclatitude", "sclat", "spacecraftlatitude"),
+    "sc_lon": ("sclongitude", "sclon", "spacecraftlongitude", "satlong", "satlon"),
+    "sc_lat": ("sclatitude", "sclat", "spacecraftlatitude", "satlat"),
     "sc_radius": ("scradius", "scrad", "spacecraftradius"),
+    # MLA RDR: height of the bounce point above MLA_ALTITUDE_REFERENCE_M (km), used only when the
+    # table has no radius column; and the detector channel (>= MLA_BAD_CHANNEL: noise, not a return).
+    "altitude": ("altitude",),
+    "channel": ("chn",),
 }
 _REQUIRED = ("time", "lon", "lat", "radius")
+
+#: MLA RDR tables (``MLASCIRDR*.TAB``) give the bounce point's ``altitude`` in km above a
+#: 2440 km sphere instead of a radius; the ODE point exports carry both ``altitude`` and
+#: ``radius``. Identified from the readers of the real files (see docs/design/altimetry.md).
+MLA_ALTITUDE_REFERENCE_M = 2_440_000.0
+#: MLA RDR channel numbers from this value up mark noise/invalid ranges (the MLA team's
+#: readers keep ``chn < 5``); such rows are counted as ``flagged``.
+MLA_BAD_CHANNEL = 5
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,6 +156,9 @@ def _find_columns(names: Sequence[str], source: str) -> dict[str, int]:
             if alias in normed:
                 found[key] = normed.index(alias)
                 break
+    if "radius" not in found and "altitude" in found:
+        found["radius_from_altitude"] = found["altitude"]
+        found["radius"] = found["altitude"]
     missing = [k for k in _REQUIRED if k not in found]
     if missing:
         raise _fail(
@@ -253,11 +273,17 @@ def parse_altimetry_csv(
     lat, lon = _numeric(col("lat")), _numeric(col("lon"))
     scale = 1000.0 if radius_unit == "km" else 1.0
     radius = _numeric(col("radius")) * scale
+    if "radius_from_altitude" in where:  # MLA RDR: altitude above the 2440 km sphere
+        radius = radius + MLA_ALTITUDE_REFERENCE_M
     finite = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(radius) & (np.abs(lat) <= 90.0)
     in_range = np.abs(radius - body_radius_m) <= radius_tolerance_m
     if "flag" in where:
         flag = _numeric(col("flag"))
         unflagged = flag == 0.0
+    elif "channel" in where:  # MLA: a channel >= 5 is a noise detection
+        chn = _numeric(col("channel"))
+        unflagged = np.isfinite(chn) & (chn < MLA_BAD_CHANNEL)
+        flag = np.where(unflagged, 0.0, 1.0)
     else:
         flag = None
         unflagged = np.ones(len(good), dtype=bool)

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.exceptions import ConfigError, StoreError
-from mercury_dem.geometry.body import MERCURY
+from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.mission.store import MissionWriter
 from mercury_dem.mission.truth import dem_axes, write_truth_dem, write_truth_tables
@@ -143,6 +143,10 @@ def generate_mission(
         t_dem = time.perf_counter() - t_dem
         write_truth_tables(tmp, truth, {"params": params.to_dict(), "radius_m": radius,
                                         "factory": "mercury_dem.synth.terrain:surface_from_dict"})
+        alt_summary = None
+        if design.altimetry is not None and design.altimetry.n_orbits > 0:
+            alt_summary = write_simulated_altimetry(writer, tmp, design, surface, body, config.seed, tile_size_deg)
+            meta["altimetry"] = alt_summary
         writer.finish(meta, body, mission_cameras(plan)[0], catalog)
     secs = np.array([s for _, s in timings])
     return {
@@ -156,4 +160,29 @@ def generate_mission(
         "render_seconds_total": float(secs.sum()),
         "truth_dem_seconds": t_dem,
         "truth_dem_shape": list(height.shape),
+        "altimetry": alt_summary,
     }
+
+
+def write_simulated_altimetry(writer: MissionWriter, root: Path, design: MissionDesign, surface: Surface, body: Body,
+                              seed: int, tile_size_deg: float) -> dict[str, Any]:
+    """Simulate the design's MLA profiles of the truth surface; write the shots (screened as an RDR reader
+    would: flagged and off-body shots dropped and counted) into the mission's altimetry store and the injected
+    per-profile orbit errors into ``truth/altimetry_profiles.parquet``. Returns counts and seconds."""
+    from mercury_dem.altimetry.simulate import screen_shots, simulate_altimetry
+    from mercury_dem.altimetry.store import ShotSource, combine_shots
+
+    assert design.altimetry is not None
+    t0 = time.perf_counter()
+    rng = np.random.default_rng([seed, 0xA171])  # its own stream: images and truth do not depend on it
+    area = tuple(design.area_deg) if design.area_deg is not None else None
+    sim = simulate_altimetry(design.altimetry, surface.height, rng, datum_radius_m=body.datum_radius_m,
+                             area_deg=area)  # type: ignore[arg-type]
+    kept, dropped = screen_shots(sim.shots, body.datum_radius_m)
+    n_tracks = int(kept["track_id"].nunique()) if len(kept) else 0
+    source = ShotSource(f"simulated MLA (seed {seed})", len(sim.shots), len(kept), n_tracks, dropped)
+    writer.write_altimetry(combine_shots([kept], [source]), sources=[source], body=body, tile_size_deg=tile_size_deg,
+                           extra={"simulation": design.altimetry.to_dict()})
+    sim.profiles.to_parquet(Path(root) / "truth" / "altimetry_profiles.parquet", index=False)
+    return {"n_shots": int(len(kept)), "n_simulated": int(len(sim.shots)), "n_tracks": n_tracks,
+            "dropped": dropped, "seconds": time.perf_counter() - t0}

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mercury_dem.altimetry.simulate import AltimetryDesign
 from mercury_dem.exceptions import ConfigError
 from mercury_dem.synth.render import RenderSettings
 from mercury_dem.synth.terrain import SurfaceParams
@@ -53,6 +54,8 @@ class MissionDesign:
     gaps : (lat, lon, radius_deg) caps where no pass puts an image (data gaps: empty
         tiles; an isolated image may sit in one)
     truth_dem_ppd : pixels per degree of the stored truth DEM
+    altimetry : simulated MLA profiles of the truth (mercury_dem.altimetry.simulate), or None;
+        drawn from their own random stream, so the images and the truth do not depend on it
     """
 
     name: str
@@ -76,6 +79,7 @@ class MissionDesign:
     truth_dem_ppd: float = 4.0
     surface: SurfaceParams = field(default_factory=SurfaceParams)
     render: RenderSettings = field(default_factory=RenderSettings)
+    altimetry: AltimetryDesign | None = None
 
 
 PRESETS: dict[str, MissionDesign] = {
@@ -90,6 +94,11 @@ PRESETS: dict[str, MissionDesign] = {
         isolated=((84.0, 200.0), (45.0, 120.0)),
         truth_dem_ppd=8.0,
         surface=SurfaceParams(crater_d_min_m=3000.0, rough_shortest_m=500.0),
+        # 130 passes with nodes over lon -19..19 (the tracks lean across the area's 30 deg): >= 25
+        # profiles in each of its 12 tiles (the 6 at its east and west edges are half in it), ~0.37
+        # million shots; periapsis at 20 N so the equatorial area is within MLA's range.
+        altimetry=AltimetryDesign(n_orbits=130, lon_range_deg=(-19.0, 19.0), periapsis_lat_deg=20.0,
+                                  periapsis_alt_m=300e3),
     ),
     "demo": MissionDesign(
         name="demo",
@@ -104,6 +113,9 @@ PRESETS: dict[str, MissionDesign] = {
         isolated=((-35.0, 250.0),),
         truth_dem_ppd=4.0,
         surface=SurfaceParams(crater_d_min_m=4000.0, rough_shortest_m=700.0),
+        # MESSENGER-like: periapsis 400 km at 70 N, ranging within 1,000 km: ~2.7 million shots,
+        # >= 20 profiles per tile north of 60 N, 6-15 at 10-60 N, none in the south.
+        altimetry=AltimetryDesign(n_orbits=200, max_range_m=1_000e3),
     ),
     "large": MissionDesign(
         name="large",

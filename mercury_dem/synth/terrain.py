@@ -61,6 +61,12 @@ class SurfaceParams:
     albedo_mean: float = 0.14
     albedo_variation: float = 0.3
     index_cell_deg: float = 0.5
+    #: Opt-in real long wavelengths: a PDS SHADR shape table (MLA's GTMES_150V05_SHA.TAB) whose
+    #: expansion to ``shape_lmax`` (radius - datum) is added to the height; "" (default): none.
+    #: Set ``longwave_amplitude_m`` and ``polar_drop_m`` to 0 with it (``with_shape_harmonics``).
+    shape_harmonics: str = ""
+    shape_lmax: int = 148
+    shape_grid_deg: float = 0.25
 
     def __post_init__(self) -> None:
         positive = ("crater_d_min_m", "crater_d_max_m", "transition_m", "rough_longest_m", "rough_shortest_m",
@@ -72,6 +78,8 @@ class SurfaceParams:
             raise ConfigError("surface parameters: crater_d_min_m must be below crater_d_max_m")
         if self.seed < 0:
             raise ConfigError(f"surface parameter 'seed' must be >= 0, got {self.seed}")
+        if self.shape_lmax < 0 or not 0 < self.shape_grid_deg <= 5.0:
+            raise ConfigError("surface parameters: shape_lmax must be >= 0 and 0 < shape_grid_deg <= 5")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -170,6 +178,30 @@ class Surface:
         self._seed_longwave = np.uint64(rng.integers(0, 2**62))
         # Long-wave relief: three octaves of noise with wavelengths of thousands of km.
         self._longwave = (np.array([4000e3, 2000e3, 1000e3]), p.longwave_amplitude_m * np.array([1.0, 0.6, 0.35]))
+        self._shape = self._shape_grid() if p.shape_harmonics else None
+
+    def _shape_grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(height above the datum (H, W), pixel-centre lats, lons) of the shape model's expansion, on a
+        global grid of ``shape_grid_deg`` (evaluated once: scattered evaluation costs O(N L^2))."""
+        from mercury_dem.reference.sha import evaluate_grid, read_shadr
+
+        p = self.params
+        shape = read_shadr(p.shape_harmonics)
+        step = p.shape_grid_deg
+        lats = 90.0 - (np.arange(int(round(180.0 / step))) + 0.5) * step
+        lons = (np.arange(int(round(360.0 / step))) + 0.5) * step
+        return evaluate_grid(shape, lats, lons, lmax=p.shape_lmax) - self.radius_m, lats, lons
+
+    def shape_height(self, flat: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The shape model's height (m above the datum) at unit vectors (N, 3); zeros without one."""
+        if self._shape is None:
+            return np.zeros(flat.shape[0])
+        from mercury_dem.reference.sampling import sample_grid
+
+        grid, lats, lons = self._shape
+        lat = np.degrees(np.arcsin(np.clip(flat[:, 2], -1.0, 1.0)))
+        lon = np.mod(np.degrees(np.arctan2(flat[:, 1], flat[:, 0])), 360.0)
+        return sample_grid(grid, lats, lons, lat, lon)
 
     # -- evaluation on unit vectors -----------------------------------------
     def _rough_octaves(self, resolution_m: float | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -209,7 +241,8 @@ class Surface:
         rough = fbm(flat * self.radius_m, lam, amp, self._seed_rough)
         z = flat[:, 2]
         polar = -self.params.polar_drop_m * (z * z - 1.0 / 3.0)
-        return polar + h + rough * (1.0 - 0.6 * plains)
+        out = polar + h + rough * (1.0 - 0.6 * plains)
+        return out if self._shape is None else out + self.shape_height(flat)
 
     def albedo_unit(self, units: ArrayLike, resolution_m: float | None = None) -> NDArray[np.float64]:
         """Normal albedo (dimensionless, ~0.05-0.4) at unit vectors (..., 3); independent of the height."""
@@ -302,6 +335,16 @@ class Surface:
             "age": t[:, cr.C_AGE],
             "rays": t[:, cr.C_RAYLEN] > 0,
         }
+
+
+def with_shape_harmonics(params: SurfaceParams, path: str, lmax: int = 148) -> SurfaceParams:
+    """``params`` with a real shape model's long wavelengths in place of the synthetic ones (the
+    long-wave noise and the polar depression set to 0; craters, basins, plains and roughness kept)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    return replace(params, shape_harmonics=str(Path(path).resolve()), shape_lmax=int(lmax),
+                   longwave_amplitude_m=0.0, polar_drop_m=0.0)
 
 
 def surface_from_dict(d: dict[str, Any]) -> Surface:

@@ -1,8 +1,12 @@
 """Fuzzing the readers: mutated or truncated SHADR tables and shot CSVs give a valid result or a
-ReferenceDataError naming the file, never another exception, never a hang."""
+ReferenceDataError naming the file, never another exception, never a hang.
+
+``MERCURY_DEM_FUZZ_EXAMPLES`` sets the number of inputs per mutating test (default 500, 2-8 s);
+the cut-anywhere test of the 1.4 MB table runs a hundredth of it (at least 5)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +21,8 @@ from mercury_dem.reference.sha import ShapeHarmonics, read_shadr
 from .conftest import LOLA_DIR, SHA_TAB
 
 pytestmark = pytest.mark.timeout(60)
+
+EXAMPLES = int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "500"))
 
 # A degree-6 SHADR table: the real header (degree rewritten) and the real first 28 rows, so each
 # example parses in well under a millisecond.
@@ -34,6 +40,12 @@ _CSV = (
 )
 _HEADER_CSV = b"UTC,Pt_Longitude,PT_LATITUDE,pt_radius,Flg\n" + b"".join(
     b"2011-04-01T00:00:%06.3f,%.3f,45.0,2438.0%02d,0\n" % (0.125 * i, 10 + 0.01 * i, i) for i in range(20)
+)
+# The MLA RDR header (altitude in km above 2440 km, the channel as the quality mark), made-up values.
+_MLA_CSV = b"geoc_long,geoc_lat,altitude,EphemerisTime,MET,frm,chn,UTC,TOF_ns_ET,Sat_long,Sat_lat,Sat_alt\n" + b"".join(
+    b"%.4f,%.4f,%.5f,%.6f,%d,%d,%d,2012-06-01T07:03:%06.3f,%.1f,%.4f,%.4f,%.3f\n"
+    % (100.0 + 1e-3 * i, 70.0 + 0.007 * i, -1.2 + 0.001 * i, 3.9e8 + 0.125 * i, 250000000 + i // 8, i % 8, i % 6,
+       47.0 + 0.125 * i, 2.7e6, 100.0 + 1e-3 * i, 70.0 + 0.007 * i, 400.0) for i in range(20)
 )
 
 
@@ -73,7 +85,7 @@ def _write(folder: Path, name: str, data: bytes) -> Path:
     return path
 
 
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_mutated(_SHA_SMALL))
 def test_fuzz_shadr(fuzz_dir, data):
     path = _write(fuzz_dir, "fuzz_shape.tab", data)
@@ -86,7 +98,7 @@ def test_fuzz_shadr(fuzz_dir, data):
     assert np.all(np.isfinite(sh.c_m)) and sh.c_m.shape == (sh.lmax + 1, sh.lmax + 1)
 
 
-@settings(max_examples=5, deadline=None)
+@settings(max_examples=max(5, EXAMPLES // 100), deadline=None)
 @given(st.integers(0, 1_400_315))
 def test_fuzz_truncated_real_shadr(fuzz_dir, cut):
     """The real 1.4 MB table cut anywhere: only a cut in the final padding still reads."""
@@ -99,12 +111,12 @@ def test_fuzz_truncated_real_shadr(fuzz_dir, cut):
         assert sh.lmax == 150
 
 
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.one_of(_mutated(_CSV), _mutated(_HEADER_CSV)))
+@settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.one_of(_mutated(_CSV), _mutated(_HEADER_CSV), _mutated(_MLA_CSV)))
 def test_fuzz_altimetry_csv(fuzz_dir, data):
     path = _write(fuzz_dir, "fuzz_shots.csv", data)
     try:
-        shots = read_altimetry_csv(path, 1_737_400.0 if data[:4] != b"UTC," else 2_439_400.0)
+        shots = read_altimetry_csv(path, 1_737_400.0 if data[:4] not in (b"UTC,", b"geoc") else 2_439_400.0)
     except ReferenceDataError as exc:
         assert "fuzz_shots.csv" in str(exc)
         return

@@ -167,3 +167,35 @@ def test_ancillary_columns_not_finite_become_nan():
     s = parse_altimetry_csv(text, MERCURY_M)
     row = s.table.iloc[0]
     assert np.isnan(row["sc_lon"]) and np.isnan(row["sc_radius_m"]) and np.isnan(row["range_m"])
+
+
+def test_mla_rdr_header_layout(tmp_path):
+    """An MLA-RDR-like table written here (the column names of the PDS MLASCIRDR*.TAB files, made-up
+    values): altitude in km above the 2440 km sphere becomes a radius, channel >= 5 is dropped as
+    flagged, UTC is preferred over EphemerisTime, Sat_long/Sat_lat are the spacecraft's."""
+    from mercury_dem.reference.lola import MLA_ALTITUDE_REFERENCE_M
+
+    header = ("geoc_long,geoc_lat,altitude,EphemerisTime,MET,frm,chn,Pulswd,thrsh,gain,1way_range,Emiss,TXmJ,"
+              "UTC,TOF_ns_ET,Sat_long,Sat_lat,Sat_alt,Offnad,Phase,Sol_inc,SCRNGE,seqid")
+    rows = []
+    for i in range(12):
+        chn = 6 if i == 3 else i % 4
+        lon = 359.9995 + 0.0004 * i  # across the 0/360 seam
+        rows.append(f"{lon:.4f},{70 + 0.01 * i:.4f},{-1.5 + 0.01 * i:.5f},{3.9e8 + 0.125 * i:.6f},{250000000 + i},"
+                    f"{i % 8},{chn},10.0,0.1,1.0,400.1,0.5,18.0,2012-06-01T07:03:{47 + 0.125 * i:06.3f},"
+                    f"2668000.0,{lon:.4f},{70 + 0.01 * i:.4f},400.2,0.3,80.0,60.0,400.1,{i}")
+    path = tmp_path / "MLASCIRDR_like.TAB"
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    shots = read_altimetry_csv(path, MERCURY_M)
+    t = shots.table
+    assert shots.n_rows == 12 and len(t) == 11 and shots.dropped["flagged"] == 1
+    assert t["radius_m"].iloc[0] == pytest.approx(MLA_ALTITUDE_REFERENCE_M - 1500.0)
+    assert t["lat"].iloc[0] == pytest.approx(70.0) and t["sc_lat"].iloc[0] == pytest.approx(70.0)
+    assert t["lon"].between(0.0, 360.0, inclusive="left").all()
+    assert str(t["time"].iloc[0]) == "2012-06-01 07:03:47"
+    assert shots.n_tracks == 1 and (t["flag"] == 0).all()
+    # The ODE point export carries a radius beside the altitude: the radius wins.
+    ode = tmp_path / "ode_mla.csv"
+    ode.write_text("longitude,latitude,altitude,radius,EphemerisTime,chn,UTC\n"
+                   "10.0,80.0,-1.0,2439.0,3.9e8,0,2012-06-01T07:03:47\n")
+    assert read_altimetry_csv(ode, MERCURY_M).table["radius_m"].iloc[0] == pytest.approx(2_439_000.0)
