@@ -79,6 +79,7 @@ def altimetry_radius_priors(
     min_shots: int = 6,
     sigma_floor_m: float = 1.0,
     horizontal_sigma_m: float = 0.0,
+    cross_track_slope: float = 0.05,
     tree: cKDTree | None = None,
 ) -> RadiusPriors:
     """Radius constraints for tie points from the altimetry shots around them.
@@ -90,11 +91,15 @@ def altimetry_radius_priors(
         the centre of mass; the columns of :mod:`mercury_dem.reference.lola`'s table)
     shot_sigma_m : the shots' radius sigma (scalar or per shot)
     search_radius_m : shots within this ground distance of a point are used
-    min_shots : fewer shots than this (or shots all on one line) leave the point unconstrained
+    min_shots : a plane is fitted where at least this many shots surround the point; with fewer, or
+        with shots along one profile, at least 3 shots give a profile fit (see ``cross_track_slope``)
     sigma_floor_m : smallest sigma given
     horizontal_sigma_m : how far (1 sigma, on the ground) the points may be from where they are
         said to be; the fitted slope turns it into height: ``slope x horizontal_sigma_m`` is added
         to the sigma in quadrature (a point 100 m off on a 10 % slope is 10 m off in height)
+    cross_track_slope : where the shots around a point lie along one profile, the slope assumed
+        across it (besides the along-track slope): times the point's distance from the profile it
+        widens the sigma
     tree : a kd-tree of the shots' unit vectors, when the caller reuses one
 
     Returns
@@ -169,14 +174,64 @@ def altimetry_radius_priors(
         slope2 = beta[:, 1] ** 2 + beta[:, 2] ** 2
         sigma = np.sqrt(cov_aa * np.maximum(scale2, 1.0) + np.nan_to_num(roughness) ** 2
                         + slope2 * horizontal_sigma_m**2)
-    sigma = np.maximum(sigma, sigma_floor_m)
     radius = np.where(use, beta[:, 0], np.nan)
+    sigma = np.where(use, sigma, np.nan)
+    # Where the shots lie along one profile (the usual case away from crossovers: MLA's tracks are
+    # kilometres apart, its shots 400 m apart), fit the profile instead: r = a + b s along its
+    # principal direction, and widen the sigma by a cross-track slope times the point's distance from
+    # the profile (the slope across the track is unknown; |b| and cross_track_slope stand for it).
+    line = ~use & (count >= 3)
+    if line.any():
+        r_line, s_line, rough_line = _profile_fit(pt_idx, e, n, h, w, count, line, n_pt, cross_track_slope,
+                                                  horizontal_sigma_m)
+        radius = np.where(line, r_line, radius)
+        sigma = np.where(line, s_line, sigma)
+        roughness = np.where(line, rough_line, roughness)
+        use = use | (line & np.isfinite(r_line))
+    sigma = np.maximum(sigma, sigma_floor_m)
     return RadiusPriors(
         radius_m=radius,
         sigma_m=np.where(use, sigma, np.nan),
         n_shots=count.astype(np.int64),
         roughness_m=np.where(use, roughness, np.nan),
     )
+
+
+def _profile_fit(pt_idx: NDArray[np.int64], e: NDArray[np.float64], n: NDArray[np.float64], h: NDArray[np.float64],
+                 w: NDArray[np.float64], count: NDArray[np.int64], line: NDArray[np.bool_], n_pt: int,
+                 cross_track_slope: float, horizontal_sigma_m: float) -> tuple[NDArray[np.float64], ...]:
+    """Radius, sigma and roughness at each ``line`` point from a straight-line fit of its shots."""
+
+    def acc(values: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.bincount(pt_idx, weights=values, minlength=n_pt)
+
+    sw = acc(w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        me, mn = acc(w * e) / sw, acc(w * n) / sw
+        cee = acc(w * e * e) / sw - me**2
+        cnn = acc(w * n * n) / sw - mn**2
+        cen = acc(w * e * n) / sw - me * mn
+    theta = 0.5 * np.arctan2(2 * cen, cee - cnn)  # the shots' principal direction
+    ct, st = np.cos(theta), np.sin(theta)
+    s = (e - me[pt_idx]) * ct[pt_idx] + (n - mn[pt_idx]) * st[pt_idx]
+    s1, ss, sh, ssh = acc(w), acc(w * s * s), acc(w * h), acc(w * s * h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b = ssh / ss  # s is centred, so a and b decouple
+        a = sh / s1
+        var_a, var_b = 1.0 / s1, 1.0 / ss
+        resid = h - (a[pt_idx] + b[pt_idx] * s)
+        dof = count - 2
+        rough = np.where(dof > 0, np.sqrt(acc(resid**2) / np.maximum(dof, 1)), np.nan)
+        mean_w = s1 / np.maximum(count, 1)
+        scale2 = np.maximum(np.where(np.isfinite(rough), rough**2 * mean_w, 1.0), 1.0)
+        s_p = -(me * ct + mn * st)  # the point (0, 0) along the profile
+        d = np.abs(me * st - mn * ct)  # and its distance across it
+        slope2 = b**2 + cross_track_slope**2
+        radius = a + b * s_p
+        sigma = np.sqrt((var_a + var_b * s_p**2) * scale2 + np.nan_to_num(rough) ** 2
+                        + slope2 * (d**2 + horizontal_sigma_m**2))
+    good = line & np.isfinite(radius) & np.isfinite(sigma) & (ss > 0)
+    return (np.where(good, radius, np.nan), np.where(good, sigma, np.nan), np.where(good, rough, np.nan))
 
 
 def constrain_to_altimetry(problem: Any, priors: RadiusPriors, directions: ArrayLike | None = None) -> Any:

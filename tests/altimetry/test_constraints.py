@@ -50,17 +50,39 @@ def test_heights_recovered_with_calibrated_sigmas(seed: int) -> None:
     assert np.median(pri.sigma_m[c]) < 3 * np.sqrt(np.mean(err**2))
 
 
-def test_points_away_from_shots_or_on_one_line_stay_unconstrained() -> None:
-    rng = np.random.default_rng(5)
-    lat_s = np.arange(20.0, 21.0, 0.01)
-    lon_s = np.full_like(lat_s, 10.5)  # one straight profile: the cross-track slope is unknown
-    r_s = R + terrain(lat_s, lon_s)
-    pts = unit_vectors([20.5, 20.5, 40.0], [10.5, 10.52, 10.5]) * R
-    pri = altimetry_radius_priors(pts, lat_s, lon_s, r_s, search_radius_m=2000.0)
-    assert not pri.constrained.any()
-    assert pri.n_shots[2] == 0 and pri.n_shots[0] > 6
+def test_points_near_one_profile_get_a_profile_fit_whose_sigma_grows_across_it() -> None:
+    """Away from crossovers a point sees one profile (MLA's tracks are km apart, shots 400 m apart): the
+    along-track fit at its nearest place, the sigma widened by the cross-track distance; still honest."""
+    rng = np.random.default_rng(8)
+    step = 400.0 / R * 180 / np.pi
+    lat_s = np.arange(20.0, 21.0, step)
+    tracks = [10.2 + 0.15 * k for k in range(5)]  # ~7 km apart: never two within the search radius
+    lat_all = np.concatenate([lat_s] * len(tracks))
+    lon_all = np.concatenate([np.full_like(lat_s, t) for t in tracks])
+    r_all = R + terrain(lat_all, lon_all) + rng.normal(0, 1.0, lat_all.size)
+    k = rng.integers(0, len(tracks), 4000)
+    cross_m = rng.uniform(-900, 900, 4000)
+    lat_p = rng.uniform(20.1, 20.9, 4000)
+    lon_p = np.asarray(tracks)[k] + cross_m / (R * np.cos(np.radians(lat_p))) * 180 / np.pi
+    pri = altimetry_radius_priors(unit_vectors(lat_p, lon_p) * R, lat_all, lon_all, r_all, search_radius_m=1000.0,
+                                  cross_track_slope=0.05)
+    c = pri.constrained
+    assert c.mean() > 0.95
+    err = pri.radius_m[c] - (R + terrain(lat_p[c], lon_p[c]))
+    z = err / pri.sigma_m[c]
+    near, far = np.abs(cross_m[c]) < 150, np.abs(cross_m[c]) > 700
+    print(f"profile fits: |z|<2 {np.mean(np.abs(z) < 2):.3f}; median sigma near {np.median(pri.sigma_m[c][near]):.1f} m, "
+          f"far {np.median(pri.sigma_m[c][far]):.1f} m; error RMS near {np.sqrt(np.mean(err[near]**2)):.1f} m")
+    assert np.mean(np.abs(z) < 2.0) > 0.85
+    assert np.median(pri.sigma_m[c][far]) > 2 * np.median(pri.sigma_m[c][near])
+    # A point far from every shot stays free; fewer than 3 shots give nothing.
+    lone = altimetry_radius_priors(unit_vectors([40.0], [10.5]) * R, lat_all, lon_all, r_all)
+    assert not lone.constrained.any() and lone.n_shots[0] == 0
+    two = altimetry_radius_priors(unit_vectors([20.5], [10.2]) * R, lat_s[:2] * 0 + 20.5, [10.2, 10.2 + 1e-3],
+                                  [R, R])
+    assert not two.constrained.any()
     with pytest.raises(ValueError, match="min_shots"):
-        altimetry_radius_priors(pts, lat_s, lon_s, r_s, min_shots=2)
+        altimetry_radius_priors(unit_vectors([20.5], [10.2]) * R, lat_all, lon_all, r_all, min_shots=2)
 
 
 def test_no_shots_or_no_points() -> None:
