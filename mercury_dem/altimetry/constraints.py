@@ -19,6 +19,7 @@ points are summed at once with ``np.bincount`` over the (point, shot) pairs the 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 __all__ = ["AltimetryShotsArrays", "RadiusPriors", "altimetry_radius_priors", "bundle_adjust_with_altimetry",
-           "constrain_to_altimetry", "unit_vectors"]
+           "constrain_to_altimetry", "radius_priors_within", "unit_vectors"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,6 +75,45 @@ def altimetry_radius_priors(
     shot_lon_deg: ArrayLike,
     shot_radius_m: ArrayLike,
     *,
+    search_radius_m: float | Sequence[float] = 1000.0,
+    **options: Any,
+) -> RadiusPriors:
+    """Radius constraints for tie points from the altimetry shots around them.
+
+    ``search_radius_m`` may be several radii: each point then takes the fit with the smallest
+    sigma among them (dense shots give a tight plane within a small radius; where the profiles
+    are kilometres apart only a larger radius reaches any, with a sigma that says so). The other
+    options are those of :func:`radius_priors_within`.
+    """
+    radii = [float(search_radius_m)] if np.isscalar(search_radius_m) else [float(r) for r in search_radius_m]  # type: ignore[arg-type]
+    if not radii:
+        raise ValueError("search_radius_m: give at least one radius")
+    if options.get("tree") is None and len(radii) > 1:
+        options["tree"] = cKDTree(unit_vectors(shot_lat_deg, shot_lon_deg).reshape(-1, 3))
+    best: RadiusPriors | None = None
+    for radius in sorted(radii):
+        pri = radius_priors_within(points_xyz, shot_lat_deg, shot_lon_deg, shot_radius_m, search_radius_m=radius,
+                                   **options)
+        if best is None:
+            best = pri
+            continue
+        better = pri.constrained & (~best.constrained | (pri.sigma_m < best.sigma_m))
+        best = RadiusPriors(
+            radius_m=np.where(better, pri.radius_m, best.radius_m),
+            sigma_m=np.where(better, pri.sigma_m, best.sigma_m),
+            n_shots=np.where(better, pri.n_shots, best.n_shots),
+            roughness_m=np.where(better, pri.roughness_m, best.roughness_m),
+        )
+    assert best is not None
+    return best
+
+
+def radius_priors_within(
+    points_xyz: ArrayLike,
+    shot_lat_deg: ArrayLike,
+    shot_lon_deg: ArrayLike,
+    shot_radius_m: ArrayLike,
+    *,
     shot_sigma_m: float | ArrayLike = 1.0,
     search_radius_m: float = 1000.0,
     min_shots: int = 6,
@@ -82,7 +122,7 @@ def altimetry_radius_priors(
     cross_track_slope: float = 0.05,
     tree: cKDTree | None = None,
 ) -> RadiusPriors:
-    """Radius constraints for tie points from the altimetry shots around them.
+    """Radius constraints for tie points from the altimetry shots within one search radius.
 
     Parameters
     ----------
@@ -275,7 +315,7 @@ def bundle_adjust_with_altimetry(
     config: Any,
     shots: AltimetryShotsArrays,
     *,
-    search_radius_m: float = 1000.0,
+    search_radius_m: float | Sequence[float] = (1000.0, 3000.0, 10_000.0),
     min_shots: int = 6,
     sigma_floor_m: float = 1.0,
     horizontal_sigma_m: float = 50.0,

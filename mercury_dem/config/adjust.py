@@ -47,8 +47,11 @@ class AdjustConfig(ConfigSection):
         ("global",), "Levels whose adjustment constrains the tie points' radii to the mission's laser altimetry, "
         "when the mission has any (region, hemisphere, global; empty: never, the heights then float on the datum)"
     )
-    altimetry_search_m: float = param(1000.0, "Shots within this ground distance of a tie point constrain it", unit="m",
-                                      lo=1.0, hi=1e6)
+    altimetry_search_m: tuple[float, ...] = param(
+        (1000.0, 3000.0, 10000.0), "Shots within these ground distances of a tie point constrain it (a plane or "
+        "profile fitted to them, its sigma from the fit and the terrain's roughness at that scale); each point takes "
+        "the radius whose fit has the smallest sigma", unit="m"
+    )
     altimetry_min_shots: int = param(6, "Fewer shots around a tie point leave it unconstrained", lo=3, hi=100000)
     altimetry_horizontal_sigma_m: float = param(
         50.0, "How far the first pass's tie points may be from their true place; times the slope it widens the "
