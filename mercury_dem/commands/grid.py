@@ -12,13 +12,14 @@ import argparse
 import dataclasses
 import json
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import ConfigError, GridError
 
 NAME = "grid"
+if TYPE_CHECKING:
+    import numpy as np
+
 HELP = "grid a point cloud (.npy/.csv of XYZ or lat,lon,radius) into DIR/dem.zarr"
 
 
@@ -35,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def read_points(path: str | Path) -> np.ndarray:
     """Read a point cloud file into (N, 3) body-fixed metres (see the module docstring)."""
+    import numpy as np
+
     from mercury_dem.geometry.body import latlon_to_unit
 
     path = Path(path)
