@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -84,6 +85,7 @@ def _is_number(s: str) -> bool:
 
 def run(args: argparse.Namespace, config: Any) -> int:
     from mercury_dem.pipeline.dem_stage import grid_dem
+    from mercury_dem.progress import Reporter
 
     dem = config.dem
     changes: dict[str, Any] = {}
@@ -107,7 +109,8 @@ def run(args: argparse.Namespace, config: Any) -> int:
         client = Client(cluster)
     try:
         summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
-                           coverage=not args.no_coverage, attrs={"source": str(args.points)})
+                           coverage=not args.no_coverage, attrs={"source": str(args.points)},
+                           progress=Reporter(sys.stderr))
     finally:
         if client is not None:
             client.close()

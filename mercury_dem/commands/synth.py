@@ -54,10 +54,9 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     cfg = synth_config(args, config)
 
-    def progress(done: int, total: int) -> None:
-        if not args.quiet and (done == total or done % max(5, total // 10) == 0):
-            print(f"rendered {done}/{total} images", file=sys.stderr)
+    from mercury_dem.progress import Reporter, counter
 
+    progress = counter(Reporter(None if args.quiet else sys.stderr), "synth: rendering", "images")
     summary = generate_mission(
         args.out, cfg, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
         workers=max(1, args.workers), progress=progress, scheduler=args.scheduler,

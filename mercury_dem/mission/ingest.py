@@ -26,7 +26,7 @@ import hashlib
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -361,6 +361,7 @@ def ingest_mission(
     overwrite: bool = False,
     pointing_sigma_urad: float | None = None,
     image_list: str | Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Build the mission at ``out`` from cubes and/or ISDs; return a summary (images, rejected, seconds).
 
@@ -369,7 +370,8 @@ def ingest_mission(
     names an ISD's image when the stems differ. ``pointing_sigma_urad`` records how wrong
     the a-priori pointing may be (1 sigma per axis): matching sizes its guidance window from it and the
     adjustment weights its pointing constraint by it (``*.pointing_sigma_from_mission``). Rejected inputs are listed with
-    their reason; with no usable image at all, StoreError (nothing is written).
+    their reason; with no usable image at all, StoreError (nothing is written). ``progress(done, total)``
+    is called after each input file is read (presentation only).
     """
     t0 = time.perf_counter()
     out = Path(out)
@@ -381,7 +383,7 @@ def ingest_mission(
     images: list[SourceImage] = []
     rejected: dict[str, str] = {}
     seen_isds: set[Path] = set()
-    for f in files:
+    for i, f in enumerate(files, 1):
         try:
             suffix = f.suffix.lower()
             if not f.is_file():
@@ -404,6 +406,9 @@ def ingest_mission(
                 raise IngestError(f"{f}: not a cube (.cub), an ISD (.json) or an image ({', '.join(IMAGE_SUFFIXES)})")
         except MercuryDemError as exc:
             rejected[str(f)] = str(exc)
+        finally:
+            if progress is not None:
+                progress(i, len(files))
     images = _dedupe(images, rejected)
     if images:
         bodies = sorted({im.body.name for im in images})
