@@ -42,3 +42,10 @@ def test_help_and_config_template_run_without_heavy_libraries() -> None:
 def test_the_probe_can_fail() -> None:
     """The sys.modules probe sees a heavy import when there is one (so the tests above can fail)."""
     assert _loaded_after("import mercury_dem.cli\nimport numpy") == ["numpy"]
+
+
+def test_gridding_stage_does_not_import_the_products() -> None:
+    """``mercury-dem grid`` needs the gridding stage only: the products (matplotlib) load on first use."""
+    code = "import sys\nimport mercury_dem.pipeline.dem_stage as d\nassert 'matplotlib' not in sys.modules\n" \
+           "from mercury_dem.pipeline.dem_stage import open_dem\nassert open_dem.__module__ == 'mercury_dem.products.make'"
+    assert "matplotlib" in _loaded_after(code)  # loaded by the re-export, not before it

@@ -67,7 +67,7 @@ def main() -> None:
                        check=True)
         cfg = work / "grid.yaml"
         cfg.write_text(f"dem:\n  pixels_per_degree: {ppd}\n  lat_min: {extent[2]}\n  lat_max: {extent[3]}\n"
-                       f"  lon_min: {extent[0]}\n  lon_max: {extent[1]}\n  chunk_size: 512\n  max_distance_m: 1.0e7\n"
+                       f"  lon_min: {extent[0]}\n  lon_max: {extent[1]}\n  chunk_size: 512\n  max_distance_m: 10000000.0\n"
                        "  query_threads: 2\n")
         radius_deg = 1.4142 / ppd
         algo = f"invdistnn:power=2.0:radius={radius_deg:.8f}:max_points=11:min_points=1:nodata=nan"
