@@ -28,8 +28,8 @@ system-deps:
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q -e '.[test]'
-	@$(PY) -m pip install -q 'scikit-sparse==0.4.16' 2>/dev/null \
+	$(PY) -m pip install -q -e '.[test,cluster,browser]'
+	@$(PY) -m pip install -q -e '.[cholmod]' 2>/dev/null \
 	  && echo "scikit-sparse (CHOLMOD) installed" \
 	  || echo "scikit-sparse not installed: the bundle adjustment uses its scipy fallback"
 	touch $(STAMP)

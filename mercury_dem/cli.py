@@ -3,7 +3,8 @@
 Each subcommand lives in its own module of :mod:`mercury_dem.commands` and
 defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args, config) -> int``.
 Modules there are discovered, so adding a command never edits this file.
-Every subcommand takes ``--config FILE``. Errors the package raises on purpose
+Every subcommand takes ``--config FILE`` and ``--progress {auto,bar,lines,none}``
+(:mod:`mercury_dem.progress`). Errors the package raises on purpose
 (:class:`MercuryDemError`) are printed as one line, exit code 2; nothing else
 is caught.
 """
@@ -19,6 +20,7 @@ from collections.abc import Sequence
 from mercury_dem import __version__, commands
 from mercury_dem.config import load_config
 from mercury_dem.exceptions import MercuryDemError
+from mercury_dem.progress import MODES, set_default_mode
 
 
 def _command_modules() -> list:
@@ -43,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _command_modules():
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
         p.add_argument("--config", metavar="FILE", help="YAML configuration (see 'mercury-dem config --template')")
+        p.add_argument("--progress", choices=MODES, default=None,
+                       help="progress of long stages: a live bar on a terminal, plain periodic lines in logs "
+                            "(default auto: bar on a terminal, else lines; also MERCURY_DEM_PROGRESS)")
         mod.add_arguments(p)
         p.set_defaults(_module=mod)
     return parser
@@ -60,6 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if rest and not getattr(args._module, "PASSTHROUGH", False):
         parser.error(f"'mercury-dem {args.command}' takes no command after '--' (got {' '.join(rest)!r})")
     args.passthrough = rest
+    set_default_mode(args.progress)
     try:
         config = load_config(args.config)
         return int(args._module.run(args, config) or 0)

@@ -6,8 +6,6 @@ import argparse
 import json
 import time
 
-from mercury_dem.adjust.bal import adjust_bal, read_bal
-from mercury_dem.adjust.solver import SolverOptions
 from mercury_dem.config import Config
 
 NAME = "adjust-bal"
@@ -23,6 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.adjust.bal import adjust_bal, read_bal  # numba kernels: imported when the command runs
+    from mercury_dem.adjust.solver import SolverOptions
+
     t0 = time.perf_counter()
     problem = read_bal(args.file)
     read_s = time.perf_counter() - t0

@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 
 from mercury_dem.config import Config
-from mercury_dem.network.files import load_serial_map, read_any_network, write_any_network
 
 NAME = "cnet-convert"
 HELP = "convert a control network: .net (ISIS3) <-> network store, by extension"
@@ -25,6 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.network.files import load_serial_map, read_any_network, write_any_network
+
     mapping = load_serial_map(args.serial_map)
     net = read_any_network(args.input, serial_to_image=mapping)
     inverse = {v: k for k, v in mapping.items()} if mapping else None

@@ -9,17 +9,15 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from mercury_dem.config import Config
-from mercury_dem.network.files import read_any_network
-from mercury_dem.network.validate import validate
 
 NAME = "cnetcheck"
 HELP = "check a control network (.net or network store): dangling ids, duplicates, islands, statistics"
 
 
 def _json_default(o: object) -> object:
+    import numpy as np
+
     if isinstance(o, np.integer):
         return int(o)
     if isinstance(o, np.floating):
@@ -39,6 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.network.files import read_any_network
+    from mercury_dem.network.validate import validate
+
     net = read_any_network(args.net)
     sizes = None
     if args.image_size:

@@ -14,19 +14,14 @@ import argparse
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.config import Config
 from mercury_dem.exceptions import GeometryError, IsdError
-from mercury_dem.geometry.caminfo import (
-    CamInfo,
-    Comparison,
-    compare_with_label,
-    compute_caminfo,
-    label_values,
-    parse_pds3_label,
-)
-from mercury_dem.geometry.isd import IsdGeometry, read_isd
+
+if TYPE_CHECKING:  # the geometry modules (numpy, scipy) are imported when the command runs
+    from mercury_dem.geometry.caminfo import CamInfo, Comparison
+    from mercury_dem.geometry.isd import IsdGeometry
 
 NAME = "geometry"
 HELP = "image geometry (centre/corner lat/lon, slant distance, pixel scale, angles) from a CSM ISD"
@@ -82,6 +77,8 @@ def _camera_dict(g: IsdGeometry) -> dict[str, Any]:
 
 
 def _label_run(g: IsdGeometry, path: str) -> tuple[dict[str, float], CamInfo, list[Comparison], tuple[float, float] | None]:
+    from mercury_dem.geometry.caminfo import compare_with_label, compute_caminfo, label_values, parse_pds3_label
+
     try:
         text = Path(path).read_text(errors="replace")
     except OSError as exc:
@@ -103,6 +100,9 @@ def _label_run(g: IsdGeometry, path: str) -> tuple[dict[str, float], CamInfo, li
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.geometry.caminfo import compute_caminfo
+    from mercury_dem.geometry.isd import read_isd
+
     try:
         g = read_isd(args.isd, require_sun=not args.no_sun)
     except IsdError as exc:

@@ -11,14 +11,16 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import ConfigError, GridError
 
 NAME = "grid"
+if TYPE_CHECKING:
+    import numpy as np
+
 HELP = "grid a point cloud (.npy/.csv of XYZ or lat,lon,radius) into DIR/dem.zarr"
 
 
@@ -35,6 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def read_points(path: str | Path) -> np.ndarray:
     """Read a point cloud file into (N, 3) body-fixed metres (see the module docstring)."""
+    import numpy as np
+
     from mercury_dem.geometry.body import latlon_to_unit
 
     path = Path(path)
@@ -81,6 +85,7 @@ def _is_number(s: str) -> bool:
 
 def run(args: argparse.Namespace, config: Any) -> int:
     from mercury_dem.pipeline.dem_stage import grid_dem
+    from mercury_dem.progress import Reporter
 
     dem = config.dem
     changes: dict[str, Any] = {}
@@ -104,7 +109,8 @@ def run(args: argparse.Namespace, config: Any) -> int:
         client = Client(cluster)
     try:
         summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
-                           coverage=not args.no_coverage, attrs={"source": str(args.points)})
+                           coverage=not args.no_coverage, attrs={"source": str(args.points)},
+                           progress=Reporter(sys.stderr))
     finally:
         if client is not None:
             client.close()

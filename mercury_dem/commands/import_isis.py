@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 
 from mercury_dem.config import Config
-from mercury_dem.network.files import load_serial_map
-from mercury_dem.network.isis import read_isis_network
-from mercury_dem.network.store import write_network
 
 NAME = "import-isis"
 HELP = "convert an ISIS3 binary control network (.net, version 2 or 5) into a network store"
@@ -23,6 +20,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.network.files import load_serial_map
+    from mercury_dem.network.isis import read_isis_network
+    from mercury_dem.network.store import write_network
+
     mapping = load_serial_map(args.serial_map)
     catalog = sorted(set(mapping.values())) if mapping is not None else None
     net = read_isis_network(args.net, serial_to_image=mapping, image_ids=catalog, drop_unknown=args.drop_unknown)

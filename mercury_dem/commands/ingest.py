@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from mercury_dem.config import Config
 
@@ -35,12 +36,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.mission.ingest import describe, ingest_mission
+    from mercury_dem.progress import Reporter, counter
 
     summary = ingest_mission(
         args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
         instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,
         pointing_sigma_urad=args.pointing_sigma_urad, image_list=args.image_list,
         altimetry=args.altimetry, altimetry_sigma_m=args.altimetry_sigma_m,
+        progress=counter(Reporter(sys.stderr), "ingest: reading", "files"),
     )
     if args.json:
         cat = summary.pop("catalog")

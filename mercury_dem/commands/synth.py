@@ -59,10 +59,9 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     cfg = synth_config(args, config)
 
-    def progress(done: int, total: int) -> None:
-        if not args.quiet and (done == total or done % max(5, total // 10) == 0):
-            print(f"rendered {done}/{total} images", file=sys.stderr)
+    from mercury_dem.progress import Reporter, counter
 
+    progress = counter(Reporter(None if args.quiet else sys.stderr), "synth: rendering", "images")
     design = None
     if args.shape_harmonics:
         from dataclasses import replace

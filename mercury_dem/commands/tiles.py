@@ -5,10 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
+from typing import TYPE_CHECKING
 
 from mercury_dem.config import Config
-from mercury_dem.geometry.tiling import N_REGIONS, TileGrid, region_name
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from mercury_dem.geometry.tiling import TileGrid
 
 NAME = "tiles"
 HELP = "print the tile grid, regions and hemispheres with their tile counts (and images per tile)"
@@ -22,6 +26,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def tiles_summary(grid: TileGrid, tile_ids: np.ndarray | None = None) -> dict[str, object]:
     """Grid counts, plus image counts when the images' tile ids are given."""
+    import numpy as np
+
+    from mercury_dem.geometry.tiling import N_REGIONS, region_name
+
     out = grid.summary()
     if tile_ids is not None:
         tile_ids = np.asarray(tile_ids, dtype=np.int64)
@@ -37,6 +45,8 @@ def tiles_summary(grid: TileGrid, tile_ids: np.ndarray | None = None) -> dict[st
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.geometry.tiling import TileGrid
+
     size = args.tile_size if args.tile_size is not None else config.tiling.tile_size_deg
     grid = TileGrid(size)
     tile_ids = None

@@ -23,6 +23,7 @@ from mercury_dem.config.network import NetworkConfig
 from mercury_dem.config.reference import ReferenceConfig
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.config.tiling import TilingConfig
+from mercury_dem.config.yaml_loader import DuplicateKeyError, safe_load_unique
 from mercury_dem.exceptions import ConfigError
 
 
@@ -54,7 +55,10 @@ def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None
         except UnicodeDecodeError as exc:
             raise ConfigError(f"config file {p} is not UTF-8 text: {exc.reason} at byte {exc.start}") from None
         try:
-            loaded = yaml.safe_load(text)
+            loaded = safe_load_unique(text)
+        except DuplicateKeyError as exc:
+            raise ConfigError(f"config file {p}: key {exc.key!r} appears twice in one mapping, on lines "
+                              f"{exc.first_line} and {exc.line}; keep one (YAML would silently use the last)") from None
         except yaml.YAMLError as exc:
             raise ConfigError(f"config file {p} is not valid YAML: {exc}") from None
         if loaded is None:

@@ -2,7 +2,8 @@
 
 Each section is a frozen dataclass whose fields are declared with :func:`param`;
 validation happens on construction and names the full key (``match.ratio``) and
-the allowed range. YAML is read with ``yaml.safe_load`` (no object construction).
+the allowed range. YAML is read with a ``yaml.SafeLoader`` (no object construction) that refuses
+duplicate keys (:mod:`mercury_dem.config.yaml_loader`).
 """
 
 from __future__ import annotations

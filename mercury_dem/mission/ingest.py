@@ -26,7 +26,7 @@ import hashlib
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -363,6 +363,7 @@ def ingest_mission(
     image_list: str | Path | None = None,
     altimetry: Sequence[str] | None = None,
     altimetry_sigma_m: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
     """Build the mission at ``out`` from cubes and/or ISDs; return a summary (images, rejected, seconds).
 
@@ -376,7 +377,8 @@ def ingest_mission(
     ``altimetry`` names LOLA/MLA RDR shot tables (CSV, globs allowed) read against the mission's body
     (its datum radius ± 25 km) into the mission's altimetry store (``MISSION/altimetry``, partitioned by
     tile); each shot gets ``altimetry_sigma_m`` (default 1 m) as its height sigma. A table that cannot be
-    read is listed among the rejected inputs with the reader's reason.
+    read is listed among the rejected inputs with the reader's reason. ``progress(done, total)``
+    is called after each input file is read (presentation only).
     """
     t0 = time.perf_counter()
     out = Path(out)
@@ -388,7 +390,7 @@ def ingest_mission(
     images: list[SourceImage] = []
     rejected: dict[str, str] = {}
     seen_isds: set[Path] = set()
-    for f in files:
+    for i, f in enumerate(files, 1):
         try:
             suffix = f.suffix.lower()
             if not f.is_file():
@@ -411,6 +413,9 @@ def ingest_mission(
                 raise IngestError(f"{f}: not a cube (.cub), an ISD (.json) or an image ({', '.join(IMAGE_SUFFIXES)})")
         except MercuryDemError as exc:
             rejected[str(f)] = str(exc)
+        finally:
+            if progress is not None:
+                progress(i, len(files))
     images = _dedupe(images, rejected)
     if images:
         bodies = sorted({im.body.name for im in images})

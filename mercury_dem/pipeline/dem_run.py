@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import time
 from typing import Any, TextIO
 
 import numpy as np
@@ -29,7 +30,10 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
     from mercury_dem.products.make import make_products
+    from mercury_dem.progress import Reporter
 
+    rep = Reporter(stream)
+    t0 = time.perf_counter()
     net = read_network(store.network_path("global", 0))
     pts = point_cloud(net, adjusted=True)
     # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
@@ -38,10 +42,12 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     # an existing complete DEM is reused (resume); products are always rewritten
     if not store.dem_path.exists():
         grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body,
-                                attrs={"source": "global adjusted control points"})
+                                attrs={"source": "global adjusted control points"}, progress=rep)
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
     truth = mission.truth.surface().height if mission.truth is not None else None
+    rep.message("products: writing GeoTIFF/ISIS/PDS products and browse images")
+    t = time.perf_counter()
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
     out: dict[str, Any] = {
         "points": int(pts.shape[0]),
@@ -51,6 +57,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         "files": [str(f) for f in products.get("files", [])],
         "products_skipped": products.get("skipped", {}),
     }
+    rep.message(f"products: {len(products.get('files', []))} files in {time.perf_counter() - t:.1f} s")
     ref = config.reference
     if ref.dem or ref.altimetry or ref.shape_harmonics:
         from mercury_dem.pipeline.reference_check import compare_with_references
@@ -65,7 +72,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         shutil.rmtree(tmp, ignore_errors=True)
         try:
             grid_dem(apri, dem_cfg, tmp, client, coverage=False, body=body,
-                     attrs={"source": "a-priori control points"})
+                     attrs={"source": "a-priori control points"}, progress=rep, label="dem (a-priori points)")
             ds = open_dem(tmp)
             validation["a_priori"] = dem_accuracy(
                 ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth,
@@ -74,6 +81,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
         out["validation"] = validation
+    rep.message(f"dem stage: done in {time.perf_counter() - t0:.1f} s")
     if stream is not None and products.get("table"):
         print(products["table"], file=stream)
     return out

@@ -25,7 +25,6 @@ import numpy as np
 
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import StoreError
-from mercury_dem.geometry.tiling import N_REGIONS
 from mercury_dem.io.run_store import LEVELS, RunStore
 from mercury_dem.pipeline.report import unit_message
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
@@ -69,30 +68,31 @@ def versions() -> dict[str, str]:
 
 
 class Progress:
-    """Per-level counts printed as units finish (plain lines: works in a terminal and a notebook)."""
+    """Per-level counts, elapsed time and ETAs of the cascade as units finish (:mod:`mercury_dem.progress`).
 
-    def __init__(self, totals: dict[str, int], stream: TextIO | None = sys.stdout, enabled: bool = True):
+    Updated from ``as_completed`` on the units' futures (Dask's completion order); a bar on a
+    terminal, periodic plain lines otherwise; a failed unit is printed at once with its message.
+    """
+
+    def __init__(self, totals: dict[str, int], stream: TextIO | None = sys.stdout, enabled: bool = True,
+                 mode: str | None = None):
+        from mercury_dem.progress import LevelTask, Reporter
+
         self.totals = totals
-        self.done = {k: 0 for k in totals}
-        self.failed = {k: 0 for k in totals}
-        self.stream = stream
-        self.enabled = enabled and stream is not None
+        self.reporter = Reporter(stream if enabled else None, mode)
+        self.task = LevelTask(self.reporter, "adjustment cascade", totals)
+        self.done = self.task.done
+        self.failed = self.task.failed
 
     def update(self, summary: dict[str, Any]) -> None:
         level = summary.get("level", "?")
-        if level not in self.done:
-            return
-        self.done[level] += 1
-        if not summary.get("ok"):
-            self.failed[level] += 1
-        if self.enabled:
-            name = summary.get("name") or f"{level} {summary.get('id')}"
-            state = "ok" if summary.get("ok") else f"FAILED: {unit_message(summary.get('error'), name)}"
-            line = " | ".join(
-                f"{k} {self.done[k]}/{self.totals[k]}" + (f" ({self.failed[k]} failed)" if self.failed[k] else "")
-                for k in self.totals
-            )
-            print(f"[{line}] {name} {state}", file=self.stream, flush=True)
+        name = summary.get("name") or f"{level} {summary.get('id')}"
+        ok = bool(summary.get("ok"))
+        msg = "" if ok else f"{name} FAILED: {unit_message(summary.get('error'), name)}"
+        self.task.update(level, failed=not ok, message=msg)
+
+    def close(self) -> None:
+        self.task.close()
 
 
 def prepare_store(mission_path: str | Path, out: str | Path, config: Config, force: str | None) -> RunStore:
@@ -213,45 +213,56 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     tiles = [int(t) for t in plan["non_empty_tiles"]]
     done: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in ("tile", "region", "hemisphere", "global")}
 
+    region_of = {t: int(grid.region_of_tile(t)) for t in tiles}
+    region_ids = sorted(set(region_of.values()))
+    hemi_ids = sorted({int(grid.hemisphere_of_region(r)) for r in region_ids})
+    totals = {"tile": len(tiles), "region": len(region_ids), "hemisphere": len(hemi_ids),
+              "global": 1 if hemi_ids else 0}
+    progress = Progress(totals, stream)
+    out: dict[str, list[dict[str, Any]]] = {k: [] for k in totals}
+    recorded: set[str] = set()
+    sync = getattr(client, "synchronous", False)
+
+    def record(level: str, uid: int, fut: Any) -> None:
+        try:
+            s = fut.result()
+        except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
+            s = failure_summary(level, uid, exc)
+        out[level].append(s)
+        progress.update(s)
+
     def submit(fn: Callable[..., dict[str, Any]], level: str, uid: int, *args: Any, **kw: Any) -> Any:
         """A future, or the stored summary of a unit a previous run finished (not resubmitted)."""
         if store.unit_complete(level, uid):
             done[level][uid] = store.read_summary(level, uid)
+            out[level].append(done[level][uid])
+            progress.update(done[level][uid])
             return done[level][uid]
-        return client.submit(fn, *args, key=f"{level}-{uid}", retries=retries, pure=False, **kw)
+        fut = client.submit(fn, *args, key=f"{level}-{uid}", retries=retries, pure=False, **kw)
+        if sync:  # the synchronous client ran it already: count it now, so progress is live
+            record(level, uid, fut)
+            recorded.add(fut.key)
+        return fut
 
     tile_f = {t: submit(_tile_task, "tile", t, root, t, config) for t in tiles}
-    region_of = {t: int(grid.region_of_tile(t)) for t in tiles}
     region_f = {}
-    for r in range(N_REGIONS):
+    for r in region_ids:
         deps = [f for t, f in tile_f.items() if region_of[t] == r]
-        if deps:
-            region_f[r] = submit(_unit_task, "region", r, root, "region", r, config, deps, **heavy)
+        region_f[r] = submit(_unit_task, "region", r, root, "region", r, config, deps, **heavy)
     hemi_f = {}
-    for h in (0, 1):
+    for h in hemi_ids:
         deps = [f for r, f in region_f.items() if grid.hemisphere_of_region(r) == h]
-        if deps:
-            hemi_f[h] = submit(_unit_task, "hemisphere", h, root, "hemisphere", h, config, deps, **heavy)
+        hemi_f[h] = submit(_unit_task, "hemisphere", h, root, "hemisphere", h, config, deps, **heavy)
     glob_f = {}
     if hemi_f:
         glob_f[0] = submit(_unit_task, "global", 0, root, "global", 0, config, list(hemi_f.values()), **heavy)
     levels = {"tile": tile_f, "region": region_f, "hemisphere": hemi_f, "global": glob_f}
-    progress = Progress({k: len(v) for k, v in levels.items()}, stream)
-    out: dict[str, list[dict[str, Any]]] = {k: [] for k in levels}
-    for lvl, units in done.items():
-        for s in units.values():
-            out[lvl].append(s)
-            progress.update(s)
     level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
-    all_f = [f for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]]
-    for fut in as_completed(client, all_f):
-        lvl, uid = level_of[fut.key]
-        try:
-            s = fut.result()
-        except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
-            s = failure_summary(lvl, uid, exc)
-        out[lvl].append(s)
-        progress.update(s)
+    all_f = [f for lvl, fs in levels.items() for uid, f in fs.items()
+             if uid not in done[lvl] and f.key not in recorded]
+    for fut in as_completed(client, all_f):  # Dask's own completion events drive the counts
+        record(*level_of[fut.key], fut)
+    progress.close()
     for lvl in out:
         out[lvl].sort(key=lambda s: s["id"])
     seconds: dict[str, float] = {}

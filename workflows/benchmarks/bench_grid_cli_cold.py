@@ -1,0 +1,100 @@
+"""Cold ``mercury-dem grid`` of 10^6 points against ``gdal_grid``: each a fresh process, timed from outside.
+
+    python workflows/benchmarks/bench_grid_cli_cold.py [--points 1000000] [--repeats 3]
+
+What a user sees at the command line: ``mercury-dem grid points.npy --out DIR`` (a new
+interpreter: Python start-up, imports, numba's compiled-kernel cache load, the gridding,
+the ``dem.zarr`` write; ``--no-coverage``) against ``gdal_grid -a invdistnn`` (11 nearest,
+the same search radius) on the same cloud as FlatGeobuf and as CSV. 1000 x 1000 grid over
+20 deg x 20 deg, as ``bench_grid.py``; the runs are interleaved so load bursts hit both.
+Also timed: ``mercury-dem --help`` and the bare import of the gridding stage, cold.
+Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_grid import make_points, run_gdal  # noqa: E402  (same cloud and gdal_grid call as bench_grid.py)
+
+from mercury_dem.geometry.body import xyz_to_latlon  # noqa: E402
+
+
+def timed(cmd: list[str], env: dict[str, str] | None = None) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--points", type=int, default=1_000_000)
+    p.add_argument("--size", type=int, default=1000)
+    p.add_argument("--repeats", type=int, default=3)
+    args = p.parse_args()
+    size, span = args.size, 20.0
+    ppd = size / span
+    extent = (0.0, span, -span / 2, span / 2)
+    exe = [sys.executable, "-m", "mercury_dem.cli"]
+    env = dict(os.environ, MERCURY_DEM_PROGRESS="none")
+    work = Path(tempfile.mkdtemp(prefix="bench_grid_cold_"))
+    try:
+        pts = make_points(args.points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
+        npy = work / "points.npy"
+        np.save(npy, pts)
+        lat, lon, h = xyz_to_latlon(pts)
+        lon = np.where(lon > 180, lon - 360, lon)
+        csv = work / "points.csv"
+        np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="", fmt="%.8f")
+        vrt = work / "points.vrt"
+        vrt.write_text('<OGRVRTDataSource><OGRVRTLayer name="points"><SrcDataSource>' + str(csv) + "</SrcDataSource>"
+                       '<GeometryType>wkbPoint</GeometryType><GeometryField encoding="PointFromColumns" x="lon" '
+                       'y="lat" z="elev"/></OGRVRTLayer></OGRVRTDataSource>')
+        fgb = work / "points.fgb"
+        subprocess.run(["ogr2ogr", "-f", "FlatGeobuf", str(fgb), str(vrt), "-nln", "points", "-nlt", "POINT25D"],
+                       check=True)
+        cfg = work / "grid.yaml"
+        cfg.write_text(f"dem:\n  pixels_per_degree: {ppd}\n  lat_min: {extent[2]}\n  lat_max: {extent[3]}\n"
+                       f"  lon_min: {extent[0]}\n  lon_max: {extent[1]}\n  chunk_size: 512\n  max_distance_m: 10000000.0\n"
+                       "  query_threads: 2\n")
+        radius_deg = 1.4142 / ppd
+        algo = f"invdistnn:power=2.0:radius={radius_deg:.8f}:max_points=11:min_points=1:nodata=nan"
+        grid_cmd = exe + ["grid", str(npy), "--out", str(work / "ours"), "--config", str(cfg), "--no-coverage",
+                          "--overwrite"]
+        timed(grid_cmd, env)  # numba's on-disk cache filled (a first run after install compiles; not timed)
+        times: dict[str, list[float]] = {}
+        for _ in range(args.repeats):
+            times.setdefault("mercury-dem grid (cold process)", []).append(timed(grid_cmd, env))
+            times.setdefault("gdal_grid invdistnn FlatGeobuf", []).append(run_gdal(fgb, algo, size, extent, work)[0])
+            times.setdefault("gdal_grid invdistnn CSV", []).append(run_gdal(vrt, algo, size, extent, work)[0])
+            times.setdefault("mercury-dem --help", []).append(timed(exe + ["--help"], env))
+            times.setdefault("import mercury_dem.pipeline.dem_stage (cold)", []).append(
+                timed([sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], env))
+        med = {k: statistics.median(v) for k, v in times.items()}
+        ours = med["mercury-dem grid (cold process)"]
+        record = {
+            "points": args.points, "grid": [size, size], "repeats": args.repeats,
+            "median_s": {k: round(v, 3) for k, v in med.items()},
+            "all_s": {k: [round(x, 3) for x in v] for k, v in times.items()},
+            "gdal_fgb_over_ours": round(med["gdal_grid invdistnn FlatGeobuf"] / ours, 2),
+            "gdal_csv_over_ours": round(med["gdal_grid invdistnn CSV"] / ours, 2),
+        }
+        print(json.dumps(record, indent=2))
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
