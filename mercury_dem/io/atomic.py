@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import uuid
 from collections.abc import Callable, Iterator
@@ -19,8 +20,35 @@ from typing import Any
 COMPLETE_MARKER = ".complete"
 
 
+_TMP_NAME = re.compile(r"^\..+\.tmp-[0-9a-f]{12}$")
+
+
 def _tmp_sibling(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
+
+
+def sweep_temporaries(root: str | Path) -> list[Path]:
+    """Remove the temporary siblings (``.NAME.tmp-<12 hex>``) a killed writer left under ``root``.
+
+    A writer that is SIGKILLed (or loses its machine) cannot clean up: its temporary file or
+    directory stays beside the target, which was never replaced. Call this only when no writer of
+    ``root`` can be running (a run's client before it submits any task). Returns what was removed.
+    """
+    removed: list[Path] = []
+    root = Path(root)
+    if not root.is_dir():
+        return removed
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in list(dirnames) + filenames:
+            if _TMP_NAME.match(name):
+                p = Path(dirpath) / name
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)
+                removed.append(p)
+        dirnames[:] = [d for d in dirnames if not _TMP_NAME.match(d)]
+    return removed
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:

@@ -25,6 +25,7 @@ import numpy as np
 
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import StoreError
+from mercury_dem.io.atomic import sweep_temporaries
 from mercury_dem.io.run_store import LEVELS, RunStore
 from mercury_dem.pipeline.report import unit_message
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
@@ -113,6 +114,8 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
     elif store.root.exists() and any(store.root.iterdir()):
         raise StoreError(f"{out} exists and is not a mercury-dem run; choose an empty or new --out")
     store.root.mkdir(parents=True, exist_ok=True)
+    # A resumed run: what a killed writer left half-written is removed before anything else runs.
+    sweep_temporaries(store.root)
     if force is not None:
         if force not in STAGES:
             raise StoreError(f"--force takes one of {', '.join(STAGES)}, got {force!r}")
