@@ -278,7 +278,9 @@ def _residuals(y: NDArray[np.float64], sampler: _Sampler, datum: float) -> tuple
     frame = enu_frame(lat, lon)
     coslat = np.maximum(np.cos(np.radians(lat)), 1e-3)
     g = frame[:, :, 2] - (s[1] / rad)[:, None] * frame[:, :, 1] - (s[2] / (rad * coslat))[:, None] * frame[:, :, 0]
-    return h - s[0], g
+    r = h - s[0]
+    r[~np.all(np.isfinite(s), axis=0)] = np.nan  # beside a gap the height may be finite, its slope not
+    return r, g
 
 
 def _model_basis(model: str, L: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -1,0 +1,86 @@
+"""``mercury-dem register`` end to end on a small synthetic DEM, and the stage's bad inputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+
+from mercury_dem.cli import main
+from mercury_dem.config.dem import DemConfig
+from mercury_dem.dem.grid import GridSpec
+from mercury_dem.exceptions import ReferenceDataError
+from mercury_dem.geometry.body import MERCURY
+from mercury_dem.pipeline.dem_stage import atomic_store, create_store
+from mercury_dem.pipeline.register_stage import register_dem_store
+from tests.altimetry.synthetic import R_DATUM, Rigid, Surface, moved_dem, profiles
+
+PPD = 10
+
+
+@pytest.fixture(scope="module")
+def dem_dir(tmp_path_factory):
+    """dem.zarr over 29-41 N, 99-121 E (two 10° tiles + margins): a surface moved by 1.5 km E, 250 m up."""
+    d = tmp_path_factory.mktemp("register")
+    rng = np.random.default_rng(21)
+    surf = Surface(rng)
+    cfg = DemConfig(pixels_per_degree=PPD, chunk_size=128, lat_min=29.0, lat_max=41.0, lon_min=99.0, lon_max=121.0)
+    grid = GridSpec.from_config(cfg, R_DATUM)
+    lat, lon = grid.lat_centres(), grid.lon_centres()
+    heights = np.empty((lat.size, lon.size))
+    for half, (c0, c1), centre in ((0, (99, 110), (35.0, 105.0)), (1, (110, 121), (35.0, 115.0))):
+        cols = (lon >= c0) & (lon < c1)
+        D = Rigid(centre, np.array([1500.0, 0.0, 250.0 + 50 * half]))
+        heights[:, cols] = moved_dem(surf, D, lat, lon[cols])
+    heights[:, lon > 119.5] = np.nan  # a gap: shots there are counted off the DEM
+    with atomic_store(d / "dem.zarr") as tmp:
+        _, layers = create_store(str(tmp), grid, cfg, {"source": "test"}, MERCURY)
+        layers["elevation"][...] = heights.astype(np.float32)
+    shots = []
+    for k, b in enumerate(((30.0, 40.0, 100.0, 110.0), (30.0, 40.0, 110.0, 120.0))):
+        p = profiles(surf, rng, b, n_tracks=80, spacing_deg=0.04, sigma_h_m=20.0, sigma_v_m=2.0)
+        shots.append(pd.DataFrame({"lat": p.lat, "lon": p.lon, "radius_m": p.radius, "track_id": p.track + 1000 * k}))
+    table = pd.concat(shots, ignore_index=True)
+    table.loc[:4, "lat"] = np.nan
+    table.to_parquet(d / "shots.parquet")
+    return d
+
+
+def test_register_command_json(dem_dir, capsys):
+    rc = main(["register", str(dem_dir), "--altimetry", str(dem_dir / "shots.parquet"), "--json", "--body", "mercury"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["shots_dropped_invalid"] == 5 and out["shots_off_dem"] > 0
+    # two tiles; a shot or two moved across the tiles' southern border by its profile's error
+    tiles = {t["tile_id"]: t for t in out["tiles"] if t["ok"]}
+    assert len(tiles) == 2 and all("min_shots" in t["reason"] for t in out["tiles"] if not t["ok"])
+    for t, up in zip(sorted(tiles), (250.0, 300.0)):
+        assert abs(tiles[t]["translation_e_m"] + 1500.0) < 150.0 and abs(tiles[t]["translation_u_m"] + up) < up * 0.1
+        assert tiles[t]["rms_after_m"] < tiles[t]["rms_before_m"] / 10
+    st = out["statistics"]
+    assert st["registered"]["rmse_m"] < st["as_given"]["rmse_m"] / 5 and st["merged"]["rmse_m"] <= st["registered"]["rmse_m"]
+    reg = xr.open_zarr(dem_dir / "registered.zarr", consolidated=False, decode_coords="all")
+    assert reg.attrs["complete"] and reg.rio.crs is not None and float(reg.attrs["datum_radius_m"]) == R_DATUM
+    merged = xr.open_zarr(dem_dir / "merged.zarr", consolidated=False)
+    assert {"elevation", "altimetry_weight", "shot_count"} <= set(merged.data_vars)
+    for f in ("tiles.parquet", "tiles.json", "profiles.parquet", "rms_per_tile.png", "summary.json"):
+        assert (dem_dir / "registration" / f).stat().st_size > 0
+    # outputs are not replaced without --overwrite: a clear error, exit code 2
+    assert main(["register", str(dem_dir), "--altimetry", str(dem_dir / "shots.parquet")]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+
+
+def test_register_refuses_bad_input(dem_dir, capsys, tmp_path):
+    bad = tmp_path / "bad.parquet"
+    pd.DataFrame({"lat": [1.0], "lon": [2.0], "radius": [3.0]}).to_parquet(bad)
+    assert main(["register", str(dem_dir), "--altimetry", str(bad), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "radius_m" in err and "track_id" in err
+    assert main(["register", str(dem_dir), "--altimetry", str(bad), "--body", "moon"]) == 2
+    assert "MERCURY" in capsys.readouterr().err
+    with pytest.raises(ReferenceDataError, match="no usable shot"):
+        register_dem_store(dem_dir / "dem.zarr", pd.DataFrame({"lat": [np.nan], "lon": [0.0], "radius_m": [1.0],
+                                                               "track_id": [0]}), tmp_path)
