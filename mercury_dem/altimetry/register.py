@@ -118,6 +118,8 @@ class RegisterOptions:
         Fewest usable shots for a profile offset to be fitted.
     profile_sigma_horizontal_m, profile_sigma_vertical_m : float
         Prior standard deviations of a profile offset (east/north and up), metres.
+    max_abs_height_m : float
+        Shots farther than this from the datum sphere are invalid (counted), metres.
     """
 
     models: tuple[str, ...] = ("affine", "similarity", "translation", "vertical")
@@ -130,13 +132,14 @@ class RegisterOptions:
     min_profile_shots: int = 10
     profile_sigma_horizontal_m: float = 2000.0
     profile_sigma_vertical_m: float = 500.0
+    max_abs_height_m: float = 50_000.0
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.models if m not in MODELS]
         if unknown or not self.models:
             raise ValueError(f"models must be a non-empty subset of {list(MODELS)}, got {self.models}")
         for name in ("max_param_sigma_m", "huber_k", "reject_k", "tolerance_m", "profile_sigma_horizontal_m",
-                     "profile_sigma_vertical_m"):
+                     "profile_sigma_vertical_m", "max_abs_height_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v}")
@@ -448,8 +451,9 @@ class TileRegistration:
     transform : TileTransform
     profiles : ProfileOffsets
     counts : dict of str to int
-        ``shots`` given, ``invalid`` (non-finite coordinates), ``off_dem`` (outside the DEM or
-        on its gaps), ``used``, ``rejected`` (robust rejection), ``profiles``,
+        ``shots`` given, ``invalid`` (non-finite coordinates or radius beyond ``max_abs_height_m``), ``off_dem`` (outside the DEM or
+        on its gaps), ``used``, ``rejected`` (robust rejection), ``not_registered`` (usable shots of
+        a tile that was not registered; these five add up to ``shots``), ``profiles``,
         ``profiles_fitted``, ``profiles_too_few_shots``.
     rms_before_m : float
         RMS of the used shots' residuals against the image DEM as given.
@@ -694,7 +698,9 @@ def register_tile(
     if not (lat.shape == lon.shape == rad.shape == track.shape):
         raise ValueError(f"shot arrays differ in length: {lat.size}, {lon.size}, {rad.size}, {track.size}")
     counts = {"shots": int(lat.size)}
-    finite = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(rad) & (np.abs(lat) <= 90.0)
+    with np.errstate(invalid="ignore"):
+        finite = (np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90.0)
+                  & (np.abs(rad - datum) <= opt.max_abs_height_m))  # NaN/inf radii fail this too
     counts["invalid"] = int((~finite).sum())
     lat, lon, rad, track = lat[finite], lon[finite], rad[finite], track[finite].astype(np.int64)
     sampler = _Sampler(window)
@@ -703,9 +709,10 @@ def register_tile(
     lat, lon, rad, track = lat[on], lon[on], rad[on], track[on]
     base = TileTransform(int(tile_id), float(centre[0]), float(centre[1]), datum)
     n = lat.size
-    counts.update(used=0, rejected=0, profiles=int(np.unique(track).size), profiles_fitted=0,
+    counts.update(used=0, rejected=0, not_registered=0, profiles=int(np.unique(track).size), profiles_fitted=0,
                   profiles_too_few_shots=0)
     if n < opt.min_shots:
+        counts["not_registered"] = n
         tt = TileTransform(**{**base.__dict__, "reason": f"{n} usable shots, fewer than min_shots = {opt.min_shots}"})
         return TileRegistration(tt, ProfileOffsets.empty(), counts)
     x = latlon_to_unit(lat, lon) * rad[:, None]
@@ -733,6 +740,7 @@ def register_tile(
         break
     r0, _ = _residuals(x, sampler, datum)
     if fit is None:
+        counts["not_registered"] = n
         tt = TileTransform(**{**base.__dict__, "reason": "; ".join(notes)})
         return TileRegistration(tt, ProfileOffsets.empty(), counts, rms_before_m=_rms(r0))
     model, f = fit

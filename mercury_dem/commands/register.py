@@ -45,10 +45,13 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
     for p in paths:
         path = Path(p)
         if path.suffix.lower() in (".parquet", ".pq"):
+            import pyarrow
+
             try:
                 df = pd.read_parquet(path)
-            except (OSError, ValueError, ImportError) as exc:  # pyarrow's errors subclass these
-                raise ReferenceDataError(f"{path}: cannot be read as Parquet ({exc})") from None
+            except (OSError, ValueError, TypeError, KeyError, pyarrow.ArrowException) as exc:
+                raise ReferenceDataError(f"{path}: cannot be read as Parquet ({type(exc).__name__}: {exc}); "
+                                         f"write it with pandas.DataFrame.to_parquet") from None
         else:
             df = read_altimetry_csv(path, radius_m).table
         if "track_id" in df.columns and len(df):
