@@ -31,6 +31,7 @@ import json
 import math
 import time
 import traceback
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -257,10 +258,11 @@ def register_dem_store(
     good["tile_id"] = tiles.tile_of(good["lat"].to_numpy(), good["lon"].to_numpy())
     tiles_with = np.unique(good["tile_id"].to_numpy()[on_dem])
     groups = {int(k): g for k, g in good[good["tile_id"].isin(tiles_with)].groupby("tile_id")}
+    run_key = uuid.uuid4().hex[:8]
     futures = [
         client.submit(_tile_task, str(dem_path), tid, tiles.tile_size_deg, g["lat"].to_numpy(), g["lon"].to_numpy(),
                       g["radius_m"].to_numpy(), g["track_id"].to_numpy(), opt, margin_deg,
-                      key=f"register-tile-{tid}-{id(shots)}", pure=False)
+                      key=f"register-tile-{tid}-{run_key}", pure=False)
         for tid, g in groups.items()
     ]
     results: list[TileRegistration] = client.gather(futures)

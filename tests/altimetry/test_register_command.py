@@ -84,3 +84,20 @@ def test_register_refuses_bad_input(dem_dir, capsys, tmp_path):
     with pytest.raises(ReferenceDataError, match="no usable shot"):
         register_dem_store(dem_dir / "dem.zarr", pd.DataFrame({"lat": [np.nan], "lon": [0.0], "radius_m": [1.0],
                                                                "track_id": [0]}), tmp_path)
+
+
+def test_distributed_equals_sync(dem_dir, tmp_path):
+    """The same tiles on a dask.distributed client (threads, in-process) as on the synchronous one."""
+    from distributed import Client, LocalCluster
+
+    shots = pd.read_parquet(dem_dir / "shots.parquet")
+    sync = register_dem_store(dem_dir / "dem.zarr", shots, tmp_path / "sync")
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        dist = register_dem_store(dem_dir / "dem.zarr", shots, tmp_path / "dist", client=client)
+    a = pd.DataFrame(sync["tiles"]).sort_values("tile_id").reset_index(drop=True)
+    b = pd.DataFrame(dist["tiles"]).sort_values("tile_id").reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b)
+    ra = xr.open_zarr(tmp_path / "sync" / "merged.zarr", consolidated=False)["elevation"].values
+    rb = xr.open_zarr(tmp_path / "dist" / "merged.zarr", consolidated=False)["elevation"].values
+    np.testing.assert_array_equal(ra, rb)
