@@ -31,14 +31,15 @@ robust cost decreases. ``scipy.optimize.least_squares`` would do the same fit
 (``loss="huber"``) and is the benchmark's reference; this solver is written out because it
 reuses one DEM sample per iteration for residuals *and* Jacobian (least_squares asks for
 them separately), reports the parameters' standard deviations for the model fall-back, and
-runs ~10× faster per tile (docs/benchmarks/altimetry.md).
+ran 16× faster on the benchmark's tile (docs/benchmarks/altimetry.md).
 
 Fall-back when shear is not determined
 --------------------------------------
 The models are tried in order ``affine`` (12) → ``similarity`` (rotation + scale +
 translation, 7) → ``translation`` (3) → ``vertical`` (1). A model is used when the normal
 matrix is not singular and every parameter's standard deviation (σ₀² (JᵀWJ)⁻¹, in metres of
-displacement at the tile edge) is below ``max_param_sigma_m``; shots along a single line, or
+displacement at the tile edge) is below ``max_param_sigma_m`` (judged at convergence; a model
+still over twice that after 3 iterations is abandoned then); shots along a single line, or
 a tile of few shots on flat ground, thus fall back to a model the shots can carry, and the
 result says which model was used. A tile with fewer than ``min_shots`` usable shots, or on
 which no model is determined, is not registered: ``ok = False`` with the reason.
@@ -91,6 +92,9 @@ MODELS: dict[str, int] = {"affine": 12, "similarity": 7, "translation": 3, "vert
 
 #: 1.4826 · MAD is the standard deviation of a normal distribution.
 _NMAD = 1.4826
+#: After this many Gauss-Newton steps a model whose worst parameter σ is over twice
+#: ``max_param_sigma_m`` is abandoned (it would be rejected at convergence anyway).
+_EARLY_JUDGEMENT_ITERATION = 3
 
 
 @dataclass(frozen=True)
@@ -557,6 +561,15 @@ def _fit_transform(
         theta, r, g = trial, r_new, g_new
         if np.max(np.abs(step * delta)) < opt.tolerance_m:
             break
+        if it == _EARLY_JUDGEMENT_ITERATION:
+            # Most of the misregistration is gone after a few steps: a model whose parameters are
+            # still far from determined (2x the threshold) will not be used, so stop fitting it.
+            ok = np.isfinite(r) & keep
+            s_now = math.sqrt(float(np.sum(w[ok] * r[ok] ** 2)) / max(int(ok.sum()) - P.shape[1], 1))
+            worst = float(np.max(np.sqrt(np.maximum(np.diag(inv), 0.0)))) * s_now
+            if worst > 2.0 * opt.max_param_sigma_m:
+                return {"ok": False, "reason": f"{model}: a parameter's sigma {worst:.3g} m > max_param_sigma_m "
+                                               f"(judged at iteration {it})"}
     ok = np.isfinite(r)
     scale = max(_nmad(r[ok]), 1e-3)
     keep = ok & (np.abs(r - np.median(r[ok])) <= opt.reject_k * scale)
