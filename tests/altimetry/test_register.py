@@ -13,22 +13,26 @@ CENTRE = (35.0, 105.0)
 
 
 def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_tracks=200, spacing_deg=0.03,
-          sigma_h_m=30.0, sigma_v_m=3.0, **kw):
+          sigma_h_m=10.0, sigma_v_m=3.0, **kw):
     rng = np.random.default_rng(seed)
     surf = Surface(rng)
     lat = np.arange(42.0, 27.99, -0.05)  # north first, as dem.zarr
     lon = np.arange(98.0, 112.01, 0.05)
     D = Rigid(CENTRE, np.asarray(t_enu), angle_up_deg=angle)
     dem = moved_dem(surf, D, lat, lon)
-    # Random profile errors bias the tile fit by about sigma_h / (sqrt(n_tracks) * ~115 km) in
-    # rotation: 30 m over 200 tracks is 0.001 deg, within the 10 % asked of a 0.02 deg rotation.
+    # Random profile errors bias the tile fit's rotation by about sigma_h / (sqrt(n_tracks) * ~115 km):
+    # 10 m over 200 tracks is 0.0004 deg, 2 % of the 0.02 deg rotation (measured up to 13 % at 30 m).
     prof = profiles(surf, rng, BOUNDS, n_tracks=n_tracks, spacing_deg=spacing_deg, sigma_h_m=sigma_h_m,
                     sigma_v_m=sigma_v_m, **kw)
     return DemWindow(dem, lat, lon, R_DATUM), prof
 
 
-@pytest.mark.parametrize("seed", [1, 7])  # 1 used while writing; 7 not looked at before the tolerances were set
-def test_injected_transform_and_profile_offsets_recovered(seed):
+# Seeds: 1 used while writing. With 30 m profile errors the rotation missed 10 % on 2 of 7 seeds
+# (7 %, 7 %, 13 %, 12 %, 3 %, 3 %, 3.5 % on seeds 1, 7, 13, 21-24): constant per-profile errors that happen
+# to line up with a rotation pattern bias the tile fit (docs/design/altimetry.md). The profile errors
+# here are 10 m; 13 is the seed that failed at 30 m, 31 was first run after this setting was fixed.
+@pytest.mark.parametrize("seed", [1, 13, 31])
+def test_injected_transform_recovered(seed):
     win, prof = _case(seed)
     res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
     t = res.transform
@@ -41,18 +45,31 @@ def test_injected_transform_and_profile_offsets_recovered(seed):
     assert abs(-t.rotation_deg[2] - 0.02) <= 0.002, t.rotation_deg
     # scale and tilts: nothing injected; within 3 sigma of the fit (10 m at ~115 km is 0.005 deg)
     assert abs(t.scale - 1) < 1e-4 and max(abs(v) for v in t.rotation_deg[:2]) < 0.005
-    # profile offsets: the correction is minus the injected error (less its mean)
+    assert res.rms_after_m < res.rms_registered_m < res.rms_before_m
+    assert res.rms_after_m < 5.0  # 1 m noise + interpolation of a 2 km DEM
+
+
+# Profile errors of 100 m / 5 m: large against their precision (a few metres horizontally, from the
+# slopes; < 1 m vertically), so the per-profile offsets are measurable; seed 13 first run with this test.
+@pytest.mark.parametrize("seed", [1, 13])
+def test_injected_profile_offsets_recovered(seed):
+    win, prof = _case(seed, sigma_h_m=100.0, sigma_v_m=5.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    t = res.transform
+    mean_off = prof.offset_enu.mean(axis=0)
+    got = -np.asarray(t.translation_enu_m)
+    assert np.all(np.abs(got - ([2000.0, 1000.0, 300.0] - mean_off)) <= [200.0, 100.0, 30.0])
+    # the correction is minus the injected error (less its mean)
     p = res.profiles
     assert p.fitted.mean() > 0.95  # tracks clipped at the tile corner may be short
     f = p.fitted
     inj_corr = -(prof.offset_enu[p.track_id] - mean_off)[f]
     for k in range(3):
         assert np.corrcoef(p.offset_enu_m[f, k], inj_corr[:, k])[0, 1] > 0.9, k
-    # vertical: within a few times the 1 m noise over ~1000 shots + the DEM's bilinear error
+    # vertical: ~1 m noise over ~300 shots + the DEM's bilinear error
     assert np.sqrt(np.mean((p.offset_enu_m[f, 2] - inj_corr[:, 2]) ** 2)) < 1.0
-    assert res.rms_after_m < res.rms_registered_m < res.rms_before_m
-    assert res.rms_after_m < 5.0  # 1 m noise + interpolation of a 2 km DEM
     assert np.all(p.rms_after_m[f] <= p.rms_before_m[f] + 0.05)
+    assert res.rms_after_m < res.rms_registered_m < res.rms_before_m
 
 
 def test_no_shift_gives_identity():
@@ -68,6 +85,7 @@ def test_bad_shots_counted_not_fatal():
     lat, lon, rad, track = prof.lat.copy(), prof.lon.copy(), prof.radius.copy(), prof.track.copy()
     lat[:7] = np.nan
     rad[10:13] = np.inf
+    rad[20:22] = R_DATUM + 2e6  # off the body
     # a profile of 2 shots and 30 shots off the DEM
     lat = np.r_[lat, 35.0, 35.01, np.full(30, 60.0)]
     lon = np.r_[lon, 105.0, 105.0, np.full(30, 105.0)]
@@ -79,7 +97,7 @@ def test_bad_shots_counted_not_fatal():
     rad[bad] += rng.choice([-1, 1], bad.size) * rng.uniform(2e3, 8e3, bad.size)
     res = register_tile(win, lat, lon, rad, track, tile_id=0, centre=CENTRE)
     c = res.counts
-    assert c["invalid"] == 10 and c["off_dem"] == 30
+    assert c["invalid"] == 12 and c["off_dem"] == 30
     assert c["rejected"] >= bad.size
     assert c["profiles_too_few_shots"] >= 1
     assert res.transform.ok

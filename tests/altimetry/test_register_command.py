@@ -101,3 +101,22 @@ def test_distributed_equals_sync(dem_dir, tmp_path):
     ra = xr.open_zarr(tmp_path / "sync" / "merged.zarr", consolidated=False)["elevation"].values
     rb = xr.open_zarr(tmp_path / "dist" / "merged.zarr", consolidated=False)["elevation"].values
     np.testing.assert_array_equal(ra, rb)
+
+
+def test_register_reads_rdr_csv(dem_dir, tmp_path, capsys):
+    """The same shots as an MLA-like RDR CSV (radii in km, profiles from time gaps) register the same."""
+    import shutil
+
+    d = tmp_path / "csv"
+    shutil.copytree(dem_dir / "dem.zarr", d / "dem.zarr")
+    t = pd.read_parquet(dem_dir / "shots.parquet").dropna()
+    t = t.sort_values(["track_id", "lat"])
+    time_s = t["track_id"].to_numpy() * 1000.0 + t.groupby("track_id").cumcount().to_numpy() * 0.1
+    csv = pd.DataFrame({"ET": time_s, "Pt_Longitude": t["lon"], "Pt_Latitude": t["lat"],
+                        "Pt_Radius": t["radius_m"] / 1000.0})
+    csv.to_csv(d / "mla.csv", index=False, float_format="%.9f")
+    assert main(["register", str(d), "--altimetry", str(d / "mla.csv"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    ok = [t for t in out["tiles"] if t["ok"]]
+    assert len(ok) == 2 and all(abs(t["translation_e_m"] + 1500.0) < 150.0 for t in ok)
+    assert out["profiles_fitted"] >= 150
