@@ -120,3 +120,23 @@ def test_register_reads_rdr_csv(dem_dir, tmp_path, capsys):
     ok = [t for t in out["tiles"] if t["ok"]]
     assert len(ok) == 2 and all(abs(t["translation_e_m"] + 1500.0) < 150.0 for t in ok)
     assert out["profiles_fitted"] >= 150
+
+
+def test_grid_and_register_take_the_moon(tmp_path, capsys):
+    """``grid --body moon`` writes a lunar dem.zarr (1737.4 km datum); ``register`` refuses it as Mercury's."""
+    from mercury_dem.geometry.body import MOON, latlon_to_xyz
+
+    rng = np.random.default_rng(4)
+    lat, lon = rng.uniform(10, 12, 4000), rng.uniform(20, 22, 4000)
+    np.save(tmp_path / "pts.npy", latlon_to_xyz(lat, lon, 100.0, MOON.datum_radius_m))
+    assert main(["grid", str(tmp_path / "pts.npy"), "--out", str(tmp_path), "--ppd", "8", "--no-coverage",
+                 "--body", "moon"]) == 0
+    ds = xr.open_zarr(tmp_path / "dem.zarr", consolidated=False)
+    assert float(ds.attrs["datum_radius_m"]) == MOON.datum_radius_m and "MOON" in ds.attrs["body"]
+    assert abs(float(np.nanmedian(ds["elevation"].values)) - 100.0) < 1.0
+    pd.DataFrame({"lat": [11.0], "lon": [21.0], "radius_m": [MOON.datum_radius_m], "track_id": [0]}).to_parquet(
+        tmp_path / "s.parquet")
+    capsys.readouterr()
+    assert main(["register", str(tmp_path), "--altimetry", str(tmp_path / "s.parquet"), "--body", "mercury"]) == 2
+    assert "MOON" in capsys.readouterr().err
+    assert main(["grid", str(tmp_path / "pts.npy"), "--out", str(tmp_path / "x"), "--body", "vesta"]) == 2
