@@ -124,6 +124,12 @@ class RegisterOptions:
         Prior standard deviations of a profile offset (east/north and up), metres.
     max_abs_height_m : float
         Shots farther than this from the datum sphere are invalid (counted), metres.
+    profile_nuisance : bool
+        Estimate the tile transform jointly with one offset per profile as a nuisance (random
+        effect with the two σ below), so constant profile errors do not bias it; step 2 then fits
+        the profile offsets against the registered DEM as without it.
+    nuisance_sigma_horizontal_m, nuisance_sigma_vertical_m : float
+        The expected size of the profiles' errors (their prior in the joint fit), metres.
     """
 
     models: tuple[str, ...] = ("affine", "similarity", "translation", "vertical")
@@ -137,13 +143,17 @@ class RegisterOptions:
     profile_sigma_horizontal_m: float = 2000.0
     profile_sigma_vertical_m: float = 500.0
     max_abs_height_m: float = 50_000.0
+    profile_nuisance: bool = True
+    nuisance_sigma_horizontal_m: float = 100.0
+    nuisance_sigma_vertical_m: float = 10.0
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.models if m not in MODELS]
         if unknown or not self.models:
             raise ValueError(f"models must be a non-empty subset of {list(MODELS)}, got {self.models}")
         for name in ("max_param_sigma_m", "huber_k", "reject_k", "tolerance_m", "profile_sigma_horizontal_m",
-                     "profile_sigma_vertical_m", "max_abs_height_m"):
+                     "profile_sigma_vertical_m", "max_abs_height_m", "nuisance_sigma_horizontal_m",
+                     "nuisance_sigma_vertical_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v}")
@@ -515,14 +525,27 @@ def _solve(N: NDArray[np.float64], rhs: NDArray[np.float64]) -> tuple[NDArray[np
 def _fit_transform(
     x: NDArray[np.float64], q: NDArray[np.float64], E: NDArray[np.float64], c: NDArray[np.float64],
     sampler: _Sampler, datum: float, model: str, L: NDArray[np.float64], opt: RegisterOptions,
+    track_index: NDArray[np.intp] | None = None,
 ) -> dict[str, Any]:
-    """Robust Gauss-Newton of one model; returns theta (12), weights, sigmas, residuals, or a failure."""
+    """Robust Gauss-Newton of one model; returns theta (12), weights, sigmas, residuals, or a failure.
+
+    With ``track_index`` (each shot's profile, 0..P-1) and ``opt.profile_nuisance``, one offset per
+    profile (tile ENU frame) is estimated with it, its 3 × 3 blocks eliminated by a Schur
+    complement each iteration, so the transform's covariance includes their uncertainty.
+    """
     P = _model_basis(model, L)
     theta = np.zeros(12)
+    nuis = bool(opt.profile_nuisance) and track_index is not None
+    n_prof = int(track_index.max()) + 1 if nuis and track_index is not None and track_index.size else 0
+    d = np.zeros((n_prof, 3))
+    lam = np.array([opt.nuisance_sigma_horizontal_m ** -2] * 2 + [opt.nuisance_sigma_vertical_m ** -2])
 
     def apply(th: NDArray[np.float64], qq: NDArray[np.float64] = q) -> NDArray[np.float64]:
         B = th[:9].reshape(3, 3) / L[None, :]
         return c + (qq @ (np.eye(3) + B).T + th[9:]) @ E.T
+
+    def shots(th: NDArray[np.float64], dd: NDArray[np.float64]) -> NDArray[np.float64]:
+        return apply(th, q + dd[track_index]) if nuis else apply(th)
 
     r, g = _residuals(apply(theta), sampler, datum)
     ok = np.isfinite(r)
@@ -531,6 +554,7 @@ def _fit_transform(
     r, g = _residuals(apply(theta), sampler, datum)
     it = 0
     inv = None
+    Npp_inv = np.zeros((0, 3, 3))
     w = np.zeros_like(r)
     for it in range(1, opt.max_iterations + 1):
         ok = np.isfinite(r)
@@ -543,22 +567,50 @@ def _fit_transform(
         J = np.where(keep[:, None], Jfull @ P, 0.0)
         rz = np.where(keep, r, 0.0)
         N = J.T @ (J * w[:, None])
-        sol = _solve(N, -(J.T @ (w * rz)))
+        bt = J.T @ (w * rz)
+        inv_geom = _solve(N, bt) if nuis else None  # the shots' own determination, for the fall-back
+        if nuis:
+            # profile blocks: N_pp (n_prof,3,3) + prior, N_tp (n_prof,k,3), b_p; eliminate them
+            Jp = np.where(keep[:, None], Eg, 0.0)
+            k = J.shape[1]
+            Npp = np.empty((n_prof, 3, 3))
+            Ntp = np.empty((n_prof, k, 3))
+            bp = np.empty((n_prof, 3))
+            for a_ in range(3):
+                bp[:, a_] = np.bincount(track_index, w * Jp[:, a_] * rz, n_prof) + scale ** 2 * lam[a_] * d[:, a_]
+                for b_ in range(3):
+                    Npp[:, a_, b_] = np.bincount(track_index, w * Jp[:, a_] * Jp[:, b_], n_prof)
+                for t_ in range(k):
+                    Ntp[:, t_, a_] = np.bincount(track_index, w * J[:, t_] * Jp[:, a_], n_prof)
+            Npp += np.eye(3) * (scale ** 2 * lam)
+            Npp_inv = np.linalg.inv(Npp)
+            X = Ntp @ Npp_inv
+            N = N - np.einsum("pka,pla->kl", X, Ntp)
+            bt = bt - np.einsum("pka,pa->k", X, bp)
+        sol = _solve(N, -bt)
         if sol is None:
             return {"ok": False, "reason": f"{model}: singular (the shots do not determine it)"}
         delta, inv = sol
-        cost0 = _huber_cost(rz[keep], scale, opt.huber_k)
+        inv_judge = inv_geom[1] if inv_geom is not None else inv
+        d_step = -np.einsum("pab,pb->pa", Npp_inv, bp + np.einsum("pka,k->pa", Ntp, delta)) if nuis else d
+
+        def cost(res: NDArray[np.float64], sel: NDArray[np.bool_], dd: NDArray[np.float64]) -> float:
+            prior = 0.5 * float(np.sum(dd * dd * lam)) if nuis else 0.0
+            return _huber_cost(res[sel], scale, opt.huber_k) + prior
+
+        cost0 = cost(rz, keep, d)
         step = 1.0
         for _ in range(6):
             trial = theta + P @ (step * delta)
-            r_new, g_new = _residuals(apply(trial), sampler, datum)
+            d_trial = d + step * d_step if nuis else d
+            r_new, g_new = _residuals(shots(trial, d_trial), sampler, datum)
             k2 = keep & np.isfinite(r_new)
-            if k2.sum() >= 0.9 * keep.sum() and _huber_cost(r_new[k2], scale, opt.huber_k) <= cost0 * (1 + 1e-9):
+            if k2.sum() >= 0.9 * keep.sum() and cost(r_new, k2, d_trial) <= cost0 * (1 + 1e-9):
                 break
             step *= 0.5
         else:
             break  # no decrease: converged (or stuck at the noise floor)
-        theta, r, g = trial, r_new, g_new
+        theta, r, g, d = trial, r_new, g_new, d_trial
         if np.max(np.abs(step * delta)) < opt.tolerance_m:
             break
         if it == _EARLY_JUDGEMENT_ITERATION:
@@ -566,7 +618,7 @@ def _fit_transform(
             # still far from determined (2x the threshold) will not be used, so stop fitting it.
             ok = np.isfinite(r) & keep
             s_now = math.sqrt(float(np.sum(w[ok] * r[ok] ** 2)) / max(int(ok.sum()) - P.shape[1], 1))
-            worst = float(np.max(np.sqrt(np.maximum(np.diag(inv), 0.0)))) * s_now
+            worst = float(np.max(_judged_sigma(inv, inv_judge))) * s_now
             if worst > 2.0 * opt.max_param_sigma_m:
                 return {"ok": False, "reason": f"{model}: a parameter's sigma {worst:.3g} m > max_param_sigma_m "
                                                f"(judged at iteration {it})"}
@@ -579,9 +631,23 @@ def _fit_transform(
     wk = w[keep] if w.shape == r.shape else np.ones(n_used)
     s0 = math.sqrt(float(np.sum(wk * r[keep] ** 2)) / max(n_used - k, 1))
     sig = np.sqrt(np.maximum(np.diag(inv), 0.0)) * s0 if inv is not None else np.full(k, np.inf)
+    sig_geom = _judged_sigma(inv, inv_judge) * s0 if inv is not None else np.full(k, np.inf)
     final = theta.copy()
-    return {"ok": True, "theta": theta, "keep": keep, "r": r, "sigma": sig, "iterations": it,
+    return {"ok": True, "theta": theta, "keep": keep, "r": r, "sigma": sig, "sigma_geom": sig_geom, "iterations": it,
             "apply": lambda pts: apply(final, (pts - c) @ E)}
+
+
+def _judged_sigma(inv_joint: NDArray[np.float64], inv_geom: NDArray[np.float64]) -> NDArray[np.float64]:
+    """σ per parameter (unit σ₀) for the fall-back: the joint fit's for the linear parameters, the shots' own
+    (without the profile nuisance) for the translation (the model's last min(3, k) parameters).
+
+    The profiles' unknown mean error limits how well the tile's translation is *known* (σ_h/√profiles:
+    reported), not whether the shots determine it; the linear parameters must be determined in the joint fit.
+    """
+    k = inv_joint.shape[0]
+    sj = np.sqrt(np.maximum(np.diag(inv_joint), 0.0))
+    sg = np.sqrt(np.maximum(np.diag(inv_geom), 0.0))
+    return np.where(np.arange(k) >= k - min(3, k), sg, sj)
 
 
 def _decompose(theta: NDArray[np.float64], L: NDArray[np.float64]) -> dict[str, Any]:
@@ -741,11 +807,11 @@ def register_tile(
     notes = []
     fit = None
     for model in opt.models:
-        f = _fit_transform(x, q, E, c, sampler, datum, model, L, opt)
+        f = _fit_transform(x, q, E, c, sampler, datum, model, L, opt, np.unique(track, return_inverse=True)[1])
         if not f["ok"]:
             notes.append(f["reason"])
             continue
-        worst = float(np.max(f["sigma"]))
+        worst = float(np.max(f["sigma_geom"]))
         if worst > opt.max_param_sigma_m:
             notes.append(f"{model}: a parameter's sigma {worst:.3g} m > max_param_sigma_m")
             continue
