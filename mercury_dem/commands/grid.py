@@ -33,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="Dask LocalCluster workers (0 = grid in this process; same result)")
     p.add_argument("--no-coverage", action="store_true", help="skip the point-cloud coverage analysis")
     p.add_argument("--overwrite", action="store_true", help="replace an existing DIR/dem.zarr")
+    p.add_argument("--body", metavar="NAME", default="mercury",
+                   help="target body: its datum (heights) and IAU 2015 CRS (mercury, moon; default mercury)")
 
 
 def read_points(path: str | Path) -> np.ndarray:
@@ -97,6 +99,12 @@ def run(args: argparse.Namespace, config: Any) -> int:
         dem = dataclasses.replace(dem, **changes)  # validated again on construction
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("config key '", "config key 'dem.", 1)) from None
+    from mercury_dem.geometry.body import body_by_name
+
+    try:
+        body = body_by_name(args.body)
+    except ValueError as exc:
+        raise ConfigError(f"--body: {exc}") from None
     points = read_points(args.points)
     out = Path(args.out)
     client = None
@@ -110,7 +118,7 @@ def run(args: argparse.Namespace, config: Any) -> int:
     try:
         summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
                            coverage=not args.no_coverage, attrs={"source": str(args.points)},
-                           progress=Reporter(sys.stderr))
+                           progress=Reporter(sys.stderr), body=body)
     finally:
         if client is not None:
             client.close()

@@ -1,0 +1,111 @@
+"""``mercury-dem register DIR --altimetry FILE...``: register DIR/dem.zarr onto laser altimetry and merge.
+
+DIR is any directory holding a ``dem.zarr`` (a run, or ``mercury-dem grid --out``). FILE is a
+LOLA/MLA RDR shot table (CSV, read by :func:`mercury_dem.reference.lola.read_altimetry_csv`)
+or a Parquet table with the columns ``lat``, ``lon``, ``radius_m`` (metres from the centre of
+mass) and ``track_id``. Writes ``DIR/registered.zarr``, ``DIR/merged.zarr`` and
+``DIR/registration/`` (per-tile and per-profile tables, the RMS figure); see
+docs/design/altimetry.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mercury_dem.exceptions import ConfigError, ReferenceDataError
+
+NAME = "register"
+HELP = "register DIR/dem.zarr onto altimetry shots (per-tile affine + per-profile offsets) and merge them"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dir", metavar="DIR", help="directory holding dem.zarr (a run directory or 'grid --out')")
+    p.add_argument("--altimetry", nargs="+", required=True, metavar="FILE",
+                   help="shot tables: LOLA/MLA RDR CSV, or Parquet with lat, lon, radius_m, track_id")
+    p.add_argument("--body", metavar="NAME", help="the DEM's body (mercury, moon); checked against the DEM")
+    p.add_argument("--scheduler", default="sync", metavar="ADDR",
+                   help="sync (default, in-process), local (a LocalCluster) or a scheduler address")
+    p.add_argument("--overwrite", action="store_true", help="replace existing registered/merged outputs")
+    p.add_argument("--json", action="store_true", help="print the per-tile results as JSON")
+
+
+def read_shots(paths: list[str], radius_m: float) -> Any:
+    """All shot tables as one DataFrame; track ids made unique across files."""
+    import pandas as pd
+
+    from mercury_dem.reference.lola import read_altimetry_csv
+
+    frames = []
+    next_track = 0
+    for p in paths:
+        path = Path(p)
+        if path.suffix.lower() in (".parquet", ".pq"):
+            import pyarrow
+
+            try:
+                df = pd.read_parquet(path)
+            except (OSError, ValueError, TypeError, KeyError, pyarrow.ArrowException) as exc:
+                raise ReferenceDataError(f"{path}: cannot be read as Parquet ({type(exc).__name__}: {exc}); "
+                                         f"write it with pandas.DataFrame.to_parquet") from None
+        else:
+            df = read_altimetry_csv(path, radius_m).table
+        if "track_id" in df.columns and len(df):
+            tid = pd.to_numeric(df["track_id"], errors="coerce")
+            df = df.assign(track_id=tid + next_track)
+            if np.isfinite(tid).any():
+                next_track = int(np.nanmax(df["track_id"])) + 1
+        frames.append(df)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def run(args: argparse.Namespace, config: Any) -> int:
+    from mercury_dem.geometry.body import body_by_name
+    from mercury_dem.pipeline.executors import connect
+    from mercury_dem.pipeline.register_stage import _jsonable, register_dem_store
+    from mercury_dem.products.make import dem_body, open_dem
+
+    dem_path = Path(args.dir) / "dem.zarr"
+    body = None
+    if args.body:
+        try:
+            body = body_by_name(args.body)
+        except ValueError as exc:
+            raise ConfigError(f"--body: {exc}") from None
+    ds_body = dem_body(open_dem(dem_path))
+    shots = read_shots(args.altimetry, ds_body.datum_radius_m)
+    conn = connect(config.execution, scheduler=args.scheduler)
+    try:
+        summary = register_dem_store(dem_path, shots, client=conn.client, body=body, overwrite=args.overwrite,
+                                     source=", ".join(args.altimetry))
+    finally:
+        conn.close()
+    if args.json:
+        keys = ("tile_id", "ok", "model", "reason", "translation_e_m", "translation_n_m", "translation_u_m",
+                "rotation_e_deg", "rotation_n_deg", "rotation_u_deg", "scale", "n_profiles", "n_profiles_fitted",
+                "n_used", "n_rejected", "rms_before_m", "rms_registered_m", "rms_after_m")
+        out = {"tiles": [{k: t.get(k) for k in keys} for t in summary["tiles"]],
+               **{k: summary[k] for k in ("registered", "merged", "tables", "shots", "shots_dropped_invalid",
+                                          "shots_off_dem", "tiles_registered", "profiles_fitted", "statistics")}}
+        print(json.dumps(_jsonable(out), indent=2))
+        return 0
+    print(f"registered {summary['tiles_registered']} of {summary['tiles_with_shots']} tiles with shots "
+          f"({summary['shots']} shots, {summary['shots_dropped_invalid']} invalid, {summary['shots_off_dem']} off the "
+          f"DEM; {summary['profiles_fitted']} of {summary['profiles']} profiles fitted) in {summary['seconds']:.1f} s")
+    print(f"{'tile':>5} {'model':>11} {'E m':>8} {'N m':>8} {'U m':>8} {'rot U deg':>10} {'prof':>5} "
+          f"{'RMS before':>10} {'after':>8}")
+    for t in summary["tiles"]:
+        if t["ok"]:
+            print(f"{t['tile_id']:>5} {t['model']:>11} {t['translation_e_m']:>8.1f} {t['translation_n_m']:>8.1f} "
+                  f"{t['translation_u_m']:>8.1f} {t['rotation_u_deg']:>10.4f} {t['n_profiles_fitted']:>5} "
+                  f"{t['rms_before_m']:>10.2f} {t['rms_after_m']:>8.2f}")
+        else:
+            print(f"{t['tile_id']:>5} {'-':>11} not registered: {str(t['reason']).splitlines()[0]}")
+    for name, s in summary["statistics"].items():
+        print(f"DEM {name:>10} − corrected shots: bias {s['bias_m']:.2f} m, RMSE {s['rmse_m']:.2f} m (n = {s['n']})")
+    print(f"wrote {summary['registered']}, {summary['merged']}, {summary['tables']}/")
+    return 0

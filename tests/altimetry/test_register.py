@@ -1,0 +1,153 @@
+"""Registration recovers injected transforms and per-profile offsets (synthetic truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mercury_dem.altimetry.register import DemWindow, RegisterOptions, register_tile, tile_window
+from tests.altimetry.synthetic import R_DATUM, Rigid, Surface, moved_dem, profiles
+
+BOUNDS = (30.0, 40.0, 100.0, 110.0)
+CENTRE = (35.0, 105.0)
+
+
+def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_tracks=200, spacing_deg=0.03,
+          sigma_h_m=10.0, sigma_v_m=3.0, **kw):
+    rng = np.random.default_rng(seed)
+    surf = Surface(rng)
+    lat = np.arange(42.0, 27.99, -0.05)  # north first, as dem.zarr
+    lon = np.arange(98.0, 112.01, 0.05)
+    D = Rigid(CENTRE, np.asarray(t_enu), angle_up_deg=angle)
+    dem = moved_dem(surf, D, lat, lon)
+    # 200 profiles: their mean error (sigma_h / sqrt(200)) is what the tile translation cannot tell apart.
+    prof = profiles(surf, rng, BOUNDS, n_tracks=n_tracks, spacing_deg=spacing_deg, sigma_h_m=sigma_h_m,
+                    sigma_v_m=sigma_v_m, **kw)
+    return DemWindow(dem, lat, lon, R_DATUM), prof
+
+
+# Seeds: 1 used while writing. With 30 m profile errors the plain two-step fit missed 10 % of the
+# rotation on 2 of 7 seeds (7, 7, 13, 12, 3, 3, 3.5 % on seeds 1, 7, 13, 21-24): constant per-profile
+# errors that line up with a rotation bias it. With the profile nuisance in the tile fit (the default)
+# seeds 1, 7, 13, 21, 22 are within 5 %; 41 was first run after that.
+@pytest.mark.parametrize("seed", [1, 13, 41])
+def test_injected_transform_recovered(seed):
+    win, prof = _case(seed, sigma_h_m=30.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    t = res.transform
+    assert t.ok and t.model in ("affine", "similarity"), t.reason
+    # T maps the DEM back onto the altimetry: the inverse of the injected move
+    inj = np.array([2000.0, 1000.0, 300.0])
+    got = -np.asarray(t.translation_enu_m)
+    mean_off = prof.offset_enu.mean(axis=0)  # the tile transform absorbs the profiles' mean error
+    assert np.all(np.abs(got - (inj - mean_off)) <= 0.1 * np.abs(inj)), (got, inj)
+    assert abs(-t.rotation_deg[2] - 0.02) <= 0.002, t.rotation_deg
+    # the reported sigma of the translation includes the profiles' unknown mean error
+    assert 30.0 / np.sqrt(200) < t.sigma_m[-2] < 3 * 100.0 / np.sqrt(200)
+    # scale and tilts: nothing injected; within 3 sigma of the fit (10 m at ~115 km is 0.005 deg)
+    assert abs(t.scale - 1) < 1e-4 and max(abs(v) for v in t.rotation_deg[:2]) < 0.005
+    assert res.rms_after_m < res.rms_registered_m < res.rms_before_m
+    assert res.rms_after_m < 5.0  # 1 m noise + interpolation of a 2 km DEM
+
+
+# Profile errors of 100 m / 5 m: large against their precision (a few metres horizontally, from the
+# slopes; < 1 m vertically), so the per-profile offsets are measurable; seed 13 first run with this test.
+@pytest.mark.parametrize("seed", [1, 13])
+def test_injected_profile_offsets_recovered(seed):
+    win, prof = _case(seed, sigma_h_m=100.0, sigma_v_m=5.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    t = res.transform
+    mean_off = prof.offset_enu.mean(axis=0)
+    got = -np.asarray(t.translation_enu_m)
+    assert np.all(np.abs(got - ([2000.0, 1000.0, 300.0] - mean_off)) <= [200.0, 100.0, 30.0])
+    # the correction is minus the injected error (less its mean)
+    p = res.profiles
+    assert p.fitted.mean() > 0.95  # tracks clipped at the tile corner may be short
+    f = p.fitted
+    inj_corr = -(prof.offset_enu[p.track_id] - mean_off)[f]
+    for k in range(3):
+        assert np.corrcoef(p.offset_enu_m[f, k], inj_corr[:, k])[0, 1] > 0.9, k
+    # vertical: ~1 m noise over ~300 shots + the DEM's bilinear error
+    assert np.sqrt(np.mean((p.offset_enu_m[f, 2] - inj_corr[:, 2]) ** 2)) < 1.0
+    assert np.all(p.rms_after_m[f] <= p.rms_before_m[f] + 0.05)
+    assert res.rms_after_m < res.rms_registered_m < res.rms_before_m
+
+
+def test_plain_two_step_without_nuisance_still_runs():
+    """The plain seed-004 step 1 (profile errors as shot noise) stays available and recovers the shift."""
+    win, prof = _case(1, sigma_h_m=30.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE,
+                        options=RegisterOptions(profile_nuisance=False))
+    got = -np.asarray(res.transform.translation_enu_m)
+    assert np.all(np.abs(got - [2000.0, 1000.0, 300.0]) <= [200.0, 100.0, 30.0])
+    assert res.transform.sigma_m[-2] < 30.0 / np.sqrt(200)  # it does not know the profiles' mean error
+
+
+def test_no_shift_gives_identity():
+    win, prof = _case(3, t_enu=(0.0, 0.0, 0.0), angle=0.0, n_tracks=60, sigma_h_m=0.0, sigma_v_m=0.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    t = res.transform
+    assert np.all(np.abs(t.translation_enu_m[:2]) < 30.0) and abs(t.translation_enu_m[2]) < 2.0
+    assert np.all(np.abs(res.profiles.offset_enu_m[:, 2]) < 2.0)
+
+
+def test_bad_shots_counted_not_fatal():
+    win, prof = _case(5, n_tracks=60)
+    lat, lon, rad, track = prof.lat.copy(), prof.lon.copy(), prof.radius.copy(), prof.track.copy()
+    lat[:7] = np.nan
+    rad[10:13] = np.inf
+    rad[20:22] = R_DATUM + 2e6  # off the body
+    # a profile of 2 shots and 30 shots off the DEM
+    lat = np.r_[lat, 35.0, 35.01, np.full(30, 60.0)]
+    lon = np.r_[lon, 105.0, 105.0, np.full(30, 105.0)]
+    rad = np.r_[rad, R_DATUM, R_DATUM, np.full(30, R_DATUM)]
+    track = np.r_[track, 999, 999, np.full(30, 1000)]
+    # 3 % wild returns (clouds of the simulation: bad returns kilometres off)
+    rng = np.random.default_rng(0)
+    bad = rng.choice(lat.size - 32, size=int(0.03 * lat.size), replace=False)
+    rad[bad] += rng.choice([-1, 1], bad.size) * rng.uniform(2e3, 8e3, bad.size)
+    res = register_tile(win, lat, lon, rad, track, tile_id=0, centre=CENTRE)
+    c = res.counts
+    assert c["invalid"] == 12 and c["off_dem"] == 30
+    assert c["rejected"] >= bad.size
+    assert c["profiles_too_few_shots"] >= 1
+    assert res.transform.ok
+    got = -np.asarray(res.transform.translation_enu_m) + prof.offset_enu.mean(axis=0)
+    assert np.all(np.abs(got - [2000, 1000, 300]) <= [200, 100, 30])
+    row = res.profiles.to_frame().set_index("track_id").loc[999]
+    assert not row["fitted"] and row["offset_e_m"] == 0.0
+
+
+def test_tile_without_shots_and_too_few():
+    win, _ = _case(2, n_tracks=1)
+    res = register_tile(win, [], [], [], [], tile_id=3, centre=CENTRE)
+    assert not res.transform.ok and "usable shots" in res.transform.reason and res.counts["shots"] == 0
+    res = register_tile(win, [35.0] * 5, [105.0] * 5, [R_DATUM] * 5, [0] * 5, tile_id=3, centre=CENTRE)
+    assert not res.transform.ok and res.counts["used"] == 0
+
+
+def test_single_line_falls_back():
+    """All shots on one profile (a line): shear and rotation about the line are not determined."""
+    win, prof = _case(4, n_tracks=1, sigma_h_m=0.0, sigma_v_m=0.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    t = res.transform
+    assert t.model in ("translation", "vertical") or not t.ok, t.model
+    assert "affine" in t.reason and "similarity" in t.reason
+    if t.ok:  # whatever model the line carries, its vertical shift is the truth's
+        assert abs(-t.translation_enu_m[2] - 300.0) < 30.0
+
+
+def test_tile_window_wraps_the_seam():
+    lat = np.arange(89.75, -90, -0.5)
+    lon = np.arange(0.25, 360, 0.5)
+    h = np.tile(lon, (lat.size, 1))
+    w = tile_window(h, lat, lon, (0.0, 10.0, 350.0, 360.0), R_DATUM, margin_deg=1.0)
+    assert w is not None and np.all(np.diff(w.lon) > 0) and w.lon[0] < 350 and w.lon[-1] > 360
+    np.testing.assert_allclose(w.height[0], w.lon % 360)
+    polar = tile_window(h, lat, lon, (80.0, 90.0, 0.0, 10.0), R_DATUM)
+    assert polar.lon.size == lon.size + 1
+
+
+def test_options_validated():
+    with pytest.raises(ValueError, match="models"):
+        RegisterOptions(models=("shear",))
