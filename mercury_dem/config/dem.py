@@ -86,6 +86,10 @@ class DemConfig(ConfigSection):
     browse_width: int = param(2048, "Width of the browse PNGs", unit="pixel", lo=64, hi=16384)
     cog: bool = param(True, "Write the GeoTIFFs cloud-optimised (COG driver)")
     profile_samples: int = param(1000, "Samples along an elevation profile", lo=2, hi=1_000_000)
+    register_to_altimetry: bool = param(
+        True, "When the mission has laser altimetry, register the DEM to it per 10-degree tile and merge the two "
+        "(registered.zarr, merged.zarr, registration/ beside dem.zarr)"
+    )
 
     def coverage_pixel_km_for(self, datum_radius_m: float) -> float:
         """``coverage_pixel_km``, with 0 resolved to max(1 km, the DEM's north-south pixel size on the datum)."""

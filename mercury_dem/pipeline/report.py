@@ -24,7 +24,7 @@ from mercury_dem.io.run_store import RunStore, read_solution
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
-              "children")
+              "children", "altimetry")
 
 
 def _level_row(s: dict[str, Any]) -> dict[str, Any]:
@@ -203,7 +203,8 @@ def dem_validation_table(d: dict[str, Any]) -> str:
     cols = (("rmse_m", "RMSE"), ("bias_m", "bias"), ("std_m", "std"), ("p5_m", "p5"), ("p50_m", "p50"),
             ("p95_m", "p95"))
     out = ["\nDEM minus truth (m)" + "".join(f"{label:>9}" for _, label in cols) + f"{'pixels':>11}\n"]
-    for key, label in (("adjusted", "adjusted points"), ("a_priori", "a-priori points")):
+    for key, label in (("adjusted", "adjusted points"), ("a_priori", "a-priori points"),
+                       ("registered", "registered (alt.)"), ("merged", "merged with alt.")):
         row = d.get(key)
         if not isinstance(row, dict):
             continue
