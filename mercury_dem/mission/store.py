@@ -35,6 +35,7 @@ from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.geometry.camera import FramingCamera, camera_preset
 from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_write_json, is_complete
+from mercury_dem.io.tables import read_table
 from mercury_dem.mission.cameras import camera_from_dict, camera_to_dict
 from mercury_dem.mission.catalog import (
     CATALOG_COLUMNS,
@@ -276,10 +277,7 @@ def open_mission(path: str | Path) -> Mission:
         version = -1
     if version > VERSION or version < 1:
         raise StoreError(f"mission {p} has format version {meta.get('version')!r}; this reader reads 1..{VERSION}")
-    try:
-        catalog = pd.read_parquet(p / "catalog.parquet")
-    except Exception as exc:  # pyarrow raises its own error types
-        raise StoreError(f"mission {p}: cannot read catalog.parquet ({exc})") from None
+    catalog = read_table(p / "catalog.parquet", f"mission {p}")  # StoreError; never unpickles
     need = CATALOG_COLUMNS if version >= 2 else CATALOG_COLUMNS_V1
     missing = [c for c in need if c not in catalog.columns]
     if missing:
