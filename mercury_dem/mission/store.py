@@ -35,6 +35,7 @@ from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.geometry.camera import FramingCamera, camera_preset
 from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_write_json, is_complete
+from mercury_dem.io.names import check_name, name_fault
 from mercury_dem.io.tables import read_table
 from mercury_dem.mission.cameras import camera_from_dict, camera_to_dict
 from mercury_dem.mission.catalog import (
@@ -101,6 +102,10 @@ def write_image(root: str | Path, image_id: str, image: NDArray[Any]) -> None:
     """Write one image as its own array ``images.zarr/<image_id>`` (safe from parallel workers)."""
     import zarr
 
+    try:
+        check_name(image_id, "image id")
+    except ValueError as exc:
+        raise StoreError(f"mission {root}: {exc}; nothing was written for it") from None
     img = np.asarray(image)
     if img.ndim != 2 or img.dtype not in IMAGE_DTYPES:
         raise StoreError(f"image {image_id}: expected a 2-D array of {[str(d) for d in IMAGE_DTYPES]}, "
@@ -282,6 +287,11 @@ def open_mission(path: str | Path) -> Mission:
     missing = [c for c in need if c not in catalog.columns]
     if missing:
         raise StoreError(f"mission {p}: catalog.parquet lacks columns {missing}")
+    for image_id in catalog["image_id"].tolist():
+        fault = name_fault(image_id)
+        if fault is not None:
+            raise StoreError(f"mission {p}: catalog.parquet image id {image_id!r} {fault}, so it cannot name its "
+                             "array in images.zarr; re-ingest or regenerate the mission")
     if catalog["image_id"].duplicated().any():
         dup = catalog["image_id"][catalog["image_id"].duplicated()].tolist()[:5]
         raise StoreError(f"mission {p}: duplicate image ids in the catalog, e.g. {dup}")
