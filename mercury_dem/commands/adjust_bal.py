@@ -8,6 +8,7 @@ import time
 
 from mercury_dem.adjust.bal import adjust_bal, read_bal
 from mercury_dem.adjust.solver import SolverOptions
+from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.config import Config
 
 NAME = "adjust-bal"
@@ -38,7 +39,10 @@ def run(args: argparse.Namespace, config: Config) -> int:
         pcg_tolerance=cfg.pcg_tolerance,
         pcg_max_iterations=cfg.pcg_max_iterations,
     )
-    _, res = adjust_bal(problem, opt)
+    try:
+        _, res = adjust_bal(problem, opt)
+    except AdjustmentError as exc:  # name the file (the library's message names the problem only)
+        raise AdjustmentError(f"{args.file}: {exc}") from None
     record = {
         "file": str(args.file),
         "cameras": problem.n_cameras,
