@@ -3,6 +3,7 @@ ReferenceDataError naming the file, never another exception, never a hang."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,9 @@ from mercury_dem.reference.lola import AltimetryShots, read_altimetry_csv
 from mercury_dem.reference.sha import ShapeHarmonics, read_shadr
 
 from .conftest import LOLA_DIR, SHA_TAB
+
+#: MERCURY_DEM_FUZZ_EXAMPLES sets the number of inputs of the two fuzz tests (default 500, a few seconds).
+N_EXAMPLES = int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "500"))
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -73,7 +77,7 @@ def _write(folder: Path, name: str, data: bytes) -> Path:
     return path
 
 
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=N_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_mutated(_SHA_SMALL))
 def test_fuzz_shadr(fuzz_dir, data):
     path = _write(fuzz_dir, "fuzz_shape.tab", data)
@@ -99,7 +103,7 @@ def test_fuzz_truncated_real_shadr(fuzz_dir, cut):
         assert sh.lmax == 150
 
 
-@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=N_EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.one_of(_mutated(_CSV), _mutated(_HEADER_CSV)))
 def test_fuzz_altimetry_csv(fuzz_dir, data):
     path = _write(fuzz_dir, "fuzz_shots.csv", data)
