@@ -98,3 +98,18 @@ def test_simulation_replay_cluster_listens_on_loopback_only() -> None:
         assert len(info["workers"]) == 2
         new = set(_tree_sockets()) - before
         assert new and {ip for _, ip, _ in new} == {"127.0.0.1"}, new
+
+
+def test_synth_on_a_tls_scheduler_without_certificates_says_so(tmp_path: Path, monkeypatch) -> None:
+    """``render_all(scheduler="tls://...")`` with no certificate in Dask's configuration: ConfigError naming
+    the scheduler and how to give them (not Dask's TypeError about an ssl_context); nothing is contacted."""
+    import pytest
+
+    from mercury_dem.config import ConfigError
+    from mercury_dem.synth import parallel
+
+    for key in [k for k in __import__("os").environ if k.startswith("DASK_DISTRIBUTED__COMM__TLS")]:
+        monkeypatch.delenv(key)
+    plan = pd.DataFrame({c: [] for c in parallel.RENDER_COLUMNS})
+    with pytest.raises(ConfigError, match=r"scheduler tls://127\.0\.0\.1:9 \(synth --scheduler\) requires TLS.*env\.sh"):
+        parallel.render_all(tmp_path, plan, {}, 2439400.0, None, 0, scheduler="tls://127.0.0.1:9")
