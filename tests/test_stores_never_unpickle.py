@@ -81,9 +81,9 @@ def _zarr_v3_pickle_codec(path: Path, marker: Path, shape: list[int], dtype: str
         if f.is_file() and f.name != "zarr.json":
             f.unlink()
     (path / "zarr.json").write_text(json.dumps(meta))
-    (path / "c").mkdir(exist_ok=True)
-    (path / "c" / ".".join("0" * len(shape)).replace(".", "/")).parent.mkdir(parents=True, exist_ok=True)
-    (path / "c" / "/".join("0" * len(shape))).write_bytes(_pickled(marker))
+    chunk = path / "c" / "/".join("0" * len(shape))  # the one chunk, default key encoding c/0/0
+    chunk.parent.mkdir(parents=True, exist_ok=True)
+    chunk.write_bytes(_pickled(marker))
 
 
 @pytest.fixture
