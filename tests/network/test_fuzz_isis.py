@@ -235,9 +235,19 @@ def _set_label(data: bytes, key: str, value: int) -> bytes:
     return out
 
 
+def _flip_first_double(data: bytes) -> bytes:
+    """The first a-priori X (field 16, wire type 1: key byte 0x81 0x01) of a point set to 1e300."""
+    import struct
+
+    k = data.index(b"\x81\x01", _declared(data)["PointsStartByte"]) + 2
+    return data[:k] + struct.pack("<d", 1e300) + data[k + 8:]
+
+
 #: Inputs kept as a corpus: each once found a fault or probes one the mutations reach rarely.
 CORPUS = {
     # a serial number that is not UTF-8 (np.char.decode raised UnicodeDecodeError)
+    # a flipped exponent byte made a point coordinate ~1e300: points_frame() warned (overflow in x*x)
+    "huge_coordinate": ("ours_v5.net", lambda d: _flip_first_double(d), None),
     "non_utf8_serial": ("ours_v5.net", lambda d: d.replace(b"MDIS/1:7", b"MDIS/\xff:7"), "is not UTF-8 text"),
     # 'Object =' with no name, the label that sent pvl's parser into an endless loop in the cube reader
     "object_without_name": ("ours_v2.net", lambda d: d.replace(b"Object = Core", b"Object =\n  Object = Core", 1),
