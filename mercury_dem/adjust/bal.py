@@ -157,19 +157,60 @@ class BalModel:
         return float(np.sqrt(np.sum(state.params**2) + np.sum(state.points**2) + 3 * self.n_cameras))
 
 
+def half_sum_of_squares(r: NDArray[np.float64]) -> float:
+    """0.5 sum r^2 of finite ``r`` without overflow in the squares; ``inf`` only when the sum itself exceeds
+    float64's range (about 1.8e308).
+
+    ``np.sum(r * r)`` overflows (a RuntimeWarning, then inf) as soon as one |r| passes ~1.3e154, though
+    the cost may still be representable; here the squares are of ``r / max|r|`` (at most 1) and the
+    scale is multiplied back in Python floats (which give inf, not a warning, past the range).
+    """
+    if r.size == 0:
+        return 0.0
+    s = float(np.max(np.abs(r)))
+    if s == 0.0:
+        return 0.0
+    q = float(np.sum(np.square(r / s)))
+    return 0.5 * s * (s * q)
+
+
 def bal_cost(problem: BalProblem, state: BalState | None = None) -> float:
-    """0.5 sum of squared residuals of a BAL problem (at ``state``, default the file's values)."""
+    """0.5 sum of squared residuals of a BAL problem (at ``state``, default the file's values).
+
+    ``inf`` when the cost exceeds float64's range (values near 1e308 in the file);
+    :class:`AdjustmentError` when a residual itself is not finite (the projection overflowed).
+    """
     model = BalModel(problem)
-    r = model.residuals(model.initial_state() if state is None else state)
-    return 0.5 * float(np.sum(r * r))
+    with np.errstate(over="ignore", invalid="ignore"):  # reported below, as an error naming the cause
+        r = model.residuals(model.initial_state() if state is None else state)
+    if not np.all(np.isfinite(r)):
+        bad = int(np.argmax(~np.isfinite(r.reshape(problem.n_observations, -1)).all(axis=1)))
+        raise AdjustmentError(
+            f"BAL problem: the residual of observation {bad} is not finite (its projection overflows float64; the "
+            f"largest |value| is {_largest(problem):.3g}); rescale the problem"
+        )
+    return half_sum_of_squares(r)
+
+
+def _largest(problem: BalProblem) -> float:
+    return float(max((np.max(np.abs(a)) for a in (problem.observations, problem.cameras, problem.points) if a.size),
+                     default=0.0))
 
 
 def adjust_bal(problem: BalProblem, options: SolverOptions | None = None) -> tuple[BalState, SolverResult]:
     """Adjust a BAL problem (plain least squares unless ``options`` say otherwise).
 
     Returns the final state and the solver's result (costs 0.5 sum r^2, log with
-    the cost and elapsed seconds per iteration).
+    the cost and elapsed seconds per iteration). :class:`AdjustmentError` when the
+    initial cost is not a finite float64 (values near 1e308 in the file): the solver's
+    squares would overflow.
     """
+    cost = bal_cost(problem)
+    if not np.isfinite(cost):
+        raise AdjustmentError(
+            f"BAL problem: the initial cost exceeds float64's range (largest |value| {_largest(problem):.3g}); "
+            "rescale the problem before adjusting it"
+        )
     model = BalModel(problem)
     res = levenberg_marquardt(model, model.initial_state(), options or SolverOptions(max_iterations=50))
     return res.state, res

@@ -100,7 +100,7 @@ def prior_blocks(
                 h[i, a, b] += s
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")  # 1/0 gives inf (then AdjustmentError), not ZeroDivisionError
 def bal_project(
     rot: NDArray[np.float64],
     par: NDArray[np.float64],

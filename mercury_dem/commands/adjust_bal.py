@@ -23,6 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.adjust.bal import adjust_bal, read_bal  # numba kernels: imported when the command runs
     from mercury_dem.adjust.solver import SolverOptions
+    from mercury_dem.exceptions import AdjustmentError
 
     t0 = time.perf_counter()
     problem = read_bal(args.file)
@@ -39,7 +40,10 @@ def run(args: argparse.Namespace, config: Config) -> int:
         pcg_tolerance=cfg.pcg_tolerance,
         pcg_max_iterations=cfg.pcg_max_iterations,
     )
-    _, res = adjust_bal(problem, opt)
+    try:
+        _, res = adjust_bal(problem, opt)
+    except AdjustmentError as exc:  # name the file (the library's message names the problem only)
+        raise AdjustmentError(f"{args.file}: {exc}") from None
     record = {
         "file": str(args.file),
         "cameras": problem.n_cameras,

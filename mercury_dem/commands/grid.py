@@ -112,8 +112,9 @@ def run(args: argparse.Namespace, config: Any) -> int:
     if args.workers > 0:
         from distributed import Client, LocalCluster
 
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, dashboard_address=":0",
-                               host=config.execution.host)
+        host = config.execution.host  # loopback unless the configuration widens it
+        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, dashboard_address=f"{host}:0",
+                               host=host)
         client = Client(cluster)
     try:
         summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,

@@ -32,6 +32,7 @@ import pandas as pd
 
 from mercury_dem.exceptions import StoreError
 from mercury_dem.io.atomic import atomic_write_json, is_complete
+from mercury_dem.io.tables import read_table
 
 LEVELS = ("tile", "region", "hemisphere", "global")
 
@@ -121,8 +122,8 @@ class RunStore:
         """(images table, overlap pairs table, plan info)."""
         if not is_complete(self.plan_dir):
             raise StoreError(f"{self.plan_dir} is missing or incomplete; re-run 'mercury-dem run'")
-        images = pd.read_parquet(self.plan_dir / "images.parquet")
-        pairs = pd.read_parquet(self.plan_dir / "overlaps.parquet")
+        images = read_table(self.plan_dir / "images.parquet", f"run plan {self.plan_dir}")
+        pairs = read_table(self.plan_dir / "overlaps.parquet", f"run plan {self.plan_dir}")
         info = json.loads((self.plan_dir / "plan.json").read_text())
         return images, pairs, info
 
@@ -144,7 +145,7 @@ def write_solution(path: Path, image_ids: np.ndarray, rotations: np.ndarray, pos
 
 def read_solution(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, pd.DataFrame]:
     """(image_ids, rotations (N,3,3), positions (N,3), the whole table)."""
-    df = pd.read_parquet(path)
+    df = read_table(path, "solution")
     rot = df[[f"rotation_{i}{j}" for i in range(3) for j in range(3)]].to_numpy().reshape(-1, 3, 3)
     pos = df[["position_x", "position_y", "position_z"]].to_numpy()
     return df["image_id"].to_numpy(dtype=str), rot, pos, df

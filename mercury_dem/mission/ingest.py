@@ -38,6 +38,7 @@ from mercury_dem.exceptions import IsdError, MercuryDemError, StoreError
 from mercury_dem.geometry.body import Body, body_by_name
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.io.atomic import atomic_directory
+from mercury_dem.io.names import name_fault
 from mercury_dem.mission.cameras import camera_to_dict
 from mercury_dem.mission.catalog import build_catalog
 from mercury_dem.mission.radiometry import Radiometry, float_radiometry, radiometry_of_dtype, robust_range
@@ -513,6 +514,11 @@ def _dedupe(images: list[SourceImage], rejected: dict[str, str]) -> list[SourceI
     out: list[SourceImage] = []
     seen: dict[str, str] = {}
     for im in images:
+        fault = name_fault(im.image_id)
+        if fault is not None:  # the id (from the file name) would name a file in the mission
+            rejected[im.files[0]] = (f"{im.files[0]}: its image id {im.image_id!r} (from the file name) {fault}; "
+                                     "rename the file")
+            continue
         if im.image_id in seen:
             rejected[im.files[0]] = (f"{im.image_id}: the same image id as {seen[im.image_id]}; "
                                      "give each image once")

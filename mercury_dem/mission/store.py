@@ -37,6 +37,8 @@ from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.geometry.camera import FramingCamera, camera_preset
 from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_write_json, is_complete
+from mercury_dem.io.names import check_name, name_fault
+from mercury_dem.io.tables import read_table
 from mercury_dem.mission.cameras import camera_from_dict, camera_to_dict
 from mercury_dem.mission.catalog import (
     CATALOG_COLUMNS,
@@ -110,6 +112,10 @@ def write_image(root: str | Path, image_id: str, image: NDArray[Any]) -> None:
     """Write one image as its own array ``images.zarr/<image_id>`` (safe from parallel workers)."""
     import zarr
 
+    try:
+        check_name(image_id, "image id")
+    except ValueError as exc:
+        raise StoreError(f"mission {root}: {exc}; nothing was written for it") from None
     img = np.asarray(image)
     if img.ndim != 2 or img.dtype not in IMAGE_DTYPES:
         raise StoreError(f"image {image_id}: expected a 2-D array of {[str(d) for d in IMAGE_DTYPES]}, "
@@ -305,14 +311,16 @@ def open_mission(path: str | Path) -> Mission:
         version = -1
     if version > VERSION or version < 1:
         raise StoreError(f"mission {p} has format version {meta.get('version')!r}; this reader reads 1..{VERSION}")
-    try:
-        catalog = pd.read_parquet(p / "catalog.parquet")
-    except Exception as exc:  # pyarrow raises its own error types
-        raise StoreError(f"mission {p}: cannot read catalog.parquet ({exc})") from None
+    catalog = read_table(p / "catalog.parquet", f"mission {p}")  # StoreError; never unpickles
     need = CATALOG_COLUMNS if version >= 2 else CATALOG_COLUMNS_V1
     missing = [c for c in need if c not in catalog.columns]
     if missing:
         raise StoreError(f"mission {p}: catalog.parquet lacks columns {missing}")
+    for image_id in catalog["image_id"].tolist():
+        fault = name_fault(image_id)
+        if fault is not None:
+            raise StoreError(f"mission {p}: catalog.parquet image id {image_id!r} {fault}, so it cannot name its "
+                             "array in images.zarr; re-ingest or regenerate the mission")
     if catalog["image_id"].duplicated().any():
         dup = catalog["image_id"][catalog["image_id"].duplicated()].tolist()[:5]
         raise StoreError(f"mission {p}: duplicate image ids in the catalog, e.g. {dup}")
@@ -338,4 +346,21 @@ def open_mission(path: str | Path) -> Mission:
             body = Body.from_dict(meta["body"])
         except (KeyError, TypeError, ValueError) as exc:
             raise StoreError(f"mission {p}: mission.json has no valid body ({exc})") from None
+    _check_image_sizes(p, catalog, cameras)
     return Mission(p, meta, catalog, cameras, body)
+
+
+def _check_image_sizes(p: Path, catalog: pd.DataFrame, cameras: dict[str, FramingCamera]) -> None:
+    """Each image's (lines, samples) in the catalog is its camera's (a damaged catalog row is refused
+    here, not when a worker reads the image; found by the mission store fuzz test at 2000 inputs)."""
+    ids = catalog["camera_id"].astype(str).tolist()
+    want = np.array([(cameras[c].lines, cameras[c].samples) for c in ids], dtype=np.float64).reshape(-1, 2)
+    got = catalog[["lines", "samples"]].to_numpy(dtype=np.float64, na_value=np.nan)
+    bad = np.flatnonzero(np.any(got != want, axis=1))
+    if bad.size:
+        k = int(bad[0])
+        raise StoreError(
+            f"mission {p}: catalog.parquet gives image {catalog['image_id'].iat[k]!r} {got[k, 0]:g} x {got[k, 1]:g} "
+            f"pixels (lines x samples) but its camera {ids[k]!r} is {want[k, 0]:g} x {want[k, 1]:g} "
+            f"({bad.size} images disagree); re-ingest or regenerate the mission"
+        )

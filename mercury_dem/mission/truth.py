@@ -100,7 +100,9 @@ class SyntheticTruth:
     @cached_property
     def poses(self) -> pd.DataFrame:
         """image_id, true_position_*, true_rotation_*, pointing_error_* (rad), ... in catalog order."""
-        t = pd.read_parquet(self.path / "poses.parquet")
+        from mercury_dem.io.tables import read_table
+
+        t = read_table(self.path / "poses.parquet", f"mission truth {self.path}")
         return t.set_index("image_id").loc[self._ids].reset_index()
 
     @cached_property

@@ -125,7 +125,11 @@ def read_isis_network(
         if f in _HEADER_TEXT_FIELDS and wt == pw.WT_LEN:
             meta[_HEADER_TEXT_FIELDS[f]] = bytes(value).decode("utf-8", "replace")  # type: ignore[arg-type]
         elif version == 5 and f == 8 and wt == pw.WT_LEN:
-            header_serials.append(bytes(value).decode("utf-8"))  # type: ignore[arg-type]
+            try:
+                header_serials.append(bytes(value).decode("utf-8"))  # type: ignore[arg-type]
+            except UnicodeDecodeError:
+                raise NetworkError(f"{path}: a serial number in the header is not UTF-8 text; the file is "
+                                   "damaged") from None
     buf = np.frombuffer(data, np.uint8)
     end = ps + pbytes
     if version == 2:
@@ -141,6 +145,13 @@ def read_isis_network(
             else:
                 chunks.append(np.array([value], np.int64))
         sizes = np.concatenate(chunks) if chunks else np.zeros(0, np.int64)
+        if np.any(sizes < 0):
+            raise NetworkError(f"{path}: a point message size in the header is negative; the file is damaged")
+        if sizes.size and int(sizes.sum()) < pbytes:  # more than that runs past the end (checked below)
+            raise NetworkError(
+                f"{path}: the header's point message sizes add up to {int(sizes.sum())} bytes but the label says "
+                f"PointsBytes = {pbytes}; the file is damaged"
+            )
         starts = ps + np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)[: sizes.size]
         ends = starts + sizes
         if sizes.size and ends[-1] > end:
@@ -164,6 +175,10 @@ def read_isis_network(
     first = np.zeros(n + 1, np.int64)
     np.cumsum(counts, out=first[1:])
     m = int(first[-1])
+    if "NumberOfMeasures" in label and label["NumberOfMeasures"] != m:
+        raise NetworkError(
+            f"{path}: the label says {label['NumberOfMeasures']} measures but the data hold {m}; the file is damaged"
+        )
     cols = _empty_columns(n, m)
     bad_p, bad_off = pw.decode_points(
         buf, starts, ends, first,
@@ -181,9 +196,14 @@ def read_isis_network(
     if int_point_ids and n:
         values, canonical = pw.parse_int_spans(buf, cols["pid_off"], cols["pid_len"])
         point_ids = values if canonical else None
-    if point_ids is None:
-        point_ids = _strings_at(buf, cols["pid_off"], cols["pid_len"])
-    serial_codes, serials = _unique_strings_at(buf, cols["ser_off"], cols["ser_len"])
+    what = "a point id"
+    try:
+        if point_ids is None:
+            point_ids = _strings_at(buf, cols["pid_off"], cols["pid_len"])
+        what = "a measure's serial number"
+        serial_codes, serials = _unique_strings_at(buf, cols["ser_off"], cols["ser_len"])
+    except UnicodeDecodeError:  # protobuf strings are UTF-8: another byte sequence is a damaged message
+        raise NetworkError(f"{path}: {what} is not UTF-8 text; the file is damaged") from None
     ptype = cols["ptype"]
     ptype = np.where(ptype == 0, PointType.FREE, np.where(ptype == 1, PointType.FIXED, ptype)).astype(np.int8)
     measure_point = np.repeat(np.arange(n, dtype=np.int64), counts)

@@ -326,7 +326,12 @@ class ControlNetwork:
         """Planetocentric latitude, east longitude [0, 360) (degrees) and radius (m) of the points."""
         xyz = self.adjusted_xyz if adjusted else self.apriori_xyz
         x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        r = np.sqrt(x * x + y * y + z * z)
+        with np.errstate(over="ignore"):  # coordinates past ~1e154 m (a damaged file): r by hypot below
+            r = np.sqrt(x * x + y * y + z * z)
+        big = np.isinf(r) & np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+        if big.any():
+            with np.errstate(over="ignore"):  # inf only when the radius itself exceeds float64
+                r = np.where(big, np.hypot(np.hypot(x, y), z), r)
         lat = np.degrees(np.arctan2(z, np.hypot(x, y)))
         lon = np.mod(np.degrees(np.arctan2(y, x)), 360.0)
         return lat, np.where(lon >= 360.0, 0.0, lon), r

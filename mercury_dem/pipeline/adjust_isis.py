@@ -35,6 +35,7 @@ import numpy as np
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import MercuryDemError, NetworkError
 from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
+from mercury_dem.io.names import name_fault
 
 
 class AdjustIsisError(MercuryDemError):
@@ -102,6 +103,10 @@ def _isd_outputs(images: list[Any], rotations: np.ndarray, positions: np.ndarray
     for j, c in enumerate(camera_index.tolist()):
         im = images[c]
         src = Path(im.files[0])
+        fault = name_fault(im.image_id)
+        if fault is not None:  # ids come from file names; one must not write outside out_dir
+            skipped[im.image_id] = f"image id {im.image_id!r} {fault}; no ISD written for it"
+            continue
         target = out_dir / f"{im.image_id}.json"
         try:
             if src.suffix.lower() == ".json":

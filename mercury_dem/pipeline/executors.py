@@ -153,6 +153,24 @@ def _quiet_workers(client: Any) -> None:
     client.register_plugin(QuietCommSizeProbe())
 
 
+def _check_tls_of_scheduler_file(path: str, security: Any) -> None:
+    """A scheduler file naming a ``tls://`` address needs certificates (see ``require_tls_settings``).
+
+    Only the address is looked at (the file is JSON); a missing or unreadable file is left to
+    Dask, which waits for it to appear (launchers write it while the client starts).
+    """
+    import json
+    from pathlib import Path
+
+    from mercury_dem.pipeline.security import require_tls_settings
+
+    try:
+        address = json.loads(Path(path).read_text()).get("address", "")
+    except (OSError, ValueError, AttributeError):
+        return
+    require_tls_settings(str(address), security, f"scheduler file {path}")
+
+
 def connect(
     cfg: ExecutionConfig,
     scheduler: str | None = None,
@@ -171,6 +189,7 @@ def connect(
     if scheduler_file:
         from distributed import Client
 
+        _check_tls_of_scheduler_file(scheduler_file, security)
         client = Client(scheduler_file=scheduler_file, security=security)
         _quiet_workers(client)
         return Connection(client, "scheduler-file", description=f"scheduler file {scheduler_file}")
@@ -199,6 +218,9 @@ def connect(
         )
     from distributed import Client
 
+    from mercury_dem.pipeline.security import require_tls_settings
+
+    require_tls_settings(target, security, "--scheduler or execution.scheduler")
     client = Client(target, security=security)
     _quiet_workers(client)
     return Connection(client, "scheduler", description=f"scheduler {target}")

@@ -21,6 +21,7 @@ import numpy as np
 from mercury_dem.config import Config, to_dict
 from mercury_dem.io.atomic import atomic_write_json
 from mercury_dem.io.run_store import RunStore, read_solution
+from mercury_dem.io.tables import read_table
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
@@ -106,7 +107,7 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
     for t in store.completed_units("tile"):
         p = store.unit_dir("tile", t) / "pairs.parquet"
         if p.is_file():
-            t = pd.read_parquet(p)  # a tile without pairs wrote a table without columns
+            t = read_table(p, f"tile {t}")  # a tile without pairs wrote a table without columns
             if {"ref_id", "match_id", "status", "reason"} <= set(t.columns):
                 rows.append(t[["ref_id", "match_id", "status", "reason"]])
     tried = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["ref_id", "match_id", "status", "reason"])

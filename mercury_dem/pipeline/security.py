@@ -136,3 +136,28 @@ __all__ = [
     "TlsFiles", "tls_security", "tls_environment", "add_tls_arguments", "security_from_args",
     "CA_NAME", "CERT_NAME", "KEY_NAME",
 ]
+
+
+def require_tls_settings(address: str, security: Any, source: str) -> None:
+    """Raise :class:`ConfigError` when ``address`` is ``tls://`` and no certificate is configured.
+
+    Dask's own failure there is ``TypeError: TLS expects a ssl_context argument ...`` from
+    inside the event loop; this names the scheduler, where its address came from
+    (``source``) and the two ways to give the certificates. ``security`` is a
+    ``distributed.security.Security`` or ``None``; Dask's configuration (the
+    ``DASK_DISTRIBUTED__COMM__TLS__*`` variables of ``env.sh``) counts too.
+    """
+    if not str(address).startswith("tls://"):
+        return
+    if security is not None and getattr(security, "tls_client_cert", None):
+        return
+    import dask
+
+    if dask.config.get("distributed.comm.tls.client.cert", None) or dask.config.get(
+            "distributed.comm.tls.ca-file", None) and dask.config.get("distributed.comm.tls.client.key", None):
+        return
+    raise ConfigError(
+        f"scheduler {address} ({source}) requires TLS but no client certificate is configured: pass "
+        "--tls-ca-file, --tls-cert and --tls-key (e.g. the ca.pem, cert.pem, key.pem of the deployment's tls/ "
+        "directory), or 'source' the deployment's env.sh before running"
+    )

@@ -361,18 +361,21 @@ def _sleep(seconds: float, *deps: Any) -> float:
 
 
 def sleep_cluster(n_workers: int) -> Any:
-    """An in-process LocalCluster of single-threaded workers (inproc transport; the dashboard on a free loopback port).
+    """An in-process LocalCluster of single-threaded workers (inproc transport, HTTP on loopback only).
 
     Sleep tasks release the GIL, so threads stand in for worker processes. The workers have no
     memory limit: in-process workers each measure the whole process's memory against their 1/n
     share of the machine's (1.5 GiB for 16 workers on 24 GiB), so a caller already holding more (a
-    test session after other tests) had every worker paused and the replay hung. ``dashboard_address=None``
-    still means Dask's default 8787, and a busy 8787 is a warning (an error in the tests): a free port.
+    test session after other tests) had every worker paused and the replay hung.
+
+    Even an inproc cluster starts HTTP servers (the scheduler's health/metrics routes and one per
+    worker): with ``dashboard_address=None`` Dask bound the scheduler's to port 8787 and every one
+    of them to all interfaces (0.0.0.0 and ::). Both addresses are therefore given as loopback.
     """
     from distributed import LocalCluster
 
-    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False,
-                        dashboard_address="127.0.0.1:0", memory_limit=0)
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, memory_limit=0,
+                        dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0")
 
 
 def replay_on_dask(client: Any, graph: CascadeGraph, durations: Mapping[str, float],

@@ -63,12 +63,17 @@ PRODUCT_FILES = (
 def open_dem(path: str | Path) -> xr.Dataset:
     """Open a ``dem.zarr`` store lazily with its CRS (``decode_coords='all'``).
 
-    Raises StoreError when the store is missing or was not written to completion.
+    Raises StoreError when the store is missing, cannot be opened (e.g. an unknown or pickle
+    codec) or was not written to completion.
     """
     path = Path(path)
     if not path.exists():
         raise StoreError(f"no DEM store at {path}; run 'mercury-dem grid' (or the pipeline's DEM stage) first")
-    ds = xr.open_zarr(str(path), consolidated=False, decode_coords="all")
+    try:
+        ds = xr.open_zarr(str(path), consolidated=False, decode_coords="all")
+    except Exception as exc:  # zarr/xarray raise several types (unknown codec, bad metadata, missing array)
+        raise StoreError(f"the DEM store {path} cannot be opened ({type(exc).__name__}: {exc}); "
+                         "grid it again with --overwrite") from None
     if not ds.attrs.get("complete"):
         raise StoreError(f"the DEM store {path} is incomplete (interrupted run?); grid it again with --overwrite")
     return ds

@@ -108,6 +108,9 @@ def render_all(
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
+        from mercury_dem.pipeline.security import require_tls_settings
+
+        require_tls_settings(scheduler, None, "synth --scheduler")  # TLS only through Dask's config (env.sh)
         with Client(scheduler) as c:
             return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 

@@ -85,6 +85,7 @@ def test_seed_reads(fuzz_path: Path) -> None:
 @example(text=SEED + "1.0\n")  # was: tokens beyond the header's counts ignored
 @example(text="3 10 30\n0 0 1e400 0\n")  # huge value
 @example(text=SEED.replace("\n0 0 6.286511e+00", "\n0 0 1e308", 1))  # finite, accepted
+@example(text="1 1 1\n0 0 1 1\n" + "0\n" * 9 + "0\n0\n0\n")  # point in the camera's plane: ZeroDivisionError
 def test_damaged_bal_gives_problem_or_adjustment_error(fuzz_path: Path, text: str) -> None:
     fuzz_path.write_bytes(text.encode("utf-8", "surrogatepass"))
     try:
@@ -99,5 +100,31 @@ def test_damaged_bal_gives_problem_or_adjustment_error(fuzz_path: Path, text: st
     assert np.all((prob.camera_index >= 0) & (prob.camera_index < prob.n_cameras))
     assert np.all((prob.point_index >= 0) & (prob.point_index < prob.n_points))
     assert all(np.all(np.isfinite(a)) for a in (prob.observations, prob.cameras, prob.points))
-    # (bal_cost is not evaluated here: with values near 1e308 the squared residual overflows,
-    # which is the cost's concern, not the reader's)
+    # the cost of what was read: a float (inf only past float64's range, for values near 1e308), or
+    # AdjustmentError when a projection overflows; never NaN or an overflow warning (warnings are errors)
+    try:
+        cost = bal_cost(prob)
+    except AdjustmentError as exc:
+        assert "not finite" in str(exc)
+        return
+    assert cost >= 0.0 and not np.isnan(cost)
+
+
+def test_cost_near_float_max_is_inf_and_adjustment_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Values near 1e308: ``bal_cost`` is inf without an overflow warning (``np.sum(r * r)`` warned), a
+    representable cost of residuals ~1e150 (whose squares alone overflow) is exact to rounding, and
+    ``adjust-bal`` refuses with AdjustmentError naming the file instead of iterating on inf."""
+    from mercury_dem.adjust.bal import adjust_bal, half_sum_of_squares
+    from mercury_dem.cli import main
+
+    assert np.isinf(half_sum_of_squares(np.array([3e200, -4e200, 0.0])))  # 1.25e401: past the range
+    assert half_sum_of_squares(np.array([3e150, 4e150])) == pytest.approx(0.5 * 25e300, rel=1e-15)
+    assert half_sum_of_squares(np.array([3.0, 4.0])) == 12.5 and half_sum_of_squares(np.zeros(0)) == 0.0
+    p = tmp_path / "huge-problem.txt"
+    p.write_text(SEED.replace("\n0 0 6.286511e+00", "\n0 0 1e308", 1))
+    prob = read_bal(p)
+    assert np.isinf(bal_cost(prob))
+    with pytest.raises(AdjustmentError, match="initial cost exceeds float64's range"):
+        adjust_bal(prob)
+    assert main(["adjust-bal", str(p)]) == 2
+    assert "huge-problem.txt: BAL problem: the initial cost exceeds" in capsys.readouterr().err

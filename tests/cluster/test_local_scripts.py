@@ -11,6 +11,7 @@ from distributed import Client
 
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE
 from tests.cluster.conftest import (
+    REPO,
     LOCAL,
     LocalDeployment,
     alive,
@@ -117,3 +118,79 @@ def test_tls_deployment_refuses_plain_tcp_and_foreign_certificates(tmp_path: Pat
     while alive(dep.processes) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert alive(dep.processes) == []
+
+
+_CONNECT_FROM_CONFIG = """
+import sys
+from mercury_dem.config import load_config
+from mercury_dem.pipeline.executors import connect
+conn = connect(load_config(sys.argv[1]).execution)
+try:
+    print(conn.mode, conn.client.submit(sum, [20, 22]).result())
+finally:
+    conn.close()
+"""
+
+
+def test_project_client_joins_a_tls_deployment_through_its_configuration(tmp_path: Path) -> None:
+    """The project's own client path, not a bare ``Client``: ``connect()`` with ``--scheduler tls://...`` and
+    the ``--tls-*`` flags of ``mercury-dem run``; and ``execution.scheduler: tls://...`` in a YAML with the
+    certificates from ``start.sh``'s ``env.sh`` only (how the launchers hand TLS to ``mercury-dem run``).
+    The same two routes without certificates are refused."""
+    import argparse
+    import os
+    import shlex
+    import sys
+
+    import pytest
+
+    from mercury_dem.config import ConfigError, load_config
+    from mercury_dem.pipeline.executors import connect
+    from mercury_dem.pipeline.security import add_tls_arguments, security_from_args
+
+    dep = start_local(tmp_path / "dask", workers=1, tls=True)
+    try:
+        address = dep.address
+        assert address.startswith("tls://127.0.0.1:")
+        tls = dep.state / "tls"
+        # 1. the run command's flags, parsed as `mercury-dem run` parses them, into connect()
+        p = argparse.ArgumentParser()
+        add_tls_arguments(p)
+        args = p.parse_args(["--tls-ca-file", str(tls / "ca.pem"), "--tls-cert", str(tls / "cert.pem"),
+                             "--tls-key", str(tls / "key.pem")])
+        conn = connect(load_config().execution, scheduler=address, security=security_from_args(args))
+        try:
+            assert conn.mode == "scheduler"
+            assert conn.client.submit(_square, 9).result() == 81
+            (w,) = conn.client.scheduler_info(n_workers=-1)["workers"]
+            assert w.startswith("tls://127.0.0.1:")
+        finally:
+            conn.close()
+        # ... and without them: refused (the scheduler requires encryption and a certificate of its CA)
+        with pytest.raises(ConfigError, match=rf"scheduler {address} .*requires TLS.*--tls-ca-file.*env\.sh"):
+            connect(load_config().execution, scheduler=address, security=None)
+        with pytest.raises(ConfigError, match=r"scheduler file .*scheduler\.json.*requires TLS"):
+            connect(load_config().execution, scheduler_file=str(dep.scheduler_file), security=None)
+        # 2. execution.scheduler in the configuration, certificates from env.sh only, in a fresh process
+        cfg = tmp_path / "cfg.yaml"
+        cfg.write_text(f"execution:\n  scheduler: {address}\n")
+        env = script_env(PYTHONPATH=str(REPO))
+        for line in (dep.state / "env.sh").read_text().splitlines():
+            if line.startswith("export "):
+                key, _, value = line[len("export "):].partition("=")
+                env[key] = shlex.split(value)[0] if value else ""
+        assert env["DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION"] in ("True", "true", "1")
+        res = subprocess.run([sys.executable, "-c", _CONNECT_FROM_CONFIG, str(cfg)], env=env, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=60)
+        assert res.returncode == 0 and res.stdout.split() == ["scheduler", "42"], res.stderr[-2000:]
+        bare = {k: v for k, v in env.items() if not k.startswith("DASK_")}
+        t0 = time.monotonic()
+        res = subprocess.run([sys.executable, "-c", _CONNECT_FROM_CONFIG, str(cfg)], env=bare, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=60)
+        assert res.returncode != 0 and "42" not in res.stdout, res.stdout
+        assert "ConfigError" in res.stderr and "requires TLS" in res.stderr, res.stderr[-2000:]
+        assert time.monotonic() - t0 < 30
+        assert os.environ.get("DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION") is None
+    finally:
+        res = dep.stop()
+    assert res.returncode == 0, res.stderr
