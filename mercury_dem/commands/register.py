@@ -15,8 +15,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from mercury_dem.exceptions import ConfigError, ReferenceDataError
 
 NAME = "register"
@@ -36,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def read_shots(paths: list[str], radius_m: float) -> Any:
     """All shot tables as one DataFrame; track ids made unique across files."""
+    import numpy as np
     import pandas as pd
 
     from mercury_dem.reference.lola import read_altimetry_csv
