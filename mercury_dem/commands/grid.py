@@ -93,7 +93,9 @@ def run(args: argparse.Namespace, config: Any) -> int:
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("config key '", "config key 'dem.", 1)) from None
     points = read_points(args.points)
-    out = Path(args.out)
+    from mercury_dem.io.location import refuse_remote
+
+    out = refuse_remote(args.out, "--out", "write it locally, then upload it (aws s3 sync DIR URL; gsutil rsync -r DIR URL), or use 'mercury-dem run --out URL'")
     client = None
     cluster = None
     if args.workers > 0:

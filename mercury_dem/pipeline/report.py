@@ -41,7 +41,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
     ids_all = [str(x) for x in mission.catalog["image_id"]]
     controlled: list[str] = []
     report: dict[str, Any] = {
-        "run": str(store.root),
+        "run": store.location,
         "mission": str(mission.path),
         "tiles": {
             "total": int(plan["tiles_total"]),
@@ -104,7 +104,7 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
         partners[b] = partners.get(b, 0) + 1
     rows = []
     for t in store.completed_units("tile"):
-        p = store.unit_dir("tile", t) / "pairs.parquet"
+        p = store.unit_file("tile", t, "pairs.parquet")
         if p.is_file():
             t = pd.read_parquet(p)  # a tile without pairs wrote a table without columns
             if {"ref_id", "match_id", "status", "reason"} <= set(t.columns):
@@ -134,6 +134,7 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
 
 def write_report(store: RunStore, report: dict[str, Any]) -> None:
     atomic_write_json(store.report_json, report)
+    store.commit_file("report.json")
 
 
 def _f(x: Any, fmt: str = ".3f") -> str:
