@@ -66,7 +66,10 @@ def resolve_location(location: str | Path, what: str = "store") -> str | Path:
         return Path(location)
     text = str(location)
     if scheme == "file":
-        parsed = urlparse(text)
+        try:
+            parsed = urlparse(text)
+        except ValueError as exc:  # e.g. an unclosed '[' of an IPv6 host
+            raise UnsupportedLocationError(f"{what} {text}: not a valid file:// URL ({exc})") from None
         if parsed.netloc not in ("", "localhost"):
             raise UnsupportedLocationError(
                 f"{what} {text}: a file:// URL must name a local path (file:///abs/path), not host {parsed.netloc!r}")

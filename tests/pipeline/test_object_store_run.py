@@ -92,6 +92,15 @@ def test_bucket_run_equals_the_local_run(s3_run: list[str], sync_run: tuple[Path
     assert on_bucket == products and "dem.tif" in products
 
 
+def test_readers_of_a_run_take_its_url(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]], tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["report", RUN]) == 0
+    assert "global" in capsys.readouterr().out
+    assert main(["export-isis", RUN, str(tmp_path / "bucket.net"), "--level", "global"]) == 0
+    assert main(["export-isis", str(sync_run[0]), str(tmp_path / "local.net"), "--level", "global"]) == 0
+    assert (tmp_path / "bucket.net").read_bytes() == (tmp_path / "local.net").read_bytes()
+
+
 def test_resume_on_the_bucket_recomputes_nothing(s3_run: list[str]) -> None:
     store = RunStore(RUN)
     before = commits(store)
@@ -125,3 +134,19 @@ def test_units_without_a_marker_are_recomputed(s3_run: list[str], tmp_path: Path
     assert np.array_equal(read_network(fresh.network_path("tile", tile)).apriori_xyz, tile_net.apriori_xyz,
                           equal_nan=True)
     assert np.array_equal(read_solution(fresh.solution_path("region", region))[1], region_rot)
+
+
+@pytest.mark.slow
+def test_a_local_cluster_on_the_bucket_equals_the_sync_run(s3_endpoint: str, tiny_mission_path: Path,
+                                                          sync_run: tuple[Path, dict[str, Any]]) -> None:
+    # two worker processes, each with the shared cache: tasks get the URL, read and commit through the bucket
+    from mercury_dem.pipeline.graph import run_pipeline
+
+    make_bucket("e2e-cluster")
+    report = run_pipeline(tiny_mission_path, "s3://e2e-cluster/run", tiny_config(), workers=2, threads_per_worker=1,
+                          stream=None)
+    assert report["execution"]["mode"] == "local"
+    ids0, rot0, _, _ = read_solution(RunStore(sync_run[0]).solution_path("global", 0))
+    ids1, rot1, _, _ = read_solution(RunStore("s3://e2e-cluster/run").solution_path("global", 0))
+    assert (ids0 == ids1).all() and np.array_equal(rot0, rot1)
+    assert RunStore("s3://e2e-cluster/run").remote.exists("performance.html")
