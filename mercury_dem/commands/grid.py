@@ -93,9 +93,9 @@ def run(args: argparse.Namespace, config: Any) -> int:
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("config key '", "config key 'dem.", 1)) from None
     points = read_points(args.points)
-    from mercury_dem.io.location import refuse_remote
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
 
-    out = refuse_remote(args.out, "--out", "write it locally, then upload it (aws s3 sync DIR URL; gsutil rsync -r DIR URL), or use 'mercury-dem run --out URL'")
+    out = refuse_remote(args.out, "--out", f"{UPLOAD_HINT}, or use 'mercury-dem run --out URL'")
     client = None
     cluster = None
     if args.workers > 0:

@@ -30,10 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.io.location import refuse_remote
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
     from mercury_dem.mission.ingest import describe, ingest_mission
 
-    refuse_remote(args.mission, "mission", "write it locally, then upload it (aws s3 sync DIR URL; gsutil rsync -r DIR URL)")
+    refuse_remote(args.mission, "mission", UPLOAD_HINT)
     summary = ingest_mission(
         args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
         instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,

@@ -50,11 +50,10 @@ def synth_config(args: argparse.Namespace, config: Config) -> SynthConfig:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
     from mercury_dem.synth.generate import generate_mission
 
-    from mercury_dem.io.location import refuse_remote
-
-    refuse_remote(args.out, "mission", "write it locally, then upload it (aws s3 sync DIR URL; gsutil rsync -r DIR URL)")
+    refuse_remote(args.out, "mission", UPLOAD_HINT)
     cfg = synth_config(args, config)
 
     def progress(done: int, total: int) -> None:

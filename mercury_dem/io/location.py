@@ -27,6 +27,9 @@ from mercury_dem.exceptions import StoreError
 #: Object-store schemes a run store may live on, and the package that provides each backend.
 OBJECT_STORE_SCHEMES = {"s3": "s3fs", "gs": "gcsfs", "gcs": "gcsfs"}
 
+#: What a command that writes local directories only tells a user who gave it a URL.
+UPLOAD_HINT = "write it locally, then upload it (aws s3 sync DIR URL; gsutil rsync -r DIR URL)"
+
 _URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]*)://")
 
 

@@ -96,6 +96,25 @@ class RunStore:
             raise StoreError(f"{self.root} is a local run; it has no object-store prefix")
         return RemoteDir(self.url)
 
+    def check_writable(self) -> None:
+        """Write and delete a probe object under a bucket run's prefix; a clear error when the bucket cannot be used.
+
+        Raises
+        ------
+        StoreError : no such bucket, no credentials or no permission, endpoint unreachable (the
+            fsspec/botocore error is quoted).
+        """
+        if self.url is None:
+            return
+        try:
+            self.remote.write_bytes(".write-probe", b"")
+            self.remote.remove(".write-probe")
+        except Exception as exc:  # noqa: BLE001 - botocore/gcsfs raise many types; all mean "cannot use it"
+            raise StoreError(
+                f"{self.url}: cannot write to the bucket ({type(exc).__name__}: {exc}); check that the bucket "
+                "exists, the endpoint (FSSPEC_S3_ENDPOINT_URL for a service that is not AWS) and the credentials "
+                "(AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY, ~/.aws, or the instance role)") from None
+
     def has_run(self) -> bool:
         """Whether the run's ``run.json`` exists (on the bucket for a URL run)."""
         if self.url is not None:

@@ -105,6 +105,8 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
     store = RunStore(resolve_location(out, "--out"))
     mission_loc = resolve_location(mission_path, "mission")
     mission_abs = mission_loc if isinstance(mission_loc, str) else str(mission_loc.resolve())
+    if store.url is not None:
+        store.check_writable()
     if store.has_run():
         prev = store.read_run()
         if prev.get("mission") != mission_abs:

@@ -42,7 +42,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
     controlled: list[str] = []
     report: dict[str, Any] = {
         "run": store.location,
-        "mission": str(mission.path),
+        "mission": _mission_ref(store, mission),
         "tiles": {
             "total": int(plan["tiles_total"]),
             "non_empty": len(plan["non_empty_tiles"]),
@@ -130,6 +130,13 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
             out[i] = (f"{len(matched)} of its pairs matched, but none of its measures survived the merge and the "
                       "adjustment's outlier rejection")
     return out
+
+
+def _mission_ref(store: RunStore, mission: Mission) -> str:
+    """The mission as the user named it: its URL when it is read from a bucket (``mission.path`` is then
+    its local cached copy), else its path as before."""
+    named = str(store.read_run().get("mission", ""))
+    return named if "://" in named else str(mission.path)
 
 
 def write_report(store: RunStore, report: dict[str, Any]) -> None:

@@ -103,3 +103,11 @@ def test_a_mission_is_read_from_the_bucket(tiny_mission_path: Path) -> None:
     assert m.path == fetch_mission("s3://missions/tiny")
     assert m.image_ids == local.image_ids
     np.testing.assert_array_equal(m.read_image(m.image_ids[0]), local.read_image(local.image_ids[0]))
+
+
+def test_a_bucket_that_does_not_exist_is_a_clear_error(tmp_path: Path) -> None:
+    from mercury_dem.cli import main
+
+    with pytest.raises(StoreError, match=r"s3://no-such-bucket/run: cannot write to the bucket .*check that the bucket"):
+        RunStore("s3://no-such-bucket/run").check_writable()
+    assert main(["run", str(tmp_path / "m"), "--out", "s3://no-such-bucket/run", "--scheduler", "sync"]) == 2

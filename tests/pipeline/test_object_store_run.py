@@ -69,7 +69,7 @@ def test_bucket_run_equals_the_local_run(s3_run: list[str], sync_run: tuple[Path
     store = RunStore.open(RUN)
     assert store.read_run()["mission"] == MISSION
     report = __import__("json").loads(store.report_json.read_text())
-    assert report["run"] == RUN and levels(report) == levels(local_report)
+    assert report["run"] == RUN and report["mission"] == MISSION and levels(report) == levels(local_report)
     for level in ("tile", "region", "hemisphere", "global"):
         assert store.completed_units(level) == RunStore(local).completed_units(level)
     ids0, rot0, pos0, _ = read_solution(RunStore(local).solution_path("global", 0))
