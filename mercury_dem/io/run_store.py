@@ -163,9 +163,10 @@ class RunStore:
         """Replace ``RUN/name`` on the bucket by the cached directory (products: rewritten by every run)."""
         if self.url is not None:
             self.remote.remove(name)
-            for p in sorted((self.root / name).rglob("*")):
-                if p.is_file():
-                    self.remote.fs.put_file(str(p), self.remote.key(f"{name}/{p.relative_to(self.root / name).as_posix()}"))
+            files = [p for p in sorted((self.root / name).rglob("*")) if p.is_file()]
+            if files:  # one call: uploaded concurrently
+                self.remote.fs.put([str(p) for p in files],
+                                   [self.remote.key(f"{name}/{p.relative_to(self.root / name).as_posix()}") for p in files])
 
     def commit_file(self, name: str) -> None:
         """Upload the cached file ``RUN/name`` (one PUT: whole or absent)."""
@@ -173,11 +174,12 @@ class RunStore:
             self.remote.write_bytes(name, (self.root / name).read_bytes())
 
     def fetch_file(self, name: str) -> bool:
-        """Copy ``RUN/name`` from the bucket into the cache; False when absent there."""
+        """Copy ``RUN/name`` from the bucket into the cache; False (and no cached copy) when absent there."""
         if self.url is None:
             return (self.root / name).is_file()
         data = self.remote.read_bytes(name)
         if data is None:
+            (self.root / name).unlink(missing_ok=True)  # the cache mirrors the bucket: no stale copy
             return False
         from mercury_dem.io.atomic import atomic_write_bytes
 
