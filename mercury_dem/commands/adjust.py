@@ -42,8 +42,8 @@ def run(args: argparse.Namespace, config: Config) -> int:
         raise StoreError(f"no {args.level} of {args.run_dir} has a complete {child} network; run the earlier stages first")
     out = []
     for u in ids:
-        shutil.rmtree(store.unit_dir(args.level, u), ignore_errors=True)
-        s = run_adjust_unit(str(store.root), args.level, u, config)
+        store.remove(f"{args.level}/{u}")
+        s = run_adjust_unit(store.location, args.level, u, config)
         out.append(s)
         if args.report_dir and s["ok"]:
             _write_tables(store, args.level, u, args.report_dir)

@@ -106,7 +106,9 @@ def run(args: argparse.Namespace, config: Any) -> int:
     except ValueError as exc:
         raise ConfigError(f"--body: {exc}") from None
     points = read_points(args.points)
-    out = Path(args.out)
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
+
+    out = refuse_remote(args.out, "--out", f"{UPLOAD_HINT}, or use 'mercury-dem run --out URL'")
     client = None
     cluster = None
     if args.workers > 0:

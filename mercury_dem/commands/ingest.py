@@ -35,9 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
     from mercury_dem.mission.ingest import describe, ingest_mission
     from mercury_dem.progress import Reporter, counter
 
+    refuse_remote(args.mission, "mission", UPLOAD_HINT)
     summary = ingest_mission(
         args.mission, args.files, isd_dir=args.isd_dir, min_scale_m=args.min_scale_m, max_scale_m=args.max_scale_m,
         instruments=args.instrument, tile_size_deg=config.tiling.tile_size_deg, overwrite=args.overwrite,

@@ -21,16 +21,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    import shutil
-
-    from mercury_dem.io.atomic import is_complete
     from mercury_dem.mission import open_mission
     from mercury_dem.pipeline.graph import prepare_store
     from mercury_dem.pipeline.report import unit_message
     from mercury_dem.pipeline.stages import plan_run, run_tile
 
     store = prepare_store(args.mission, args.out, config, None)
-    if is_complete(store.plan_dir):
+    if store.plan_complete():
         plan = json.loads((store.plan_dir / "plan.json").read_text())
     else:
         plan = plan_run(store, open_mission(args.mission), config)
@@ -38,8 +35,8 @@ def run(args: argparse.Namespace, config: Config) -> int:
     out = []
     for t in tiles:
         if args.force:
-            shutil.rmtree(store.unit_dir("tile", t), ignore_errors=True)
-        s = run_tile(str(store.root), t, config)
+            store.remove(f"tile/{t}")
+        s = run_tile(store.location, t, config)
         out.append(s)
         if not args.json:
             state = "ok" if s["ok"] else f"FAILED: {unit_message(s['error'], f'tile {t}')}"

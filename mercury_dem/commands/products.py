@@ -51,11 +51,25 @@ def run(args: argparse.Namespace, config: Any) -> int:
         profiles = [parse_profile(t) for t in args.profile]
     except ValueError as exc:
         raise ProfileError(f"--profile: {exc}") from None
-    d = Path(args.dir)
-    out = Path(args.out) if args.out else d / "products"
+    from mercury_dem.io.location import refuse_remote, resolve_location
+
+    loc = resolve_location(args.dir, "DIR")
+    store = None
+    if isinstance(loc, str):  # a bucket run: products from its cached DEM, committed back unless --out
+        from mercury_dem.io.run_store import RunStore
+
+        store = RunStore.open(loc)
+        store.fetch_zarr("coverage.zarr")
+        if not store.fetch_zarr("dem.zarr"):
+            raise MercuryDemError(f"{loc} has no complete dem.zarr; run 'mercury-dem run' to the end first")
+        loc = store.root
+    d = loc
+    out = refuse_remote(args.out, "--out", "omit --out to write DIR/products") if args.out else d / "products"
     truth = _run_truth(d)
     summary = make_products(d / "dem.zarr", out, config, truth_height=truth, profiles=profiles,
-                            overwrite=args.overwrite)
+                            overwrite=args.overwrite or store is not None)
+    if store is not None and not args.out:
+        store.commit_tree("products")
     print(summary["table"])
     if summary.get("accuracy"):
         a = summary["accuracy"]

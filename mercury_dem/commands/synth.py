@@ -55,8 +55,10 @@ def synth_config(args: argparse.Namespace, config: Config) -> SynthConfig:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
     from mercury_dem.synth.generate import generate_mission
 
+    refuse_remote(args.out, "mission", UPLOAD_HINT)
     cfg = synth_config(args, config)
 
     from mercury_dem.progress import Reporter, counter

@@ -80,7 +80,7 @@ def dashboard_app(run: str | Path, interval_ms: int = 1000, dask_link: str | Non
     interval_ms : polling period of the store, milliseconds.
     dask_link : the Dask dashboard URL, when run.json/report.json do not record one.
     """
-    store = RunStore(Path(run))
+    store = RunStore(run)
 
     def build(doc: Any) -> None:
         data = dashboard_data(store, dask_link)

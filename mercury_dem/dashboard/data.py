@@ -114,7 +114,7 @@ def tiles_html(tiles: dict[str, list[Any]]) -> str:
 
 def dashboard_data(run: str | Path | RunStore, dask_link: str | None = None) -> dict[str, Any]:
     """Everything the page shows, from the store: tiles, progress, sigma0 (column dicts), info and tiles HTML."""
-    store = run if isinstance(run, RunStore) else RunStore(Path(run))
+    store = run if isinstance(run, RunStore) else RunStore(run)
     units = unit_status(store)
     info = run_info(store)
     tile_size = 10.0

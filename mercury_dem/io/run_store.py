@@ -17,10 +17,19 @@ A *unit* (a tile, region, hemisphere or the globe) is written into a temporary
 directory and renamed into place with a completion marker (see
 :mod:`mercury_dem.io.atomic`), so a unit directory either is complete or does not
 exist; re-running a run skips complete units.
+
+``RUN`` may be an object-store URL (``s3://bucket/run``, ``gs://...``; see
+:mod:`mercury_dem.io.location`). Then :attr:`RunStore.root` is a local cache of
+the run and the bucket holds the run: units are built in the cache as above and
+committed to the bucket with their completion marker last; readers fetch what
+they read (:meth:`RunStore.network_path` and the other unit readers fetch the
+unit when the cached copy is not the bucket's current commit). The protocol is
+in :mod:`mercury_dem.io.remote`. A local ``RUN`` behaves exactly as before.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 from dataclasses import dataclass
@@ -33,25 +42,150 @@ import pandas as pd
 from mercury_dem.exceptions import StoreError
 from mercury_dem.io.atomic import atomic_write_json, is_complete
 from mercury_dem.io.tables import read_table
+from mercury_dem.io.location import resolve_location
+from mercury_dem.io.remote import RemoteDir, cache_dir_for
 
 LEVELS = ("tile", "region", "hemisphere", "global")
 
 
 @dataclass(frozen=True)
 class RunStore:
-    """Paths and small readers/writers of one run directory."""
+    """Paths and small readers/writers of one run directory (local, or cached from a bucket).
+
+    Parameters
+    ----------
+    root : the run's local directory; given a URL (``s3://bucket/run``) it is checked
+        (:func:`~mercury_dem.io.location.resolve_location`), kept as :attr:`url`, and
+        ``root`` becomes the run's cache directory.
+    url : the object-store URL of the run, or None for a local run
+    """
 
     root: Path
+    url: str | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "root", Path(self.root))
+        root: Any = self.root
+        if self.url is None and not isinstance(root, Path):
+            loc = resolve_location(root, "run store")
+            if isinstance(loc, str):
+                object.__setattr__(self, "url", loc)
+                root = cache_dir_for(loc, "runs")
+            else:
+                root = loc
+        object.__setattr__(self, "root", Path(root))
 
     @classmethod
     def open(cls, root: str | Path) -> "RunStore":
-        r = Path(root)
-        if not (r / "run.json").is_file():
+        store = cls(root)
+        if not store.has_run():
+            r = store.location
             raise StoreError(f"{r} is not a mercury-dem run (no run.json); run 'mercury-dem run MISSION --out {r}'")
-        return cls(r)
+        if store.url is not None:
+            store.fetch_file("run.json")
+            store.fetch_file("report.json")
+        return store
+
+    @property
+    def location(self) -> str:
+        """What the user named: the URL of a bucket run, else the directory (as a task argument)."""
+        return self.url if self.url is not None else str(self.root)
+
+    @functools.cached_property
+    def remote(self) -> RemoteDir:
+        """The run's prefix on the object store (only for a URL run)."""
+        if self.url is None:
+            raise StoreError(f"{self.root} is a local run; it has no object-store prefix")
+        return RemoteDir(self.url)
+
+    def check_writable(self) -> None:
+        """Write and delete a probe object under a bucket run's prefix; a clear error when the bucket cannot be used.
+
+        Raises
+        ------
+        StoreError : no such bucket, no credentials or no permission, endpoint unreachable (the
+            fsspec/botocore error is quoted).
+        """
+        if self.url is None:
+            return
+        try:
+            self.remote.write_bytes(".write-probe", b"")
+            self.remote.remove(".write-probe")
+        except Exception as exc:  # noqa: BLE001 - botocore/gcsfs raise many types; all mean "cannot use it"
+            raise StoreError(
+                f"{self.url}: cannot write to the bucket ({type(exc).__name__}: {exc}); check that the bucket "
+                "exists, the endpoint (FSSPEC_S3_ENDPOINT_URL for a service that is not AWS) and the credentials "
+                "(AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY, ~/.aws, or the instance role)") from None
+
+    def has_run(self) -> bool:
+        """Whether the run's ``run.json`` exists (on the bucket for a URL run)."""
+        if self.url is not None:
+            return self.remote.exists("run.json")
+        return self.run_json.is_file()
+
+    def is_empty(self) -> bool:
+        """Whether nothing is stored at the run's location yet."""
+        if self.url is not None:
+            return not self.remote.list("")
+        return not self.root.exists() or not any(self.root.iterdir())
+
+    def remove(self, name: str) -> None:
+        """Delete ``RUN/name`` (a file or a directory), on the bucket too (``--force``)."""
+        p = self.root / name
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+        elif p.exists():
+            p.unlink()
+        if self.url is not None:
+            self.remote.remove(name)
+
+    # -- object-store commits and fetches (no-ops for a local run) -------------------
+    def commit_dir(self, name: str) -> None:
+        """Commit the cached directory ``RUN/name`` (plan, a unit) to the bucket, marker last."""
+        if self.url is not None:
+            self.remote.commit_dir(self.root / name, name)
+
+    def commit_zarr(self, name: str) -> None:
+        """Commit the cached Zarr store ``RUN/name`` to the bucket, its root ``zarr.json`` last."""
+        if self.url is not None:
+            self.remote.commit_dir(self.root / name, name, last="zarr.json", token_marker=False)
+
+    def fetch_zarr(self, name: str) -> bool:
+        """Make the cached ``RUN/name`` the bucket's committed Zarr store; False (and no cached copy) when
+        the bucket has none. A local run: whether the store exists."""
+        if self.url is None:
+            return (self.root / name).exists()
+        ok = self.remote.fetch_dir(name, self.root / name, last="zarr.json", token_marker=False,
+                                   mark_complete=lambda tmp: None)
+        if not ok:
+            shutil.rmtree(self.root / name, ignore_errors=True)
+        return ok
+
+    def commit_tree(self, name: str) -> None:
+        """Replace ``RUN/name`` on the bucket by the cached directory (products: rewritten by every run)."""
+        if self.url is not None:
+            self.remote.remove(name)
+            files = [p for p in sorted((self.root / name).rglob("*")) if p.is_file()]
+            if files:  # one call: uploaded concurrently
+                self.remote.fs.put([str(p) for p in files],
+                                   [self.remote.key(f"{name}/{p.relative_to(self.root / name).as_posix()}") for p in files])
+
+    def commit_file(self, name: str) -> None:
+        """Upload the cached file ``RUN/name`` (one PUT: whole or absent)."""
+        if self.url is not None:
+            self.remote.write_bytes(name, (self.root / name).read_bytes())
+
+    def fetch_file(self, name: str) -> bool:
+        """Copy ``RUN/name`` from the bucket into the cache; False (and no cached copy) when absent there."""
+        if self.url is None:
+            return (self.root / name).is_file()
+        data = self.remote.read_bytes(name)
+        if data is None:
+            (self.root / name).unlink(missing_ok=True)  # the cache mirrors the bucket: no stale copy
+            return False
+        from mercury_dem.io.atomic import atomic_write_bytes
+
+        atomic_write_bytes(self.root / name, data)
+        return True
 
     # -- run-level files ---------------------------------------------------------
     @property
@@ -79,10 +213,16 @@ class RunStore:
         return self.root / "performance.html"
 
     def read_run(self) -> dict[str, Any]:
+        if self.url is not None:
+            data = self.remote.read_bytes("run.json")
+            if data is None:
+                raise StoreError(f"{self.url} has no run.json; run 'mercury-dem run MISSION --out {self.url}'")
+            return json.loads(data)
         return json.loads(self.run_json.read_text())
 
     def write_run(self, info: dict[str, Any]) -> None:
         atomic_write_json(self.run_json, info)
+        self.commit_file("run.json")
 
     # -- units ---------------------------------------------------------------------
     def unit_dir(self, level: str, unit_id: int) -> Path:
@@ -91,21 +231,55 @@ class RunStore:
         return self.root / level / str(int(unit_id))
 
     def unit_complete(self, level: str, unit_id: int) -> bool:
+        """Whether the unit is committed: its completion marker exists (on the bucket for a URL run)."""
+        if self.url is not None:
+            return self.remote.commit_token(self._unit_key(level, unit_id)) is not None
         return is_complete(self.unit_dir(level, unit_id))
 
+    def _unit_key(self, level: str, unit_id: int) -> str:
+        return self.unit_dir(level, unit_id).relative_to(self.root).as_posix()
+
+    def local_unit(self, level: str, unit_id: int) -> Path:
+        """The unit's directory to read from: for a URL run, its committed objects fetched into the cache.
+
+        Raises
+        ------
+        StoreError : the unit has no completion marker on the bucket (never trusted).
+        """
+        d = self.unit_dir(level, unit_id)
+        if self.url is not None and not self.remote.fetch_dir(self._unit_key(level, unit_id), d):
+            raise StoreError(f"{self.remote.url_of(self._unit_key(level, unit_id))} is not complete (no completion "
+                             "marker); resume the run to recompute it")
+        return d
+
+    def commit_unit(self, level: str, unit_id: int) -> None:
+        """Commit a unit written into :meth:`unit_dir` to the bucket (no-op for a local run)."""
+        self.commit_dir(self._unit_key(level, unit_id))
+
     def network_path(self, level: str, unit_id: int) -> Path:
-        return self.unit_dir(level, unit_id) / "network.zarr"
+        return self.local_unit(level, unit_id) / "network.zarr"
 
     def solution_path(self, level: str, unit_id: int) -> Path:
-        return self.unit_dir(level, unit_id) / "solution.parquet"
+        return self.local_unit(level, unit_id) / "solution.parquet"
+
+    def unit_file(self, level: str, unit_id: int, name: str) -> Path:
+        return self.local_unit(level, unit_id) / name
 
     def summary_path(self, level: str, unit_id: int) -> Path:
         return self.unit_dir(level, unit_id) / "summary.json"
 
     def read_summary(self, level: str, unit_id: int) -> dict[str, Any]:
+        if self.url is not None:
+            key = f"{self._unit_key(level, unit_id)}/summary.json"
+            data = self.remote.read_bytes(key)
+            if data is None:
+                raise StoreError(f"{self.remote.url_of(key)} does not exist; resume the run to recompute the unit")
+            return json.loads(data)
         return json.loads(self.summary_path(level, unit_id).read_text())
 
     def completed_units(self, level: str) -> list[int]:
+        if self.url is not None:
+            return sorted(int(n) for n in self.remote.list(level) if n.isdigit() and self.unit_complete(level, int(n)))
         d = self.root / level
         if not d.is_dir():
             return []
@@ -116,16 +290,26 @@ class RunStore:
         d = self.root / level
         if d.exists():
             shutil.rmtree(d)
+        if self.url is not None:
+            self.remote.remove(level)
 
     # -- plan ------------------------------------------------------------------------
     def read_plan(self) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Any]]:
         """(images table, overlap pairs table, plan info)."""
+        if self.url is not None:
+            self.remote.fetch_dir("plan", self.plan_dir)
         if not is_complete(self.plan_dir):
             raise StoreError(f"{self.plan_dir} is missing or incomplete; re-run 'mercury-dem run'")
         images = read_table(self.plan_dir / "images.parquet", f"run plan {self.plan_dir}")
         pairs = read_table(self.plan_dir / "overlaps.parquet", f"run plan {self.plan_dir}")
         info = json.loads((self.plan_dir / "plan.json").read_text())
         return images, pairs, info
+
+    def plan_complete(self) -> bool:
+        """Whether the plan is committed (fetched into the cache for a URL run)."""
+        if self.url is not None:
+            return self.remote.fetch_dir("plan", self.plan_dir)
+        return is_complete(self.plan_dir)
 
 
 def write_solution(path: Path, image_ids: np.ndarray, rotations: np.ndarray, positions: np.ndarray,

@@ -286,8 +286,17 @@ def open_mission(path: str | Path) -> Mission:
     StoreError
         when the directory is missing, was not written to completion (interrupted
         generation), is not a mission, or its tables are missing or inconsistent.
+        ``path`` may be an object-store URL (``s3://bucket/mission``): the mission is
+        read from its local cached copy (:func:`mercury_dem.io.remote.fetch_mission`).
     """
-    p = Path(path)
+    from mercury_dem.io.location import resolve_location
+
+    loc = resolve_location(path, "mission")
+    if isinstance(loc, str):
+        from mercury_dem.io.remote import fetch_mission
+
+        loc = fetch_mission(loc)
+    p = loc
     if not p.exists():
         raise StoreError(f"mission {p} does not exist; create one with 'mercury-dem synth {p}' "
                          f"or 'mercury-dem ingest {p} FILE...'")

@@ -49,6 +49,9 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     except MercuryDemError as exc:
         rep.message(f"registration: failed ({exc})")
         return {"error": f"registration to the mission's altimetry: {exc}"}
+    for name in ("registered.zarr", "merged.zarr"):  # a bucket run: committed like dem.zarr (no-ops locally)
+        store.commit_zarr(name)
+    store.commit_tree("registration")
     tiles = summary.pop("tiles", [])
     summary["tiles_table"] = str(Path(summary["tables"]) / "tiles.json")
     summary["tiles_failed"] = [t_ for t_ in tiles if not t_.get("ok", True)]
@@ -68,6 +71,11 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
 
     With truth, the a-priori (unadjusted) points are gridded too (into a
     temporary store) so the report shows what the adjustment bought.
+
+    On a bucket run (``store.url``) the DEM is gridded into the run's local cache
+    in this process (the chunks are written to a local Zarr store, which workers on
+    other machines could not reach), then ``dem.zarr``, ``coverage.zarr`` and the
+    products are committed to the bucket (each Zarr store's root ``zarr.json`` last).
     """
     from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
@@ -82,15 +90,24 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     body = mission.body
     dem_cfg = config.dem.with_extent_of(pts, body.datum_radius_m) if pts.shape[0] else config.dem
     # an existing complete DEM is reused (resume); products are always rewritten
-    if not store.dem_path.exists():
+    remote = store.url is not None
+    if remote:
+        client = None
+        store.fetch_zarr("coverage.zarr")
+    if not store.fetch_zarr("dem.zarr"):
         grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body,
-                                attrs={"source": "global adjusted control points"}, progress=rep)
+                                attrs={"source": "global adjusted control points"}, progress=rep,
+                                overwrite=remote)  # a bucket run: a stale cached copy is replaced
+        if (store.root / "coverage.zarr").exists():
+            store.commit_zarr("coverage.zarr")
+        store.commit_zarr("dem.zarr")
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
     truth = mission.truth.surface().height if mission.truth is not None else None
     rep.message("products: writing GeoTIFF/ISIS/PDS products and browse images")
     t = time.perf_counter()
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
+    store.commit_tree("products")
     out: dict[str, Any] = {
         "points": int(pts.shape[0]),
         "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -97,10 +96,19 @@ class Progress:
 
 
 def prepare_store(mission_path: str | Path, out: str | Path, config: Config, force: str | None) -> RunStore:
-    """Create or reopen ``RUN``; a run of another mission is refused; ``force`` clears stages."""
-    store = RunStore(Path(out))
-    mission_abs = str(Path(mission_path).resolve())
-    if store.run_json.exists():
+    """Create or reopen ``RUN``; a run of another mission is refused; ``force`` clears stages.
+
+    ``out`` and ``mission_path`` may be object-store URLs (:mod:`mercury_dem.io.location`); an
+    unsupported scheme or a missing fsspec backend is refused here, before anything is written.
+    """
+    from mercury_dem.io.location import resolve_location
+
+    store = RunStore(resolve_location(out, "--out"))
+    mission_loc = resolve_location(mission_path, "mission")
+    mission_abs = mission_loc if isinstance(mission_loc, str) else str(mission_loc.resolve())
+    if store.url is not None:
+        store.check_writable()
+    if store.has_run():
         prev = store.read_run()
         if prev.get("mission") != mission_abs:
             raise StoreError(
@@ -111,7 +119,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
                 f"{out} was run with a different configuration; resume with the same one, "
                 "or recompute with --force plan (or a later stage)"
             )
-    elif store.root.exists() and any(store.root.iterdir()):
+    elif not store.is_empty():
         raise StoreError(f"{out} exists and is not a mercury-dem run; choose an empty or new --out")
     store.root.mkdir(parents=True, exist_ok=True)
     # A resumed run: what a killed writer left half-written is removed before anything else runs.
@@ -121,12 +129,12 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             raise StoreError(f"--force takes one of {', '.join(STAGES)}, got {force!r}")
         for stage in STAGES[STAGES.index(force):]:
             if stage == "plan":
-                shutil.rmtree(store.plan_dir, ignore_errors=True)
+                store.remove("plan")
             elif stage in LEVELS:
                 store.remove_level(stage)
             elif stage == "dem":
-                for p in (store.dem_path, store.root / "coverage.zarr", store.products_dir):
-                    shutil.rmtree(p, ignore_errors=True)
+                for name in ("dem.zarr", "coverage.zarr", "products"):
+                    store.remove(name)
     store.write_run({
         "mission": mission_abs,
         "config": to_dict(config),
@@ -160,9 +168,7 @@ def run_pipeline(
     store = prepare_store(mission_path, out, config, force)
     mission = open_mission(mission_path)
     t = time.perf_counter()
-    from mercury_dem.io.atomic import is_complete
-
-    if is_complete(store.plan_dir):
+    if store.plan_complete():
         plan = json.loads((store.plan_dir / "plan.json").read_text())
     else:
         plan = plan_run(store, mission, config)
@@ -199,6 +205,8 @@ def run_pipeline(
     finally:
         if own:
             conn.close()
+        if conn.mode != "sync" and store.performance_html.is_file():
+            store.commit_file("performance.html")
     timings["total"] = time.perf_counter() - t_start
     report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
     write_report(store, report)
@@ -210,7 +218,7 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     from mercury_dem.geometry.tiling import TileGrid
 
     grid = TileGrid(config.tiling.tile_size_deg)
-    root = str(store.root)
+    root = store.location  # tasks open the run from it: the bucket URL of a bucket run
     retries = config.execution.retries
     heavy = {"resources": {ADJUST_RESOURCE: 1}} if use_adjust_resource(conn, config, stream) else {}
     tiles = [int(t) for t in plan["non_empty_tiles"]]

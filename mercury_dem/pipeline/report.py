@@ -42,8 +42,8 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
     ids_all = [str(x) for x in mission.catalog["image_id"]]
     controlled: list[str] = []
     report: dict[str, Any] = {
-        "run": str(store.root),
-        "mission": str(mission.path),
+        "run": store.location,
+        "mission": _mission_ref(store, mission),
         "tiles": {
             "total": int(plan["tiles_total"]),
             "non_empty": len(plan["non_empty_tiles"]),
@@ -105,7 +105,7 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
         partners[b] = partners.get(b, 0) + 1
     rows = []
     for t in store.completed_units("tile"):
-        p = store.unit_dir("tile", t) / "pairs.parquet"
+        p = store.unit_file("tile", t, "pairs.parquet")
         if p.is_file():
             t = read_table(p, f"tile {t}")  # a tile without pairs wrote a table without columns
             if {"ref_id", "match_id", "status", "reason"} <= set(t.columns):
@@ -133,8 +133,16 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
     return out
 
 
+def _mission_ref(store: RunStore, mission: Mission) -> str:
+    """The mission as the user named it: its URL when it is read from a bucket (``mission.path`` is then
+    its local cached copy), else its path as before."""
+    named = str(store.read_run().get("mission", ""))
+    return named if "://" in named else str(mission.path)
+
+
 def write_report(store: RunStore, report: dict[str, Any]) -> None:
     atomic_write_json(store.report_json, report)
+    store.commit_file("report.json")
 
 
 def _f(x: Any, fmt: str = ".3f") -> str:

@@ -112,6 +112,7 @@ def plan_run(store: RunStore, mission: Mission, config: Config) -> dict[str, Any
         images.to_parquet(tmp / "images.parquet", index=False)
         pairs.to_parquet(tmp / "overlaps.parquet", index=False)
         (tmp / "plan.json").write_text(json.dumps(info, indent=2))
+    store.commit_dir("plan")
     return info
 
 
@@ -233,7 +234,11 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
 
 def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, Any], t0: float,
                 files: dict[str, Any] | None = None) -> None:
-    """Write a unit directory atomically: its files, then summary.json, then the marker."""
+    """Write a unit directory atomically: its files, then summary.json, then the marker.
+
+    On a bucket run the directory is built in the cache, then committed by
+    :meth:`RunStore.commit_unit` (the marker last, see :mod:`mercury_dem.io.remote`).
+    """
     from mercury_dem.network.store import write_network
 
     summary["seconds"] = time.perf_counter() - t0
@@ -250,6 +255,7 @@ def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, An
             elif name == "bundleout":
                 (tmp / "bundleout.txt").write_text(obj)
         atomic_write_json(tmp / "summary.json", summary)
+    store.commit_unit(level, unit_id)  # a bucket run: data objects, then the marker last
 
 
 # --------------------------------------------------------------------------- cascade

@@ -98,7 +98,7 @@ def follow(run: str | Path, running: Callable[[], bool], interval_s: float = 2.0
     """
     from mercury_dem.io.run_store import RunStore
 
-    store = RunStore(Path(run))
+    store = RunStore(run)
     t0 = time.monotonic()
     last = ""
     while True:

@@ -1,0 +1,231 @@
+"""A store on object storage, mirrored through a local cache, with a commit protocol that needs no rename.
+
+Object stores (S3, GCS) have no atomic rename of a directory, so the local
+protocol of :mod:`mercury_dem.io.atomic` (build under a temporary name, rename)
+does not carry over. A store on a bucket is written in this order instead:
+
+1. the unit's old completion marker is deleted (from here on the unit is not trusted),
+2. every other object under the unit's prefix is deleted (partial data of an earlier attempt),
+3. the unit's data objects are uploaded (one PUT each: an object appears whole or not at all),
+4. the completion marker is uploaded **last**; it holds a random token of this commit.
+
+A reader trusts a unit only when its marker exists; a unit without one is
+recomputed and its partial data overwritten. The pieces of the pipeline are the
+same as on a local disk: a unit is computed into a local directory (built
+atomically as before, in a cache), then committed to the bucket as above; a
+reader fetches a unit's objects into the cache and keeps the commit token beside
+them, so a cached copy is reused only while the bucket still holds the same
+commit. Zarr stores (``dem.zarr``, ``coverage.zarr``) are committed the same way
+with the root ``zarr.json`` (which carries their ``complete`` attribute) as the
+last object.
+
+Why not write every array straight to the bucket with zarr/fsspec: the stage
+runners, the products (GDAL writes GeoTIFFs to local files only) and the readers
+of the run (report, dashboard, notebooks) are all path based; mirroring keeps
+them unchanged, keeps a local run bit for bit what it was, and puts the whole
+object-store logic in this one module.
+
+The cache is ``$MERCURY_DEM_CACHE`` (default ``$XDG_CACHE_HOME/mercury-dem`` or
+``~/.cache/mercury-dem``), one directory per store URL; it may be deleted at
+any time between runs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import uuid
+from pathlib import Path
+from typing import Any
+
+from mercury_dem.exceptions import StoreError
+from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_directory
+
+#: Suffix of the file beside a cached directory (``.NAME.remote-token``) holding the commit token
+#: it was fetched (or committed) at: outside the directory, so a Zarr store holds only Zarr objects.
+CACHE_TOKEN = ".remote-token"
+
+
+def _token_file(local: Path) -> Path:
+    return local.parent / f".{local.name}{CACHE_TOKEN}"
+
+
+def cache_root() -> Path:
+    """The local cache of object-store runs and missions (``$MERCURY_DEM_CACHE``)."""
+    env = os.environ.get("MERCURY_DEM_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "mercury-dem"
+
+
+def cache_dir_for(url: str, kind: str) -> Path:
+    """The cache directory of one store URL (``kind``: ``runs`` or ``missions``)."""
+    digest = hashlib.sha256(url.rstrip("/").encode()).hexdigest()[:16]
+    name = url.rstrip("/").rsplit("/", 1)[-1] or "store"
+    return cache_root() / kind / f"{name}-{digest}"
+
+
+class RemoteDir:
+    """A prefix (``s3://bucket/run``) on an object store, reached through fsspec.
+
+    Listings are not cached (``use_listings_cache=False``): another process (a
+    worker, a user deleting a marker) may change the bucket at any time.
+    """
+
+    def __init__(self, url: str) -> None:
+        import fsspec
+
+        self.url = url.rstrip("/")
+        self.fs, self.path = fsspec.core.url_to_fs(self.url, use_listings_cache=False)
+        self.path = self.path.rstrip("/")
+
+    def key(self, rel: str = "") -> str:
+        return f"{self.path}/{rel.strip('/')}" if rel.strip("/") else self.path
+
+    def url_of(self, rel: str = "") -> str:
+        return f"{self.url}/{rel.strip('/')}" if rel.strip("/") else self.url
+
+    # -- objects -----------------------------------------------------------------
+    def read_bytes(self, rel: str) -> bytes | None:
+        """The object's bytes, or None when it does not exist."""
+        try:
+            return bytes(self.fs.cat_file(self.key(rel)))
+        except FileNotFoundError:
+            return None
+
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        """One PUT: the object appears whole or not at all."""
+        self.fs.pipe_file(self.key(rel), data)
+
+    def exists(self, rel: str) -> bool:
+        return bool(self.fs.exists(self.key(rel)))
+
+    def list(self, rel: str = "") -> list[str]:
+        """Names directly under ``rel`` (files and sub-prefixes); [] when there are none."""
+        try:
+            entries = self.fs.ls(self.key(rel), detail=False)
+        except FileNotFoundError:
+            return []
+        base = self.key(rel)
+        return sorted({str(e).rstrip("/").rsplit("/", 1)[-1] for e in entries if str(e).rstrip("/") != base})
+
+    def remove(self, rel: str) -> None:
+        """Delete ``rel`` and everything under it (nothing when absent)."""
+        try:
+            self.fs.rm(self.key(rel), recursive=True)
+        except FileNotFoundError:
+            pass
+
+    # -- directories ---------------------------------------------------------------
+    def commit_dir(self, local: Path, rel: str, last: str = COMPLETE_MARKER, token_marker: bool = True) -> str:
+        """Commit the local directory ``local`` to ``rel`` by the protocol above; return the commit token.
+
+        ``last`` is the object uploaded last (the completion marker; for a Zarr store its
+        root ``zarr.json``). With ``token_marker`` the marker's content is
+        ``complete <token>``, else its own bytes are uploaded and the token is their hash.
+        """
+        local = Path(local)
+        files = sorted(p for p in local.rglob("*") if p.is_file())
+        rels = [p.relative_to(local).as_posix() for p in files]
+        self.remove(f"{rel}/{last}")  # first: from now on the unit is not trusted
+        self.remove(rel)  # partial data of an earlier attempt
+        data = [(str(p), self.key(f"{rel}/{r}")) for p, r in zip(files, rels) if r != last]
+        if data:  # one call: s3fs/gcsfs upload the objects concurrently
+            self.fs.put([a for a, _ in data], [b for _, b in data])
+        if token_marker:
+            token = uuid.uuid4().hex
+            marker = f"complete {token}\n".encode()
+        else:
+            if last not in rels:
+                raise StoreError(f"{local}: no {last} to commit last; the local store is incomplete")
+            marker = (local / last).read_bytes()
+            token = hashlib.sha256(marker).hexdigest()
+        self.write_bytes(f"{rel}/{last}", marker)
+        _token_file(local).write_text(token)
+        return token
+
+    def commit_token(self, rel: str, last: str = COMPLETE_MARKER, token_marker: bool = True) -> str | None:
+        """The token of ``rel``'s last commit, or None when it has no completion marker (not trusted)."""
+        data = self.read_bytes(f"{rel}/{last}")
+        if data is None:
+            return None
+        if token_marker:
+            text = data.decode("utf-8", "replace").strip()
+            return text.split(" ", 1)[1] if " " in text else text
+        return hashlib.sha256(data).hexdigest()
+
+    def fetch_dir(self, rel: str, local: Path, last: str = COMPLETE_MARKER, token_marker: bool = True,
+                  mark_complete: Any = None, token: str | None = None) -> bool:
+        """Make ``local`` a copy of the committed ``rel``; False when ``rel`` has no completion marker.
+
+        A cached copy whose token is the bucket's current one is kept; otherwise the
+        objects are downloaded into a temporary sibling and renamed into place (a
+        concurrent fetch of the same unit by another process is harmless). ``token``, when
+        given, identifies the commit instead of the marker's content (a mission uploaded by
+        other tools has a plain ``.complete``).
+        """
+        token = token or self.commit_token(rel, last, token_marker)
+        if token is None:
+            return False
+        local = Path(local)
+        if _cached_token(local) == token:
+            return True
+        prefix = self.key(rel)
+        _token_file(local).unlink(missing_ok=True)
+        try:
+            with atomic_directory(local, overwrite=True, mark_complete=mark_complete) as tmp:
+                keys = [str(k) for k in sorted(self.fs.find(prefix)) if str(k).startswith(prefix + "/")]
+                pairs = [(k, tmp / k[len(prefix) + 1:]) for k in keys]
+                for _, dest in pairs:
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                if pairs:  # one call: downloaded concurrently
+                    self.fs.get([k for k, _ in pairs], [str(d) for _, d in pairs])
+                if token_marker:
+                    (tmp / last).write_text("complete\n")  # the local marker, as atomic_directory writes it
+        except OSError:
+            # a concurrent fetch of the same commit (another worker process) renamed its copy first: keep it
+            if not (local.is_dir() and self.commit_token(rel, last, token_marker) == token):
+                raise
+        _token_file(local).write_text(token)
+        return True
+
+
+def fetch_mission(url: str) -> Path:
+    """The local cached copy of the mission at ``url`` (fetched when missing or changed on the bucket).
+
+    A mission is uploaded whole by the user (``aws s3 sync MISSION s3://bucket/mission``);
+    its ``.complete`` marker says it was written to completion. The cached copy is
+    identified by ``mission.json`` and the size and entity tag of ``catalog.parquet``:
+    a mission written again is fetched again.
+
+    Raises
+    ------
+    StoreError : no mission at ``url``, or its ``.complete`` marker is missing.
+    """
+    remote = RemoteDir(url)
+    meta = remote.read_bytes("mission.json")
+    if meta is None:
+        raise StoreError(f"mission {url} does not exist (no mission.json); upload a mission written by "
+                         "'mercury-dem synth' or 'ingest' (e.g. aws s3 sync MISSION " + url + ")")
+    if not remote.exists(COMPLETE_MARKER):
+        raise StoreError(f"mission {url} is incomplete (no {COMPLETE_MARKER} marker: its writing or upload was "
+                         "interrupted); upload it again")
+    try:
+        info = remote.fs.info(remote.key("catalog.parquet"))
+    except FileNotFoundError:
+        info = {}
+    ident = repr((meta, info.get("size"), info.get("ETag") or info.get("etag") or info.get("md5Hash")))
+    token = hashlib.sha256(ident.encode()).hexdigest()
+    local = cache_dir_for(url, "missions")
+    remote.fetch_dir("", local, token=token)
+    return local
+
+
+def _cached_token(local: Path) -> str | None:
+    if not local.is_dir():
+        return None
+    try:
+        return _token_file(local).read_text().strip()
+    except OSError:
+        return None

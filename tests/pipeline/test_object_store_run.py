@@ -1,0 +1,152 @@
+"""The tiny mission end to end on a real S3 API (moto on 127.0.0.1): run, resume, lost markers, half-written units.
+
+The mission is read from the bucket too. The bucket run equals the local ``sync_run``
+bit for bit (same networks, poses, DEM), since the same code computes every unit in
+the local cache and the bucket only stores it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import xarray as xr
+import yaml
+
+from mercury_dem.cli import main
+from mercury_dem.config import to_dict
+from mercury_dem.io.remote import RemoteDir
+from mercury_dem.io.run_store import RunStore, read_solution
+from mercury_dem.network.store import read_network
+
+from ..s3_server import make_bucket, s3_endpoint  # noqa: F401 - the fixture
+from .conftest import tiny_config
+
+pytestmark = pytest.mark.integration
+
+MISSION, RUN = "s3://e2e/mission", "s3://e2e/run"
+VOLATILE = {"seconds", "started_at", "finished_at"}
+
+
+@pytest.fixture(scope="module")
+def s3_run(s3_endpoint: str, tiny_mission_path: Path, tmp_path_factory: pytest.TempPathFactory) -> list[str]:
+    """The tiny mission uploaded to the bucket and run there with ``--scheduler sync``: the CLI arguments."""
+    make_bucket("e2e")
+    remote = RemoteDir(MISSION)
+    files = [p for p in sorted(tiny_mission_path.rglob("*")) if p.is_file()]
+    remote.fs.put([str(p) for p in files], [remote.key(p.relative_to(tiny_mission_path).as_posix()) for p in files])
+    cfg = tmp_path_factory.mktemp("s3cfg") / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump(to_dict(tiny_config())))
+    args = ["run", MISSION, "--out", RUN, "--scheduler", "sync", "--config", str(cfg), "--quiet"]
+    assert main(args) == 0
+    return args
+
+
+def commits(store: RunStore) -> dict[str, str | None]:
+    """The commit token of every unit and of the DEM store: a recomputed unit gets a new one."""
+    r = store.remote
+    out: dict[str, str | None] = {"dem.zarr": r.commit_token("dem.zarr", last="zarr.json", token_marker=False)}
+    for level in ("tile", "region", "hemisphere", "global"):
+        for uid in r.list(level):
+            out[f"{level}/{uid}"] = r.commit_token(f"{level}/{uid}")
+    return out
+
+
+def levels(report: dict[str, Any]) -> dict[str, Any]:
+    def clean(row: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in row.items() if k not in VOLATILE}
+
+    lv = report["levels"]
+    return {k: [clean(r) for r in v] if isinstance(v, list) else clean(v) for k, v in lv.items()}
+
+
+def test_bucket_run_equals_the_local_run(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]],
+                                         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    local, local_report = sync_run
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "fresh-cache"))  # read what the bucket holds
+    store = RunStore.open(RUN)
+    assert store.read_run()["mission"] == MISSION
+    report = __import__("json").loads(store.report_json.read_text())
+    assert report["run"] == RUN and report["mission"] == MISSION and levels(report) == levels(local_report)
+    for level in ("tile", "region", "hemisphere", "global"):
+        assert store.completed_units(level) == RunStore(local).completed_units(level)
+    ids0, rot0, pos0, _ = read_solution(RunStore(local).solution_path("global", 0))
+    ids1, rot1, pos1, _ = read_solution(store.solution_path("global", 0))
+    assert (ids0 == ids1).all() and np.array_equal(rot0, rot1) and np.array_equal(pos0, pos1)
+    n0, n1 = read_network(RunStore(local).network_path("global", 0)), read_network(store.network_path("global", 0))
+    assert np.array_equal(n0.adjusted_xyz, n1.adjusted_xyz, equal_nan=True)
+    assert np.array_equal(n0.measure_rejected, n1.measure_rejected)
+    # dem.zarr is a Zarr store on the bucket, read here straight from S3 (not from the cache)
+    dem = xr.open_zarr(f"{RUN}/dem.zarr", consolidated=False, decode_coords="all")
+    ref = xr.open_zarr(local / "dem.zarr", consolidated=False, decode_coords="all")
+    assert dem.attrs["complete"] is True
+    np.testing.assert_array_equal(dem["elevation"].values, ref["elevation"].values)
+    assert dem.rio.crs == ref.rio.crs
+    cov = xr.open_zarr(f"{RUN}/coverage.zarr", consolidated=False)
+    assert set(cov.data_vars) == set(xr.open_zarr(local / "coverage.zarr", consolidated=False).data_vars)
+    products = sorted(p.relative_to(local / "products").as_posix() for p in (local / "products").rglob("*") if p.is_file())
+    r = store.remote
+    on_bucket = sorted(str(k)[len(r.key("products")) + 1:] for k in r.fs.find(r.key("products")))
+    assert on_bucket == products and "dem.tif" in products
+
+
+def test_readers_of_a_run_take_its_url(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]], tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["report", RUN]) == 0
+    assert "global" in capsys.readouterr().out
+    assert main(["export-isis", RUN, str(tmp_path / "bucket.net"), "--level", "global"]) == 0
+    assert main(["export-isis", str(sync_run[0]), str(tmp_path / "local.net"), "--level", "global"]) == 0
+    assert (tmp_path / "bucket.net").read_bytes() == (tmp_path / "local.net").read_bytes()
+
+
+def test_resume_on_the_bucket_recomputes_nothing(s3_run: list[str]) -> None:
+    store = RunStore(RUN)
+    before = commits(store)
+    assert main(s3_run) == 0
+    assert commits(store) == before
+
+
+def test_units_without_a_marker_are_recomputed(s3_run: list[str], tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    store = RunStore(RUN)
+    r = store.remote
+    before = commits(store)
+    tile = store.completed_units("tile")[0]
+    region = [u for u in store.completed_units("region") if store.read_summary("region", u)["ok"]][0]
+    tile_net = read_network(store.network_path("tile", tile))
+    _, region_rot, _, _ = read_solution(store.solution_path("region", region))
+    # a lost marker: the tile's data is all there, its marker is not
+    r.remove(f"tile/{tile}/.complete")
+    # a half-written unit: a writer died part way (some objects missing, a truncated summary, no marker)
+    net_keys = sorted(str(k) for k in r.fs.find(r.key(f"region/{region}/network.zarr")))
+    r.fs.rm(net_keys[::2])
+    r.write_bytes(f"region/{region}/summary.json", b'{"ok": tr')
+    r.remove(f"region/{region}/.complete")
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "another-machine"))
+    assert main(s3_run) == 0
+    after = commits(store)
+    changed = {k for k in before if after[k] != before[k]}
+    assert changed == {f"tile/{tile}", f"region/{region}"}  # exactly those two; their parents stay as committed
+    fresh = RunStore(RUN)
+    assert fresh.read_summary("region", region)["ok"]
+    assert np.array_equal(read_network(fresh.network_path("tile", tile)).apriori_xyz, tile_net.apriori_xyz,
+                          equal_nan=True)
+    assert np.array_equal(read_solution(fresh.solution_path("region", region))[1], region_rot)
+
+
+@pytest.mark.slow
+def test_a_local_cluster_on_the_bucket_equals_the_sync_run(s3_endpoint: str, tiny_mission_path: Path,
+                                                          sync_run: tuple[Path, dict[str, Any]]) -> None:
+    # two worker processes, each with the shared cache: tasks get the URL, read and commit through the bucket
+    from mercury_dem.pipeline.graph import run_pipeline
+
+    make_bucket("e2e-cluster")
+    report = run_pipeline(tiny_mission_path, "s3://e2e-cluster/run", tiny_config(), workers=2, threads_per_worker=1,
+                          stream=None)
+    assert report["execution"]["mode"] == "local"
+    ids0, rot0, _, _ = read_solution(RunStore(sync_run[0]).solution_path("global", 0))
+    ids1, rot1, _, _ = read_solution(RunStore("s3://e2e-cluster/run").solution_path("global", 0))
+    assert (ids0 == ids1).all() and np.array_equal(rot0, rot1)
+    assert RunStore("s3://e2e-cluster/run").remote.exists("performance.html")
