@@ -27,7 +27,7 @@ import shutil
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import Self, TextIO
 
 MODES = ("auto", "bar", "lines", "none")
 _ENV = "MERCURY_DEM_PROGRESS"
@@ -127,7 +127,47 @@ class Reporter:
             self._bar_open = False
 
 
-class Task:
+class _Line:
+    """What :class:`Task` and :class:`LevelTask` share: one throttled progress line, a final line on close."""
+
+    reporter: Reporter
+    _last: float
+    _closed: bool
+
+    def text(self, final: bool = False) -> str:
+        raise NotImplementedError
+
+    def _complete(self) -> bool:
+        """True when the last update needs no line of its own (the final one comes from close())."""
+        return False
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """The final line (counts and total time); idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.reporter.enabled:
+            self.reporter._show(self.text(final=True), final=True)
+
+    def _emit(self, force: bool) -> None:
+        r = self.reporter
+        if not r.enabled or self._closed:
+            return
+        now = r.clock()
+        if force or now - self._last >= (0.2 if r.mode == "bar" else r.interval_s):
+            if not force and self._complete():
+                return
+            self._last = now
+            r._show(self.text(), final=False)
+
+
+class Task(_Line):
     """Counts of one task; shows ``label: done/total unit (pct %) elapsed ... ETA ...``.
 
     Use as a context manager, or call :meth:`close`; :meth:`update` after each unit.
@@ -145,12 +185,6 @@ class Task:
         self._last = -1e300
         self._closed = False
         self._emit(force=True)
-
-    def __enter__(self) -> Task:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @property
     def elapsed(self) -> float:
@@ -181,28 +215,11 @@ class Task:
             self.note = note
         self._emit(force=False)
 
-    def close(self) -> None:
-        """The final line (count and total time); idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        if self.reporter.enabled:
-            self.reporter._show(self.text(final=True), final=True)
-
-    def _emit(self, force: bool) -> None:
-        r = self.reporter
-        if not r.enabled or self._closed:
-            return
-        now = r.clock()
-        wait = 0.2 if r.mode == "bar" else r.interval_s
-        if force or now - self._last >= wait:
-            if self.done >= self.total and not force and self.total:
-                return  # the final line comes from close()
-            self._last = now
-            r._show(self.text(), final=False)
+    def _complete(self) -> bool:
+        return bool(self.total) and self.done >= self.total
 
 
-class LevelTask:
+class LevelTask(_Line):
     """Counts of several levels that run at once (the cascade: tile, region, hemisphere, global).
 
     Shows ``label: tile 12/40 ETA 0:30 | region 3/14 ... | ... elapsed 1:02``. A level's ETA is
@@ -223,12 +240,6 @@ class LevelTask:
         self._closed = False
         if reporter.enabled:
             self._emit(force=True)
-
-    def __enter__(self) -> LevelTask:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def _level_eta(self, k: str, now: float, first: bool) -> float:
         done, total = self.done[k], self.totals[k]
@@ -264,21 +275,6 @@ class LevelTask:
                 self.reporter.message(message)
         self._emit(force=bool(failed))
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        if self.reporter.enabled:
-            self.reporter._show(self.text(final=True), final=True)
-
-    def _emit(self, force: bool) -> None:
-        r = self.reporter
-        if not r.enabled or self._closed:
-            return
-        now = r.clock()
-        if force or now - self._last >= (0.2 if r.mode == "bar" else r.interval_s):
-            self._last = now
-            r._show(self.text(), final=False)
 
 
 def counter(rep: Reporter, label: str, unit: str = "") -> Callable[[int, int], None]:
