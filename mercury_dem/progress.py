@@ -26,6 +26,7 @@ import os
 import shutil
 import sys
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Self, TextIO
 
@@ -127,15 +128,16 @@ class Reporter:
             self._bar_open = False
 
 
-class _Line:
+class _Line(ABC):
     """What :class:`Task` and :class:`LevelTask` share: one throttled progress line, a final line on close."""
 
     reporter: Reporter
     _last: float
     _closed: bool
 
+    @abstractmethod
     def text(self, final: bool = False) -> str:
-        raise NotImplementedError
+        """The progress line (no control characters)."""
 
     def _complete(self) -> bool:
         """True when the last update needs no line of its own (the final one comes from close())."""
