@@ -32,6 +32,7 @@ any time between runs.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import uuid
@@ -112,10 +113,8 @@ class RemoteDir:
 
     def remove(self, rel: str) -> None:
         """Delete ``rel`` and everything under it (nothing when absent)."""
-        try:
+        with contextlib.suppress(FileNotFoundError):  # absent already: nothing to delete
             self.fs.rm(self.key(rel), recursive=True)
-        except FileNotFoundError:
-            pass
 
     # -- directories ---------------------------------------------------------------
     def commit_dir(self, local: Path, rel: str, last: str = COMPLETE_MARKER, token_marker: bool = True) -> str:

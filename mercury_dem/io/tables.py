@@ -13,6 +13,7 @@ type, which hides a file that is not what the store wrote.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import pandas as pd
@@ -59,7 +60,6 @@ def _fields(schema):  # type: ignore[no-untyped-def]
         f = stack.pop()
         yield f
         t = f.type
-        try:
+        # struct/list/map types have child fields; primitive types have none (or no field())
+        with contextlib.suppress(AttributeError, TypeError, IndexError):
             stack.extend(t.field(i) for i in range(t.num_fields))
-        except (AttributeError, TypeError, IndexError):
-            pass

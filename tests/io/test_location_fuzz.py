@@ -36,7 +36,7 @@ def test_any_marker_bytes_give_a_token(data: bytes) -> None:
 
     class Fake(RemoteDir):
         def __init__(self) -> None:  # no filesystem: only the marker's bytes matter here
-            pass
+            self.fs = None
 
         def read_bytes(self, rel: str) -> bytes | None:
             return data

@@ -74,6 +74,28 @@ def make_points(n, lat_range, lon_range, seed=0, noise=20.0, outliers=0.005):
     return latlon_to_xyz(lat, lon, h)
 
 
+def write_point_inputs(work: Path, n_points: int, span: float) -> tuple[np.ndarray, Path, Path, Path, Path]:
+    """The benchmark cloud and the files each side reads: points.npy (ours), points.csv + .vrt and
+    points.fgb (gdal_grid). Returns (points, npy, csv, vrt, fgb)."""
+    pts = make_points(n_points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
+    npy = work / "points.npy"
+    np.save(npy, pts)
+    lat, lon, h = xyz_to_latlon(pts)
+    lon = np.where(lon > 180, lon - 360, lon)
+    csv = work / "points.csv"
+    np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="", fmt="%.8f")
+    vrt = work / "points.vrt"
+    vrt.write_text(
+        '<OGRVRTDataSource><OGRVRTLayer name="points"><SrcDataSource>' + str(csv) + "</SrcDataSource>"
+        '<GeometryType>wkbPoint</GeometryType><GeometryField encoding="PointFromColumns" x="lon" y="lat" '
+        'z="elev"/></OGRVRTLayer></OGRVRTDataSource>'
+    )
+    fgb = work / "points.fgb"
+    subprocess.run(["ogr2ogr", "-f", "FlatGeobuf", str(fgb), str(vrt), "-nln", "points", "-nlt", "POINT25D"],
+                   check=True)
+    return pts, npy, csv, vrt, fgb
+
+
 def rmse_vs_truth(elev, lat, lon):
     la, lo = np.meshgrid(lat, lon, indexing="ij")
     e = elev - truth_height(la, lo)
@@ -165,23 +187,7 @@ def comparison(args):
     extent = (0.0, span, -span / 2, span / 2)  # lon0, lon1, lat0, lat1
     work = Path(tempfile.mkdtemp(prefix="bench_grid_"))
     try:
-        pts = make_points(args.points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
-        npy = work / "points.npy"
-        np.save(npy, pts)
-        lat, lon, h = xyz_to_latlon(pts)
-        lon = np.where(lon > 180, lon - 360, lon)
-        csv = work / "points.csv"
-        np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="",
-                   fmt="%.8f")
-        vrt = work / "points.vrt"
-        vrt.write_text(
-            '<OGRVRTDataSource><OGRVRTLayer name="points"><SrcDataSource>' + str(csv) + "</SrcDataSource>"
-            '<GeometryType>wkbPoint</GeometryType><GeometryField encoding="PointFromColumns" x="lon" y="lat" '
-            'z="elev"/></OGRVRTLayer></OGRVRTDataSource>'
-        )
-        fgb = work / "points.fgb"
-        subprocess.run(["ogr2ogr", "-f", "FlatGeobuf", str(fgb), str(vrt), "-nln", "points", "-nlt", "POINT25D"],
-                       check=True)
+        pts, npy, csv, vrt, fgb = write_point_inputs(work, args.points, span)
         base = dict(pixels_per_degree=ppd, lat_min=extent[2], lat_max=extent[3], lon_min=extent[0],
                     lon_max=extent[1], chunk_size=512, max_distance_m=1e7, query_threads=2)
         npix = size * size

@@ -24,12 +24,9 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_grid import make_points, run_gdal  # noqa: E402  (same cloud and gdal_grid call as bench_grid.py)
-
-from mercury_dem.geometry.body import xyz_to_latlon  # noqa: E402
+from bench_grid import run_gdal, write_point_inputs  # noqa: E402  (same cloud and gdal_grid call as bench_grid.py)
 
 
 def timed(cmd: list[str], env: dict[str, str] | None = None) -> float:
@@ -51,20 +48,7 @@ def main() -> None:
     env = dict(os.environ, MERCURY_DEM_PROGRESS="none")
     work = Path(tempfile.mkdtemp(prefix="bench_grid_cold_"))
     try:
-        pts = make_points(args.points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
-        npy = work / "points.npy"
-        np.save(npy, pts)
-        lat, lon, h = xyz_to_latlon(pts)
-        lon = np.where(lon > 180, lon - 360, lon)
-        csv = work / "points.csv"
-        np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="", fmt="%.8f")
-        vrt = work / "points.vrt"
-        vrt.write_text('<OGRVRTDataSource><OGRVRTLayer name="points"><SrcDataSource>' + str(csv) + "</SrcDataSource>"
-                       '<GeometryType>wkbPoint</GeometryType><GeometryField encoding="PointFromColumns" x="lon" '
-                       'y="lat" z="elev"/></OGRVRTLayer></OGRVRTDataSource>')
-        fgb = work / "points.fgb"
-        subprocess.run(["ogr2ogr", "-f", "FlatGeobuf", str(fgb), str(vrt), "-nln", "points", "-nlt", "POINT25D"],
-                       check=True)
+        _, npy, _, vrt, fgb = write_point_inputs(work, args.points, span)
         cfg = work / "grid.yaml"
         cfg.write_text(f"dem:\n  pixels_per_degree: {ppd}\n  lat_min: {extent[2]}\n  lat_max: {extent[3]}\n"
                        f"  lon_min: {extent[0]}\n  lon_max: {extent[1]}\n  chunk_size: 512\n  max_distance_m: 10000000.0\n"
