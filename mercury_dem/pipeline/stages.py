@@ -346,7 +346,8 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     adjust_cfg = adjust_config_for(mission, config)
     adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
                          initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
-                         altimetry=unit_altimetry(mission, merged, level, adjust_cfg))
+                         altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
+                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels)
     return {
         "children": kids,
         **adj.summary,
