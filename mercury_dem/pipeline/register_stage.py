@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from mercury_dem.altimetry.merge import MergeOptions, merge_dem, register_dem
+from mercury_dem.altimetry.merge import MergeOptions, mean_level, merge_dem, register_dem
 from mercury_dem.altimetry.register import (
     ProfileOffsets,
     RegisterOptions,
@@ -203,6 +203,7 @@ def register_dem_store(
     margin_deg: float = 1.0,
     overwrite: bool = False,
     source: str = "altimetry",
+    level_to_mean: bool = True,
 ) -> dict[str, Any]:
     """Register a ``dem.zarr`` onto altimetry shots and merge them; write the results beside it.
 
@@ -218,6 +219,8 @@ def register_dem_store(
     options, merge_options, tiles, margin_deg : the registration's settings, tile grid, window margin
     overwrite : replace existing outputs
     source : name of the shots for messages
+    level_to_mean : after the tile transforms, level the registered DEM on the corrected shots' mean per
+        tile (:func:`mercury_dem.altimetry.merge.mean_level`; the transforms align the median)
 
     Returns
     -------
@@ -271,6 +274,10 @@ def register_dem_store(
     registered = register_dem(elev, lat, lon, datum, transforms, tiles)
     profiles = ProfileOffsets.concat([r.profiles for r in results])
     clat, clon, crad = _corrected_shots(good, profiles, tiles, datum)
+    level = None
+    if level_to_mean:
+        level = mean_level(registered, lat, lon, datum, clat, clon, crad, tiles)
+        registered = level.height
     merged = merge_dem(registered, lat, lon, datum, clat, clon, crad, merge_options)
 
     table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
@@ -302,6 +309,7 @@ def register_dem_store(
         "tiles_registered": int(sum(r.transform.ok for r in results)),
         "profiles": int(len(pf)), "profiles_fitted": int(pf["fitted"].sum()) if len(pf) else 0,
         "merged_dense_pixels": merged.n_dense_pixels, "statistics": stats,
+        "mean_level": level.summary() if level is not None else None,
         "seconds_tiles": t_tiles, "seconds": time.perf_counter() - t0,
         "tiles": [_jsonable(r.summary()) for r in results],
     }
