@@ -155,3 +155,15 @@ def test_dem_with_harmonics_long_wavelengths(gtmes):
     bands = {(b["lat_min"], b["lat_max"]): b["bias_m"] for b in lw["error_vs_latitude"]}
     assert bands[(60.0, 90.0)] > BIAS_M + 100 and bands[(-10.0, 10.0)] < BIAS_M - 100
     assert compare_dem_with_harmonics(dem, gtmes, DATUM_M, lmax=148, long_lmax=0)["long_wavelength"] is None
+
+
+def test_reference_table_prints_the_long_wavelengths(gtmes):
+    from mercury_dem.pipeline.reference_check import reference_table
+
+    lat = np.arange(87.0, -88.0, -6.0)
+    lon = np.arange(3.0, 360.0, 6.0)
+    h = evaluate_grid(gtmes, lat, lon, lmax=20) - DATUM_M + 40.0
+    dem = xr.DataArray(h, dims=("lat", "lon"), coords={"lat": lat, "lon": lon}, attrs={"datum_radius_m": DATUM_M})
+    text = reference_table({"shape:GTMES": compare_dem_with_harmonics(dem, gtmes, DATUM_M, lmax=20, long_lmax=4)})
+    assert "long wavelengths (area-weighted): bias +40.0 m" in text
+    assert "RMS per degree 0..4: 40 0 0 0 0 m" in text
