@@ -196,7 +196,7 @@ class MeanLevel:
 
 def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m: float, shot_lat: ArrayLike,
                shot_lon: ArrayLike, shot_radius_m: ArrayLike, tiles: TileGrid | None = None, *,
-               min_shots: int = 500, clip_nmad: float = 10.0) -> MeanLevel:
+               min_shots: int = 500, clip_nmad: float = 10.0, allowed: ArrayLike | None = None) -> MeanLevel:
     """The DEM shifted, per tile and blended, so that its mean difference to the shots is zero.
 
     The tile registration is robust (Huber, k·NMAD rejection): it puts the DEM's *median*
@@ -217,6 +217,8 @@ def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m
     shot_lat, shot_lon, shot_radius_m : (N,) the shots after their profile offsets
     tiles : the tile grid (10° by default)
     min_shots, clip_nmad : see above
+    allowed : (n_tiles,) bool, the tiles that may have an offset of their own (e.g. those whose transform
+        was determined: where it was not, the DEM itself is in doubt); default all
 
     Returns
     -------
@@ -237,7 +239,10 @@ def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m
     order = np.argsort(tid, kind="stable")
     tid, d = tid[order], d[order]
     starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]]) if tid.size else np.zeros(0, int)
+    may = np.ones(n, bool) if allowed is None else np.asarray(allowed, bool)
     for a, b in zip(starts, np.r_[starts[1:], tid.size]):
+        if not may[tid[a]]:
+            continue
         x = d[a:b]
         med = np.median(x)
         nmad = 1.4826 * np.median(np.abs(x - med))

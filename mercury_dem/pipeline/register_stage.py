@@ -276,15 +276,20 @@ def register_dem_store(
     clat, clon, crad = _corrected_shots(good, profiles, tiles, datum)
     level = None
     if level_to_mean:
-        level = mean_level(registered, lat, lon, datum, clat, clon, crad, tiles)
-        registered = level.height
+        allowed = np.zeros(tiles.n_tiles, bool)
+        allowed[[t.tile_id for t in transforms if t.ok]] = True
+        level = mean_level(registered, lat, lon, datum, clat, clon, crad, tiles, allowed=allowed)
+        transformed, registered = registered, level.height
     merged = merge_dem(registered, lat, lon, datum, clat, clon, crad, merge_options)
 
     table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
         columns=["tile_id", "ok", "rms_before_m", "rms_registered_m", "rms_after_m"])
     pf = profiles.to_frame()
     stats = {}
-    for name, grid in (("as_given", elev), ("registered", registered), ("merged", merged.height)):
+    grids = [("as_given", elev), ("registered", registered), ("merged", merged.height)]
+    if level is not None:  # the tile transforms alone, before the mean level
+        grids.insert(1, ("transformed", transformed))
+    for name, grid in grids:
         h = sample_grid(grid, lat, lon, clat, clon)
         stats[name] = compare_heights(h, datum_radius_m=datum, reference_radius_m=crad)
     elev_attrs = dict(ds["elevation"].attrs)

@@ -112,6 +112,12 @@ def test_mean_level_removes_a_skewed_error_mean_that_a_median_fit_leaves():
     assert abs(float(np.mean((lev.height - truth)[south]))) < 8.0  # the nearest tiles' offsets
     step = np.abs(np.diff(lev.height - dem, axis=1)).max()
     assert step < 2.0  # tent-blended: no step at tile borders (offsets differ by a few metres)
+    # A tile not allowed its own offset (its transform undetermined) takes its nearest allowed neighbour's.
+    allowed = np.ones(TileGrid(10.0).n_tiles, bool)
+    first = int(np.flatnonzero(lev.own)[0])
+    allowed[first] = False
+    part = mean_level(dem, lat, lon, R_DATUM, slat, slon, srad, TileGrid(10.0), allowed=allowed)
+    assert not part.own[first] and part.own.sum() == lev.own.sum() - 1
     # No shot on the DEM: nothing changes.
     none = mean_level(dem, lat, lon, R_DATUM, slat + 100.0, slon, srad)
     assert np.array_equal(none.height, dem) and not none.own.any()

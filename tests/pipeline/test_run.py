@@ -273,10 +273,11 @@ def test_simulated_mla_ties_the_heights(sync_run: tuple[Path, dict[str, Any]]) -
     reg = report["dem"]["registration"]
     assert len(reg["tiles_20_profiles"]) >= 5 and reg["improved_share"] >= 0.95
     # The global level's radius constraints were re-centred on the block's surface (issue 21 §5), and the
-    # registered DEM levelled on the shots' mean per tile: its mean difference to them is what the median-aligned
-    # transforms left (+50 m on seed 42 before) minus that level, a few metres.
+    # registered DEM levelled on the shots' mean per tile: the median-aligned transforms left it ~+50 m above the
+    # shots on average (seed 42), the level brings that mean toward 0 (blended across tiles, so not exactly).
     assert glob["point_prior"]["recentred_points"] > 0.9 * glob["points"]
     assert reg["mean_level"]["tiles"] >= 10
-    assert abs(reg["statistics"]["registered"]["bias_m"]) < 25.0, reg["statistics"]["registered"]
+    st = reg["statistics"]
+    assert abs(st["registered"]["bias_m"]) < abs(st["transformed"]["bias_m"]) - 15.0, st
     for name in ("registered.zarr", "merged.zarr", "registration/tiles.parquet", "registration/rms_per_tile.png"):
         assert (run / name).exists(), name
