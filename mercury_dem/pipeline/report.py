@@ -25,7 +25,7 @@ from mercury_dem.io.tables import read_table
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
-              "children", "altimetry")
+              "children", "altimetry", "point_prior")
 
 
 def _level_row(s: dict[str, Any]) -> dict[str, Any]:
