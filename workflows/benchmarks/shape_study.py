@@ -2,19 +2,22 @@
 
 Reads a finished run (its hemisphere networks and solutions) and its synthetic mission, rebuilds
 the global merged network exactly as the global stage does, adjusts it with each variant of the
-adjustment configuration / start, and reports the adjusted tie points' radial error against the
-truth (the first measure's pixel through the true pose onto the true surface, as validation does):
-by latitude band and as the RMS of each spherical-harmonic degree 0..4 of the point errors.
+adjustment configuration / start, and reports (1) the adjusted tie points' height error against the
+true surface below them and their distance to their true positions (the first measure's pixel through
+the true pose onto the true surface, as validation does), by latitude band and as the RMS of each
+spherical-harmonic degree 0..4; (2) the same points gridded as the DEM stage grids them, on the truth
+DEM's grid, against the truth (area-weighted bias, RMSE, bands, degrees: ``dem`` in the JSON); (3) the
+pointing error in pixels. Nothing is written into the run.
 
     PYTHONPATH=. python workflows/benchmarks/shape_study.py RUN [--variants base cold r1km ...] [--json OUT]
 
 Variants: ``stored`` (the run's own global points, no adjustment), ``hemi`` (the hemisphere
 networks' points), ``base`` (the run's configuration), ``noalt`` (without altimetry), ``cold``
 (no warm start from the hemispheres), ``recentre`` (the radius constraints re-centred on the
-block's own surface, ``adjust.point_prior_recentre_levels``; every other variant has them on the datum), ``r1km``/``r3km``/``r100km``/``rnone`` (datum radius
-sigma), ``pos`` (spacecraft positions solved too), ``truepos`` (a-priori positions replaced by
-the true ones), ``iter`` (100 iterations, tighter tolerance), ``shape`` (the datum prior centred
-on a given long-wavelength shape, see ``--shape-lmax``), and ``+`` combinations like ``noalt+cold``.
+block's own surface, ``adjust.point_prior_recentre_levels``; every other variant has them on the
+datum), ``r1km``/``r3km``/``r100km``/``rnone`` (datum radius sigma), ``pos`` (spacecraft positions solved too), ``truepos`` (a-priori positions replaced by
+the true ones), ``iter`` (100 iterations, tighter tolerance), ``network`` (constraints centred on the
+a-priori intersections), and ``+`` combinations like ``noalt+cold``.
 """
 
 from __future__ import annotations
