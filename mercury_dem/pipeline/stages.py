@@ -377,6 +377,8 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
         "children": kids,
         **adj.summary,
         **singular,
+        "images_without_measures": sorted(set(singular["images_without_measures"])
+                                          | set(adj.summary.get("images_without_measures", []))),
         "_files": {
             "bundleout": adj.text_report,
             "network": adj.network,

@@ -138,3 +138,36 @@ def test_a_singular_part_is_named_and_the_adjustment_goes_on(
     # the one-measure point is left unadjusted and changes nothing else: the same poses to 1e-6 px
     apart = _apart_px(mission, run0, run)
     assert set(apart) == set(read_solution_ids(run0)) and max(apart.values()) < 1e-6
+
+
+def test_an_image_without_measures_is_held_not_fatal(degenerate_run: tuple[Path, Path, dict[str, Any]]) -> None:
+    """``adjust_network`` on a network (as imported or edited) holding an image with no measure: before, the
+    whole solve was an AdjustmentError ("1 images have no measures"); now the image is held at its a-priori
+    pose, named, and the others come out as without it."""
+    from mercury_dem.config import load_config
+    from mercury_dem.mission import open_mission
+    from mercury_dem.network.store import read_network
+    from mercury_dem.pipeline.adjust_adapter import adjust_network
+    from mercury_dem.pipeline.stages import adjust_config_for
+
+    mission_path, run, _ = degenerate_run
+    mission = open_mission(mission_path)
+    net = read_network(RunStore(run).network_path("region", 8))  # S-000-060: 19 images
+    net = net.replace(measure_rejected=np.zeros_like(net.measure_rejected),
+                      point_rejected=np.zeros_like(net.point_rejected))
+    cfg = adjust_config_for(mission, load_config())
+
+    def solve(n: Any) -> Any:
+        ids = [str(i) for i in n.image_ids]
+        pos = np.array([mission.a_priori_pose(i)[0] for i in ids])
+        rot = np.array([mission.a_priori_pose(i)[1] for i in ids])
+        return adjust_network(n, [mission.camera(i) for i in ids], pos, rot, cfg,
+                              datum_radius_m=mission.body.datum_radius_m), pos, rot
+
+    clean, _, _ = solve(net)
+    extra = net.replace(image_ids=np.append(net.image_ids, d.NO_MEASURES))
+    held, pos, rot = solve(extra)
+    assert held.summary["images_without_measures"] == [d.NO_MEASURES]
+    assert np.array_equal(held.rotations[-1], rot[-1]) and np.array_equal(held.positions[-1], pos[-1])
+    assert held.image_measures[-1] == 0
+    assert np.allclose(held.rotations[:-1], clean.rotations, atol=1e-12)
