@@ -402,10 +402,10 @@ def singular_parts(merged_all: Any, merged: Any, limit: int = 20) -> dict[str, A
     dropped = sorted(set(map(str, merged_all.image_ids)) - set(map(str, merged.image_ids)))
     per_point = merged.measures_per_point()
     single = np.flatnonzero(per_point == 1)
+    ids = [p.item() if hasattr(p, "item") else p for p in merged.point_ids[single[:limit]]]  # JSON-able
     return {
         "images_without_measures": dropped,
-        "single_measure_points": {"count": int(single.size),
-                                  "ids": [p.item() if hasattr(p, "item") else p for p in merged.point_ids[single[:limit]]]},
+        "single_measure_points": {"count": int(single.size), "ids": ids},
     }
 
 
