@@ -102,7 +102,8 @@ def adjust_network(
 
     Islands (disconnected groups of images) are adjusted together, each held by
     its a-priori constraints, and reported by id; images whose RMS residual
-    exceeds ``rms_flag_px`` are flagged.
+    exceeds ``rms_flag_px`` are flagged; images without measures are held at their
+    a-priori pose and named (``images_without_measures``).
 
     ``altimetry`` (:class:`~mercury_dem.altimetry.constraints.AltimetryShotsArrays`): the tie
     points near shots get radius constraints from them
@@ -117,6 +118,12 @@ def adjust_network(
     from mercury_dem.adjust.report import text_report
 
     cfg = dataclasses.replace(config, allow_islands=True)
+    ids = np.asarray(network.image_ids).astype(str)
+    # An image without a measure (an imported or edited network) carries no information: it is held at its
+    # a-priori pose and named, instead of making the whole solve an AdjustmentError.
+    no_measures = ids[np.bincount(network.measure_image, minlength=network.n_images) == 0]
+    if no_measures.size:
+        cfg = dataclasses.replace(cfg, held_images=tuple(dict.fromkeys([*cfg.held_images, *no_measures.tolist()])))
     problem, measure_index = problem_from_network(
         network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
     )
@@ -138,7 +145,6 @@ def adjust_network(
     else:
         result = bundle_adjust(problem, cfg)
     adjusted = network_with_result(network, result, measure_index)
-    ids = np.asarray(network.image_ids).astype(str)
     rms_img = np.asarray(result.rms_per_image, dtype=np.float64)
     flagged = [
         {"image": str(ids[k]), "rms_px": float(rms_img[k])}
@@ -163,6 +169,7 @@ def adjust_network(
         "solve_seconds": float(result.solve_seconds),
         "flagged_images": flagged,
         "islands": islands if len(islands) > 1 else [],
+        "images_without_measures": no_measures.tolist(),
     }
     if altimetry_summary is not None:
         summary["altimetry"] = altimetry_summary
