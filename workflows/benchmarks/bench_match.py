@@ -527,6 +527,10 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         "net_median_px": float(np.median(e)), "net_p95_px": float(np.percentile(e, 95)),
         "net_outliers": float(np.mean(e > 2.0)),
         "build": build_stats,
+        # the raw pair figures, for studies that group the pairs otherwise (bench_seeds.py)
+        "pair_errors": np.concatenate(pair_err) if pair_err else np.zeros(0),
+        "pair_of_error": np.concatenate(pair_index) if pair_index else np.zeros(0, np.int64),
+        "pair_rows": all_rows, "pair_overlaps": overlaps,
     }
     if verbose:
         print(f"tracks={'on' if tracks else 'off'}: mission {mission_path}: {out['tiles']} tiles, {n_pairs} pairs, {n_matched} matched, "
