@@ -115,6 +115,14 @@ class MatchConfig(ConfigSection):
     max_sun_azimuth_difference_deg: float = param(
         45.0, "Skip pairs whose sun azimuths differ by more than this", unit="deg", lo=0.0, hi=180.0
     )
+    # -- view geometry --------------------------------------------------------
+    max_convergence_deg: float = param(
+        60.0, "Skip pairs whose views converge (angle between the two cameras' rays at the overlap centre) by more "
+        "than this: beyond ~60 deg the relief and the emission-dependent brightness look different enough that the "
+        "matches carry a consistent per-pair offset of 0.2-0.9 px of the coarser image (docs/benchmarks/match.md, "
+        "issue 21), which the adjustment cannot reject and which bends the finer images' pointing", unit="deg",
+        lo=0.0, hi=180.0,
+    )
     # -- sub-pixel refinement ------------------------------------------------
     refine: bool = param(True, "Sub-pixel refinement of every measure on the pre-transformed images")
     refine_window_px: int = param(21, "Refinement correlation window (odd)", unit="px", lo=5, hi=101)

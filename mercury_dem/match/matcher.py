@@ -349,6 +349,9 @@ def _match_pair(
     if pg.sun_azimuth_difference_deg > config.max_sun_azimuth_difference_deg:
         return _fail(rep, f"sun azimuth differs by {pg.sun_azimuth_difference_deg:.0f} deg "
                      f"> max_sun_azimuth_difference_deg {config.max_sun_azimuth_difference_deg:g}", "skipped")
+    if pg.convergence_deg > config.max_convergence_deg:
+        return _fail(rep, f"views converge by {pg.convergence_deg:.0f} deg "
+                     f"> max_convergence_deg {config.max_convergence_deg:g}", "skipped")
 
     # The coarser image stays in its own geometry; the finer one is warped (low-passed) onto it.
     swap = config.warp_finer and pg.match_px_per_ref_px < 1.0 / config.swap_scale_ratio

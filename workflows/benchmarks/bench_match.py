@@ -39,6 +39,7 @@ from mercury_dem.validate.matching import (
     format_summary,
     standard_pairs,
     summarize,
+    true_error_components,
     true_errors,
     true_overlap,
 )
@@ -467,6 +468,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     rays_all: list[np.ndarray] = []
     errs: list[np.ndarray] = []
     pair_err: list[np.ndarray] = []
+    pair_across: list[np.ndarray] = []
     n_pairs = n_matched = n_match_rows = 0
     t_match = 0.0
     build_stats: dict[str, int] = {}
@@ -493,6 +495,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
         pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height))
+        pair_across.append(true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)[1])
         pair_index.append(m.pair + len(all_rows))
         all_rows.extend(r.as_row() for r in reps)
         overlaps.extend(true_overlap(truth[a], truth[b], surface.height) if a in truth and b in truth else 0.0
@@ -529,6 +532,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         "build": build_stats,
         # the raw pair figures, for studies that group the pairs otherwise (bench_seeds.py)
         "pair_errors": np.concatenate(pair_err) if pair_err else np.zeros(0),
+        "pair_errors_across": np.concatenate(pair_across) if pair_across else np.zeros(0),
         "pair_of_error": np.concatenate(pair_index) if pair_index else np.zeros(0, np.int64),
         "pair_rows": all_rows, "pair_overlaps": overlaps,
     }

@@ -75,8 +75,10 @@ def pair_groups(rows: list[dict[str, Any]], instrument: dict[str, str]) -> dict[
 
 
 def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]], overlaps: list[float],
-                  groups: dict[str, list[int]], min_matches: int = 20) -> dict[str, dict[str, float]]:
-    """Per group: pairs, overlapping pairs, share of them with >= min_matches, measures, median, p95, > 2 px."""
+                  groups: dict[str, list[int]], min_matches: int = 20,
+                  across: np.ndarray | None = None) -> dict[str, dict[str, float]]:
+    """Per group: pairs, overlapping pairs, share of them with >= min_matches, measures, median, p95, > 2 px;
+    with ``across`` (the error across the epipolar line, ``true_error_components``) its median and p95 too."""
     counts = np.bincount(pair, minlength=len(rows)) if pair.size else np.zeros(len(rows), np.int64)
     ov_all = np.asarray(overlaps, float) >= 0.10
     out: dict[str, dict[str, float]] = {}
@@ -93,11 +95,16 @@ def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]],
             "p95_px": float(np.percentile(e, 95)) if e.size else float("nan"),
             "outlier_share": float(np.mean(e > 2.0)) if e.size else float("nan"),
         }
+        if across is not None:
+            a = across[np.isin(pair, m)]
+            a = a[np.isfinite(a)]
+            out[name]["across_median_px"] = float(np.median(a)) if a.size else float("nan")
+            out[name]["across_p95_px"] = float(np.percentile(a, 95)) if a.size else float("nan")
     return out
 
 
-def one_seed(seed: int, workdir: Path, preset: str, config: str | None) -> dict[str, Any]:
-    """Synthesize, run and study one seed (cached in WORKDIR/seed_N.json)."""
+def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions: Path | None = None) -> dict[str, Any]:
+    """Synthesize, run and study one seed (cached in WORKDIR/seed_N.json; missions in ``missions`` when given)."""
     out_json = workdir / f"seed_{seed}.json"
     if out_json.exists():
         return json.loads(out_json.read_text())
@@ -105,7 +112,7 @@ def one_seed(seed: int, workdir: Path, preset: str, config: str | None) -> dict[
 
     from mercury_dem.mission import open_mission
 
-    mission, run = workdir / f"mission_{seed}", workdir / f"run_{seed}"
+    mission, run = (missions or workdir) / f"mission_{seed}", workdir / f"run_{seed}"
     log = workdir / f"seed_{seed}.log"
     t_synth = t_run = 0.0
     if not (mission / "mission.json").exists():
@@ -122,7 +129,8 @@ def one_seed(seed: int, workdir: Path, preset: str, config: str | None) -> dict[
     t_study = time.perf_counter() - t0
     rows = study["pair_rows"]
     figs = group_figures(np.asarray(study["pair_errors"], float), np.asarray(study["pair_of_error"], np.int64),
-                         rows, study["pair_overlaps"], pair_groups(rows, instrument))
+                         rows, study["pair_overlaps"], pair_groups(rows, instrument),
+                         across=np.asarray(study["pair_errors_across"], float))
     result = {
         "seed": seed, "preset": preset, "config": config,
         "groups": figs,
@@ -163,8 +171,9 @@ def report(results: list[dict[str, Any]]) -> str:
     names = [n for n in order if n in names] + sorted(n for n in names if n not in order)
     lines = [f"seeds: {', '.join(map(str, seeds))} ({len(seeds)} missions, preset {results[0]['preset']})", "",
              "| group | pairs (sum) | overlapping with >= 20: median seed / worst | median px: median seed / worst "
-             "| p95 px: median seed / worst (seed) | > 2 px: median seed / worst |",
-             "|---|---|---|---|---|---|"]
+             "| p95 px: median seed / worst (seed) | > 2 px: median seed / worst "
+             "| across the epipolar line, p95 px: median seed / worst |",
+             "|---|---|---|---|---|---|---|"]
     for n in names:
         g = [r["groups"].get(n, {}) for r in results]
         npairs = int(sum(x.get("n_pairs", 0) for x in g))
@@ -172,9 +181,10 @@ def report(results: list[dict[str, Any]]) -> str:
         md = spread([x.get("median_px") for x in g], "max")
         p9 = spread([x.get("p95_px") for x in g], "max")
         ou = spread([x.get("outlier_share") for x in g], "max")
+        ac = spread([x.get("across_p95_px") for x in g], "max")
         lines.append(f"| {n} | {npairs} | {100 * sh[0]:.0f} % / {100 * sh[1]:.0f} % | {md[0]:.3f} / {md[1]:.3f} "
                      f"| {p9[0]:.3f} / {p9[1]:.3f} ({seeds[p9[2]] if p9[2] >= 0 else '-'}) "
-                     f"| {100 * ou[0]:.2f} % / {100 * ou[1]:.2f} % |")
+                     f"| {100 * ou[0]:.2f} % / {100 * ou[1]:.2f} % | {ac[0]:.3f} / {ac[1]:.3f} |")
     lines += ["", "| instrument | images per mission | pointing after adjustment px (RMS): median seed / worst (seed) | every seed |",
               "|---|---|---|---|"]
     insts = sorted({k for r in results for k in r["pointing_px"]})
@@ -217,12 +227,17 @@ def main() -> None:
     p.add_argument("--preset", default="tiny")
     p.add_argument("--config", help="YAML configuration for the runs (default: the defaults)")
     p.add_argument("--json", help="also write every seed's figures to this file")
+    p.add_argument("--missions", help="take (or make) the missions in this directory (e.g. another study's "
+                   "WORKDIR: the same missions, matched and adjusted again)")
+    p.add_argument("--report-only", action="store_true", help="only the report of the seeds already in WORKDIR")
     a = p.parse_args()
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
     results = []
     for s in parse_seeds(a.seeds):
-        r = one_seed(s, work, a.preset, a.config)
+        if a.report_only and not (work / f"seed_{s}.json").exists():
+            continue
+        r = one_seed(s, work, a.preset, a.config, Path(a.missions) if a.missions else None)
         g = r["groups"].get("similar", {})
         print(f"seed {s}: similar median {g.get('median_px', float('nan')):.3f} p95 {g.get('p95_px', float('nan')):.3f}, "
               f"outliers {100 * r['groups']['all']['outlier_share']:.2f} %, pointing "
