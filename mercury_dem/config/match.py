@@ -63,6 +63,11 @@ class MatchConfig(ConfigSection):
         unit="px", lo=0.01, hi=100.0,
     )
     max_matches: int = param(400, "Most matches kept per image pair (best, spatially spread)", lo=1, hi=100000)
+    propagate_extra: float = param(
+        0.125, "Track propagation: each direction of a pair refines at most its free room below max_matches plus "
+        "this share of max_matches in anchors (which may replace single-pair matches in the thinning; a full pair "
+        "refines only these). 0: a full pair receives no anchors (cheaper, fewer rays per point)", lo=0.0, hi=10.0,
+    )
     min_matches: int = param(
         20, "Fewer matches than this after the chain: try the NCC fallback, else fail the pair", lo=4, hi=100000
     )
