@@ -63,6 +63,11 @@ class MatchConfig(ConfigSection):
         unit="px", lo=0.01, hi=100.0,
     )
     max_matches: int = param(400, "Most matches kept per image pair (best, spatially spread)", lo=1, hi=100000)
+    propagate_extra: float = param(
+        0.125, "Track propagation: each direction of a pair refines at most its free room below max_matches plus "
+        "this share of max_matches in anchors (which may replace single-pair matches in the thinning; a full pair "
+        "refines only these). 0: a full pair receives no anchors (cheaper, fewer rays per point)", lo=0.0, hi=10.0,
+    )
     min_matches: int = param(
         20, "Fewer matches than this after the chain: try the NCC fallback, else fail the pair", lo=4, hi=100000
     )
@@ -114,6 +119,14 @@ class MatchConfig(ConfigSection):
     )
     max_sun_azimuth_difference_deg: float = param(
         45.0, "Skip pairs whose sun azimuths differ by more than this", unit="deg", lo=0.0, hi=180.0
+    )
+    # -- view geometry --------------------------------------------------------
+    max_convergence_deg: float = param(
+        60.0, "Skip pairs whose views converge (angle between the two cameras' rays at the overlap centre) by more "
+        "than this: beyond ~60 deg the relief and the emission-dependent brightness look different enough that the "
+        "matches carry a consistent per-pair offset of 0.2-0.9 px of the coarser image (docs/benchmarks/match.md, "
+        "issue 21), which the adjustment cannot reject and which bends the finer images' pointing", unit="deg",
+        lo=0.0, hi=180.0,
     )
     # -- sub-pixel refinement ------------------------------------------------
     refine: bool = param(True, "Sub-pixel refinement of every measure on the pre-transformed images")

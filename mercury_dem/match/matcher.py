@@ -349,6 +349,9 @@ def _match_pair(
     if pg.sun_azimuth_difference_deg > config.max_sun_azimuth_difference_deg:
         return _fail(rep, f"sun azimuth differs by {pg.sun_azimuth_difference_deg:.0f} deg "
                      f"> max_sun_azimuth_difference_deg {config.max_sun_azimuth_difference_deg:g}", "skipped")
+    if pg.convergence_deg > config.max_convergence_deg:
+        return _fail(rep, f"views converge by {pg.convergence_deg:.0f} deg "
+                     f"> max_convergence_deg {config.max_convergence_deg:g}", "skipped")
 
     # The coarser image stays in its own geometry; the finer one is warped (low-passed) onto it.
     swap = config.warp_finer and pg.match_px_per_ref_px < 1.0 / config.swap_scale_ratio
@@ -902,8 +905,8 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
                other_anchors: tuple[NDArray[np.int64], NDArray[np.int64]], config: MatchConfig, rep: PairReport) -> None:
     """Add the base's and the partner's anchors this pair does not have yet (see :mod:`.tracks`).
 
-    Each direction refines at most the pair's free room below ``max_matches`` plus an eighth of
-    ``max_matches`` (for a full pair: 50 anchors that may replace single-pair matches in the
+    Each direction refines at most the pair's free room below ``max_matches`` plus
+    ``propagate_extra`` x ``max_matches`` (default an eighth; for a full pair: 50 anchors that may replace single-pair matches in the
     thinning), those matched in more pairs first, spread: the cost stays bounded by about one
     more refinement pass (a full pair: a quarter of one)."""
     if st.pa.shape[0] < _PROPAGATE_MIN_MATCHES or not st.base.described or not st.other.described:
@@ -911,7 +914,8 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
     new = ~np.isin(base_anchors[0], st.feat_base)
     fwd, fwd_count = base_anchors[0][new], base_anchors[1][new]
     rev, rev_count = other_anchors
-    if fwd.size == 0 and rev.size == 0:
+    cap = max(config.max_matches - st.pa.shape[0], 0) + int(round(config.max_matches * config.propagate_extra))
+    if (fwd.size == 0 and rev.size == 0) or cap <= 0:  # (propagate_pair reads 0 as "no cap")
         return
     h = st.pg.homography
     rev_orig = st.other.features.points[rev]
@@ -931,7 +935,7 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
         config.refine_window_px | 1, min(config.refine_search_px, PROPAGATE_SEARCH_PX), config.refine_iterations,
         max(config.refine_min_score, PROPAGATE_MIN_SCORE), config.local_tolerance_px if config.local_tolerance_px > 0 else 1.0,
-        max_candidates=max(config.max_matches - st.pa.shape[0], 0) + max(config.max_matches // 8, 1),
+        max_candidates=cap,
         forward_priority=fwd_count.astype(np.float64),
         reverse_priority=rev_count.astype(np.float64),
         base_pattern=bpat, warped_pattern=wpat if bpat is not None else None,

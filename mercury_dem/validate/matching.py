@@ -66,6 +66,70 @@ def true_errors(
     return out
 
 
+def true_error_components(
+    image_ids: Sequence[str],
+    image_a: NDArray[np.int64],
+    image_b: NDArray[np.int64],
+    points_a: NDArray[np.float64],
+    points_b: NDArray[np.float64],
+    truth: Mapping[str, TruePose],
+    height: HeightFunction,
+    step_m: float = 100.0,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The true error of every match split along and across the epipolar line, in match pixels.
+
+    The reference measure fixes a ray; every point of that ray projects onto the epipolar
+    line in the match image. An error **along** it is what a different height on the
+    reference ray gives: a bundle adjustment absorbs it into the point's height (it sets
+    the DEM's resolution, it cannot bend the pointing). Only the error **across** it
+    contradicts the geometry, so only that part can pull an image's pointing. An
+    area-based matcher measures the parallax of its window's surface, not of the
+    keypoint's own height, so between convergent views its error is mostly along the
+    line (issue 21; ``docs/benchmarks/match.md``).
+
+    Parameters
+    ----------
+    image_ids, image_a, image_b, points_a, points_b, truth, height : as :func:`true_errors`
+    step_m : height step along the reference ray that gives the epipolar direction, metres
+
+    Returns
+    -------
+    along, across : ndarray (M,), signed along-line and absolute across-line errors
+        (``hypot(along, across)`` is :func:`true_errors`); NaN where the reference ray
+        misses the surface; where both views share one viewpoint (no epipolar line) the
+        whole error counts as across
+    """
+    ia = np.asarray(image_a, np.int64)
+    ib = np.asarray(image_b, np.int64)
+    along = np.full(ia.shape[0], np.nan)
+    across = np.full(ia.shape[0], np.nan)
+    if ia.size == 0:
+        return along, across
+    keys = ia * (len(image_ids) + 1) + ib
+    for key in np.unique(keys):
+        sel = np.flatnonzero(keys == key)
+        ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
+        g, hit = image_to_ground(ta.camera, ta.position, ta.rotation, points_a[sel], height=height)
+        g = np.where(hit[:, None], g, 0.0)
+        ray = g - ta.position
+        ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+        up = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        # the point one step higher on the same reference ray
+        g2 = g - ray * (step_m / np.maximum(np.abs(np.sum(ray * up, axis=1)), 1e-6))[:, None]
+        px, depth = project(tb.camera, tb.position, tb.rotation, g)
+        px2, _ = project(tb.camera, tb.position, tb.rotation, g2)
+        d = px2 - px
+        n = np.linalg.norm(d, axis=1)
+        ok = hit & (depth > 0)
+        line = n > 1e-9  # identical viewpoints: no epipolar line, no height explains any error
+        u = d / np.maximum(n, 1e-12)[:, None]
+        e = np.asarray(points_b, np.float64)[sel] - px
+        along[sel] = np.where(ok, np.where(line, np.sum(e * u, axis=1), 0.0), np.nan)
+        across[sel] = np.where(ok, np.where(line, np.abs(e[:, 0] * u[:, 1] - e[:, 1] * u[:, 0]),
+                                            np.linalg.norm(e, axis=1)), np.nan)
+    return along, across
+
+
 def true_overlap(a: TruePose, b: TruePose, height: HeightFunction, grid: int = 16) -> float:
     """Overlap of two images as a fraction of the smaller one (0..1), on the true surface.
 

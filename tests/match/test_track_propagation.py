@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any
 
 import numpy as np
@@ -124,3 +126,16 @@ def test_tracks_give_points_of_three_and_more_rays(four_views: dict[str, Any]) -
                              np.stack([net1.sample, net1.line], -1), w["truth"], w["height"])
     en = en[np.isfinite(en) & (en > 0)]
     assert np.median(en) <= 0.3 and np.mean(en > 2.0) <= 0.005, (np.median(en), np.mean(en > 2))
+
+
+def test_full_pairs_receive_no_anchors_with_propagate_extra_zero(four_views: dict[str, Any]) -> None:
+    """``propagate_extra`` = 0: a pair already at ``max_matches`` refines no anchors (the cheaper setting);
+    the default offers it an eighth of ``max_matches`` per direction."""
+    w = four_views
+    cfg = MatchConfig(threads=1, max_matches=60)  # every pair of these views has more than 60 after the chain
+    _, reps = match_tile(w["images"], w["geom"], w["pairs"], cfg)
+    _, reps0 = match_tile(w["images"], w["geom"], w["pairs"], dataclasses.replace(cfg, propagate_extra=0.0))
+    full = [k for k, r in enumerate(reps0) if r.n_local >= 60]  # full after phase 1 (the others have room)
+    assert len(full) >= 3, [r.n_local for r in reps0]
+    assert sum(reps[k].n_propagated for k in full) > 0 and sum(reps0[k].n_propagated for k in full) == 0
+    assert all(r.n_matches <= 60 for r in reps + reps0)

@@ -39,6 +39,7 @@ from mercury_dem.validate.matching import (
     format_summary,
     standard_pairs,
     summarize,
+    true_error_components,
     true_errors,
     true_overlap,
 )
@@ -114,14 +115,17 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
     print("(The tile's views converge by < 2 deg, so the dense-flow step, for pairs converging by >= "
           f"{MatchConfig().flow_min_convergence_deg:g} deg, does not run by default; the column 'flow on every pair' "
           "forces it, flow_min_convergence_deg=0.)\n")
-    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours without track propagation: ratio wall, CPU | ours with the flow on every pair: ratio wall, CPU | ours matches/pair | floor F-inliers/pair |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours without track propagation: ratio wall, CPU | ours, propagate_extra=0 (full pairs receive no anchors): ratio wall, CPU | ours with the flow on every pair: ratio wall, CPU | ours matches/pair | floor F-inliers/pair |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
         images, geom, pairs, _ = _tile(n, n_images, rng)
         for threads in (1, 2):
             cfg = MatchConfig(threads=threads)
             cfg_flow = dataclasses.replace(cfg, flow_min_convergence_deg=0.0)
+            cfg_full = dataclasses.replace(cfg, propagate_extra=0.0)
             t_ours, t_floor, c_ours, c_floor, t_pw, c_pw, t_fl, c_fl = [], [], [], [], [], [], [], []
+            t_nx: list[float] = []
+            c_nx: list[float] = []
             for _ in range(repeats):
                 t0, c0 = time.perf_counter(), time.process_time()
                 m, reps = match_tile(images, geom, pairs, cfg)
@@ -135,6 +139,10 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
                 match_tile(images, geom, pairs, cfg_flow)
                 t_fl.append(time.perf_counter() - t0)
                 c_fl.append(time.process_time() - c0)
+                t0, c0 = time.perf_counter(), time.process_time()
+                m0, reps0 = match_tile(images, geom, pairs, cfg_full)
+                t_nx.append(time.perf_counter() - t0)
+                c_nx.append(time.process_time() - c0)
                 old = cv2.getNumThreads()
                 cv2.setNumThreads(threads)
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -147,8 +155,9 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
             co, cf = min(c_ours) / k, min(c_floor) / k
             pw, cpw = min(t_pw) / k, min(c_pw) / k
             fw, cfw = min(t_fl) / k, min(c_fl) / k
+            nx, cnx = min(t_nx) / k, min(c_nx) / k
             print(f"| {n}^2 | {threads} | {k} | {o:.3f} ({co:.3f}) | {f:.3f} ({cf:.3f}) | {o / f:.2f} | {co / cf:.2f} | "
-                  f"{pw / f:.2f}, {cpw / cf:.2f} | {fw / f:.2f}, {cfw / cf:.2f} | "
+                  f"{pw / f:.2f}, {cpw / cf:.2f} | {nx / f:.2f}, {cnx / cf:.2f} | {fw / f:.2f}, {cfw / cf:.2f} | "
                   f"{np.mean([r.n_matches for r in reps]):.0f} | {np.mean(fl):.0f} |", flush=True)
 
 
@@ -467,6 +476,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     rays_all: list[np.ndarray] = []
     errs: list[np.ndarray] = []
     pair_err: list[np.ndarray] = []
+    pair_across: list[np.ndarray] = []
     n_pairs = n_matched = n_match_rows = 0
     t_match = 0.0
     build_stats: dict[str, int] = {}
@@ -493,6 +503,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
         pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height))
+        pair_across.append(true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)[1])
         pair_index.append(m.pair + len(all_rows))
         all_rows.extend(r.as_row() for r in reps)
         overlaps.extend(true_overlap(truth[a], truth[b], surface.height) if a in truth and b in truth else 0.0
@@ -527,6 +538,11 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         "net_median_px": float(np.median(e)), "net_p95_px": float(np.percentile(e, 95)),
         "net_outliers": float(np.mean(e > 2.0)),
         "build": build_stats,
+        # the raw pair figures, for studies that group the pairs otherwise (bench_seeds.py)
+        "pair_errors": np.concatenate(pair_err) if pair_err else np.zeros(0),
+        "pair_errors_across": np.concatenate(pair_across) if pair_across else np.zeros(0),
+        "pair_of_error": np.concatenate(pair_index) if pair_index else np.zeros(0, np.int64),
+        "pair_rows": all_rows, "pair_overlaps": overlaps,
     }
     if verbose:
         print(f"tracks={'on' if tracks else 'off'}: mission {mission_path}: {out['tiles']} tiles, {n_pairs} pairs, {n_matched} matched, "
