@@ -10,11 +10,13 @@ How it runs
    in-process client by default, a ``distributed.Client`` on a cluster: the same results). An
    unexpected exception in a tile becomes that tile's failure (``ok = False``, the error),
    and the stage goes on.
-3. In this process: the registered DEM (:func:`mercury_dem.altimetry.merge.register_dem`),
-   the shots corrected by their profile offsets, the merged DEM
-   (:func:`mercury_dem.altimetry.merge.merge_dem`). These hold the map in memory (about
-   60 B per pixel at the peak): fine for the global DEMs of a modest resolution this is for
-   (8 ppd: 4·10⁶ pixels); a chunked version is future work.
+3. In this process, one block of rows at a time (``block_rows``; by default about 4·10⁶
+   pixels): the block's DEM rows and margins are read from the store, registered
+   (:func:`mercury_dem.altimetry.merge.register_dem`) and merged with the shots corrected by
+   their profile offsets (:func:`mercury_dem.altimetry.merge.merge_dem`), and the block's rows
+   are written into the two stores. The margins (the merge's reach and the transforms'
+   largest displacement) make the result equal to the whole-map computation; memory is that
+   of a block, not of the map (before: ~60 B per map pixel, 20 GB for a global 64 ppd DEM).
 4. Written atomically beside the DEM: ``registered.zarr`` and ``merged.zarr`` (the DEM's
    coordinates, CRS and attributes; ``merged.zarr`` adds ``altimetry_weight`` and
    ``shot_count``), and ``registration/``: ``tiles.parquet`` + ``tiles.json`` (one row per
@@ -39,7 +41,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from mercury_dem.altimetry.merge import MergeOptions, merge_dem, register_dem
+from mercury_dem.altimetry.merge import MergeOptions, max_displacement_m, merge_dem, merge_halo_px, register_dem
 from mercury_dem.altimetry.register import (
     ProfileOffsets,
     RegisterOptions,
@@ -53,6 +55,7 @@ from mercury_dem.exceptions import ReferenceDataError, StoreError
 from mercury_dem.geometry.body import Body, latlon_to_unit, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
+from mercury_dem.pipeline.dem_stage import atomic_store
 from mercury_dem.reference.compare import compare_heights
 from mercury_dem.reference.sampling import sample_grid
 
@@ -130,24 +133,125 @@ def _corrected_shots(shots: pd.DataFrame, profiles: ProfileOffsets, tiles: TileG
     return lat, lon, h + datum
 
 
-def _write_map(path: Path, source: xr.Dataset, layers: dict[str, tuple[np.ndarray, dict[str, Any]]],
-               attrs: dict[str, Any], overwrite: bool) -> None:
-    """A map store with the DEM's coordinates, CRS and attributes (``dem.zarr`` conventions)."""
-    from mercury_dem.pipeline.dem_stage import atomic_store, layer_compressors
+def _create_map(path: Path, source: xr.Dataset, layers: dict[str, tuple[Any, dict[str, Any]]],
+                attrs: dict[str, Any], block_rows: int) -> dict[str, Any]:
+    """An empty map store with the DEM's coordinates, CRS and attributes (``dem.zarr`` conventions).
 
+    ``layers``: name → (dtype, attributes). The arrays' Zarr chunks are ``block_rows`` rows by up to
+    1024 columns, so each block of :func:`register_dem_store` writes whole chunks. Returns the open
+    Zarr arrays, for region writes.
+    """
+    import dask.array as da
+    import zarr
+
+    from mercury_dem.pipeline.dem_stage import layer_compressors
+
+    H, W = source.sizes["lat"], source.sizes["lon"]
+    cs = (max(min(block_rows, H), 1), max(min(1024, W), 1))
     data_vars = {}
-    for name, (values, var_attrs) in layers.items():
-        data_vars[name] = xr.Variable(("lat", "lon"), values, attrs=var_attrs)
+    for name, (dtype, var_attrs) in layers.items():
+        fill = np.nan if np.dtype(dtype).kind == "f" else 0
+        data_vars[name] = xr.Variable(("lat", "lon"), da.full((H, W), fill, dtype=dtype, chunks=cs), attrs=var_attrs)
     ds = xr.Dataset(data_vars, coords={"lat": source["lat"], "lon": source["lon"],
                                        "spatial_ref": source["spatial_ref"]})
-    cs = min(1024, max(ds.sizes["lat"], 1)), min(1024, max(ds.sizes["lon"], 1))
     for name in layers:
         ds[name].encoding.update({"chunks": cs, "grid_mapping": "spatial_ref", "compressors": layer_compressors()})
         ds[name].attrs.pop("grid_mapping", None)
     ds.attrs.update({k: v for k, v in source.attrs.items() if k != "complete"})
     ds.attrs.update(attrs)
-    with atomic_store(path, overwrite=overwrite) as tmp:
-        ds.to_zarr(str(tmp), mode="w", consolidated=False, zarr_format=3)
+    ds.to_zarr(str(path), mode="w", consolidated=False, zarr_format=3, compute=False)  # metadata + coordinates only
+    group = zarr.open_group(str(path), mode="r+")
+    return {name: group[name] for name in layers}
+
+
+def _row_of(lat_pts: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """The nearest grid row of each latitude (clipped to the grid; the grid's latitudes evenly spaced)."""
+    if lat.size < 2:
+        return np.zeros(lat_pts.shape, dtype=np.int64)
+    r = np.rint((lat_pts - lat[0]) / (lat[1] - lat[0]))
+    return np.clip(np.nan_to_num(r, nan=0.0), 0, lat.size - 1).astype(np.int64)
+
+
+def _blocks(n_rows: int, block_rows: int) -> list[tuple[int, int]]:
+    return [(r0, min(r0 + block_rows, n_rows)) for r0 in range(0, n_rows, block_rows)]
+
+
+def _sample_blockwise(elevation: xr.DataArray, lat: np.ndarray, lon: np.ndarray, plat: np.ndarray, plon: np.ndarray,
+                      block_rows: int) -> np.ndarray:
+    """``sample_grid`` of the whole map at the points, reading it one block of rows (+1 row each side) at a time."""
+    out = np.full(plat.shape, np.nan)
+    rows = _row_of(plat, lat)
+    H = lat.size
+    for r0, r1 in _blocks(H, block_rows):
+        sel = np.flatnonzero((rows >= r0) & (rows < r1))
+        if not sel.size:
+            continue
+        i0, i1 = max(r0 - 1, 0), min(r1 + 1, H)
+        win = elevation[i0:i1].values.astype(np.float64)
+        out[sel] = sample_grid(win, lat[i0:i1], lon, plat[sel], plon[sel])
+    return out
+
+
+def _register_and_merge_blockwise(
+    elevation: xr.DataArray, lat: np.ndarray, lon: np.ndarray, datum: float, transforms: list[TileTransform],
+    tiles: TileGrid, merge_options: MergeOptions, corrected: tuple[np.ndarray, np.ndarray, np.ndarray],
+    block_rows: int, reg_path: Path, merged_path: Path, source: xr.Dataset, elev_attrs: dict[str, Any],
+    reg_attrs: dict[str, Any], merged_attrs: dict[str, Any], overwrite: bool,
+) -> dict[str, Any]:
+    """The registered and merged maps, computed and written one block of rows at a time.
+
+    Each block reads the DEM rows it needs (the block, the merge's margin :func:`merge_halo_px`
+    and the largest displacement of the transforms :func:`max_displacement_m`, in rows),
+    registers the block and its merge margin (:func:`register_dem` with ``rows``), merges them
+    (:func:`merge_dem` on the shots near the block), keeps the block's own rows and writes them
+    into ``registered.zarr`` and ``merged.zarr`` (both built under temporary names and renamed
+    when every block is in). The whole-map functions are not called on the whole map: their
+    per-pixel results depend only on neighbours within those margins, so the stores equal the
+    whole-map computation (a test compares them) while memory stays that of one block.
+
+    Returns the DEM as given, registered and merged sampled at the corrected shots (``samples``)
+    and the merge's dense-pixel count.
+    """
+    clat, clon, crad = corrected
+    H = lat.size
+    step_deg = abs(float(lat[1] - lat[0])) if H > 1 else 1.0
+    hm = merge_halo_px(merge_options)
+    shift_deg = math.degrees(max_displacement_m(transforms, datum + 50_000.0) / datum)
+    hr = int(math.ceil(shift_deg / step_deg)) + 2
+    shot_rows = _row_of(clat, lat)
+    order = np.argsort(shot_rows, kind="stable")
+    sorted_rows = shot_rows[order]
+    samples = {name: np.full(clat.shape, np.nan) for name in ("as_given", "registered", "merged")}
+    n_dense = 0
+    with atomic_store(reg_path, overwrite=overwrite) as reg_tmp, \
+            atomic_store(merged_path, overwrite=overwrite) as merged_tmp:
+        reg_out = _create_map(reg_tmp, source, {"elevation": (np.float32, elev_attrs)}, reg_attrs, block_rows)
+        merged_out = _create_map(merged_tmp, source, {
+            "elevation": (np.float32, elev_attrs),
+            "altimetry_weight": (np.float32, {"long_name": "weight of the altimetry (0: registered image DEM, "
+                                                           "1: altimetry)", "units": "1"}),
+            "shot_count": (np.int32, {"long_name": "altimetry shots in the pixel", "units": "1"}),
+        }, merged_attrs, block_rows)
+        for r0, r1 in _blocks(H, block_rows):
+            e0, e1 = max(r0 - hm, 0), min(r1 + hm, H)  # rows registered: the block and the merge's margin
+            i0, i1 = max(e0 - hr, 0), min(e1 + hr, H)  # rows read: those and the displacement's reach
+            win = elevation[i0:i1].values.astype(np.float64)
+            reg = register_dem(win, lat[i0:i1], lon, datum, transforms, tiles, rows=(e0 - i0, e1 - i0))
+            near = order[np.searchsorted(sorted_rows, e0 - 1):np.searchsorted(sorted_rows, e1 + 1)]
+            merged = merge_dem(reg, lat[e0:e1], lon, datum, clat[near], clon[near], crad[near], merge_options)
+            core = slice(r0 - e0, r1 - e0)
+            reg_out["elevation"][r0:r1, :] = reg[core].astype(np.float32)
+            merged_out["elevation"][r0:r1, :] = merged.height[core].astype(np.float32)
+            merged_out["altimetry_weight"][r0:r1, :] = merged.altimetry_weight[core]
+            merged_out["shot_count"][r0:r1, :] = merged.shot_count[core]
+            n_dense += int((merged.shot_count[core] >= merge_options.min_shots_per_pixel).sum())
+            own = order[np.searchsorted(sorted_rows, r0):np.searchsorted(sorted_rows, r1)]
+            if own.size:
+                pla, plo = clat[own], clon[own]
+                samples["as_given"][own] = sample_grid(win, lat[i0:i1], lon, pla, plo)
+                samples["registered"][own] = sample_grid(reg, lat[e0:e1], lon, pla, plo)
+                samples["merged"][own] = sample_grid(merged.height, lat[e0:e1], lon, pla, plo)
+    return {"samples": samples, "n_dense_pixels": n_dense}
 
 
 def _figure_png(table: pd.DataFrame, profiles: pd.DataFrame) -> bytes:
@@ -203,6 +307,8 @@ def register_dem_store(
     margin_deg: float = 1.0,
     overwrite: bool = False,
     source: str = "altimetry",
+    block_rows: int | None = None,
+    block_pixels: float = 4e6,
 ) -> dict[str, Any]:
     """Register a ``dem.zarr`` onto altimetry shots and merge them; write the results beside it.
 
@@ -218,6 +324,9 @@ def register_dem_store(
     options, merge_options, tiles, margin_deg : the registration's settings, tile grid, window margin
     overwrite : replace existing outputs
     source : name of the shots for messages
+    block_rows, block_pixels : the registered and merged maps are computed and written this many rows
+        at a time (default: as many rows as make ``block_pixels`` pixels, at least 16); memory is
+        bounded by the block (about 250 B per pixel of a block and its margins), not the map
 
     Returns
     -------
@@ -252,9 +361,12 @@ def register_dem_store(
     for p in (reg_path, merged_path, table_dir):  # inputs first, then outputs: the first fault is the input's
         if p.exists() and not overwrite:
             raise StoreError(f"{p} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    elev = ds["elevation"].values.astype(np.float64)
-    lat, lon = ds["lat"].values, ds["lon"].values
-    on_dem = np.isfinite(sample_grid(elev, lat, lon, good["lat"].to_numpy(), good["lon"].to_numpy()))
+    elevation = ds["elevation"]
+    lat, lon = ds["lat"].values.astype(np.float64), ds["lon"].values.astype(np.float64)
+    H, W = lat.size, lon.size
+    rows_per_block = block_rows or max(16, min(H, int(block_pixels // max(W, 1))))
+    on_dem = np.isfinite(_sample_blockwise(elevation, lat, lon, good["lat"].to_numpy(), good["lon"].to_numpy(),
+                                           rows_per_block))
     good["tile_id"] = tiles.tile_of(good["lat"].to_numpy(), good["lon"].to_numpy())
     tiles_with = np.unique(good["tile_id"].to_numpy()[on_dem])
     groups = {int(k): g for k, g in good[good["tile_id"].isin(tiles_with)].groupby("tile_id")}
@@ -268,40 +380,32 @@ def register_dem_store(
     results: list[TileRegistration] = client.gather(futures)
     t_tiles = time.perf_counter() - t0
     transforms = [r.transform for r in results]
-    registered = register_dem(elev, lat, lon, datum, transforms, tiles)
     profiles = ProfileOffsets.concat([r.profiles for r in results])
     clat, clon, crad = _corrected_shots(good, profiles, tiles, datum)
-    merged = merge_dem(registered, lat, lon, datum, clat, clon, crad, merge_options)
 
     table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
         columns=["tile_id", "ok", "rms_before_m", "rms_registered_m", "rms_after_m"])
     pf = profiles.to_frame()
-    stats = {}
-    for name, grid in (("as_given", elev), ("registered", registered), ("merged", merged.height)):
-        h = sample_grid(grid, lat, lon, clat, clon)
-        stats[name] = compare_heights(h, datum_radius_m=datum, reference_radius_m=crad)
-    elev_attrs = dict(ds["elevation"].attrs)
+    elev_attrs = dict(elevation.attrs)
     elev_attrs.pop("grid_mapping", None)
     note = {"registration": json.dumps({"source": source, "tile_size_deg": tiles.tile_size_deg,
                                         "options": opt.__dict__ | {"models": list(opt.models)}})}
-    _write_map(reg_path, ds, {"elevation": (registered.astype(np.float32), elev_attrs)},
-               {"title": f"{dem_b.name.title()} image DEM registered to laser altimetry (per-tile affine)", **note},
-               overwrite)
     mo = merge_options or MergeOptions()
-    _write_map(merged_path, ds, {
-        "elevation": (merged.height.astype(np.float32), elev_attrs),
-        "altimetry_weight": (merged.altimetry_weight, {"long_name": "weight of the altimetry (0: registered image "
-                                                       "DEM, 1: altimetry)", "units": "1"}),
-        "shot_count": (merged.shot_count, {"long_name": "altimetry shots in the pixel", "units": "1"}),
-    }, {"title": f"{dem_b.name.title()} DEM merged from laser altimetry and the registered image DEM", **note,
-        "merge": json.dumps(mo.__dict__)}, overwrite)
+    maps = _register_and_merge_blockwise(
+        elevation, lat, lon, datum, transforms, tiles, mo, (clat, clon, crad), rows_per_block,
+        reg_path, merged_path, ds, elev_attrs,
+        {"title": f"{dem_b.name.title()} image DEM registered to laser altimetry (per-tile affine)", **note},
+        {"title": f"{dem_b.name.title()} DEM merged from laser altimetry and the registered image DEM", **note,
+         "merge": json.dumps(mo.__dict__)}, overwrite)
+    stats = {name: compare_heights(maps["samples"][name], datum_radius_m=datum, reference_radius_m=crad)
+             for name in ("as_given", "registered", "merged")}
     summary: dict[str, Any] = {
         "dem": str(dem_path), "registered": str(reg_path), "merged": str(merged_path), "tables": str(table_dir),
         "body": dem_b.name, "shots": int(len(shots)), "shots_dropped_invalid": n_bad,
         "shots_off_dem": int((~on_dem).sum()), "tiles_with_shots": len(results),
         "tiles_registered": int(sum(r.transform.ok for r in results)),
         "profiles": int(len(pf)), "profiles_fitted": int(pf["fitted"].sum()) if len(pf) else 0,
-        "merged_dense_pixels": merged.n_dense_pixels, "statistics": stats,
+        "merged_dense_pixels": maps["n_dense_pixels"], "statistics": stats, "block_rows": rows_per_block,
         "seconds_tiles": t_tiles, "seconds": time.perf_counter() - t0,
         "tiles": [_jsonable(r.summary()) for r in results],
     }
