@@ -107,7 +107,6 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     rep.message("products: writing GeoTIFF/ISIS/PDS products and browse images")
     t = time.perf_counter()
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
-    store.commit_tree("products")
     out: dict[str, Any] = {
         "points": int(pts.shape[0]),
         "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
@@ -125,6 +124,17 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     registration = register_to_mission_altimetry(store, mission, config, client, rep)
     if registration is not None:
         out["registration"] = registration
+        if "error" not in registration:
+            from mercury_dem.pipeline.register_stage import make_registration_products
+
+            t = time.perf_counter()
+            reg_products = make_registration_products(store.root, store.products_dir, config, overwrite=True)
+            out["files"] += reg_products["files"]
+            registration["products"] = {k: {f: reg_products[k][f] for f in ("statistics", "skipped")}
+                                        for k in ("registered", "merged")}
+            rep.message(f"products of the registered and merged DEMs: {len(reg_products['files'])} files in "
+                        f"{time.perf_counter() - t:.1f} s")
+    store.commit_tree("products")  # a bucket run: the whole products directory, once
     if truth is not None:
         from mercury_dem.dem.accuracy import dem_accuracy
 

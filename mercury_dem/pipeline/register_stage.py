@@ -34,6 +34,7 @@ import math
 import time
 import traceback
 import uuid
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,11 +60,14 @@ from mercury_dem.pipeline.dem_stage import atomic_store
 from mercury_dem.reference.compare import compare_heights
 from mercury_dem.reference.sampling import sample_grid
 
-__all__ = ["SHOT_COLUMNS", "check_shots", "register_dem_store"]
+__all__ = ["REGISTRATION_PRODUCTS", "SHOT_COLUMNS", "check_shots", "make_registration_products", "register_dem_store"]
 
 #: Columns a shot table must have (``reference.lola.read_altimetry_csv`` gives them).
 SHOT_COLUMNS = ("lat", "lon", "radius_m", "track_id")
 REGISTRATION_DIR = "registration"
+#: The maps whose products :func:`make_registration_products` writes: store name → what it is.
+REGISTRATION_PRODUCTS = {"registered": "DEM registered to laser altimetry",
+                         "merged": "DEM merged from laser altimetry and the registered DEM"}
 
 
 def check_shots(shots: pd.DataFrame, source: str = "altimetry") -> tuple[pd.DataFrame, int]:
@@ -309,6 +313,7 @@ def register_dem_store(
     source: str = "altimetry",
     block_rows: int | None = None,
     block_pixels: float = 4e6,
+    other_outputs: Sequence[Path] = (),
 ) -> dict[str, Any]:
     """Register a ``dem.zarr`` onto altimetry shots and merge them; write the results beside it.
 
@@ -324,6 +329,8 @@ def register_dem_store(
     options, merge_options, tiles, margin_deg : the registration's settings, tile grid, window margin
     overwrite : replace existing outputs
     source : name of the shots for messages
+    other_outputs : paths the caller will write afterwards (e.g. the products): refused like the
+        stage's own outputs when they exist without ``overwrite``, before anything is computed
     block_rows, block_pixels : the registered and merged maps are computed and written this many rows
         at a time (default: as many rows as make ``block_pixels`` pixels, at least 16); memory is
         bounded by the block (about 250 B per pixel of a block and its margins), not the map
@@ -358,7 +365,7 @@ def register_dem_store(
     good, n_bad = check_shots(shots, source)
     if good.empty:
         raise ReferenceDataError(f"{source}: no usable shot ({n_bad} rows with missing or non-finite values)")
-    for p in (reg_path, merged_path, table_dir):  # inputs first, then outputs: the first fault is the input's
+    for p in (reg_path, merged_path, table_dir, *other_outputs):  # inputs first, then outputs: the first fault is the input's
         if p.exists() and not overwrite:
             raise StoreError(f"{p} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
     elevation = ds["elevation"]
@@ -416,6 +423,46 @@ def register_dem_store(
         atomic_write_bytes(tmp / "rms_per_tile.png", _figure_png(table, pf))
         atomic_write_json(tmp / "summary.json", _jsonable({k: v for k, v in summary.items() if k != "tiles"}))
     summary["seconds"] = time.perf_counter() - t0
+    return summary
+
+
+def make_registration_products(out_dir: str | Path, products_dir: str | Path, config: Any, *,
+                               overwrite: bool = False) -> dict[str, Any]:
+    """The products of ``registered.zarr`` and ``merged.zarr`` (written by :func:`register_dem_store`).
+
+    Each map gets what the adjusted DEM gets (:func:`mercury_dem.products.make.make_products`:
+    ``dem.tif`` COG, ``pds/*.tif`` with their PDS4 labels, ``isis/dem_radius.cub``, browse PNGs,
+    statistics) in ``products_dir/registered/`` and ``products_dir/merged/``; the before/after
+    RMS figure is copied to ``products_dir/registration/rms_per_tile.png``.
+
+    Parameters
+    ----------
+    out_dir : the directory holding ``registered.zarr``, ``merged.zarr`` and ``registration/``
+    products_dir : e.g. ``RUN/products``
+    config : Config or DemConfig (the products' settings)
+    overwrite : replace existing product files
+
+    Returns
+    -------
+    dict: ``files`` (every file written), and per map (``registered``, ``merged``) its
+    products' ``statistics``, ``skipped``, ``pds``, ``isis``, ``files`` and ``seconds`` entries
+    (as :func:`~mercury_dem.products.make.make_products` returns them).
+    """
+    from mercury_dem.products.make import make_products
+
+    out, prod = Path(out_dir), Path(products_dir)
+    fig = out / REGISTRATION_DIR / "rms_per_tile.png"
+    fig_out = prod / REGISTRATION_DIR / "rms_per_tile.png"
+    if fig_out.exists() and not overwrite:
+        raise StoreError(f"product {fig_out} already exists; pass --overwrite (overwrite=True) to replace it")
+    summary: dict[str, Any] = {"files": []}
+    for key, what in REGISTRATION_PRODUCTS.items():
+        res = make_products(out / f"{key}.zarr", prod / key, config, overwrite=overwrite, coverage=False, name=what)
+        summary[key] = {k: res.get(k) for k in ("statistics", "skipped", "seconds", "pds", "isis", "files")}
+        summary["files"] += res["files"]
+    fig_out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(fig_out, fig.read_bytes())
+    summary["files"].append(str(fig_out))
     return summary
 
 

@@ -68,9 +68,24 @@ def test_register_command_json(dem_dir, capsys):
     assert {"elevation", "altimetry_weight", "shot_count"} <= set(merged.data_vars)
     for f in ("tiles.parquet", "tiles.json", "profiles.parquet", "rms_per_tile.png", "summary.json"):
         assert (dem_dir / "registration" / f).stat().st_size > 0
+    # the products of both maps (read back in tests/products/test_registration_products.py)
+    for f in ("registered/dem.tif", "registered/isis/dem_radius.cub", "merged/dem.tif", "merged/browse/hillshade.png",
+              "registration/rms_per_tile.png"):
+        assert str(dem_dir / "products" / f) in out["products"]["files"] and (dem_dir / "products" / f).is_file()
     # outputs are not replaced without --overwrite: a clear error, exit code 2
     assert main(["register", str(dem_dir), "--altimetry", str(dem_dir / "shots.parquet")]) == 2
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_register_without_products(dem_dir, tmp_path, capsys):
+    import shutil
+
+    shutil.copytree(dem_dir / "dem.zarr", tmp_path / "dem.zarr")
+    (tmp_path / "products" / "merged").mkdir(parents=True)  # left by someone: refused before any work
+    assert main(["register", str(tmp_path), "--altimetry", str(dem_dir / "shots.parquet")]) == 2
+    assert "products/merged already exists" in capsys.readouterr().err and not (tmp_path / "merged.zarr").exists()
+    assert main(["register", str(tmp_path), "--altimetry", str(dem_dir / "shots.parquet"), "--no-products"]) == 0
+    assert (tmp_path / "merged.zarr").is_dir() and not any((tmp_path / "products" / "merged").iterdir())
 
 
 def test_register_refuses_bad_input(dem_dir, capsys, tmp_path):
