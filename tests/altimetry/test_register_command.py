@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import xarray as xr
 
 from mercury_dem.cli import main

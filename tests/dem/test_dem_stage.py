@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pyproj
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import pytest
 from dem_synthetic import truth_height
 

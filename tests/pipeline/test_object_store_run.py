@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import xarray as xr
 import yaml
 

@@ -16,6 +16,7 @@ import numpy as np
 import pyproj
 import pytest
 import rasterio
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import xarray as xr
 
 from mercury_dem.geometry.body import MERCURY, MOON
