@@ -33,7 +33,8 @@ from bench_grid import run_gdal, write_point_inputs  # noqa: E402  (same cloud a
 
 def timed(cmd: list[str], env: dict[str, str] | None = None) -> float:
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env)
+    # cwd /tmp: 'python -m'/'-c' put the current directory first on sys.path, before PYTHONPATH's tree
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd="/tmp")
     return time.perf_counter() - t0
 
 

@@ -33,7 +33,8 @@ def main() -> None:
     ap.add_argument("--shots", type=float, default=1e6)
     ap.add_argument("--out", required=True)
     ap.add_argument("--pythonpath", action="append", default=[], help="source tree to run (repeatable)")
-    ap.add_argument("--extra", default="", help="extra arguments for register (e.g. --no-products)")
+    ap.add_argument("--extra", action="append", default=[],
+                    help="extra arguments for register, one per --pythonpath (e.g. '--no-products' for a tree that has it)")
     args = ap.parse_args()
     sys.path.insert(0, str(Path(__file__).parent))
     from bench_register import Surface, make_dem, make_shots
@@ -46,19 +47,22 @@ def main() -> None:
         make_dem(surf, args.ppd, out / "dem.zarr", (0.02, 0.03, 300.0))
         make_shots(surf, int(args.shots), rng).to_parquet(out / "shots.parquet")
     rows = []
-    for tree in args.pythonpath or [str(Path(__file__).resolve().parents[2])]:
+    trees = args.pythonpath or [str(Path(__file__).resolve().parents[2])]
+    extras = args.extra + [""] * (len(trees) - len(args.extra))
+    for tree, extra in zip(trees, extras):
         argv = ["mercury-dem", "register", str(out), "--altimetry", str(out / "shots.parquet"), "--overwrite",
-                *args.extra.split()]
+                *extra.split()]
         code = ("import resource, runpy, sys\n"
                 f"sys.argv = {argv!r}\n"
                 "try:\n    runpy.run_module('mercury_dem.cli', run_name='__main__')\n"
                 "finally:\n    print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
         t0 = time.perf_counter()
+        # cwd /tmp: 'python -c' puts the current directory first on sys.path, before PYTHONPATH's tree
         res = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": tree},
-                             capture_output=True, text=True)
+                             capture_output=True, text=True, cwd="/tmp")
         secs = time.perf_counter() - t0
         peak = [ln.split()[1] for ln in res.stderr.splitlines() if ln.startswith("PEAK_RSS_KB")]
-        rows.append({"tree": tree, "rc": res.returncode, "seconds": round(secs, 1),
+        rows.append({"tree": tree, "args": extra, "rc": res.returncode, "seconds": round(secs, 1),
                      "peak_rss_gb": round(int(peak[-1]) / 1e6, 3) if peak else None,
                      "last_line": (res.stdout.strip().splitlines() or [res.stderr.strip()[-300:]])[-1]})
     print(json.dumps({"date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
