@@ -10,7 +10,10 @@
 Usage (heavy: run under the lock)::
 
     flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_register_memory.py \\
-        --ppd 16 --shots 1e6 --out /tmp/bench_reg_mem --pythonpath /work/main --pythonpath /work/wt-eco
+        --ppd 16 --shots 1e6 --out /tmp/bench_reg_mem --pythonpath OLD_TREE --pythonpath NEW_TREE \\
+        --extra= --extra=--no-products
+    # the stage alone, smaller blocks than the default 4e6 pixels (0: an old tree without the argument):
+    ... --ppd 8 --shots 2e5 --pythonpath OLD_TREE --pythonpath NEW_TREE --api-block-pixels 0 --api-block-pixels 5e5
 """
 
 from __future__ import annotations
@@ -33,6 +36,9 @@ def main() -> None:
     ap.add_argument("--shots", type=float, default=1e6)
     ap.add_argument("--out", required=True)
     ap.add_argument("--pythonpath", action="append", default=[], help="source tree to run (repeatable)")
+    ap.add_argument("--api-block-pixels", type=float, action="append", default=[],
+                    help="call register_dem_store(block_pixels=N) in the child instead of the CLI, one per "
+                         "--pythonpath (0: without the argument, for a tree that predates it)")
     ap.add_argument("--extra", action="append", default=[],
                     help="extra arguments for register, one per --pythonpath (e.g. '--no-products' for a tree that has it)")
     args = ap.parse_args()
@@ -49,20 +55,30 @@ def main() -> None:
     rows = []
     trees = args.pythonpath or [str(Path(__file__).resolve().parents[2])]
     extras = args.extra + [""] * (len(trees) - len(args.extra))
-    for tree, extra in zip(trees, extras):
+    blocks = args.api_block_pixels + [None] * (len(trees) - len(args.api_block_pixels))
+    for tree, extra, block in zip(trees, extras, blocks):
         argv = ["mercury-dem", "register", str(out), "--altimetry", str(out / "shots.parquet"), "--overwrite",
                 *extra.split()]
         code = ("import resource, runpy, sys\n"
                 f"sys.argv = {argv!r}\n"
                 "try:\n    runpy.run_module('mercury_dem.cli', run_name='__main__')\n"
                 "finally:\n    print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+        if block is not None:  # the stage alone, through its Python API
+            kw = f", block_pixels={block!r}" if block else ""
+            code = ("import resource, sys\nimport pandas as pd\n"
+                    "from mercury_dem.pipeline.register_stage import register_dem_store\n"
+                    f"s = register_dem_store({str(out / 'dem.zarr')!r}, pd.read_parquet({str(out / 'shots.parquet')!r}), "
+                    f"{str(out)!r}, overwrite=True{kw})\n"
+                    "print('registered', s['tiles_registered'], 'tiles; block_rows', s.get('block_rows'))\n"
+                    "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
         t0 = time.perf_counter()
         # cwd /tmp: 'python -c' puts the current directory first on sys.path, before PYTHONPATH's tree
         res = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": tree},
                              capture_output=True, text=True, cwd="/tmp")
         secs = time.perf_counter() - t0
         peak = [ln.split()[1] for ln in res.stderr.splitlines() if ln.startswith("PEAK_RSS_KB")]
-        rows.append({"tree": tree, "args": extra, "rc": res.returncode, "seconds": round(secs, 1),
+        rows.append({"tree": tree, "args": extra if block is None else f"API block_pixels={block or 'n/a'}",
+                     "rc": res.returncode, "seconds": round(secs, 1),
                      "peak_rss_gb": round(int(peak[-1]) / 1e6, 3) if peak else None,
                      "last_line": (res.stdout.strip().splitlines() or [res.stderr.strip()[-300:]])[-1]})
     print(json.dumps({"date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
