@@ -65,10 +65,13 @@ def main() -> None:
                 "finally:\n    print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
         if block is not None:  # the stage alone, through its Python API
             kw = f", block_pixels={block!r}" if block else ""
-            code = ("import resource, sys\nimport pandas as pd\n"
+            code = ("import resource, sys, tracemalloc\nimport pandas as pd\n"
                     "from mercury_dem.pipeline.register_stage import register_dem_store\n"
-                    f"s = register_dem_store({str(out / 'dem.zarr')!r}, pd.read_parquet({str(out / 'shots.parquet')!r}), "
+                    f"shots = pd.read_parquet({str(out / 'shots.parquet')!r})\n"
+                    "tracemalloc.start()\n"
+                    f"s = register_dem_store({str(out / 'dem.zarr')!r}, shots, "
                     f"{str(out)!r}, overwrite=True{kw})\n"
+                    "print('TRACED_PEAK_B', tracemalloc.get_traced_memory()[1], file=sys.stderr)\n"
                     "print('registered', s['tiles_registered'], 'tiles; block_rows', s.get('block_rows'))\n"
                     "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
         t0 = time.perf_counter()
@@ -77,9 +80,12 @@ def main() -> None:
                              capture_output=True, text=True, cwd="/tmp")
         secs = time.perf_counter() - t0
         peak = [ln.split()[1] for ln in res.stderr.splitlines() if ln.startswith("PEAK_RSS_KB")]
+        traced = [ln.split()[1] for ln in res.stderr.splitlines() if ln.startswith("TRACED_PEAK_B")]
         rows.append({"tree": tree, "args": extra if block is None else f"API block_pixels={block or 'n/a'}",
                      "rc": res.returncode, "seconds": round(secs, 1),
                      "peak_rss_gb": round(int(peak[-1]) / 1e6, 3) if peak else None,
+                     # numpy/Python allocations during the stage alone (tracemalloc; API mode): no import baseline
+                     "stage_traced_peak_gb": round(int(traced[-1]) / 1e9, 3) if traced else None,
                      "last_line": (res.stdout.strip().splitlines() or [res.stderr.strip()[-300:]])[-1]})
     print(json.dumps({"date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
                       "machine": f"{platform.machine()}, {os.cpu_count()} cores", "ppd": args.ppd,
