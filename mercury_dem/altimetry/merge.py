@@ -52,8 +52,8 @@ from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_lat
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.reference.sampling import sample_grid
 
-__all__ = ["MergeOptions", "MergedDem", "blended_displacement", "max_displacement_m", "merge_dem", "merge_halo_px",
-           "register_dem", "transform_table"]
+__all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "blended_scalar", "max_displacement_m",
+           "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem", "transform_table"]
 
 
 def transform_table(transforms: Sequence[TileTransform], tiles: TileGrid) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -173,6 +173,134 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
             clo = clo - (wrap_longitude(qlo - tlo + 180.0) - 180.0)
         out[r0 - first:r0 - first + block.size] = qh.reshape(LA.shape)
     return out
+
+
+def blended_scalar(values: NDArray[np.float64], tiles: TileGrid, lat: NDArray[np.float64],
+                   lon: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A per-tile value (n_tiles,) at points, with the tent weights of :func:`blended_displacement`."""
+    s = tiles.tile_size_deg
+    fr = np.clip(np.nan_to_num((lat - (-90.0 + s / 2)) / s), 0.0, tiles.n_rows - 1)
+    fc = np.nan_to_num(wrap_longitude(lon - s / 2) / s)
+    r0 = np.minimum(np.floor(fr).astype(np.int64), tiles.n_rows - 2) if tiles.n_rows > 1 else np.zeros_like(fr, int)
+    wr = fr - r0
+    c0 = np.floor(fc).astype(np.int64) % tiles.n_cols
+    wc = fc - np.floor(fc)
+    c1 = (c0 + 1) % tiles.n_cols
+    r1 = np.minimum(r0 + 1, tiles.n_rows - 1)
+    return (values[r0 * tiles.n_cols + c0] * (1 - wr) * (1 - wc) + values[r0 * tiles.n_cols + c1] * (1 - wr) * wc
+            + values[r1 * tiles.n_cols + c0] * wr * (1 - wc) + values[r1 * tiles.n_cols + c1] * wr * wc)
+
+
+def mean_level_offsets(d: ArrayLike, shot_lat: ArrayLike, shot_lon: ArrayLike, tiles: TileGrid, *,
+                       min_shots: int = 500, clip_nmad: float = 10.0, allowed: ArrayLike | None = None
+                       ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
+    """The per-tile offsets of :func:`mean_level` from the shots' differences ``d = h_shot − DEM(shot)`` (N,).
+
+    Returns ``(offset_m, own, shots)`` as :class:`MeanLevel` holds them (tiles without enough shots
+    filled from the nearest tile that has them). Split out so a block-by-block caller can sample
+    the DEM at the shots block by block and add the field :func:`blended_scalar` gives per block.
+    """
+    d = np.asarray(d, np.float64).ravel()
+    slat = np.asarray(shot_lat, np.float64).ravel()
+    slon = np.asarray(shot_lon, np.float64).ravel()
+    ok = np.isfinite(d)
+    tid = tiles.tile_of(slat[ok], slon[ok])
+    d = d[ok]
+    n = tiles.n_tiles
+    offset = np.zeros(n)
+    shots = np.zeros(n, np.int64)
+    order = np.argsort(tid, kind="stable")
+    tid, d = tid[order], d[order]
+    starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]]) if tid.size else np.zeros(0, int)
+    may = np.ones(n, bool) if allowed is None else np.asarray(allowed, bool)
+    for a, b in zip(starts, np.r_[starts[1:], tid.size]):
+        if not may[tid[a]]:
+            continue
+        x = d[a:b]
+        med = np.median(x)
+        nmad = 1.4826 * np.median(np.abs(x - med))
+        keep = np.abs(x - med) <= clip_nmad * max(nmad, 1e-9)
+        if keep.sum() >= min_shots:
+            offset[tid[a]] = float(x[keep].mean())
+            shots[tid[a]] = int(keep.sum())
+    own = shots > 0
+    if own.any() and not own.all():
+        lat_c, lon_c = tiles.centre(np.arange(n))
+        u = latlon_to_unit(lat_c, lon_c)
+        idx = np.flatnonzero(own)
+        offset[~own] = offset[idx[np.argmax(u[~own] @ u[idx].T, axis=1)]]
+    return offset, own, shots
+
+
+@dataclass(frozen=True)
+class MeanLevel:
+    """The registered DEM levelled on the altimetry's mean (:func:`mean_level`).
+
+    Attributes
+    ----------
+    height : (H, W) levelled heights, m above the datum
+    offset_m : (n_tiles,) the offset added at each tile's centre (filled from the nearest tile with
+        enough shots where a tile has too few)
+    own : (n_tiles,) bool, tiles whose offset is their own
+    shots : (n_tiles,) shots used per tile
+    """
+
+    height: NDArray[np.float64]
+    offset_m: NDArray[np.float64]
+    own: NDArray[np.bool_]
+    shots: NDArray[np.int64]
+
+    def summary(self) -> dict[str, float | int | None]:
+        o = self.offset_m[self.own]
+        return {"tiles": int(self.own.sum()), "shots": int(self.shots.sum()),
+                "offset_median_m": float(np.median(o)) if o.size else None,
+                "offset_min_m": float(o.min()) if o.size else None,
+                "offset_max_m": float(o.max()) if o.size else None}
+
+
+def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m: float, shot_lat: ArrayLike,
+               shot_lon: ArrayLike, shot_radius_m: ArrayLike, tiles: TileGrid | None = None, *,
+               min_shots: int = 500, clip_nmad: float = 10.0, allowed: ArrayLike | None = None) -> MeanLevel:
+    """The DEM shifted, per tile and blended, so that its mean difference to the shots is zero.
+
+    The tile registration is robust (Huber, k·NMAD rejection): it puts the DEM's *median*
+    difference to the shots at zero. An image DEM gridded from sparse tie points misses the
+    bottoms of craters more than it misses their rims, so its error is skewed and its mean stays
+    above the median: measured on the demo (2026-11-26), registered DEM − corrected shots had
+    median −0.6 m and mean +52 m, which is the registered DEM's bias against the truth. This step
+    takes, per tile with at least ``min_shots`` shots on the DEM, the mean of ``h_shot − DEM(shot)``
+    over the shots within ``clip_nmad`` NMAD of their median (gross shots out, the skew kept), and
+    adds it to the DEM with the tent weights of the registration (:func:`blended_scalar`; tiles
+    with fewer shots take the nearest such tile's offset), so the DEM's level is the altimetry's
+    mean level at tile scale and changes continuously.
+
+    Parameters
+    ----------
+    height : (H, W) DEM (registered), m above ``datum_radius_m``
+    lat, lon : (H,), (W,) pixel centres, degrees
+    shot_lat, shot_lon, shot_radius_m : (N,) the shots after their profile offsets
+    tiles : the tile grid (10° by default)
+    min_shots, clip_nmad : see above
+    allowed : (n_tiles,) bool, the tiles that may have an offset of their own (e.g. those whose transform
+        was determined: where it was not, the DEM itself is in doubt); default all
+
+    Returns
+    -------
+    MeanLevel (the input heights unchanged, offsets 0, when no tile has enough shots).
+    """
+    tiles = tiles or TileGrid(10.0)
+    h = np.asarray(height, np.float64)
+    la, lo = np.asarray(lat, np.float64), np.asarray(lon, np.float64)
+    slat = np.asarray(shot_lat, np.float64).ravel()
+    slon = np.asarray(shot_lon, np.float64).ravel()
+    d = (np.asarray(shot_radius_m, np.float64).ravel() - datum_radius_m) - sample_grid(h, la, lo, slat, slon)
+    offset, own, shots = mean_level_offsets(d, slat, slon, tiles, min_shots=min_shots, clip_nmad=clip_nmad,
+                                            allowed=allowed)
+    if not own.any():
+        return MeanLevel(h.copy(), offset, own, shots)
+    LA, LO = np.meshgrid(la, lo, indexing="ij")
+    field = blended_scalar(offset, tiles, LA.ravel(), LO.ravel()).reshape(h.shape)
+    return MeanLevel(h + field, offset, own, shots)
 
 
 @dataclass(frozen=True)

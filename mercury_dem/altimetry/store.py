@@ -52,7 +52,7 @@ SHOT_COLUMNS: tuple[str, ...] = ("time", "lat", "lon", "radius_m", "track_id", "
 #: Columns a store may have besides.
 OPTIONAL_COLUMNS: tuple[str, ...] = ("range_m", "sc_lat", "sc_lon", "sc_radius_m", "flag")
 #: Drop reasons of :mod:`mercury_dem.reference.lola`, in its order.
-DROP_REASONS: tuple[str, ...] = ("malformed", "bad_time", "non_finite", "radius_out_of_range", "flagged")
+DROP_REASONS: tuple[str, ...] = ("malformed", "bad_time", "non_finite", "radius_out_of_range", "flagged", "same_shot")
 #: Default 1-sigma height uncertainty of a real shot, metres: the range precision of LOLA/MLA
 #: (orbit errors are systematic per profile and are solved by the registration, not weighted here).
 DEFAULT_SIGMA_M = 1.0

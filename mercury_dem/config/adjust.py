@@ -32,6 +32,19 @@ class AdjustConfig(ConfigSection):
         "network's a-priori coordinates (rays intersected with the a-priori pointing, biased by its errors)",
         choices=("datum", "network"),
     )
+    point_prior_recentre_levels: tuple[str, ...] = param(
+        ("global",), "Levels whose point radius constraints are re-centred on the block's own surface: a first "
+        "pass with the radius constraint at point_prior_first_pass_sigma_m, then each point's constraint centred on "
+        "the median radius of its point_prior_neighbours nearest points and the adjustment run again (centred on the "
+        "datum sphere, the constraint pulls weakly determined points toward it and the block bends with the body's "
+        "long-wavelength shape; docs/design/adjust.md). Empty: never"
+    )
+    point_prior_first_pass_sigma_m: float = param(
+        100000.0, "Radius constraint of the re-centring's first pass (loose: the points follow their rays)",
+        unit="m", lo=1.0,
+    )
+    point_prior_neighbours: int = param(50, "Points whose median radius centres a point's re-centred constraint",
+                                        lo=1, hi=100000)
     held_images: tuple[str, ...] = param((), "Image ids whose pointing (and position) are held fixed")
     # -- robustness ----------------------------------------------------------
     robust_loss: str = param("huber", "Robust loss applied by iterative reweighting", choices=("none", "huber", "cauchy"))

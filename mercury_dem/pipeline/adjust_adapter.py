@@ -34,6 +34,43 @@ def on_datum(xyz: NDArray[np.float64], datum_radius_m: float = DATUM_RADIUS_M) -
     return np.where(r > 0, xyz * (datum_radius_m / np.where(r > 0, r, 1.0)), xyz)
 
 
+def recentre_on_block(problem: Any, cfg: AdjustConfig, datum_radius_m: float = DATUM_RADIUS_M) -> tuple[Any, dict[str, Any]]:
+    """The problem with its free points' radius constraints centred on the block's own surface.
+
+    A first adjustment with the radius constraint loosened to ``cfg.point_prior_first_pass_sigma_m``
+    (the points follow their rays, unbiased but noisy where the rays are nearly parallel); each
+    point is then placed, along its first-pass direction, at the median first-pass radius of its
+    ``cfg.point_prior_neighbours`` nearest determined points
+    (:func:`mercury_dem.adjust.datum.neighbour_radii`), which is where its constraint (the
+    configured sigma) is centred; the pointing starts from the first pass. Why: centred on the
+    datum sphere, the constraint pulls weak points toward the sphere by a share of their true
+    height, and the block bends with the body's long-wavelength shape (docs/design/adjust.md,
+    "The block's long-wavelength shape"). Points without a usable neighbourhood keep their centre.
+    Returns the new problem and a summary for the unit's report.
+    """
+    from mercury_dem.adjust.bundle import bundle_adjust
+    from mercury_dem.adjust.datum import neighbour_radii
+
+    first = bundle_adjust(problem, dataclasses.replace(cfg, radius_sigma_m=cfg.point_prior_first_pass_sigma_m))
+    held = np.asarray(problem.held_points, bool)
+    pts = np.asarray(first.points, np.float64)
+    usable = ~np.asarray(first.underdetermined_points, bool) & np.all(np.isfinite(pts), axis=1)
+    radii = neighbour_radii(pts, usable, cfg.point_prior_neighbours)
+    norm = np.linalg.norm(pts, axis=1)
+    move = ~held & np.isfinite(radii) & np.isfinite(norm) & (norm > 0)
+    new = np.array(problem.points, np.float64, copy=True)
+    new[move] = pts[move] / norm[move, None] * radii[move, None]
+    heights = radii[move] - datum_radius_m
+    summary = {
+        "recentred_points": int(move.sum()),
+        "first_pass_iterations": int(first.iterations),
+        "first_pass_sigma0": float(first.sigma0),
+        "centre_height_m": ({"median": float(np.median(heights)), "p5": float(np.percentile(heights, 5)),
+                             "p95": float(np.percentile(heights, 95))} if move.any() else None),
+    }
+    return dataclasses.replace(problem, points=new, initial_rotations=np.asarray(first.rotations)), summary
+
+
 @dataclass(frozen=True)
 class UnitAdjustment:
     network: Any  # ControlNetwork with adjusted points, residuals, rejections
@@ -56,6 +93,7 @@ def adjust_network(
     rms_flag_px: float = 2.0,
     datum_radius_m: float = DATUM_RADIUS_M,
     altimetry: Any = None,
+    recentre_point_priors: bool = False,
 ) -> UnitAdjustment:
     """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
 
@@ -64,23 +102,37 @@ def adjust_network(
 
     Islands (disconnected groups of images) are adjusted together, each held by
     its a-priori constraints, and reported by id; images whose RMS residual
-    exceeds ``rms_flag_px`` are flagged.
+    exceeds ``rms_flag_px`` are flagged; images without measures are held at their
+    a-priori pose and named (``images_without_measures``).
 
     ``altimetry`` (:class:`~mercury_dem.altimetry.constraints.AltimetryShotsArrays`): the tie
     points near shots get radius constraints from them
     (:func:`~mercury_dem.altimetry.constraints.bundle_adjust_with_altimetry`, two passes).
+
+    ``recentre_point_priors``: the radius constraints of the non-held points are first re-centred
+    on the block's own surface (:func:`recentre_on_block`, one more adjustment) instead of the
+    datum sphere.
     """
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.adjust.network import network_with_result, problem_from_network
     from mercury_dem.adjust.report import text_report
 
     cfg = dataclasses.replace(config, allow_islands=True)
+    ids = np.asarray(network.image_ids).astype(str)
+    # An image without a measure (an imported or edited network) carries no information: it is held at its
+    # a-priori pose and named, instead of making the whole solve an AdjustmentError.
+    no_measures = ids[np.bincount(network.measure_image, minlength=network.n_images) == 0]
+    if no_measures.size:
+        cfg = dataclasses.replace(cfg, held_images=tuple(dict.fromkeys([*cfg.held_images, *no_measures.tolist()])))
     problem, measure_index = problem_from_network(
         network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
     )
     if cfg.point_prior_center == "datum":
         held = np.asarray(problem.held_points, bool)[:, None]
         problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
+    prior_summary: dict[str, Any] | None = None
+    if recentre_point_priors and cfg.radius_sigma_m is not None:
+        problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m)
     altimetry_summary: dict[str, Any] | None = None
     if altimetry is not None and len(altimetry.radius_m):
         from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry
@@ -93,7 +145,6 @@ def adjust_network(
     else:
         result = bundle_adjust(problem, cfg)
     adjusted = network_with_result(network, result, measure_index)
-    ids = np.asarray(network.image_ids).astype(str)
     rms_img = np.asarray(result.rms_per_image, dtype=np.float64)
     flagged = [
         {"image": str(ids[k]), "rms_px": float(rms_img[k])}
@@ -118,9 +169,12 @@ def adjust_network(
         "solve_seconds": float(result.solve_seconds),
         "flagged_images": flagged,
         "islands": islands if len(islands) > 1 else [],
+        "images_without_measures": no_measures.tolist(),
     }
     if altimetry_summary is not None:
         summary["altimetry"] = altimetry_summary
+    if prior_summary is not None:
+        summary["point_prior"] = prior_summary
     return UnitAdjustment(
         network=adjusted,
         rotations=np.asarray(result.rotations),

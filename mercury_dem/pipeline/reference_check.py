@@ -77,4 +77,13 @@ def reference_table(ref: dict[str, Any]) -> str:
         lines.append(f"  {name}\n" + " " * 23 + "".join(
             f"{s.get(k, float('nan')):>9.1f}" if k != "n" else f"{s.get(k, 0):>9d}"
             for k in ("n", "bias_m", "median_m", "std_m", "nmad_m", "rmse_m")))
+        lw = s.get("long_wavelength")
+        if lw:
+            bands = " ".join(f"{b['lat_min']:+.0f}..{b['lat_max']:+.0f}: {b['bias_m']:+.0f}"
+                             for b in lw.get("error_vs_latitude", []) if b.get("n"))
+            lines.append(f"    long wavelengths (area-weighted): bias {lw['bias_m']:+.1f} m; by latitude band {bands}")
+            low = lw.get("low_degree")
+            if low:
+                lines.append("    RMS per degree 0.." + str(low["lmax"]) + ": "
+                             + " ".join(f"{x:.0f}" for x in low["degree_rms_m"]) + " m")
     return "\n".join(lines) + "\n"

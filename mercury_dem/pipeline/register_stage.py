@@ -42,7 +42,16 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from mercury_dem.altimetry.merge import MergeOptions, max_displacement_m, merge_dem, merge_halo_px, register_dem
+from mercury_dem.altimetry.merge import (
+    MeanLevel,
+    MergeOptions,
+    blended_scalar,
+    max_displacement_m,
+    mean_level_offsets,
+    merge_dem,
+    merge_halo_px,
+    register_dem,
+)
 from mercury_dem.altimetry.register import (
     ProfileOffsets,
     RegisterOptions,
@@ -199,25 +208,33 @@ def _sample_blockwise(elevation: xr.DataArray, lat: np.ndarray, lon: np.ndarray,
 def _register_and_merge_blockwise(
     elevation: xr.DataArray, lat: np.ndarray, lon: np.ndarray, datum: float, transforms: list[TileTransform],
     tiles: TileGrid, merge_options: MergeOptions, corrected: tuple[np.ndarray, np.ndarray, np.ndarray],
-    block_rows: int, reg_path: Path, merged_path: Path, source: xr.Dataset, elev_attrs: dict[str, Any],
-    reg_attrs: dict[str, Any], merged_attrs: dict[str, Any], overwrite: bool,
+    block_rows: int, level_allowed: np.ndarray | None, reg_path: Path, merged_path: Path, source: xr.Dataset,
+    elev_attrs: dict[str, Any], reg_attrs: dict[str, Any], merged_attrs: dict[str, Any], overwrite: bool,
 ) -> dict[str, Any]:
     """The registered and merged maps, computed and written one block of rows at a time.
 
-    Each block reads the DEM rows it needs (the block, the merge's margin :func:`merge_halo_px`
-    and the largest displacement of the transforms :func:`max_displacement_m`, in rows),
-    registers the block and its merge margin (:func:`register_dem` with ``rows``), merges them
-    (:func:`merge_dem` on the shots near the block), keeps the block's own rows and writes them
-    into ``registered.zarr`` and ``merged.zarr`` (both built under temporary names and renamed
-    when every block is in). The whole-map functions are not called on the whole map: their
-    per-pixel results depend only on neighbours within those margins, so the stores equal the
-    whole-map computation (a test compares them) while memory stays that of one block.
+    Pass 1, per block: the DEM rows it needs (the block and the largest displacement of the
+    transforms, :func:`max_displacement_m`, in rows) are read and the block registered
+    (:func:`register_dem` with ``rows``) into a float64 scratch store; the transformed map is
+    sampled at the corrected shots. Between the passes, the mean level's per-tile offsets
+    (:func:`mean_level_offsets`, when ``level_allowed`` is given: the tiles that may level
+    themselves). Pass 2, per block: the transformed rows of the block and the merge's margin
+    (:func:`merge_halo_px`) are read back, levelled (:func:`blended_scalar`, pointwise), merged
+    (:func:`merge_dem` on the shots near the block), and the block's own rows written into
+    ``registered.zarr`` and ``merged.zarr`` (both built under temporary names and renamed when
+    every block is in). Every pixel depends only on neighbours within those margins, so the
+    stores equal the whole-map computation (a test compares them) while memory stays a block's.
 
-    Returns the DEM as given, registered and merged sampled at the corrected shots (``samples``)
-    and the merge's dense-pixel count.
+    Returns the samples at the corrected shots (``as_given``, ``transformed``, ``registered``,
+    ``merged``), the merge's dense-pixel count and the :class:`MeanLevel` summary holder (its
+    ``height`` is not kept: an empty array).
     """
+    import tempfile
+
+    import zarr
+
     clat, clon, crad = corrected
-    H = lat.size
+    H, W = lat.size, lon.size
     step_deg = abs(float(lat[1] - lat[0])) if H > 1 else 1.0
     hm = merge_halo_px(merge_options)
     shift_deg = math.degrees(max_displacement_m(transforms, datum + 50_000.0) / datum)
@@ -225,37 +242,73 @@ def _register_and_merge_blockwise(
     shot_rows = _row_of(clat, lat)
     order = np.argsort(shot_rows, kind="stable")
     sorted_rows = shot_rows[order]
-    samples = {name: np.full(clat.shape, np.nan) for name in ("as_given", "registered", "merged")}
+    samples = {name: np.full(clat.shape, np.nan) for name in ("as_given", "transformed", "registered", "merged")}
     n_dense = 0
-    with atomic_store(reg_path, overwrite=overwrite) as reg_tmp, \
-            atomic_store(merged_path, overwrite=overwrite) as merged_tmp:
-        reg_out = _create_map(reg_tmp, source, {"elevation": (np.float32, elev_attrs)}, reg_attrs, block_rows)
-        merged_out = _create_map(merged_tmp, source, {
-            "elevation": (np.float32, elev_attrs),
-            "altimetry_weight": (np.float32, {"long_name": "weight of the altimetry (0: registered image DEM, "
-                                                           "1: altimetry)", "units": "1"}),
-            "shot_count": (np.int32, {"long_name": "altimetry shots in the pixel", "units": "1"}),
-        }, merged_attrs, block_rows)
-        for r0, r1 in _blocks(H, block_rows):
-            e0, e1 = max(r0 - hm, 0), min(r1 + hm, H)  # rows registered: the block and the merge's margin
-            i0, i1 = max(e0 - hr, 0), min(e1 + hr, H)  # rows read: those and the displacement's reach
+    blocks = _blocks(H, block_rows)
+
+    def own_shots(r0: int, r1: int) -> np.ndarray:
+        return order[np.searchsorted(sorted_rows, r0):np.searchsorted(sorted_rows, r1)]
+
+    reg_path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".register-scratch-", dir=reg_path.parent) as scratch_dir:
+        scratch = zarr.create_array(str(Path(scratch_dir) / "transformed.zarr"), shape=(H, W),
+                                    chunks=(block_rows, W), dtype=np.float64, fill_value=np.nan, compressors=None)
+        for r0, r1 in blocks:  # pass 1: the tile transforms
+            i0, i1 = max(r0 - hr, 0), min(r1 + hr, H)
             win = elevation[i0:i1].values.astype(np.float64)
-            reg = register_dem(win, lat[i0:i1], lon, datum, transforms, tiles, rows=(e0 - i0, e1 - i0))
-            near = order[np.searchsorted(sorted_rows, e0 - 1):np.searchsorted(sorted_rows, e1 + 1)]
-            merged = merge_dem(reg, lat[e0:e1], lon, datum, clat[near], clon[near], crad[near], merge_options)
-            core = slice(r0 - e0, r1 - e0)
-            reg_out["elevation"][r0:r1, :] = reg[core].astype(np.float32)
-            merged_out["elevation"][r0:r1, :] = merged.height[core].astype(np.float32)
-            merged_out["altimetry_weight"][r0:r1, :] = merged.altimetry_weight[core]
-            merged_out["shot_count"][r0:r1, :] = merged.shot_count[core]
-            n_dense += int((merged.shot_count[core] >= merge_options.min_shots_per_pixel).sum())
-            own = order[np.searchsorted(sorted_rows, r0):np.searchsorted(sorted_rows, r1)]
+            reg = register_dem(win, lat[i0:i1], lon, datum, transforms, tiles, rows=(r0 - i0, r1 - i0))
+            scratch[r0:r1, :] = reg
+            own = own_shots(r0, r1)
             if own.size:
-                pla, plo = clat[own], clon[own]
-                samples["as_given"][own] = sample_grid(win, lat[i0:i1], lon, pla, plo)
-                samples["registered"][own] = sample_grid(reg, lat[e0:e1], lon, pla, plo)
-                samples["merged"][own] = sample_grid(merged.height, lat[e0:e1], lon, pla, plo)
-    return {"samples": samples, "n_dense_pixels": n_dense}
+                i0s, i1s = max(r0 - 1, 0), min(r1 + 1, H)
+                samples["as_given"][own] = sample_grid(win[i0s - i0:i1s - i0], lat[i0s:i1s], lon, clat[own], clon[own])
+        for r0, r1 in blocks:  # the transformed map at the shots, now that every row is in
+            own = own_shots(r0, r1)
+            if own.size:
+                i0s, i1s = max(r0 - 1, 0), min(r1 + 1, H)
+                samples["transformed"][own] = sample_grid(scratch[i0s:i1s, :], lat[i0s:i1s], lon, clat[own], clon[own])
+        n_tiles = tiles.n_tiles
+        if level_allowed is not None:
+            offset, own_t, shots_t = mean_level_offsets((crad - datum) - samples["transformed"], clat, clon, tiles,
+                                                        allowed=level_allowed)
+        else:
+            offset, own_t, shots_t = np.zeros(n_tiles), np.zeros(n_tiles, bool), np.zeros(n_tiles, np.int64)
+        level_on = bool(own_t.any())
+
+        def levelled(rows: slice) -> np.ndarray:
+            h = scratch[rows, :]
+            if level_on:
+                LA, LO = np.meshgrid(lat[rows], lon, indexing="ij")
+                h = h + blended_scalar(offset, tiles, LA.ravel(), LO.ravel()).reshape(h.shape)
+            return h
+
+        with atomic_store(reg_path, overwrite=overwrite) as reg_tmp, \
+                atomic_store(merged_path, overwrite=overwrite) as merged_tmp:
+            reg_out = _create_map(reg_tmp, source, {"elevation": (np.float32, elev_attrs)}, reg_attrs, block_rows)
+            merged_out = _create_map(merged_tmp, source, {
+                "elevation": (np.float32, elev_attrs),
+                "altimetry_weight": (np.float32, {"long_name": "weight of the altimetry (0: registered image DEM, "
+                                                               "1: altimetry)", "units": "1"}),
+                "shot_count": (np.int32, {"long_name": "altimetry shots in the pixel", "units": "1"}),
+            }, merged_attrs, block_rows)
+            for r0, r1 in blocks:  # pass 2: the level, the merge
+                e0, e1 = max(r0 - hm, 0), min(r1 + hm, H)  # the block and the merge's margin
+                reg = levelled(slice(e0, e1))
+                near = order[np.searchsorted(sorted_rows, e0 - 1):np.searchsorted(sorted_rows, e1 + 1)]
+                merged = merge_dem(reg, lat[e0:e1], lon, datum, clat[near], clon[near], crad[near], merge_options)
+                core = slice(r0 - e0, r1 - e0)
+                reg_out["elevation"][r0:r1, :] = reg[core].astype(np.float32)
+                merged_out["elevation"][r0:r1, :] = merged.height[core].astype(np.float32)
+                merged_out["altimetry_weight"][r0:r1, :] = merged.altimetry_weight[core]
+                merged_out["shot_count"][r0:r1, :] = merged.shot_count[core]
+                n_dense += int((merged.shot_count[core] >= merge_options.min_shots_per_pixel).sum())
+                own = own_shots(r0, r1)
+                if own.size:
+                    pla, plo = clat[own], clon[own]
+                    samples["registered"][own] = sample_grid(reg, lat[e0:e1], lon, pla, plo)
+                    samples["merged"][own] = sample_grid(merged.height, lat[e0:e1], lon, pla, plo)
+    level = (MeanLevel(np.zeros((0, 0)), offset, own_t, shots_t) if level_allowed is not None else None)
+    return {"samples": samples, "n_dense_pixels": n_dense, "level": level}
 
 
 def _figure_png(table: pd.DataFrame, profiles: pd.DataFrame) -> bytes:
@@ -314,6 +367,7 @@ def register_dem_store(
     block_rows: int | None = None,
     block_pixels: float = 4e6,
     other_outputs: Sequence[Path] = (),
+    level_to_mean: bool = True,
 ) -> dict[str, Any]:
     """Register a ``dem.zarr`` onto altimetry shots and merge them; write the results beside it.
 
@@ -335,6 +389,8 @@ def register_dem_store(
         at a time (default: as many rows as make ``block_pixels`` pixels, at least 16); memory is
         bounded by the block, not the map (measured at 2880 columns: 0.17 / 0.38 / 0.50 GB traced
         peak with blocks of 10⁵ / 5·10⁵ / 4·10⁶ pixels; docs/benchmarks/altimetry.md)
+    level_to_mean : after the tile transforms, level the registered DEM on the corrected shots' mean per
+        tile (:func:`mercury_dem.altimetry.merge.mean_level`; the transforms align the median)
 
     Returns
     -------
@@ -390,6 +446,8 @@ def register_dem_store(
     transforms = [r.transform for r in results]
     profiles = ProfileOffsets.concat([r.profiles for r in results])
     clat, clon, crad = _corrected_shots(good, profiles, tiles, datum)
+    allowed = np.zeros(tiles.n_tiles, bool)  # tiles that may level themselves: those with a transform
+    allowed[[t.tile_id for t in transforms if t.ok]] = True
 
     table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
         columns=["tile_id", "ok", "rms_before_m", "rms_registered_m", "rms_after_m"])
@@ -401,12 +459,13 @@ def register_dem_store(
     mo = merge_options or MergeOptions()
     maps = _register_and_merge_blockwise(
         elevation, lat, lon, datum, transforms, tiles, mo, (clat, clon, crad), rows_per_block,
-        reg_path, merged_path, ds, elev_attrs,
+        allowed if level_to_mean else None, reg_path, merged_path, ds, elev_attrs,
         {"title": f"{dem_b.name.title()} image DEM registered to laser altimetry (per-tile affine)", **note},
         {"title": f"{dem_b.name.title()} DEM merged from laser altimetry and the registered image DEM", **note,
          "merge": json.dumps(mo.__dict__)}, overwrite)
+    names = ("as_given", "transformed", "registered", "merged") if level_to_mean else ("as_given", "registered", "merged")
     stats = {name: compare_heights(maps["samples"][name], datum_radius_m=datum, reference_radius_m=crad)
-             for name in ("as_given", "registered", "merged")}
+             for name in names}  # "transformed": the tile transforms alone, before the mean level
     summary: dict[str, Any] = {
         "dem": str(dem_path), "registered": str(reg_path), "merged": str(merged_path), "tables": str(table_dir),
         "body": dem_b.name, "shots": int(len(shots)), "shots_dropped_invalid": n_bad,
@@ -414,6 +473,7 @@ def register_dem_store(
         "tiles_registered": int(sum(r.transform.ok for r in results)),
         "profiles": int(len(pf)), "profiles_fitted": int(pf["fitted"].sum()) if len(pf) else 0,
         "merged_dense_pixels": maps["n_dense_pixels"], "statistics": stats, "block_rows": rows_per_block,
+        "mean_level": maps["level"].summary() if maps["level"] is not None else None,
         "seconds_tiles": t_tiles, "seconds": time.perf_counter() - t0,
         "tiles": [_jsonable(r.summary()) for r in results],
     }

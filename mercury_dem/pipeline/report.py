@@ -25,7 +25,8 @@ from mercury_dem.io.tables import read_table
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
-              "children", "altimetry")
+              "children", "altimetry", "point_prior", "underdetermined_points", "weak_images",
+              "images_without_measures", "single_measure_points")
 
 
 def _level_row(s: dict[str, Any]) -> dict[str, Any]:
@@ -75,7 +76,8 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
         "input": len(ids_all),
         "controlled": len(controlled),
         "uncontrolled": uncontrolled,
-        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, bool(glob and glob[0].get("ok"))),
+        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, bool(glob and glob[0].get("ok")),
+                                                     report["tiles"]["image_errors"]),
         "excluded": plan.get("excluded", {}),
     }
     report["timings"] = {k: float(v) for k, v in timings.items()}
@@ -91,8 +93,10 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
     return report
 
 
-def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], global_ok: bool) -> dict[str, str]:
-    """Why each uncontrolled image is: excluded, no a-priori overlap, no pair matched, or all measures rejected."""
+def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], global_ok: bool,
+                         image_errors: dict[str, str] | None = None) -> dict[str, str]:
+    """Why each uncontrolled image is: excluded, its pixels unreadable or unusable (``image_errors``, from the
+    tiles), no a-priori overlap, no pair matched, or all measures rejected."""
     import pandas as pd
 
     if not ids:
@@ -115,6 +119,9 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
     for i in ids:
         if i in excluded:
             out[i] = f"excluded: {excluded[i]}"
+            continue
+        if image_errors and i in image_errors:
+            out[i] = unit_message(image_errors[i], f"image {i}")
             continue
         if partners.get(i, 0) == 0:
             out[i] = ("no a-priori overlap with any other image: its footprint shares no ground with the others "
@@ -164,6 +171,10 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
     for i in im["uncontrolled"][:10]:
         if i in reasons:
             w(f"  uncontrolled {i}: {reasons[i]}\n")
+    shown = set(im["uncontrolled"][:10])
+    for i, why in list((t.get("image_errors") or {}).items())[:10]:
+        if i not in shown:  # an image with bad pixels that is controlled all the same (another copy, ...)
+            w(f"  image {i}: {unit_message(why, f'image {i}')}\n")
     w("\n")
     w(f"{'level':<22}{'images':>7}{'points':>9}{'measures':>10}{'rms px':>8}{'sigma0':>8}{'rej':>7}{'iter':>5}{'s':>7}\n")
     rows = [("region", r) for r in report["levels"]["region"]] + [("hemisphere", r) for r in report["levels"]["hemisphere"]]
@@ -177,6 +188,9 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         w(f"{name:<22}{r.get('images', 0):>7}{r.get('points', 0):>9}{r.get('measures', 0):>10}"
           f"{_f(r.get('rms_px')):>8}{_f(r.get('sigma0')):>8}{r.get('rejected', 0):>7}{r.get('iterations', 0):>5}"
           f"{_f(r.get('seconds'), '.1f'):>7}\n")
+    for _, r in rows:
+        for line in level_notes(r):
+            w(f"  {r.get('name') or r.get('id')}: {line}\n")
     v = report.get("validation")
     if v:
         p = v["pointing_error_urad"]
@@ -198,6 +212,30 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         w(f"not written: products/{rel} ({why})\n")
     tm = report.get("timings", {})
     w("\ntimings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()) + "\n")
+
+
+def level_notes(row: dict[str, Any], limit: int = 5) -> list[str]:
+    """The parts of an adjusted unit it could not determine, one line each, with what they mean and what to do:
+    islands (disconnected groups of images), images without measures, points seen by one image only."""
+    def names(ids: list[Any]) -> str:
+        return ", ".join(map(str, ids[:limit])) + (f" and {len(ids) - limit} more" if len(ids) > limit else "")
+
+    out = []
+    islands = row.get("islands") or []
+    if len(islands) > 1:
+        rest = "; ".join(f"[{names(isl)}]" for isl in islands[1:limit])
+        out.append(f"{len(islands)} islands (groups of images no tie point joins; the largest has {len(islands[0])} "
+                   f"images), besides it: {rest} — each island is held only by its a-priori pointing; add images "
+                   "that overlap two islands to tie them")
+    no_meas = row.get("images_without_measures") or []
+    if no_meas:
+        out.append(f"{len(no_meas)} images of its networks without a measure, left out of this adjustment "
+                   f"(adjusted where they have measures, else uncontrolled): {names(no_meas)}")
+    single = row.get("single_measure_points") or {}
+    if single.get("count"):
+        out.append(f"{single['count']} points with one measure, left unadjusted (one ray fixes no position), "
+                   f"e.g. {names(single.get('ids') or [])}")
+    return out
 
 
 def unit_message(error: Any, name: str) -> str:

@@ -202,7 +202,9 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
             image_errors[image_id] = str(exc)
     geom, cameras, positions, rotations, ids = _geometry(mission, involved)
     radiometry = {i: (r.saturation, r.dn_scale) for i in involved for r in [mission.radiometry(i)]}
-    matches, reports = match_tile(pixels, geom, pair_list, match_config_for(mission, config), radiometry=radiometry)
+    match_cfg = match_config_for(mission, config)
+    image_errors.update(pixel_faults(pixels, radiometry, match_cfg))
+    matches, reports = match_tile(pixels, geom, pair_list, match_cfg, radiometry=radiometry)
     rows = pd.DataFrame(list(iter_rows(reports)))
     failures: dict[str, int] = {}
     if len(rows):
@@ -230,6 +232,28 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
         "measures": int(net.n_measures),
         "_files": {"network": net, "pairs": rows},
     }
+
+
+def pixel_faults(pixels: dict[str, Any], radiometry: dict[str, tuple[float, float]], match_cfg: Any) -> dict[str, str]:
+    """Images whose pixels cannot be matched at all (blank, saturated, textureless), by id, with why and what to do.
+
+    The matcher's own quality check (:func:`mercury_dem.match.features.image_quality`) decides; it is
+    run here once more (a percentile on every 4th pixel, ~1 ms per 256^2 image) so the tile's summary
+    names the image and its fault, not only the pairs that failed because of it. Unreadable images
+    (``None``) are already named by the reader's error.
+    """
+    from mercury_dem.match.features import image_quality
+
+    out: dict[str, str] = {}
+    for image_id, image in pixels.items():
+        if image is None:
+            continue
+        q = image_quality(image, match_cfg, *radiometry[image_id])
+        if not q.ok:
+            out[image_id] = (f"image {image_id}: {q.reason}; its pixels carry nothing to match, so it is left out "
+                             "of matching and stays uncontrolled — check the source image and its calibration, "
+                             "or remove it from the mission")
+    return out
 
 
 def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, Any], t0: float,
@@ -331,9 +355,11 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
                 point_rejected=np.zeros_like(net.point_rejected),
             )
         nets.append(net)
-    merged = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network.drop_unused_images()
+    merged_all = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network
+    merged = merged_all.drop_unused_images()
     if merged.n_measures == 0:
         raise _NoInput("the merged network has no measures")
+    singular = singular_parts(merged_all, merged)
     run = store.read_run()
     mission = open_mission(run["mission"])
     ids = [str(x) for x in merged.image_ids]
@@ -346,10 +372,14 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     adjust_cfg = adjust_config_for(mission, config)
     adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
                          initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
-                         altimetry=unit_altimetry(mission, merged, level, adjust_cfg))
+                         altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
+                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels)
     return {
         "children": kids,
         **adj.summary,
+        **singular,
+        "images_without_measures": sorted(set(singular["images_without_measures"])
+                                          | set(adj.summary.get("images_without_measures", []))),
         "_files": {
             "bundleout": adj.text_report,
             "network": adj.network,
@@ -358,6 +388,25 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
                 "extra": {"n_measures": adj.image_measures, "rms_px": adj.image_rms_px},
             },
         },
+    }
+
+
+def singular_parts(merged_all: Any, merged: Any, limit: int = 20) -> dict[str, Any]:
+    """What a unit's merged network holds that the adjustment cannot determine, by name.
+
+    ``images_without_measures``: images of the children's networks with no measure (left out of the
+    adjustment: they keep their a-priori pointing unless another unit adjusts them);
+    ``single_measure_points``: ids (the first ``limit``) and count of points seen by one image only
+    (left unadjusted: one ray fixes no position). ``merged_all`` is the merge, ``merged`` the same
+    without the images that have no measure.
+    """
+    dropped = sorted(set(map(str, merged_all.image_ids)) - set(map(str, merged.image_ids)))
+    per_point = merged.measures_per_point()
+    single = np.flatnonzero(per_point == 1)
+    ids = [p.item() if hasattr(p, "item") else p for p in merged.point_ids[single[:limit]]]  # JSON-able
+    return {
+        "images_without_measures": dropped,
+        "single_measure_points": {"count": int(single.size), "ids": ids},
     }
 
 

@@ -172,18 +172,23 @@ def compare_dem_with_shots(
 
 
 def compare_dem_with_harmonics(
-    dem: xr.DataArray, shape: ShapeHarmonics, datum_radius_m: float, lmax: int = 148
+    dem: xr.DataArray, shape: ShapeHarmonics, datum_radius_m: float, lmax: int = 148, long_lmax: int = 10
 ) -> dict[str, Any]:
     """Statistics of a DEM against a spherical-harmonic shape evaluated at its pixel centres.
 
     The shape model is smooth (degree 148 on Mercury is a ~52 km wavelength), so the
-    spread includes all the DEM's shorter-wavelength relief; the bias is the meaningful figure.
-    Memory: one float64 array of the DEM's size.
+    spread includes all the DEM's shorter-wavelength relief; the bias is the meaningful figure,
+    and so are the long wavelengths of the difference: ``long_wavelength`` holds the
+    area-weighted (cos latitude) bias, the difference per latitude band and, when the DEM covers
+    at least half the sphere, the RMS of each spherical-harmonic degree 0..``long_lmax`` of the
+    difference (:func:`mercury_dem.dem.accuracy.dem_accuracy`, the same figures as the run's
+    DEM − truth). Memory: a few float64 arrays of the DEM's size.
 
     Returns
     -------
     dict
-        :func:`compare_heights` statistics over the DEM's finite pixels, plus ``lmax``.
+        :func:`compare_heights` statistics over the DEM's finite pixels (unweighted), plus ``lmax``
+        and ``long_wavelength`` (None when ``long_lmax`` is 0).
     """
     _check_datum(dem, datum_radius_m)
     da = dem.transpose("lat", "lon")
@@ -193,4 +198,13 @@ def compare_dem_with_harmonics(
     )
     stats["lmax"] = int(lmax)
     stats["reference"] = f"spherical harmonics {shape.source or ''}".strip()
+    stats["long_wavelength"] = None
+    if long_lmax > 0 and da.sizes["lat"] > 1 and da.sizes["lon"] > 1:
+        from mercury_dem.dem.accuracy import dem_accuracy
+
+        ref_h = np.asarray(radius, np.float64) - datum_radius_m
+        acc = dem_accuracy(np.asarray(da.values, np.float64), da["lat"].values, da["lon"].values,
+                           lambda la, lo: ref_h, max_pixels=ref_h.size, shape_lmax=long_lmax)
+        stats["long_wavelength"] = {k: acc[k] for k in ("weighting", "bias_m", "rmse_m", "sphere_fraction",
+                                                         "error_vs_latitude", "low_degree")}
     return stats

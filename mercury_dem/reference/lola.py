@@ -38,6 +38,7 @@ from typing import Literal
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 import xarray as xr
 
 from mercury_dem.exceptions import ReferenceDataError
@@ -217,6 +218,19 @@ def _numeric(col: list[str]) -> np.ndarray:
         return out
 
 
+def _repeated_shots(time_s: NDArray[np.float64], channel: NDArray[np.float64], keep: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Rows among ``keep`` whose shot time another kept row of a lower channel already has."""
+    idx = np.flatnonzero(keep)
+    out = np.zeros(keep.shape, dtype=bool)
+    if idx.size < 2:
+        return out
+    order = idx[np.lexsort((channel[idx], time_s[idx]))]
+    repeat = np.zeros(order.size, dtype=bool)
+    repeat[1:] = time_s[order[1:]] == time_s[order[:-1]]
+    out[order[repeat]] = True
+    return out
+
+
 def parse_altimetry_csv(
     text: str,
     body_radius_m: float,
@@ -249,7 +263,7 @@ def parse_altimetry_csv(
         )
     where = _find_columns(names, source)
     n_rows = len(rows)
-    dropped = dict.fromkeys(("malformed", "bad_time", "non_finite", "radius_out_of_range", "flagged"), 0)
+    dropped = dict.fromkeys(("malformed", "bad_time", "non_finite", "radius_out_of_range", "flagged", "same_shot"), 0)
     good = [r for r in rows if len(r) == len(names)]
     dropped["malformed"] = n_rows - len(good)
 
@@ -293,6 +307,13 @@ def parse_altimetry_csv(
     dropped["radius_out_of_range"] = int(np.count_nonzero(ok_time & finite & ~in_range))
     dropped["flagged"] = int(np.count_nonzero(ok_time & finite & in_range & ~unflagged))
     keep = ok_time & finite & in_range & unflagged
+    if "channel" in where:
+        # MLA records one row per detection, and one laser shot can be detected in several
+        # channels (the real RDR has shots with a channel-0 and a channel-1 row 1 mm apart):
+        # one ground point per shot, the lowest channel kept, the others counted.
+        same = _repeated_shots(time_s, _numeric(col("channel")), keep)
+        dropped["same_shot"] = int(np.count_nonzero(same))
+        keep &= ~same
 
     data: dict[str, object] = {
         "time": time.to_numpy()[keep],

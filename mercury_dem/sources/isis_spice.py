@@ -45,6 +45,13 @@ from mercury_dem.sources.isis_tables import CubeTable, naif_keywords, read_table
 
 #: How far (s) the exposure time may lie outside the tables' time span.
 TIME_TOLERANCE_S = 0.01
+#: Bounds on table values before any arithmetic on them (a flipped exponent byte gives finite values near
+#: 1e300 whose products overflow): ET within +-1e12 s of J2000 (~31,700 years), positions within 1e11 km
+#: (~670 AU), velocities under 1e6 km/s (past light's 3e5). Found by the cube fuzz test at 2000 inputs
+#: (quaternion components ~1e247 overflowed in the norm).
+MAX_ABS_ET_S = 1e12
+MAX_ABS_POSITION_KM = 1e11
+MAX_ABS_VELOCITY_KM_S = 1e6
 _RUN_SPICEINIT = "run spiceinit attach=true on it"
 
 
@@ -139,8 +146,16 @@ def _columns(cube: IsisCube, table: CubeTable, names: tuple[str, ...]) -> NDArra
     return out
 
 
+def _bounded(cube: IsisCube, table: CubeTable, values: NDArray[np.float64], bound: float, what: str) -> None:
+    worst = float(np.abs(values).max())
+    if worst > bound:
+        raise _fault(cube.path, f"table {table.name} holds {what} of magnitude {worst:.3g} (more than {bound:g}): "
+                                "the table is damaged", f"{_RUN_SPICEINIT} again")
+
+
 def _times(cube: IsisCube, table: CubeTable) -> NDArray[np.float64]:
     t = _columns(cube, table, ("ET",))[:, 0]
+    _bounded(cube, table, t, MAX_ABS_ET_S, "ET values (s)")
     if np.any(np.diff(t) <= 0):
         raise _fault(cube.path, f"table {table.name} ET values do not increase", f"{_RUN_SPICEINIT} again")
     return t
@@ -183,7 +198,9 @@ def _bracket(cube: IsisCube, table: CubeTable, times: NDArray[np.float64], et: f
 def _rotation_at(cube: IsisCube, table: CubeTable, et: float) -> NDArray[np.float64]:
     """J2000 -> ConstantFrames[0] (or TimeDependentFrames[0]) rotation (3, 3) at ``et``."""
     q = _columns(cube, table, ("J2000Q0", "J2000Q1", "J2000Q2", "J2000Q3"))
-    norms = np.linalg.norm(q, axis=1)
+    # a unit quaternion's components are within [-1, 1]: larger ones are refused before the norm can overflow
+    norms = np.where(np.all(np.abs(q) <= 1.0 + QUATERNION_NORM_TOL, axis=1),
+                     np.linalg.norm(np.clip(q, -2.0, 2.0), axis=1), np.inf)
     if np.any(np.abs(norms - 1.0) > QUATERNION_NORM_TOL):
         raise _fault(cube.path, f"table {table.name} holds non-unit quaternions (norms {norms.min():.9f}.."
                                 f"{norms.max():.9f})", f"{_RUN_SPICEINIT} again")
@@ -202,11 +219,13 @@ def _rotation_at(cube: IsisCube, table: CubeTable, et: float) -> NDArray[np.floa
 def _position_at(cube: IsisCube, table: CubeTable, et: float) -> NDArray[np.float64]:
     """Position (3,) in J2000 km at ``et``: Hermite with the velocity columns, else linear."""
     p = _columns(cube, table, ("J2000X", "J2000Y", "J2000Z"))
+    _bounded(cube, table, p, MAX_ABS_POSITION_KM, "positions (km)")
     i, f = _bracket(cube, table, _times(cube, table), et)
     if f == 0.0:
         return p[i]
     if all(c in table.columns for c in ("J2000XV", "J2000YV", "J2000ZV")):
         v = _columns(cube, table, ("J2000XV", "J2000YV", "J2000ZV"))
+        _bounded(cube, table, v, MAX_ABS_VELOCITY_KM_S, "velocities (km/s)")
         t = table.columns["ET"]
         dt = float(t[i + 1] - t[i])
         h00, h10 = 2 * f**3 - 3 * f**2 + 1, f**3 - 2 * f**2 + f

@@ -153,7 +153,8 @@ def test_bad_shot_tables_are_counted_or_refused(tmp_path: Path) -> None:
     assert sizes == [8, 2]
     write_altimetry(tmp_path / "alt", table, sources=[src], body_radius_m=MERCURY_M)
     assert open_altimetry(tmp_path / "alt").dropped == {"malformed": 0, "bad_time": 0, "non_finite": 1,
-                                                        "radius_out_of_range": 1, "flagged": 0}
+                                                        "radius_out_of_range": 1, "flagged": 0,
+                                                        "same_shot": 0}
 
 
 def test_corrupt_store_is_refused_by_name(tmp_path: Path) -> None:

@@ -133,3 +133,37 @@ def test_dem_with_harmonics(gtmes):
     stats = compare_dem_with_harmonics(dem, gtmes, DATUM_M, lmax=148)
     _assert_recovers(stats, h.size - 3 * lon.size)
     assert stats["n_excluded"] == 3 * lon.size and stats["lmax"] == 148
+
+
+def test_dem_with_harmonics_long_wavelengths(gtmes):
+    """A DEM bent like the demo's block (a zonal degree-2 error) and offset: the long-wavelength report
+    of DEM − shape gives the offset as degree 0, the bend as degree 2, nothing at the other degrees."""
+    lat = np.arange(87.0, -88.0, -2.0)
+    lon = np.arange(1.0, 360.0, 2.0)
+    truth = evaluate_grid(gtmes, lat, lon, lmax=148) - DATUM_M
+    la = np.radians(lat)[:, None] * np.ones(lon.size)
+    c2 = 120.0  # m, the 4π-normalised zonal degree-2 coefficient (its RMS over the sphere)
+    bend = c2 * math.sqrt(5.0) * (3 * np.sin(la) ** 2 - 1) / 2
+    h = truth + BIAS_M + bend + np.random.default_rng(11).normal(0, SIGMA_M, truth.shape)
+    dem = xr.DataArray(h, dims=("lat", "lon"), coords={"lat": lat, "lon": lon}, attrs={"datum_radius_m": DATUM_M})
+    lw = compare_dem_with_harmonics(dem, gtmes, DATUM_M, lmax=148, long_lmax=6)["long_wavelength"]
+    deg = lw["low_degree"]["degree_rms_m"]
+    # Noise of 5 m over ~16,000 pixels moves each coefficient by well under 1 m; the 2° grid's quadrature a bit more.
+    assert deg[0] == pytest.approx(BIAS_M, abs=2.0) and deg[2] == pytest.approx(c2, abs=2.0)
+    assert max(deg[1], *deg[3:]) < 2.0
+    assert lw["low_degree"]["zonal_m"][2] == pytest.approx(c2, abs=2.0)
+    bands = {(b["lat_min"], b["lat_max"]): b["bias_m"] for b in lw["error_vs_latitude"]}
+    assert bands[(60.0, 90.0)] > BIAS_M + 100 and bands[(-10.0, 10.0)] < BIAS_M - 100
+    assert compare_dem_with_harmonics(dem, gtmes, DATUM_M, lmax=148, long_lmax=0)["long_wavelength"] is None
+
+
+def test_reference_table_prints_the_long_wavelengths(gtmes):
+    from mercury_dem.pipeline.reference_check import reference_table
+
+    lat = np.arange(87.0, -88.0, -6.0)
+    lon = np.arange(3.0, 360.0, 6.0)
+    h = evaluate_grid(gtmes, lat, lon, lmax=20) - DATUM_M + 40.0
+    dem = xr.DataArray(h, dims=("lat", "lon"), coords={"lat": lat, "lon": lon}, attrs={"datum_radius_m": DATUM_M})
+    text = reference_table({"shape:GTMES": compare_dem_with_harmonics(dem, gtmes, DATUM_M, lmax=20, long_lmax=4)})
+    assert "long wavelengths (area-weighted): bias +40.0 m" in text
+    assert "RMS per degree 0..4: 40 0 0 0 0 m" in text

@@ -113,7 +113,8 @@ not a time, -10.0, 45.5, 2438.030, 400.0, 0
 def test_header_names_any_case_and_dropped_counts():
     s = parse_altimetry_csv(MLA_STYLE, MERCURY_M, source="mla.csv")
     assert s.n_rows == 9
-    assert s.dropped == {"malformed": 1, "bad_time": 1, "non_finite": 2, "radius_out_of_range": 1, "flagged": 1}
+    assert s.dropped == {"malformed": 1, "bad_time": 1, "non_finite": 2, "radius_out_of_range": 1, "flagged": 1,
+                         "same_shot": 0}
     assert s.n_rows == len(s.table) + sum(s.dropped.values())
     t = s.table
     assert len(t) == 3 and s.n_tracks == 2
@@ -199,3 +200,32 @@ def test_mla_rdr_header_layout(tmp_path):
     ode.write_text("longitude,latitude,altitude,radius,EphemerisTime,chn,UTC\n"
                    "10.0,80.0,-1.0,2439.0,3.9e8,0,2012-06-01T07:03:47\n")
     assert read_altimetry_csv(ode, MERCURY_M).table["radius_m"].iloc[0] == pytest.approx(2_439_000.0)
+
+
+def test_real_mla_rdr_excerpt_reads_with_its_values(gtmes):
+    """A real MESSENGER MLA RDR file (an excerpt of MLASCIRDR1201011014.TAB, 2012-01-01, two stretches
+    of one pass: 53.8° N and 77.9° N; tests/data/real/SOURCE.md): each shot read with the file's
+    values, the noise detections (channel >= 5) dropped, a shot detected in two channels kept once,
+    and the heights agree with GTMES_150V05 (MLA's own shape model, degree 148 ≈ 50 km) to the
+    relief it cannot resolve — measured +22 m and +429 m (median per stretch); a wrong altitude
+    reference or unit would be kilometres off."""
+    from mercury_dem.reference.lola import MLA_ALTITUDE_REFERENCE_M
+    from mercury_dem.reference.sha import evaluate
+
+    from .conftest import REAL
+
+    shots = read_altimetry_csv(REAL / "MLASCIRDR1201011014_excerpt.TAB", MERCURY_M)
+    t = shots.table
+    assert shots.n_rows == 85
+    assert shots.dropped["flagged"] == 43 and shots.dropped["same_shot"] == 17
+    assert len(t) == 85 - 43 - 17 == 25 and t["time"].is_unique
+    first = t.iloc[0]  # the file's row "126.77168, 53.74017, -2.1890, ..., 2012-01-01T10:22:42.4167", chn 2
+    assert (first["lon"], first["lat"]) == (pytest.approx(126.77168), pytest.approx(53.74017))
+    assert first["radius_m"] == pytest.approx(MLA_ALTITUDE_REFERENCE_M - 2189.0)
+    assert str(first["time"]) == "2012-01-01 10:22:42.416700"
+    assert first["sc_lat"] == pytest.approx(58.78300)
+    # the two stretches are 5 min apart: two profiles
+    assert shots.n_tracks == 2
+    diff = t["radius_m"].to_numpy() - evaluate(gtmes, t["lat"].to_numpy(), t["lon"].to_numpy())
+    for tid in (0, 1):
+        assert abs(np.median(diff[t["track_id"].to_numpy() == tid])) < 600.0

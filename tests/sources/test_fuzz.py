@@ -10,6 +10,7 @@ versions or probe the size guards runs first (``@example``).
 from __future__ import annotations
 
 import os
+import struct
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -54,6 +55,18 @@ def _edit(name: str, old: str, new: str) -> bytes:
     return edited.ljust(end, b"\0") + data[end:] if len(edited) <= end else edited + data[len(edited):]
 
 
+def _table_value(name: str, table: str, field: str, value: float) -> bytes:
+    """A base cube whose table ``table`` has ``field`` of its first record set to ``value`` (little-endian double;
+    every table holding the same double gets it too: the tables share their ET)."""
+    from mercury_dem.sources import open_cube, read_table
+
+    path = {"mdis": MDIS_SPICE, "apollo": APOLLO_0297}[name]
+    old = struct.pack("<d", float(read_table(open_cube(path), table).columns[field][0]))
+    data = BASES[name]
+    assert data.count(old) >= 1, (table, field)
+    return data.replace(old, struct.pack("<d", value))
+
+
 #: Inputs that broke earlier versions or probe a guard before an allocation.
 SEEDS = [
     _edit("mdis", "      Samples = 512", "      Samples = 1000000000000"),  # core far beyond the file
@@ -72,7 +85,19 @@ SEEDS = [
     _edit("mdis", "Object = Table\n  Name                 = InstrumentPosition",
           "Object = \n  Name                 = InstrumentPosition"),
     _edit("mdis", "End_Group", "End_Object"),  # aggregations that do not nest
+    # Finite table values near 1e300 (a flipped exponent byte) overflowed in the arithmetic (RuntimeWarning):
+    # found at 2000 inputs, --hypothesis-seed 2026, in a quaternion; positions and ET the same way.
+    _table_value("mdis", "BodyRotation", "J2000Q0", 1.17521625e180),
+    _table_value("mdis", "InstrumentPosition", "J2000X", 1e300),
+    _table_value("mdis", "InstrumentPosition", "J2000XV", -1e300),
+    _table_value("mdis", "SunPosition", "ET", 1e300),  # the ET of every table
 ]
+
+
+#: A failing input here is a whole cube (~1 MB): printing it made hypothesis warn "Generating overly large repr",
+#: which the suite's warnings-as-errors turned into the reported failure, hiding the real one (the 2000-input run
+#: of 2026-11-26 with --hypothesis-seed 2026). The warning is ignored in this module; the blob replays the input.
+pytestmark = pytest.mark.filterwarnings("ignore:Generating overly large repr")
 
 
 def _label_end(data: bytes) -> int:
@@ -139,7 +164,7 @@ def fuzz_path() -> Iterator[Path]:
 
 
 @settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "150")), deadline=None, database=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+          print_blob=True, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(data=mutated_cube())
 @example(data=SEEDS[0])
 @example(data=SEEDS[1])
@@ -155,6 +180,10 @@ def fuzz_path() -> Iterator[Path]:
 @example(data=SEEDS[11])
 @example(data=SEEDS[12])
 @example(data=SEEDS[13])
+@example(data=SEEDS[14])
+@example(data=SEEDS[15])
+@example(data=SEEDS[16])
+@example(data=SEEDS[17])
 def test_mutated_cubes_give_results_or_cube_errors(fuzz_path: Path, data: bytes) -> None:
     fuzz_path.write_bytes(data)
     exercise(fuzz_path)
@@ -166,3 +195,13 @@ def test_unmutated_bases_read_fully(tmp_path: Path) -> None:
         path.write_bytes(data)
         cube_spice(open_cube(path))
         assert len(table_names(open_cube(path))) >= 4
+
+
+@pytest.mark.parametrize("k", [14, 15, 17])  # 16: a velocity of a one-record table is never used
+def test_huge_table_values_are_cube_errors(tmp_path: Path, k: int) -> None:
+    """The table seeds above: a CubeError naming the file and the damaged table, not an overflow warning."""
+    path = tmp_path / "damaged.cub"
+    path.write_bytes(SEEDS[k])
+    with pytest.raises(CubeError, match="table .* (holds|covers)") as err:
+        cube_spice(open_cube(path))
+    assert str(path) in str(err.value)
