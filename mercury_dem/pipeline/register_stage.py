@@ -12,7 +12,9 @@ How it runs
    and the stage goes on.
 3. In this process, one block of rows at a time (``block_rows``; by default about 4·10⁶
    pixels): the block's DEM rows and margins are read from the store, registered
-   (:func:`mercury_dem.altimetry.merge.register_dem`) and merged with the shots corrected by
+   (:func:`mercury_dem.altimetry.merge.register_dem`; pass 1, into a float64 scratch store),
+   levelled on the shots' mean per tile (``level_to_mean``; offsets from the whole map's samples,
+   applied per block) and merged with the shots corrected by
    their profile offsets (:func:`mercury_dem.altimetry.merge.merge_dem`), and the block's rows
    are written into the two stores. The margins (the merge's reach and the transforms'
    largest displacement) make the result equal to the whole-map computation; memory is that
