@@ -18,7 +18,7 @@ How it runs
    their profile offsets (:func:`mercury_dem.altimetry.merge.merge_dem`), and the block's rows
    are written into the two stores. The margins (the merge's reach and the transforms'
    largest displacement) make the result equal to the whole-map computation; memory is that
-   of a block, not of the map (before: ~60 B per map pixel, 20 GB for a global 64 ppd DEM).
+   of a block, not of the map (before: ~120 B per map pixel measured, ~40 GB for a global 64 ppd DEM).
 4. Written atomically beside the DEM: ``registered.zarr`` and ``merged.zarr`` (the DEM's
    coordinates, CRS and attributes; ``merged.zarr`` adds ``altimetry_weight`` and
    ``shot_count``), and ``registration/``: ``tiles.parquet`` + ``tiles.json`` (one row per
