@@ -39,6 +39,7 @@ toward the poles).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -51,8 +52,8 @@ from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_lat
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.reference.sampling import sample_grid
 
-__all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "mean_level", "merge_dem", "register_dem",
-           "transform_table"]
+__all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "blended_scalar", "max_displacement_m",
+           "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem", "transform_table"]
 
 
 def transform_table(transforms: Sequence[TileTransform], tiles: TileGrid) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -102,9 +103,25 @@ def blended_displacement(table: NDArray[np.float64], tiles: TileGrid, xyz: NDArr
     return np.einsum("nij,nj->ni", p[:, :9].reshape(-1, 3, 3), xyz) + p[:, 9:]
 
 
+def max_displacement_m(transforms: Sequence[TileTransform], radius_m: float) -> float:
+    """An upper bound of |δ(p)| (metres) for surface points within ``radius_m`` of the centre.
+
+    δ is a convex combination of the tiles' ``(A_k − I) p + a_k``, so it is bounded by the largest
+    ``‖A_k − I‖₂ · radius_m + |a_k|``. A block-by-block registration reads this far (plus a pixel)
+    around each block. 0 when no tile is registered.
+    """
+    bound = 0.0
+    for t in transforms:
+        if t.ok:
+            A, a = t.world()
+            bound = max(bound, float(np.linalg.norm(A - np.eye(3), 2)) * radius_m + float(np.linalg.norm(a)))
+    return bound
+
+
 def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m: float,
                  transforms: Sequence[TileTransform], tiles: TileGrid | None = None,
-                 iterations: int = 4, rows_per_block: int = 256) -> NDArray[np.float64]:
+                 iterations: int = 4, rows_per_block: int = 256,
+                 rows: tuple[int, int] | None = None) -> NDArray[np.float64]:
     """The image DEM moved by the blended tile transforms, resampled on its own grid.
 
     Parameters
@@ -122,10 +139,15 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
         Fixed-point iterations of the inverse mapping.
     rows_per_block : int
         Rows processed at once (memory: ~200 B per pixel of a block).
+    rows : (int, int), optional
+        Compute only the output rows ``rows[0]:rows[1]`` (default: all). Their values read the
+        whole input, so a caller working through a large map block by block passes the block
+        plus a margin of input rows at least the largest displacement wide and gets exactly
+        the rows the whole-map call would give.
 
     Returns
     -------
-    ndarray of shape (H, W), float64
+    ndarray of shape (H, W), or (rows[1] − rows[0], W), float64
         Registered heights; the input when no tile is registered.
     """
     tiles = tiles or TileGrid(10.0)
@@ -133,12 +155,13 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
     la = np.asarray(lat, dtype=np.float64)
     lo = np.asarray(lon, dtype=np.float64)
     table, own = transform_table(transforms, tiles)
+    first, last = rows if rows is not None else (0, h.shape[0])
     if not own.any():
-        return h.copy()
-    out = np.full(h.shape, np.nan)
-    for r0 in range(0, h.shape[0], rows_per_block):
-        rows = la[r0:r0 + rows_per_block]
-        LA, LO = np.meshgrid(rows, lo, indexing="ij")
+        return h[first:last].copy()
+    out = np.full((last - first, h.shape[1]), np.nan)
+    for r0 in range(first, last, rows_per_block):
+        block = la[r0:min(r0 + rows_per_block, last)]
+        LA, LO = np.meshgrid(block, lo, indexing="ij")
         tla, tlo = LA.ravel(), LO.ravel()
         cla, clo = tla.copy(), tlo.copy()
         for _ in range(iterations):
@@ -148,7 +171,7 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
             qla, qlo, qh = xyz_to_latlon(q, datum_radius_m)
             cla = np.clip(cla - (qla - tla), -90.0, 90.0)
             clo = clo - (wrap_longitude(qlo - tlo + 180.0) - 180.0)
-        out[r0:r0 + rows.size] = qh.reshape(LA.shape)
+        out[r0 - first:r0 - first + block.size] = qh.reshape(LA.shape)
     return out
 
 
@@ -166,6 +189,47 @@ def blended_scalar(values: NDArray[np.float64], tiles: TileGrid, lat: NDArray[np
     r1 = np.minimum(r0 + 1, tiles.n_rows - 1)
     return (values[r0 * tiles.n_cols + c0] * (1 - wr) * (1 - wc) + values[r0 * tiles.n_cols + c1] * (1 - wr) * wc
             + values[r1 * tiles.n_cols + c0] * wr * (1 - wc) + values[r1 * tiles.n_cols + c1] * wr * wc)
+
+
+def mean_level_offsets(d: ArrayLike, shot_lat: ArrayLike, shot_lon: ArrayLike, tiles: TileGrid, *,
+                       min_shots: int = 500, clip_nmad: float = 10.0, allowed: ArrayLike | None = None
+                       ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
+    """The per-tile offsets of :func:`mean_level` from the shots' differences ``d = h_shot − DEM(shot)`` (N,).
+
+    Returns ``(offset_m, own, shots)`` as :class:`MeanLevel` holds them (tiles without enough shots
+    filled from the nearest tile that has them). Split out so a block-by-block caller can sample
+    the DEM at the shots block by block and add the field :func:`blended_scalar` gives per block.
+    """
+    d = np.asarray(d, np.float64).ravel()
+    slat = np.asarray(shot_lat, np.float64).ravel()
+    slon = np.asarray(shot_lon, np.float64).ravel()
+    ok = np.isfinite(d)
+    tid = tiles.tile_of(slat[ok], slon[ok])
+    d = d[ok]
+    n = tiles.n_tiles
+    offset = np.zeros(n)
+    shots = np.zeros(n, np.int64)
+    order = np.argsort(tid, kind="stable")
+    tid, d = tid[order], d[order]
+    starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]]) if tid.size else np.zeros(0, int)
+    may = np.ones(n, bool) if allowed is None else np.asarray(allowed, bool)
+    for a, b in zip(starts, np.r_[starts[1:], tid.size]):
+        if not may[tid[a]]:
+            continue
+        x = d[a:b]
+        med = np.median(x)
+        nmad = 1.4826 * np.median(np.abs(x - med))
+        keep = np.abs(x - med) <= clip_nmad * max(nmad, 1e-9)
+        if keep.sum() >= min_shots:
+            offset[tid[a]] = float(x[keep].mean())
+            shots[tid[a]] = int(keep.sum())
+    own = shots > 0
+    if own.any() and not own.all():
+        lat_c, lon_c = tiles.centre(np.arange(n))
+        u = latlon_to_unit(lat_c, lon_c)
+        idx = np.flatnonzero(own)
+        offset[~own] = offset[idx[np.argmax(u[~own] @ u[idx].T, axis=1)]]
+    return offset, own, shots
 
 
 @dataclass(frozen=True)
@@ -230,34 +294,10 @@ def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m
     slat = np.asarray(shot_lat, np.float64).ravel()
     slon = np.asarray(shot_lon, np.float64).ravel()
     d = (np.asarray(shot_radius_m, np.float64).ravel() - datum_radius_m) - sample_grid(h, la, lo, slat, slon)
-    ok = np.isfinite(d)
-    tid = tiles.tile_of(slat[ok], slon[ok])
-    d = d[ok]
-    n = tiles.n_tiles
-    offset = np.zeros(n)
-    shots = np.zeros(n, np.int64)
-    order = np.argsort(tid, kind="stable")
-    tid, d = tid[order], d[order]
-    starts = np.flatnonzero(np.r_[True, tid[1:] != tid[:-1]]) if tid.size else np.zeros(0, int)
-    may = np.ones(n, bool) if allowed is None else np.asarray(allowed, bool)
-    for a, b in zip(starts, np.r_[starts[1:], tid.size]):
-        if not may[tid[a]]:
-            continue
-        x = d[a:b]
-        med = np.median(x)
-        nmad = 1.4826 * np.median(np.abs(x - med))
-        keep = np.abs(x - med) <= clip_nmad * max(nmad, 1e-9)
-        if keep.sum() >= min_shots:
-            offset[tid[a]] = float(x[keep].mean())
-            shots[tid[a]] = int(keep.sum())
-    own = shots > 0
+    offset, own, shots = mean_level_offsets(d, slat, slon, tiles, min_shots=min_shots, clip_nmad=clip_nmad,
+                                            allowed=allowed)
     if not own.any():
         return MeanLevel(h.copy(), offset, own, shots)
-    if not own.all():
-        lat_c, lon_c = tiles.centre(np.arange(n))
-        u = latlon_to_unit(lat_c, lon_c)
-        idx = np.flatnonzero(own)
-        offset[~own] = offset[idx[np.argmax(u[~own] @ u[idx].T, axis=1)]]
     LA, LO = np.meshgrid(la, lo, indexing="ij")
     field = blended_scalar(offset, tiles, LA.ravel(), LO.ravel()).reshape(h.shape)
     return MeanLevel(h + field, offset, own, shots)
@@ -285,6 +325,20 @@ class MergeOptions:
     def __post_init__(self) -> None:
         if self.min_shots_per_pixel < 1 or not (self.gap_px >= 0) or not (self.feather_px > 0):
             raise ValueError("min_shots_per_pixel >= 1, gap_px >= 0 and feather_px > 0 are required")
+
+
+def merge_halo_px(options: MergeOptions | None = None) -> int:
+    """Rows of neighbours a pixel of :func:`merge_dem` depends on (for a block-by-block merge).
+
+    The closing reaches ``2·gap_px``; the feather's distance transform ``feather_px + 1`` beyond the
+    area it is measured to; the correction's Gaussian ``4σ`` (scipy's ``truncate``); plus two rows
+    for the shots binned at a block's edge. A block computed with this many extra rows on each side
+    and cropped equals the whole-map result.
+    """
+    opt = options or MergeOptions()
+    g = max(int(round(opt.gap_px)), 0)
+    gauss = int(4.0 * max(opt.gap_px, 0.5) + 0.5)
+    return max(int(math.ceil(opt.feather_px)) + 1 + 2 * g, gauss) + 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -350,7 +404,8 @@ def merge_dem(registered: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radiu
     dense = count >= opt.min_shots_per_pixel
     if not dense.any():
         return MergedDem(reg.copy(), np.zeros(reg.shape, np.float32), count.astype(np.int32), int(d.size), 0)
-    mode = "wrap" if periodic else "nearest"
+    # Periodic in longitude only: a global grid's top and bottom rows are the two poles, not neighbours.
+    mode = ("nearest", "wrap" if periodic else "nearest")
     g = max(int(round(opt.gap_px)), 0)
     area = ndimage.binary_closing(dense, structure=np.ones((2 * g + 1, 2 * g + 1)), border_value=0) | dense if g \
         else dense

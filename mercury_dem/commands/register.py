@@ -4,8 +4,10 @@ DIR is any directory holding a ``dem.zarr`` (a run, or ``mercury-dem grid --out`
 LOLA/MLA RDR shot table (CSV, read by :func:`mercury_dem.reference.lola.read_altimetry_csv`)
 or a Parquet table with the columns ``lat``, ``lon``, ``radius_m`` (metres from the centre of
 mass) and ``track_id``. Writes ``DIR/registered.zarr``, ``DIR/merged.zarr`` and
-``DIR/registration/`` (per-tile and per-profile tables, the RMS figure); see
-docs/design/altimetry.md.
+``DIR/registration/`` (per-tile and per-profile tables, the RMS figure), and unless
+``--no-products`` the products of the registered and merged DEMs in ``DIR/products/registered/``
+and ``DIR/products/merged/`` (as the adjusted DEM's: GeoTIFF, PDS4-labelled PDS GeoTIFFs, ISIS
+cube, browse PNGs) and the figure in ``DIR/products/registration/``; see docs/design/altimetry.md.
 """
 
 from __future__ import annotations
@@ -29,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", default="sync", metavar="ADDR",
                    help="sync (default, in-process), local (a LocalCluster) or a scheduler address")
     p.add_argument("--overwrite", action="store_true", help="replace existing registered/merged outputs")
+    p.add_argument("--no-products", action="store_true",
+                   help="skip the products of the registered and merged DEMs (DIR/products/registered, merged: "
+                        "GeoTIFF, PDS4, ISIS cube, browse; DIR/products/registration/rms_per_tile.png)")
     p.add_argument("--json", action="store_true", help="print the per-tile results as JSON")
 
 
@@ -76,20 +81,31 @@ def run(args: argparse.Namespace, config: Any) -> int:
         except ValueError as exc:
             raise ConfigError(f"--body: {exc}") from None
     ds_body = dem_body(open_dem(dem_path))
+    products_dir = Path(args.dir) / "products"
     shots = read_shots(args.altimetry, ds_body.datum_radius_m)
+    products_dir = Path(args.dir) / "products"
     conn = connect(config.execution, scheduler=args.scheduler)
     try:
-        summary = register_dem_store(dem_path, shots, client=conn.client, body=body, overwrite=args.overwrite,
-                                     source=", ".join(args.altimetry))
+        from mercury_dem.pipeline.register_stage import REGISTRATION_DIR, REGISTRATION_PRODUCTS
+
+        summary = register_dem_store(
+            dem_path, shots, client=conn.client, body=body, overwrite=args.overwrite, source=", ".join(args.altimetry),
+            other_outputs=() if args.no_products else [products_dir / k for k in (*REGISTRATION_PRODUCTS, REGISTRATION_DIR)])
     finally:
         conn.close()
+    if not args.no_products:
+        from mercury_dem.pipeline.register_stage import make_registration_products
+
+        prod = make_registration_products(args.dir, products_dir, config, overwrite=args.overwrite)
+        summary["products"] = {"dir": str(products_dir), "files": prod["files"]}
     if args.json:
         keys = ("tile_id", "ok", "model", "reason", "translation_e_m", "translation_n_m", "translation_u_m",
                 "rotation_e_deg", "rotation_n_deg", "rotation_u_deg", "scale", "n_profiles", "n_profiles_fitted",
                 "n_used", "n_rejected", "rms_before_m", "rms_registered_m", "rms_after_m")
         out = {"tiles": [{k: t.get(k) for k in keys} for t in summary["tiles"]],
                **{k: summary[k] for k in ("registered", "merged", "tables", "shots", "shots_dropped_invalid",
-                                          "shots_off_dem", "tiles_registered", "profiles_fitted", "statistics")}}
+                                          "shots_off_dem", "tiles_registered", "profiles_fitted", "statistics")},
+               "products": summary.get("products")}
         print(json.dumps(_jsonable(out), indent=2))
         return 0
     print(f"registered {summary['tiles_registered']} of {summary['tiles_with_shots']} tiles with shots "
@@ -107,4 +123,7 @@ def run(args: argparse.Namespace, config: Any) -> int:
     for name, s in summary["statistics"].items():
         print(f"DEM {name:>10} − corrected shots: bias {s['bias_m']:.2f} m, RMSE {s['rmse_m']:.2f} m (n = {s['n']})")
     print(f"wrote {summary['registered']}, {summary['merged']}, {summary['tables']}/")
+    if summary.get("products"):
+        print(f"products: {len(summary['products']['files'])} files in {summary['products']['dir']}/registered, "
+              f"merged, registration")
     return 0

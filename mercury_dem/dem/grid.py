@@ -48,7 +48,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from mercury_dem.dem.buckets import (
     NEEDS_FALLBACK,
@@ -167,8 +166,11 @@ class PointIndex:
         return self.buckets.n_points
 
     @cached_property
-    def tree(self) -> cKDTree:
-        """kd-tree of the footprints (same order as ``radius``), built on first use."""
+    def tree(self) -> Any:
+        """kd-tree of the footprints (``scipy.spatial.cKDTree``, same order as ``radius``), built on first use
+        (scipy imported here: the bucket path of a plain ``mercury-dem grid`` never needs it)."""
+        from scipy.spatial import cKDTree
+
         # Sliding-midpoint (unbalanced) tree: builds in about half the time, queries as fast.
         return cKDTree(self.footprint, balanced_tree=False)
 

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera
@@ -219,6 +218,8 @@ def overlap_graph(
             grid[rows] = _image_grid_ground(cam, pos[rows], rot[rows], samples_per_side, radius_m)
     area = footprint_area_m2(fps, radius_m)
     centre, ang = footprint_caps(fps)
+    from scipy.spatial import cKDTree  # here, not at import: 'mercury-dem info' never builds the tree
+
     tree = cKDTree(centre)
     r = 2.0 * np.sin(np.minimum(np.pi, ang + float(ang.max())) / 2.0)
     cand = tree.query_ball_point(centre, r, return_sorted=False)

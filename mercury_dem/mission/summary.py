@@ -99,12 +99,16 @@ def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[di
 
 
 def coverage_map(cov: dict[str, Any], path: str | Path, title: str = "") -> Path:
-    """PNG of the number of images seeing each grid point (matplotlib, Agg)."""
-    import matplotlib
+    """PNG of the number of images seeing each grid point (matplotlib's Agg canvas).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas directly, with fixed margins:
+    ``matplotlib.pyplot`` (its backend machinery) and ``tight_layout`` cost ``mercury-dem info``
+    about half of its run time and change nothing in this one-axes figure.
+    """
+    from matplotlib import colormaps
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import BoundaryNorm
+    from matplotlib.figure import Figure
 
     lat, lon, count = cov["lat"], cov["lon"], cov["count"]
     step_lat = lat[1, 0] - lat[0, 0] if lat.shape[0] > 1 else 1.0
@@ -112,16 +116,17 @@ def coverage_map(cov: dict[str, Any], path: str | Path, title: str = "") -> Path
     extent = (lon[0, 0] - step_lon / 2, lon[0, -1] + step_lon / 2, lat[0, 0] - step_lat / 2, lat[-1, 0] + step_lat / 2)
     top = max(6, int(count.max()))
     bounds = np.arange(-0.5, top + 1.5)
-    cmap = plt.get_cmap("viridis", len(bounds) - 1)
-    fig, ax = plt.subplots(figsize=(9, 5))
+    cmap = colormaps["viridis"].resampled(len(bounds) - 1)
+    fig = Figure(figsize=(9, 5))
+    FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.11, top=0.92)
+    ax = fig.add_subplot()
     im = ax.imshow(count, origin="lower", extent=extent, cmap=cmap, norm=BoundaryNorm(bounds, cmap.N), aspect="auto")
     fig.colorbar(im, ax=ax, label="images seeing the point (a-priori pose)", ticks=np.arange(0, top + 1, max(1, top // 10)))
     ax.set_xlabel("east longitude (deg)")
     ax.set_ylabel("latitude (deg)")
     ax.set_title(title or "coverage")
-    fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path

@@ -72,10 +72,12 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     With truth, the a-priori (unadjusted) points are gridded too (into a
     temporary store) so the report shows what the adjustment bought.
 
-    On a bucket run (``store.url``) the DEM is gridded into the run's local cache
-    in this process (the chunks are written to a local Zarr store, which workers on
-    other machines could not reach), then ``dem.zarr``, ``coverage.zarr`` and the
-    products are committed to the bucket (each Zarr store's root ``zarr.json`` last).
+    On a bucket run (``store.url``) the chunk tasks run on the workers as on a disk
+    run, reading the point cloud from the bucket and writing their chunks straight into
+    the bucket's ``dem.zarr``, each chunk committed with its marker last
+    (:mod:`mercury_dem.pipeline.dem_bucket`); the root ``zarr.json`` is committed last.
+    The registration and the a-priori DEM of the validation read the run's local cache,
+    so on a bucket run they run in this process.
     """
     from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
@@ -92,22 +94,24 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     # an existing complete DEM is reused (resume); products are always rewritten
     remote = store.url is not None
     if remote:
-        client = None
         store.fetch_zarr("coverage.zarr")
     if not store.fetch_zarr("dem.zarr"):
-        grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body,
-                                attrs={"source": "global adjusted control points"}, progress=rep,
-                                overwrite=remote)  # a bucket run: a stale cached copy is replaced
-        if (store.root / "coverage.zarr").exists():
-            store.commit_zarr("coverage.zarr")
-        store.commit_zarr("dem.zarr")
+        attrs = {"source": "global adjusted control points"}
+        if remote:  # chunks gridded where the tasks run, straight into the bucket (pipeline/dem_bucket.py)
+            from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
+
+            grid_summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body, attrs=attrs, progress=rep)
+            store.fetch_zarr("dem.zarr")  # the committed store into the cache, for the products
+        else:
+            grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep)
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
+    if remote:
+        client = None  # below, tasks read the local cache (registration, the a-priori DEM): in this process
     truth = mission.truth.surface().height if mission.truth is not None else None
     rep.message("products: writing GeoTIFF/ISIS/PDS products and browse images")
     t = time.perf_counter()
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
-    store.commit_tree("products")
     out: dict[str, Any] = {
         "points": int(pts.shape[0]),
         "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
@@ -125,6 +129,17 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     registration = register_to_mission_altimetry(store, mission, config, client, rep)
     if registration is not None:
         out["registration"] = registration
+        if "error" not in registration:
+            from mercury_dem.pipeline.register_stage import make_registration_products
+
+            t = time.perf_counter()
+            reg_products = make_registration_products(store.root, store.products_dir, config, overwrite=True)
+            out["files"] += reg_products["files"]
+            registration["products"] = {k: {f: reg_products[k][f] for f in ("statistics", "skipped")}
+                                        for k in ("registered", "merged")}
+            rep.message(f"products of the registered and merged DEMs: {len(reg_products['files'])} files in "
+                        f"{time.perf_counter() - t:.1f} s")
+    store.commit_tree("products")  # a bucket run: the whole products directory, once
     if truth is not None:
         from mercury_dem.dem.accuracy import dem_accuracy
 

@@ -30,10 +30,9 @@ import time
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import xarray as xr
 import zarr
 from numpy.typing import NDArray
 
@@ -42,6 +41,9 @@ from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index
 from mercury_dem.exceptions import GridError, StoreError
 from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.io.atomic import atomic_directory
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 __all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
 
@@ -118,6 +120,7 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, 
     """The lazy (Dask-backed, never computed) Dataset that defines the store's layout."""
     import dask.array as da
     import rioxarray  # noqa: F401  (registers the .rio accessor)
+    import xarray as xr
 
     nr, nc = grid.shape
     cs = cfg.chunk_size
@@ -210,14 +213,48 @@ def _spatial_ref_attrs(body: Body) -> dict[str, Any]:
     """The ``spatial_ref`` attributes rioxarray writes for the body's datum-sphere CRS
     (:meth:`Body.datum_geographic_crs`), plus the IAU code, the WKT2 and a note.
 
-    A constant of the body (computed once per process: pyproj and rioxarray take ~0.1 s).
+    A constant of the body and of the installed pyproj/rioxarray: computed once and kept in the
+    user's cache (``$MERCURY_DEM_CACHE/crs/``, keyed by the body and those versions), since
+    importing rioxarray (which loads rasterio's GDAL and pyproj) was ~0.5 s of a cold
+    ``mercury-dem grid`` that needs nothing else from them. A cache that cannot be read or
+    written is computed again (a test checks the cached value equals a fresh one).
     """
+    import hashlib
+    from importlib import metadata
+
+    from mercury_dem.io.remote import cache_root
+
+    key = json.dumps({"body": body.to_dict(),
+                      "versions": [metadata.version(m) for m in ("pyproj", "rioxarray")]}, sort_keys=True, default=str)
+    path = cache_root() / "crs" / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
+    with contextlib.suppress(OSError, ValueError):  # absent or unreadable: computed below
+        cached = json.loads(path.read_text())
+        if cached.get("key") == key:
+            return dict(cached["attrs"])
+    attrs = _compute_spatial_ref_attrs(body)
+    with contextlib.suppress(OSError):  # a read-only cache: the value is still right, only not kept
+        from mercury_dem.io.atomic import atomic_write_json
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(path, {"key": key, "attrs": attrs})
+    return attrs
+
+
+def _compute_spatial_ref_attrs(body: Body) -> dict[str, Any]:
+    """:func:`_spatial_ref_attrs` computed with rioxarray and pyproj (no cache)."""
     import rioxarray  # noqa: F401  (registers the .rio accessor)
+    import xarray as xr
 
     ds = xr.Dataset(coords={"lat": [0.0], "lon": [0.0]}).rio.set_spatial_dims(x_dim="lon", y_dim="lat")
     out = dict(ds.rio.write_crs(body.datum_geographic_crs())["spatial_ref"].attrs)
     out.update(_spatial_ref_extra(body))
-    return out
+    return json.loads(json.dumps(out, default=_plain))  # numpy scalars -> JSON types, as the cache returns them
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    raise TypeError(f"{type(v).__name__} is not JSON-serialisable")
 
 
 def layer_compressors() -> tuple[Any, ...]:

@@ -133,7 +133,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             elif stage in LEVELS:
                 store.remove_level(stage)
             elif stage == "dem":
-                for name in ("dem.zarr", "coverage.zarr", "products"):
+                for name in ("dem.zarr", "dem_chunks", "coverage.zarr", "products"):
                     store.remove(name)
     store.write_run({
         "mission": mission_abs,

@@ -102,6 +102,8 @@ def make_products(
     *,
     profiles: Sequence[tuple[float, float, float, float]] = (),
     overwrite: bool = False,
+    coverage: bool = True,
+    name: str = "DEM",
 ) -> dict[str, Any]:
     """Write every product of the DEM at ``dem_path`` into ``out_dir``; return a summary.
 
@@ -113,6 +115,9 @@ def make_products(
     truth_height : optional callable (lat, lon) -> m above the body's datum; adds accuracy.json
     profiles : (lat1, lon1, lat2, lon2) tuples, degrees
     overwrite : replace existing product files
+    coverage : also map ``coverage.zarr`` beside the store when present (False for the registered
+        and merged maps, which share their DEM's coverage)
+    name : what the map is, in the browse image's title (e.g. "registered DEM")
 
     Returns
     -------
@@ -216,7 +221,7 @@ def make_products(
     files.append(str(browse.write_greyscale_png(h, out / "browse/greyscale.png")))
     files.append(str(browse.write_hillshade_png(shade, out / "browse/hillshade.png")))
     ppd = float(ds.attrs.get("pixels_per_degree", 1.0 / abs(lat[1] - lat[0]) if H > 1 else 1.0))
-    title = f"{body.name.title()} DEM ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief"
+    title = f"{body.name.title()} {name} ({ds.attrs.get('method', '?')}, {ppd:g} pixel/deg): colour-coded elevation over shaded relief"
     ch, cs, clat, clon = h, shade, blat, blon
     if np.isfinite(h).mean() < 0.5:  # mostly empty map: show where the data are
         ch, cs, clat, clon = browse.crop_to_data(h, shade, blat, blon)
@@ -229,7 +234,7 @@ def make_products(
     # Coverage (reference 001), when the DEM stage stored it.
     summary["coverage"] = None
     cov_path = dem_path.parent / "coverage.zarr"
-    if cov_path.exists():
+    if coverage and cov_path.exists():
         cov = xr.open_zarr(str(cov_path), consolidated=False, decode_coords="all")
         cov_summary = json.loads(ds.attrs["coverage"]) if ds.attrs.get("coverage") else None
         if cov_summary:

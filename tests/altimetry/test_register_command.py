@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import xarray as xr
 
 from mercury_dem.cli import main
@@ -68,9 +69,24 @@ def test_register_command_json(dem_dir, capsys):
     assert {"elevation", "altimetry_weight", "shot_count"} <= set(merged.data_vars)
     for f in ("tiles.parquet", "tiles.json", "profiles.parquet", "rms_per_tile.png", "summary.json"):
         assert (dem_dir / "registration" / f).stat().st_size > 0
+    # the products of both maps (read back in tests/products/test_registration_products.py)
+    for f in ("registered/dem.tif", "registered/isis/dem_radius.cub", "merged/dem.tif", "merged/browse/hillshade.png",
+              "registration/rms_per_tile.png"):
+        assert str(dem_dir / "products" / f) in out["products"]["files"] and (dem_dir / "products" / f).is_file()
     # outputs are not replaced without --overwrite: a clear error, exit code 2
     assert main(["register", str(dem_dir), "--altimetry", str(dem_dir / "shots.parquet")]) == 2
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_register_without_products(dem_dir, tmp_path, capsys):
+    import shutil
+
+    shutil.copytree(dem_dir / "dem.zarr", tmp_path / "dem.zarr")
+    (tmp_path / "products" / "merged").mkdir(parents=True)  # left by someone: refused before any work
+    assert main(["register", str(tmp_path), "--altimetry", str(dem_dir / "shots.parquet")]) == 2
+    assert "products/merged already exists" in capsys.readouterr().err and not (tmp_path / "merged.zarr").exists()
+    assert main(["register", str(tmp_path), "--altimetry", str(dem_dir / "shots.parquet"), "--no-products"]) == 0
+    assert (tmp_path / "merged.zarr").is_dir() and not any((tmp_path / "products" / "merged").iterdir())
 
 
 def test_register_refuses_bad_input(dem_dir, capsys, tmp_path):
@@ -140,3 +156,28 @@ def test_grid_and_register_take_the_moon(tmp_path, capsys):
     assert main(["register", str(tmp_path), "--altimetry", str(tmp_path / "s.parquet"), "--body", "mercury"]) == 2
     assert "MOON" in capsys.readouterr().err
     assert main(["grid", str(tmp_path / "pts.npy"), "--out", str(tmp_path / "x"), "--body", "vesta"]) == 2
+
+
+def test_blockwise_maps_equal_the_whole_map(dem_dir, tmp_path):
+    """Registered and merged maps computed 7 rows at a time (less than the merge's 12-row margin) equal the
+    whole-map computation (one block of all 120 rows: the whole-map functions on the whole map)."""
+    shots = pd.read_parquet(dem_dir / "shots.parquet")
+    whole = register_dem_store(dem_dir / "dem.zarr", shots, tmp_path / "whole", block_rows=10_000)
+    small = register_dem_store(dem_dir / "dem.zarr", shots, tmp_path / "small", block_rows=7)
+    assert whole["block_rows"] == 10_000 and small["block_rows"] == 7
+    assert small["merged_dense_pixels"] == whole["merged_dense_pixels"] > 100
+    for store, names in (("registered.zarr", ("elevation",)),
+                         ("merged.zarr", ("elevation", "altimetry_weight", "shot_count"))):
+        a = xr.open_zarr(tmp_path / "whole" / store, consolidated=False)
+        b = xr.open_zarr(tmp_path / "small" / store, consolidated=False)
+        assert b["elevation"].encoding["chunks"][0] == 7
+        for name in names:
+            va, vb = a[name].values, b[name].values
+            np.testing.assert_array_equal(np.isnan(va) if va.dtype.kind == "f" else va == 0,
+                                          np.isnan(vb) if vb.dtype.kind == "f" else vb == 0)
+            np.testing.assert_allclose(vb, va, rtol=0, atol=1e-3, equal_nan=True)  # float32 maps; ~1e-9 m apart
+    w = xr.open_zarr(tmp_path / "whole" / "merged.zarr", consolidated=False)
+    assert 0 < float(w["altimetry_weight"].mean()) < 1  # the merge did blend (the check compares something)
+    for k in ("as_given", "registered", "merged"):
+        assert small["statistics"][k]["n"] == whole["statistics"][k]["n"]
+        assert small["statistics"][k]["rmse_m"] == pytest.approx(whole["statistics"][k]["rmse_m"], abs=1e-6)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pyproj
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import pytest
 from dem_synthetic import truth_height
 
@@ -181,3 +183,39 @@ def test_point_index_reports_its_size_to_dask(global_cloud):
     b = index.buckets
     assert n >= b.xyz.nbytes + b.radius.nbytes + b.order.nbytes + b.cell_start.nbytes
     assert n < 2 * (b.xyz.nbytes + b.radius.nbytes + b.order.nbytes + b.cell_start.nbytes) + 10_000
+
+
+def test_spatial_ref_attributes_cached_on_disk(tmp_path, monkeypatch):
+    """The CRS attributes come from the user's cache once computed (a cold 'grid' then loads no rioxarray,
+    rasterio or pyproj); the cached value is the fresh one, and a damaged cache file is computed again."""
+    import os
+    import subprocess
+    import sys
+
+    from mercury_dem.geometry.body import MERCURY, MOON
+    from mercury_dem.pipeline import dem_stage
+
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "cache"))
+    for body in (MERCURY, MOON):
+        dem_stage._spatial_ref_attrs.cache_clear()
+        first = dem_stage._spatial_ref_attrs(body)  # computed, then written
+        dem_stage._spatial_ref_attrs.cache_clear()
+        assert dem_stage._spatial_ref_attrs(body) == first == dem_stage._compute_spatial_ref_attrs(body)
+    files = sorted((tmp_path / "cache" / "crs").glob("*.json"))
+    assert len(files) == 2
+    files[0].write_text('{"key": "not json')  # damaged: ignored, computed and rewritten
+    dem_stage._spatial_ref_attrs.cache_clear()
+    assert {dem_stage._spatial_ref_attrs(b)["semi_major_axis"] for b in (MERCURY, MOON)} == {
+        MERCURY.datum_radius_m, MOON.datum_radius_m}
+    assert json.loads(files[0].read_text())["attrs"]
+    dem_stage._spatial_ref_attrs.cache_clear()
+    # a fresh process writing a store with the cache warm: no GDAL/PROJ stack imported
+    code = ("import sys\nfrom mercury_dem.config.dem import DemConfig\nfrom mercury_dem.dem.grid import GridSpec\n"
+            "from mercury_dem.pipeline.dem_stage import create_store\n"
+            "cfg = DemConfig(pixels_per_degree=1, lat_min=-10, lat_max=10, lon_min=0, lon_max=20)\n"
+            f"create_store({str(tmp_path / 's.zarr')!r}, GridSpec.from_config(cfg), cfg)\n"
+            "print(sorted(m for m in ('rioxarray', 'rasterio', 'pyproj', 'xarray') if m in sys.modules))")
+    root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"

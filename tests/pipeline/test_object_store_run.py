@@ -7,11 +7,13 @@ the local cache and the bucket only stores it.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import xarray as xr
 import yaml
 
@@ -150,3 +152,69 @@ def test_a_local_cluster_on_the_bucket_equals_the_sync_run(s3_endpoint: str, tin
     ids1, rot1, _, _ = read_solution(RunStore("s3://e2e-cluster/run").solution_path("global", 0))
     assert (ids0 == ids1).all() and np.array_equal(rot0, rot1)
     assert RunStore("s3://e2e-cluster/run").remote.exists("performance.html")
+
+
+def _chunk_tokens(r: RemoteDir) -> dict[str, str]:
+    import json
+
+    return {n: json.loads(r.read_bytes(f"dem_chunks/{n}"))["token"] for n in r.list("dem_chunks") if n != "plan.json"}
+
+
+def test_dem_chunks_are_committed_one_by_one_and_resumed(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]],
+                                                         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each DEM chunk is a unit on the bucket (its objects, then its marker); a resume grids only the chunks
+    without a marker, and the store is the local run's."""
+    import json
+
+    store = RunStore(RUN)
+    r = store.remote
+    tokens = _chunk_tokens(r)
+    cs = tiny_config().dem.chunk_size
+    shape = xr.open_zarr(f"{RUN}/dem.zarr", consolidated=False)["elevation"].shape
+    assert len(tokens) == math.ceil(shape[0] / cs) * math.ceil(shape[1] / cs) > 1
+    # the root zarr.json lost (the store's commit) and one chunk half-written: its marker and data gone
+    victim = sorted(tokens)[0]
+    r0, c0 = (int(v) for v in victim[:-5].split("_"))
+    r.remove("dem.zarr/zarr.json")
+    r.remove(f"dem_chunks/{victim}")
+    r.remove(f"dem.zarr/elevation/c/{r0 // cs}/{c0 // cs}")
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "another-machine"))
+    assert main(s3_run) == 0
+    after = _chunk_tokens(r)
+    assert {n for n in tokens if after[n] != tokens[n]} == {victim}  # only it was gridded again
+    report = json.loads(r.read_bytes("report.json"))
+    assert report["dem"]["grid"]["chunks_reused"] == len(tokens) - 1
+    dem = xr.open_zarr(f"{RUN}/dem.zarr", consolidated=False)
+    ref = xr.open_zarr(sync_run[0] / "dem.zarr", consolidated=False)
+    assert dem.attrs["complete"] is True
+    np.testing.assert_array_equal(dem["elevation"].values, ref["elevation"].values)
+
+
+def test_dem_chunks_run_on_dask_workers(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]]) -> None:
+    """The chunk tasks on a dask.distributed cluster read the point cloud from the bucket themselves and write
+    the same store (threads here; the slow LocalCluster test above runs the whole run on worker processes)."""
+    from distributed import Client, LocalCluster
+
+    from mercury_dem.geometry.body import MERCURY
+    from mercury_dem.pipeline.dem_bucket import _worker_index, grid_dem_on_bucket
+    from mercury_dem.pipeline.dem_run import point_cloud
+
+    store = RunStore(RUN)
+    r = store.remote
+    pts = point_cloud(read_network(store.network_path("global", 0)))
+    cfg = tiny_config().dem.with_extent_of(pts, MERCURY.datum_radius_m)
+    for n in _chunk_tokens(r):
+        r.remove(f"dem_chunks/{n}")  # every chunk must be gridded again
+    _worker_index.cache_clear()
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        summary = grid_dem_on_bucket(store, pts, cfg, client, body=MERCURY,
+                                     attrs={"source": "global adjusted control points"})
+        ran_on = client.run(lambda: _worker_index.cache_info().currsize)
+    assert summary["on_workers"] and summary["chunks_reused"] == 0 and len(_chunk_tokens(r)) == summary["n_chunks"]
+    assert sum(ran_on.values()) >= 1  # the workers built the index (here they share this process's cache)
+    dem = xr.open_zarr(f"{RUN}/dem.zarr", consolidated=False)
+    ref = xr.open_zarr(sync_run[0] / "dem.zarr", consolidated=False)
+    assert dem.attrs["complete"] is True
+    np.testing.assert_array_equal(dem["elevation"].values, ref["elevation"].values)
+    np.testing.assert_array_equal(dem["point_count"].values, ref["point_count"].values)

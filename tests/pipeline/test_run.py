@@ -279,5 +279,9 @@ def test_simulated_mla_ties_the_heights(sync_run: tuple[Path, dict[str, Any]]) -
     assert reg["mean_level"]["tiles"] >= 10
     st = reg["statistics"]
     assert abs(st["registered"]["bias_m"]) < abs(st["transformed"]["bias_m"]) - 15.0, st
-    for name in ("registered.zarr", "merged.zarr", "registration/tiles.parquet", "registration/rms_per_tile.png"):
+    for name in ("registered.zarr", "merged.zarr", "registration/tiles.parquet", "registration/rms_per_tile.png",
+                 "products/registered/dem.tif", "products/merged/dem.tif", "products/merged/isis/dem_radius.cub",
+                 "products/merged/browse/hillshade.png", "products/registration/rms_per_tile.png"):
         assert (run / name).exists(), name
+    assert str(run / "products/merged/dem.tif") in report["dem"]["files"]
+    assert reg["products"]["merged"]["statistics"]  # the merged DEM's own statistics table

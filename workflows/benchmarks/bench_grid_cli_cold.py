@@ -1,6 +1,6 @@
 """Cold ``mercury-dem grid`` of 10^6 points against ``gdal_grid``: each a fresh process, timed from outside.
 
-    python workflows/benchmarks/bench_grid_cli_cold.py [--points 1000000] [--repeats 3]
+    python workflows/benchmarks/bench_grid_cli_cold.py [--points 1000000] [--repeats 3] [--tree DIR ...]
 
 What a user sees at the command line: ``mercury-dem grid points.npy --out DIR`` (a new
 interpreter: Python start-up, imports, numba's compiled-kernel cache load, the gridding,
@@ -8,6 +8,8 @@ the ``dem.zarr`` write; ``--no-coverage``) against ``gdal_grid -a invdistnn`` (1
 the same search radius) on the same cloud as FlatGeobuf and as CSV. 1000 x 1000 grid over
 20 deg x 20 deg, as ``bench_grid.py``; the runs are interleaved so load bursts hit both.
 Also timed: ``mercury-dem --help`` and the bare import of the gridding stage, cold.
+``--tree DIR`` (repeatable) runs ``mercury-dem`` from each source tree (first on ``PYTHONPATH``),
+interleaved with the others and gdal_grid: before/after side by side in the same minutes.
 Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
 """
 
@@ -31,7 +33,8 @@ from bench_grid import run_gdal, write_point_inputs  # noqa: E402  (same cloud a
 
 def timed(cmd: list[str], env: dict[str, str] | None = None) -> float:
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env)
+    # cwd /tmp: 'python -m'/'-c' put the current directory first on sys.path, before PYTHONPATH's tree
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd="/tmp")
     return time.perf_counter() - t0
 
 
@@ -40,6 +43,7 @@ def main() -> None:
     p.add_argument("--points", type=int, default=1_000_000)
     p.add_argument("--size", type=int, default=1000)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--tree", action="append", default=[], help="source tree to time (repeatable; default: as installed)")
     args = p.parse_args()
     size, span = args.size, 20.0
     ppd = size / span
@@ -57,24 +61,36 @@ def main() -> None:
         algo = f"invdistnn:power=2.0:radius={radius_deg:.8f}:max_points=11:min_points=1:nodata=nan"
         grid_cmd = exe + ["grid", str(npy), "--out", str(work / "ours"), "--config", str(cfg), "--no-coverage",
                           "--overwrite"]
-        timed(grid_cmd, env)  # numba's on-disk cache filled (a first run after install compiles; not timed)
+        trees = args.tree or [None]
+        envs = {t: (env if t is None else dict(env, PYTHONPATH=t)) for t in trees}
+
+        def name(what: str, t: str | None) -> str:
+            return what if t is None else f"{what} [{t}]"
+
+        for t in trees:
+            timed(grid_cmd, envs[t])  # numba's on-disk cache filled (a first run after install compiles; not timed)
         times: dict[str, list[float]] = {}
         for _ in range(args.repeats):
-            times.setdefault("mercury-dem grid (cold process)", []).append(timed(grid_cmd, env))
+            for t in trees:
+                times.setdefault(name("mercury-dem grid (cold process)", t), []).append(timed(grid_cmd, envs[t]))
             times.setdefault("gdal_grid invdistnn FlatGeobuf", []).append(run_gdal(fgb, algo, size, extent, work)[0])
             times.setdefault("gdal_grid invdistnn CSV", []).append(run_gdal(vrt, algo, size, extent, work)[0])
-            times.setdefault("mercury-dem --help", []).append(timed(exe + ["--help"], env))
-            times.setdefault("import mercury_dem.pipeline.dem_stage (cold)", []).append(
-                timed([sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], env))
+            for t in trees:
+                times.setdefault(name("mercury-dem --help", t), []).append(timed(exe + ["--help"], envs[t]))
+                times.setdefault(name("import mercury_dem.pipeline.dem_stage (cold)", t), []).append(
+                    timed([sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], envs[t]))
         med = {k: statistics.median(v) for k, v in times.items()}
-        ours = med["mercury-dem grid (cold process)"]
-        record = {
+        record: dict[str, object] = {
+            "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
+            "load_average": os.getloadavg(),
             "points": args.points, "grid": [size, size], "repeats": args.repeats,
             "median_s": {k: round(v, 3) for k, v in med.items()},
             "all_s": {k: [round(x, 3) for x in v] for k, v in times.items()},
-            "gdal_fgb_over_ours": round(med["gdal_grid invdistnn FlatGeobuf"] / ours, 2),
-            "gdal_csv_over_ours": round(med["gdal_grid invdistnn CSV"] / ours, 2),
         }
+        for t in trees:
+            ours = med[name("mercury-dem grid (cold process)", t)]
+            record[name("gdal_fgb_over_ours", t)] = round(med["gdal_grid invdistnn FlatGeobuf"] / ours, 2)
+            record[name("gdal_csv_over_ours", t)] = round(med["gdal_grid invdistnn CSV"] / ours, 2)
         print(json.dumps(record, indent=2))
     finally:
         shutil.rmtree(work, ignore_errors=True)

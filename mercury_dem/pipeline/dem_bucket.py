@@ -1,0 +1,232 @@
+"""The DEM stage of a bucket run: every chunk gridded where its task runs and written straight to the bucket.
+
+On a disk run the DEM's chunk tasks write regions of a Zarr store on a shared disk
+(:func:`mercury_dem.pipeline.dem_stage.grid_dem`). A bucket run (``--out s3://…``) has no shared
+disk, so before this the client gridded every chunk itself into its local cache. Now:
+
+1. **The client** (:func:`grid_dem_on_bucket`) writes the store's template — the coordinate
+   arrays and every array's metadata, *not* the root ``zarr.json`` — to ``RUN/dem.zarr`` on the
+   bucket, and ``RUN/dem_chunks/plan.json`` naming what the chunks are of (grid, DEM settings,
+   the global network's commit token).
+2. **Each chunk task** (:func:`grid_chunk_to_bucket`, on a worker) reads the point cloud from
+   the bucket (the committed global network, fetched into the worker's cache and indexed once
+   per worker process), grids its chunk, writes the chunk's objects straight into the bucket's
+   ``dem.zarr`` (zarr with the URL; fsspec's configuration gives the endpoint and credentials)
+   and then, **last**, its marker ``RUN/dem_chunks/<row0>_<col0>.json`` (its counts and a commit
+   token). A chunk without a marker is not trusted.
+3. **The client** computes the coverage (``coverage.zarr``, committed as before) and uploads the
+   root ``zarr.json`` — with ``complete = true`` and the DEM's counts — last: the store's own
+   commit marker (:mod:`mercury_dem.io.remote`).
+
+Resume: a committed ``dem.zarr`` (root ``zarr.json`` present) is reused as before. Otherwise, if
+``plan.json`` is the same (same grid, settings and global network), chunks with a marker are
+skipped and only the others are gridded again; a different plan (``--force global``, other DEM
+settings) removes the chunks and markers first. The store equals the disk run's bit for bit (the
+same chunk function on the same points).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import shutil
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+from numpy.typing import NDArray
+
+from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
+from mercury_dem.geometry.body import Body
+from mercury_dem.io.remote import RemoteDir
+from mercury_dem.io.run_store import RunStore
+
+__all__ = ["CHUNKS_DIR", "grid_chunk_to_bucket", "grid_dem_on_bucket"]
+
+#: Prefix (under the run) of the chunk markers and the plan they belong to.
+CHUNKS_DIR = "dem_chunks"
+DEM = "dem.zarr"
+
+
+def _marker_name(bounds: tuple[int, int, int, int]) -> str:
+    return f"{bounds[0]}_{bounds[2]}.json"
+
+
+@functools.lru_cache(maxsize=2)
+def _worker_index(run_url: str, global_token: str, datum_radius_m: float) -> PointIndex:
+    """The global network's adjusted points, indexed; once per worker process and commit of the network."""
+    from mercury_dem.network.store import read_network
+    from mercury_dem.pipeline.dem_run import point_cloud
+
+    store = RunStore(run_url)
+    token = store.remote.commit_token("global/0")
+    if token != global_token:
+        raise RuntimeError(f"{run_url}: the global network changed while the DEM was gridded "
+                           f"(commit {token}, not {global_token}); resume the run")
+    return build_point_index(point_cloud(read_network(store.network_path("global", 0))), datum_radius_m)
+
+
+def grid_chunk_to_bucket(run_url: str, global_token: str, grid: GridSpec, bounds: tuple[int, int, int, int],
+                         cfg: Any, datum_radius_m: float) -> dict[str, Any]:
+    """Task body: grid one chunk from the bucket's point cloud, write it into the bucket's ``dem.zarr``,
+    then its marker; return its counts (as :func:`~mercury_dem.pipeline.dem_stage.grid_dem`'s chunks do)."""
+    t0 = time.perf_counter()
+    index = _worker_index(run_url, global_token, datum_radius_m)
+    layers = grid_chunk(index, grid, bounds, cfg)
+    remote = RemoteDir(run_url)
+    r0, r1, c0, c1 = bounds
+    for name, arr in layers.items():
+        zarr.open_array(remote.url_of(f"{DEM}/{name}"), mode="r+")[r0:r1, c0:c1] = arr
+    elev = layers["elevation"]
+    valid = np.isfinite(elev)
+    summary = {
+        "bounds": list(bounds),
+        "pixels": int(elev.size),
+        "no_value": int((~valid).sum()),
+        "min": float(elev[valid].min()) if valid.any() else None,
+        "max": float(elev[valid].max()) if valid.any() else None,
+        "seconds": time.perf_counter() - t0,
+        "token": uuid.uuid4().hex,
+    }
+    remote.write_bytes(f"{CHUNKS_DIR}/{_marker_name(bounds)}", json.dumps(summary).encode())  # last
+    return summary
+
+
+def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> Path:
+    """The store's template in the cache; every object but the root ``zarr.json`` uploaded. Returns the cache path."""
+    from mercury_dem.pipeline.dem_stage import create_store
+
+    local = store.root / DEM
+    shutil.rmtree(local, ignore_errors=True)
+    create_store(str(local), grid, cfg, attrs, body)
+    files = [p for p in sorted(local.rglob("*")) if p.is_file() and p.relative_to(local).as_posix() != "zarr.json"]
+    remote = store.remote
+    remote.fs.put([str(p) for p in files], [remote.key(f"{DEM}/{p.relative_to(local).as_posix()}") for p in files])
+    return local
+
+
+def grid_dem_on_bucket(
+    store: RunStore,
+    points_xyz: NDArray[np.floating],
+    config: Any,
+    client: Any = None,
+    *,
+    body: Body,
+    attrs: dict[str, Any] | None = None,
+    progress: Any = None,
+    label: str = "dem",
+) -> dict[str, Any]:
+    """Grid the run's ``dem.zarr`` on the bucket, chunk by chunk where the tasks run (module docstring).
+
+    Parameters
+    ----------
+    store : a bucket run (``store.url`` set) whose global network is committed
+    points_xyz : ndarray of shape (N, 3)
+        The global network's adjusted points (body-fixed metres), as the tasks will read them:
+        used here for the coverage and the counts.
+    config : DemConfig with the map's extent fixed (``with_extent_of``)
+    client : a ``distributed.Client``, or None to run the chunk tasks in this process (same result)
+    body, attrs, progress, label : as :func:`~mercury_dem.pipeline.dem_stage.grid_dem`
+
+    Returns
+    -------
+    dict: :func:`~mercury_dem.pipeline.dem_stage.grid_dem`'s summary, plus ``chunks_reused``
+    (chunks whose marker a resumed run found) and ``on_workers`` (whether a client ran them).
+    """
+    from mercury_dem.config import to_dict
+    from mercury_dem.dem.coverage import point_coverage
+    from mercury_dem.exceptions import StoreError
+    from mercury_dem.pipeline.dem_stage import check_memory, mark_zarr_complete, write_coverage
+    from mercury_dem.progress import NULL
+
+    t0 = time.perf_counter()
+    rep = progress if progress is not None else NULL
+    cfg = getattr(config, "dem", config)
+    if store.url is None:
+        raise StoreError(f"{store.root} is a local run: grid it with grid_dem")
+    remote = store.remote
+    datum = body.datum_radius_m
+    grid = GridSpec.from_config(cfg, datum)
+    pts = np.asarray(points_xyz, dtype=np.float64)
+    est = check_memory(grid, int(pts.shape[0]), cfg)
+    global_token = remote.commit_token("global/0")
+    if global_token is None:
+        raise StoreError(f"{store.url}: the global network is not committed; resume the run")
+    index = build_point_index(pts, datum)  # the coverage's (and the empty-cloud check)
+    chunks = grid.chunks(cfg.chunk_size)
+    plan = {"grid": dataclasses.asdict(grid), "dem": to_dict(cfg) if dataclasses.is_dataclass(cfg) else repr(cfg),
+            "global_token": global_token, "body": body.name, "attrs": attrs or {}}
+    plan = json.loads(json.dumps(plan, default=str))
+    remote.remove(f"{DEM}/zarr.json")  # from here the store is not trusted (it was not, or fetch_zarr had taken it)
+    old = remote.read_bytes(f"{CHUNKS_DIR}/plan.json")
+    if old is not None and json.loads(old) == plan:
+        from mercury_dem.pipeline.dem_stage import create_store
+
+        local = store.root / DEM  # the same template again, locally only: its root zarr.json is committed last
+        shutil.rmtree(local, ignore_errors=True)
+        create_store(str(local), grid, cfg, attrs, body)
+        markers = {n for n in remote.list(CHUNKS_DIR) if n != "plan.json"}
+    else:
+        remote.remove(CHUNKS_DIR)
+        remote.remove(DEM)
+        local = _upload_template(store, grid, cfg, attrs, body)
+        remote.write_bytes(f"{CHUNKS_DIR}/plan.json", json.dumps(plan).encode())
+        markers = set()
+    done = [b for b in chunks if _marker_name(b) in markers]
+    todo = [b for b in chunks if _marker_name(b) not in markers]
+    results = [json.loads(remote.read_bytes(f"{CHUNKS_DIR}/{_marker_name(b)}") or b"{}") for b in done]
+    rep.message(f"{label}: {len(todo)} of {len(chunks)} chunks to grid "
+                f"{'on the workers' if client is not None else 'in this process'}, straight into {store.url}/{DEM}"
+                + (f" ({len(done)} committed before)" if done else ""))
+    with rep.task(f"{label} grid", len(todo), "chunks") as task:
+        if client is None:
+            for b in todo:
+                results.append(grid_chunk_to_bucket(store.url, global_token, grid, b, cfg, datum))
+                task.update()
+        else:
+            from mercury_dem.pipeline.executors import as_completed
+
+            futures = [client.submit(grid_chunk_to_bucket, store.url, global_token, grid, b, cfg, datum, pure=False)
+                       for b in todo]
+            for _ in as_completed(client, futures):
+                task.update()
+            results += client.gather(futures)
+    rep.message(f"{label}: point coverage")
+    cov = point_coverage(index, cfg.coverage_pixel_km_for(datum), threads=cfg.query_threads or -1,
+                         bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
+    cov_summary = cov.summary()
+    write_coverage(cov, store.root / "coverage.zarr", overwrite=True)
+    store.commit_zarr("coverage.zarr")
+    no_value = sum(int(r["no_value"]) for r in results)
+    mins = [r["min"] for r in results if r.get("min") is not None]
+    maxs = [r["max"] for r in results if r.get("max") is not None]
+    zarr.open_group(str(local), mode="r+").attrs.update({
+        "n_points": index.n_points, "no_value_pixels": no_value,
+        "coverage": json.dumps(cov_summary) if cov_summary else "",
+    })
+    mark_zarr_complete(local)
+    remote.write_bytes(f"{DEM}/zarr.json", (local / "zarr.json").read_bytes())  # the store's commit, last
+    npix = grid.shape[0] * grid.shape[1]
+    return {
+        "path": f"{store.url}/{DEM}",
+        "shape": list(grid.shape),
+        "pixels_per_degree": grid.pixels_per_degree,
+        "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
+        "method": cfg.method,
+        "n_points": index.n_points,
+        "n_chunks": len(chunks),
+        "chunks_reused": len(done),
+        "on_workers": client is not None,
+        "no_value_pixels": no_value,
+        "no_value_fraction": no_value / npix,
+        "elevation_min_m": min(mins) if mins else math.nan,
+        "elevation_max_m": max(maxs) if maxs else math.nan,
+        "memory_estimate_bytes": est,
+        "coverage": cov_summary,
+        "seconds": time.perf_counter() - t0,
+    }
