@@ -68,3 +68,11 @@ class DiskFullError(StoreError):
     unit's data downstream): nothing half-written is kept; the message names the stage or
     unit, the path, and says to free space (or move the run) and resume.
     """
+
+
+class SchedulerLostError(MercuryDemError):
+    """The Dask scheduler of a run went away (killed, its machine lost) and the client could not reconnect.
+
+    The units finished so far are committed; the message says to start a scheduler and workers
+    again and resume with the same command.
+    """

@@ -15,7 +15,7 @@ import contextlib
 import json
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, TextIO
@@ -23,7 +23,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import CorruptUnitError, DiskFullError, StoreError
+from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
 from mercury_dem.io.run_store import LEVELS, RunStore
 from mercury_dem.pipeline.report import unit_message
@@ -188,7 +188,7 @@ def run_pipeline(
     try:
         return _run_pipeline(mission_path, out, config, scheduler, scheduler_file, workers, threads_per_worker, force,
                              security, stream, connection, dem, t_start, timings, stage, integrity)
-    except (DiskFullError, CorruptUnitError):
+    except (DiskFullError, CorruptUnitError, SchedulerLostError):
         raise
     except Exception as exc:  # noqa: BLE001 - only a full disk is converted, anything else re-raised as is
         cause = disk_full_cause(exc)
@@ -232,7 +232,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
         perf = performance_report(filename=str(store.performance_html))
     summaries: dict[str, list[dict[str, Any]]] = {k: [] for k in ("tile", "region", "hemisphere", "global")}
     try:
-        with perf:
+        with _scheduler_loss(conn, out), perf:
             stage[0] = "the adjustment cascade"
             summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream, integrity)
             timings.update(level_seconds)
@@ -257,6 +257,25 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     report["integrity"] = integrity
     write_report(store, report)
     return report
+
+
+@contextlib.contextmanager
+def _scheduler_loss(conn: Connection, out: str | Path) -> Iterator[None]:
+    """Turn what the Dask client raises when its scheduler is gone (a connect timeout, cancelled futures)
+    into :class:`SchedulerLostError` saying how to resume; other errors pass unchanged."""
+    import asyncio
+
+    try:
+        yield
+    except (Exception, asyncio.CancelledError) as exc:
+        if isinstance(exc, (DiskFullError, CorruptUnitError)) or conn.mode == "sync":
+            raise
+        if getattr(conn.client, "status", "running") == "running":
+            raise
+        raise SchedulerLostError(
+            f"lost the Dask scheduler ({conn.description}) during the run ({type(exc).__name__}: {exc}); the "
+            f"units finished so far are committed in {out}: start a scheduler and workers again (or use the "
+            "default LocalCluster) and run the same command to resume") from exc
 
 
 def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | None) -> bool:
