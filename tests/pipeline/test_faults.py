@@ -217,13 +217,26 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
     kills: list[dict[str, Any]] = []
     stop = threading.Event()
 
+    pid_of: dict[str, Any] = {}
+
     def worker_pids() -> dict[str, int]:
-        """Address -> pid of the live worker processes, from the nannies (no RPC to a dying worker)."""
+        """Address -> pid of the workers running and registered with the scheduler. Never one a nanny is
+        still starting: killing a worker before it registers makes its nanny give up (no real fault does
+        that alone, and the cluster would be left without workers). A new worker's pid is asked once."""
+        info = client.scheduler_info(n_workers=-1).get("workers", {})
+        live = [a for a, w in info.items() if w.get("status") == "running"]
+        new = [a for a in live if a not in pid_of]
+        if new:
+            pid_of.update(client.run(os.getpid, workers=new, on_error="return"))
         out_: dict[str, int] = {}
-        for nanny in list(cluster.workers.values()):
-            proc = getattr(getattr(nanny, "process", None), "process", None)
-            if proc is not None and proc.pid and nanny.worker_address and proc.is_alive():
-                out_[nanny.worker_address] = proc.pid
+        for addr in live:
+            pid = pid_of.get(addr)
+            if isinstance(pid, int):
+                try:
+                    os.kill(pid, 0)
+                    out_[addr] = pid
+                except ProcessLookupError:
+                    pid_of.pop(addr, None)
         return out_
 
     def killer() -> None:
@@ -232,10 +245,10 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
                 not (out / "global" / "0" / COMPLETE_MARKER).exists():
             try:
                 running = client.processing()
-            except Exception:  # noqa: BLE001 - the scheduler is busy: look again
+                pids = worker_pids()
+            except Exception:  # noqa: BLE001 - a worker went away while asked: look again
                 stop.wait(0.1)
                 continue
-            pids = worker_pids()
             adjusting = {w: k for w, ks in running.items() for k in ks
                          if str(k).split("-")[0] in ("region", "hemisphere", "global") and w in pids}
             matching = {w: k for w, ks in running.items() for k in ks if str(k).startswith("tile-") and w in pids}
@@ -253,12 +266,27 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
     t0 = time.monotonic()
     t = threading.Thread(target=killer, daemon=True)
     t.start()
+    result: dict[str, Any] = {}
+
+    def go() -> None:
+        try:
+            result["report"] = run_pipeline(tiny_mission_path, out, tiny_config(), connection=conn, stream=None,
+                                            dem=False)
+        except BaseException as exc:  # noqa: BLE001 - re-raised below
+            result["error"] = exc
+
+    runner = threading.Thread(target=go, daemon=True)
+    runner.start()
     try:
-        report = run_pipeline(tiny_mission_path, out, tiny_config(), connection=conn, stream=None, dem=False)
+        runner.join(timeout=900)  # a cluster left without workers would wait for ever: fail instead
+        assert not runner.is_alive(), f"the run did not finish in 15 min; kills: {kills}"
     finally:
         stop.set()
         t.join(timeout=60)
         conn.close()
+    if "error" in result:
+        raise result["error"]
+    report = result["report"]
     seconds = time.monotonic() - t0
     print(f"{len(kills)} worker SIGKILLs in {seconds:.0f} s: {kills}")
     (tmp_path / "kills.json").write_text(json.dumps({"kills": kills, "seconds": seconds}))
