@@ -146,6 +146,7 @@ def used_kb(where: Path) -> int:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_a_full_disk_during_matching_and_during_the_dem_stops_cleanly_and_resumes_identically(
         sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path, tmp_path: Path) -> None:
     ref, _ = sync_run
@@ -196,6 +197,7 @@ def _same_levels(ref: Path, report: dict[str, Any]) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_ten_random_worker_kills_in_one_run_lose_nothing(
         sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path, tmp_path: Path) -> None:
     """SIGKILL a worker process (LocalCluster, nanny-restarted) >= 10 times during matching and the
@@ -239,10 +241,29 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
                     pid_of.pop(addr, None)
         return out_
 
+    replaced: list[float] = []
+
+    def replace_lost_workers() -> None:
+        """What an adaptive cluster or a job array does: a nanny that gave up (on this loaded machine one
+        sometimes closes after its worker was killed) is replaced by a new worker. Counted in the figures."""
+        from distributed.core import Status
+
+        lost = [n for n, w in list(cluster.workers.items())
+                if getattr(w, "status", None) in (Status.closed, Status.closing, Status.failed)]
+        for n in lost:
+            cluster.worker_spec.pop(n, None)
+            replaced.append(round(time.monotonic() - t0, 1))
+        if lost:
+            cluster.scale(2)
+
     def killer() -> None:
         # the first kills hit workers matching tiles; any adjustment seen running is hit at once
-        while not stop.is_set() and len(kills) < MAX_KILLS and \
-                not (out / "global" / "0" / COMPLETE_MARKER).exists():
+        while not stop.is_set() and not (out / "global" / "0" / COMPLETE_MARKER).exists():
+            with contextlib.suppress(Exception):
+                replace_lost_workers()
+            if len(kills) >= MAX_KILLS:
+                stop.wait(0.5)
+                continue
             try:
                 running = client.processing()
                 pids = worker_pids()
@@ -288,8 +309,9 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
         raise result["error"]
     report = result["report"]
     seconds = time.monotonic() - t0
-    print(f"{len(kills)} worker SIGKILLs in {seconds:.0f} s: {kills}")
-    (tmp_path / "kills.json").write_text(json.dumps({"kills": kills, "seconds": seconds}))
+    print(f"{len(kills)} worker SIGKILLs in {seconds:.0f} s, {len(replaced)} lost workers replaced at {replaced}: "
+          f"{kills}")
+    (tmp_path / "kills.json").write_text(json.dumps({"kills": kills, "seconds": seconds, "replaced": replaced}))
     assert len(kills) >= KILLS, kills
     assert any(k["unit"].startswith("tile") for k in kills) and \
         any(not k["unit"].startswith("tile") for k in kills), kills
@@ -333,6 +355,7 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_a_scheduler_killed_mid_run_then_resumed_on_a_fresh_one_gives_the_clean_result(
         sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path, tmp_path: Path) -> None:
     ref, _ = sync_run
