@@ -325,7 +325,11 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
         raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
     nets = []
     for c in kids:
-        store.check_unit(child_level, c)  # CorruptUnitError: not merged, the run says which files
+        try:
+            store.check_unit(child_level, c)  # CorruptUnitError: not merged, the run says which files
+        except CorruptUnitError:
+            store.invalidate_unit(child_level, c)  # withdrawn (marker first): the resumed run recomputes it
+            raise
         net = read_network(store.network_path(child_level, c))
         if child_level != "tile":
             # Every measure is judged again at this level. The a-priori coordinates stay

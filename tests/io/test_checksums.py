@@ -83,3 +83,18 @@ def test_disk_full_is_found_through_wrappers() -> None:
         assert disk_full_cause(exc).errno == errno.ENOSPC
     assert disk_full_cause(RuntimeError("TIFFWriteEncodedStrip: No space left on device")) is not None
     assert disk_full_cause(OSError(errno.EACCES, "Permission denied")) is None
+
+
+def test_a_region_meeting_a_corrupt_child_stops_and_withdraws_it(tmp_path: Path) -> None:
+    """The downstream check: a child damaged after the resume verified it is not merged; the run stops
+    (CorruptUnitError, never a failed region committed without it) and the child is withdrawn."""
+    from mercury_dem.pipeline.stages import _adjust_unit, child_ids
+    from tests.pipeline.conftest import tiny_config
+
+    store = RunStore(tmp_path / "run")
+    tile = child_ids("region", 0, tiny_config())[0]
+    d = _write(store.unit_dir("tile", tile))
+    (d / "summary.json").write_text('{"ok": true}')  # added after the commit: not in the manifest
+    with pytest.raises(CorruptUnitError, match=r"summary.json: not in the manifest"):
+        _adjust_unit(store, "region", 0, tiny_config())
+    assert not store.unit_complete("tile", tile)

@@ -77,6 +77,7 @@ def _flip_one_bit(path: Path, rng: np.random.Generator) -> int:
 
 
 # ------------------------------------------------------------------------------------------ corrupted chunk
+@pytest.mark.timeout(900)  # the session's clean run (sync_run) may be built by this test
 def test_a_corrupted_chunk_is_named_recomputed_and_the_run_goes_on(
         sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path, tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
