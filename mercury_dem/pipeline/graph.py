@@ -179,7 +179,9 @@ def run_pipeline(
     ------
     DiskFullError : the run's file system filled up (at any stage); nothing half-written is kept,
         resume once space is freed.
-    CorruptUnitError : a unit's files changed during this run, after it was verified.
+    CorruptUnitError : a unit's files changed during this run, after it was verified (it is withdrawn:
+        the next resume recomputes it).
+    SchedulerLostError : the Dask scheduler went away and the client could not reconnect.
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -243,7 +245,6 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                 from mercury_dem.pipeline.dem_run import run_dem_stage
 
                 stage[0] = "the DEM stage (dem.zarr, coverage.zarr, products)"
-
                 dem_summary = run_dem_stage(store, mission, config, None if conn.mode == "sync" else client, stream)
                 timings["dem"] = time.perf_counter() - t
     finally:

@@ -111,7 +111,8 @@ def test_a_corrupted_chunk_is_named_recomputed_and_the_run_goes_on(
     assert f"tile {tile}: checksum verification failed ({chunk_rel}: checksum mismatch" in log.getvalue()
     assert report["integrity"]["verified_units"] == assert_nothing_corrupt(run)
     # recomputed as the clean run computed them: the tile's network, the region's pointing, the globe
-    a, b = read_network(RunStore(ref).network_path("tile", tile)), read_network(RunStore(run).network_path("tile", tile))
+    a = read_network(RunStore(ref).network_path("tile", tile))
+    b = read_network(RunStore(run).network_path("tile", tile))
     assert np.array_equal(a.sample, b.sample) and np.array_equal(a.line, b.line)
     assert np.array_equal(a.point_ids, b.point_ids) and np.array_equal(a.apriori_xyz, b.apriori_xyz, equal_nan=True)
     ids_a, rot_a, pos_a, _ = read_solution(RunStore(ref).solution_path("region", region))
