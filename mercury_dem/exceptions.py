@@ -51,3 +51,28 @@ class ReferenceDataError(MercuryDemError, ValueError):
     The message names the file and the fault (line, column, value) so the user can
     fetch a fresh copy or fix the column mapping.
     """
+
+
+class CorruptUnitError(StoreError):
+    """A committed unit's files differ from the checksums written into its completion marker.
+
+    The message names the unit and each file ("checksum mismatch", "missing", ...). The unit
+    is not trusted: a resumed run recomputes it (``mercury-dem verify RUN`` lists them all).
+    """
+
+
+class DiskFullError(StoreError):
+    """The run's file system is full (ENOSPC/EDQUOT) while a stage writes.
+
+    Fatal for the run (never recorded as a per-unit failure, which would silently drop the
+    unit's data downstream): nothing half-written is kept; the message names the stage or
+    unit, the path, and says to free space (or move the run) and resume.
+    """
+
+
+class SchedulerLostError(MercuryDemError):
+    """The Dask scheduler of a run went away (killed, its machine lost) and the client could not reconnect.
+
+    The units finished so far are committed; the message says to start a scheduler and workers
+    again and resume with the same command.
+    """

@@ -7,7 +7,9 @@ does not carry over. A store on a bucket is written in this order instead:
 1. the unit's old completion marker is deleted (from here on the unit is not trusted),
 2. every other object under the unit's prefix is deleted (partial data of an earlier attempt),
 3. the unit's data objects are uploaded (one PUT each: an object appears whole or not at all),
-4. the completion marker is uploaded **last**; it holds a random token of this commit.
+4. the completion marker is uploaded **last**; it holds a random token of this commit (first line)
+   and the unit's checksum manifest (second line, see :mod:`mercury_dem.io.atomic`), so the
+   fetched copy of a unit is verified exactly like a local one.
 
 A reader trusts a unit only when its marker exists; a unit without one is
 recomputed and its partial data overwritten. The pieces of the pipeline are the
@@ -134,7 +136,11 @@ class RemoteDir:
             self.fs.put([a for a, _ in data], [b for _, b in data])
         if token_marker:
             token = uuid.uuid4().hex
-            marker = f"complete {token}\n".encode()
+            # the local marker's checksum manifest (second line, mercury_dem.io.atomic) travels with it
+            rest = b""
+            if (local / last).is_file():
+                rest = (local / last).read_bytes().partition(b"\n")[2]
+            marker = f"complete {token}\n".encode() + rest
         else:
             if last not in rels:
                 raise StoreError(f"{local}: no {last} to commit last; the local store is incomplete")
@@ -150,7 +156,7 @@ class RemoteDir:
         if data is None:
             return None
         if token_marker:
-            text = data.decode("utf-8", "replace").strip()
+            text = data.decode("utf-8", "replace").split("\n", 1)[0].strip()  # line 2: the checksum manifest
             return text.split(" ", 1)[1] if " " in text else text
         return hashlib.sha256(data).hexdigest()
 
@@ -173,6 +179,8 @@ class RemoteDir:
         prefix = self.key(rel)
         _token_file(local).unlink(missing_ok=True)
         try:
+            if token_marker and mark_complete is None:
+                mark_complete = _keep_fetched_marker  # the marker is written below, with the manifest
             with atomic_directory(local, overwrite=True, mark_complete=mark_complete) as tmp:
                 keys = [str(k) for k in sorted(self.fs.find(prefix)) if str(k).startswith(prefix + "/")]
                 pairs = [(k, tmp / k[len(prefix) + 1:]) for k in keys]
@@ -181,7 +189,10 @@ class RemoteDir:
                 if pairs:  # one call: downloaded concurrently
                     self.fs.get([k for k, _ in pairs], [str(d) for _, d in pairs])
                 if token_marker:
-                    (tmp / last).write_text("complete\n")  # the local marker, as atomic_directory writes it
+                    # the local marker, as atomic_directory writes it, with the commit's checksum manifest
+                    fetched = tmp / last
+                    rest = fetched.read_bytes().partition(b"\n")[2] if fetched.is_file() else b""
+                    fetched.write_bytes(b"complete\n" + rest)
         except OSError:
             # a concurrent fetch of the same commit (another worker process) renamed its copy first: keep it
             if not (local.is_dir() and self.commit_token(rel, last, token_marker) == token):
@@ -219,6 +230,10 @@ def fetch_mission(url: str) -> Path:
     local = cache_dir_for(url, "missions")
     remote.fetch_dir("", local, token=token)
     return local
+
+
+def _keep_fetched_marker(tmp: Path) -> None:
+    """``mark_complete`` of a fetched unit: its marker (with the commit's manifest) is already in place."""
 
 
 def _cached_token(local: Path) -> str | None:

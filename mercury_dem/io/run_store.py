@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mercury_dem.exceptions import StoreError
-from mercury_dem.io.atomic import atomic_write_json, is_complete
+from mercury_dem.exceptions import CorruptUnitError, StoreError
+from mercury_dem.io.atomic import _tmp_sibling, atomic_write_json, is_complete, verify_complete
 from mercury_dem.io.tables import read_table
 from mercury_dem.io.location import resolve_location
 from mercury_dem.io.remote import RemoteDir, cache_dir_for
@@ -236,6 +236,41 @@ class RunStore:
             return self.remote.commit_token(self._unit_key(level, unit_id)) is not None
         return is_complete(self.unit_dir(level, unit_id))
 
+    def verify_unit(self, level: str, unit_id: int) -> list[str] | None:
+        """Check a committed unit's files against the checksums of its completion marker.
+
+        Returns
+        -------
+        None when the unit's marker carries no checksums (a run written before they existed:
+        trusted as before), else the faults, one line per file (``network.zarr/points/c/0:
+        checksum mismatch ...``); [] when every file matches. A bucket run verifies the copy
+        fetched into the cache (the marker and its manifest come from the bucket).
+        """
+        try:
+            d = self.local_unit(level, unit_id)
+        except StoreError as exc:
+            return [str(exc)]
+        return verify_complete(d)
+
+    def check_unit(self, level: str, unit_id: int) -> None:
+        """Raise :class:`CorruptUnitError` naming the unit and its faulty files when its checksums fail."""
+        problems = self.verify_unit(level, unit_id)
+        if problems:
+            raise CorruptUnitError(corrupt_message(self.unit_dir(level, unit_id), problems))
+
+    def invalidate_unit(self, level: str, unit_id: int) -> None:
+        """Withdraw a unit (corrupt): its marker first (on the bucket too), then its files; it is recomputed."""
+        d = self.unit_dir(level, unit_id)
+        if self.url is not None:
+            key = self._unit_key(level, unit_id)
+            self.remote.remove(f"{key}/.complete")
+            self.remote.remove(key)
+            (d.parent / f".{d.name}.remote-token").unlink(missing_ok=True)
+        if d.exists():
+            aside = _tmp_sibling(d)  # renamed first: a reader never sees a half-deleted unit
+            d.rename(aside)
+            shutil.rmtree(aside, ignore_errors=True)
+
     def _unit_key(self, level: str, unit_id: int) -> str:
         return self.unit_dir(level, unit_id).relative_to(self.root).as_posix()
 
@@ -310,6 +345,13 @@ class RunStore:
         if self.url is not None:
             return self.remote.fetch_dir("plan", self.plan_dir)
         return is_complete(self.plan_dir)
+
+
+def corrupt_message(unit_dir: Path, problems: list[str]) -> str:
+    """``RUN/tile/17: checksum mismatch in network.zarr/...; ...`` and what to do."""
+    shown = "; ".join(problems[:5]) + (f"; ... {len(problems) - 5} more" if len(problems) > 5 else "")
+    return (f"{unit_dir}: its files differ from the checksums committed with it ({shown}); the unit is not "
+            "trusted: resume the run ('mercury-dem run MISSION --out RUN') to recompute it")
 
 
 def write_solution(path: Path, image_ids: np.ndarray, rotations: np.ndarray, positions: np.ndarray,

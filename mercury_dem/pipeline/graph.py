@@ -15,7 +15,7 @@ import contextlib
 import json
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, TextIO
@@ -23,22 +23,32 @@ from typing import Any, TextIO
 import numpy as np
 
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import StoreError
-from mercury_dem.io.atomic import sweep_temporaries
+from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
+from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
 from mercury_dem.io.run_store import LEVELS, RunStore
 from mercury_dem.pipeline.report import unit_message
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
-from mercury_dem.pipeline.stages import failure_summary, plan_run, run_adjust_unit, run_tile
+from mercury_dem.pipeline.stages import (failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile,
+                                         unit_name)
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
 STAGES = ("plan", "tile", "region", "hemisphere", "global", "dem")
 
 
 def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
-    """Run a stage runner; an unexpected exception becomes a failure summary."""
+    """Run a stage runner; an unexpected exception becomes a failure summary.
+
+    Except a full disk or a corrupt input unit (:func:`~mercury_dem.pipeline.stages.fatal_error`):
+    those are raised (as :class:`DiskFullError` / :class:`CorruptUnitError`) and stop the run.
+    """
     try:
         return fn(*args)
     except Exception as exc:  # noqa: BLE001 - recorded as a value, see module docstring
+        fatal = fatal_error(exc, level, unit_id, args[0] if args else "the run")
+        if fatal is exc:
+            raise
+        if fatal is not None:
+            raise fatal from exc
         return failure_summary(level, unit_id, exc)
 
 
@@ -159,16 +169,49 @@ def run_pipeline(
     connection: Connection | None = None,
     dem: bool = True,
 ) -> dict[str, Any]:
-    """Run (or resume) the whole job; return the report (also written to ``RUN/report.json``)."""
+    """Run (or resume) the whole job; return the report (also written to ``RUN/report.json``).
+
+    A resumed run verifies every finished unit against the checksums in its completion marker
+    before trusting it; a unit that fails is named (stream and ``report["integrity"]``), removed
+    and recomputed.
+
+    Raises
+    ------
+    DiskFullError : the run's file system filled up (at any stage); nothing half-written is kept,
+        resume once space is freed.
+    CorruptUnitError : a unit's files changed during this run, after it was verified (it is withdrawn:
+        the next resume recomputes it).
+    SchedulerLostError : the Dask scheduler went away and the client could not reconnect.
+    """
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    stage = ["preparing the run directory"]  # what is being written, for a full disk's message
+    integrity: dict[str, Any] = {"verified_units": 0, "unverifiable_units": 0, "corrupt": [], "verify_seconds": 0.0}
+    try:
+        return _run_pipeline(mission_path, out, config, scheduler, scheduler_file, workers, threads_per_worker, force,
+                             security, stream, connection, dem, t_start, timings, stage, integrity)
+    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - only a full disk is converted, anything else re-raised as is
+        cause = disk_full_cause(exc)
+        if cause is None:
+            raise
+        raise DiskFullError(disk_full_message(stage[0], cause, out)) from exc
+
+
+def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, scheduler: str | None,
+                  scheduler_file: str | None, workers: int | None, threads_per_worker: int | None,
+                  force: str | None, security: Any, stream: TextIO | None, connection: Connection | None,
+                  dem: bool, t_start: float, timings: dict[str, float], stage: list[str],
+                  integrity: dict[str, Any]) -> dict[str, Any]:
     from mercury_dem.mission import open_mission
     from mercury_dem.pipeline.report import build_report, write_report
 
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
     store = prepare_store(mission_path, out, config, force)
     mission = open_mission(mission_path)
     t = time.perf_counter()
-    if store.plan_complete():
+    stage[0] = "the plan (RUN/plan)"
+    if store.plan_complete() and not _plan_corrupt(store, integrity, stream):
         plan = json.loads((store.plan_dir / "plan.json").read_text())
     else:
         plan = plan_run(store, mission, config)
@@ -191,8 +234,9 @@ def run_pipeline(
         perf = performance_report(filename=str(store.performance_html))
     summaries: dict[str, list[dict[str, Any]]] = {k: [] for k in ("tile", "region", "hemisphere", "global")}
     try:
-        with perf:
-            summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream)
+        with _scheduler_loss(conn, out), perf:
+            stage[0] = "the adjustment cascade"
+            summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream, integrity)
             timings.update(level_seconds)
             dem_summary = None
             glob = summaries["global"][0] if summaries["global"] else None
@@ -200,6 +244,7 @@ def run_pipeline(
                 t = time.perf_counter()
                 from mercury_dem.pipeline.dem_run import run_dem_stage
 
+                stage[0] = "the DEM stage (dem.zarr, coverage.zarr, products)"
                 dem_summary = run_dem_stage(store, mission, config, None if conn.mode == "sync" else client, stream)
                 timings["dem"] = time.perf_counter() - t
     finally:
@@ -208,13 +253,47 @@ def run_pipeline(
         if conn.mode != "sync" and store.performance_html.is_file():
             store.commit_file("performance.html")
     timings["total"] = time.perf_counter() - t_start
+    stage[0] = "the report (RUN/report.json)"
     report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
+    report["integrity"] = integrity
     write_report(store, report)
     return report
 
 
+@contextlib.contextmanager
+def _scheduler_loss(conn: Connection, out: str | Path) -> Iterator[None]:
+    """Turn what the Dask client raises when its scheduler is gone (a connect timeout, cancelled futures)
+    into :class:`SchedulerLostError` saying how to resume; other errors pass unchanged."""
+    import asyncio
+
+    try:
+        yield
+    except (Exception, asyncio.CancelledError) as exc:
+        if isinstance(exc, (DiskFullError, CorruptUnitError)) or conn.mode == "sync":
+            raise
+        if getattr(conn.client, "status", "running") == "running":
+            raise
+        raise SchedulerLostError(
+            f"lost the Dask scheduler ({conn.description}) during the run ({type(exc).__name__}: {exc}); the "
+            f"units finished so far are committed in {out}: start a scheduler and workers again (or use the "
+            "default LocalCluster) and run the same command to resume") from exc
+
+
+def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | None) -> bool:
+    """Whether the committed plan fails its checksums (then it is recomputed; named in the report)."""
+    problems = verify_complete(store.plan_dir)
+    if not problems:
+        return False
+    integrity["corrupt"].append({"level": "plan", "id": None, "name": "plan", "problems": problems})
+    if stream is not None:
+        print(f"mercury-dem run: plan: checksum verification failed ({'; '.join(problems[:3])}); recomputing it",
+              file=stream, flush=True)
+    return True
+
+
 def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
-                 stream: TextIO | None) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
+                 stream: TextIO | None, integrity: dict[str, Any] | None = None,
+                 ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
     from mercury_dem.geometry.tiling import TileGrid
 
     grid = TileGrid(config.tiling.tile_size_deg)
@@ -234,17 +313,51 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     recorded: set[str] = set()
     sync = getattr(client, "synchronous", False)
 
+    integrity = integrity if integrity is not None else {"verified_units": 0, "unverifiable_units": 0,
+                                                         "corrupt": [], "verify_seconds": 0.0}
+
     def record(level: str, uid: int, fut: Any) -> None:
         try:
             s = fut.result()
+        except (DiskFullError, CorruptUnitError):
+            raise  # stops the run (see safe_call)
         except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
+            fatal = fatal_error(exc, level, uid, store.location)
+            if fatal is not None:
+                raise fatal from exc
             s = failure_summary(level, uid, exc)
         out[level].append(s)
         progress.update(s)
 
+    def trusted(level: str, uid: int) -> bool:
+        """A finished unit whose files match its checksums; a corrupt one is named and withdrawn."""
+        if not store.unit_complete(level, uid):
+            return False
+        if store.url is not None:
+            # a bucket run: verifying here would download every finished unit on each resume; a unit is
+            # verified when it is fetched to be read (a region's children) and by 'mercury-dem verify'
+            return True
+        t = time.perf_counter()
+        problems = store.verify_unit(level, uid)
+        integrity["verify_seconds"] += time.perf_counter() - t
+        if problems is None:
+            integrity["unverifiable_units"] += 1  # a marker without checksums (an older run): trusted
+            return True
+        integrity["verified_units"] += 1
+        if not problems:
+            return True
+        name = unit_name(level, uid)
+        integrity["corrupt"].append({"level": level, "id": int(uid), "name": name, "problems": problems,
+                                     "action": "recomputed"})
+        if stream is not None:
+            print(f"mercury-dem run: {name}: checksum verification failed ({'; '.join(problems[:3])}); "
+                  "recomputing it", file=stream, flush=True)
+        store.invalidate_unit(level, uid)
+        return False
+
     def submit(fn: Callable[..., dict[str, Any]], level: str, uid: int, *args: Any, **kw: Any) -> Any:
         """A future, or the stored summary of a unit a previous run finished (not resubmitted)."""
-        if store.unit_complete(level, uid):
+        if trusted(level, uid):
             done[level][uid] = store.read_summary(level, uid)
             out[level].append(done[level][uid])
             progress.update(done[level][uid])
@@ -255,25 +368,32 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
             recorded.add(fut.key)
         return fut
 
-    tile_f = {t: submit(_tile_task, "tile", t, root, t, config) for t in tiles}
-    region_f = {}
-    for r in region_ids:
-        deps = [f for t, f in tile_f.items() if region_of[t] == r]
-        region_f[r] = submit(_unit_task, "region", r, root, "region", r, config, deps, **heavy)
-    hemi_f = {}
-    for h in hemi_ids:
-        deps = [f for r, f in region_f.items() if grid.hemisphere_of_region(r) == h]
-        hemi_f[h] = submit(_unit_task, "hemisphere", h, root, "hemisphere", h, config, deps, **heavy)
-    glob_f = {}
-    if hemi_f:
-        glob_f[0] = submit(_unit_task, "global", 0, root, "global", 0, config, list(hemi_f.values()), **heavy)
-    levels = {"tile": tile_f, "region": region_f, "hemisphere": hemi_f, "global": glob_f}
-    level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
-    all_f = [f for lvl, fs in levels.items() for uid, f in fs.items()
-             if uid not in done[lvl] and f.key not in recorded]
-    for fut in as_completed(client, all_f):  # Dask's own completion events drive the counts
-        record(*level_of[fut.key], fut)
-    progress.close()
+    all_f: list[Any] = []
+    try:
+        tile_f = {t: submit(_tile_task, "tile", t, root, t, config) for t in tiles}
+        region_f = {}
+        for r in region_ids:
+            deps = [f for t, f in tile_f.items() if region_of[t] == r]
+            region_f[r] = submit(_unit_task, "region", r, root, "region", r, config, deps, **heavy)
+        hemi_f = {}
+        for h in hemi_ids:
+            deps = [f for r, f in region_f.items() if grid.hemisphere_of_region(r) == h]
+            hemi_f[h] = submit(_unit_task, "hemisphere", h, root, "hemisphere", h, config, deps, **heavy)
+        glob_f = {}
+        if hemi_f:
+            glob_f[0] = submit(_unit_task, "global", 0, root, "global", 0, config, list(hemi_f.values()), **heavy)
+        levels = {"tile": tile_f, "region": region_f, "hemisphere": hemi_f, "global": glob_f}
+        level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
+        all_f += [f for lvl, fs in levels.items() for uid, f in fs.items()
+                  if uid not in done[lvl] and f.key not in recorded]
+        for fut in as_completed(client, all_f):  # Dask's own completion events drive the counts
+            record(*level_of[fut.key], fut)
+    except (DiskFullError, CorruptUnitError):
+        if not sync:
+            client.cancel(all_f)  # the run stops: nothing more is started (running units finish atomically)
+        raise
+    finally:
+        progress.close()
     for lvl in out:
         out[lvl].sort(key=lambda s: s["id"])
     seconds: dict[str, float] = {}

@@ -167,6 +167,8 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         name = f"tile {f['tile']}"
         w(f"  {name}: {unit_message(f['error'], name)}\n")
     w(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n")
+    for c in (report.get("integrity") or {}).get("corrupt", []):  # units that failed their checksums on resume
+        w(f"  recomputed {c.get('name')}: {'; '.join(c.get('problems', [])[:3])}\n")
     reasons = im.get("uncontrolled_reasons") or {}
     for i in im["uncontrolled"][:10]:
         if i in reasons:

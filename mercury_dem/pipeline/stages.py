@@ -20,11 +20,11 @@ import numpy as np
 import pandas as pd
 
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import MercuryDemError
+from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemError
 from mercury_dem.geometry.footprints import overlap_graph
 from mercury_dem.geometry.pose import validate_pose
 from mercury_dem.geometry.tiling import TileGrid, region_name
-from mercury_dem.io.atomic import atomic_directory, atomic_write_json
+from mercury_dem.io.atomic import atomic_directory, atomic_write_json, disk_full_cause, disk_full_message
 from mercury_dem.io.run_store import RunStore, read_solution, write_solution
 from mercury_dem.mission import Mission, open_mission
 
@@ -108,7 +108,7 @@ def plan_run(store: RunStore, mission: Mission, config: Config) -> dict[str, Any
         "overlap_pairs": int(len(pairs)),
         "seconds": time.perf_counter() - t0,
     }
-    with atomic_directory(store.plan_dir, overwrite=True) as tmp:
+    with atomic_directory(store.plan_dir, overwrite=True, checksums=True) as tmp:
         images.to_parquet(tmp / "images.parquet", index=False)
         pairs.to_parquet(tmp / "overlaps.parquet", index=False)
         (tmp / "plan.json").write_text(json.dumps(info, indent=2))
@@ -166,6 +166,7 @@ def run_tile(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
         if not summary["ok"] and not summary["error"]:
             summary["error"] = _no_points_reason(tile_id, summary)
     except MercuryDemError as exc:
+        raise_if_fatal(exc, "tile", tile_id, store)
         summary["error"] = f"tile {tile_id}: {exc}"
         _write_unit(store, "tile", tile_id, summary, t0)
         return summary
@@ -268,7 +269,8 @@ def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, An
     summary["seconds"] = time.perf_counter() - t0
     summary["finished_at"] = time.time()  # wall clock (s since the epoch): level spans across workers
     summary["started_at"] = summary["finished_at"] - summary["seconds"]
-    with atomic_directory(store.unit_dir(level, unit_id), overwrite=True) as tmp:
+    # the marker holds every file's SHA-256: a unit damaged after its commit is detected on resume
+    with atomic_directory(store.unit_dir(level, unit_id), overwrite=True, checksums=True) as tmp:
         for name, obj in (files or {}).items():
             if name == "network":
                 write_network(obj, tmp / "network.zarr")
@@ -313,6 +315,7 @@ def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
         summary.update(result)
         summary["ok"] = True
     except MercuryDemError as exc:
+        raise_if_fatal(exc, level, unit_id, store)
         summary["error"] = f"{name}: {exc}"
     _write_unit(store, level, unit_id, summary, t0, files=files)
     return summary
@@ -346,6 +349,11 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
         raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
     nets = []
     for c in kids:
+        try:
+            store.check_unit(child_level, c)  # CorruptUnitError: not merged, the run says which files
+        except CorruptUnitError:
+            store.invalidate_unit(child_level, c)  # withdrawn (marker first): the resumed run recomputes it
+            raise
         net = read_network(store.network_path(child_level, c))
         if child_level != "tile":
             # Every measure is judged again at this level. The a-priori coordinates stay
@@ -493,6 +501,30 @@ def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids:
                 best[n] = nmeas[k]
                 rot[n], pos[n] = srot[k], spos[k]
     return rot, pos
+
+
+def fatal_error(exc: BaseException, level: str, unit_id: int, where: Any) -> MercuryDemError | None:
+    """The run-stopping error ``exc`` is, or None for an error that is the unit's own failure.
+
+    A full disk (:class:`DiskFullError`, an ENOSPC anywhere in the chain) and a corrupt input
+    unit (:class:`CorruptUnitError`) are not facts about the unit: recording them as its failure
+    would commit a unit without its data and silently drop it downstream. They stop the run.
+    """
+    if isinstance(exc, (DiskFullError, CorruptUnitError)):
+        return exc
+    cause = disk_full_cause(exc)
+    if cause is not None:
+        return DiskFullError(disk_full_message(unit_name(level, unit_id), cause, where))
+    return None
+
+
+def raise_if_fatal(exc: BaseException, level: str, unit_id: int, store: RunStore) -> None:
+    """Re-raise ``exc`` as the run-stopping error it is (:func:`fatal_error`); return when it is not one."""
+    fatal = fatal_error(exc, level, unit_id, store.location)
+    if fatal is exc:
+        raise exc
+    if fatal is not None:
+        raise fatal from exc
 
 
 def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, Any]:

@@ -111,3 +111,27 @@ def test_a_bucket_that_does_not_exist_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(StoreError, match=r"s3://no-such-bucket/run: cannot write to the bucket .*check that the bucket"):
         RunStore("s3://no-such-bucket/run").check_writable()
     assert main(["run", str(tmp_path / "m"), "--out", "s3://no-such-bucket/run", "--scheduler", "sync"]) == 2
+
+
+def test_the_checksum_manifest_travels_with_the_marker(tmp_path: Path) -> None:
+    """A bucket unit's marker holds the commit token and the manifest; the fetched copy verifies, a
+    changed object on the bucket is named once fetched."""
+    from mercury_dem.io.atomic import atomic_directory, atomic_write_json
+
+    make_bucket("sums")
+    store = RunStore("s3://sums/run")
+    with atomic_directory(store.unit_dir("tile", 4), overwrite=True, checksums=True) as tmp:
+        (tmp / "data.bin").write_bytes(bytes(range(256)) * 8)
+        atomic_write_json(tmp / "summary.json", {"level": "tile", "id": 4, "ok": True})
+    store.commit_unit("tile", 4)
+    marker = store.remote.read_bytes("tile/4/.complete").decode()
+    token = store.remote.commit_token("tile/4")
+    assert marker.startswith(f"complete {token}\n") and '"data.bin"' in marker
+    fresh = RunStore(store.url)
+    import shutil
+
+    shutil.rmtree(fresh.root, ignore_errors=True)
+    assert fresh.verify_unit("tile", 4) == []
+    store.remote.write_bytes("tile/4/data.bin", bytes(2048))  # bit rot on the bucket (same size)
+    shutil.rmtree(fresh.root, ignore_errors=True)
+    assert fresh.verify_unit("tile", 4) == ["data.bin: checksum mismatch (sha256 differs from the committed one)"]
