@@ -24,7 +24,8 @@ leaves it (the first level of the reduction tree; the client sums the shards').
 One shard in the caller's process is the in-memory/out-of-core run
 (:class:`SyncEngine`); one shard per Dask worker, as a Dask *actor* that loads
 its blocks from the store itself and keeps them in worker memory across
-iterations, is the distributed run (:class:`DaskEngine`). The loop,
+iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
+stays in the orchestration layer). The loop,
 :func:`blocked_levenberg_marquardt`, does not know which.
 
 Pointing corrections only (camera_dim 3, positions fixed); no a-posteriori sigmas
@@ -407,36 +408,6 @@ class SyncEngine:
 
     def call(self, method: str, *args: Any) -> list[Any]:
         return [getattr(s, method)(*args) for s in self.shards]
-
-
-class DaskEngine:
-    """One :class:`BlockShard` actor per Dask worker; each loads its blocks from the store and keeps them.
-
-    Parameters
-    ----------
-    client : a ``distributed.Client``
-    store : the network store path (the workers must see it: a shared file system)
-    n_blocks : blocks in the store; dealt to the workers in contiguous runs (neighbouring
-        blocks share images, so a worker's shard sum is smaller than the sum of its blocks')
-    """
-
-    def __init__(self, client: Any, store: str, n_blocks: int, setup: CameraSetup, opt: SolverOptions,
-                 block_ids: list[int] | None = None):
-        workers = sorted(client.scheduler_info()["workers"])
-        if not workers:
-            raise AdjustmentError("the Dask cluster has no workers")
-        ids = list(range(n_blocks)) if block_ids is None else block_ids
-        runs = np.array_split(np.array(ids, np.int64), len(workers))
-        self.workers = [w for w, r in zip(workers, runs) if len(r)]
-        futures = [client.submit(BlockShard, (str(store), [int(x) for x in r]), setup, opt, actor=True,
-                                 workers=[w], allow_other_workers=False, pure=False)
-                   for w, r in zip(workers, runs) if len(r)]
-        self.actors = [f.result() for f in futures]
-        self.client = client
-
-    def call(self, method: str, *args: Any) -> list[Any]:
-        pending = [getattr(a, method)(*args) for a in self.actors]
-        return [p.result() for p in pending]
 
 
 @dataclass
