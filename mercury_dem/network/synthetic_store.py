@@ -212,15 +212,12 @@ class BlockedNetwork:
         g = self.store._group
         truth_path = net_path.parent / "truth" if net_path != path else path / "truth"
         self.truth_path = truth_path if truth_path.is_dir() and is_complete(net_path.parent) else None
-        try:
-            geo = g["geometry"]
-            blocks = g["blocks"]
-        except KeyError as exc:
-            raise StoreError(f"network store {net_path} has no '{exc.args[0]}' group: adjust-network needs the image "
-                             f"geometry and point blocks that synth-network writes (imported networks: not yet)") from None
+        geo, blocks = self._group(g, "geometry"), self._group(g, "blocks")
         self.n_images, self.n_points, self.n_measures = self.store.n_images, self.store.n_points, self.store.n_measures
         try:
             cams = tuple(camera_from_dict(d) for d in geo.attrs["cameras"])
+            if not cams:
+                raise ValueError("no cameras")
         except Exception as exc:
             raise StoreError(f"network store {net_path}: geometry/cameras cannot be read: {exc}") from None
         ic = self._read(geo, "image_camera", "int64", (self.n_images,))
@@ -228,6 +225,10 @@ class BlockedNetwork:
             raise StoreError(f"network store {net_path}: geometry/image_camera indexes a camera outside [0, {len(cams)})")
         self.images = ImageTable(cams, ic, self._read(geo, "positions", "float64", (self.n_images, 3)),
                                  self._read(geo, "rotations", "float64", (self.n_images, 3, 3)))
+        bad = ~np.all(np.isfinite(self.images.positions), axis=1) | ~np.all(np.isfinite(self.images.rotations), axis=(1, 2))
+        if bad.any():
+            raise StoreError(f"network store {net_path}: the a-priori pose of {int(bad.sum())} images is NaN/inf "
+                             f"(first image index {int(np.flatnonzero(bad)[0])})")
         self.point_offsets = self._read(blocks, "point_offsets", "int64", (None,))
         self.measure_offsets = self._read(blocks, "measure_offsets", "int64", (len(self.point_offsets),))
         for name, off, total in (("point_offsets", self.point_offsets, self.n_points),
@@ -237,11 +238,21 @@ class BlockedNetwork:
         self.n_blocks = len(self.point_offsets) - 1
         self._truth: Any = None
 
+    def _group(self, g: Any, name: str) -> Any:
+        try:
+            sub = g[name]
+        except Exception:  # KeyError, or zarr's errors for damaged metadata (several types)
+            sub = None
+        if not isinstance(sub, zarr.Group):
+            raise StoreError(f"network store {self.path} has no readable '{name}' group: adjust-network needs the image "
+                             f"geometry and point blocks that synth-network writes (imported networks: not yet)")
+        return sub
+
     def _read(self, group: Any, name: str, dtype: str, shape: tuple[int | None, ...], rows: slice | None = None) -> NDArray[Any]:
         try:
             arr = group[name]
-        except KeyError:
-            raise StoreError(f"network store {self.path}: no array '{group.path}/{name}'") from None
+        except Exception:  # KeyError, or zarr's errors for damaged metadata (several types)
+            raise StoreError(f"network store {self.path}: no readable array '{group.path}/{name}'") from None
         ok = len(arr.shape) == len(shape) and all(e is None or a == e for a, e in zip(arr.shape, shape))
         if not isinstance(arr, zarr.Array) or arr.dtype != np.dtype(dtype) or not ok:
             raise StoreError(f"network store {self.path}: '{group.path}/{name}' is {getattr(arr, 'dtype', '?')} "
@@ -259,7 +270,10 @@ class BlockedNetwork:
 
     def _truth_group(self) -> Any:
         if self._truth is None:
-            self._truth = zarr.open_group(str(self.truth_path), mode="r", zarr_format=3)
+            try:
+                self._truth = zarr.open_group(str(self.truth_path), mode="r", zarr_format=3)
+            except Exception as exc:  # zarr raises several types for a damaged group
+                raise StoreError(f"truth of network store {self.path} ({self.truth_path}) cannot be opened: {exc}") from None
         return self._truth
 
     def read_block(self, b: int) -> BlockData:
@@ -283,8 +297,16 @@ class BlockedNetwork:
         if np.any(ignored):
             raise StoreError(f"network store {self.path}: block {b} has ignored measures (not supported by "
                              f"adjust-network yet)")
-        sigma = np.nanmean(np.where(np.isfinite(sig), sig, np.nan), axis=1)
-        sigma = np.where(np.isfinite(sigma), sigma, 1.0)
+        finite = np.isfinite(sig)
+        count = finite.sum(axis=1)
+        sigma = np.where(count > 0, np.where(finite, sig, 0.0).sum(axis=1) / np.maximum(count, 1), 1.0)  # as problem_from_network
+        if np.any(sigma <= 0):
+            raise StoreError(f"network store {self.path}: block {b} has measure sigmas <= 0 (must be positive pixels)")
+        ap = self._read(g, "apriori_xyz", "float64", (n, 3), ps)
+        meas = np.stack([self._read(g, "sample", "float64", (m,), ms), self._read(g, "line", "float64", (m,), ms)], axis=1)
+        for what, arr in (("a-priori point coordinates", ap), ("measures (sample, line)", meas)):
+            if not np.all(np.isfinite(arr)):
+                raise StoreError(f"network store {self.path}: block {b} has NaN/inf {what}")
         outlier = true_points = None
         if self.truth_path is not None:
             t = self._truth_group()
@@ -292,9 +314,7 @@ class BlockedNetwork:
             true_points = self._read(t, "true_points", "float64", (n, 3), ps)
         return BlockData(
             block=b, point_start=p0,
-            apriori_points=self._read(g, "apriori_xyz", "float64", (n, 3), ps),
-            measure_image=mi, measure_point=mp,
-            measures=np.stack([self._read(g, "sample", "float64", (m,), ms), self._read(g, "line", "float64", (m,), ms)], axis=1),
+            apriori_points=ap, measure_image=mi, measure_point=mp, measures=meas,
             sigma=sigma,
             held_points=self._read(g, "point_type", "int8", (n,), ps) == PointType.FIXED,
             outlier=outlier, true_points=true_points,
