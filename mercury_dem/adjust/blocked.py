@@ -307,9 +307,17 @@ class BlockShard:
         return self.cams, self.pair_keys, sum(b.m for b in self.blocks), sum(b.n_pt for b in self.blocks)
 
     def initial_cost(self, omega: NDArray[np.float64]) -> float:
+        """The cost at the starting state; raises AdjustmentError naming measures that cannot be projected."""
         out = 0.0
         for b in self.blocks:
             c, b.r_now = b.cost(omega)
+            bad = ~np.all(np.isfinite(b.r_now), axis=1)
+            if bad.any():
+                which = np.flatnonzero(bad)[:10]
+                raise AdjustmentError(
+                    f"{int(bad.sum())} measures of block {b.block} cannot be projected at the a-priori state (point "
+                    f"behind the camera), e.g. points {(b.pt[which] + b.point_start).tolist()} in images "
+                    f"{b.cams[b.cam[which]].tolist()}: check the a-priori points and poses")
             out += c
         return out
 

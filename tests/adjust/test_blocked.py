@@ -104,3 +104,16 @@ def test_localcluster_equals_sync(store: Path) -> None:
     assert np.abs(dist.omega - sync.omega).max() < 1e-12
     for b, _, x, a, _ in shard.solution():
         assert np.abs(got[b][0] - x).max() < 1e-6 and np.array_equal(got[b][1], a)
+
+
+def test_unprojectable_measure_is_named() -> None:
+    from mercury_dem.exceptions import AdjustmentError
+
+    net = make_synthetic_network(3_000, rng=np.random.default_rng(8), min_views=3)
+    p = net.problem
+    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG)
+    opt = options_from_config(CFG)
+    blocks = blocks_from_problem(p, 2)
+    blocks[1].apriori_points[0] *= 3.0  # the first point of block 1 above (behind) its cameras
+    with pytest.raises(AdjustmentError, match=rf"block 1 cannot be projected.*points \[{blocks[1].point_start}"):
+        blocked_levenberg_marquardt(SyncEngine([BlockShard(blocks, setup, opt)]), setup, opt)
