@@ -145,6 +145,10 @@ class PointBlockState:
         self.points = problem.points.copy()
         self.zero_pos = np.zeros((self.n_cam, 3))
         self.struct = SchurStructure.build(self.cam, self.pt, self.n_cam, self.n_pt, C, eliminate=~self.held_p)
+        # The pair lists are the largest index arrays (~4.4 pairs a measure at 7 views a point): int32 halves
+        # them (a block has < 2^31 measures and pair blocks); the kernel is the same, specialized by numba.
+        for name in ("pair_first", "pair_second", "pair_block"):
+            setattr(self.struct, name, getattr(self.struct, name).astype(np.int32))
         n = setup.n_images
         self.pair_keys = cams[self.struct.block_row] * n + cams[self.struct.block_col]  # global upper-triangle keys
         self.active = np.ones(self.m, bool)
