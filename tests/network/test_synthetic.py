@@ -86,3 +86,20 @@ def read_network_from(tmp_path: Path):  # noqa: ANN201 - a small plain network
     out = tmp_path / "syn_small"
     write_synthetic_network(SyntheticSpec(2_000, seed=2, measures_per_image=100), out)
     return read_network(out / "network")
+
+
+def test_generation_memory_is_bounded_by_a_block_not_the_network(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Four times the measures, same block size: the traced peak stays (the columns are flushed per chunk)."""
+    import tracemalloc
+
+    import mercury_dem.network.synthetic_store as ss
+
+    monkeypatch.setattr(ss, "CHUNK_ROWS", 4096)
+    peaks = []
+    for n in (20_000, 80_000):
+        tracemalloc.start()
+        write_synthetic_network(SyntheticSpec(n, seed=7, measures_per_image=100, block_points=500), tmp_path / f"n{n}")
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    # the image set grows 4x too (~1 kB an image), the rest is one block and one chunk of each column
+    assert peaks[1] < 1.5 * peaks[0], peaks
