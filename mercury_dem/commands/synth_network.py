@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--outlier-fraction", type=float, default=0.01, metavar="F", help="share of gross outliers (default 0.01)")
     p.add_argument("--measures-per-image", type=float, default=940.0, metavar="K",
                    help="measures per image, sets the image count (default 940, the reference's)")
-    p.add_argument("--block-points", type=int, default=100_000, metavar="P", help="points per block (default 100000)")
+    p.add_argument("--block-points", type=int, default=25_000, metavar="P", help="points per block (default 25000: ~1.75e5 measures; a Dask worker holds a contiguous run of blocks)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
     p.add_argument("--json", action="store_true", help="print a JSON record")
 

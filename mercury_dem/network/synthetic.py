@@ -66,7 +66,7 @@ class SyntheticSpec:
     max_emission_deg: float = 25.0
     relief_m: float = 2000.0
     measure_sigma_px: float = 1.0
-    block_points: int = 100_000
+    block_points: int = 25_000
     #: expected measures per drawn point (visibility cuts the wanted count); calibrates the point count
     yield_per_point: float = 7.0
 
