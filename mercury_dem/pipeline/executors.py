@@ -224,3 +224,44 @@ def connect(
     client = Client(target, security=security)
     _quiet_workers(client)
     return Connection(client, "scheduler", description=f"scheduler {target}")
+
+
+class DaskShardEngine:
+    """The distributed engine of the blocked adjustment: one ``BlockShard`` Dask actor per worker.
+
+    Each actor loads its point blocks from the store itself (nothing goes through the
+    client) and keeps them in its worker's memory across iterations; every call runs
+    one ``BlockShard`` method on all actors at once and returns their results in
+    worker order (see :mod:`mercury_dem.adjust.blocked`). Blocks are dealt in
+    contiguous runs: neighbouring blocks share images, so a worker's partial sum of the
+    reduced camera system (the first level of the reduction tree) stays small.
+
+    Parameters
+    ----------
+    client : a ``distributed.Client``
+    store : the network store path (the workers must see it: a shared file system)
+    n_blocks : point blocks in the store
+    setup, opt : ``CameraSetup`` and ``SolverOptions`` (sent once to every actor)
+    """
+
+    def __init__(self, client: Any, store: str, n_blocks: int, setup: Any, opt: Any):
+        import numpy as np
+
+        from mercury_dem.adjust.blocked import BlockShard
+        from mercury_dem.exceptions import AdjustmentError
+
+        workers = sorted(client.scheduler_info()["workers"])
+        if not workers:
+            raise AdjustmentError("the Dask cluster has no workers: start some, or use --sync")
+        runs = [r for r in np.array_split(np.arange(n_blocks), len(workers))]
+        pairs = [(w, [int(x) for x in r]) for w, r in zip(workers, runs) if len(r)]
+        futures = [client.submit(BlockShard, (str(store), ids), setup, opt, actor=True, workers=[w],
+                                 allow_other_workers=False, pure=False) for w, ids in pairs]
+        self.workers = [w for w, _ in pairs]
+        self.actors = [f.result() for f in futures]
+        self._futures = futures  # the actors live as long as these futures
+        self.client = client
+
+    def call(self, method: str, *args: Any) -> list[Any]:
+        pending = [getattr(a, method)(*args) for a in self.actors]
+        return [p.result() for p in pending]

@@ -1,0 +1,629 @@
+"""The bundle adjustment over point blocks: out of core in one process, or distributed (issue #17).
+
+The same Levenberg-Marquardt loop as :mod:`mercury_dem.adjust.solver` (same damping,
+gain ratio, robust reweighting, deletion-statistic rejection with its rounds,
+hysteresis and cycle rule), cut along the one seam the problem has: given the
+cameras, points are independent. So everything per point or per measure lives in
+a :class:`PointBlockState` (its points, measures, Jacobians, the point blocks
+``V``, the per-measure ``W = Jc^T Jp``, its share of the Schur pair structure,
+its accepted flags), and only camera-sized sums travel:
+
+* linearize: each block gives its ``U = sum Jc^T Jc`` and ``g_c`` (per camera it sees);
+* each damped trial: its Schur contribution ``-sum W V^-1 W^T`` (its camera-pair
+  blocks) and ``sum W V^-1 g_p``; the client sums them into the reduced camera
+  system and solves it (dense / CHOLMOD / SuperLU / PCG: :class:`~mercury_dem.adjust.schur.ReducedSolver`);
+* each block back-substitutes its points from the camera step and returns scalars
+  (predicted decrease, cost, step norm);
+* rejection: each block computes the deletion statistic of its measures; the
+  limit (median + k MAD over all measures) needs them all, so the norms (8 bytes
+  a measure) go to the client, which sends the limit back; the blocks decide
+  per point, the client only counts changes and watches for cycles.
+
+A :class:`BlockShard` holds several blocks and sums over them before anything
+leaves it (the first level of the reduction tree; the client sums the shards').
+One shard in the caller's process is the in-memory/out-of-core run
+(:class:`SyncEngine`); one shard per Dask worker, as a Dask *actor* that loads
+its blocks from the store itself and keeps them in worker memory across
+iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
+stays in the orchestration layer). The loop,
+:func:`blocked_levenberg_marquardt`, does not know which.
+
+Pointing corrections only (camera_dim 3, positions fixed); no a-posteriori sigmas
+yet; no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
+Why our own: no library offers a distributed Schur-complement bundle adjustment
+(Ceres and scipy are single-process; the Dask engine underneath is distributed's
+actors and futures).
+"""
+
+from __future__ import annotations
+
+import resource
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
+
+from mercury_dem.adjust.framing import FramingModel, FramingState, inverse_left_jacobian
+from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs
+from mercury_dem.adjust.problem import AdjustmentProblem
+from mercury_dem.adjust.robust import loss_rho, rejection_limit
+from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
+from mercury_dem.adjust.solver import (
+    READMIT_FRACTION,
+    SolverOptions,
+    _all_but_one_per_point,
+    _ambiguous,
+    deletion_statistic,
+)
+from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.exceptions import AdjustmentError
+from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles
+from mercury_dem.network.synthetic_store import BlockData
+
+C = 3  # camera unknowns: pointing corrections
+
+
+@dataclass(frozen=True)
+class CameraSetup:
+    """What every block needs of the images (sent once to every shard)."""
+
+    cameras: tuple[FramingCamera, ...]
+    image_camera: NDArray[np.int64]
+    positions: NDArray[np.float64]
+    rotations: NDArray[np.float64]  # a-priori, the centre of the pointing constraint
+    held: NDArray[np.bool_]
+    pointing_sigma_rad: float
+    point_sigma_m: tuple[float | None, float | None, float | None]
+
+    @property
+    def n_images(self) -> int:
+        return len(self.positions)
+
+
+def options_from_config(config: AdjustConfig, median_sigma_px: float = 1.0) -> SolverOptions:
+    """The solver options the in-memory adjuster derives from ``config`` (see ``bundle.solver_options``)."""
+    return SolverOptions(
+        max_iterations=config.max_iterations, function_tolerance=2.0 * config.sigma0_tolerance,
+        step_tolerance=config.step_tolerance, loss=config.robust_loss, loss_scale=config.robust_scale,
+        reject_k=config.reject_k_mad if config.reject_outliers else None,
+        reject_floor=config.reject_min_px / median_sigma_px, min_point_measures=config.min_point_measures,
+        solver=config.solver, direct_max_unknowns=config.direct_max_unknowns, pcg_tolerance=config.pcg_tolerance,
+        pcg_max_iterations=config.pcg_max_iterations,
+    )
+
+
+def setup_from_config(cameras: tuple[FramingCamera, ...], image_camera: NDArray[np.int64], positions: NDArray[np.float64],
+                      rotations: NDArray[np.float64], config: AdjustConfig) -> CameraSetup:
+    """The camera setup with the configured a-priori constraints (as ``bundle.make_model``)."""
+    if config.solve_positions:
+        raise AdjustmentError("the blocked adjustment solves pointing only: set adjust.solve_positions: false")
+    return CameraSetup(tuple(cameras), np.asarray(image_camera, np.int64), np.asarray(positions, np.float64),
+                       np.asarray(rotations, np.float64), np.zeros(len(positions), bool),
+                       float(np.radians(config.pointing_sigma_deg)),
+                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m))
+
+
+def blocks_from_problem(problem: AdjustmentProblem, n_blocks: int) -> list[BlockData]:
+    """An in-memory problem cut into ``n_blocks`` blocks of consecutive points (for tests and small runs)."""
+    order = np.argsort(problem.measure_point, kind="stable")
+    mp = problem.measure_point[order]
+    edges = np.linspace(0, problem.n_points, n_blocks + 1).astype(np.int64)
+    out = []
+    for b in range(n_blocks):
+        p0, p1 = int(edges[b]), int(edges[b + 1])
+        m0, m1 = np.searchsorted(mp, [p0, p1])
+        sel = order[m0:m1]
+        out.append(BlockData(b, p0, problem.points[p0:p1], problem.measure_image[sel], mp[m0:m1] - p0,
+                             problem.measures[sel], problem.measure_sigma[sel], problem.held_points[p0:p1], None, None))
+    return out
+
+
+class PointBlockState:
+    """One block's points, measures and their share of every sum; lives where its shard lives."""
+
+    def __init__(self, data: BlockData, setup: CameraSetup, opt: SolverOptions):
+        self.block, self.point_start = data.block, data.point_start
+        cams, local = np.unique(data.measure_image, return_inverse=True)
+        self.cams = cams
+        problem = AdjustmentProblem(
+            cameras=setup.cameras, image_camera=setup.image_camera[cams], positions=setup.positions[cams],
+            rotations=setup.rotations[cams], points=data.apriori_points, measure_image=local,
+            measure_point=data.measure_point, measures=data.measures, measure_sigma=data.sigma,
+            held_points=data.held_points, image_ids=("",) * len(cams),
+        )
+        self.model = FramingModel(problem, setup.pointing_sigma_rad, None, setup.point_sigma_m)
+        self.opt = opt
+        self.cam, self.pt = self.model.camera_index, self.model.point_index
+        self.n_cam, self.n_pt, self.m = len(cams), problem.n_points, problem.n_measures
+        self.held_c = setup.held[cams]
+        self.held_p = np.asarray(data.held_points, bool)
+        self.points = problem.points.copy()
+        self.zero_pos = np.zeros((self.n_cam, 3))
+        self.struct = SchurStructure.build(self.cam, self.pt, self.n_cam, self.n_pt, C, eliminate=~self.held_p)
+        # The pair lists are the largest index arrays (~4.4 pairs a measure at 7 views a point): int32 halves
+        # them (a block has < 2^31 measures and pair blocks); the kernel is the same, specialized by numba.
+        for name in ("pair_first", "pair_second", "pair_block"):
+            setattr(self.struct, name, getattr(self.struct, name).astype(np.int32))
+        n = setup.n_images
+        self.pair_keys = cams[self.struct.block_row] * n + cams[self.struct.block_col]  # global upper-triangle keys
+        self.active = np.ones(self.m, bool)
+        self.use, self.frozen = self._usable(self.active)
+        self.outlier = data.outlier
+        self.true_points = data.true_points
+        self.r_now: NDArray[np.float64] | None = None
+
+    # -- helpers ---------------------------------------------------------------
+    def _usable(self, active: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        counts = np.bincount(self.pt[active], minlength=self.n_pt)
+        frozen = (counts < self.opt.min_point_measures) & ~self.held_p
+        return active & ~frozen[self.pt], frozen
+
+    def _state(self, omega: NDArray[np.float64], points: NDArray[np.float64]) -> FramingState:
+        return FramingState(omega[self.cams], self.zero_pos, points)
+
+    def cost(self, omega: NDArray[np.float64], points: NDArray[np.float64] | None = None) -> tuple[float, NDArray[np.float64]]:
+        """This block's cost 0.5 sum rho(|r|^2) over measures in use plus its point priors, and its residuals."""
+        st = self._state(omega, self.points if points is None else points)
+        r = self.model.residuals(st)
+        s = np.sum(r * r, axis=1)
+        rho, _ = loss_rho(np.where(self.use, s, 0.0), self.opt.loss, self.opt.loss_scale)
+        pp = self.model.point_prior(st)
+        c = 0.5 * float(np.sum(rho[self.use])) + (0.0 if pp is None else 0.5 * float(np.sum(pp[0] ** 2)))
+        if np.any(~np.isfinite(s[self.use])):
+            c = float("nan")
+        return c, r
+
+    # -- the steps of one iteration ----------------------------------------------
+    def linearize(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+        """Normal blocks at the current state; returns this block's U (n_cam, c, c), g_c (n_cam, c), prior rows."""
+        st = self._state(omega, self.points)
+        r, jc, jp = self.model.linearize(st)
+        s = np.sum(r * r, axis=1)
+        _, w = loss_rho(np.where(self.use, s, 0.0), self.opt.loss, self.opt.loss_scale)
+        sw = np.sqrt(np.where(self.use, w, 0.0))
+        r = r * sw[:, None]
+        jc = jc * sw[:, None, None]
+        self.jp_raw = jp
+        jp = jp * sw[:, None, None]
+        jc[self.held_c[self.cam]] = 0.0
+        fixed = self.held_p | self.frozen
+        jp[fixed[self.pt]] = 0.0
+        u = np.zeros((self.n_cam, C, C))
+        g_c = np.zeros((self.n_cam, C))
+        v = np.zeros((self.n_pt, 3, 3))
+        g_p = np.zeros((self.n_pt, 3))
+        wm = np.empty((self.m, C, 3))
+        normal_blocks(r, jc, jp, self.cam, self.pt, u, g_c, v, g_p, wm)
+        pp = self.model.point_prior(st)
+        n_prior = 0
+        if pp is not None:
+            n_prior = int(np.sum(~fixed)) * pp[0].shape[1]
+            prior_blocks(pp[0], pp[1], v, g_p)
+        v[fixed], g_p[fixed] = np.eye(3), 0.0
+        self.v, self.g_p, self.wm = v, g_p, wm
+        self.dv = np.clip(np.diagonal(v, axis1=1, axis2=2), 1e-6, 1e32)
+        return u, g_c, n_prior
+
+    def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
+        vd = self.v.copy()
+        vd[:, range(3), range(3)] += lam * self.dv
+        self.v_inv = inv3(vd)
+        blocks = np.zeros((self.struct.n_blocks, C, C))
+        s = self.struct
+        schur_pairs(self.wm, self.v_inv, self.pt, s.pair_first, s.pair_second, s.pair_block, blocks)
+        t_p = np.matmul(self.v_inv, self.g_p[:, :, None])[:, :, 0]
+        b = np.zeros((self.n_cam, C))
+        reduced_rhs(self.wm, t_p, self.cam, self.pt, b)
+        return -blocks, b
+
+    def step(self, lam: float, dc_all: NDArray[np.float64], new_omega: NDArray[np.float64]) -> tuple[float, float, float, float]:
+        """Back-substitute the points for camera step ``dc_all`` (n_img, c); cost at the trial state.
+
+        Returns ``(lam sum dv dp^2 - sum g_p dp, trial cost, sum dp^2, sum of the current points^2)``;
+        the trial is kept until :meth:`accept`.
+        """
+        dc = dc_all[self.cams]
+        q = np.zeros((self.n_pt, 3))
+        point_rhs(self.wm, dc, self.cam, self.pt, q)
+        dp = np.matmul(self.v_inv, (-self.g_p - q)[:, :, None])[:, :, 0]
+        dp[self.held_p | self.frozen] = 0.0
+        pred = lam * float(np.sum(self.dv * dp * dp)) - float(np.sum(self.g_p * dp))
+        new_points = self.points + dp
+        c, r = self.cost(new_omega, new_points)
+        self._trial = (new_points, r)
+        return pred, c, float(np.sum(dp * dp)), float(np.sum(self.points**2))
+
+    def accept(self) -> None:
+        self.points, self.r_now = self._trial
+        del self._trial
+
+    def deletion(self) -> NDArray[np.float64]:
+        """Square roots of the deletion statistic of every measure (see ``solver.deletion_statistic``)."""
+        self._member = self.use | (self.frozen & ~self.held_p)[self.pt]
+        delta, self._ssr = deletion_statistic(self.r_now, self.jp_raw, self.pt, self._member, self.held_p)
+        self._norms = np.sqrt(np.maximum(delta, 0.0))
+        return self._norms
+
+    def propose(self, limit: float) -> tuple[int, int]:
+        """The new accepted set under ``limit`` (the rules of ``solver._levenberg_marquardt``); (changes, hash)."""
+        pt, norms, active, member = self.pt, self._norms, self.active, self._member
+        new = np.isfinite(norms) & (norms <= np.where(active, limit, READMIT_FRACTION * limit))
+        new |= _all_but_one_per_point(pt, norms, active & ~new)
+        new &= ~_all_but_one_per_point(pt, -norms, new & ~active & ~member)
+        new &= ~_ambiguous(pt, norms, self._ssr, member, limit)
+        lone = np.bincount(pt[new], minlength=self.n_pt) < self.opt.min_point_measures
+        new &= ~(lone[pt] & ~self.held_p[pt])
+        self._proposal = new
+        return int(np.sum(new != active)), hash(np.packbits(new).tobytes())
+
+    def settle(self, union: bool) -> int:
+        """Finalize the proposal (``union``: keep every measure accepted before or now, the cycle rule); changes."""
+        new = self._proposal
+        if union:
+            new = new | self.active
+            new &= ~(np.bincount(self.pt[new], minlength=self.n_pt) < self.opt.min_point_measures)[self.pt] | self.held_p[self.pt]
+            self._proposal = new
+        return int(np.sum(new != self.active))
+
+    def apply(self, omega: NDArray[np.float64]) -> float:
+        """Adopt the settled set; the cost at the current state under it."""
+        self.active = self._proposal
+        self.use, self.frozen = self._usable(self.active)
+        c, self.r_now = self.cost(omega)
+        return c
+
+
+class BlockShard:
+    """Several point blocks in one process; every method sums over its blocks (first level of the tree sum).
+
+    Camera-indexed results are over :attr:`cams` (the union of its blocks' images) and
+    pair blocks over :attr:`pair_keys` (the union of its blocks' camera pairs), each
+    computed once; the client maps them into the global system.
+    """
+
+    def __init__(self, blocks: list[BlockData] | tuple[str, list[int]], setup: CameraSetup, opt: SolverOptions):
+        if isinstance(blocks, tuple):  # (store path, block ids): load here (a worker reads its own blocks)
+            from mercury_dem.network.synthetic_store import BlockedNetwork
+
+            net = BlockedNetwork(blocks[0])
+            blocks = [net.read_block(b) for b in blocks[1]]
+        with threadpool_limits(limits=1, user_api="blas"):
+            self.blocks = [PointBlockState(d, setup, opt) for d in blocks if len(d.measure_image)]
+        self.n_images = setup.n_images
+        self.cams = np.unique(np.concatenate([b.cams for b in self.blocks])) if self.blocks else np.zeros(0, np.int64)
+        self.pair_keys = np.unique(np.concatenate([b.pair_keys for b in self.blocks])) if self.blocks else np.zeros(0, np.int64)
+        for b in self.blocks:
+            b.cam_map = np.searchsorted(self.cams, b.cams)
+            b.pair_map = np.searchsorted(self.pair_keys, b.pair_keys)
+
+    def _each(self, fn: Any) -> list[Any]:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return [fn(b) for b in self.blocks]
+
+    def structure(self) -> tuple[NDArray[np.int64], NDArray[np.int64], int, int]:
+        """(cams, pair keys, measures, points) of this shard."""
+        return self.cams, self.pair_keys, sum(b.m for b in self.blocks), sum(b.n_pt for b in self.blocks)
+
+    def initial_cost(self, omega: NDArray[np.float64]) -> float:
+        """The cost at the starting state; raises AdjustmentError naming measures that cannot be projected."""
+        out = 0.0
+        for b in self.blocks:
+            c, b.r_now = b.cost(omega)
+            bad = ~np.all(np.isfinite(b.r_now), axis=1)
+            if bad.any():
+                which = np.flatnonzero(bad)[:10]
+                raise AdjustmentError(
+                    f"{int(bad.sum())} measures of block {b.block} cannot be projected at the a-priori state (point "
+                    f"behind the camera), e.g. points {(b.pt[which] + b.point_start).tolist()} in images "
+                    f"{b.cams[b.cam[which]].tolist()}: check the a-priori points and poses")
+            out += c
+        return out
+
+    def linearize(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+        u = np.zeros((len(self.cams), C, C))
+        g = np.zeros((len(self.cams), C))
+        n_prior = 0
+        for b, (ub, gb, nb) in zip(self.blocks, self._each(lambda b: b.linearize(omega))):
+            u[b.cam_map] += ub
+            g[b.cam_map] += gb
+            n_prior += nb
+        return u, g, n_prior
+
+    def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        s = np.zeros((len(self.pair_keys), C, C))
+        rhs = np.zeros((len(self.cams), C))
+        for b, (sb, rb) in zip(self.blocks, self._each(lambda b: b.reduce(lam))):
+            s[b.pair_map] += sb
+            rhs[b.cam_map] += rb
+        return s, rhs
+
+    def step(self, lam: float, dc: NDArray[np.float64], new_omega: NDArray[np.float64]) -> tuple[float, ...]:
+        parts = self._each(lambda b: b.step(lam, dc, new_omega))
+        return tuple(float(sum(p[k] for p in parts)) for k in range(4))
+
+    def accept(self) -> None:
+        """Adopt the trial state of every block."""
+        for b in self.blocks:
+            b.accept()
+
+    def counts(self) -> tuple[int, int]:
+        """(measures in use, adjusted points)."""
+        return (int(sum(np.sum(b.use) for b in self.blocks)),
+                int(sum(np.sum(~b.held_p & ~b.frozen) for b in self.blocks)))
+
+    def deletion(self) -> NDArray[np.float64]:
+        parts = self._each(lambda b: b.deletion())
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def propose(self, limit: float) -> tuple[int, list[int]]:
+        parts = self._each(lambda b: b.propose(limit))
+        return sum(p[0] for p in parts), [p[1] for p in parts]
+
+    def settle(self, union: bool) -> int:
+        return sum(b.settle(union) for b in self.blocks)
+
+    def apply(self, omega: NDArray[np.float64]) -> float:
+        return float(sum(self._each(lambda b: b.apply(omega))))
+
+    def rejected(self) -> int:
+        return int(sum(np.sum(~b.active) for b in self.blocks))
+
+    def summary(self) -> dict[str, Any]:
+        """Per-image accepted counts, rejection and truth statistics of this shard (small)."""
+        acc = np.zeros(self.n_images, np.int64)
+        out: dict[str, Any] = {"outliers": 0, "outliers_rejected": 0, "good": 0, "good_rejected": 0,
+                               "underdetermined_points": 0, "point_error_m": [], "sum_sq_px": 0.0, "n_px": 0}
+        for b in self.blocks:
+            keep = b.active & ~b.frozen[b.pt]
+            acc += np.bincount(b.cams[b.cam[keep]], minlength=self.n_images)
+            out["underdetermined_points"] += int(np.sum(b.frozen))
+            resid = b.r_now * b.model.problem.measure_sigma[:, None]
+            out["sum_sq_px"] += float(np.sum(resid[keep] ** 2))
+            out["n_px"] += int(2 * np.sum(keep))
+            if b.outlier is not None:
+                out["outliers"] += int(np.sum(b.outlier))
+                out["outliers_rejected"] += int(np.sum(b.outlier & ~b.active))
+                out["good"] += int(np.sum(~b.outlier))
+                out["good_rejected"] += int(np.sum(~b.outlier & ~b.active))
+            if b.true_points is not None:
+                err = np.linalg.norm(b.points - b.true_points, axis=1)[~b.frozen]
+                out["point_error_m"].append(err.astype(np.float32))
+        out["accepted_per_image"] = acc
+        out["point_error_m"] = np.concatenate(out["point_error_m"]) if out["point_error_m"] else np.zeros(0, np.float32)
+        return out
+
+    def solution(self) -> list[tuple[int, int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]]:
+        """(block, first point, points, accepted measures, frozen points) of every block (tests, small runs)."""
+        return [(b.block, b.point_start, b.points, b.active, b.frozen) for b in self.blocks]
+
+    def peak_rss_bytes(self) -> int:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+class Engine(Protocol):
+    """Runs a :class:`BlockShard` method on every shard and returns the results in shard order."""
+
+    def call(self, method: str, *args: Any) -> list[Any]: ...
+
+
+class SyncEngine:
+    """The shards in this process (one shard: the plain out-of-core run)."""
+
+    def __init__(self, shards: list[BlockShard]):
+        self.shards = shards
+
+    def call(self, method: str, *args: Any) -> list[Any]:
+        return [getattr(s, method)(*args) for s in self.shards]
+
+
+@dataclass
+class BlockedResult:
+    """Outcome of :func:`blocked_levenberg_marquardt` (cameras in full; points stay in the shards)."""
+
+    omega: NDArray[np.float64]
+    rotations: NDArray[np.float64]
+    initial_cost: float
+    final_cost: float
+    sigma0: float
+    iterations: int
+    converged: bool
+    reason: str
+    rejected: int
+    log: list[dict[str, Any]] = field(default_factory=list)
+    seconds: float = 0.0
+    setup_seconds: float = 0.0
+    linear_method: str = ""
+    measures: int = 0
+    points: int = 0
+    dof: int = 0
+
+
+class GlobalStructure:
+    """The reduced camera system's block layout from the shards' pair keys (as :class:`SchurStructure`)."""
+
+    def __init__(self, keys: NDArray[np.int64], n_cam: int):
+        diag = np.arange(n_cam, dtype=np.int64) * (n_cam + 1)
+        self.keys = np.union1d(keys, diag)
+        self.n_cam = n_cam
+        row, col = self.keys // n_cam, self.keys % n_cam
+        self.diag_block = np.searchsorted(self.keys, diag)
+        self._off = np.flatnonzero(row != col)
+        rows = np.concatenate([row, col[self._off]])
+        cols = np.concatenate([col, row[self._off]])
+        self._order = np.lexsort((cols, rows))
+        self._indices = cols[self._order].astype(np.int32)
+        self._indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n_cam))]).astype(np.int32)
+
+    def to_bsr(self, blocks: NDArray[np.float64]) -> sp.bsr_matrix:
+        full = np.concatenate([blocks, blocks[self._off].transpose(0, 2, 1)])[self._order]
+        n = self.n_cam * C
+        return sp.bsr_matrix((full, self._indices, self._indptr), shape=(n, n), blocksize=(C, C))
+
+
+def blocked_levenberg_marquardt(engine: Engine, setup: CameraSetup, opt: SolverOptions,
+                                initial_omega: NDArray[np.float64] | None = None) -> BlockedResult:
+    """Minimise the (robust) cost over all blocks of ``engine`` (see the module docstring).
+
+    The client keeps the cameras (pointing corrections ``omega`` (n_img, 3)) and the
+    reduced camera system; the shards keep the points. Step control, rejection and
+    convergence follow ``solver._levenberg_marquardt`` line by line.
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _blocked_lm(engine, setup, opt, initial_omega)
+
+
+def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_omega: NDArray[np.float64] | None) -> BlockedResult:
+    t0 = time.perf_counter()
+    n_cam = setup.n_images
+    held_c = setup.held
+    structs = engine.call("structure")
+    m = int(sum(s[2] for s in structs))
+    n_points = int(sum(s[3] for s in structs))
+    shard_cams = [s[0] for s in structs]
+    glob = GlobalStructure(np.unique(np.concatenate([s[1] for s in structs])), n_cam)
+    shard_pairs = [np.searchsorted(glob.keys, s[1]) for s in structs]
+    del structs
+    method = choose_method(opt.solver, n_cam * C, opt.direct_max_unknowns)
+    lin_solver = ReducedSolver(method, C, opt.pcg_tolerance, opt.pcg_max_iterations)
+    sigma_c = setup.pointing_sigma_rad
+    pos_sq = float(np.sum(setup.positions**2))
+    omega = np.zeros((n_cam, 3)) if initial_omega is None else np.asarray(initial_omega, np.float64).copy()
+
+    def cam_prior_cost(om: NDArray[np.float64]) -> float:
+        return 0.5 * float(np.sum((om / sigma_c) ** 2))
+
+    cost = float(sum(engine.call("initial_cost", omega))) + cam_prior_cost(omega)
+    initial_cost = cost
+    setup_s = time.perf_counter() - t0
+    lam, nu = opt.initial_lambda, 2.0
+    log: list[dict[str, Any]] = []
+    converged, reason = False, "iteration limit"
+    n_cam_prior = n_pt_prior = 0
+    rejecting, seen_sets, rounds, it = False, set(), 0, 0
+    rejected = 0
+    eye_c = np.eye(C)
+
+    def sigma0_of(cost_: float) -> tuple[float, int]:
+        counts = engine.call("counts")
+        n_obs = 2 * sum(c[0] for c in counts) + n_cam_prior + n_pt_prior
+        n_unk = C * int(np.sum(~held_c)) + 3 * sum(c[1] for c in counts)
+        dof = max(n_obs - n_unk, 1)
+        return float(np.sqrt(2.0 * cost_ / dof)), dof
+
+    for it in range(1, opt.max_iterations + 1):
+        t_it = time.perf_counter()
+        u = np.zeros((n_cam, C, C))
+        g_c = np.zeros((n_cam, C))
+        n_pt_prior = 0
+        for cams, (us, gs, npr) in zip(shard_cams, engine.call("linearize", omega)):
+            u[cams] += us
+            g_c[cams] += gs
+            n_pt_prior += npr
+        # the camera prior, as FramingModel.camera_prior
+        n_cam_prior = int(np.sum(~held_c)) * C
+        prior_blocks(omega / sigma_c, inverse_left_jacobian(omega) / sigma_c, u, g_c)
+        u[held_c], g_c[held_c] = eye_c, 0.0
+        du = np.clip(np.diagonal(u, axis1=1, axis2=2), 1e-6, 1e32)
+        t_lin = time.perf_counter() - t_it
+        accepted_step = False
+        lin_iters = 0
+        t_reduce = t_solve = t_step = 0.0
+        for _ in range(opt.max_rejected_steps):
+            ta = time.perf_counter()
+            blocks = np.zeros((len(glob.keys), C, C))
+            b = -g_c
+            for cams, pairs, (ss, rs) in zip(shard_cams, shard_pairs, engine.call("reduce", lam)):
+                blocks[pairs] += ss
+                b[cams] += rs
+            ud = u.copy()
+            ud[:, range(C), range(C)] += lam * du
+            blocks[glob.diag_block] += ud
+            tb = time.perf_counter()
+            dc, info = lin_solver.solve(glob.to_bsr(blocks), blocks[glob.diag_block], b.ravel())
+            del blocks
+            tc = time.perf_counter()
+            t_reduce += tb - ta
+            t_solve += tc - tb
+            lin_iters += info.iterations
+            dc = dc.reshape(n_cam, C)
+            dc[held_c] = 0.0
+            new_cost, pred = float("nan"), 0.0
+            if info.ok and np.all(np.isfinite(dc)):
+                new_omega = angles_from_rotation(np.matmul(rotation_from_angles(dc), rotation_from_angles(omega)))
+                parts = engine.call("step", lam, dc, new_omega)
+                pred_p = sum(p[0] for p in parts)
+                new_cost = sum(p[1] for p in parts) + cam_prior_cost(new_omega)
+                dp_sq = sum(p[2] for p in parts)
+                pts_sq = sum(p[3] for p in parts)
+                pred = 0.5 * (lam * float(np.sum(du * dc * dc)) + pred_p - float(np.sum(g_c * dc)))
+            t_step += time.perf_counter() - tc
+            gain = (cost - new_cost) / pred if pred > 0 else -1.0
+            if np.isfinite(new_cost) and gain > 1e-3:
+                step_norm = float(np.sqrt(np.sum(dc * dc) + dp_sq))
+                engine.call("accept")
+                x_norm = float(np.sqrt(pts_sq + np.sum(omega**2) + pos_sq))  # at the state before the step, as the core
+                rel_decrease = (cost - new_cost) / max(cost, 1e-300)
+                omega, cost = new_omega, new_cost
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+                accepted_step = True
+                break
+            lam *= nu
+            nu *= 2.0
+        sigma0, dof = sigma0_of(cost)
+        entry: dict[str, Any] = {
+            "iteration": it, "cost": cost, "sigma0": sigma0, "lambda": lam, "step_accepted": accepted_step,
+            "rejected": rejected, "linearize_seconds": t_lin, "reduce_seconds": t_reduce, "solve_seconds": t_solve,
+            "step_seconds": t_step, "seconds": time.perf_counter() - t_it, "elapsed": time.perf_counter() - t0,
+            "linear_iterations": lin_iters,
+        }
+        log.append(entry)
+        if not accepted_step:
+            reason = f"no decrease possible (lambda reached {lam:.3g} after {opt.max_rejected_steps} refused steps)"
+            break
+        changed = False
+        if opt.reject_k is not None and not rejecting and rel_decrease < opt.reject_after:
+            rejecting = True
+        if rejecting and rounds >= opt.reject_max_rounds:
+            entry["rejection_frozen"] = True
+        elif rejecting:
+            rounds += 1
+            norms = np.concatenate(engine.call("deletion"))
+            limit = rejection_limit(norms, np.isfinite(norms), opt.reject_k, opt.reject_floor)  # type: ignore[arg-type]
+            del norms
+            props = engine.call("propose", limit)
+            n_changed = sum(p[0] for p in props)
+            key = hash(tuple(h for p in props for h in p[1]))
+            changed = n_changed > opt.reject_settled_fraction * m
+            entry["rejection_changes"] = n_changed
+            union = bool(changed and key in seen_sets)
+            n_changed = sum(engine.call("settle", union))
+            if union:
+                entry["rejection_cycle"] = True
+                rounds = opt.reject_max_rounds
+            seen_sets.add(key)
+            entry["rejection_limit"] = limit
+            if n_changed:
+                cost = float(sum(engine.call("apply", omega))) + cam_prior_cost(omega)
+                rejected = int(sum(engine.call("rejected")))
+                entry["rejected"] = rejected
+        entry["seconds"] = time.perf_counter() - t_it
+        if not changed:
+            if rel_decrease < opt.function_tolerance:
+                converged, reason = True, f"converged: relative cost decrease {rel_decrease:.2e} < {opt.function_tolerance:g}"
+                break
+            if step_norm < opt.step_tolerance * (x_norm + opt.step_tolerance):
+                converged, reason = True, f"converged: step {step_norm:.2e} below tolerance"
+                break
+    sigma0, dof = sigma0_of(cost)
+    return BlockedResult(
+        omega=omega, rotations=np.matmul(rotation_from_angles(omega), setup.rotations), initial_cost=initial_cost,
+        final_cost=cost, sigma0=sigma0, iterations=it, converged=converged, reason=reason, rejected=rejected, log=log,
+        seconds=time.perf_counter() - t0, setup_seconds=setup_s, linear_method=method, measures=m, points=n_points, dof=dof,
+    )

@@ -1,0 +1,98 @@
+"""Adjust a stored network by point blocks, in this process or on a Dask cluster (``mercury-dem adjust-network``).
+
+The stage runner of :mod:`mercury_dem.adjust.blocked`: reads the store's image
+geometry, makes the engine (one in-process shard, or one actor per Dask worker that
+reads its own blocks), runs the loop and returns a JSON-able summary: sizes,
+iterations, seconds (per iteration too), the peak memory of every process, and, when
+the store has a truth, the pointing error in pixels and the share of gross outliers
+rejected. The adjusted network is not written back yet (see docs/design/adjust.md).
+"""
+
+from __future__ import annotations
+
+import resource
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mercury_dem.adjust.blocked import (
+    BlockShard,
+    SyncEngine,
+    blocked_levenberg_marquardt,
+    options_from_config,
+    setup_from_config,
+)
+from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.network.synthetic_store import BlockedNetwork
+from mercury_dem.validate.synthetic_network import pointing_errors
+
+
+def _peak_rss() -> int:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = None) -> dict[str, Any]:
+    """Adjust the network at ``store``; ``client`` None runs in this process, else on its Dask workers.
+
+    Raises :class:`~mercury_dem.exceptions.StoreError` for a store that lacks the image
+    geometry or point blocks, or is damaged.
+    """
+    t0 = time.perf_counter()
+    net = BlockedNetwork(store)
+    im = net.images
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config)
+    opt = options_from_config(config)
+    if client is None:
+        engine: Any = SyncEngine([BlockShard((str(net.root), list(range(net.n_blocks))), setup, opt)])
+        where = "sync"
+    else:
+        from mercury_dem.pipeline.executors import DaskShardEngine
+
+        engine = DaskShardEngine(client, str(net.root), net.n_blocks, setup, opt)
+        where = f"dask ({len(engine.actors)} workers)"
+    load_s = time.perf_counter() - t0
+    res = blocked_levenberg_marquardt(engine, setup, opt)
+    summaries = engine.call("summary")
+    shard_rss = [int(x) for x in engine.call("peak_rss_bytes")]
+    client_rss = _peak_rss()
+    acc = np.sum([s["accepted_per_image"] for s in summaries], axis=0)
+    sq = sum(s["sum_sq_px"] for s in summaries)
+    n_px = sum(s["n_px"] for s in summaries)
+    its = [e["seconds"] for e in res.log]
+    record: dict[str, Any] = {
+        "store": str(store), "engine": where, "measures": res.measures, "points": res.points, "images": net.n_images,
+        "blocks": net.n_blocks, "iterations": res.iterations, "converged": res.converged, "reason": res.reason,
+        "seconds": round(time.perf_counter() - t0, 3), "load_seconds": round(load_s, 3),
+        "setup_seconds": round(res.setup_seconds, 3),
+        "seconds_per_iteration": [round(x, 3) for x in its],
+        "linear_method": res.linear_method, "linear_iterations": [e["linear_iterations"] for e in res.log],
+        "sigma0": res.sigma0, "rms_px": float(np.sqrt(sq / n_px)) if n_px else float("nan"),
+        "rejected": res.rejected, "underdetermined_points": int(sum(s["underdetermined_points"] for s in summaries)),
+        "weak_images": int(np.sum(acc < config.min_image_measures)),
+        "peak_memory_bytes": max([client_rss, *shard_rss]),
+        "peak_memory_bytes_client": client_rss, "peak_memory_bytes_shards": shard_rss,
+    }
+    true_rot = net.truth_images()
+    if true_rot is not None:
+        raw, _, _ = pointing_errors(res.rotations, true_rot)
+        ifov = np.array([im.cameras[k].ifov_rad for k in im.image_camera])
+        bore = np.linalg.norm(raw[:, :2], axis=1) / ifov
+        sel = acc >= 30
+        raw0, _, _ = pointing_errors(im.rotations, true_rot)
+        n_out = sum(s["outliers"] for s in summaries)
+        n_good = sum(s["good"] for s in summaries)
+        perr = np.concatenate([s["point_error_m"] for s in summaries])
+        record["truth"] = {
+            "pointing_error_px_rms": float(np.sqrt(np.mean(bore**2))),
+            "pointing_error_px_rms_images_ge30": float(np.sqrt(np.mean(bore[sel] ** 2))) if sel.any() else float("nan"),
+            "apriori_pointing_error_px_rms": float(np.sqrt(np.mean((np.linalg.norm(raw0[:, :2], axis=1) / ifov) ** 2))),
+            "outliers": n_out,
+            "outliers_rejected_share": sum(s["outliers_rejected"] for s in summaries) / n_out if n_out else float("nan"),
+            "good_rejected_share": sum(s["good_rejected"] for s in summaries) / n_good if n_good else float("nan"),
+            "point_error_m_median": float(np.median(perr)) if perr.size else float("nan"),
+            "point_error_m_p90": float(np.percentile(perr, 90)) if perr.size else float("nan"),
+        }
+    record["log"] = [{k: (round(v, 6) if isinstance(v, float) else v) for k, v in e.items()} for e in res.log]
+    return record

@@ -1,0 +1,72 @@
+"""Size benchmark of the blocked (out-of-core, distributed) adjustment (issue #17).
+
+Usage::
+
+    flock /tmp/mercury_bench.lock .venv/bin/python -u workflows/benchmarks/bench_blocked_adjust.py \
+        --sizes 1e6 1e7 --modes sync 2 --dir /tmp/bigadj_bench [--keep]
+
+For each size: ``mercury-dem synth-network`` (time, peak memory of the generating
+process), then ``mercury-dem adjust-network --json`` per mode (``sync`` = in process,
+a number = LocalCluster with that many single-threaded workers), each in its own
+subprocess. Prints one JSON line per run and, at the end, the growth exponent of the
+per-iteration time and of the peak memory between the sizes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+
+def _run(cmd: list[str]) -> dict:
+    t = time.perf_counter()
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True)
+    rec = json.loads(out.stdout)
+    rec["wall_seconds"] = round(time.perf_counter() - t, 2)
+    return rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", nargs="+", type=float, default=[1e6, 1e7])
+    ap.add_argument("--modes", nargs="+", default=["sync", "2"])
+    ap.add_argument("--dir", default="/tmp/bigadj_bench")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--keep", action="store_true", help="reuse existing networks and keep them")
+    args = ap.parse_args()
+    exe = [sys.executable, "-m", "mercury_dem.cli"]
+    root = Path(args.dir)
+    rows = []
+    for n in args.sizes:
+        store = root / f"net_{n:.0e}"
+        if not (args.keep and store.exists()):
+            shutil.rmtree(store, ignore_errors=True)
+            gen = _run(exe + ["synth-network", str(store), "--measures", str(n), "--seed", str(args.seed), "--json",
+                              "--progress", "none"])
+            print(json.dumps({"generate": gen}), flush=True)
+        for mode in args.modes:
+            where = ["--sync"] if mode == "sync" else ["--workers", mode]
+            rec = _run(exe + ["adjust-network", str(store), *where, "--json", "--progress", "none",
+                              "--config", str(Path(__file__).with_name("bigadj.yaml"))])
+            rec.pop("log", None)
+            print(json.dumps(rec), flush=True)
+            rows.append((n, mode, rec))
+        if not args.keep:
+            shutil.rmtree(store, ignore_errors=True)
+    for mode in args.modes:
+        pts = [(r["measures"], sorted(r["seconds_per_iteration"])[len(r["seconds_per_iteration"]) // 2],
+                r["peak_memory_bytes"]) for n, m, r in rows if m == mode]
+        for (m0, t0, p0), (m1, t1, p1) in zip(pts, pts[1:]):
+            k = math.log(m1 / m0)
+            print(json.dumps({"mode": mode, "from": m0, "to": m1, "time_per_iteration_exponent": round(math.log(t1 / t0) / k, 3),
+                              "peak_memory_exponent": round(math.log(p1 / p0) / k, 3)}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
