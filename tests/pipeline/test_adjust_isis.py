@@ -347,13 +347,14 @@ def test_export_isis_network_adjusts_to_the_runs_solution(sync_run, tiny_mission
     from mercury_dem.mission import open_mission
 
     run0, _ = sync_run
-    # The run's global adjustment uses the mission's altimetry, which an ISIS network does not carry: compare
-    # with the same global level adjusted without it (a copy of the run, 'mercury-dem adjust').
+    # The run's global adjustment uses the mission's altimetry, which an ISIS network does not carry, and
+    # re-centres the points' radius priors on their neighbours (adjust/datum.py), which adjust-isis does not:
+    # compare with the same global level adjusted without either (a copy of the run, 'mercury-dem adjust').
     run_dir = tmp_path / "run"
     top = {"products", "dem.zarr", "coverage.zarr", "registered.zarr", "merged.zarr", "registration"}
     shutil.copytree(run0, run_dir, ignore=lambda d, names: [n for n in names if Path(d) == run0 and n in top])
     noalt = copy.deepcopy(TINY_OVERRIDES)
-    noalt["adjust"] = {"altimetry_levels": []}
+    noalt["adjust"] = {"altimetry_levels": [], "point_prior_recentre_levels": []}
     (tmp_path / "noalt.yaml").write_text(yaml.safe_dump(noalt))
     assert main(["adjust", str(run_dir), "--level", "global", "--config", str(tmp_path / "noalt.yaml"), "--json"]) == 0
     mission = open_mission(tiny_mission_path)
