@@ -33,11 +33,13 @@ class AdjustConfig(ConfigSection):
         choices=("datum", "network"),
     )
     point_prior_recentre_levels: tuple[str, ...] = param(
-        ("global",), "Levels whose point radius constraints are re-centred on the block's own surface: a first "
+        (), "Levels whose point radius constraints are re-centred on the block's own surface: a first "
         "pass with the radius constraint at point_prior_first_pass_sigma_m, then each point's constraint centred on "
         "the median radius of its point_prior_neighbours nearest points and the adjustment run again (centred on the "
         "datum sphere, the constraint pulls weakly determined points toward it and the block bends with the body's "
-        "long-wavelength shape; docs/design/adjust.md). Empty: never"
+        "long-wavelength shape; docs/design/adjust.md). Empty (the default): never. Set [global] for blocks that "
+        "cover much of the body (the demo does); on small real blocks (the Apollo strip, an MDIS stereo pair) the "
+        "loose first pass lets the block's height float and the re-centred DEM came out 1.5-2 km off the altimetry"
     )
     point_prior_first_pass_sigma_m: float = param(
         100000.0, "Radius constraint of the re-centring's first pass (loose: the points follow their rays)",

@@ -122,7 +122,7 @@ class MatchConfig(ConfigSection):
     )
     # -- view geometry --------------------------------------------------------
     max_convergence_deg: float = param(
-        60.0, "Skip pairs whose views converge (angle between the two cameras' rays at the overlap centre) by more "
+        180.0, "Skip pairs whose views converge (angle between the two cameras' rays at the overlap centre) by more "
         "than this: beyond ~60 deg the relief and the emission-dependent brightness look different enough that the "
         "matches carry a consistent per-pair offset of 0.2-0.9 px of the coarser image (docs/benchmarks/match.md, "
         "issue 21), which the adjustment cannot reject and which bends the finer images' pointing", unit="deg",

@@ -120,6 +120,12 @@ def inject_singular(run: Path) -> tuple[int, int, str]:
     bad = net.replace(**changes)
     shutil.rmtree(path)
     write_network(bad, path)
+    # the unit's completion marker carries its files' checksums: record the injected network as the unit's
+    # own (otherwise the resume finds a checksum mismatch and recomputes the tile, injection and all)
+    from mercury_dem.io.atomic import COMPLETE_MARKER, file_manifest, marker_text
+
+    unit = store.unit_dir("tile", tile)
+    (unit / COMPLETE_MARKER).write_text(marker_text(file_manifest(unit)))
     for level in ("region", "hemisphere", "global"):
         store.remove_level(level)
     (run / "report.json").unlink()
