@@ -49,13 +49,20 @@ def _rng(salt: int) -> np.random.Generator:
     return np.random.default_rng([SEED, salt])
 
 
-def assert_nothing_corrupt(run: Path) -> int:
-    """No temporary sibling left; every unit directory committed and matching its checksums. Returns the units."""
+def assert_nothing_corrupt(run: Path, *, temporaries_allowed: bool = False) -> int:
+    """No temporary sibling left; every unit directory committed and matching its checksums. Returns the units.
+
+    ``temporaries_allowed``: right after a process was killed mid-write, its ``.NAME.tmp-*`` siblings may remain
+    (a SIGKILL runs no clean-up); they are never read as units, and the next run sweeps them
+    (``io.atomic.sweep_temporaries``), which the strict check after the resume confirms."""
     leftovers = [str(p.relative_to(run)) for p in run.rglob("*") if ".tmp-" in p.name]
-    assert leftovers == [], leftovers[:10]
+    if not temporaries_allowed:
+        assert leftovers == [], leftovers[:10]
     n = 0
     for level in LEVELS:
         for unit in sorted((run / level).iterdir()) if (run / level).exists() else ():
+            if temporaries_allowed and ".tmp-" in unit.name:
+                continue
             assert (unit / COMPLETE_MARKER).is_file(), f"{unit} has no completion marker"
             assert verify_complete(unit) == [], unit
             n += 1
@@ -330,7 +337,9 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
     assert any(k["unit"].startswith("tile") for k in kills) and \
         any(not k["unit"].startswith("tile") for k in kills), kills
     _same_levels(ref, report)
-    assert_nothing_corrupt(out)
+    # a worker SIGKILLed while it wrote a unit leaves that unit's temporary sibling (never read; the unit was
+    # recomputed elsewhere, and the next run of the store sweeps it)
+    assert_nothing_corrupt(out, temporaries_allowed=True)
     assert_same_run(ref, out)  # the global pointing to 1e-12 rad, the same points and measures
 
 
@@ -407,7 +416,8 @@ def test_a_scheduler_killed_mid_run_then_resumed_on_a_fresh_one_gives_the_clean_
         err = result.get("error")
         assert isinstance(err, SchedulerLostError), result
         assert "lost the Dask scheduler" in str(err) and "run the same command to resume" in str(err)
-        assert_nothing_corrupt(out)
+        # a worker may have been writing a unit when the scheduler died (its temporary stays until the resume)
+        assert_nothing_corrupt(out, temporaries_allowed=True)
         second = _dask_cluster(tmp_path, "second", procs)
         report = run_pipeline(tiny_mission_path, out, tiny_config(), scheduler_file=str(second), stream=None,
                               dem=False)
