@@ -57,6 +57,7 @@ from mercury_dem.adjust.solver import (
     SolverOptions,
     _all_but_one_per_point,
     _ambiguous,
+    _convergence,
     deletion_statistic,
 )
 from mercury_dem.config.adjust import AdjustConfig
@@ -615,11 +616,9 @@ def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_
                 entry["rejected"] = rejected
         entry["seconds"] = time.perf_counter() - t_it
         if not changed:
-            if rel_decrease < opt.function_tolerance:
-                converged, reason = True, f"converged: relative cost decrease {rel_decrease:.2e} < {opt.function_tolerance:g}"
-                break
-            if step_norm < opt.step_tolerance * (x_norm + opt.step_tolerance):
-                converged, reason = True, f"converged: step {step_norm:.2e} below tolerance"
+            why = _convergence(rel_decrease, step_norm, x_norm, opt)
+            if why:
+                converged, reason = True, why
                 break
     sigma0, dof = sigma0_of(cost)
     return BlockedResult(

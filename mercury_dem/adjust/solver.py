@@ -218,6 +218,15 @@ def deletion_statistic(
     return delta, ssr
 
 
+def _convergence(rel_decrease: float, step_norm: float, x_norm: float, opt: Any) -> str | None:
+    """The reason an LM iteration that changed no rejection has converged, or None (shared with adjust/blocked)."""
+    if rel_decrease < opt.function_tolerance:
+        return f"converged: relative cost decrease {rel_decrease:.2e} < {opt.function_tolerance:g}"
+    if step_norm < opt.step_tolerance * (x_norm + opt.step_tolerance):
+        return f"converged: step {step_norm:.2e} below tolerance"
+    return None
+
+
 def _all_but_one_per_point(pt: NDArray[np.int64], key: NDArray[np.float64], candidates: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Of the ``candidates`` (M,), all but the one of largest ``key`` in each point.
 
@@ -439,11 +448,9 @@ def _levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions) -> S
                 cost, r_now = _cost(model, state, use, opt)
                 entry["rejected"] = int(np.sum(~active))
         if not changed:
-            if rel_decrease < opt.function_tolerance:
-                converged, reason = True, f"converged: relative cost decrease {rel_decrease:.2e} < {opt.function_tolerance:g}"
-                break
-            if step_norm < opt.step_tolerance * (x_norm + opt.step_tolerance):
-                converged, reason = True, f"converged: step {step_norm:.2e} below tolerance"
+            why = _convergence(rel_decrease, step_norm, x_norm, opt)
+            if why:
+                converged, reason = True, why
                 break
     sigma0, dof = sigma0_of(cost, use, frozen)
     return SolverResult(

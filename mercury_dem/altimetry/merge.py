@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from mercury_dem.altimetry.register import TileTransform, enu_frame
+from mercury_dem.altimetry.register import TileTransform
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.reference.sampling import sample_grid
@@ -84,11 +84,12 @@ def transform_table(transforms: Sequence[TileTransform], tiles: TileGrid) -> tup
     return table, own
 
 
-def blended_displacement(table: NDArray[np.float64], tiles: TileGrid, xyz: NDArray[np.float64],
-                         lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
-    """δ at body-fixed points (N, 3) with latitude/longitude (N,): the tent-weighted tiles' displacements."""
+def _tent_corners(tiles: TileGrid, lat: NDArray[np.float64], lon: NDArray[np.float64]
+                  ) -> tuple[tuple[NDArray[np.int64], ...], tuple[NDArray[np.float64], ...]]:
+    """The four tiles around each point (flat tile indices) and their bilinear tent weights over tile centres
+    (wrapping in longitude, clamped in latitude; NaN positions get finite indices, their values stay NaN)."""
     s = tiles.tile_size_deg
-    fr = np.clip(np.nan_to_num((lat - (-90.0 + s / 2)) / s), 0.0, tiles.n_rows - 1)  # NaN points stay NaN via xyz
+    fr = np.clip(np.nan_to_num((lat - (-90.0 + s / 2)) / s), 0.0, tiles.n_rows - 1)
     fc = np.nan_to_num(wrap_longitude(lon - s / 2) / s)
     r0 = np.minimum(np.floor(fr).astype(np.int64), tiles.n_rows - 2) if tiles.n_rows > 1 else np.zeros_like(fr, int)
     wr = fr - r0
@@ -96,10 +97,16 @@ def blended_displacement(table: NDArray[np.float64], tiles: TileGrid, xyz: NDArr
     wc = fc - np.floor(fc)
     c1 = (c0 + 1) % tiles.n_cols
     r1 = np.minimum(r0 + 1, tiles.n_rows - 1)
-    p = (table[r0 * tiles.n_cols + c0] * ((1 - wr) * (1 - wc))[:, None]
-         + table[r0 * tiles.n_cols + c1] * ((1 - wr) * wc)[:, None]
-         + table[r1 * tiles.n_cols + c0] * (wr * (1 - wc))[:, None]
-         + table[r1 * tiles.n_cols + c1] * (wr * wc)[:, None])
+    n = tiles.n_cols
+    return ((r0 * n + c0, r0 * n + c1, r1 * n + c0, r1 * n + c1),
+            ((1 - wr) * (1 - wc), (1 - wr) * wc, wr * (1 - wc), wr * wc))
+
+
+def blended_displacement(table: NDArray[np.float64], tiles: TileGrid, xyz: NDArray[np.float64],
+                         lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
+    """δ at body-fixed points (N, 3) with latitude/longitude (N,): the tent-weighted tiles' displacements."""
+    idx, w = _tent_corners(tiles, lat, lon)  # NaN points stay NaN via xyz
+    p = sum(table[i] * wi[:, None] for i, wi in zip(idx, w))
     return np.einsum("nij,nj->ni", p[:, :9].reshape(-1, 3, 3), xyz) + p[:, 9:]
 
 
@@ -178,17 +185,8 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
 def blended_scalar(values: NDArray[np.float64], tiles: TileGrid, lat: NDArray[np.float64],
                    lon: NDArray[np.float64]) -> NDArray[np.float64]:
     """A per-tile value (n_tiles,) at points, with the tent weights of :func:`blended_displacement`."""
-    s = tiles.tile_size_deg
-    fr = np.clip(np.nan_to_num((lat - (-90.0 + s / 2)) / s), 0.0, tiles.n_rows - 1)
-    fc = np.nan_to_num(wrap_longitude(lon - s / 2) / s)
-    r0 = np.minimum(np.floor(fr).astype(np.int64), tiles.n_rows - 2) if tiles.n_rows > 1 else np.zeros_like(fr, int)
-    wr = fr - r0
-    c0 = np.floor(fc).astype(np.int64) % tiles.n_cols
-    wc = fc - np.floor(fc)
-    c1 = (c0 + 1) % tiles.n_cols
-    r1 = np.minimum(r0 + 1, tiles.n_rows - 1)
-    return (values[r0 * tiles.n_cols + c0] * (1 - wr) * (1 - wc) + values[r0 * tiles.n_cols + c1] * (1 - wr) * wc
-            + values[r1 * tiles.n_cols + c0] * wr * (1 - wc) + values[r1 * tiles.n_cols + c1] * wr * wc)
+    idx, w = _tent_corners(tiles, lat, lon)
+    return sum(values[i] * wi for i, wi in zip(idx, w))
 
 
 def mean_level_offsets(d: ArrayLike, shot_lat: ArrayLike, shot_lon: ArrayLike, tiles: TileGrid, *,
