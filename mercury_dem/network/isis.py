@@ -20,6 +20,7 @@ Conventions converted here and only here:
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Mapping, Sequence
 from datetime import datetime, timezone
@@ -38,6 +39,19 @@ from mercury_dem.network.store import decode_strings, encode_strings
 #: Where the protobuf header starts in files we write (as ISIS does).
 HEADER_START_BYTE = 65536
 _LABEL_KEYS = ("HeaderStartByte", "HeaderBytes", "PointsStartByte", "PointsBytes")
+def _timestamp() -> str:
+    """The UTC time written as a new network's ``Created``/``LastModified``.
+
+    ``SOURCE_DATE_EPOCH`` (the reproducible-builds convention, seconds since 1970) fixes it, so that two
+    exports of the same network are byte-identical; otherwise the clock's time.
+    """
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    when = datetime.now(timezone.utc)
+    if epoch.isdigit():
+        when = datetime.fromtimestamp(int(epoch), timezone.utc)
+    return when.strftime("%Y-%m-%dT%H:%M:%S")
+
+
 _HEADER_TEXT_FIELDS = {1: "network_id", 2: "target_name", 3: "created", 4: "last_modified", 5: "description", 6: "user_name"}
 
 
@@ -400,7 +414,7 @@ def encode_isis_network(
         ser_data, ser_off, mimage, mtype, sample, line, res, mign, mrej, appix, sigma,
         scratch_f, scratch_f.view(np.uint8),
     )
-    now = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    now = _timestamp()
     md = net.metadata
     texts = {
         1: network_id if network_id is not None else md.get("network_id", "mercury_dem"),

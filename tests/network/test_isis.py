@@ -174,3 +174,14 @@ def test_our_networks_round_trip(tmp_path, seed, n, m, k, str_ids, cov, version)
         assert read_isis_network(p).differences(net, atol=1e-12) == []
     # version 2 has no image list: the catalog gives the images table
     assert read_isis_network(p, image_ids=net.image_ids).differences(net, atol=1e-12) == []
+
+
+def test_source_date_epoch_makes_exports_byte_identical(monkeypatch):
+    net = _random_network(np.random.default_rng(3), 8, 30, 3)
+    net = net.take_points(np.flatnonzero(net.measures_per_point() > 0))
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    first = encode_isis_network(net, version=5)
+    assert b"2023-11-14T22:13:20" in first  # 1700000000 s after 1970, UTC
+    assert encode_isis_network(net, version=5) == first
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000061")
+    assert encode_isis_network(net, version=5) != first

@@ -95,7 +95,8 @@ def test_bucket_run_equals_the_local_run(s3_run: list[str], sync_run: tuple[Path
 
 
 def test_readers_of_a_run_take_its_url(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]], tmp_path: Path,
-                                      capsys: pytest.CaptureFixture[str]) -> None:
+                                      capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")  # both exports stamp the same Created time
     assert main(["report", RUN]) == 0
     assert "global" in capsys.readouterr().out
     assert main(["export-isis", RUN, str(tmp_path / "bucket.net"), "--level", "global"]) == 0
