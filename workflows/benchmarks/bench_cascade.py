@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mercury_dem.pipeline.simulate import (
+from cascade_replay import (  # beside this script (workflows/benchmarks/cascade_replay.py)
+    ADJUSTED_LEVELS,
     LEVELS,
     TargetSize,
     busy_fraction,
@@ -128,9 +129,9 @@ def simulate_part(timings: dict, target: TargetSize, alpha: float, workers: list
         out["runs"][n] = row
     # Cross-check of the adjustment levels with the large-size anchor (per-iteration cost x iterations).
     its = {lvl: int(np.median([u.iterations for u in timings[lvl] if u.iterations] or [15]))
-           for lvl in ("region", "hemisphere", "global")}
+           for lvl in ADJUSTED_LEVELS}
     anchor = {}
-    for lvl in ("region", "hemisphere", "global"):
+    for lvl in ADJUSTED_LEVELS:
         m = max(plan.measures[k] for k in g.keys(lvl))
         anchor[lvl] = {
             "largest_unit_measures": m, "iterations_measured": its[lvl],
@@ -142,7 +143,7 @@ def simulate_part(timings: dict, target: TargetSize, alpha: float, workers: list
     out["anchor"] = anchor
     # The same schedule with the anchor's (faster, large-size) adjustment times, for the bound.
     dur2 = dict(dur)
-    for lvl in ("region", "hemisphere", "global"):
+    for lvl in ADJUSTED_LEVELS:
         for k in g.keys(lvl):
             dur2[k] = its[lvl] * float(np.mean(ANCHOR_S_PER_ITERATION)) * plan.measures[k] / ANCHOR_MEASURES
     cp2, _ = critical_path(g.deps, dur2)
