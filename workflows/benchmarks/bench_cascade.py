@@ -95,10 +95,11 @@ def measured_part(run: Path, run_workers: int | None = None) -> dict:
 
 def overhead_part(n_workers: int, n_tasks: int) -> dict:
     """Per-task overhead on a LocalCluster shaped like the run's (processes, 1 thread each)."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    from mercury_dem.pipeline.executors import local_cluster
+
+    with local_cluster(n_workers, 1) as cluster, Client(cluster) as client:
         return scheduler_overhead(client, n_tasks)
 
 

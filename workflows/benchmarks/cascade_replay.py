@@ -340,10 +340,9 @@ def sleep_cluster(n_workers: int) -> Any:
     worker): with ``dashboard_address=None`` Dask bound the scheduler's to port 8787 and every one
     of them to all interfaces (0.0.0.0 and ::). Both addresses are therefore given as loopback.
     """
-    from distributed import LocalCluster
+    from mercury_dem.pipeline.executors import local_cluster
 
-    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, memory_limit=0,
-                        dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0")
+    return local_cluster(n_workers, 1, host="127.0.0.1", processes=False, memory_limit=0)
 
 
 def replay_on_dask(client: Any, graph: CascadeGraph, durations: Mapping[str, float],
