@@ -31,7 +31,7 @@ from mercury_dem.pipeline.stages import (failure_summary, fatal_error, plan_run,
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
-STAGES = ("plan", "tile", "region", "hemisphere", "global", "dem")
+STAGES = ("plan", *LEVELS, "dem")
 
 
 def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
