@@ -81,3 +81,24 @@ def test_bad_input_is_refused() -> None:
         merge_tree(30.0, tiles=[72])
     with pytest.raises(ValueError, match="no children"):
         child_ids("tile", 0, 10.0)
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_random_subsets_follow_the_tile_grid(seed: int) -> None:
+    """Any set of tiles, in any order: each region gets exactly its tiles, in the given order; every
+    hemisphere exactly its present regions; the globe the present hemispheres."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    grid = TileGrid(15.0)
+    tiles = [int(t) for t in rng.choice(grid.n_tiles, size=40, replace=False)]
+    t = merge_tree(15.0, tiles)
+    region_of = {x: int(grid.region_of_tile(x)) for x in tiles}
+    assert t.units["region"] == tuple(sorted(set(region_of.values())))
+    for r in t.units["region"]:
+        assert t.children[("region", r)] == tuple(x for x in tiles if region_of[x] == r)
+    hemis = sorted({int(grid.hemisphere_of_region(r)) for r in t.units["region"]})
+    assert t.units["hemisphere"] == tuple(hemis) and t.children[("global", 0)] == tuple(hemis)
+    for h in hemis:
+        assert t.children[("hemisphere", h)] == tuple(r for r in t.units["region"] if r // 7 == h)
+    assert len(t.order) == len(set(t.order)) == sum(t.totals().values())
