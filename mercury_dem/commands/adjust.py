@@ -9,6 +9,7 @@ import sys
 
 from mercury_dem.config import Config
 from mercury_dem.exceptions import StoreError
+from mercury_dem.plan.tree import ADJUSTED_LEVELS, CHILD_LEVEL
 
 NAME = "adjust"
 HELP = "bundle adjust stored networks of a run at one level (region, hemisphere or global)"
@@ -16,17 +17,17 @@ HELP = "bundle adjust stored networks of a run at one level (region, hemisphere 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", metavar="RUN", help="run directory (its lower level must be complete)")
-    p.add_argument("--level", required=True, choices=("region", "hemisphere", "global"))
+    p.add_argument("--level", required=True, choices=ADJUSTED_LEVELS)
     p.add_argument("--id", help="comma-separated unit ids (default: every unit of the level with input)")
     p.add_argument("--report-dir", help="also write a jigsaw-like bundleout.txt and CSV tables here")
     p.add_argument("--json", action="store_true")
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.geometry.tiling import N_REGIONS
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.pipeline.report import unit_message
-    from mercury_dem.pipeline.stages import LEVEL_CHILD, child_ids, run_adjust_unit
+    from mercury_dem.pipeline.stages import run_adjust_unit
+    from mercury_dem.plan.tree import child_ids, units_of_level
 
     store = RunStore.open(args.run_dir)
     run_cfg = store.read_run().get("config")
@@ -34,10 +35,10 @@ def run(args: argparse.Namespace, config: Config) -> int:
         from mercury_dem.config import load_config
 
         config = load_config(args.config, overrides=None) if args.config else load_config(overrides=run_cfg)
-    n = {"region": N_REGIONS, "hemisphere": 2, "global": 1}[args.level]
-    ids = [int(x) for x in args.id.split(",")] if args.id else list(range(n))
-    child = LEVEL_CHILD[args.level]
-    ids = [u for u in ids if any(store.unit_complete(child, c) for c in child_ids(args.level, u, config))]
+    tile_size = config.tiling.tile_size_deg
+    ids = [int(x) for x in args.id.split(",")] if args.id else units_of_level(args.level, tile_size)
+    child = CHILD_LEVEL[args.level]
+    ids = [u for u in ids if any(store.unit_complete(child, c) for c in child_ids(args.level, u, tile_size))]
     if not ids:
         raise StoreError(f"no {args.level} of {args.run_dir} has a complete {child} network; run the earlier stages first")
     out = []

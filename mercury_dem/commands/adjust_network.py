@@ -40,7 +40,9 @@ def run(args: argparse.Namespace, config: Config) -> int:
     if args.sync:
         record = adjust_network_store(args.store, cfg)
     else:
-        from distributed import Client, LocalCluster
+        from distributed import Client
+
+        from mercury_dem.pipeline.executors import local_cluster
 
         if args.scheduler:
             with Client(args.scheduler) as client:
@@ -56,8 +58,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
             env = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                    if k != "MALLOC_TRIM_THRESHOLD_"}
             with dask.config.set({"distributed.nanny.pre-spawn-environ": env}), \
-                    LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=config.execution.host,
-                                 dashboard_address=f"{config.execution.host}:0") as cluster, Client(cluster) as client:
+                    local_cluster(n, 1, host=config.execution.host) as cluster, Client(cluster) as client:
                 record = adjust_network_store(args.store, cfg, client)
     if args.json:
         print(json.dumps(record, indent=2, default=float))

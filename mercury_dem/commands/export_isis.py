@@ -22,10 +22,11 @@ def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.network.isis import write_isis_network
     from mercury_dem.network.store import read_network
+    from mercury_dem.plan.tree import LEVELS
 
     store = RunStore.open(args.run_dir)
     level, _, uid = args.level.partition(":")
-    if level not in ("tile", "region", "hemisphere", "global") or (level != "global" and not uid.isdigit()):
+    if level not in LEVELS or (level != "global" and not uid.isdigit()):
         raise StoreError(f"--level must be tile:ID, region:ID, hemisphere:ID or global, got {args.level!r}")
     unit = int(uid) if uid else 0
     if not store.unit_complete(level, unit):

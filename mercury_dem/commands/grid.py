@@ -112,11 +112,12 @@ def run(args: argparse.Namespace, config: Any) -> int:
     client = None
     cluster = None
     if args.workers > 0:
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
-        host = config.execution.host  # loopback unless the configuration widens it
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, dashboard_address=f"{host}:0",
-                               host=host)
+        from mercury_dem.pipeline.executors import local_cluster
+
+        # loopback unless the configuration widens it
+        cluster = local_cluster(args.workers, 1, host=config.execution.host)
         client = Client(cluster)
     try:
         summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,

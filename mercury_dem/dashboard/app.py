@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from mercury_dem.dashboard.data import dashboard_data
-from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.io.run_store import RunStore
+from mercury_dem.plan.tree import LEVELS
 from mercury_dem.viz.status import STATE_COLOURS, STATES
 
 

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.io.run_store import RunStore
+from mercury_dem.plan.tree import LEVELS
 from mercury_dem.viz.figures import LEVEL_COLOURS, signed_lon
 from mercury_dem.viz.status import STATE_COLOURS, STATES, level_progress, run_info, sigma0_history, unit_status
 

@@ -44,8 +44,7 @@ from mercury_dem.io.atomic import _tmp_sibling, atomic_write_json, is_complete, 
 from mercury_dem.io.tables import read_table
 from mercury_dem.io.location import resolve_location
 from mercury_dem.io.remote import RemoteDir, cache_dir_for
-
-LEVELS = ("tile", "region", "hemisphere", "global")
+from mercury_dem.plan.tree import LEVELS
 
 
 @dataclass(frozen=True)

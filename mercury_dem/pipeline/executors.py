@@ -171,6 +171,50 @@ def _check_tls_of_scheduler_file(path: str, security: Any) -> None:
     require_tls_settings(str(address), security, f"scheduler file {path}")
 
 
+def local_cluster(n_workers: int, threads_per_worker: int = 1, *, host: str = "127.0.0.1",
+                  processes: bool = True, resources: dict[str, float] | None = None, security: Any = None,
+                  memory_limit: str | float | None = None) -> Any:
+    """A ``distributed.LocalCluster``: the one place the package starts one.
+
+    Used by the run (:func:`connect`), ``mercury-dem grid --workers``, ``adjust-network --workers``,
+    the synthetic mission's renderer (``synth.parallel.render_all``) and the cascade benchmark's
+    replay. Everything it opens listens on ``host`` (loopback by default; ``execution.host``
+    widens it): the scheduler, the workers and the dashboard (on a free port,
+    ``dashboard_address=host:0``; Dask's default ``:8787`` binds all interfaces). In-process
+    workers (``processes=False``) talk over the inproc transport; they still start an HTTP
+    server each, bound to ``host`` here (``worker_dashboard_address``; with Dask's default
+    they listened on 0.0.0.0 and ::).
+
+    Parameters
+    ----------
+    n_workers, threads_per_worker : the cluster's shape
+    host : the address every server binds to
+    processes : worker processes (the default) or threads of this process
+    resources : worker resources, e.g. ``{ADJUST_RESOURCE: 1}``
+    security : a ``distributed.Security`` for TLS, or None
+    memory_limit : per worker; None keeps Dask's default (the machine's memory / workers)
+
+    Returns
+    -------
+    distributed.LocalCluster, started; close it (or use it as a context manager).
+    """
+    from distributed import LocalCluster
+
+    kw: dict[str, Any] = {"n_workers": n_workers, "threads_per_worker": threads_per_worker,
+                          "dashboard_address": f"{host}:0", "processes": processes}
+    if processes:
+        kw["host"] = host
+    else:  # inproc transport (a host would make Dask try tcp://); only the HTTP servers bind
+        kw["worker_dashboard_address"] = f"{host}:0"
+    if resources is not None:
+        kw["resources"] = resources
+    if security is not None:
+        kw["security"] = security
+    if memory_limit is not None:
+        kw["memory_limit"] = memory_limit
+    return LocalCluster(**kw)
+
+
 def connect(
     cfg: ExecutionConfig,
     scheduler: str | None = None,
@@ -196,20 +240,12 @@ def connect(
     if target == "sync":
         return Connection(SyncClient(), "sync", description="in-process, synchronous")
     if target == "local":
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         nw, nt = default_workers()
         nw = workers or cfg.workers or nw
         nt = threads_per_worker or cfg.threads_per_worker or nt
-        cluster = LocalCluster(
-            n_workers=nw,
-            threads_per_worker=nt,
-            host=cfg.host,
-            dashboard_address=f"{cfg.host}:0",
-            resources={ADJUST_RESOURCE: 1},
-            security=security,
-            processes=True,
-        )
+        cluster = local_cluster(nw, nt, host=cfg.host, resources={ADJUST_RESOURCE: 1}, security=security)
         client = Client(cluster, security=security)
         _quiet_workers(client)
         return Connection(

@@ -20,19 +20,18 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
-from mercury_dem.io.run_store import LEVELS, RunStore
-from mercury_dem.pipeline.report import unit_message
+from mercury_dem.io.run_store import RunStore
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
+from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.stages import (failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile,
                                          unit_name)
+from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
-STAGES = ("plan", "tile", "region", "hemisphere", "global", "dem")
+STAGES = ("plan", *LEVELS, "dem")
 
 
 def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
@@ -58,23 +57,6 @@ def _tile_task(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
 
 def _unit_task(run_root: str, level: str, unit_id: int, config: Config, children: list[dict[str, Any]]) -> dict[str, Any]:
     return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children)
-
-
-def versions() -> dict[str, str]:
-    import cv2
-    import dask
-    import distributed
-    import scipy
-    import xarray
-    import zarr
-
-    from mercury_dem import __version__
-
-    return {
-        "mercury_dem": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
-        "scipy": scipy.__version__, "opencv": cv2.__version__, "dask": dask.__version__,
-        "distributed": distributed.__version__, "zarr": zarr.__version__, "xarray": xarray.__version__,
-    }
 
 
 class Progress:
@@ -205,8 +187,6 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                   dem: bool, t_start: float, timings: dict[str, float], stage: list[str],
                   integrity: dict[str, Any]) -> dict[str, Any]:
     from mercury_dem.mission import open_mission
-    from mercury_dem.pipeline.report import build_report, write_report
-
     store = prepare_store(mission_path, out, config, force)
     mission = open_mission(mission_path)
     t = time.perf_counter()
@@ -232,7 +212,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
         from distributed import performance_report
 
         perf = performance_report(filename=str(store.performance_html))
-    summaries: dict[str, list[dict[str, Any]]] = {k: [] for k in ("tile", "region", "hemisphere", "global")}
+    summaries: dict[str, list[dict[str, Any]]] = {k: [] for k in LEVELS}
     try:
         with _scheduler_loss(conn, out), perf:
             stage[0] = "the adjustment cascade"
@@ -294,20 +274,12 @@ def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | N
 def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
                  stream: TextIO | None, integrity: dict[str, Any] | None = None,
                  ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
-    from mercury_dem.geometry.tiling import TileGrid
-
-    grid = TileGrid(config.tiling.tile_size_deg)
     root = store.location  # tasks open the run from it: the bucket URL of a bucket run
     retries = config.execution.retries
     heavy = {"resources": {ADJUST_RESOURCE: 1}} if use_adjust_resource(conn, config, stream) else {}
-    tiles = [int(t) for t in plan["non_empty_tiles"]]
-    done: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in ("tile", "region", "hemisphere", "global")}
-
-    region_of = {t: int(grid.region_of_tile(t)) for t in tiles}
-    region_ids = sorted(set(region_of.values()))
-    hemi_ids = sorted({int(grid.hemisphere_of_region(r)) for r in region_ids})
-    totals = {"tile": len(tiles), "region": len(region_ids), "hemisphere": len(hemi_ids),
-              "global": 1 if hemi_ids else 0}
+    tree = merge_tree(config.tiling.tile_size_deg, [int(t) for t in plan["non_empty_tiles"]])
+    done: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in LEVELS}
+    totals = tree.totals()
     progress = Progress(totals, stream)
     out: dict[str, list[dict[str, Any]]] = {k: [] for k in totals}
     recorded: set[str] = set()
@@ -370,19 +342,14 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
 
     all_f: list[Any] = []
     try:
-        tile_f = {t: submit(_tile_task, "tile", t, root, t, config) for t in tiles}
-        region_f = {}
-        for r in region_ids:
-            deps = [f for t, f in tile_f.items() if region_of[t] == r]
-            region_f[r] = submit(_unit_task, "region", r, root, "region", r, config, deps, **heavy)
-        hemi_f = {}
-        for h in hemi_ids:
-            deps = [f for r, f in region_f.items() if grid.hemisphere_of_region(r) == h]
-            hemi_f[h] = submit(_unit_task, "hemisphere", h, root, "hemisphere", h, config, deps, **heavy)
-        glob_f = {}
-        if hemi_f:
-            glob_f[0] = submit(_unit_task, "global", 0, root, "global", 0, config, list(hemi_f.values()), **heavy)
-        levels = {"tile": tile_f, "region": region_f, "hemisphere": hemi_f, "global": glob_f}
+        # the whole tree up front: a unit waits on its children's futures (or their stored summaries)
+        levels: dict[str, dict[int, Any]] = {"tile": {t: submit(_tile_task, "tile", t, root, t, config)
+                                                       for t in tree.units["tile"]}}
+        for lvl in LEVELS[1:]:
+            levels[lvl] = {}
+            for uid in tree.units[lvl]:
+                deps = [levels[CHILD_LEVEL[lvl]][c] for c in tree.children[(lvl, uid)]]
+                levels[lvl][uid] = submit(_unit_task, lvl, uid, root, lvl, uid, config, deps, **heavy)
         level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
         all_f += [f for lvl, fs in levels.items() for uid, f in fs.items()
                   if uid not in done[lvl] and f.key not in recorded]
@@ -399,12 +366,12 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     seconds: dict[str, float] = {}
     if getattr(client, "synchronous", False):
         # in-process, every unit ran at submission: a level's time is the sum of its units'
-        for lvl in ("tile", "region", "hemisphere", "global"):
+        for lvl in LEVELS:
             seconds[lvl] = float(sum(s.get("seconds", 0.0) or 0.0 for s in out[lvl]))
         return out, seconds
     # distributed: a level's span, from its first unit's start to its last unit's end (units
     # of this run only; wall clock written by the workers), which overlaps the next level
-    for lvl in ("tile", "region", "hemisphere", "global"):
+    for lvl in LEVELS:
         ran = [s for uid, s in ((s["id"], s) for s in out[lvl]) if uid not in done[lvl]
                and s.get("started_at") is not None]
         if ran:

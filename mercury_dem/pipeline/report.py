@@ -9,12 +9,8 @@ controlled, uncontrolled: [ids], excluded: {id: reason}}; ``timings``; ``config`
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from mercury_dem.mission import Mission
-
-from typing import Any, TextIO
+import sys
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -22,6 +18,9 @@ from mercury_dem.config import Config, to_dict
 from mercury_dem.io.atomic import atomic_write_json
 from mercury_dem.io.run_store import RunStore, read_solution
 from mercury_dem.io.tables import read_table
+
+if TYPE_CHECKING:
+    from mercury_dem.mission import Mission
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
@@ -33,11 +32,27 @@ def _level_row(s: dict[str, Any]) -> dict[str, Any]:
     return {k: s.get(k) for k in LEVEL_KEYS if k in s or k in ("id", "ok", "error")}
 
 
+def versions() -> dict[str, str]:
+    """Versions of this package, Python and the libraries that shape a result (``run.json``, ``report.json``)."""
+    import cv2
+    import dask
+    import distributed
+    import scipy
+    import xarray
+    import zarr
+
+    from mercury_dem import __version__
+
+    return {
+        "mercury_dem": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
+        "scipy": scipy.__version__, "opencv": cv2.__version__, "dask": dask.__version__,
+        "distributed": distributed.__version__, "zarr": zarr.__version__, "xarray": xarray.__version__,
+    }
+
+
 def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[str, Any],
                  summaries: dict[str, list[dict[str, Any]]], timings: dict[str, float], conn: Any,
                  dem_summary: dict[str, Any] | None) -> dict[str, Any]:
-    from mercury_dem.pipeline.graph import versions
-
     tiles = summaries.get("tile", [])
     glob = summaries.get("global", [])
     ids_all = [str(x) for x in mission.catalog["image_id"]]

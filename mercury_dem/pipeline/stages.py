@@ -27,11 +27,11 @@ from mercury_dem.geometry.tiling import TileGrid, region_name
 from mercury_dem.io.atomic import atomic_directory, atomic_write_json, disk_full_cause, disk_full_message
 from mercury_dem.io.run_store import RunStore, read_solution, write_solution
 from mercury_dem.mission import Mission, open_mission
+from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
+from mercury_dem.plan.tree import child_ids as _tree_child_ids
 
 #: Point ids of tile t start at t * POINT_ID_STRIDE, so ids stay unique when tiles merge.
 POINT_ID_STRIDE = 10_000_000
-
-LEVEL_CHILD = {"region": "tile", "hemisphere": "region", "global": "hemisphere"}
 
 
 def unit_name(level: str, unit_id: int) -> str:
@@ -287,12 +287,7 @@ def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, An
 # --------------------------------------------------------------------------- cascade
 def child_ids(level: str, unit_id: int, config: Config) -> list[int]:
     """Ids of the units of the level below that make up a region, hemisphere or the globe."""
-    grid = TileGrid(config.tiling.tile_size_deg)
-    if level == "region":
-        return grid.tiles_of_region(unit_id).tolist()
-    if level == "hemisphere":
-        return grid.regions_of_hemisphere(unit_id).tolist()
-    return [0, 1]
+    return _tree_child_ids(level, unit_id, config.tiling.tile_size_deg)
 
 
 def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,

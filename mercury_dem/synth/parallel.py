@@ -105,7 +105,7 @@ def render_all(
     batches = [rows[i:i + batch_size] for i in range(0, len(rows), batch_size)]
     if client is not None:
         return _run_on(client, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler is not None:
         from mercury_dem.pipeline.security import require_tls_settings
@@ -114,9 +114,9 @@ def render_all(
         with Client(scheduler) as c:
             return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 
-    with LocalCluster(
-        n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address="127.0.0.1:0"
-    ) as cluster:
+    from mercury_dem.pipeline.executors import local_cluster
+
+    with local_cluster(workers, 1, host="127.0.0.1") as cluster:
         with Client(cluster) as c:
             return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 

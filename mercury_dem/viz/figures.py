@@ -20,7 +20,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch, Rectangle
 
-from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.io.run_store import RunStore
+from mercury_dem.plan.tree import LEVELS
 from mercury_dem.viz.status import STATE_COLOURS, STATES, as_store
 
 LEVEL_COLOURS = {"tile": "#7f7f7f", "region": "#1f77b4", "hemisphere": "#ff7f0e", "global": "#2ca02c"}

@@ -13,10 +13,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.io.run_store import RunStore
+from mercury_dem.plan.tree import ADJUSTED_LEVELS, LEVELS
 from mercury_dem.viz.status import as_store
-
-ADJUSTED_LEVELS = LEVELS[1:]
 
 
 def _networks(store: RunStore, levels: tuple[str, ...]) -> list[tuple[str, int, Any]]:

@@ -29,7 +29,8 @@ import pandas as pd
 
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import is_complete
-from mercury_dem.io.run_store import LEVELS, RunStore
+from mercury_dem.io.run_store import RunStore
+from mercury_dem.plan.tree import ADJUSTED_LEVELS, CHILD_LEVEL, LEVELS, MergeTree, merge_tree
 
 #: The unit states, in display order.
 STATES = ("pending", "running", "done", "failed")
@@ -84,16 +85,18 @@ def _state(s: dict[str, Any] | None, ready: bool) -> str:
     return "running" if ready else "pending"
 
 
+def _tree(store: RunStore, plan: dict[str, Any] | None) -> MergeTree | None:
+    """The run's merge tree (:func:`mercury_dem.plan.tree.merge_tree` of its sorted tiles), None before the plan."""
+    if plan is None:
+        return None
+    grid = _tile_grid(store, plan)
+    return merge_tree(grid.tile_size_deg, sorted(int(t) for t in plan["non_empty_tiles"]))
+
+
 def expected_units(store: RunStore, plan: dict[str, Any] | None = None) -> dict[str, list[int]]:
     """Units the run will compute per level (from the plan; empty lists before the plan exists)."""
-    plan = plan if plan is not None else _plan(store)
-    if plan is None:
-        return {lvl: [] for lvl in LEVELS}
-    grid = _tile_grid(store, plan)
-    tiles = sorted(int(t) for t in plan["non_empty_tiles"])
-    regions = sorted({int(r) for r in grid.region_of_tile(np.asarray(tiles, dtype=np.int64))}) if tiles else []
-    hemis = sorted({int(grid.hemisphere_of_region(r)) for r in regions})
-    return {"tile": tiles, "region": regions, "hemisphere": hemis, "global": [0] if hemis else []}
+    tree = _tree(store, plan if plan is not None else _plan(store))
+    return {lvl: list(tree.units[lvl]) if tree is not None else [] for lvl in LEVELS}
 
 
 def unit_status(run: str | Path | RunStore) -> pd.DataFrame:
@@ -101,23 +104,14 @@ def unit_status(run: str | Path | RunStore) -> pd.DataFrame:
     from mercury_dem.pipeline.stages import unit_name
 
     store = as_store(run)
-    plan = _plan(store)
-    units = expected_units(store, plan)
-    grid = _tile_grid(store, plan)
+    tree = _tree(store, _plan(store))
     rows: list[dict[str, Any]] = []
     written: dict[tuple[str, int], bool] = {}
     for level in LEVELS:
-        for uid in units[level]:
+        for uid in tree.units[level] if tree is not None else ():
             s = _summary(store, level, uid)
             written[(level, uid)] = s is not None
-            if level == "tile":
-                kids: list[tuple[str, int]] = []
-            elif level == "region":
-                kids = [("tile", t) for t in units["tile"] if int(grid.region_of_tile(t)) == uid]
-            elif level == "hemisphere":
-                kids = [("region", r) for r in units["region"] if int(grid.hemisphere_of_region(r)) == uid]
-            else:
-                kids = [("hemisphere", h) for h in units["hemisphere"]]
+            kids = [(CHILD_LEVEL[level], c) for c in tree.children.get((level, uid), ())] if level != "tile" else []
             ready = bool(kids) and all(written.get(k, False) for k in kids)
             rows.append(_unit_row(level, uid, unit_name(level, uid), s, _state(s, ready)))
     return pd.DataFrame(rows, columns=list(UNIT_COLUMNS))
@@ -160,7 +154,7 @@ def sigma0_history(run: str | Path | RunStore) -> pd.DataFrame:
 
     store = as_store(run)
     rows = []
-    for level in LEVELS[1:]:
+    for level in ADJUSTED_LEVELS:
         for uid in store.completed_units(level):
             s = _summary(store, level, uid) or {}
             for k, v in enumerate(s.get("sigma0_history") or []):

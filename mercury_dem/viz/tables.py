@@ -11,6 +11,7 @@ import pandas as pd
 
 from mercury_dem.exceptions import StoreError
 from mercury_dem.io.run_store import RunStore, read_solution
+from mercury_dem.plan.tree import ADJUSTED_LEVELS
 from mercury_dem.viz.status import as_store
 
 
@@ -89,7 +90,7 @@ def problem_images(run: str | Path | RunStore, rms_flag_px: float | None = None)
         s = store.read_summary("tile", tid)
         for iid, why in (s.get("image_errors") or {}).items():
             rows.append((str(iid), "unreadable", f"tile {tid}", str(why)))
-    for level in ("region", "hemisphere", "global"):
+    for level in ADJUSTED_LEVELS:
         for uid in store.completed_units(level):
             s = store.read_summary(level, uid)
             name = s.get("name") or f"{level} {uid}"

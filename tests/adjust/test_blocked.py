@@ -64,6 +64,7 @@ def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.integration  # the whole adjust-network command on a synthetic store
 def test_adjust_network_sync_recovers_the_truth(store: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Through the command: pointing from ~11 px a priori to below 1 px, the gross outliers rejected."""
     from mercury_dem.cli import main

@@ -50,6 +50,7 @@ def dem_dir(tmp_path_factory):
     return d
 
 
+@pytest.mark.integration  # the whole register stage on a synthetic DEM
 def test_register_command_json(dem_dir, capsys):
     rc = main(["register", str(dem_dir), "--altimetry", str(dem_dir / "shots.parquet"), "--json", "--body", "mercury"])
     assert rc == 0
@@ -102,6 +103,7 @@ def test_register_refuses_bad_input(dem_dir, capsys, tmp_path):
                                                                "track_id": [0]}), tmp_path)
 
 
+@pytest.mark.integration  # the whole register stage on a synthetic DEM
 def test_distributed_equals_sync(dem_dir, tmp_path):
     """The same tiles on a dask.distributed client (threads, in-process) as on the synchronous one."""
     from distributed import Client, LocalCluster
@@ -119,6 +121,7 @@ def test_distributed_equals_sync(dem_dir, tmp_path):
     np.testing.assert_array_equal(ra, rb)
 
 
+@pytest.mark.integration  # the whole register stage on a synthetic DEM
 def test_register_reads_rdr_csv(dem_dir, tmp_path, capsys):
     """The same shots as an MLA-like RDR CSV (radii in km, profiles from time gaps) register the same."""
     import shutil
@@ -158,6 +161,7 @@ def test_grid_and_register_take_the_moon(tmp_path, capsys):
     assert main(["grid", str(tmp_path / "pts.npy"), "--out", str(tmp_path / "x"), "--body", "vesta"]) == 2
 
 
+@pytest.mark.integration  # the whole register stage on a synthetic DEM
 def test_blockwise_maps_equal_the_whole_map(dem_dir, tmp_path):
     """Registered and merged maps computed 7 rows at a time (less than the merge's 12-row margin) equal the
     whole-map computation (one block of all 120 rows: the whole-map functions on the whole map)."""

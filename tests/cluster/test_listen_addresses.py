@@ -3,7 +3,7 @@
 ``connect()`` (the run's LocalCluster) is checked in ``test_security_defaults.py``, the
 scripts in ``test_local_scripts.py``, the run dashboard in ``tests/dashboard``. Here: the
 LocalCluster of ``mercury-dem grid --workers N``, the one ``synth`` renders on
-(``synth.parallel.render_all``), and the in-process replay cluster of ``pipeline.simulate``.
+(``synth.parallel.render_all``), and the in-process replay cluster of the cascade benchmark (``workflows/benchmarks/cascade_replay.py``).
 Each is inspected *while it runs* (from inside the function that receives its client): the
 scheduler's, workers' and dashboard's addresses, and every listening socket of this
 process and its children.
@@ -88,11 +88,13 @@ def test_synth_render_cluster_binds_to_loopback(tmp_path: Path, monkeypatch) -> 
 
 
 def test_simulation_replay_cluster_listens_on_loopback_only() -> None:
-    """``pipeline.simulate.sleep_cluster``: inproc transport; the HTTP servers Dask still starts (scheduler
+    """``cascade_replay.sleep_cluster`` (workflows/benchmarks): inproc transport; the HTTP servers Dask still starts (scheduler
     and each worker) on 127.0.0.1 (with ``dashboard_address=None`` they were on 0.0.0.0 and ::)."""
     from distributed import Client
 
-    from mercury_dem.pipeline.simulate import sleep_cluster
+    from tests.benchmarks import load_benchmark
+
+    sleep_cluster = load_benchmark("cascade_replay").sleep_cluster
 
     before = set(_tree_sockets())
     with sleep_cluster(2) as cluster, Client(cluster) as client:

@@ -24,6 +24,7 @@ def _inc(x: int) -> int:
     return x + 1
 
 
+@pytest.mark.integration  # starts a LocalCluster of worker processes
 def test_default_local_cluster_binds_to_loopback() -> None:
     """connect() with the default configuration: scheduler, workers and dashboards on 127.0.0.1 only."""
     import psutil
@@ -57,6 +58,7 @@ def test_default_local_cluster_binds_to_loopback() -> None:
     assert alive(children) == []
 
 
+@pytest.mark.integration  # starts a LocalCluster of worker processes
 def test_local_cluster_over_tls_refuses_plain_tcp(tmp_path: Path) -> None:
     """connect(security=tls_security(...)) runs a TLS LocalCluster that a plain-TCP client cannot join."""
     from distributed import Client

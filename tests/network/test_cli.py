@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from mercury_dem.cli import main
 from mercury_dem.network import read_isis_network, read_network
@@ -12,6 +13,7 @@ from mercury_dem.network import read_isis_network, read_network
 from network_world import require_isis
 
 
+@pytest.mark.integration  # three commands end to end on a real ISIS network
 def test_import_convert_check(tmp_path, capsys):
     src = require_isis() / "apollo_out.net"
     store = tmp_path / "apollo.zarr"

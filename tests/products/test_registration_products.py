@@ -22,6 +22,9 @@ from mercury_dem.geometry.body import MERCURY
 from mercury_dem.pipeline.register_stage import make_registration_products, register_dem_store
 from tests.products.regional import LAT, PPD, height, regional_products
 
+#: The register stage and the products stage end to end on a regional DEM (~7 s of set-up): not the fast loop.
+pytestmark = pytest.mark.integration
+
 LONS = (-15.0, 15.0)
 UP_M = 200.0
 

@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mercury_dem.pipeline.simulate import (
+from cascade_replay import (  # beside this script (workflows/benchmarks/cascade_replay.py)
+    ADJUSTED_LEVELS,
     LEVELS,
     TargetSize,
     busy_fraction,
@@ -94,10 +95,11 @@ def measured_part(run: Path, run_workers: int | None = None) -> dict:
 
 def overhead_part(n_workers: int, n_tasks: int) -> dict:
     """Per-task overhead on a LocalCluster shaped like the run's (processes, 1 thread each)."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    from mercury_dem.pipeline.executors import local_cluster
+
+    with local_cluster(n_workers, 1) as cluster, Client(cluster) as client:
         return scheduler_overhead(client, n_tasks)
 
 
@@ -128,9 +130,9 @@ def simulate_part(timings: dict, target: TargetSize, alpha: float, workers: list
         out["runs"][n] = row
     # Cross-check of the adjustment levels with the large-size anchor (per-iteration cost x iterations).
     its = {lvl: int(np.median([u.iterations for u in timings[lvl] if u.iterations] or [15]))
-           for lvl in ("region", "hemisphere", "global")}
+           for lvl in ADJUSTED_LEVELS}
     anchor = {}
-    for lvl in ("region", "hemisphere", "global"):
+    for lvl in ADJUSTED_LEVELS:
         m = max(plan.measures[k] for k in g.keys(lvl))
         anchor[lvl] = {
             "largest_unit_measures": m, "iterations_measured": its[lvl],
@@ -142,7 +144,7 @@ def simulate_part(timings: dict, target: TargetSize, alpha: float, workers: list
     out["anchor"] = anchor
     # The same schedule with the anchor's (faster, large-size) adjustment times, for the bound.
     dur2 = dict(dur)
-    for lvl in ("region", "hemisphere", "global"):
+    for lvl in ADJUSTED_LEVELS:
         for k in g.keys(lvl):
             dur2[k] = its[lvl] * float(np.mean(ANCHOR_S_PER_ITERATION)) * plan.measures[k] / ANCHOR_MEASURES
     cp2, _ = critical_path(g.deps, dur2)

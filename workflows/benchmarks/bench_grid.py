@@ -282,7 +282,9 @@ def comparison(args):
 
 
 def full_size(args):
-    from distributed import Client, LocalCluster
+    from distributed import Client
+
+    from mercury_dem.pipeline.executors import local_cluster
 
     work = Path(tempfile.mkdtemp(prefix="bench_grid_full_"))
     try:
@@ -293,8 +295,7 @@ def full_size(args):
         t_make = time.perf_counter() - t0
         cfg = DemConfig(pixels_per_degree=64, chunk_size=args.chunk, method=args.method, query_threads=1,
                         memory_limit_gb=16.0)
-        with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
-                          memory_limit="8GB") as cluster, Client(cluster) as client:
+        with local_cluster(2, 1, memory_limit="8GB") as cluster, Client(cluster) as client:
             t0 = time.perf_counter()
             pts = np.load(work / "points.npy")
             summary = grid_dem(pts, cfg, work / "dem.zarr", client=client, coverage=False)

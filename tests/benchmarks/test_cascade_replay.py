@@ -1,4 +1,5 @@
-"""The cascade replay helpers: critical path, graph shape, scaling, schedule and Dask replay."""
+"""The cascade replay helpers (``workflows/benchmarks/cascade_replay.py``): critical path, graph shape,
+scaling, schedule and Dask replay."""
 
 from __future__ import annotations
 
@@ -9,21 +10,22 @@ from pathlib import Path
 import pytest
 
 from mercury_dem.exceptions import StoreError
-from mercury_dem.pipeline.simulate import (
-    TargetSize,
-    UnitTiming,
-    busy_fraction,
-    cascade_graph,
-    critical_path,
-    level_spans,
-    list_schedule,
-    n_workers_of,
-    read_unit_timings,
-    replay_on_dask,
-    scale_plan,
-    scheduler_overhead,
-    sleep_cluster,
-)
+from tests.benchmarks import load_benchmark
+
+_replay = load_benchmark("cascade_replay")
+TargetSize = _replay.TargetSize
+UnitTiming = _replay.UnitTiming
+busy_fraction = _replay.busy_fraction
+cascade_graph = _replay.cascade_graph
+critical_path = _replay.critical_path
+level_spans = _replay.level_spans
+list_schedule = _replay.list_schedule
+n_workers_of = _replay.n_workers_of
+read_unit_timings = _replay.read_unit_timings
+replay_on_dask = _replay.replay_on_dask
+scale_plan = _replay.scale_plan
+scheduler_overhead = _replay.scheduler_overhead
+sleep_cluster = _replay.sleep_cluster
 
 
 def test_critical_path_hand_made_graph() -> None:

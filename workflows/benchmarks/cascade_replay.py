@@ -1,9 +1,9 @@
 """Replay of the merge cascade as sleep tasks: measured unit times, scaling, critical path.
 
 Helpers of ``workflows/benchmarks/bench_cascade.py`` (issue #6, section 7): read the
-measured duration of every unit of a finished run from its store, build the same
-tile -> region -> hemisphere -> global graph as :mod:`mercury_dem.pipeline.graph`
-for any tile size, scale measured durations to another mission size, compute the
+measured duration of every unit of a finished run from its store, take the run's
+tile -> region -> hemisphere -> global tree (:func:`mercury_dem.plan.tree.merge_tree`,
+the one :mod:`mercury_dem.pipeline.graph` submits) for any tile size, scale measured durations to another mission size, compute the
 critical path (longest chain through the merge tree), predict the makespan of a
 greedy list schedule, and replay the graph as ``time.sleep`` tasks on a Dask
 cluster (submitted up front, dependencies as futures, exactly like the run).
@@ -13,6 +13,10 @@ Durations are in *simulated seconds*; :func:`replay_on_dask` compresses them by
 seconds. A small discrete-event list scheduler is written here instead of a
 scheduling library because it has to mirror one specific policy (Dask's: ready
 tasks run in submission order on the first free worker) and is twenty lines.
+
+Benchmark code, not the package's: it lived in ``mercury_dem/pipeline/simulate.py`` until
+issue 20 moved it here; ``bench_cascade.py`` imports it from its own directory and the
+tests load it by path (``tests/benchmarks/test_cascade_replay.py``).
 """
 
 from __future__ import annotations
@@ -28,9 +32,11 @@ from typing import Any
 import numpy as np
 
 from mercury_dem.exceptions import StoreError
-from mercury_dem.geometry.tiling import N_REGIONS, TileGrid
+from mercury_dem.geometry.tiling import TileGrid
+from mercury_dem.plan.tree import ADJUSTED_LEVELS, CHILD_LEVEL, LEVELS, MergeTree, merge_tree
 
-LEVELS = ("tile", "region", "hemisphere", "global")
+#: The merge tree as a DAG of keys (``deps``, ``order``, ``keys(level)``): the run's own type.
+CascadeGraph = MergeTree
 
 
 # --------------------------------------------------------------------------- measured run
@@ -127,52 +133,13 @@ def busy_fraction(timings: Mapping[str, list[UnitTiming]], wall_seconds: float, 
 
 
 # --------------------------------------------------------------------------- graph
-@dataclass(frozen=True)
-class CascadeGraph:
-    """The merge tree as a DAG of keys ``tile-<id>``, ``region-<id>``, ``hemisphere-<id>``, ``global-0``.
-
-    ``deps[key]`` are the keys it waits for; ``order`` is the submission order of
-    :func:`mercury_dem.pipeline.graph._run_cascade` (tiles, regions, hemispheres, globe).
-    """
-
-    deps: Mapping[str, tuple[str, ...]]
-    order: tuple[str, ...]
-
-    def level_of(self, key: str) -> str:
-        return key.rsplit("-", 1)[0]
-
-    def keys(self, level: str) -> list[str]:
-        return [k for k in self.order if self.level_of(k) == level]
-
-
 def cascade_graph(tile_size_deg: float = 10.0, tiles: Sequence[int] | None = None) -> CascadeGraph:
     """The run's graph for a tile grid: every tile (or only ``tiles``) -> regions -> hemispheres -> globe.
 
-    Units without children are left out, as the run does for empty regions.
+    Units without children are left out, as the run does for empty regions. The tiles are
+    taken in id order.
     """
-    grid = TileGrid(tile_size_deg)
-    tile_ids = list(range(grid.n_tiles)) if tiles is None else sorted(int(t) for t in tiles)
-    deps: dict[str, tuple[str, ...]] = {f"tile-{t}": () for t in tile_ids}
-    order = [f"tile-{t}" for t in tile_ids]
-    region_of = grid.region_of_tile(np.asarray(tile_ids, dtype=np.int64)) if tile_ids else np.zeros(0, int)
-    regions = []
-    for r in range(N_REGIONS):
-        kids = tuple(f"tile-{t}" for t, rr in zip(tile_ids, region_of) if rr == r)
-        if kids:
-            deps[f"region-{r}"] = kids
-            order.append(f"region-{r}")
-            regions.append(r)
-    hemis = []
-    for h in (0, 1):
-        kids = tuple(f"region-{r}" for r in regions if int(grid.hemisphere_of_region(r)) == h)
-        if kids:
-            deps[f"hemisphere-{h}"] = kids
-            order.append(f"hemisphere-{h}")
-            hemis.append(h)
-    if hemis:
-        deps["global-0"] = tuple(f"hemisphere-{h}" for h in hemis)
-        order.append("global-0")
-    return CascadeGraph(deps=deps, order=tuple(order))
+    return merge_tree(tile_size_deg, None if tiles is None else sorted(int(t) for t in tiles))
 
 
 def critical_path(deps: Mapping[str, Sequence[str]], durations: Mapping[str, float]) -> tuple[float, list[str]]:
@@ -318,6 +285,7 @@ def scale_plan(timings: Mapping[str, list[UnitTiming]], target: TargetSize, alph
     grid = TileGrid(target.tile_size_deg)
     rng = np.random.default_rng(seed)
     graph = cascade_graph(target.tile_size_deg)
+    deps = graph.deps
     n_img = images_per_tile(grid, target.images)
     tiles = [u for u in timings["tile"] if u.ok and u.pairs > 0]
     if not tiles:
@@ -333,14 +301,14 @@ def scale_plan(timings: Mapping[str, list[UnitTiming]], target: TargetSize, alph
         durations[k] = float(draw[t] * n_img[t] * target.pairs_per_image)
         images[k] = float(n_img[t])
     coef: dict[str, float] = {}
-    for lvl in ("region", "hemisphere", "global"):
+    for lvl in ADJUSTED_LEVELS:
         units = [u for u in timings.get(lvl, []) if u.ok and u.measures > 0]
         if units:
             coef[lvl] = float(np.median([u.seconds / u.measures ** alpha for u in units]))
-        else:
-            coef[lvl] = coef.get({"region": "region", "hemisphere": "region", "global": "hemisphere"}[lvl], np.nan)
+        else:  # the level below's coefficient (regions have none below: NaN)
+            coef[lvl] = coef.get(CHILD_LEVEL[lvl], np.nan)
         for k in graph.keys(lvl):
-            images[k] = float(sum(images[d] for d in graph.deps[k]))
+            images[k] = float(sum(images[d] for d in deps[k]))
             measures[k] = images[k] * mpi
             durations[k] = coef[lvl] * measures[k] ** alpha
     notes = {
@@ -372,10 +340,9 @@ def sleep_cluster(n_workers: int) -> Any:
     worker): with ``dashboard_address=None`` Dask bound the scheduler's to port 8787 and every one
     of them to all interfaces (0.0.0.0 and ::). Both addresses are therefore given as loopback.
     """
-    from distributed import LocalCluster
+    from mercury_dem.pipeline.executors import local_cluster
 
-    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, memory_limit=0,
-                        dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0")
+    return local_cluster(n_workers, 1, host="127.0.0.1", processes=False, memory_limit=0)
 
 
 def replay_on_dask(client: Any, graph: CascadeGraph, durations: Mapping[str, float],
