@@ -135,7 +135,7 @@ class PointBlockState:
             cameras=setup.cameras, image_camera=setup.image_camera[cams], positions=setup.positions[cams],
             rotations=setup.rotations[cams], points=data.apriori_points, measure_image=local,
             measure_point=data.measure_point, measures=data.measures, measure_sigma=data.sigma,
-            held_points=data.held_points, image_ids=("",) * len(cams),
+            held_points=data.held_points, image_ids=("",) * len(cams), point_radius_sigma=data.point_radius_sigma,
         )
         self.model = FramingModel(problem, setup.pointing_sigma_rad, None, setup.point_sigma_m)
         self.opt = opt

@@ -1,0 +1,37 @@
+"""The run's hemisphere/global units over point blocks (issue #17, ``adjust.blocked_min_measures``).
+
+The tiny run's global unit (with its re-centred radius priors and the altimetry's two passes) is adjusted
+again from the run store with the threshold forced to 0, and compared with the default (in-memory) path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mercury_dem.io.run_store import RunStore
+from mercury_dem.pipeline.stages import _adjust_unit
+
+from .conftest import tiny_config
+
+pytestmark = pytest.mark.integration
+
+
+def test_global_unit_blocked_equals_in_memory(sync_run: tuple[Path, dict[str, Any]]) -> None:
+    run, _ = sync_run
+    store = RunStore(run)
+    ref = _adjust_unit(store, "global", 0, tiny_config())
+    blk = _adjust_unit(store, "global", 0, tiny_config(adjust={"blocked_min_measures": 0, "blocked_block_points": 150}))
+    assert "blocked" not in ref and blk["blocked"]["blocks"] >= 2
+    assert blk["iterations"] == ref["iterations"] and blk["rejected"] == ref["rejected"]
+    a, b = ref["_files"], blk["_files"]
+    assert np.array_equal(a["solution"]["image_ids"], b["solution"]["image_ids"])
+    assert np.abs(a["solution"]["rotations"] - b["solution"]["rotations"]).max() < 1e-10  # rad
+    assert np.array_equal(a["network"].measure_rejected, b["network"].measure_rejected)
+    assert blk["sigma0"] == pytest.approx(ref["sigma0"], rel=1e-8)
+    # a hemisphere unit below the threshold keeps the in-memory path
+    hemi = _adjust_unit(store, "hemisphere", 0, tiny_config(adjust={"blocked_min_measures": 10**9}))
+    assert "blocked" not in hemi
