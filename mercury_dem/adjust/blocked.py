@@ -155,6 +155,13 @@ class PointBlockState:
             held_points=data.held_points, image_ids=("",) * len(cams), point_radius_sigma=data.point_radius_sigma,
         )
         self.model = FramingModel(problem, setup.pointing_sigma_rad, None, setup.point_sigma_m)
+        # int32 measure indices (a block has < 2^31 measures and points): the same arrays serve the model, the
+        # Schur structure and the kernels (numba specializes them), 16 bytes a measure instead of 32
+        mi, mp = problem.measure_image.astype(np.int32), problem.measure_point.astype(np.int32)
+        object.__setattr__(problem, "measure_image", mi)
+        object.__setattr__(problem, "measure_point", mp)
+        self.model.camera_index, self.model.point_index = mi, mp
+        self.model._groups = [(k, g.astype(np.int32)) for k, g in self.model._groups]
         self.float32 = bool(setup.float32)
         if self.float32:  # the block's own copies (AdjustmentProblem validates in float64, then they are narrowed)
             object.__setattr__(problem, "measures", problem.measures.astype(np.float32))
@@ -172,6 +179,7 @@ class PointBlockState:
         # them (a block has < 2^31 measures and pair blocks); the kernel is the same, specialized by numba.
         for name in ("pair_first", "pair_second", "pair_block"):
             setattr(self.struct, name, getattr(self.struct, name).astype(np.int32))
+        self.struct.camera_index, self.struct.point_index = self.cam, self.pt  # not its int64 copies
         n = setup.n_images
         self.pair_keys = cams[self.struct.block_row] * n + cams[self.struct.block_col]  # global upper-triangle keys
         self.active = np.ones(self.m, bool)

@@ -89,6 +89,11 @@ class AdjustConfig(ConfigSection):
         ("hemisphere", "global"), "Levels whose units may use the blocked adjustment (see blocked_min_measures)"
     )
     blocked_block_points: int = param(25000, "Points per block of the blocked adjustment", lo=1)
+    blocked_float32: bool = param(
+        True, "The blocked adjustment stores W = Jc^T Jp, the measures and their sigmas in float32 (about 60 instead "
+        "of 84 of its ~200 bytes a measure; the same stationary point, observations rounded by < 1e-4 px: "
+        "docs/design/adjust.md, 'Memory'); false: float64 throughout, the in-memory adjuster's sums bit for bit"
+    )
     # -- outputs ----------------------------------------------------------------
     posterior_sigmas: bool = param(False, "Compute a-posteriori sigmas of images and points (small networks)")
     posterior_max_unknowns: int = param(6000, "Skip a-posteriori sigmas above this many camera unknowns", lo=1)

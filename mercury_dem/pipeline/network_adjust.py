@@ -42,7 +42,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     t0 = time.perf_counter()
     net = BlockedNetwork(store)
     im = net.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config, float32=config.blocked_float32)
     opt = options_from_config(config)
     if client is None:
         engine: Any = SyncEngine([BlockShard((str(net.root), list(range(net.n_blocks))), setup, opt)])
