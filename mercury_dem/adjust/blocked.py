@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.framing import FramingModel, FramingState, inverse_left_jacobian
-from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs
+from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs_grouped
 from mercury_dem.adjust.problem import AdjustmentProblem
 from mercury_dem.adjust.robust import loss_rho, rejection_limit
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
@@ -175,10 +175,15 @@ class PointBlockState:
         self.points = problem.points.copy()
         self.zero_pos = np.zeros((self.n_cam, 3))
         self.struct = SchurStructure.build(self.cam, self.pt, self.n_cam, self.n_pt, C, eliminate=~self.held_p)
-        # The pair lists are the largest index arrays (~4.4 pairs a measure at 7 views a point): int32 halves
-        # them (a block has < 2^31 measures and pair blocks); the kernel is the same, specialized by numba.
-        for name in ("pair_first", "pair_second", "pair_block"):
-            setattr(self.struct, name, getattr(self.struct, name).astype(np.int32))
+        # The pair lists are the largest index arrays (~4.4 pairs a measure at 7 views a point): only the pair
+        # blocks are kept (int32: a block has < 2^31 pairs), the pairs themselves are enumerated from the measures
+        # grouped by point (kernels.schur_pairs_grouped, same order as SchurStructure's lists).
+        use = np.flatnonzero(~self.held_p[self.pt])
+        use = use[np.argsort(self.pt[use], kind="stable")]
+        self.pair_order = use.astype(np.int32)
+        self.pair_ptr = np.concatenate([[0], np.cumsum(np.bincount(self.pt[use], minlength=self.n_pt))]).astype(np.int32)
+        self.struct.pair_block = self.struct.pair_block.astype(np.int32)
+        self.struct.pair_first = self.struct.pair_second = np.zeros(0, np.int32)
         self.struct.camera_index, self.struct.point_index = self.cam, self.pt  # not its int64 copies
         n = setup.n_images
         self.pair_keys = cams[self.struct.block_row] * n + cams[self.struct.block_col]  # global upper-triangle keys
@@ -253,7 +258,7 @@ class PointBlockState:
         self.v_inv = inv3(vd)
         blocks = np.zeros((self.struct.n_blocks, C, C))
         s = self.struct
-        schur_pairs(self.wm, self.v_inv, self.pt, s.pair_first, s.pair_second, s.pair_block, blocks)
+        schur_pairs_grouped(self.wm, self.v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
         t_p = np.matmul(self.v_inv, self.g_p[:, :, None])[:, :, 0]
         b = np.zeros((self.n_cam, C))
         reduced_rhs(self.wm, t_p, self.cam, self.pt, b)

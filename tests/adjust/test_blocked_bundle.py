@@ -80,3 +80,26 @@ def test_blocks_cover_every_measure_once(problem) -> None:
 def test_positions_are_refused_by_name(problem) -> None:
     with pytest.raises(AdjustmentError, match="solve_positions"):
         blocked_bundle_adjust(problem, dataclasses.replace(CFG, solve_positions=True))
+
+
+def test_grouped_pairs_equal_the_pair_lists(problem) -> None:
+    """The Schur pair sums without the pair lists (``schur_pairs_grouped``) equal those over SchurStructure's lists."""
+    from mercury_dem.adjust.kernels import schur_pairs, schur_pairs_grouped
+    from mercury_dem.adjust.schur import SchurStructure
+
+    rng = np.random.default_rng(3)
+    cam, pt = problem.measure_image, problem.measure_point
+    held = np.zeros(problem.n_points, bool)
+    held[::11] = True  # held points take no part in the elimination
+    s = SchurStructure.build(cam, pt, problem.n_images, problem.n_points, 3, eliminate=~held)
+    w = rng.normal(size=(problem.n_measures, 3, 3))
+    a = rng.normal(size=(problem.n_points, 3, 3))
+    v_inv = np.matmul(a, a.transpose(0, 2, 1)) + np.eye(3)
+    ref = np.zeros((s.n_blocks, 3, 3))
+    schur_pairs(w, v_inv, pt, s.pair_first, s.pair_second, s.pair_block, ref)
+    use = np.flatnonzero(~held[pt])
+    use = use[np.argsort(pt[use], kind="stable")]
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(pt[use], minlength=problem.n_points))])
+    got = np.zeros_like(ref)
+    schur_pairs_grouped(w, v_inv, pt, cam, use, ptr, s.pair_block, got)
+    assert np.allclose(got, ref, rtol=1e-12, atol=1e-9 * np.abs(ref).max())
