@@ -90,8 +90,8 @@ class AdjustConfig(ConfigSection):
     )
     blocked_block_points: int = param(25000, "Points per block of the blocked adjustment", lo=1)
     blocked_float32: bool = param(
-        True, "The blocked adjustment stores W = Jc^T Jp, the measures and their sigmas in float32 (about 60 instead "
-        "of 84 of its ~200 bytes a measure; the same stationary point, observations rounded by < 1e-4 px: "
+        True, "The blocked adjustment stores W = Jc^T Jp, the measures and their sigmas in float32 (138 instead "
+        "of 190 bytes a measure held; the same stationary point, observations rounded by < 1e-4 px: "
         "docs/design/adjust.md, 'Memory'); false: float64 throughout, the in-memory adjuster's sums bit for bit"
     )
     # -- outputs ----------------------------------------------------------------
