@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.framing import FramingModel, FramingState, inverse_left_jacobian
-from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs
+from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs_grouped
 from mercury_dem.adjust.problem import AdjustmentProblem
 from mercury_dem.adjust.robust import loss_rho, rejection_limit
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
@@ -80,6 +80,10 @@ class CameraSetup:
     held: NDArray[np.bool_]
     pointing_sigma_rad: float
     point_sigma_m: tuple[float | None, float | None, float | None]
+    #: float32 storage of what a block keeps that only shapes the step or rounds observations below their
+    #: precision: W = Jc^T Jp, the measures and their sigmas (see :class:`PointBlockState`); False: all float64
+    #: (bit for bit the in-memory adjuster's sums)
+    float32: bool = False
 
     @property
     def n_images(self) -> int:
@@ -99,14 +103,14 @@ def options_from_config(config: AdjustConfig, median_sigma_px: float = 1.0) -> S
 
 
 def setup_from_config(cameras: tuple[FramingCamera, ...], image_camera: NDArray[np.int64], positions: NDArray[np.float64],
-                      rotations: NDArray[np.float64], config: AdjustConfig) -> CameraSetup:
+                      rotations: NDArray[np.float64], config: AdjustConfig, float32: bool = False) -> CameraSetup:
     """The camera setup with the configured a-priori constraints (as ``bundle.make_model``)."""
     if config.solve_positions:
         raise AdjustmentError("the blocked adjustment solves pointing only: set adjust.solve_positions: false")
     return CameraSetup(tuple(cameras), np.asarray(image_camera, np.int64), np.asarray(positions, np.float64),
                        np.asarray(rotations, np.float64), np.zeros(len(positions), bool),
                        float(np.radians(config.pointing_sigma_deg)),
-                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m))
+                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m), float32)
 
 
 def blocks_from_problem(problem: AdjustmentProblem, n_blocks: int) -> list[BlockData]:
@@ -125,7 +129,20 @@ def blocks_from_problem(problem: AdjustmentProblem, n_blocks: int) -> list[Block
 
 
 class PointBlockState:
-    """One block's points, measures and their share of every sum; lives where its shard lives."""
+    """One block's points, measures and their share of every sum; lives where its shard lives.
+
+    What it keeps between iterations is what the next step needs, no more (bytes a measure: docs/design/adjust.md,
+    "Memory"): the Jacobians are not kept (the rejection test's point Jacobians are recomputed, bit for bit, at
+    the state of the last linearization; the residuals at the current state when asked, :attr:`r_now`).
+
+    With ``setup.float32``: ``W = Jc^T Jp`` is stored in float32. It only enters the reduced camera matrix, the
+    ``W V^-1 g_p`` term of its right-hand side and the back-substitution, never the gradient ``g_c``, ``g_p`` nor
+    the cost (float64): a step ``dc = 0`` gives ``dp = -V^-1 g_p``, so the iteration stops exactly where ``g_c``
+    and ``g_p`` vanish, whatever the rounding of W; it changes the path (an inexact Newton step, relative error
+    ~1e-7), not the solution. The measures (sample, line) and sigmas are stored in float32 too: that rounds the
+    observations by at most 2^-24 of their magnitude (3e-5 px at 512 px, 6e-5 px at 1024), 10^-4 of the 0.25 px
+    noise, and the weights by 6e-8 relative (the bound the tests check on the pointing: 1e-3 px).
+    """
 
     def __init__(self, data: BlockData, setup: CameraSetup, opt: SolverOptions):
         self.block, self.point_start = data.block, data.point_start
@@ -135,9 +152,21 @@ class PointBlockState:
             cameras=setup.cameras, image_camera=setup.image_camera[cams], positions=setup.positions[cams],
             rotations=setup.rotations[cams], points=data.apriori_points, measure_image=local,
             measure_point=data.measure_point, measures=data.measures, measure_sigma=data.sigma,
-            held_points=data.held_points, image_ids=("",) * len(cams),
+            held_points=data.held_points, image_ids=("",) * len(cams), point_radius_sigma=data.point_radius_sigma,
         )
         self.model = FramingModel(problem, setup.pointing_sigma_rad, None, setup.point_sigma_m)
+        # int32 measure indices (a block has < 2^31 measures and points): the same arrays serve the model, the
+        # Schur structure and the kernels (numba specializes them), 16 bytes a measure instead of 32
+        mi, mp = problem.measure_image.astype(np.int32), problem.measure_point.astype(np.int32)
+        object.__setattr__(problem, "measure_image", mi)
+        object.__setattr__(problem, "measure_point", mp)
+        self.model.camera_index, self.model.point_index = mi, mp
+        self.model._groups = [(k, g.astype(np.int32)) for k, g in self.model._groups]
+        self.float32 = bool(setup.float32)
+        if self.float32:  # the block's own copies (AdjustmentProblem validates in float64, then they are narrowed)
+            object.__setattr__(problem, "measures", problem.measures.astype(np.float32))
+            object.__setattr__(problem, "measure_sigma", problem.measure_sigma.astype(np.float32))
+            self.model._inv_sigma = self.model._inv_sigma.astype(np.float32)
         self.opt = opt
         self.cam, self.pt = self.model.camera_index, self.model.point_index
         self.n_cam, self.n_pt, self.m = len(cams), problem.n_points, problem.n_measures
@@ -146,17 +175,23 @@ class PointBlockState:
         self.points = problem.points.copy()
         self.zero_pos = np.zeros((self.n_cam, 3))
         self.struct = SchurStructure.build(self.cam, self.pt, self.n_cam, self.n_pt, C, eliminate=~self.held_p)
-        # The pair lists are the largest index arrays (~4.4 pairs a measure at 7 views a point): int32 halves
-        # them (a block has < 2^31 measures and pair blocks); the kernel is the same, specialized by numba.
-        for name in ("pair_first", "pair_second", "pair_block"):
-            setattr(self.struct, name, getattr(self.struct, name).astype(np.int32))
+        # The pair lists are the largest index arrays (~4.4 pairs a measure at 7 views a point): only the pair
+        # blocks are kept (int32: a block has < 2^31 pairs), the pairs themselves are enumerated from the measures
+        # grouped by point (kernels.schur_pairs_grouped, same order as SchurStructure's lists).
+        use = np.flatnonzero(~self.held_p[self.pt])
+        use = use[np.argsort(self.pt[use], kind="stable")]
+        self.pair_order = use.astype(np.int32)
+        self.pair_ptr = np.concatenate([[0], np.cumsum(np.bincount(self.pt[use], minlength=self.n_pt))]).astype(np.int32)
+        self.struct.pair_block = self.struct.pair_block.astype(np.int32)
+        self.struct.pair_first = self.struct.pair_second = np.zeros(0, np.int32)
+        self.struct.camera_index, self.struct.point_index = self.cam, self.pt  # not its int64 copies
         n = setup.n_images
         self.pair_keys = cams[self.struct.block_row] * n + cams[self.struct.block_col]  # global upper-triangle keys
         self.active = np.ones(self.m, bool)
         self.use, self.frozen = self._usable(self.active)
         self.outlier = data.outlier
         self.true_points = data.true_points
-        self.r_now: NDArray[np.float64] | None = None
+        self._omega_c: NDArray[np.float64] | None = None  # the block's cameras' pointing at the current state
 
     # -- helpers ---------------------------------------------------------------
     def _usable(self, active: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
@@ -166,6 +201,11 @@ class PointBlockState:
 
     def _state(self, omega: NDArray[np.float64], points: NDArray[np.float64]) -> FramingState:
         return FramingState(omega[self.cams], self.zero_pos, points)
+
+    @property
+    def r_now(self) -> NDArray[np.float64]:
+        """Whitened residuals (M, 2) at the current state (recomputed: 16 bytes a measure not kept)."""
+        return self.model.residuals(FramingState(self._omega_c, self.zero_pos, self.points))
 
     def cost(self, omega: NDArray[np.float64], points: NDArray[np.float64] | None = None) -> tuple[float, NDArray[np.float64]]:
         """This block's cost 0.5 sum rho(|r|^2) over measures in use plus its point priors, and its residuals."""
@@ -189,8 +229,8 @@ class PointBlockState:
         sw = np.sqrt(np.where(self.use, w, 0.0))
         r = r * sw[:, None]
         jc = jc * sw[:, None, None]
-        self.jp_raw = jp
-        jp = jp * sw[:, None, None]
+        self._lin = (st.omega, self.points)  # where the rejection test's point Jacobians are recomputed
+        jp *= sw[:, None, None]
         jc[self.held_c[self.cam]] = 0.0
         fixed = self.held_p | self.frozen
         jp[fixed[self.pt]] = 0.0
@@ -198,8 +238,9 @@ class PointBlockState:
         g_c = np.zeros((self.n_cam, C))
         v = np.zeros((self.n_pt, 3, 3))
         g_p = np.zeros((self.n_pt, 3))
-        wm = np.empty((self.m, C, 3))
+        wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
         normal_blocks(r, jc, jp, self.cam, self.pt, u, g_c, v, g_p, wm)
+        del r, jc, jp
         pp = self.model.point_prior(st)
         n_prior = 0
         if pp is not None:
@@ -217,7 +258,7 @@ class PointBlockState:
         self.v_inv = inv3(vd)
         blocks = np.zeros((self.struct.n_blocks, C, C))
         s = self.struct
-        schur_pairs(self.wm, self.v_inv, self.pt, s.pair_first, s.pair_second, s.pair_block, blocks)
+        schur_pairs_grouped(self.wm, self.v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
         t_p = np.matmul(self.v_inv, self.g_p[:, :, None])[:, :, 0]
         b = np.zeros((self.n_cam, C))
         reduced_rhs(self.wm, t_p, self.cam, self.pt, b)
@@ -236,18 +277,19 @@ class PointBlockState:
         dp[self.held_p | self.frozen] = 0.0
         pred = lam * float(np.sum(self.dv * dp * dp)) - float(np.sum(self.g_p * dp))
         new_points = self.points + dp
-        c, r = self.cost(new_omega, new_points)
-        self._trial = (new_points, r)
+        c, _ = self.cost(new_omega, new_points)
+        self._trial = (new_points, new_omega[self.cams])
         return pred, c, float(np.sum(dp * dp)), float(np.sum(self.points**2))
 
     def accept(self) -> None:
-        self.points, self.r_now = self._trial
+        self.points, self._omega_c = self._trial
         del self._trial
 
     def deletion(self) -> NDArray[np.float64]:
         """Square roots of the deletion statistic of every measure (see ``solver.deletion_statistic``)."""
         self._member = self.use | (self.frozen & ~self.held_p)[self.pt]
-        delta, self._ssr = deletion_statistic(self.r_now, self.jp_raw, self.pt, self._member, self.held_p)
+        jp_raw = self.model.linearize(FramingState(self._lin[0], self.zero_pos, self._lin[1]))[2]
+        delta, self._ssr = deletion_statistic(self.r_now, jp_raw, self.pt, self._member, self.held_p)
         self._norms = np.sqrt(np.maximum(delta, 0.0))
         return self._norms
 
@@ -270,14 +312,16 @@ class PointBlockState:
             new = new | self.active
             new &= ~(np.bincount(self.pt[new], minlength=self.n_pt) < self.opt.min_point_measures)[self.pt] | self.held_p[self.pt]
             self._proposal = new
+        del self._norms, self._ssr, self._member  # until the next round
         return int(np.sum(new != self.active))
 
     def apply(self, omega: NDArray[np.float64]) -> float:
         """Adopt the settled set; the cost at the current state under it."""
         self.active = self._proposal
+        del self._proposal
         self.use, self.frozen = self._usable(self.active)
-        c, self.r_now = self.cost(omega)
-        return c
+        self._omega_c = omega[self.cams]
+        return self.cost(omega)[0]
 
 
 class BlockShard:
@@ -315,8 +359,9 @@ class BlockShard:
         """The cost at the starting state; raises AdjustmentError naming measures that cannot be projected."""
         out = 0.0
         for b in self.blocks:
-            c, b.r_now = b.cost(omega)
-            bad = ~np.all(np.isfinite(b.r_now), axis=1)
+            c, r = b.cost(omega)
+            b._omega_c = omega[b.cams]
+            bad = ~np.all(np.isfinite(r), axis=1)
             if bad.any():
                 which = np.flatnonzero(bad)[:10]
                 raise AdjustmentError(

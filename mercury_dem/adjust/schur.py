@@ -143,7 +143,7 @@ class SchurStructure:
         pair_block = inverse[: len(c1)]
         self.block_row = ukeys // self.n_cameras
         self.block_col = ukeys % self.n_cameras
-        self.diag_block = inverse[len(c1):]
+        self.diag_block = inverse[len(c1):].copy()  # not a view: it would keep the pair-sized inverse alive
         self.pair_first, self.pair_second, self.pair_block = m1, m2, pair_block.astype(np.int64)
         # Block-CSR layout of the full symmetric matrix: upper blocks then transposed off-diagonals.
         off = np.flatnonzero(self.block_row != self.block_col)

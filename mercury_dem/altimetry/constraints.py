@@ -319,6 +319,7 @@ def bundle_adjust_with_altimetry(
     min_shots: int = 6,
     sigma_floor_m: float = 1.0,
     horizontal_sigma_m: float = 50.0,
+    adjust: Any = None,
 ) -> tuple[Any, RadiusPriors]:
     """Bundle adjustment with the tie points' radii constrained by altimetry (two passes).
 
@@ -327,14 +328,17 @@ def bundle_adjust_with_altimetry(
     where the terrain is another height); pass 2 starts from pass 1's pointing with those points at
     the altimetry's radius and their radius constraints centred there (the others keep the
     configured constraint). ``horizontal_sigma_m`` is how far pass 1's points may still be from
-    their true place on the ground (its pointing error times the range): on a slope that is height. Returns pass 2's :class:`~mercury_dem.adjust.result.AdjustmentResult`
+    their true place on the ground (its pointing error times the range): on a slope that is height.
+    ``adjust(problem, config)`` runs each pass (default :func:`~mercury_dem.adjust.bundle.bundle_adjust`;
+    the pipeline passes the blocked adjustment for large units). Returns pass 2's :class:`~mercury_dem.adjust.result.AdjustmentResult`
     and the priors.
     """
     import dataclasses
 
     from mercury_dem.adjust.bundle import bundle_adjust
 
-    first = bundle_adjust(problem, config)
+    adjust = adjust or bundle_adjust
+    first = adjust(problem, config)
     priors = altimetry_radius_priors(
         first.points, shots.lat_deg, shots.lon_deg, shots.radius_m, shot_sigma_m=shots.sigma_m,
         search_radius_m=search_radius_m, min_shots=min_shots, sigma_floor_m=sigma_floor_m,
@@ -344,4 +348,4 @@ def bundle_adjust_with_altimetry(
         return first, priors
     second = dataclasses.replace(constrain_to_altimetry(problem, priors, directions=first.points),
                                  initial_rotations=np.asarray(first.rotations))
-    return bundle_adjust(second, config), priors
+    return adjust(second, config), priors

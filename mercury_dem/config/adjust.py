@@ -80,6 +80,20 @@ class AdjustConfig(ConfigSection):
     direct_max_unknowns: int = param(30000, "auto: factor directly up to this many camera unknowns, PCG above", lo=1)
     pcg_tolerance: float = param(0.1, "Relative residual at which PCG stops (inexact Newton)", lo=1e-12, hi=0.9)
     pcg_max_iterations: int = param(500, "PCG iteration limit per step", lo=1)
+    blocked_min_measures: int | None = param(
+        None, "Units of blocked_levels with at least this many measures are adjusted over point blocks "
+        "(mercury_dem.adjust.blocked_bundle: the same solution to solver tolerance, pointing only, no a-posteriori "
+        "sigmas; docs/design/adjust.md). Null (the default): never; 0: always", lo=0
+    )
+    blocked_levels: tuple[str, ...] = param(
+        ("hemisphere", "global"), "Levels whose units may use the blocked adjustment (see blocked_min_measures)"
+    )
+    blocked_block_points: int = param(25000, "Points per block of the blocked adjustment", lo=1)
+    blocked_float32: bool = param(
+        True, "The blocked adjustment stores W = Jc^T Jp, the measures and their sigmas in float32 (138 instead "
+        "of 190 bytes a measure held; the same stationary point, observations rounded by < 1e-4 px: "
+        "docs/design/adjust.md, 'Memory'); false: float64 throughout, the in-memory adjuster's sums bit for bit"
+    )
     # -- outputs ----------------------------------------------------------------
     posterior_sigmas: bool = param(False, "Compute a-posteriori sigmas of images and points (small networks)")
     posterior_max_unknowns: int = param(6000, "Skip a-posteriori sigmas above this many camera unknowns", lo=1)

@@ -194,6 +194,9 @@ class BlockData:
     held_points: NDArray[np.bool_]
     outlier: NDArray[np.bool_] | None  # truth, when present
     true_points: NDArray[np.float64] | None
+    #: (n,) per-point radius constraint, m (NaN: the configured one; None: none given), as
+    #: ``AdjustmentProblem.point_radius_sigma`` (altimetry-constrained points of a pipeline unit)
+    point_radius_sigma: NDArray[np.float64] | None = None
 
 
 class BlockedNetwork:

@@ -34,7 +34,8 @@ def on_datum(xyz: NDArray[np.float64], datum_radius_m: float = DATUM_RADIUS_M) -
     return np.where(r > 0, xyz * (datum_radius_m / np.where(r > 0, r, 1.0)), xyz)
 
 
-def recentre_on_block(problem: Any, cfg: AdjustConfig, datum_radius_m: float = DATUM_RADIUS_M) -> tuple[Any, dict[str, Any]]:
+def recentre_on_block(problem: Any, cfg: AdjustConfig, datum_radius_m: float = DATUM_RADIUS_M,
+                      adjust: Any = None) -> tuple[Any, dict[str, Any]]:
     """The problem with its free points' radius constraints centred on the block's own surface.
 
     A first adjustment with the radius constraint loosened to ``cfg.point_prior_first_pass_sigma_m``
@@ -46,12 +47,13 @@ def recentre_on_block(problem: Any, cfg: AdjustConfig, datum_radius_m: float = D
     datum sphere, the constraint pulls weak points toward the sphere by a share of their true
     height, and the block bends with the body's long-wavelength shape (docs/design/adjust.md,
     "The block's long-wavelength shape"). Points without a usable neighbourhood keep their centre.
-    Returns the new problem and a summary for the unit's report.
+    Returns the new problem and a summary for the unit's report. ``adjust(problem, config)`` runs the
+    first pass (default :func:`~mercury_dem.adjust.bundle.bundle_adjust`).
     """
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.adjust.datum import neighbour_radii
 
-    first = bundle_adjust(problem, dataclasses.replace(cfg, radius_sigma_m=cfg.point_prior_first_pass_sigma_m))
+    first = (adjust or bundle_adjust)(problem, dataclasses.replace(cfg, radius_sigma_m=cfg.point_prior_first_pass_sigma_m))
     held = np.asarray(problem.held_points, bool)
     pts = np.asarray(first.points, np.float64)
     usable = ~np.asarray(first.underdetermined_points, bool) & np.all(np.isfinite(pts), axis=1)
@@ -94,6 +96,7 @@ def adjust_network(
     datum_radius_m: float = DATUM_RADIUS_M,
     altimetry: Any = None,
     recentre_point_priors: bool = False,
+    level: str | None = None,
 ) -> UnitAdjustment:
     """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
 
@@ -112,6 +115,11 @@ def adjust_network(
     ``recentre_point_priors``: the radius constraints of the non-held points are first re-centred
     on the block's own surface (:func:`recentre_on_block`, one more adjustment) instead of the
     datum sphere.
+
+    ``level``: the unit's level; a unit of ``config.blocked_levels`` with at least
+    ``config.blocked_min_measures`` measures is adjusted over point blocks
+    (:func:`~mercury_dem.adjust.blocked_bundle.blocked_bundle_adjust`, every pass: re-centring,
+    altimetry), which gives the same solution to solver tolerance; ``summary["blocked"]`` says so.
     """
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.adjust.network import network_with_result, problem_from_network
@@ -127,23 +135,31 @@ def adjust_network(
     problem, measure_index = problem_from_network(
         network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
     )
+    solve = bundle_adjust
+    blocked = (level is not None and level in cfg.blocked_levels and cfg.blocked_min_measures is not None
+               and problem.n_measures >= cfg.blocked_min_measures)
+    if blocked:
+        from mercury_dem.adjust.blocked_bundle import blocked_bundle_adjust
+
+        def solve(p: Any, c: AdjustConfig) -> Any:
+            return blocked_bundle_adjust(p, c, block_points=cfg.blocked_block_points)
     if cfg.point_prior_center == "datum":
         held = np.asarray(problem.held_points, bool)[:, None]
         problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
     prior_summary: dict[str, Any] | None = None
     if recentre_point_priors and cfg.radius_sigma_m is not None:
-        problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m)
+        problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m, adjust=solve)
     altimetry_summary: dict[str, Any] | None = None
     if altimetry is not None and len(altimetry.radius_m):
         from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry
 
         result, priors = bundle_adjust_with_altimetry(
             problem, cfg, altimetry, search_radius_m=cfg.altimetry_search_m, min_shots=cfg.altimetry_min_shots,
-            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m,
+            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m, adjust=solve,
         )
         altimetry_summary = {"shots": int(len(altimetry.radius_m)), **priors.summary()}
     else:
-        result = bundle_adjust(problem, cfg)
+        result = solve(problem, cfg)
     adjusted = network_with_result(network, result, measure_index)
     rms_img = np.asarray(result.rms_per_image, dtype=np.float64)
     flagged = [
@@ -171,6 +187,8 @@ def adjust_network(
         "islands": islands if len(islands) > 1 else [],
         "images_without_measures": no_measures.tolist(),
     }
+    if blocked:
+        summary["blocked"] = result.extra.get("blocked")
     if altimetry_summary is not None:
         summary["altimetry"] = altimetry_summary
     if prior_summary is not None:

@@ -376,7 +376,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
                          initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
                          altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
-                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels)
+                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level)
     return {
         "children": kids,
         **adj.summary,
