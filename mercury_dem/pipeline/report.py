@@ -14,9 +14,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from mercury_dem.mission import Mission
 
+import math
 from typing import Any, TextIO
-
-import numpy as np
 
 from mercury_dem.config import Config, to_dict
 from mercury_dem.io.atomic import atomic_write_json
@@ -153,7 +152,7 @@ def write_report(store: RunStore, report: dict[str, Any]) -> None:
 
 
 def _f(x: Any, fmt: str = ".3f") -> str:
-    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, fmt)
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
 def print_report(report: dict[str, Any], stream: TextIO) -> None:
