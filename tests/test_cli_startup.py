@@ -87,3 +87,45 @@ def test_info_imports_no_heavy_library(tiny_mission_path: Path, tmp_path: Path) 
 def test_the_command_probe_can_fail(tiny_mission_path: Path) -> None:
     """``info --json`` computes per-image statistics with numpy: the probe sees numpy (so it sees imports)."""
     assert loaded_by_command(["info", str(tiny_mission_path), "--no-map", "--json"], ("numpy",)) == ["numpy"]
+
+
+def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path) -> None:
+    """A cold ``mercury-dem grid`` loads neither the products' nor numba's optional libraries
+    (mercury_dem.dem.numba_start), and grids exactly what the library gives in a process where they are loaded."""
+    import numpy as np
+    import zarr
+
+    from mercury_dem.config import load_config
+    from mercury_dem.pipeline.dem_stage import grid_dem
+    from tests.dem.dem_synthetic import sample_cloud
+
+    pts = sample_cloud(np.random.default_rng(7), 30_000, (-5.0, 5.0), (10.0, 20.0))
+    np.save(tmp_path / "pts.npy", pts)
+    cfg = tmp_path / "grid.yaml"
+    cfg.write_text("dem:\n  pixels_per_degree: 16\n  lat_min: -5.0\n  lat_max: 5.0\n  lon_min: 10.0\n  lon_max: 20.0\n")
+    mods = ("scipy.linalg", "cffi", "numpy.f2py", "pandas", "xarray", "rioxarray", "rasterio", "pyproj", "matplotlib",
+            "dask", "distributed", "PIL")
+    assert loaded_by_command(["grid", str(tmp_path / "pts.npy"), "--out", str(tmp_path / "cli"), "--config", str(cfg),
+                              "--no-coverage"], mods) == []
+    import scipy.linalg  # noqa: F401  (this process: numba started as usual, with scipy)
+
+    grid_dem(pts, load_config(cfg).dem, tmp_path / "lib" / "dem.zarr", coverage=False)
+    cli, lib = zarr.open_group(tmp_path / "cli" / "dem.zarr", mode="r"), zarr.open_group(tmp_path / "lib" / "dem.zarr", mode="r")
+    assert sorted(cli.array_keys()) == sorted(lib.array_keys())
+    for name in lib.array_keys():
+        a, b = np.asarray(cli[name][...]), np.asarray(lib[name][...])
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
+    assert np.isfinite(np.asarray(lib["elevation"][...])).mean() > 0.9
+
+
+def test_numba_start_guard_is_scoped() -> None:
+    """The refusal lasts for the first call only, and is skipped when numba has already started."""
+    code = ("import sys\nfrom mercury_dem.dem.numba_start import start_gridding_kernels\n"
+            "assert start_gridding_kernels() is True\n"
+            "assert 'scipy.linalg' not in sys.modules and 'cffi' not in sys.modules\n"
+            "import scipy.linalg, cffi\n"
+            "assert start_gridding_kernels() is False\n"
+            "print('ok')\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
