@@ -72,7 +72,7 @@ def test_info_imports_no_heavy_library(tiny_mission_path: Path, tmp_path: Path) 
     """``info`` reads the catalog with pyarrow (not pandas) and draws its map with Pillow (not matplotlib).
 
     Import sets, not times (robust on a loaded machine); the times are in docs/benchmarks/dem.md
-    (2026-11-26: 0.36-0.38 s CPU with the map, was 1.05-1.10 s).
+    (2026-11-26, under the lock: 0.39-0.43 s wall, 0.33-0.35 s CPU with the map; was 1.10-1.12 s wall).
     """
     png = tmp_path / "cov.png"
     assert loaded_by_command(["info", str(tiny_mission_path), "--coverage-map", str(png)]) == []
