@@ -34,14 +34,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from mercury_dem.exceptions import ConfigError, StoreError
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_directory, atomic_write_json, is_complete
+
+if TYPE_CHECKING:
+    import pandas as pd  # imported where tables are built: opening a store (mercury-dem info) does not need it
 
 FORMAT = "mercury-dem-altimetry"
 VERSION = 1
@@ -105,7 +107,7 @@ def combine_shots(
         raise ValueError("combine_shots: one source per table")
     if not (math.isfinite(sigma_m) and sigma_m > 0):
         raise ConfigError(f"altimetry sigma_m must be a positive number of metres, got {sigma_m!r}")
-    kinds = {("datetime" if pd.api.types.is_datetime64_any_dtype(t["time"]) else "numeric") for t in tables if len(t)}
+    kinds = {("datetime" if _is_datetime(t["time"]) else "numeric") for t in tables if len(t)}
     if len(kinds) > 1:
         names = ", ".join(s.name for s in sources)
         raise StoreError(f"altimetry inputs {names} mix ISO (UTC) times with numeric (ephemeris) times; "
@@ -121,9 +123,17 @@ def combine_shots(
             t["sigma_m"] = float(sigma_m)
         t["source_id"] = np.int32(k)
         out.append(t)
+    import pandas as pd
+
     if not out:
         return pd.DataFrame({c: [] for c in SHOT_COLUMNS if c != "tile_id"})
     return pd.concat(out, ignore_index=True)
+
+
+def _is_datetime(column: Any) -> bool:
+    import pandas as pd
+
+    return bool(pd.api.types.is_datetime64_any_dtype(column))
 
 
 def _check_table(table: pd.DataFrame, where: str) -> None:
@@ -183,7 +193,7 @@ def write_altimetry(
     t["tile_id"] = grid.tile_of(t["lat"].to_numpy(np.float64), t["lon"].to_numpy(np.float64)) if len(t) else \
         np.zeros(0, np.int64)
     _check_table(t, f"altimetry store {path}")
-    ts = (t["time"].astype("int64").to_numpy() if pd.api.types.is_datetime64_any_dtype(t["time"])
+    ts = (t["time"].astype("int64").to_numpy() if _is_datetime(t["time"])
           else t["time"].to_numpy(np.float64))
     order = np.lexsort((ts, t["tile_id"].to_numpy()))
     cols = list(SHOT_COLUMNS) + [c for c in OPTIONAL_COLUMNS if c in t.columns]
@@ -213,7 +223,7 @@ def write_altimetry(
             "format": FORMAT, "version": VERSION, "tile_size_deg": float(tile_size_deg),
             "body_radius_m": float(body_radius_m), "n_shots": int(len(t)),
             "n_tracks": int(t["track_id"].nunique()) if len(t) else 0,
-            "time_kind": "datetime" if pd.api.types.is_datetime64_any_dtype(t["time"]) else "numeric",
+            "time_kind": "datetime" if _is_datetime(t["time"]) else "numeric",
             "columns": cols, "dropped": dropped, "sources": [s.to_dict() for s in sources],
             "tiles": {k: int(e - s) for k, s, e in zip(row_groups, starts, ends)},
             "row_groups": row_groups, **(extra or {}),

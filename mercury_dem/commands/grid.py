@@ -111,7 +111,11 @@ def run(args: argparse.Namespace, config: Any) -> int:
     out = refuse_remote(args.out, "--out", f"{UPLOAD_HINT}, or use 'mercury-dem run --out URL'")
     client = None
     cluster = None
-    if args.workers > 0:
+    if args.workers == 0:
+        from mercury_dem.dem.numba_start import start_gridding_kernels
+
+        start_gridding_kernels()  # numba's first call without scipy.linalg/cffi: ~0.1-0.15 s of a cold grid
+    else:
         from distributed import Client
 
         from mercury_dem.pipeline.executors import local_cluster

@@ -20,9 +20,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, config: Config) -> int:
     """Exit status 0 when every checksummed unit matches, 1 when any does not (each named with its files)."""
     from mercury_dem.io.atomic import verify_complete
-    from mercury_dem.io.run_store import RunStore
+    from mercury_dem.io.run_store import RunStore, unit_name
     from mercury_dem.plan.tree import LEVELS
-    from mercury_dem.pipeline.stages import unit_name
 
     store = RunStore.open(args.run_dir)
     t0 = time.perf_counter()

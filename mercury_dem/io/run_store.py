@@ -34,10 +34,7 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import numpy as np
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import CorruptUnitError, StoreError
 from mercury_dem.io.atomic import _tmp_sibling, atomic_write_json, is_complete, verify_complete
@@ -45,6 +42,10 @@ from mercury_dem.io.tables import read_table
 from mercury_dem.io.location import resolve_location
 from mercury_dem.io.remote import RemoteDir, cache_dir_for
 from mercury_dem.plan.tree import LEVELS
+
+if TYPE_CHECKING:  # imported where tables are read or written: 'report' and 'verify' need neither
+    import numpy as np
+    import pandas as pd
 
 
 @dataclass(frozen=True)
@@ -346,6 +347,19 @@ class RunStore:
         return is_complete(self.plan_dir)
 
 
+def unit_name(level: str, unit_id: int) -> str:
+    """``tile 17``, ``region N-060-120``, ``hemisphere north``, ``global``."""
+    if level == "region":
+        from mercury_dem.geometry.tiling import region_name
+
+        return f"region {region_name(unit_id)}"
+    if level == "hemisphere":
+        return f"hemisphere {'north' if unit_id == 0 else 'south'}"
+    if level == "global":
+        return "global"
+    return f"{level} {unit_id}"
+
+
 def corrupt_message(unit_dir: Path, problems: list[str]) -> str:
     """``RUN/tile/17: checksum mismatch in network.zarr/...; ...`` and what to do."""
     shown = "; ".join(problems[:5]) + (f"; ... {len(problems) - 5} more" if len(problems) > 5 else "")
@@ -356,6 +370,9 @@ def corrupt_message(unit_dir: Path, problems: list[str]) -> str:
 def write_solution(path: Path, image_ids: np.ndarray, rotations: np.ndarray, positions: np.ndarray,
                    extra: dict[str, np.ndarray] | None = None) -> None:
     """Per-image adjusted pointing as Parquet: image_id, rotation_00..22, position_x/y/z, extra columns."""
+    import numpy as np
+    import pandas as pd
+
     cols: dict[str, Any] = {"image_id": np.asarray(image_ids, dtype=str)}
     r = np.asarray(rotations, dtype=np.float64).reshape(-1, 9)
     for k in range(9):
@@ -370,6 +387,8 @@ def write_solution(path: Path, image_ids: np.ndarray, rotations: np.ndarray, pos
 
 def read_solution(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, pd.DataFrame]:
     """(image_ids, rotations (N,3,3), positions (N,3), the whole table)."""
+    import numpy as np
+
     df = read_table(path, "solution")
     rot = df[[f"rotation_{i}{j}" for i in range(3) for j in range(3)]].to_numpy().reshape(-1, 3, 3)
     pos = df[["position_x", "position_y", "position_z"]].to_numpy()

@@ -20,10 +20,9 @@ pixels that see the body).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from mercury_dem.geometry.body import Body, xyz_to_latlon
@@ -33,6 +32,9 @@ from mercury_dem.geometry.caminfo import centre_geometry
 from mercury_dem.geometry.pose import illumination_angles, intersect_sphere
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.mission.radiometry import RADIOMETRY_COLUMNS, Radiometry
+
+if TYPE_CHECKING:
+    import pandas as pd  # imported where a table is built: 'mercury-dem info' reads catalogs without pandas
 
 ROTATION_COLUMNS = [f"rotation_{i}{j}" for i in range(3) for j in range(3)]
 POSITION_COLUMNS = [f"position_{a}" for a in "xyz"]
@@ -120,6 +122,8 @@ def build_catalog(
         g.update(footprint_extent(cam, positions[idx], rotations[idx], body.datum_radius_m))
         for k in cols:
             geo[k][idx] = g[k]
+    import pandas as pd
+
     cat = pd.DataFrame({
         "image_id": np.asarray(image_ids, dtype=str),
         "instrument": np.asarray(instruments, dtype=str),

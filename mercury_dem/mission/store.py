@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import json
 import math
+from collections import Counter
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from mercury_dem.exceptions import StoreError
@@ -38,7 +38,7 @@ from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.geometry.camera import FramingCamera, camera_preset
 from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_write_json, is_complete
 from mercury_dem.io.names import check_name, name_fault
-from mercury_dem.io.tables import read_table
+from mercury_dem.io.tables import column_to_numpy, read_arrow_table, read_table
 from mercury_dem.mission.cameras import camera_from_dict, camera_to_dict
 from mercury_dem.mission.catalog import (
     CATALOG_COLUMNS,
@@ -50,6 +50,10 @@ from mercury_dem.mission.catalog import (
 )
 from mercury_dem.mission.radiometry import DN12, Radiometry
 from mercury_dem.mission.truth import SyntheticTruth, open_truth
+
+if TYPE_CHECKING:
+    import pandas as pd
+    import pyarrow as pa
 
 FORMAT = "mercury-dem-mission"
 VERSION = 2
@@ -134,31 +138,76 @@ class Mission:
     Use :func:`open_mission`. Attributes: ``path``, ``meta`` (mission.json), ``catalog``
     (DataFrame, a-priori geometry only), ``body`` (:class:`~mercury_dem.geometry.body.Body`),
     ``cameras`` (camera id -> camera), ``truth`` (:class:`SyntheticTruth` or None).
+
+    The catalog is held as the Arrow table read from ``catalog.parquet``; :meth:`column` gives one
+    column as a numpy array, and ``catalog`` (the pandas DataFrame, exactly what ``pd.read_parquet``
+    gives) is read on first use. Why: pandas' import alone costs ~0.3 s CPU, more than everything else
+    ``mercury-dem info`` does; the poses, ids and image sizes every stage needs come from the columns.
     """
 
-    def __init__(self, path: Path, meta: dict[str, Any], catalog: pd.DataFrame,
+    def __init__(self, path: Path, meta: dict[str, Any], catalog: pd.DataFrame | pa.Table,
                  cameras: dict[str, FramingCamera], body: Body) -> None:
         self.path = path
         self.meta = meta
-        self.catalog = catalog
         self.cameras = cameras
         self.body = body
-        self._row = {str(i): k for k, i in enumerate(catalog["image_id"])}
-        self._pos = catalog[POSITION_COLUMNS].to_numpy(np.float64)
-        self._rot = catalog[ROTATION_COLUMNS].to_numpy(np.float64).reshape(-1, 3, 3)
-        self._sun = catalog[SUN_COLUMNS].to_numpy(np.float64)
-        self._cam = catalog["camera_id"].astype(str).to_numpy()
+        if hasattr(catalog, "to_pandas"):  # a pyarrow Table read from path/catalog.parquet
+            self._table: pa.Table | None = catalog
+            self._names = list(catalog.column_names)
+            self._n = int(catalog.num_rows)
+        else:
+            self._table = None
+            self.__dict__["catalog"] = catalog  # the cached_property's slot
+            self._names = [str(c) for c in catalog.columns]
+            self._n = len(catalog)
+        self._columns: dict[str, NDArray[Any]] = {}
+        self._ids = [str(i) for i in self.column("image_id")]
+        self._row = {i: k for k, i in enumerate(self._ids)}
+        self._pos = self._float_columns(POSITION_COLUMNS)
+        self._rot = self._float_columns(ROTATION_COLUMNS).reshape(-1, 3, 3)
+        self._sun = self._float_columns(SUN_COLUMNS)
+        self._cam = np.array([str(c) for c in self.column("camera_id")], dtype=object)
+
+    @cached_property
+    def catalog(self) -> pd.DataFrame:
+        """The catalog as a DataFrame (read from ``catalog.parquet`` on first use, as ``pd.read_parquet`` reads it)."""
+        return read_table(self.path / "catalog.parquet", f"mission {self.path}")
+
+    @property
+    def catalog_columns(self) -> list[str]:
+        """The catalog's column names (without reading it into pandas)."""
+        return list(self._names)
+
+    def column(self, name: str) -> NDArray[Any]:
+        """One catalog column as a numpy array (strings as an object array; integers with nulls as float
+        with NaN, as pandas gives them); KeyError when the catalog has no such column."""
+        col = self._columns.get(name)
+        if col is None:
+            if name not in self._names:
+                raise KeyError(name)
+            if self._table is not None:
+                col = column_to_numpy(self._table.column(name))
+            else:
+                col = self.catalog[name].to_numpy()
+            col.flags.writeable = False
+            self._columns[name] = col
+        return col
+
+    def _float_columns(self, names: list[str]) -> NDArray[np.float64]:
+        if not names:
+            return np.zeros((self._n, 0))
+        return np.column_stack([np.asarray(self.column(c), dtype=np.float64) for c in names])
 
     def __repr__(self) -> str:
-        return (f"Mission({str(self.path)!r}, {len(self.catalog)} images, body={self.body.name}, "
+        return (f"Mission({str(self.path)!r}, {self._n} images, body={self.body.name}, "
                 f"source={self.meta.get('source', 'synthetic')!r})")
 
     def __len__(self) -> int:
-        return len(self.catalog)
+        return self._n
 
     @property
     def image_ids(self) -> list[str]:
-        return [str(i) for i in self.catalog["image_id"]]
+        return list(self._ids)
 
     @property
     def pointing_sigma_urad(self) -> float | None:
@@ -193,8 +242,8 @@ class Mission:
     def radiometry(self, image_id: str) -> Radiometry:
         """What the image's pixel values mean (kind, saturation, DN scale)."""
         k = self._index(image_id)
-        c = self.catalog
-        return Radiometry(str(c["pixel_kind"].iat[k]), float(c["saturation"].iat[k]), float(c["dn_scale"].iat[k]))
+        return Radiometry(str(self.column("pixel_kind")[k]), float(self.column("saturation")[k]),
+                          float(self.column("dn_scale")[k]))
 
     def read_image(self, image_id: str) -> NDArray[Any]:
         """Pixels (lines, samples) as stored (uint8/uint16/int16 DN or float32 with NaN = invalid).
@@ -213,7 +262,7 @@ class Mission:
                 f"image {image_id}: cannot read {p} ({type(exc).__name__}: {exc}); "
                 f"regenerate or re-ingest the mission"
             ) from None
-        shape = (int(self.catalog["lines"].iat[k]), int(self.catalog["samples"].iat[k]))
+        shape = (int(self.column("lines")[k]), int(self.column("samples")[k]))
         if data.ndim != 2 or data.dtype not in IMAGE_DTYPES:
             raise StoreError(f"image {image_id}: {p} holds {data.dtype} {data.shape}, expected a 2-D image")
         if data.shape != shape:
@@ -249,7 +298,7 @@ class Mission:
     @cached_property
     def truth(self) -> SyntheticTruth | None:
         """The truth of a synthetic mission (validation only); None for real images."""
-        return open_truth(self.path, self.catalog["image_id"])
+        return open_truth(self.path, self.image_ids)
 
     @property
     def has_truth(self) -> bool:
@@ -320,25 +369,27 @@ def open_mission(path: str | Path) -> Mission:
         version = -1
     if version > VERSION or version < 1:
         raise StoreError(f"mission {p} has format version {meta.get('version')!r}; this reader reads 1..{VERSION}")
-    catalog = read_table(p / "catalog.parquet", f"mission {p}")  # StoreError; never unpickles
+    # An Arrow table, not pandas (StoreError; never unpickles): see Mission
+    arrow = read_arrow_table(p / "catalog.parquet", f"mission {p}")
     need = CATALOG_COLUMNS if version >= 2 else CATALOG_COLUMNS_V1
-    missing = [c for c in need if c not in catalog.columns]
+    missing = [c for c in need if c not in arrow.column_names]
     if missing:
         raise StoreError(f"mission {p}: catalog.parquet lacks columns {missing}")
-    for image_id in catalog["image_id"].tolist():
+    image_ids = arrow.column("image_id").to_pylist()
+    for image_id in image_ids:
         fault = name_fault(image_id)
         if fault is not None:
             raise StoreError(f"mission {p}: catalog.parquet image id {image_id!r} {fault}, so it cannot name its "
                              "array in images.zarr; re-ingest or regenerate the mission")
-    if catalog["image_id"].duplicated().any():
-        dup = catalog["image_id"][catalog["image_id"].duplicated()].tolist()[:5]
-        raise StoreError(f"mission {p}: duplicate image ids in the catalog, e.g. {dup}")
+    dup = [i for i, n in Counter(image_ids).items() if n > 1]
+    if dup:
+        raise StoreError(f"mission {p}: duplicate image ids in the catalog, e.g. {dup[:5]}")
     for key in ("pointing_sigma_urad", "position_sigma_m", "tile_size_deg"):
         v = meta.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0):
             raise StoreError(f"mission {p}: mission.json {key} must be a positive number, got {v!r}")
     if version == 1:
-        catalog, cameras = _v1_cameras(catalog)
+        catalog, cameras = _v1_cameras(read_table(p / "catalog.parquet", f"mission {p}"))
         body = MERCURY
     else:
         try:
@@ -348,28 +399,38 @@ def open_mission(path: str | Path) -> Mission:
         if not isinstance(table, dict):
             raise StoreError(f"mission {p}: cameras.json is not an object of camera id -> camera")
         cameras = {str(k): camera_from_dict(v, f"mission {p}: cameras.json camera {k!r}") for k, v in table.items()}
-        unknown = sorted(set(catalog["camera_id"].astype(str)) - set(cameras))
-        if unknown:
-            raise StoreError(f"mission {p}: catalog names cameras {unknown[:5]} that cameras.json lacks")
+        catalog = arrow
         try:
             body = Body.from_dict(meta["body"])
         except (KeyError, TypeError, ValueError) as exc:
             raise StoreError(f"mission {p}: mission.json has no valid body ({exc})") from None
-    _check_image_sizes(p, catalog, cameras)
-    return Mission(p, meta, catalog, cameras, body)
+    try:
+        mission = Mission(p, meta, catalog, cameras, body)
+    except (TypeError, ValueError) as exc:  # e.g. a damaged file whose pose columns are not numbers
+        raise StoreError(f"mission {p}: catalog.parquet is inconsistent ({type(exc).__name__}: {exc}); "
+                         "re-ingest or regenerate the mission") from None
+    unknown = sorted(set(mission._cam) - set(cameras))
+    if unknown:
+        raise StoreError(f"mission {p}: catalog names cameras {unknown[:5]} that cameras.json lacks")
+    _check_image_sizes(p, mission, cameras)
+    return mission
 
 
-def _check_image_sizes(p: Path, catalog: pd.DataFrame, cameras: dict[str, FramingCamera]) -> None:
+def _check_image_sizes(p: Path, mission: Mission, cameras: dict[str, FramingCamera]) -> None:
     """Each image's (lines, samples) in the catalog is its camera's (a damaged catalog row is refused
     here, not when a worker reads the image; found by the mission store fuzz test at 2000 inputs)."""
-    ids = catalog["camera_id"].astype(str).tolist()
+    ids = [str(c) for c in mission._cam]
     want = np.array([(cameras[c].lines, cameras[c].samples) for c in ids], dtype=np.float64).reshape(-1, 2)
-    got = catalog[["lines", "samples"]].to_numpy(dtype=np.float64, na_value=np.nan)
+    try:
+        got = mission._float_columns(["lines", "samples"])
+    except (TypeError, ValueError) as exc:
+        raise StoreError(f"mission {p}: catalog.parquet lines/samples are not numbers ({exc}); "
+                         "re-ingest or regenerate the mission") from None
     bad = np.flatnonzero(np.any(got != want, axis=1))
     if bad.size:
         k = int(bad[0])
         raise StoreError(
-            f"mission {p}: catalog.parquet gives image {catalog['image_id'].iat[k]!r} {got[k, 0]:g} x {got[k, 1]:g} "
+            f"mission {p}: catalog.parquet gives image {mission.image_ids[k]!r} {got[k, 0]:g} x {got[k, 1]:g} "
             f"pixels (lines x samples) but its camera {ids[k]!r} is {want[k, 0]:g} x {want[k, 1]:g} "
             f"({bad.size} images disagree); re-ingest or regenerate the mission"
         )

@@ -23,13 +23,14 @@ def coverage_step_deg(n_images: int) -> float:
 
 def data_area(mission: Mission) -> tuple[float, float, float, float] | None:
     """The catalog's footprint extent (degrees, padded by 10 %), or None when unknown or near global."""
-    cat = mission.catalog
     cols = ["footprint_lat_min", "footprint_lat_max", "footprint_lon_min", "footprint_lon_max"]
-    if not all(c in cat for c in cols) or not np.all(np.isfinite(cat[cols].to_numpy())):
+    if not all(c in mission.catalog_columns for c in cols):
         return None
-    la0, la1 = float(cat[cols[0]].min()), float(cat[cols[1]].max())
-    lons = cat[cols[2:]].to_numpy()
-    lo0, lo1 = float(lons[:, 0].min()), float(lons[:, 1].max())
+    fp = np.column_stack([np.asarray(mission.column(c), dtype=np.float64) for c in cols])
+    if fp.size == 0 or not np.all(np.isfinite(fp)):
+        return None
+    la0, la1 = float(fp[:, 0].min()), float(fp[:, 1].max())
+    lo0, lo1 = float(fp[:, 2].min()), float(fp[:, 3].max())
     if lo1 - lo0 > 180.0 or la1 - la0 > 90.0:
         return None
     pad_la, pad_lo = 0.1 * (la1 - la0) + 1e-3, 0.1 * (lo1 - lo0) + 1e-3
@@ -50,15 +51,32 @@ def image_statistics(mission: Mission, radius_m: float | None = None, step: int 
     return {"radius_m": r, "pixel_step": step, "images": out}
 
 
+def _counts(values: np.ndarray) -> dict[Any, int]:
+    """Rows per value, sorted by value, missing values (None, NaN) left out: ``DataFrame.groupby(col).size()``
+    without pandas (see :class:`~mercury_dem.mission.store.Mission`)."""
+    keep = [v for v in values.tolist() if v is not None and v == v]
+    if not keep:
+        return {}
+    uniq, n = np.unique(np.asarray(keep), return_counts=True)
+    return dict(zip(uniq.tolist(), n.tolist()))
+
+
+def _range(values: np.ndarray) -> list[float]:
+    """[min, max] skipping NaN (NaN when every value is missing), as pandas' ``min``/``max``."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[~np.isnan(v)]
+    return [float(v.min()), float(v.max())] if v.size else [float("nan"), float("nan")]
+
+
 def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """(summary dict, coverage arrays) of a mission. Coverage is over the mission's area: the design's,
     else the images' footprints when they are regional, else the whole body."""
-    cat = mission.catalog
+    col = mission.column
     area = mission.meta.get("area_deg") or data_area(mission)
     if step_deg is None and area is not None and mission.meta.get("area_deg") is None:
         step = max(1e-3, min(area[1] - area[0], area[3] - area[2]) / 100.0)
     else:
-        step = step_deg or coverage_step_deg(len(cat))
+        step = step_deg or coverage_step_deg(len(mission))
     cov = mission_coverage(mission, step, tuple(area) if area else None)
     w = np.cos(np.radians(cov["lat"]))
     count = cov["count"]
@@ -67,20 +85,22 @@ def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[di
     def frac(mask: np.ndarray) -> float:
         return float(np.sum(w * mask) / np.sum(w))
 
-    per_tile = cat.groupby("tile_id").size()
+    per_tile = _counts(col("tile_id"))
+    n_per_tile = np.array(list(per_tile.values()), dtype=np.int64)
     summary = {
         "mission": str(mission.path),
         "preset": mission.meta.get("preset"),
         "source": mission.meta.get("source", "synthetic"),
         "body": mission.body.to_dict(),
-        "images": int(len(cat)),
-        "images_by_instrument": {str(k): int(v) for k, v in cat.groupby("instrument").size().items()},
-        "image_size": sorted({f"{s}x{l}" for s, l in zip(cat["samples"], cat["lines"])}),
-        "pixel_scale_m": [float(cat["pixel_scale_m"].min()), float(cat["pixel_scale_m"].max())],
-        "incidence_deg": [float(cat["incidence_deg"].min()), float(cat["incidence_deg"].max())],
-        "emission_deg": [float(cat["emission_deg"].min()), float(cat["emission_deg"].max())],
-        "tiles_with_images": int(per_tile.size),
-        "images_per_tile": {"min": int(per_tile.min()), "median": float(per_tile.median()), "max": int(per_tile.max())},
+        "images": int(len(mission)),
+        "images_by_instrument": {str(k): int(v) for k, v in _counts(col("instrument")).items()},
+        "image_size": sorted({f"{s}x{l}" for s, l in zip(col("samples").tolist(), col("lines").tolist())}),
+        "pixel_scale_m": _range(col("pixel_scale_m")),
+        "incidence_deg": _range(col("incidence_deg")),
+        "emission_deg": _range(col("emission_deg")),
+        "tiles_with_images": int(n_per_tile.size),
+        "images_per_tile": {"min": int(n_per_tile.min()), "median": float(np.median(n_per_tile)),
+                            "max": int(n_per_tile.max())},
         "images_per_tile_by_id": {int(k): int(v) for k, v in per_tile.items()},
         "coverage": {
             "grid_step_deg": step,
@@ -99,34 +119,18 @@ def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[di
 
 
 def coverage_map(cov: dict[str, Any], path: str | Path, title: str = "") -> Path:
-    """PNG of the number of images seeing each grid point (matplotlib's Agg canvas).
-
-    Drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas directly, with fixed margins:
-    ``matplotlib.pyplot`` (its backend machinery) and ``tight_layout`` cost ``mercury-dem info``
-    about half of its run time and change nothing in this one-axes figure.
-    """
-    from matplotlib import colormaps
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import BoundaryNorm
-    from matplotlib.figure import Figure
+    """PNG of the number of images seeing each grid point (written atomically; Pillow, see
+    :mod:`mercury_dem.mission.count_map` for why not matplotlib)."""
+    from mercury_dem.io.atomic import atomic_write_bytes
+    from mercury_dem.mission.count_map import png_bytes, render_count_map
 
     lat, lon, count = cov["lat"], cov["lon"], cov["count"]
     step_lat = lat[1, 0] - lat[0, 0] if lat.shape[0] > 1 else 1.0
     step_lon = lon[0, 1] - lon[0, 0] if lon.shape[1] > 1 else 1.0
     extent = (lon[0, 0] - step_lon / 2, lon[0, -1] + step_lon / 2, lat[0, 0] - step_lat / 2, lat[-1, 0] + step_lat / 2)
-    top = max(6, int(count.max()))
-    bounds = np.arange(-0.5, top + 1.5)
-    cmap = colormaps["viridis"].resampled(len(bounds) - 1)
-    fig = Figure(figsize=(9, 5))
-    FigureCanvasAgg(fig)
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.11, top=0.92)
-    ax = fig.add_subplot()
-    im = ax.imshow(count, origin="lower", extent=extent, cmap=cmap, norm=BoundaryNorm(bounds, cmap.N), aspect="auto")
-    fig.colorbar(im, ax=ax, label="images seeing the point (a-priori pose)", ticks=np.arange(0, top + 1, max(1, top // 10)))
-    ax.set_xlabel("east longitude (deg)")
-    ax.set_ylabel("latitude (deg)")
-    ax.set_title(title or "coverage")
+    img = render_count_map(count, tuple(float(v) for v in extent), title or "coverage", "east longitude (deg)",
+                           "latitude (deg)", "images seeing the point (a-priori pose)")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    atomic_write_bytes(path, png_bytes(img))
     return path

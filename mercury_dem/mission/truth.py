@@ -21,14 +21,17 @@ import json
 from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from mercury_dem.exceptions import StoreError
 from mercury_dem.mission.catalog import POSITION_COLUMNS, ROTATION_COLUMNS
+
+if TYPE_CHECKING:
+    import pandas as pd  # imported where a table is read: opening a mission does not need it
 
 #: The generator that rebuilds a truth surface from surface.json when the file names none
 #: (missions written before the name was stored). Imported by name, on demand, so the
@@ -83,9 +86,9 @@ def write_truth_tables(root: str | Path, poses: pd.DataFrame, surface: dict[str,
 class SyntheticTruth:
     """The truth of a synthetic mission (validation only). Use ``mission.truth``."""
 
-    def __init__(self, path: Path, image_ids: pd.Series) -> None:
+    def __init__(self, path: Path, image_ids: Sequence[str]) -> None:
         self.path = path
-        self._ids = image_ids
+        self._ids = list(image_ids)
         self._row = {str(i): k for k, i in enumerate(image_ids)}
 
     def __repr__(self) -> str:
@@ -110,6 +113,8 @@ class SyntheticTruth:
         """The orbit error injected into each simulated altimetry profile (track_id, along_m, cross_m,
         radial_m, and east_m/north_m/up_m at the profile's middle shot lat_mid/lon_mid), or None."""
         p = self.path / "altimetry_profiles.parquet"
+        import pandas as pd
+
         return pd.read_parquet(p) if p.is_file() else None
 
     @cached_property
@@ -168,7 +173,7 @@ class SyntheticTruth:
         return xr.DataArray(h, coords={"lat": lat, "lon": lon}, dims=("lat", "lon"), name="height", attrs=attrs)
 
 
-def open_truth(mission_path: Path, image_ids: pd.Series) -> SyntheticTruth | None:
+def open_truth(mission_path: Path, image_ids: Sequence[str]) -> SyntheticTruth | None:
     """The truth under ``MISSION/truth/`` or None (real missions have none)."""
     p = Path(mission_path) / "truth"
     return SyntheticTruth(p, image_ids) if (p / "poses.parquet").is_file() else None

@@ -9,12 +9,14 @@ shares no ground with the DEM, is recorded with its reason; the run goes on.
 
 from __future__ import annotations
 
-from typing import Any
-
-import xarray as xr
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import MercuryDemError
-from mercury_dem.geometry.body import Body
+
+if TYPE_CHECKING:  # annotations only: 'mercury-dem report' prints reference_table without xarray or numpy
+    import xarray as xr
+
+    from mercury_dem.geometry.body import Body
 
 
 def compare_with_references(dem: xr.Dataset, body: Body, cfg: Any) -> dict[str, Any]:

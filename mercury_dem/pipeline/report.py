@@ -9,10 +9,9 @@ controlled, uncontrolled: [ids], excluded: {id: reason}}; ``timings``; ``config`
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import TYPE_CHECKING, Any, TextIO
-
-import numpy as np
 
 from mercury_dem.config import Config, to_dict
 from mercury_dem.io.atomic import atomic_write_json
@@ -37,6 +36,7 @@ def versions() -> dict[str, str]:
     import cv2
     import dask
     import distributed
+    import numpy as np
     import scipy
     import xarray
     import zarr
@@ -168,7 +168,7 @@ def write_report(store: RunStore, report: dict[str, Any]) -> None:
 
 
 def _f(x: Any, fmt: str = ".3f") -> str:
-    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, fmt)
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
 def print_report(report: dict[str, Any], stream: TextIO) -> None:

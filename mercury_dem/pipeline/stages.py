@@ -23,26 +23,15 @@ from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemError
 from mercury_dem.geometry.footprints import overlap_graph
 from mercury_dem.geometry.pose import validate_pose
-from mercury_dem.geometry.tiling import TileGrid, region_name
+from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_directory, atomic_write_json, disk_full_cause, disk_full_message
-from mercury_dem.io.run_store import RunStore, read_solution, write_solution
+from mercury_dem.io.run_store import RunStore, read_solution, unit_name, write_solution  # unit_name: re-exported
 from mercury_dem.mission import Mission, open_mission
 from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
 from mercury_dem.plan.tree import child_ids as _tree_child_ids
 
 #: Point ids of tile t start at t * POINT_ID_STRIDE, so ids stay unique when tiles merge.
 POINT_ID_STRIDE = 10_000_000
-
-
-def unit_name(level: str, unit_id: int) -> str:
-    """``tile 17``, ``region N-060-120``, ``hemisphere north``, ``global``."""
-    if level == "region":
-        return f"region {region_name(unit_id)}"
-    if level == "hemisphere":
-        return f"hemisphere {'north' if unit_id == 0 else 'south'}"
-    if level == "global":
-        return "global"
-    return f"{level} {unit_id}"
 
 
 # --------------------------------------------------------------------------- plan

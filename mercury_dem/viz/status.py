@@ -101,7 +101,7 @@ def expected_units(store: RunStore, plan: dict[str, Any] | None = None) -> dict[
 
 def unit_status(run: str | Path | RunStore) -> pd.DataFrame:
     """One row per expected unit of every level: level, id, name, state, error, counts, rms, sigma0, seconds."""
-    from mercury_dem.pipeline.stages import unit_name
+    from mercury_dem.io.run_store import unit_name
 
     store = as_store(run)
     tree = _tree(store, _plan(store))
@@ -150,7 +150,7 @@ def level_progress(units: pd.DataFrame) -> pd.DataFrame:
 
 def sigma0_history(run: str | Path | RunStore) -> pd.DataFrame:
     """σ0 per iteration of every written adjustment unit: level, id, name, iteration, sigma0."""
-    from mercury_dem.pipeline.stages import unit_name
+    from mercury_dem.io.run_store import unit_name
 
     store = as_store(run)
     rows = []

@@ -202,6 +202,15 @@ def test_report_command(sync_run: tuple[Path, dict[str, Any]], capsys: pytest.Ca
     assert json.loads(capsys.readouterr().out)["tiles"] == report["tiles"]
 
 
+def test_report_and_verify_start_without_heavy_libraries(sync_run: tuple[Path, dict[str, Any]]) -> None:
+    """``report`` loads no table or array library (not even numpy); ``verify`` only numpy (region names)."""
+    from tests.test_cli_startup import NOT_FOR_SMALL_COMMANDS, loaded_by_command
+
+    run, _ = sync_run
+    assert loaded_by_command(["report", str(run)], (*NOT_FOR_SMALL_COMMANDS, "numpy", "pyarrow")) == []
+    assert loaded_by_command(["verify", str(run)], (*NOT_FOR_SMALL_COMMANDS, "pyarrow")) == []
+
+
 def test_global_solution_does_not_depend_on_the_tile_size(sync_run: tuple[Path, dict[str, Any]],
                                                          tiny_mission_path: Path, tmp_path: Path) -> None:
     """10 deg and 15 deg tiles (issue 6, section 1) give the same globally adjusted pointing.

@@ -10,7 +10,7 @@ the same search radius) on the same cloud as FlatGeobuf and as CSV. 1000 x 1000 
 Also timed: ``mercury-dem --help`` and the bare import of the gridding stage, cold.
 ``--tree DIR`` (repeatable) runs ``mercury-dem`` from each source tree (first on ``PYTHONPATH``),
 interleaved with the others and gdal_grid: before/after side by side in the same minutes.
-Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
+Wall and CPU seconds (user + system of the child process) are both recorded. Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -31,11 +32,30 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_grid import run_gdal, write_point_inputs  # noqa: E402  (same cloud and gdal_grid call as bench_grid.py)
 
 
-def timed(cmd: list[str], env: dict[str, str] | None = None) -> float:
-    t0 = time.perf_counter()
+CPU: dict[str, list[float]] = {}
+
+
+def _child_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def timed(cmd: list[str], env: dict[str, str] | None = None, cpu_key: str | None = None) -> float:
+    """Wall seconds of ``cmd``; its CPU seconds (user + system of the child) go to ``CPU[cpu_key]``."""
+    c0, t0 = _child_cpu(), time.perf_counter()
     # cwd /tmp: 'python -m'/'-c' put the current directory first on sys.path, before PYTHONPATH's tree
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd="/tmp")
-    return time.perf_counter() - t0
+    dt = time.perf_counter() - t0
+    if cpu_key is not None:
+        CPU.setdefault(cpu_key, []).append(_child_cpu() - c0)
+    return dt
+
+
+def gdal_timed(key: str, *a: object) -> float:
+    c0 = _child_cpu()
+    dt = run_gdal(*a)[0]
+    CPU.setdefault(key, []).append(_child_cpu() - c0)
+    return dt
 
 
 def main() -> None:
@@ -72,13 +92,16 @@ def main() -> None:
         times: dict[str, list[float]] = {}
         for _ in range(args.repeats):
             for t in trees:
-                times.setdefault(name("mercury-dem grid (cold process)", t), []).append(timed(grid_cmd, envs[t]))
-            times.setdefault("gdal_grid invdistnn FlatGeobuf", []).append(run_gdal(fgb, algo, size, extent, work)[0])
-            times.setdefault("gdal_grid invdistnn CSV", []).append(run_gdal(vrt, algo, size, extent, work)[0])
+                k = name("mercury-dem grid (cold process)", t)
+                times.setdefault(k, []).append(timed(grid_cmd, envs[t], k))
+            for k, src in (("gdal_grid invdistnn FlatGeobuf", fgb), ("gdal_grid invdistnn CSV", vrt)):
+                times.setdefault(k, []).append(gdal_timed(k, src, algo, size, extent, work))
             for t in trees:
-                times.setdefault(name("mercury-dem --help", t), []).append(timed(exe + ["--help"], envs[t]))
-                times.setdefault(name("import mercury_dem.pipeline.dem_stage (cold)", t), []).append(
-                    timed([sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], envs[t]))
+                k = name("mercury-dem --help", t)
+                times.setdefault(k, []).append(timed(exe + ["--help"], envs[t], k))
+                k = name("import mercury_dem.pipeline.dem_stage (cold)", t)
+                times.setdefault(k, []).append(
+                    timed([sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], envs[t], k))
         med = {k: statistics.median(v) for k, v in times.items()}
         record: dict[str, object] = {
             "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
@@ -86,11 +109,20 @@ def main() -> None:
             "points": args.points, "grid": [size, size], "repeats": args.repeats,
             "median_s": {k: round(v, 3) for k, v in med.items()},
             "all_s": {k: [round(x, 3) for x in v] for k, v in times.items()},
+            "cpu_median_s": {k: round(statistics.median(v), 3) for k, v in CPU.items()},
+            "cpu_all_s": {k: [round(x, 3) for x in v] for k, v in CPU.items()},
         }
         for t in trees:
             ours = med[name("mercury-dem grid (cold process)", t)]
             record[name("gdal_fgb_over_ours", t)] = round(med["gdal_grid invdistnn FlatGeobuf"] / ours, 2)
             record[name("gdal_csv_over_ours", t)] = round(med["gdal_grid invdistnn CSV"] / ours, 2)
+            ours_cpu = statistics.median(CPU[name("mercury-dem grid (cold process)", t)])
+            record[name("cpu_gdal_fgb_over_ours", t)] = round(
+                statistics.median(CPU["gdal_grid invdistnn FlatGeobuf"]) / ours_cpu, 2)
+            # per repetition (adjacent runs, the same load): gdal_grid FlatGeobuf wall / ours wall
+            record[name("per_repeat_gdal_fgb_over_ours", t)] = [
+                round(g / o, 2) for g, o in zip(times["gdal_grid invdistnn FlatGeobuf"],
+                                                 times[name("mercury-dem grid (cold process)", t)])]
         print(json.dumps(record, indent=2))
     finally:
         shutil.rmtree(work, ignore_errors=True)
