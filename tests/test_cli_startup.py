@@ -129,3 +129,16 @@ def test_numba_start_guard_is_scoped() -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+
+
+def test_numba_start_falls_back_when_a_refused_import_is_needed() -> None:
+    """A first call that does need a refused package (a future numba) runs again with it allowed."""
+    code = ("import sys\nfrom mercury_dem.dem.numba_start import start_numba_lean\n"
+            "def first():\n    import scipy.linalg\n    return scipy.linalg.norm([3.0, 4.0])\n"
+            "assert start_numba_lean(first) is False\n"
+            "assert 'scipy.linalg' in sys.modules\n"
+            "assert not any(type(f).__name__ == '_Refuse' for f in sys.meta_path)\n"
+            "print('ok')\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]

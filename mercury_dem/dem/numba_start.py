@@ -55,7 +55,11 @@ def start_numba_lean(first_call: Callable[[], object]) -> bool:
     sys.meta_path.insert(0, finder)
     try:
         first_call()
-    finally:
+    except ImportError:  # a numba that needs one of them after all: start it as usual, losing only the saving
+        sys.meta_path.remove(finder)
+        first_call()
+        return False
+    else:
         sys.meta_path.remove(finder)
     return True
 
