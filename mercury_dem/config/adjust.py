@@ -78,6 +78,11 @@ class AdjustConfig(ConfigSection):
         "profile fitted to them, its sigma from the fit and the terrain's roughness at that scale); each point takes "
         "the radius whose fit has the smallest sigma", unit="m"
     )
+    altimetry_surface: str = param(
+        "quadratic", "Surface fitted to the shots around a tie point: 'quadratic' (follows the terrain's curvature "
+        "over the search disc; where too few shots or shots on one or two profiles leave it undetermined, the "
+        "plane) or 'plane'", choices=("quadratic", "plane"),
+    )
     altimetry_min_shots: int = param(6, "Fewer shots around a tie point leave it unconstrained", lo=3, hi=100000)
     altimetry_horizontal_sigma_m: float = param(
         50.0, "How far the first pass's tie points may be from their true place; times the slope it widens the "

@@ -166,7 +166,7 @@ def adjust_network(
 
         result, priors = bundle_adjust_with_altimetry(
             problem, cfg, altimetry, search_radius_m=cfg.altimetry_search_m, min_shots=cfg.altimetry_min_shots,
-            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m,
+            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m, surface=cfg.altimetry_surface,
         )
         altimetry_summary = {"shots": int(len(altimetry.radius_m)), **priors.summary()}
     else:
