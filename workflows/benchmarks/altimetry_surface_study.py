@@ -19,12 +19,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "altimetry"))
 
-from test_adjust_with_altimetry import DATUM, _shots_around  # noqa: E402
+from test_adjust_with_altimetry import DATUM, _shots_around
 
-from mercury_dem.adjust.bundle import bundle_adjust  # noqa: E402
-from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry  # noqa: E402
-from mercury_dem.config.adjust import AdjustConfig  # noqa: E402
-from mercury_dem.validate.synthetic_network import make_synthetic_network, pointing_errors  # noqa: E402
+from mercury_dem.adjust.bundle import bundle_adjust
+from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry
+from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.validate.synthetic_network import make_synthetic_network, pointing_errors
 
 
 def main(seeds: list[int]) -> None:
@@ -40,7 +40,7 @@ def main(seeds: list[int]) -> None:
         ifov = np.array([net.problem.cameras[k].ifov_rad for k in net.problem.image_camera])
         sel = plain.accepted_per_image >= 30
 
-        def pointing(rot: np.ndarray) -> float:
+        def pointing(rot: np.ndarray, net=net, sel=sel, ifov=ifov) -> float:  # bound per seed
             p = np.linalg.norm(pointing_errors(rot, net.true_rotations)[0][sel, :2], axis=1) / ifov[sel]
             return float(np.sqrt(np.mean(p**2)))
 
