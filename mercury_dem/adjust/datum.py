@@ -99,7 +99,8 @@ class LevellingDecision:
     ----------
     recentre : re-centre the free points' radius constraints (:func:`neighbour_radii`)
     level_to_mean : level the registered DEM on the altimetry's mean per tile
-        (:func:`mercury_dem.altimetry.merge.mean_level`)
+        (:func:`mercury_dem.altimetry.merge.mean_level`) when the DEM is registered to altimetry (also
+        when the adjustment did not use it, ``altimetry_constrained`` None: nothing held its points)
     extent_deg : the block's angular radius (:func:`block_extent_deg`)
     altimetry_share : share of its tie points the altimetry constrains (0 without altimetry)
     reason : why, in words
@@ -166,11 +167,9 @@ def levelling_decision(points_xyz: ArrayLike, altimetry_constrained: ArrayLike |
                   "the heights are the altimetry's")
     elif not wide:
         reason = (f"the block spans {extent:.1f} deg (< {min_extent_deg:g}): too small to carry its own surface; "
-                  "its radius priors stay on the datum")
+                  "its radius priors stay on the datum (levelled on the shots' mean if registered)")
     else:
         reason = (f"the block spans {extent:.1f} deg and the altimetry constrains {share:.0%} of its points: "
-                  "re-centred on its own surface" + (", levelled on the shots' mean" if altimetry_constrained is not None
-                                                     else ""))
-    return LevellingDecision(recentre=wide and not held,
-                             level_to_mean=altimetry_constrained is not None and not held,
+                  "re-centred on its own surface, levelled on the shots' mean if registered")
+    return LevellingDecision(recentre=wide and not held, level_to_mean=not held,
                              extent_deg=extent, altimetry_share=share, reason=reason)

@@ -112,13 +112,13 @@ def test_levelling_decision_follows_the_block_and_its_altimetry() -> None:
     rng = np.random.default_rng(23)
     strip, wide = _cap(rng, 3000, 2.0), _cap(rng, 3000, 25.0)
     globe = rng.normal(size=(3000, 3)) * DATUM_RADIUS_M
-    # Without altimetry: a strip or stereo pair keeps the datum (it would float), a wide block and the globe
-    # are re-centred; there is nothing to level.
+    # Without altimetry in the adjustment: a strip or stereo pair keeps the datum (it would float), a wide
+    # block and the globe are re-centred; nothing held the points, so a registration afterwards levels.
     d = levelling_decision(strip)
-    assert not d.recentre and not d.level_to_mean and d.altimetry_share == 0.0 and "too small" in d.reason
+    assert not d.recentre and d.level_to_mean and d.altimetry_share == 0.0 and "too small" in d.reason
     for pts in (wide, globe):
         d = levelling_decision(pts)
-        assert d.recentre and not d.level_to_mean
+        assert d.recentre and d.level_to_mean
     # Altimetry holding most points (tiny): neither. Holding a minority (the demo's north): both on a wide
     # block, the level alone on a small one.
     most = rng.random(3000) < 0.8
