@@ -156,9 +156,9 @@ def adjust_network(
         problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
     prior_summary: dict[str, Any] | None = None
     decision = None
-    if recentre_point_priors and cfg.radius_sigma_m is not None:
+    if recentre_point_priors:
         decision = levelling_for(problem, cfg, altimetry)
-        if decision.recentre:
+        if decision.recentre and cfg.radius_sigma_m is not None:  # without a radius constraint: nothing to centre
             problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m)
     altimetry_summary: dict[str, Any] | None = None
     if altimetry is not None and len(altimetry.radius_m):
