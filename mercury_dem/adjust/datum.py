@@ -19,11 +19,14 @@ wavelength longer than the neighbourhood, and keep the regularization.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-__all__ = ["neighbour_radii"]
+__all__ = ["LevellingDecision", "block_extent_deg", "levelling_decision", "neighbour_radii"]
 
 
 def neighbour_radii(points_xyz: ArrayLike, usable: ArrayLike | None = None, k: int = 50) -> NDArray[np.float64]:
@@ -59,3 +62,114 @@ def neighbour_radii(points_xyz: ArrayLike, usable: ArrayLike | None = None, k: i
     idx = np.asarray(idx).reshape(int(finite.sum()), kk)
     out[finite] = np.median(r[ok][idx], axis=1)
     return out
+
+
+def block_extent_deg(points_xyz: ArrayLike, quantile: float = 0.95) -> float:
+    """Angular radius of a block of points, degrees: how far (``quantile`` of the points) they lie from their mean direction.
+
+    Parameters
+    ----------
+    points_xyz : (n, 3) body-fixed points (non-finite and zero rows ignored)
+    quantile : share of the points inside the returned radius (a few stray points do not widen it)
+
+    Returns
+    -------
+    float: 0 for one point or none; for a block round the whole body (its mean direction says
+    little) well over 90, and 180 when the directions average to nothing.
+    """
+    xyz = np.asarray(points_xyz, np.float64).reshape(-1, 3)
+    r = np.linalg.norm(xyz, axis=1)
+    ok = np.isfinite(r) & (r > 0)
+    if ok.sum() < 2:
+        return 0.0
+    units = xyz[ok] / r[ok, None]
+    mean = units.mean(axis=0)
+    m = float(np.linalg.norm(mean))
+    if m < 1e-12:
+        return 180.0
+    cos = np.clip(units @ (mean / m), -1.0, 1.0)
+    return float(np.degrees(np.arccos(np.quantile(cos, 1.0 - quantile))))
+
+
+@dataclass(frozen=True)
+class LevellingDecision:
+    """Whether a block's radius priors are re-centred on its own surface, and its registered DEM levelled on the shots.
+
+    Attributes
+    ----------
+    recentre : re-centre the free points' radius constraints (:func:`neighbour_radii`)
+    level_to_mean : level the registered DEM on the altimetry's mean per tile
+        (:func:`mercury_dem.altimetry.merge.mean_level`) when the DEM is registered to altimetry (also
+        when the adjustment did not use it, ``altimetry_constrained`` None: nothing held its points)
+    extent_deg : the block's angular radius (:func:`block_extent_deg`)
+    altimetry_share : share of its tie points the altimetry constrains (0 without altimetry)
+    reason : why, in words
+    """
+
+    recentre: bool
+    level_to_mean: bool
+    extent_deg: float
+    altimetry_share: float
+    reason: str
+
+    def summary(self) -> dict[str, Any]:
+        return {"recentre": self.recentre, "level_to_mean": self.level_to_mean, "extent_deg": self.extent_deg,
+                "altimetry_share": self.altimetry_share, "reason": self.reason}
+
+
+def levelling_decision(points_xyz: ArrayLike, altimetry_constrained: ArrayLike | None = None, *,
+                       min_extent_deg: float = 10.0, max_altimetry_share: float = 0.5) -> LevellingDecision:
+    """Decide, from the block itself, whether its heights need the re-centring and the mean level.
+
+    Both corrections exist for points whose heights nothing outside the images fixes:
+
+    * the re-centring (:func:`neighbour_radii`) replaces the datum sphere as the centre of the
+      radius constraints by the block's own surface, from a first pass with a loose constraint. That
+      first pass must determine the block's surface: a block spanning a large part of the body does
+      (its orbits and the body's curvature fix the height of the whole), a small one — a strip or a
+      stereo pair of 2–4 images — does not: with the loose constraint its height floats with its
+      pointing (the real Apollo 15 strip and MDIS pair came out 1.5–2 km off). Hence
+      ``extent_deg >= min_extent_deg``.
+    * the mean level brings the registered DEM's mean, not only its median, onto the shots; its
+      offsets are means over the shots of a tile, each tile's own estimate.
+
+    Where the altimetry constrains most of the block's tie points (``altimetry_share >
+    max_altimetry_share``) the heights are the altimetry's at the source: neither correction has
+    anything left to fix, and each adds its own noise (tiny seed 7: the re-centring moved its merged
+    DEM's bias by −6 m, the mean level by −7 m; docs/design/altimetry.md). So both are skipped there;
+    where the altimetry holds only part of a large block (the demo: 16 % of the points, all in the
+    north) both apply, and the re-centred block carries the north's level into the south.
+
+    Parameters
+    ----------
+    points_xyz : (n, 3) the block's tie points, body-fixed (a-priori positions do)
+    altimetry_constrained : (n,) bool, the points the altimetry constrains; None: no altimetry
+    min_extent_deg : smallest angular radius (:func:`block_extent_deg`) of a block re-centred
+    max_altimetry_share : above this share of constrained points, neither correction applies
+
+    Returns
+    -------
+    LevellingDecision
+    """
+    pts = np.asarray(points_xyz, np.float64).reshape(-1, 3)
+    extent = block_extent_deg(pts)
+    if altimetry_constrained is None or len(pts) == 0:
+        share = 0.0
+    else:
+        c = np.asarray(altimetry_constrained, bool).ravel()
+        if c.shape[0] != len(pts):
+            raise ValueError(f"altimetry_constrained has {c.shape[0]} values for {len(pts)} points")
+        share = float(c.mean())
+    held = altimetry_constrained is not None and share > max_altimetry_share
+    wide = extent >= min_extent_deg
+    if held:
+        reason = (f"the altimetry constrains {share:.0%} of the points (> {max_altimetry_share:.0%}): "
+                  "the heights are the altimetry's")
+    elif not wide:
+        reason = (f"the block spans {extent:.1f} deg (< {min_extent_deg:g}): too small to carry its own surface; "
+                  "its radius priors stay on the datum (levelled on the shots' mean if registered)")
+    else:
+        reason = (f"the block spans {extent:.1f} deg and the altimetry constrains {share:.0%} of its points: "
+                  "re-centred on its own surface, levelled on the shots' mean if registered")
+    return LevellingDecision(recentre=wide and not held, level_to_mean=not held,
+                             extent_deg=extent, altimetry_share=share, reason=reason)

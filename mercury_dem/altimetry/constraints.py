@@ -2,11 +2,12 @@
 
 ISIS ``jigsaw`` (LIDARDATA) ties altimetry into the adjustment by constraining points to the
 lidar radii with the lidar's sigma. Here each tie point with enough altimetry shots around it
-gets a radius prior: a plane ``r = a + b e + c n`` fitted by least squares to the shots within
-``search_radius_m`` in the point's local east/north frame, evaluated at the point (``a``). Its
-sigma is what the fit can promise at the point: the variance of ``a`` from the fit plus the
-shots' scatter about the plane (the terrain's roughness at that scale, which a plane cannot
-follow), never below ``sigma_floor_m``. The adjustment then centres the point's radius
+gets a radius prior: a quadratic surface ``r = a + b e + c n + d e² + f e n + g n²`` (where the shots
+determine one; otherwise a plane ``r = a + b e + c n``, or a line along a single profile) fitted by
+least squares to the shots within ``search_radius_m`` in the point's local east/north frame,
+evaluated at the point (``a``). Its sigma is what the fit can promise at the point: the variance of
+``a`` from the fit plus the shots' scatter about the surface (the terrain's roughness at that scale,
+which the surface cannot follow), never below ``sigma_floor_m``. The adjustment then centres the point's radius
 constraint there (:class:`mercury_dem.adjust.problem.AdjustmentProblem`
 ``point_radius_sigma``), instead of on the datum with a loose sigma, so the heights are right at
 the source and the pointing follows them.
@@ -120,6 +121,8 @@ def radius_priors_within(
     sigma_floor_m: float = 1.0,
     horizontal_sigma_m: float = 0.0,
     cross_track_slope: float = 0.05,
+    surface: str = "quadratic",
+    quadratic_min_shots: int = 12,
     tree: cKDTree | None = None,
 ) -> RadiusPriors:
     """Radius constraints for tie points from the altimetry shots within one search radius.
@@ -140,6 +143,13 @@ def radius_priors_within(
     cross_track_slope : where the shots around a point lie along one profile, the slope assumed
         across it (besides the along-track slope): times the point's distance from the profile it
         widens the sigma
+    surface : ``"quadratic"``: where at least ``quadratic_min_shots`` shots surround the point and
+        they determine it (shots spread across the search disc, not on one or two profiles), a
+        quadratic ``r = a + b e + c n + d e² + f e n + g n²`` is fitted, which follows the terrain's
+        curvature over the disc (over 10 km a plane misses a crater's bowl: its intercept is the
+        disc's mean height, not the height at the centre); elsewhere the plane, then the profile
+        fit. ``"plane"``: the plane only
+    quadratic_min_shots : fewest shots for a quadratic (6 parameters: twice as many)
     tree : a kd-tree of the shots' unit vectors, when the caller reuses one
 
     Returns
@@ -178,6 +188,8 @@ def radius_priors_within(
     n = radius_scale * np.einsum("ij,ij->i", d, north[pt_idx])
     h = r_shot[shot_idx]
     w = 1.0 / sig_shot[shot_idx] ** 2
+    if surface not in ("quadratic", "plane"):
+        raise ValueError(f"surface must be 'quadratic' or 'plane', got {surface!r}")
     # Weighted normal equations of r = a + b e + c n, summed per point.
     cols = (np.ones_like(e), e, n)
 
@@ -203,17 +215,28 @@ def radius_priors_within(
         beta[use] = np.einsum("kij,kj->ki", inv, rhs[use])
         cov_aa[use] = inv[:, 0, 0]
     fit = beta[pt_idx, 0] + beta[pt_idx, 1] * e + beta[pt_idx, 2] * n
-    ss = acc((h - fit) ** 2)
     dof = count - 3
+    if surface == "quadratic":
+        quad = use & (count >= max(quadratic_min_shots, 7))
+        if quad.any():
+            q_beta, q_cov, q_ok = _quadratic_fit(pt_idx, e, n, h, w, quad, n_pt, search_radius_m)
+            beta = np.where(q_ok[:, None], q_beta[:, :3], beta)
+            cov_aa = np.where(q_ok, q_cov, cov_aa)
+            qf = q_ok[pt_idx]
+            fit = np.where(qf, q_beta[pt_idx, 0] + q_beta[pt_idx, 1] * e + q_beta[pt_idx, 2] * n
+                           + q_beta[pt_idx, 3] * e * e + q_beta[pt_idx, 4] * e * n + q_beta[pt_idx, 5] * n * n, fit)
+            dof = np.where(q_ok, count - 6, dof)
+    ss = acc((h - fit) ** 2)
     with np.errstate(divide="ignore", invalid="ignore"):
         roughness = np.where(dof > 0, np.sqrt(ss / np.maximum(dof, 1)), np.nan)
-        # cov_aa is the fit's variance with the shots' own sigmas; the roughness (what a plane cannot
-        # follow, plus any shots' excess noise) scales it and is added once for the point itself.
+        # cov_aa is the fit's variance with the shots' own sigmas; the roughness (what the surface cannot
+        # follow, plus any shots' excess noise) scales it, and its part beyond the shots' own noise (the
+        # terrain's, which the point itself sits on; the shots' noise is in cov_aa already) is added once.
         mean_w = acc(w) / np.maximum(count, 1)
         scale2 = np.where(np.isfinite(roughness), roughness**2 * mean_w, 1.0)
         slope2 = beta[:, 1] ** 2 + beta[:, 2] ** 2
-        sigma = np.sqrt(cov_aa * np.maximum(scale2, 1.0) + np.nan_to_num(roughness) ** 2
-                        + slope2 * horizontal_sigma_m**2)
+        terrain2 = np.maximum(np.nan_to_num(roughness) ** 2 - 1.0 / mean_w, 0.0)
+        sigma = np.sqrt(cov_aa * np.maximum(scale2, 1.0) + terrain2 + slope2 * horizontal_sigma_m**2)
     radius = np.where(use, beta[:, 0], np.nan)
     sigma = np.where(use, sigma, np.nan)
     # Where the shots lie along one profile (the usual case away from crossovers: MLA's tracks are
@@ -235,6 +258,42 @@ def radius_priors_within(
         n_shots=count.astype(np.int64),
         roughness_m=np.where(use, roughness, np.nan),
     )
+
+
+def _quadratic_fit(pt_idx: NDArray[np.int64], e: NDArray[np.float64], n: NDArray[np.float64], h: NDArray[np.float64],
+                   w: NDArray[np.float64], quad: NDArray[np.bool_], n_pt: int,
+                   scale_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Weighted quadratic fits ``r = a + b e + c n + d e² + f e n + g n²`` of each ``quad`` point's shots.
+
+    Returns the coefficients (n_pt, 6) in metres (``e``, ``n`` in metres), the variance of ``a`` with
+    the shots' own sigmas, and where the fit was determined: its normal matrix, built on ``e/scale_m``
+    and ``n/scale_m`` so that its columns are of one size, has a condition number below 10⁸ (shots on
+    one or two straight profiles leave the curvature across them undetermined: those points keep the
+    plane). Same summation as the plane: 21 ``bincount`` sums over the (point, shot) pairs, then one
+    batched 6×6 inverse.
+    """
+    x, y = e / scale_m, n / scale_m
+    cols = (np.ones_like(x), x, y, x * x, x * y, y * y)
+    keep = quad[pt_idx]
+    pi = pt_idx[keep]
+    normal = np.zeros((n_pt, 6, 6))
+    rhs = np.zeros((n_pt, 6))
+    for i in range(6):
+        rhs[:, i] = np.bincount(pi, weights=(w * cols[i] * h)[keep], minlength=n_pt)
+        for j in range(i, 6):
+            normal[:, i, j] = normal[:, j, i] = np.bincount(pi, weights=(w * cols[i] * cols[j])[keep], minlength=n_pt)
+    ok = quad.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cond = np.linalg.cond(np.where(ok[:, None, None], normal, np.eye(6)))
+    ok &= np.isfinite(cond) & (cond < 1e8)
+    beta = np.zeros((n_pt, 6))
+    cov_aa = np.full(n_pt, np.nan)
+    if ok.any():
+        inv = np.linalg.inv(normal[ok])
+        b = np.einsum("kij,kj->ki", inv, rhs[ok])
+        beta[ok] = b / np.array([1.0, scale_m, scale_m, scale_m**2, scale_m**2, scale_m**2])
+        cov_aa[ok] = inv[:, 0, 0]
+    return beta, cov_aa, ok
 
 
 def _profile_fit(pt_idx: NDArray[np.int64], e: NDArray[np.float64], n: NDArray[np.float64], h: NDArray[np.float64],
@@ -268,7 +327,7 @@ def _profile_fit(pt_idx: NDArray[np.int64], e: NDArray[np.float64], n: NDArray[n
         d = np.abs(me * st - mn * ct)  # and its distance across it
         slope2 = b**2 + cross_track_slope**2
         radius = a + b * s_p
-        sigma = np.sqrt((var_a + var_b * s_p**2) * scale2 + np.nan_to_num(rough) ** 2
+        sigma = np.sqrt((var_a + var_b * s_p**2) * scale2 + np.maximum(np.nan_to_num(rough) ** 2 - 1.0 / mean_w, 0.0)
                         + slope2 * (d**2 + horizontal_sigma_m**2))
     good = line & np.isfinite(radius) & np.isfinite(sigma) & (ss > 0)
     return (np.where(good, radius, np.nan), np.where(good, sigma, np.nan), np.where(good, rough, np.nan))
@@ -319,6 +378,7 @@ def bundle_adjust_with_altimetry(
     min_shots: int = 6,
     sigma_floor_m: float = 1.0,
     horizontal_sigma_m: float = 50.0,
+    surface: str = "quadratic",
     adjust: Any = None,
 ) -> tuple[Any, RadiusPriors]:
     """Bundle adjustment with the tie points' radii constrained by altimetry (two passes).
@@ -342,7 +402,7 @@ def bundle_adjust_with_altimetry(
     priors = altimetry_radius_priors(
         first.points, shots.lat_deg, shots.lon_deg, shots.radius_m, shot_sigma_m=shots.sigma_m,
         search_radius_m=search_radius_m, min_shots=min_shots, sigma_floor_m=sigma_floor_m,
-        horizontal_sigma_m=horizontal_sigma_m,
+        horizontal_sigma_m=horizontal_sigma_m, surface=surface,
     )
     if not priors.constrained.any():
         return first, priors

@@ -33,13 +33,24 @@ class AdjustConfig(ConfigSection):
         choices=("datum", "network"),
     )
     point_prior_recentre_levels: tuple[str, ...] = param(
-        (), "Levels whose point radius constraints are re-centred on the block's own surface: a first "
+        ("global",), "Levels whose point radius constraints may be re-centred on the block's own surface: a first "
         "pass with the radius constraint at point_prior_first_pass_sigma_m, then each point's constraint centred on "
         "the median radius of its point_prior_neighbours nearest points and the adjustment run again (centred on the "
         "datum sphere, the constraint pulls weakly determined points toward it and the block bends with the body's "
-        "long-wavelength shape; docs/design/adjust.md). Empty (the default): never. Set [global] for blocks that "
-        "cover much of the body (the demo does); on small real blocks (the Apollo strip, an MDIS stereo pair) the "
-        "loose first pass lets the block's height float and the re-centred DEM came out 1.5-2 km off the altimetry"
+        "long-wavelength shape; docs/design/adjust.md). Whether a block is re-centred is decided from the block "
+        "(point_prior_recentre_min_extent_deg, point_prior_recentre_max_altimetry_share; the unit's summary "
+        "'levelling' says why). Empty: never"
+    )
+    point_prior_recentre_min_extent_deg: float = param(
+        10.0, "Smallest block re-centred: the angular radius holding 95 % of its points around their mean "
+        "direction (a strip or stereo pair of a few images cannot carry its own surface: with the loose first pass "
+        "its height floats with its pointing; the real Apollo strip and MDIS pair came out 1.5-2 km off). 0: any",
+        unit="deg", lo=0.0, hi=180.0,
+    )
+    point_prior_recentre_max_altimetry_share: float = param(
+        0.5, "Where the altimetry constrains more than this share of the block's tie points, its heights are the "
+        "altimetry's: the radius priors are not re-centred and the registered DEM is not levelled on the shots' "
+        "mean (dem stage). 1: always both", lo=0.0, hi=1.0,
     )
     point_prior_first_pass_sigma_m: float = param(
         100000.0, "Radius constraint of the re-centring's first pass (loose: the points follow their rays)",
@@ -66,6 +77,11 @@ class AdjustConfig(ConfigSection):
         (1000.0, 3000.0, 10000.0), "Shots within these ground distances of a tie point constrain it (a plane or "
         "profile fitted to them, its sigma from the fit and the terrain's roughness at that scale); each point takes "
         "the radius whose fit has the smallest sigma", unit="m"
+    )
+    altimetry_surface: str = param(
+        "quadratic", "Surface fitted to the shots around a tie point: 'quadratic' (follows the terrain's curvature "
+        "over the search disc; where too few shots or shots on one or two profiles leave it undetermined, the "
+        "plane) or 'plane'", choices=("quadratic", "plane"),
     )
     altimetry_min_shots: int = param(6, "Fewer shots around a tie point leave it unconstrained", lo=3, hi=100000)
     altimetry_horizontal_sigma_m: float = param(

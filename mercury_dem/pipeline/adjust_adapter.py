@@ -73,6 +73,29 @@ def recentre_on_block(problem: Any, cfg: AdjustConfig, datum_radius_m: float = D
     return dataclasses.replace(problem, points=new, initial_rotations=np.asarray(first.rotations)), summary
 
 
+def levelling_for(problem: Any, cfg: AdjustConfig, altimetry: Any = None) -> Any:
+    """The :class:`~mercury_dem.adjust.datum.LevellingDecision` of a block about to be adjusted.
+
+    Its extent from the problem's (a-priori) points; the points the altimetry would constrain from
+    the shots within the largest search radius of those points
+    (:func:`~mercury_dem.altimetry.constraints.radius_priors_within`: the count, not the priors the
+    adjustment will use, which are fitted around the first pass's points).
+    """
+    from mercury_dem.adjust.datum import levelling_decision
+
+    pts = np.asarray(problem.points, np.float64)
+    constrained = None
+    if altimetry is not None and len(altimetry.radius_m):
+        from mercury_dem.altimetry.constraints import radius_priors_within
+
+        constrained = radius_priors_within(
+            pts, altimetry.lat_deg, altimetry.lon_deg, altimetry.radius_m, shot_sigma_m=altimetry.sigma_m,
+            search_radius_m=float(max(cfg.altimetry_search_m)), min_shots=cfg.altimetry_min_shots,
+        ).constrained
+    return levelling_decision(pts, constrained, min_extent_deg=cfg.point_prior_recentre_min_extent_deg,
+                              max_altimetry_share=cfg.point_prior_recentre_max_altimetry_share)
+
+
 @dataclass(frozen=True)
 class UnitAdjustment:
     network: Any  # ControlNetwork with adjusted points, residuals, rejections
@@ -114,7 +137,8 @@ def adjust_network(
 
     ``recentre_point_priors``: the radius constraints of the non-held points are first re-centred
     on the block's own surface (:func:`recentre_on_block`, one more adjustment) instead of the
-    datum sphere.
+    datum sphere — when the block calls for it (:func:`levelling_for`: wide enough to carry its own
+    surface, not mostly held by the altimetry); the decision is the summary's ``levelling``.
 
     ``level``: the unit's level; a unit of ``config.blocked_levels`` with at least
     ``config.blocked_min_measures`` measures is adjusted over point blocks
@@ -147,15 +171,18 @@ def adjust_network(
         held = np.asarray(problem.held_points, bool)[:, None]
         problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
     prior_summary: dict[str, Any] | None = None
-    if recentre_point_priors and cfg.radius_sigma_m is not None:
-        problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m, adjust=solve)
+    decision = None
+    if recentre_point_priors:
+        decision = levelling_for(problem, cfg, altimetry)
+        if decision.recentre and cfg.radius_sigma_m is not None:  # without a radius constraint: nothing to centre
+            problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m, adjust=solve)
     altimetry_summary: dict[str, Any] | None = None
     if altimetry is not None and len(altimetry.radius_m):
         from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry
 
         result, priors = bundle_adjust_with_altimetry(
             problem, cfg, altimetry, search_radius_m=cfg.altimetry_search_m, min_shots=cfg.altimetry_min_shots,
-            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m, adjust=solve,
+            horizontal_sigma_m=cfg.altimetry_horizontal_sigma_m, surface=cfg.altimetry_surface, adjust=solve,
         )
         altimetry_summary = {"shots": int(len(altimetry.radius_m)), **priors.summary()}
     else:
@@ -193,6 +220,8 @@ def adjust_network(
         summary["altimetry"] = altimetry_summary
     if prior_summary is not None:
         summary["point_prior"] = prior_summary
+    if decision is not None:
+        summary["levelling"] = decision.summary()
     return UnitAdjustment(
         network=adjusted,
         rotations=np.asarray(result.rotations),

@@ -11,6 +11,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from mercury_dem.config import Config
+from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.run_store import RunStore
 from mercury_dem.mission import Mission
 
@@ -28,6 +29,20 @@ def _open_map(path: str) -> Any:
     return xr.open_zarr(path, consolidated=False)
 
 
+def global_levelling(store: RunStore) -> dict[str, Any] | None:
+    """The global adjustment's levelling decision (:func:`mercury_dem.adjust.datum.levelling_decision`), or None.
+
+    None when the global summary has none (a run made before the decision existed, or with
+    ``adjust.point_prior_recentre_levels`` without ``global``): the registration then levels on the
+    shots' mean, as it always did.
+    """
+    try:
+        level = store.read_summary("global", 0).get("levelling")
+    except (OSError, ValueError, MercuryDemError):
+        return None
+    return level if isinstance(level, dict) and "level_to_mean" in level else None
+
+
 def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Config, client: Any,
                                   rep: Any) -> dict[str, Any] | None:
     """Register ``dem.zarr`` to the mission's altimetry and merge them (``dem.register_to_altimetry``).
@@ -38,14 +53,16 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     alt = mission.altimetry
     if not config.dem.register_to_altimetry or alt is None or not alt.n_shots:
         return None
-    from mercury_dem.exceptions import MercuryDemError
     from mercury_dem.pipeline.register_stage import register_dem_store
 
-    rep.message(f"registration: the DEM onto {alt.n_shots} altimetry shots, per tile")
+    level = global_levelling(store)
+    rep.message(f"registration: the DEM onto {alt.n_shots} altimetry shots, per tile"
+                + ("" if level is None or level["level_to_mean"] else ", not levelled on their mean (" + level["reason"] + ")"))
     t = time.perf_counter()
     try:
         summary = register_dem_store(store.dem_path, mission.read_altimetry(), store.root, client,
-                                     body=mission.body, overwrite=True, source=f"mission {mission.path} altimetry")
+                                     body=mission.body, overwrite=True, source=f"mission {mission.path} altimetry",
+                                     level_to_mean=True if level is None else bool(level["level_to_mean"]))
     except MercuryDemError as exc:
         rep.message(f"registration: failed ({exc})")
         return {"error": f"registration to the mission's altimetry: {exc}"}

@@ -76,3 +76,91 @@ def test_recentred_radius_constraint_removes_the_pull_toward_the_datum(seed: int
     assert new_rms < 0.9 * loose_rms
     assert summary["recentred_points"] > 0.9 * len(true_r)
     assert summary["centre_height_m"]["p5"] < -1000 < 1000 < summary["centre_height_m"]["p95"]
+
+
+def _cap(rng: np.random.Generator, n: int, radius_deg: float, centre_lat: float = 20.0) -> np.ndarray:
+    """Points uniform in area on a spherical cap of angular radius ``radius_deg``, at heights ±1 km."""
+    cos_t = 1.0 - rng.random(n) * (1.0 - np.cos(np.radians(radius_deg)))
+    phi = rng.uniform(0.0, 2 * np.pi, n)
+    s = np.sqrt(1.0 - cos_t**2)
+    local = np.c_[s * np.cos(phi), s * np.sin(phi), cos_t]  # around +z
+    a = np.radians(90.0 - centre_lat)  # tilt the cap's centre down to centre_lat
+    rot = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    return (local @ rot.T) * (DATUM_RADIUS_M + rng.uniform(-1000.0, 1000.0, n))[:, None]
+
+
+def test_block_extent_is_the_cap_holding_95_percent_of_the_points() -> None:
+    from mercury_dem.adjust.datum import block_extent_deg
+
+    rng = np.random.default_rng(17)
+    for radius in (0.5, 3.0, 25.0, 60.0):
+        # uniform in area: 95 % of the points lie within the angle a with 1 - cos a = 0.95 (1 - cos radius)
+        expect = np.degrees(np.arccos(1.0 - 0.95 * (1.0 - np.cos(np.radians(radius)))))
+        got = block_extent_deg(_cap(rng, 20_000, radius))
+        assert abs(got / expect - 1.0) < 0.02, (radius, got, expect)
+    u = rng.normal(size=(20_000, 3))  # the whole body: hardly a mean direction
+    assert block_extent_deg(u) > 120.0
+    assert block_extent_deg(np.r_[np.eye(3), -np.eye(3)]) == 180.0
+    assert block_extent_deg(np.full((5, 3), np.nan)) == 0.0
+    one = _cap(rng, 1, 10.0)
+    assert block_extent_deg(np.r_[one, np.full((3, 3), np.nan)]) == 0.0
+
+
+def test_levelling_decision_follows_the_block_and_its_altimetry() -> None:
+    from mercury_dem.adjust.datum import levelling_decision
+
+    rng = np.random.default_rng(23)
+    strip, wide = _cap(rng, 3000, 2.0), _cap(rng, 3000, 25.0)
+    globe = rng.normal(size=(3000, 3)) * DATUM_RADIUS_M
+    # Without altimetry in the adjustment: a strip or stereo pair keeps the datum (it would float), a wide
+    # block and the globe are re-centred; nothing held the points, so a registration afterwards levels.
+    d = levelling_decision(strip)
+    assert not d.recentre and d.level_to_mean and d.altimetry_share == 0.0 and "too small" in d.reason
+    for pts in (wide, globe):
+        d = levelling_decision(pts)
+        assert d.recentre and d.level_to_mean
+    # Altimetry holding most points (tiny): neither. Holding a minority (the demo's north): both on a wide
+    # block, the level alone on a small one.
+    most = rng.random(3000) < 0.8
+    few = rng.random(3000) < 0.16
+    d = levelling_decision(wide, most)
+    assert not d.recentre and not d.level_to_mean and abs(d.altimetry_share - most.mean()) < 1e-12
+    assert "altimetry's" in d.reason
+    assert levelling_decision(globe, few).recentre and levelling_decision(globe, few).level_to_mean
+    d = levelling_decision(strip, few)
+    assert not d.recentre and d.level_to_mean
+    # The thresholds: 0 extent and share 1 restore "always".
+    d = levelling_decision(strip, most, min_extent_deg=0.0, max_altimetry_share=1.0)
+    assert d.recentre and d.level_to_mean
+    with pytest.raises(ValueError, match="3 values for 3000 points"):
+        levelling_decision(wide, most[:3])
+    assert d.summary()["extent_deg"] == d.extent_deg
+
+
+def test_levelling_for_counts_the_points_near_shots() -> None:
+    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
+    from mercury_dem.pipeline.adjust_adapter import levelling_for
+
+    net = make_synthetic_network(800, rng=np.random.default_rng(31), relief_m=1000.0, min_views=2, max_views=3,
+                                 outlier_fraction=0.0)
+    problem = dataclasses.replace(net.problem, points=on_datum(net.problem.points))
+    cfg = AdjustConfig()
+    u = problem.points / np.linalg.norm(problem.points, axis=1, keepdims=True)
+    lat, lon = np.degrees(np.arcsin(u[:, 2])), np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360.0
+    # shots (20 scattered within ~2 km) around the northern half of the points only
+    north = lat > np.median(lat)
+    rng = np.random.default_rng(1)
+    k = np.repeat(np.flatnonzero(north), 20)
+    jit = rng.normal(0.0, 1000.0 / (DATUM_RADIUS_M * np.pi / 180.0), (k.size, 2))
+    shots = AltimetryShotsArrays(lat[k] + jit[:, 0], (lon[k] + jit[:, 1]) % 360.0,
+                                 np.full(k.size, DATUM_RADIUS_M), 1.0)
+    d = levelling_for(problem, cfg, shots)
+    # the points with >= 6 shots within the largest search radius (10 km; a plane), or >= 3 (a profile fit may
+    # take them), counted by brute force
+    su = np.stack([np.cos(np.radians(shots.lat_deg)) * np.cos(np.radians(shots.lon_deg)),
+                   np.cos(np.radians(shots.lat_deg)) * np.sin(np.radians(shots.lon_deg)),
+                   np.sin(np.radians(shots.lat_deg))], axis=1)
+    count = (np.arccos(np.clip(u @ su.T, -1, 1)) * DATUM_RADIUS_M <= 10_000.0).sum(axis=1)
+    assert 0.5 < (count >= 6).mean() <= d.altimetry_share <= (count >= 3).mean() < 1.0
+    assert d.level_to_mean is (d.altimetry_share <= 0.5)
+    assert levelling_for(problem, cfg, None).altimetry_share == 0.0

@@ -19,8 +19,6 @@ TINY_OVERRIDES: dict[str, Any] = {
         "chunk_size": 64, "browse_width": 256, "stats_pixel_km": 20.0, "coverage_pixel_km": 20.0,
     },
     "execution": {"retries": 2},
-    # the synthetic block's radius priors re-centred on its own surface (off by default: docs/design/adjust.md)
-    "adjust": {"point_prior_recentre_levels": ["global"]},
 }
 
 

@@ -281,13 +281,13 @@ def test_simulated_mla_ties_the_heights(sync_run: tuple[Path, dict[str, Any]]) -
     assert v["merged"]["rmse_m"] < v["adjusted"]["rmse_m"]
     reg = report["dem"]["registration"]
     assert len(reg["tiles_20_profiles"]) >= 5 and reg["improved_share"] >= 0.95
-    # The global level's radius constraints were re-centred on the block's surface (issue 21 §5), and the
-    # registered DEM levelled on the shots' mean per tile: the median-aligned transforms left it ~+50 m above the
-    # shots on average (seed 42), the level brings that mean toward 0 (blended across tiles, so not exactly).
-    assert glob["point_prior"]["recentred_points"] > 0.9 * glob["points"]
-    assert reg["mean_level"]["tiles"] >= 10
-    st = reg["statistics"]
-    assert abs(st["registered"]["bias_m"]) < abs(st["transformed"]["bias_m"]) - 15.0, st
+    # The altimetry holds most of tiny's tie points, so the block's heights are the altimetry's: its radius
+    # priors are not re-centred on the block and the registered DEM is not levelled on the shots' mean
+    # (adjust.datum.levelling_decision; both cost seed 7 13 m of bias when they were on here).
+    lev = glob["levelling"]
+    assert lev["altimetry_share"] > 0.5 and not lev["recentre"] and not lev["level_to_mean"], lev
+    assert lev["extent_deg"] > 10.0  # wide enough to be re-centred, were it not for the altimetry
+    assert glob.get("point_prior") is None and reg["mean_level"] is None
     for name in ("registered.zarr", "merged.zarr", "registration/tiles.parquet", "registration/rms_per_tile.png",
                  "products/registered/dem.tif", "products/merged/dem.tif", "products/merged/isis/dem_radius.cub",
                  "products/merged/browse/hillshade.png", "products/registration/rms_per_tile.png"):
