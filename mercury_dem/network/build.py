@@ -263,6 +263,39 @@ def _prune_unsupported_links(
     return links[keep], int(drop.size)
 
 
+def convergence_sigma_factor(
+    convergence_deg: ArrayLike, from_deg: float = 45.0, max_factor: float = 10.0
+) -> NDArray[np.float64]:
+    """Sigma factor of a match from its pair's convergence angle: ``tan(c) / tan(from_deg)``, in [1, max_factor].
+
+    Between convergent views an area match carries a per-pair offset that grows with the
+    angle (median offset of a pair's errors on two tiny missions: ~0.09 coarser-image px up
+    to 55 deg, 0.2 at 55-65, 0.35 at 65-75, 0.9 at 75-90; docs/benchmarks/match.md, issue 21),
+    about as ``tan`` of the angle. Views converging by 90 deg or more get ``max_factor``;
+    NaN (unknown) gives 1; ``from_deg`` >= 90 turns the weighting off (all 1).
+
+    Parameters
+    ----------
+    convergence_deg : (P,) angle between the two views' rays, degrees
+    from_deg : angle up to which the factor is 1
+    max_factor : the largest factor
+
+    Returns
+    -------
+    ndarray (P,) float64, >= 1
+    """
+    c = np.asarray(convergence_deg, np.float64)
+    out = np.ones(c.shape)
+    if from_deg >= 90.0:
+        return out
+    ok = np.isfinite(c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.tan(np.radians(np.clip(c, 0.0, 89.999))) / np.tan(np.radians(max(from_deg, 1e-6)))
+    f = np.where(c >= 90.0, max_factor, f)
+    out[ok] = np.clip(f[ok], 1.0, max_factor)
+    return out
+
+
 def build_network(
     image_ids: Sequence[str] | NDArray[np.str_],
     matches: PairMatches | Any,
@@ -278,6 +311,7 @@ def build_network(
     max_height_m: float = 50_000.0,
     datum_radius_m: float = DATUM_RADIUS_M,
     metadata: Mapping[str, str] | None = None,
+    sigma_factor: ArrayLike | None = None,
 ) -> BuildResult:
     """A control network from pairwise matches.
 
@@ -297,6 +331,11 @@ def build_network(
     sigma_px : the measures' sample and line sigma (NaN: the adjustment's default)
     min_convergence_deg, max_height_m, datum_radius_m : see :func:`triangulate_points`
     metadata : network metadata
+    sigma_factor : (P,) optional factor (>= 1) on ``sigma_px`` per match (e.g.
+        :func:`convergence_sigma_factor` of its pair), given to the match's measured side
+        (the side without a keypoint id; both sides when both or neither have one). A
+        measure is the mean of its observations, so its sigma gets the RMS of their
+        factors (the keypoint side's observations count 1)
 
     Returns
     -------
@@ -362,7 +401,7 @@ def build_network(
         tracks.line,
         point_type=np.full(n, PointType.FREE, np.int8),
         apriori_xyz=xyz,
-        sigma=np.full((g, 2), float(sigma_px)),
+        sigma=np.repeat(float(sigma_px) * _group_factor(sigma_factor, sel, feature, tracks, p)[:, None], 2, axis=1),
         measure_type=np.full(g, MeasureType.REGISTERED_SUBPIXEL, np.int8),
         metadata=dict(metadata or {}),
     )
@@ -384,3 +423,25 @@ def build_network(
         n_no_ground=int(no_ground.sum()),
     )
     return BuildResult(net, stats)
+
+
+def _group_factor(sigma_factor: ArrayLike | None, sel: NDArray[np.int64], feature: NDArray[np.int64],
+                  tracks: Any, p: int) -> NDArray[np.float64]:
+    """Per measure (track group): RMS of its observations' sigma factors (see ``build_network``)."""
+    g = tracks.group_track.size
+    if sigma_factor is None:
+        return np.ones(g)
+    f = np.asarray(sigma_factor, np.float64).reshape(-1)
+    if f.size != p or not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise NetworkError(f"build_network: sigma_factor must be {p} finite positive values (one per match), "
+                           f"got {f.size}{'' if f.size != p else ' with non-finite or non-positive ones'}")
+    q = sel.size
+    fa, fb = feature[:q], feature[q:]
+    measured_a = (fa < 0) | ((fa >= 0) == (fb >= 0))
+    measured_b = (fb < 0) | ((fa >= 0) == (fb >= 0))
+    obs_f = np.concatenate([np.where(measured_a, f[sel], 1.0), np.where(measured_b, f[sel], 1.0)])
+    grp = tracks.obs_group
+    use = grp >= 0
+    sq = np.bincount(grp[use], weights=obs_f[use] ** 2, minlength=g)
+    cnt = np.bincount(grp[use], minlength=g)
+    return np.sqrt(sq / np.maximum(cnt, 1))

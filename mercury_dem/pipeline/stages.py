@@ -174,7 +174,7 @@ def _no_points_reason(tile_id: int, s: dict[str, Any]) -> str:
 
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
     from mercury_dem.match.matcher import iter_rows, match_tile
-    from mercury_dem.network.build import build_network
+    from mercury_dem.network.build import build_network, convergence_sigma_factor
 
     run = store.read_run()
     mission = open_mission(run["mission"])
@@ -201,8 +201,12 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
         for reason in rows.loc[rows["status"] != "matched", "reason"]:
             key = re.sub(r"\d+(\.\d+)?", "N", str(reason))[:100]  # category: numbers folded
             failures[key] = failures.get(key, 0) + 1
+    conv = np.array([r.convergence_deg for r in reports], np.float64)
+    factor = convergence_sigma_factor(conv[matches.pair] if conv.size else np.zeros(0),
+                                      config.network.convergent_sigma_from_deg, config.network.convergent_sigma_max_factor)
     built = build_network(
         ids, matches, cameras, positions, rotations,
+        sigma_factor=factor,
         tolerance_px=config.network.merge_tolerance_px,
         point_id_start=int(tile_id) * POINT_ID_STRIDE,
         sigma_px=config.network.measure_sigma_px,

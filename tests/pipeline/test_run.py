@@ -294,3 +294,29 @@ def test_simulated_mla_ties_the_heights(sync_run: tuple[Path, dict[str, Any]]) -
         assert (run / name).exists(), name
     assert str(run / "products/merged/dem.tif") in report["dem"]["files"]
     assert reg["products"]["merged"]["statistics"]  # the merged DEM's own statistics table
+
+
+def test_convergent_pairs_measures_get_larger_sigmas(sync_run: tuple[Path, dict[str, Any]]) -> None:
+    """Tile networks: a measure's sigma is the configured one unless it came from a pair converging by more than
+    ``network.convergent_sigma_from_deg`` (then larger, at most ``convergent_sigma_max_factor`` times); issue 21."""
+    import pandas as pd
+
+    run, _ = sync_run
+    cfg = tiny_config().network
+    store = RunStore(run)
+    s0, smax = cfg.measure_sigma_px, cfg.measure_sigma_px * cfg.convergent_sigma_max_factor
+    n_big = n_convergent = 0
+    for tile in store.completed_units("tile"):
+        net = read_network(store.network_path("tile", tile))
+        if net.n_measures == 0:
+            continue
+        sig = net.sigma[:, 0]
+        assert np.all(sig >= s0 - 1e-12) and np.all(sig <= smax + 1e-9), tile
+        pairs = pd.read_parquet(store.unit_file("tile", tile, "pairs.parquet"))
+        matched = pairs[pairs["status"] == "matched"]
+        conv = int((matched["convergence_deg"] > cfg.convergent_sigma_from_deg).sum())
+        big = int((sig > s0 + 1e-12).sum())
+        assert (big > 0) == (conv > 0), (tile, big, conv)
+        n_big += big
+        n_convergent += conv
+    assert n_convergent > 0, "the tiny mission has pairs converging beyond the limit (the test would say nothing)"

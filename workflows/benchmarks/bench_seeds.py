@@ -103,8 +103,12 @@ def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]],
     return out
 
 
-def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions: Path | None = None) -> dict[str, Any]:
-    """Synthesize, run and study one seed (cached in WORKDIR/seed_N.json; missions in ``missions`` when given)."""
+def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions: Path | None = None,
+             study_matching: bool = True) -> dict[str, Any]:
+    """Synthesize, run and study one seed (cached in WORKDIR/seed_N.json; missions in ``missions`` when given).
+
+    ``study_matching`` False: the run's pointing figures only (for a change that does not touch matching:
+    its matching figures are those of the run before it)."""
     out_json = workdir / f"seed_{seed}.json"
     if out_json.exists():
         return json.loads(out_json.read_text())
@@ -125,12 +129,18 @@ def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions
     ms = open_mission(str(mission))
     instrument = dict(zip(ms.catalog["image_id"].astype(str), ms.catalog["instrument"].astype(str)))
     t0 = time.perf_counter()
-    study = tracks_study(str(mission), str(run), verbose=False, tracks=True)
+    if study_matching:
+        study = tracks_study(str(mission), str(run), verbose=False, tracks=True)
+        rows = study["pair_rows"]
+        figs = group_figures(np.asarray(study["pair_errors"], float), np.asarray(study["pair_of_error"], np.int64),
+                             rows, study["pair_overlaps"], pair_groups(rows, instrument),
+                             across=np.asarray(study["pair_errors_across"], float))
+    else:
+        nan = float("nan")
+        study = {"pairs": nan, "pairs_matched": nan, "matches": nan, "net_median_px": nan, "net_p95_px": nan,
+                 "match_seconds": 0.0}
+        figs = {}
     t_study = time.perf_counter() - t0
-    rows = study["pair_rows"]
-    figs = group_figures(np.asarray(study["pair_errors"], float), np.asarray(study["pair_of_error"], np.int64),
-                         rows, study["pair_overlaps"], pair_groups(rows, instrument),
-                         across=np.asarray(study["pair_errors_across"], float))
     result = {
         "seed": seed, "preset": preset, "config": config,
         "groups": figs,
@@ -230,6 +240,8 @@ def main() -> None:
     p.add_argument("--missions", help="take (or make) the missions in this directory (e.g. another study's "
                    "WORKDIR: the same missions, matched and adjusted again)")
     p.add_argument("--report-only", action="store_true", help="only the report of the seeds already in WORKDIR")
+    p.add_argument("--pointing-only", action="store_true", help="run and pointing figures only, no matching "
+                   "study (for changes after matching: the adjustment's weights, its priors)")
     a = p.parse_args()
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
@@ -237,10 +249,10 @@ def main() -> None:
     for s in parse_seeds(a.seeds):
         if a.report_only and not (work / f"seed_{s}.json").exists():
             continue
-        r = one_seed(s, work, a.preset, a.config, Path(a.missions) if a.missions else None)
+        r = one_seed(s, work, a.preset, a.config, Path(a.missions) if a.missions else None, not a.pointing_only)
         g = r["groups"].get("similar", {})
         print(f"seed {s}: similar median {g.get('median_px', float('nan')):.3f} p95 {g.get('p95_px', float('nan')):.3f}, "
-              f"outliers {100 * r['groups']['all']['outlier_share']:.2f} %, pointing "
+              f"outliers {100 * r['groups'].get('all', {}).get('outlier_share', float('nan')):.2f} %, pointing "
               + ", ".join(f"{k} {v:.3f}" for k, v in r["pointing_px"].items() if v is not None), flush=True)
         results.append(r)
     print()
