@@ -142,6 +142,8 @@ def main() -> None:
     ap.add_argument("--min-wavelength-km", type=float, default=50.0,
                     help="shortest wavelength of the surface (its DEM must resolve it: 8 ppd is 5.3 km pixels)")
     ap.add_argument("--out", help="working directory (default: a temporary one)")
+    ap.add_argument("--no-profile-nuisance", action="store_true",
+                    help="the stage's tile fits without step 1's profile nuisance (RegisterOptions.profile_nuisance=False)")
     args = ap.parse_args()
 
     from mercury_dem.altimetry.register import RegisterOptions, register_tile, tile_window
@@ -160,7 +162,8 @@ def main() -> None:
           f"DEM {int(180 * args.ppd)} x {int(360 * args.ppd)}", flush=True)
 
     t0 = time.perf_counter()
-    summary = register_dem_store(work / "dem.zarr", shots, work, overwrite=True, source="bench")
+    stage_opt = RegisterOptions(profile_nuisance=not args.no_profile_nuisance)
+    summary = register_dem_store(work / "dem.zarr", shots, work, overwrite=True, source="bench", options=stage_opt)
     t_stage = time.perf_counter() - t0
     tiles = pd.DataFrame(summary["tiles"])
     ok = tiles[tiles["ok"]]
@@ -182,7 +185,7 @@ def main() -> None:
                       tuple(float(v) for v in tg.bounds(tid)), R, 1.0)
     sel = shots[tg.tile_of(shots["lat"].to_numpy(), shots["lon"].to_numpy()) == tid]
     args_t = (win, sel["lat"].to_numpy(), sel["lon"].to_numpy(), sel["radius_m"].to_numpy(), sel["track_id"].to_numpy())
-    opt_sim = RegisterOptions(models=("similarity",))
+    opt_sim = RegisterOptions(models=("similarity",), profile_nuisance=not args.no_profile_nuisance)
     times_ours, times_ours_prof = [], []
     for _ in range(3):
         t0 = time.perf_counter()
