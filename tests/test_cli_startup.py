@@ -11,6 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 HEAVY = ("dask", "distributed", "numba", "xarray", "cv2", "zarr", "rasterio", "scipy", "pandas", "matplotlib",
          "bokeh", "pyproj", "numpy")
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,15 +91,22 @@ def test_the_command_probe_can_fail(tiny_mission_path: Path) -> None:
     assert loaded_by_command(["info", str(tiny_mission_path), "--no-map", "--json"], ("numpy",)) == ["numpy"]
 
 
-def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path) -> None:
+def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A cold ``mercury-dem grid`` loads neither the products' nor numba's optional libraries
     (mercury_dem.dem.numba_start), and grids exactly what the library gives in a process where they are loaded."""
     import numpy as np
     import zarr
 
     from mercury_dem.config import load_config
-    from mercury_dem.pipeline.dem_stage import grid_dem
+    from mercury_dem.geometry.body import MERCURY
+    from mercury_dem.pipeline.dem_stage import _spatial_ref_attrs, grid_dem
     from tests.dem.dem_synthetic import sample_cloud
+
+    # The CRS cache as `make setup` leaves it (python -m mercury_dem.dem.warm), in a cache of this test's own:
+    # the suite's object-store fixture points $MERCURY_DEM_CACHE at a fresh directory for its session.
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "cache"))
+    _spatial_ref_attrs.cache_clear()
+    _spatial_ref_attrs(MERCURY)
 
     pts = sample_cloud(np.random.default_rng(7), 30_000, (-5.0, 5.0), (10.0, 20.0))
     np.save(tmp_path / "pts.npy", pts)
