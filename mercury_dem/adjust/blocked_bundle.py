@@ -30,7 +30,7 @@ from mercury_dem.adjust.blocked import (
     blocked_levenberg_marquardt,
     options_from_config,
 )
-from mercury_dem.adjust.bundle import _rms_by, held_image_mask
+from mercury_dem.adjust.bundle import _rms_by, check_projectable, held_image_mask
 from mercury_dem.adjust.diagnose import check_solvable, diagnose
 from mercury_dem.adjust.problem import AdjustmentProblem
 from mercury_dem.adjust.result import AdjustmentResult
@@ -107,13 +107,7 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
     for b, ix in zip(shard.blocks, index):
         _, r = b.cost(omega0)
         r0[ix] = r * b.model.problem.measure_sigma[:, None]
-    bad0 = ~np.all(np.isfinite(r0), axis=1)
-    if bad0.any():
-        which = np.flatnonzero(bad0)[:10]
-        raise AdjustmentError(
-            f"{int(bad0.sum())} measures cannot be projected at the a-priori state (point behind the camera), e.g. "
-            f"point {problem.point_ids[problem.measure_point[which]].tolist()} in images "
-            f"{[problem.image_ids[i] for i in problem.measure_image[which]]}: check the a-priori points and poses")
+    check_projectable(problem, r0)
     initial_rms = float(np.sqrt(np.mean(r0 * r0)))
     del r0
     res = blocked_levenberg_marquardt(SyncEngine([shard]), setup, opt, initial_omega=omega0)

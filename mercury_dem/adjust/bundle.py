@@ -76,6 +76,19 @@ def _rms_by(groups: NDArray[np.int64], sq: NDArray[np.float64], keep: NDArray[np
         return np.sqrt(total / (2.0 * count)), count
 
 
+def check_projectable(problem: AdjustmentProblem, r0: NDArray[np.float64]) -> None:
+    """Raise :class:`AdjustmentError` naming the measures whose a-priori residuals ``r0`` are not finite
+    (the point behind the camera): the adjustment cannot start from such a state."""
+    bad0 = ~np.all(np.isfinite(r0), axis=1)
+    if bad0.any():
+        which = np.flatnonzero(bad0)[:10]
+        raise AdjustmentError(
+            f"{int(bad0.sum())} measures cannot be projected at the a-priori state (point behind the camera), e.g. "
+            f"point {problem.point_ids[problem.measure_point[which]].tolist()} in images "
+            f"{[problem.image_ids[i] for i in problem.measure_image[which]]}: check the a-priori points and poses"
+        )
+
+
 def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None) -> AdjustmentResult:
     """Adjust pointing (and optionally positions) and points of a framing-camera network.
 
@@ -93,14 +106,7 @@ def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None
     opt = solver_options(problem, config, held)
     state0 = model.initial_state()
     r0 = model.residuals(state0) * problem.measure_sigma[:, None]
-    bad0 = ~np.all(np.isfinite(r0), axis=1)
-    if bad0.any():
-        which = np.flatnonzero(bad0)[:10]
-        raise AdjustmentError(
-            f"{int(bad0.sum())} measures cannot be projected at the a-priori state (point behind the camera), e.g. "
-            f"point {problem.point_ids[problem.measure_point[which]].tolist()} in images "
-            f"{[problem.image_ids[i] for i in problem.measure_image[which]]}: check the a-priori points and poses"
-        )
+    check_projectable(problem, r0)
     initial_rms = float(np.sqrt(np.mean(r0 * r0)))
     res = levenberg_marquardt(model, state0, opt)
     state = res.state
