@@ -59,14 +59,17 @@ def run_one(n: int, seed: int) -> dict:
 
 
 def run_scipy(n: int, seed: int) -> dict:
-    """Ours and scipy least_squares on the same clean network and cost (no robust loss, no rejection)."""
-    import scipy.sparse as sp
-    from scipy.optimize import least_squares
+    """Ours and scipy least_squares on the same clean network and cost (no robust loss, no rejection).
 
-    from mercury_dem.adjust.bundle import bundle_adjust, make_model
-    from mercury_dem.adjust.framing import FramingState
+    The scipy side is :func:`bench_blocked_anchor.least_squares_anchor` (the one anchor both benchmarks use)."""
+    from pathlib import Path
+
+    from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.config.adjust import AdjustConfig
     from mercury_dem.validate.synthetic_network import make_synthetic_network
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_blocked_anchor import least_squares_anchor
 
     net = make_synthetic_network(n, rng=np.random.default_rng(seed), min_views=3, outlier_fraction=0.0)
     p = net.problem
@@ -74,45 +77,10 @@ def run_scipy(n: int, seed: int) -> dict:
     t = time.perf_counter()
     ours = bundle_adjust(p, cfg)
     ours_s = time.perf_counter() - t
-    ours_cost = ours.log[-1]["cost"]
-    model = make_model(p, cfg)
-    ni, npt, m = p.n_images, p.n_points, p.n_measures
-    zeros = np.zeros((ni, 3))
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        st = FramingState(x[: 3 * ni].reshape(ni, 3), zeros, x[3 * ni :].reshape(npt, 3))
-        parts = [model.residuals(st).ravel(), model.camera_prior(st)[0].ravel()]
-        pp = model.point_prior(st)
-        if pp is not None:
-            parts.append(pp[0].ravel())
-        return np.concatenate(parts)
-
-    rows, cols = [], []
-    mi, mp = p.measure_image, p.measure_point
-    for k in range(2):
-        for s in range(3):
-            rows += [2 * np.arange(m) + k, 2 * np.arange(m) + k]
-            cols += [3 * mi + s, 3 * ni + 3 * mp + s]
-    for s in range(3):
-        for s2 in range(3):
-            rows.append(2 * m + 3 * np.arange(ni) + s)
-            cols.append(3 * np.arange(ni) + s2)
-    npp = 0 if model.point_prior(model.initial_state()) is None else model.point_prior(model.initial_state())[0].shape[1]
-    for s in range(npp):
-        for s2 in range(3):
-            rows.append(2 * m + 3 * ni + npp * np.arange(npt) + s)
-            cols.append(3 * ni + 3 * np.arange(npt) + s2)
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    nres = 2 * m + 3 * ni + npp * npt
-    sparsity = sp.coo_matrix((np.ones(len(r)), (r, c)), shape=(nres, 3 * ni + 3 * npt)).tocsr()
-    sparsity.data[:] = 1
-    x0 = np.concatenate([np.zeros(3 * ni), p.points.ravel()])
-    t = time.perf_counter()
-    ls = least_squares(fun, x0, jac_sparsity=sparsity, x_scale="jac", ftol=1e-4, method="trf")
-    sc_s = time.perf_counter() - t
-    return {"measures": m, "ours_seconds": round(ours_s, 2), "ours_cost": ours_cost, "ours_iterations": ours.iterations,
-            "scipy_seconds": round(sc_s, 2), "scipy_cost": float(ls.cost), "scipy_nfev": int(ls.nfev),
-            "ratio": round(sc_s / ours_s, 1)}
+    ls = least_squares_anchor(p, cfg)
+    return {"measures": p.n_measures, "ours_seconds": round(ours_s, 2), "ours_cost": ours.log[-1]["cost"],
+            "ours_iterations": ours.iterations, "scipy_seconds": round(ls["seconds"], 2), "scipy_cost": ls["cost"],
+            "scipy_nfev": ls["nfev"], "ratio": round(ls["seconds"] / ours_s, 1)}
 
 
 def main() -> None:
