@@ -3,7 +3,7 @@
 #
 #   cluster/local/start.sh [--workers N] [--threads T] [--memory-limit 4GiB] [--state-dir DIR]
 #                          [--host 127.0.0.1] [--port 8786] [--dashboard-port 8787]
-#                          [--tls | --tls-dir CERTDIR] [--timeout 60]
+#                          [--tls | --tls-dir CERTDIR] [--timeout 60] [--idle-timeout SECONDS]
 #
 # DIR (default ./dask-local) receives:
 #   scheduler.json   the scheduler file: mercury-dem run MISSION --out RUN --scheduler-file DIR/scheduler.json
@@ -15,6 +15,9 @@
 # --tls uses DIR/tls (made by make-certs.sh when absent); --tls-dir uses CERTDIR
 # (ca.pem, cert.pem, key.pem; made there when absent). With TLS every connection is
 # encrypted and a client without a certificate signed by the CA is refused.
+# --idle-timeout closes the scheduler after that many seconds with no task running (its workers
+# then exit after their 60 s death timeout): for throw-away deployments such as a test's, which
+# must not outlive a killed caller. Off by default.
 # Stop everything with: cluster/local/stop.sh --state-dir DIR
 set -euo pipefail
 
@@ -23,7 +26,7 @@ usage() { sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-2}"; }
 
 PYTHON="${PYTHON:-$(command -v python3 || command -v python)}"
 workers=2; threads=1; memory_limit=""; state="./dask-local"; host="127.0.0.1"; port=8786; dport=8787
-tls=0; tls_dir=""; timeout=60
+tls=0; tls_dir=""; timeout=60; idle_timeout=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --workers) workers="$2"; shift 2 ;;
@@ -36,10 +39,16 @@ while [ $# -gt 0 ]; do
     --tls) tls=1; shift ;;
     --tls-dir) tls=1; tls_dir="$2"; shift 2 ;;
     --timeout) timeout="$2"; shift 2 ;;
+    --idle-timeout) idle_timeout="$2"; shift 2 ;;
     -h|--help) usage 0 ;;
     *) echo "start.sh: unknown argument $1" >&2; usage ;;
   esac
 done
+idle_args=()
+if [ -n "$idle_timeout" ]; then
+  [[ "$idle_timeout" =~ ^[1-9][0-9]*$ ]] || { echo "start.sh: --idle-timeout must be a positive number of seconds, got $idle_timeout" >&2; exit 2; }
+  idle_args=(--idle-timeout "${idle_timeout}s")
+fi
 [[ "$workers" =~ ^[1-9][0-9]*$ ]] || { echo "start.sh: --workers must be a positive integer, got $workers" >&2; exit 2; }
 "$PYTHON" -c "import distributed" 2>/dev/null || {
   echo "start.sh: $PYTHON cannot import distributed; set PYTHON=/path/to/.venv/bin/python" >&2; exit 1; }
@@ -87,7 +96,7 @@ fi
 SETSID="$(command -v setsid || true)"
 $SETSID "$PYTHON" -m distributed.cli.dask_scheduler \
   --host "$host" --port "$port" --protocol "$protocol" --dashboard-address "$host:$dport" \
-  --scheduler-file "$sched_file" "${tls_args[@]}" \
+  --scheduler-file "$sched_file" "${tls_args[@]}" "${idle_args[@]}" \
   >"$state/logs/scheduler.log" 2>&1 < /dev/null &
 echo $! > "$state/pids/scheduler.pid"
 

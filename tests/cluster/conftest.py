@@ -55,9 +55,11 @@ class LocalDeployment:
                               capture_output=True, text=True, timeout=120, env=script_env())
 
 
-def start_local(state: Path, workers: int = 2, tls: bool = False) -> LocalDeployment:
+def start_local(state: Path, workers: int = 2, tls: bool = False, idle_timeout: int = 900) -> LocalDeployment:
     cmd = [str(LOCAL / "start.sh"), "--state-dir", str(state), "--workers", str(workers), "--threads", "1",
-           "--port", "0", "--dashboard-port", "0", "--memory-limit", "1GiB", "--timeout", "60"]
+           "--port", "0", "--dashboard-port", "0", "--memory-limit", "1GiB", "--timeout", "60",
+           # a killed pytest runs no teardown: the deployment then ends itself
+           "--idle-timeout", str(idle_timeout)]
     if tls:
         cmd.append("--tls")
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=script_env())

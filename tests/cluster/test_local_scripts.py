@@ -82,6 +82,24 @@ def test_stop_skips_a_stale_pid_that_is_not_dask(tmp_path: Path) -> None:
     assert not (pids / "worker-1.pid").exists()
 
 
+def test_idle_timeout_ends_a_deployment_whose_caller_is_gone(tmp_path: Path) -> None:
+    """A deployment started with ``--idle-timeout`` ends by itself when nobody uses it (as after a killed
+    pytest, which runs no teardown): the scheduler closes, then its workers after their death timeout."""
+    dep = start_local(tmp_path / "dask", workers=1, idle_timeout=2)
+    try:
+        scheduler = [p for p in dep.processes if p.pid == dep.leaders["scheduler"]]
+        deadline = time.monotonic() + 30
+        while alive(scheduler) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert alive(scheduler) == [], "the idle scheduler did not close"
+        assert "idle" in (dep.state / "logs" / "scheduler.log").read_text()
+    finally:
+        dep.stop()
+    bad = subprocess.run([str(LOCAL / "start.sh"), "--state-dir", str(tmp_path / "bad"), "--idle-timeout", "soon"],
+                         capture_output=True, text=True, timeout=60, env=script_env())
+    assert bad.returncode == 2 and "--idle-timeout must be a positive number of seconds, got soon" in bad.stderr
+
+
 def test_tls_deployment_refuses_plain_tcp_and_foreign_certificates(tmp_path: Path) -> None:
     from distributed.security import Security
 
