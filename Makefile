@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed
 DEB_PACKAGES := libsuitesparse-dev gdal-bin chromium chromium-driver slurm-wlm munge
 DEMO_DIR ?= demo_output
 
-.PHONY: setup system-deps test test-slow demo clean
+.PHONY: setup system-deps test test-slow demo clean bench-deps
 
 setup: system-deps $(STAMP)
 
@@ -34,6 +34,10 @@ $(STAMP): pyproject.toml
 	  || echo "scikit-sparse not installed: the bundle adjustment uses its scipy fallback"
 	$(PY) -m mercury_dem.dem.warm  # numba's kernel cache and the CRS cache: a first 'grid' starts warm
 	touch $(STAMP)
+
+# The benchmarks' outside anchors (Ceres through pycolmap); the project itself does not need them.
+bench-deps: setup
+	$(PY) -m pip install -q -e '.[anchors]'
 
 test: setup
 	$(PY) -m pytest

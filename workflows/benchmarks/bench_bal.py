@@ -6,7 +6,7 @@ Usage::
 
 Prints, for each solver, the seconds to reach the goal cost (default 1.3409e+04,
 scipy's final cost in the SciPy cookbook), the final cost and the ratios. pycolmap
-is a benchmark-only dependency (``pip install pycolmap``); it is skipped when absent.
+is a benchmark-only dependency (``make bench-deps``: the ``anchors`` extra); it is skipped when absent.
 """
 
 from __future__ import annotations
