@@ -416,7 +416,7 @@ def grid_dem(
         store = str(tmp)
         # The index (compiled, GIL released) builds while this thread writes the store's template.
         index_job = pool.submit(build_point_index, pts, body.datum_radius_m)
-        layer_arrays = None if writer is None else writer.create(store, grid, cfg, attrs, body)
+        layer_arrays = None if writer is None else writer.create(store, grid, cfg, attrs, body, name=str(out_path))
         if layer_arrays is None:
             forked[0] = None
             group, layer_arrays = create_store(store, grid, cfg, attrs, body)

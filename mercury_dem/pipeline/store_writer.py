@@ -163,8 +163,10 @@ class ForkedStoreWriter:
 
         self.pid, self._wfd, self._rfd = pid, wfd, rfd
         self._lock = threading.Lock()
+        self._fail_lock = threading.Lock()
         self._store: str | None = None
         self._done = False
+        self._error: str | None = None  # the child's fault, once known (every later call repeats it)
 
     @classmethod
     def start(cls) -> ForkedStoreWriter | None:
@@ -200,9 +202,12 @@ class ForkedStoreWriter:
 
     # -- the parent's side ------------------------------------------------------------------
 
-    def create(self, store: str, grid: Any, cfg: Any, attrs: dict[str, Any] | None, body: Any
-               ) -> dict[str, _Layer] | None:
+    def create(self, store: str, grid: Any, cfg: Any, attrs: dict[str, Any] | None, body: Any,
+               name: str | None = None) -> dict[str, _Layer] | None:
         """Have the child create the empty store (:func:`~mercury_dem.pipeline.dem_stage.create_store`).
+
+        ``name``: the store as error messages call it (default ``store``; e.g. the final path
+        of a store built under a temporary name).
 
         Returns stand-ins of its map layers for region writes, or None (the child stopped; the
         caller writes in-process) when the grid, configuration, attributes or body do not
@@ -223,7 +228,7 @@ class ForkedStoreWriter:
         if not same:
             self.abort()
             return None
-        self._store = store
+        self._store = name or store
         self._send(head)
         return {name: _Layer(self, name) for name in LAYERS}
 
@@ -233,10 +238,13 @@ class ForkedStoreWriter:
     def complete(self, tmp: Any = None) -> None:
         """Have the child mark the store complete; wait for it. Raises :class:`StoreError` on its fault."""
         self._send({"kind": "complete"})
-        reply = self._reply()
-        self._finish()
-        if reply is None or reply.get("kind") != "ok":
-            self._fail(reply)
+        with self._fail_lock:
+            reply = self._reply()
+            self._finish()
+            if reply is None or reply.get("kind") != "ok":
+                self._record(reply)
+        if self._error is not None:
+            self._fail()
 
     def abort(self) -> None:
         """Stop the child without marking the store complete, and wait for it (idempotent)."""
@@ -244,14 +252,16 @@ class ForkedStoreWriter:
 
     def _send(self, header: dict[str, Any], payload: Any = b"") -> None:
         if self._done:
-            raise StoreError(f"{self._where()}: the writer process has already stopped")
+            self._fail()
         try:
             with self._lock:
                 _send(self._wfd, header, payload)
-        except OSError:  # the child stopped (its reason is on the reply pipe)
-            reply = self._reply()
-            self._finish()
-            self._fail(reply)
+        except OSError:  # the child stopped (its reason is on the reply pipe): the first thread to see it reads it
+            with self._fail_lock:
+                if not self._done:
+                    self._record(self._reply())
+                    self._finish()
+            self._fail()
 
     def _reply(self) -> dict[str, Any] | None:
         try:
@@ -277,8 +287,15 @@ class ForkedStoreWriter:
     def _where(self) -> str:
         return f"writing {self._store or 'dem.zarr'}"
 
-    def _fail(self, reply: dict[str, Any] | None) -> None:
-        why = reply.get("text") if reply and reply.get("kind") == "error" else "the writer process stopped without a reason"
+    def _record(self, reply: dict[str, Any] | None) -> None:
+        """Keep the child's reason for stopping (the first one seen)."""
+        if self._error is None:
+            self._error = (str(reply.get("text")) if reply and reply.get("kind") == "error"
+                           else "the writer process stopped without a reason")
+
+    def _fail(self) -> None:
+        with self._fail_lock:  # wait for a thread still reading the child's reason
+            why = self._error or "the writer process has already stopped"
         raise StoreError(f"{self._where()}: {why}; check the output directory (free space, permissions), "
                          f"or set {ENV}=inprocess to write from the gridding process")
 
