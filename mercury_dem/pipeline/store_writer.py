@@ -46,6 +46,21 @@ ENV = "MERCURY_DEM_GRID_WRITER"
 _LEN = struct.Struct("<Q")
 
 
+#: Pipe capacity asked for (Linux; the default is 64 KiB): a chunk's layer (~1 MiB at 512 x 512 float32)
+#: then goes into the pipe without waiting for the child to finish writing the previous one.
+PIPE_BYTES = 1 << 20
+
+
+def _widen(fd: int) -> None:
+    """Ask for a :data:`PIPE_BYTES` pipe (best effort: elsewhere, or above the system's limit, it stays)."""
+    try:
+        import fcntl
+
+        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    except (ImportError, AttributeError, OSError):
+        pass
+
+
 def _write_all(fd: int, data: bytes | memoryview) -> None:
     view = memoryview(data).cast("B")
     while view:
@@ -185,6 +200,7 @@ class ForkedStoreWriter:
             return None
         to_child_r, to_child_w = os.pipe()
         to_parent_r, to_parent_w = os.pipe()
+        _widen(to_child_w)
         sys.stdout.flush()
         sys.stderr.flush()
         pid = os.fork()
