@@ -21,6 +21,9 @@ NAME = "grid"
 if TYPE_CHECKING:
     import numpy as np
 
+#: The process ends after this command: skip the exit-time garbage collection (mercury_dem.cli._freeze_for_exit).
+FREEZE_AT_EXIT = True
+
 HELP = "grid a point cloud (.npy/.csv of XYZ or lat,lon,radius) into DIR/dem.zarr"
 
 

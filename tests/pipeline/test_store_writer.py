@@ -50,7 +50,9 @@ def _grid_code(pts: Path, cfg: Path, out: Path, prelude: str = "") -> str:
             "with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):\n"
             f"    rc = c.main(['grid', {str(pts)!r}, '--out', {str(out)!r}, '--config', {str(cfg)!r}, '--no-coverage'])\n"
             "try:\n    os.waitpid(-1, os.WNOHANG)\n    reaped = False\nexcept ChildProcessError:\n    reaped = True\n"
-            "print(json.dumps({'rc': rc, 'zarr': 'zarr' in sys.modules, 'reaped': reaped, 'err': err.getvalue()}))\n")
+            "import gc\n"
+            "print(json.dumps({'rc': rc, 'zarr': 'zarr' in sys.modules, 'reaped': reaped, 'err': err.getvalue(),"
+            " 'frozen': gc.get_freeze_count()}))\n")
 
 
 def _result(p: subprocess.CompletedProcess[str]) -> dict:
@@ -70,10 +72,18 @@ def test_forked_writer_writes_the_in_process_store_byte_for_byte(cloud: tuple[Pa
     assert forked["zarr"] is False  # the child wrote the store: the gridding process never imported zarr
     assert inproc["zarr"] is True  # the probe sees zarr when this process writes (so the check above can fail)
     assert forked["reaped"] and inproc["reaped"]
+    assert forked["frozen"] == 0 and inproc["frozen"] == 0  # main(argv): a process that lives on is never frozen
+    # the program itself (main() without argv: the exit-time garbage collection skipped, mercury_dem.cli)
+    prog = _python("import sys, runpy\n"
+                   f"sys.argv = ['mercury-dem', 'grid', {str(pts)!r}, '--out', {str(tmp_path / 'prog')!r}, '--config', "
+                   f"{str(cfg)!r}, '--no-coverage']\n"
+                   "import gc, mercury_dem.cli as c\nrc = c.main()\nprint('frozen', rc, gc.get_freeze_count() > 0)\n")
+    assert prog.returncode == 0 and prog.stdout.strip().splitlines()[-1] == "frozen 0 True", prog.stderr[-2000:]
     a, b = _files(tmp_path / "forked" / "dem.zarr"), _files(tmp_path / "inproc" / "dem.zarr")
-    assert sorted(a) == sorted(b) and len([k for k in a if "/c/" in k]) >= 9 * 5  # every chunk of every layer
+    c = _files(tmp_path / "prog" / "dem.zarr")
+    assert sorted(a) == sorted(b) == sorted(c) and len([k for k in a if "/c/" in k]) >= 9 * 5  # every chunk, layer
     for name in b:  # attributes, coordinates, chunks: same bytes (the source path is the same file)
-        assert a[name] == b[name], name
+        assert a[name] == b[name] == c[name], name
     root = json.loads(a["zarr.json"])
     assert root["attributes"]["complete"] is True and root["attributes"]["n_points"] == 20_000
     assert not [p for p in tmp_path.rglob("*") if ".tmp" in p.name]  # no temporary left
