@@ -10,7 +10,8 @@ the same search radius) on the same cloud as FlatGeobuf and as CSV. 1000 x 1000 
 Also timed: ``mercury-dem --help`` and the bare import of the gridding stage, cold.
 ``--tree DIR`` (repeatable) runs ``mercury-dem`` from each source tree (first on ``PYTHONPATH``),
 interleaved with the others and gdal_grid: before/after side by side in the same minutes.
-Wall and CPU seconds (user + system of the child process) are both recorded. Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
+Wall and CPU seconds (user + system of the child process, including any process it forked and
+waited for, e.g. the ``dem.zarr`` writer of mercury_dem.pipeline.store_writer) are both recorded. Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
 """
 
 from __future__ import annotations
