@@ -284,7 +284,7 @@ class ForkedStoreWriter:
             msg = _recv(self._rfd)
         except (OSError, ValueError):
             return None
-        return None if msg is None else msg[0]
+        return msg[0] if msg is not None and isinstance(msg[0], dict) else None
 
     def _finish(self) -> None:
         if self._done:

@@ -144,3 +144,47 @@ def test_the_writer_declines_where_it_does_not_apply(cloud: tuple[Path, Path], t
     assert p.returncode == 0, p.stderr[-3000:]
     complete, t, finite = json.loads(p.stdout.strip().splitlines()[-1])
     assert complete is True and t == [1, 2] and finite > 0.9 * 128 * 160
+
+
+def test_message_reader_survives_any_bytes() -> None:
+    """The pipe's reader (parent and child) on truncated or arbitrary bytes: a message, end-of-file (None), or
+    ValueError (which the parent turns into StoreError) — never a hang or another exception."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from mercury_dem.pipeline.store_writer import _recv, _send
+
+    def read_all(data: bytes) -> list:
+        r, w = os.pipe()
+        try:
+            os.write(w, data)  # small: fits in the pipe
+        finally:
+            os.close(w)
+        got = []
+        try:
+            while (msg := _recv(r)) is not None:
+                got.append(msg)
+        except ValueError:
+            got.append("ValueError")
+        finally:
+            os.close(r)
+        return got
+
+    r, w = os.pipe()
+    _send(w, {"kind": "write", "name": "elevation", "region": [0, 2, 0, 2], "dtype": "<f4", "shape": [2, 2]},
+          np.arange(4, dtype="<f4"))
+    os.close(w)
+    valid = os.read(r, 1 << 16)
+    os.close(r)
+    assert read_all(valid) == [({"kind": "write", "name": "elevation", "region": [0, 2, 0, 2], "dtype": "<f4",
+                                 "shape": [2, 2]}, np.arange(4, dtype="<f4").tobytes())]
+
+    @settings(max_examples=60, deadline=None)
+    @given(cut=st.integers(0, len(valid)), junk=st.binary(max_size=64), flip=st.integers(0, len(valid) - 1))
+    def check(cut: int, junk: bytes, flip: int) -> None:
+        assert read_all(valid[:cut]) in ([], [read_all(valid)[0]] if cut == len(valid) else [])
+        for data in (junk, valid[:flip] + bytes([valid[flip] ^ 0xFF]) + valid[flip + 1:], valid + junk):
+            for m in read_all(data):
+                assert m == "ValueError" or (isinstance(m, tuple) and isinstance(m[1], bytes)), m
+
+    check()
