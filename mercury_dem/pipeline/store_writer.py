@@ -3,8 +3,9 @@
 Why: a cold ``mercury-dem grid`` spends ~1 s single-threaded before its two-thread gridding
 (Python, numpy, numba's import and registries, zarr's import), with the machine's other core
 idle. Python imports hold the GIL, so a thread cannot overlap them; a second *process* can.
-:class:`ForkedStoreWriter` forks right at the command's start, before numpy, numba or zarr
-are imported (no threads exist yet, nothing is shared but the file system). The child
+:class:`ForkedStoreWriter` forks at the command's start, after numpy (both need it) and before numba or zarr
+are imported (no Python thread runs; OpenBLAS's pool, started with numpy, has its own fork handlers and the
+child calls no BLAS; nothing is shared but the file system and two pipes). The child
 imports zarr and the store layout code, creates the store when told its grid, writes each
 chunk's layers as the parent sends them, then the final attributes and the completion mark.
 The parent never imports zarr; its ``dem.zarr`` writes become sends on a pipe.
@@ -191,7 +192,7 @@ class ForkedStoreWriter:
         imported (nothing left to overlap); when another thread runs (a fork copies only the
         calling thread: a lock held elsewhere could never be released in the child, e.g. when
         the command is called inside a test or a notebook). Call it before importing
-        numpy/numba/zarr and before starting any thread.
+        numba or zarr and before starting any thread (numpy may be imported: both processes use it).
         """
         import threading
 
