@@ -55,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv_given = argv
     argv = list(sys.argv[1:] if argv is None else argv)
     # Everything after a first '--' is a command for a subcommand that runs one (PASSTHROUGH, e.g. 'cluster').
     rest: list[str] = []
@@ -72,6 +73,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MercuryDemError as exc:
         print(f"mercury-dem {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if argv_given is None and getattr(args._module, "FREEZE_AT_EXIT", False):
+            _freeze_for_exit()
+
+
+def _freeze_for_exit() -> None:
+    """Leave the objects alive now out of the interpreter's last garbage collections.
+
+    For a command that ends its process (``main()`` called without ``argv``: the ``mercury-dem``
+    program, ``python -m mercury_dem.cli``) and declares ``FREEZE_AT_EXIT`` (it closes what it
+    opened itself): after numba has started, the collections at interpreter exit walk its typing and
+    lowering registries, ~0.1-0.3 s of a cold ``mercury-dem grid`` (measured 2026-11-26,
+    docs/benchmarks/dem.md); ``gc.freeze`` moves every live object to the permanent generation, which
+    those collections skip. atexit handlers still run and reference counting still frees what it
+    frees; the operating system reclaims the rest. Never done for ``main(argv)`` (tests, notebooks:
+    a process that lives on).
+    """
+    import gc
+
+    gc.freeze()
 
 
 if __name__ == "__main__":  # pragma: no cover

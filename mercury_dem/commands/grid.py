@@ -21,6 +21,9 @@ NAME = "grid"
 if TYPE_CHECKING:
     import numpy as np
 
+#: The process ends after this command: skip the exit-time garbage collection (mercury_dem.cli._freeze_for_exit).
+FREEZE_AT_EXIT = True
+
 HELP = "grid a point cloud (.npy/.csv of XYZ or lat,lon,radius) into DIR/dem.zarr"
 
 
@@ -86,8 +89,7 @@ def _is_number(s: str) -> bool:
 
 
 def run(args: argparse.Namespace, config: Any) -> int:
-    from mercury_dem.pipeline.dem_stage import grid_dem
-    from mercury_dem.progress import Reporter
+    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
 
     dem = config.dem
     changes: dict[str, Any] = {}
@@ -99,6 +101,33 @@ def run(args: argparse.Namespace, config: Any) -> int:
         dem = dataclasses.replace(dem, **changes)  # validated again on construction
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("config key '", "config key 'dem.", 1)) from None
+    out = refuse_remote(args.out, "--out", f"{UPLOAD_HINT}, or use 'mercury-dem run --out URL'")
+    writer = None
+    if args.workers == 0:
+        import numpy  # noqa: F401  (before the fork: both processes need it, imported once)
+
+        from mercury_dem.pipeline.store_writer import ForkedStoreWriter
+
+        # Forked before numba, zarr or any thread: the child imports zarr and writes dem.zarr on the other
+        # core while this process starts numba and grids (mercury_dem.pipeline.store_writer).
+        writer = ForkedStoreWriter.start()
+    try:
+        summary = _grid(args, config, dem, out, writer)
+    finally:
+        if writer is not None:
+            writer.abort()  # a no-op once the store is complete; else the child stops unmarked
+    print(f"gridded {summary['n_points']} points into {summary['path']} "
+          f"({summary['shape'][0]} x {summary['shape'][1]}, {summary['method']}, {summary['n_chunks']} chunks) "
+          f"in {summary['seconds']:.1f} s; {summary['no_value_pixels']} pixels without value "
+          f"({100 * summary['no_value_fraction']:.2f} %)")
+    if summary["coverage"]:
+        print("coverage: " + json.dumps({k: summary["coverage"][k] for k in
+                                         ("pixel_km", "occupied_fraction", "share_with_1", "share_with_2",
+                                          "share_with_3_or_more")}))
+    return 0
+
+
+def _grid(args: argparse.Namespace, config: Any, dem: Any, out: Path, writer: Any) -> dict[str, Any]:
     from mercury_dem.geometry.body import body_by_name
 
     try:
@@ -106,9 +135,9 @@ def run(args: argparse.Namespace, config: Any) -> int:
     except ValueError as exc:
         raise ConfigError(f"--body: {exc}") from None
     points = read_points(args.points)
-    from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
+    from mercury_dem.pipeline.dem_stage import grid_dem
+    from mercury_dem.progress import Reporter
 
-    out = refuse_remote(args.out, "--out", f"{UPLOAD_HINT}, or use 'mercury-dem run --out URL'")
     client = None
     cluster = None
     if args.workers == 0:
@@ -124,19 +153,10 @@ def run(args: argparse.Namespace, config: Any) -> int:
         cluster = local_cluster(args.workers, 1, host=config.execution.host)
         client = Client(cluster)
     try:
-        summary = grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
-                           coverage=not args.no_coverage, attrs={"source": str(args.points)},
-                           progress=Reporter(sys.stderr), body=body)
+        return grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
+                        coverage=not args.no_coverage, attrs={"source": str(args.points)},
+                        progress=Reporter(sys.stderr), body=body, writer=writer)
     finally:
         if client is not None:
             client.close()
             cluster.close()
-    print(f"gridded {summary['n_points']} points into {summary['path']} "
-          f"({summary['shape'][0]} x {summary['shape'][1]}, {summary['method']}, {summary['n_chunks']} chunks) "
-          f"in {summary['seconds']:.1f} s; {summary['no_value_pixels']} pixels without value "
-          f"({100 * summary['no_value_fraction']:.2f} %)")
-    if summary["coverage"]:
-        print("coverage: " + json.dumps({k: summary["coverage"][k] for k in
-                                         ("pixel_km", "occupied_fraction", "share_with_1", "share_with_2",
-                                          "share_with_3_or_more")}))
-    return 0

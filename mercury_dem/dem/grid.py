@@ -44,22 +44,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.dem.buckets import (
-    NEEDS_FALLBACK,
-    SphereBuckets,
-    build_buckets,
-    footprints,
-    median11_search,
-    shepard_search,
-)
-from mercury_dem.dem.filters import smooth_height
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
+
+if TYPE_CHECKING:
+    from mercury_dem.dem.buckets import SphereBuckets
+
+# The compiled kernels (mercury_dem.dem.buckets, .filters: numba) are imported by the functions that
+# run them: GridSpec, LAYERS and PointIndex stay importable without numba (the forked dem.zarr writer
+# of mercury_dem.pipeline.store_writer needs only those).
 
 #: Pixels handled per kd-tree query batch (bounds the (P, k) work arrays).
 QUERY_BATCH = 1 << 17
@@ -203,6 +201,8 @@ def build_point_index(points_xyz: NDArray[np.floating], datum_radius_m: float = 
         raise GridError(f"the point cloud must have shape (N, 3) body-fixed metres, got {p.shape}")
     if p.shape[0] == 0:
         raise GridError("the point cloud is empty: nothing to grid (did the adjustment keep any points?)")
+    from mercury_dem.dem.buckets import build_buckets, footprints
+
     f = footprints(p, datum_radius_m)
     bad = f["bad"]
     if bad.any():
@@ -391,6 +391,8 @@ def grid_pixels(
 def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: Any, *,
                    grid: bool) -> dict[str, NDArray[Any]]:
     """:func:`grid_pixels` by the bucket search; ``grid=True``: every (lat[i], lon[j]), row-major."""
+    from mercury_dem.dem.buckets import NEEDS_FALLBACK, median11_search, shepard_search
+
     search_r = _search_radius(index, cfg)
     if cfg.method == "median11":
         k = min(int(cfg.neighbours), index.n_points)
@@ -461,6 +463,8 @@ def grid_chunk(
     height = np.full((rows.size, cols.size), np.nan)
     height[ro : ro + shape[0], co : co + shape[1]] = res["height"].reshape(shape)
     if cfg.smoothing_passes > 0 and cfg.smoothing_size > 1:
+        from mercury_dem.dem.filters import smooth_height
+
         height = smooth_height(height, cfg.smoothing_size, cfg.smoothing_passes)
     height = height[h : h + r1 - r0, h : h + c1 - c0]
 

@@ -27,13 +27,12 @@ import functools
 import json
 import math
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import zarr
 from numpy.typing import NDArray
 
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
@@ -44,6 +43,9 @@ from mercury_dem.io.atomic import atomic_directory
 
 if TYPE_CHECKING:
     import xarray as xr
+    import zarr
+
+    from mercury_dem.pipeline.store_writer import ForkedStoreWriter
 
 __all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
 
@@ -285,6 +287,8 @@ def create_store(
     Returns the open group and its map layers (:data:`LAYERS`), ready for region writes:
     opening them again costs ~6 ms per group and ~0.5 ms per array (metadata reads).
     """
+    import zarr  # here, not at module level: a forked grid writer keeps zarr out of the gridding process
+
     nr, nc = grid.shape
     cs = cfg.chunk_size
     group = zarr.open_group(store, mode="w", zarr_format=3, attributes=_root_attrs(grid, cfg, attrs, body))
@@ -319,6 +323,8 @@ def _grid_and_write(
     layers = grid_chunk(index, grid, bounds, cfg)
     r0, r1, c0, c1 = bounds
     if isinstance(store, str):
+        import zarr
+
         group = zarr.open_group(store, mode="r+")
         store = {name: group[name] for name in layers}
     for name, arr in layers.items():
@@ -347,6 +353,7 @@ def grid_dem(
     body: Body = MERCURY,
     progress: Any = None,
     label: str = "dem",
+    writer: ForkedStoreWriter | None = None,
 ) -> dict[str, Any]:
     """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
 
@@ -365,6 +372,10 @@ def grid_dem(
         Shows the chunks gridded (count, elapsed, ETA) as they finish, under ``label``;
         presentation only, the store is the same with or without it.
     label : the name progress lines start with
+    writer : ForkedStoreWriter or None
+        With ``client=None``: a forked process that creates and writes the store
+        (:mod:`mercury_dem.pipeline.store_writer`; this process then never imports zarr).
+        The store is the same as without it. It is stopped (and waited for) if this call fails.
 
     Returns
     -------
@@ -393,11 +404,22 @@ def grid_dem(
     if n_points == 0:
         build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error before anything is created
     chunks = grid.chunks(cfg.chunk_size)
-    with atomic_store(out_path, overwrite=overwrite) as tmp, ThreadPoolExecutor(max_workers=2) as pool:
+    if writer is not None and client is not None:
+        raise ValueError("a forked store writer is for in-process gridding (client=None)")
+    forked: list[Any] = [writer]  # the writer, or None once it declined (then this process writes)
+
+    def mark(tmp: Path) -> None:
+        (mark_zarr_complete if forked[0] is None else forked[0].complete)(tmp)
+
+    with atomic_store(out_path, overwrite=overwrite, mark_complete=mark) as tmp, \
+            _stopping_on_error(writer), ThreadPoolExecutor(max_workers=2) as pool:
         store = str(tmp)
         # The index (compiled, GIL released) builds while this thread writes the store's template.
         index_job = pool.submit(build_point_index, pts, body.datum_radius_m)
-        group, layer_arrays = create_store(store, grid, cfg, attrs, body)
+        layer_arrays = None if writer is None else writer.create(store, grid, cfg, attrs, body, name=str(out_path))
+        if layer_arrays is None:
+            forked[0] = None
+            group, layer_arrays = create_store(store, grid, cfg, attrs, body)
         rep.message(f"{label}: indexing {n_points} points for a {grid.shape[0]} x {grid.shape[1]} grid "
                     f"({len(chunks)} chunks, {cfg.method})")
         index = index_job.result()
@@ -447,33 +469,50 @@ def grid_dem(
             "memory_estimate_bytes": est,
             "coverage": cov_summary,
         }
-        group.attrs.update(
-            {
-                "n_points": index.n_points,
-                "no_value_pixels": int(no_value),
-                "coverage": json.dumps(cov_summary) if cov_summary else "",
-            }
-        )
+        final_attrs = {
+            "n_points": index.n_points,
+            "no_value_pixels": int(no_value),
+            "coverage": json.dumps(cov_summary) if cov_summary else "",
+        }
+        if forked[0] is None:
+            group.attrs.update(final_attrs)
+        else:
+            forked[0].update_attrs(final_attrs)
     summary["seconds"] = time.perf_counter() - t0
     return summary
+
+
+@contextlib.contextmanager
+def _stopping_on_error(writer: ForkedStoreWriter | None) -> Iterator[None]:
+    """Stop a forked writer (and wait for it) when the block fails, before its store is removed."""
+    try:
+        yield
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
 
 
 def mark_zarr_complete(store: Path) -> None:
     """The stores' completion mark: root attribute ``complete = true`` (a marker *file*
     inside a Zarr v3 store would make zarr warn on every open)."""
+    import zarr
+
     zarr.open_group(str(store), mode="r+").attrs["complete"] = True
 
 
 @contextlib.contextmanager
-def atomic_store(path: Path, overwrite: bool = False) -> Iterator[Path]:
+def atomic_store(path: Path, overwrite: bool = False,
+                 mark_complete: Callable[[Path], None] = mark_zarr_complete) -> Iterator[Path]:
     """:func:`mercury_dem.io.atomic.atomic_directory` with the Zarr completion mark.
 
     Yields an empty temporary sibling directory to write the store into; renamed to
     ``path`` once marked complete. An existing ``path`` is replaced only then, and
-    only with ``overwrite`` (else :class:`StoreError`).
+    only with ``overwrite`` (else :class:`StoreError`). ``mark_complete``: what sets the
+    mark (a forked writer's :meth:`~mercury_dem.pipeline.store_writer.ForkedStoreWriter.complete`).
     """
     try:
-        with atomic_directory(path, overwrite=overwrite, mark_complete=mark_zarr_complete) as tmp:
+        with atomic_directory(path, overwrite=overwrite, mark_complete=mark_complete) as tmp:
             yield tmp
     except FileExistsError as exc:
         raise StoreError(f"{path} already exists; pass overwrite=True (CLI: --overwrite) to replace it") from exc

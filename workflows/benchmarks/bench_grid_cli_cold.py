@@ -10,7 +10,8 @@ the same search radius) on the same cloud as FlatGeobuf and as CSV. 1000 x 1000 
 Also timed: ``mercury-dem --help`` and the bare import of the gridding stage, cold.
 ``--tree DIR`` (repeatable) runs ``mercury-dem`` from each source tree (first on ``PYTHONPATH``),
 interleaved with the others and gdal_grid: before/after side by side in the same minutes.
-Wall and CPU seconds (user + system of the child process) are both recorded. Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
+Wall and CPU seconds (user + system of the child process, including any process it forked and
+waited for, e.g. the ``dem.zarr`` writer of mercury_dem.pipeline.store_writer) are both recorded. Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
 """
 
 from __future__ import annotations
@@ -63,7 +64,9 @@ def main() -> None:
     p.add_argument("--points", type=int, default=1_000_000)
     p.add_argument("--size", type=int, default=1000)
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--tree", action="append", default=[], help="source tree to time (repeatable; default: as installed)")
+    p.add_argument("--tree", action="append", default=[],
+                   help="source tree to time (repeatable; default: as installed); DIR,VAR=VALUE also sets VAR "
+                        "for it (e.g. /src,MERCURY_DEM_GRID_WRITER=inprocess)")
     args = p.parse_args()
     size, span = args.size, 20.0
     ppd = size / span
@@ -82,7 +85,9 @@ def main() -> None:
         grid_cmd = exe + ["grid", str(npy), "--out", str(work / "ours"), "--config", str(cfg), "--no-coverage",
                           "--overwrite"]
         trees = args.tree or [None]
-        envs = {t: (env if t is None else dict(env, PYTHONPATH=t)) for t in trees}
+        envs = {t: (env if t is None else dict(env, PYTHONPATH=t.split(",")[0],
+                                                 **dict(kv.split("=", 1) for kv in t.split(",")[1:])))
+                for t in trees}
 
         def name(what: str, t: str | None) -> str:
             return what if t is None else f"{what} [{t}]"
