@@ -172,17 +172,15 @@ def refine_matches(
     rp = ref if ref_pattern is None else ref_pattern
     wp = warped if warped_pattern is None else warped_pattern
     t_raw = sample_patches(rp, pa, half)
-    tmpl = _normalize(t_raw)
     big = sample_patches(wp, pb, half + search)
     k = 2 * search + 1
-    # All (2 search + 1)^2 windows of every measure as rows of one array, so the correlations
-    # are a single batched matrix product and the window sums plain row sums.
-    win = np.lib.stride_tricks.sliding_window_view(big, (window, window), axis=(1, 2)).reshape(n, k * k, -1)
-    num = np.matmul(win, tmpl.reshape(n, -1, 1))[..., 0]
-    ssum = win.sum(axis=-1)
-    ssq = np.einsum("nkp,nkp->nk", win, win)
-    den = np.sqrt(np.maximum(ssq - ssum * ssum / (window * window), 1e-12))
-    ncc = (num / den).reshape(n, k, k)
+    # The (2 search + 1)^2 zero-mean NCC scores of every measure: one cv2.matchTemplate per measure.
+    # A Python loop, but measured faster than one batched numpy product over all measures' windows
+    # (which must first copy every window: 400 measures x 49 shifts x 21^2 pixels = 35 MB per pair):
+    # 7 ms vs 30 ms for 400 measures (docs/benchmarks/match.md, session 11). Same scores to 3e-7.
+    ncc = np.empty((n, k, k), np.float32)
+    for i in range(n):
+        ncc[i] = cv2.matchTemplate(big[i], t_raw[i], cv2.TM_CCOEFF_NORMED)
     flat = ncc.reshape(n, -1)
     best = np.argmax(flat, axis=1)
     bi, bj = np.divmod(best, k)
@@ -201,16 +199,20 @@ def refine_matches(
     dx = vertex(ncc[rows, bi_c, bj_c - 1], c0, ncc[rows, bi_c, bj_c + 1])
     d = np.stack([bj - search + dx, bi - search + dy], axis=-1)
 
-    # Gauss-Newton on ref ~ a * warped(x + d) + b, unknowns (a, b, a*dx, a*dy).
+    # Gauss-Newton on ref ~ a * warped(x + d) + b, unknowns (a, b, a*dx, a*dy). The design
+    # matrix is filled in place (its transpose, rows c, 1, gx, gy), not stacked anew each step.
     t_col = t_raw.reshape(n, -1, 1).astype(np.float64)
-    ones = np.ones((n, window * window))
+    a_t = np.empty((n, 4, window * window))
+    a_t[:, 1] = 1.0
+    a4 = a_t.reshape(n, 4, window, window)
+    a_mat = a_t.transpose(0, 2, 1)
     for _ in range(iterations):
-        p = sample_patches(wp, pb + d, half + 1).astype(np.float64)
-        gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
-        gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
-        c = p[:, 1:-1, 1:-1]
-        a_mat = np.stack([c.reshape(n, -1), ones, gx.reshape(n, -1), gy.reshape(n, -1)], -1)
-        a_t = a_mat.transpose(0, 2, 1)
+        p = sample_patches(wp, pb + d, half + 1)
+        a4[:, 0] = p[:, 1:-1, 1:-1]
+        np.subtract(p[:, 1:-1, 2:], p[:, 1:-1, :-2], out=a4[:, 2], dtype=np.float64)
+        a4[:, 2] *= 0.5
+        np.subtract(p[:, 2:, 1:-1], p[:, :-2, 1:-1], out=a4[:, 3], dtype=np.float64)
+        a4[:, 3] *= 0.5
         ata = np.matmul(a_t, a_mat)
         atb = np.matmul(a_t, t_col)
         ata += np.eye(4) * 1e-9 * np.trace(ata, axis1=1, axis2=2)[:, None, None]
@@ -220,8 +222,7 @@ def refine_matches(
         step = np.clip(np.nan_to_num(step), -1.0, 1.0)
         d = d + step
     final = pb + d
-    if ref_pattern is not None:
-        tmpl = _normalize(sample_patches(ref, pa, half))
+    tmpl = _normalize(t_raw if ref_pattern is None else sample_patches(ref, pa, half))
     score = np.sum(_normalize(sample_patches(warped, final, half)) * tmpl, axis=(1, 2)).astype(np.float64)
     moved = np.hypot(d[:, 0], d[:, 1])
     # The window's bilinear support must be valid data; the ring one pixel beyond it (the last
