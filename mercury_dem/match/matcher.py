@@ -852,7 +852,10 @@ def match_tile(
         return out
 
     threads = max(1, config.threads)
-    with _OpenCVThreads(1 if threads > 1 else cv2.getNumThreads()), ThreadPoolExecutor(max_workers=threads) as pool:
+    # ``threads`` is the whole tile's budget: OpenCV's own threads are set to 1 in either case (at
+    # threads == 1 its default pool of one thread per core cost 4-15 % more CPU for ~nothing on a
+    # shared machine: docs/benchmarks/match.md, session 11)
+    with _OpenCVThreads(1), ThreadPoolExecutor(max_workers=threads) as pool:
         pmap: Any = pool.map if threads > 1 else map  # threads == 1: all in the calling thread
         prepared = dict(zip(needed, pmap(prep, needed)))
         phase1 = list(pmap(run, range(len(pairs))))
