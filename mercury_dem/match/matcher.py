@@ -431,8 +431,8 @@ def _match_core(
     rep.n_keypoints_ref, rep.n_keypoints_match = fa.size, fb.size
 
     # Descriptor route.
-    mask = candidate_mask(predicted, fb.points, window) if config.guided else None
-    ab, ba = knn_both_ways(fa, fb, mask, config.matcher)
+    mask, mask_t = candidate_mask(predicted, fb.points, window, transposed=True) if config.guided else (None, None)
+    ab, ba = knn_both_ways(fa, fb, mask, config.matcher, mask_t)
     ok_ab, ok_ba = ratio_test(ab, config.ratio), ratio_test(ba, config.ratio)
     rep.n_ratio = int(ok_ab.sum())
     ia, ib = symmetric_pairs(ab, ba, ok_ab, ok_ba)

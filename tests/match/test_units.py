@@ -259,4 +259,8 @@ def test_candidate_mask_is_the_per_axis_window_test(window: float) -> None:
     got = candidate_mask(pa, pb, window)
     assert got.dtype == np.uint8 and got.shape == (400, 450)
     np.testing.assert_array_equal(got.astype(bool), want)
+    m, m_t = candidate_mask(pa, pb, window, transposed=True)
+    np.testing.assert_array_equal(m, got)
+    assert m_t.flags.c_contiguous
+    np.testing.assert_array_equal(m_t, got.T)
     assert want[150:200].any()  # the edge cases are in the test
