@@ -10,10 +10,11 @@ neighbours along each axis, then polished by a few Gauss-Newton
 bias. Only the match-side position moves; the reference position (the
 keypoint, whose id the control network tracks) is kept.
 
-Written with numpy instead of a per-measure loop over ``cv2.matchTemplate`` /
-``cv2.findTransformECC`` because those take one template per call: a Python loop
-over hundreds of measures per pair. Here the loop runs over the (2 * search + 1)^2
-shifts and the iterations only, each a vectorized operation over all measures.
+The integer search is one ``cv2.matchTemplate`` (zero-mean NCC) per measure: a Python
+loop, but measured 4x faster than the batched numpy product over every measure's
+(2 * search + 1)^2 windows it replaced (session 11, docs/benchmarks/match.md), which had to
+copy all windows first. The Gauss-Newton polish is vectorized over all measures (numpy;
+``cv2.findTransformECC`` takes one template per call and has no gain/offset model).
 Bilinear sampling is done in numpy (``cv2.remap`` quantizes positions to 1/32 pixel).
 
 The positions can be found on other images than the score (``ref_pattern``,
