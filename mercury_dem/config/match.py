@@ -169,4 +169,4 @@ class MatchConfig(ConfigSection):
     )
     local_neighbours: int = param(8, "Neighbours of the local-consistency check", lo=2, hi=100)
     # -- execution -----------------------------------------------------------
-    threads: int = param(2, "Threads over pairs inside one tile task (OpenCV releases the GIL)", lo=1, hi=256)
+    threads: int = param(2, "Threads over pairs inside one tile task (OpenCV releases the GIL; its own threads are set to 1 meanwhile)", lo=1, hi=256)
