@@ -63,6 +63,11 @@ class MatchConfig(ConfigSection):
         unit="px", lo=0.01, hi=100.0,
     )
     max_matches: int = param(400, "Most matches kept per image pair (best, spatially spread)", lo=1, hi=100000)
+    tracks: bool = param(
+        True, "Track propagation: after every pair of a tile is matched, each image's matched keypoints are "
+        "refined into its other pairs, so the network gets points of 3+ rays (false: pairwise matches only; "
+        "cheaper, see docs/benchmarks/match.md session 11 for what it buys)"
+    )
     propagate_extra: float = param(
         0.125, "Track propagation: each direction of a pair refines at most its free room below max_matches plus "
         "this share of max_matches in anchors (which may replace single-pair matches in the thinning; a full pair "
