@@ -63,6 +63,11 @@ class MatchConfig(ConfigSection):
         unit="px", lo=0.01, hi=100.0,
     )
     max_matches: int = param(400, "Most matches kept per image pair (best, spatially spread)", lo=1, hi=100000)
+    tracks: bool = param(
+        True, "Track propagation: after every pair of a tile is matched, each image's matched keypoints are "
+        "refined into its other pairs, so the network gets points of 3+ rays (false: pairwise matches only; "
+        "cheaper, see docs/benchmarks/match.md session 11 for what it buys)"
+    )
     propagate_extra: float = param(
         0.125, "Track propagation: each direction of a pair refines at most its free room below max_matches plus "
         "this share of max_matches in anchors (which may replace single-pair matches in the thinning; a full pair "
@@ -169,4 +174,4 @@ class MatchConfig(ConfigSection):
     )
     local_neighbours: int = param(8, "Neighbours of the local-consistency check", lo=2, hi=100)
     # -- execution -----------------------------------------------------------
-    threads: int = param(2, "Threads over pairs inside one tile task (OpenCV releases the GIL)", lo=1, hi=256)
+    threads: int = param(2, "Threads over pairs inside one tile task (OpenCV releases the GIL; its own threads are set to 1 meanwhile)", lo=1, hi=256)

@@ -19,30 +19,76 @@ per-template correlation.
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from mercury_dem.match.features import Features
 from mercury_dem.match.outliers import KnnResult, knn_from_opencv
 
 
 def candidate_mask(
-    predicted: NDArray[np.float64], points_b: NDArray[np.float64], window_px: float
-) -> NDArray[np.uint8]:
-    """uint8 mask (Na, Nb): 1 where keypoint b lies within ``window_px`` (per axis) of a's predicted position."""
+    predicted: NDArray[np.float64], points_b: NDArray[np.float64], window_px: float, transposed: bool = False
+) -> Any:
+    """uint8 mask (Na, Nb): 1 where keypoint b lies within ``window_px`` (per axis) of a's predicted position.
+
+    With ``transposed`` the pair (mask, its transpose as a C-contiguous (Nb, Na) array) is
+    returned, as :func:`knn_both_ways` needs both (the k-d tree route writes the transpose
+    directly instead of copying a transposed view).
+
+    The test is made in float32. When the window is small against the spread of the b points
+    (the usual case: a 13-px window on a 512^2 image) the candidate pairs are first found with
+    a k-d tree (Chebyshev distance, a little wider than the window) and only they are tested;
+    the dense all-pairs test (1500 x 1500 keypoints: ~12 ms, ~10 % of the bare OpenCV work of
+    a pair) is kept for wide windows, where most pairs are candidates. Both give the same mask.
+    """
     pa = predicted.astype(np.float32)
     pb = points_b.astype(np.float32)
     w = np.float32(window_px)
-    close = np.abs(pa[:, None, 0] - pb[None, :, 0]) <= w
-    close &= np.abs(pa[:, None, 1] - pb[None, :, 1]) <= w
-    return close.view(np.uint8)
+    fin_a, fin_b = np.isfinite(pa).all(axis=1), np.isfinite(pb).all(axis=1)
+    if fin_b.sum() >= 2 and fin_a.any():
+        extent = np.ptp(pb[fin_b], axis=0).astype(np.float64) + 2.0 * float(w)
+        sparse = (2.0 * float(w)) ** 2 < _SPARSE_MASK_SHARE * float(extent[0] * extent[1])
+    else:
+        sparse = False
+    if not sparse:
+        close = np.abs(pa[:, None, 0] - pb[None, :, 0]) <= w
+        close &= np.abs(pa[:, None, 1] - pb[None, :, 1]) <= w
+        dense = close.view(np.uint8)
+        return (dense, np.ascontiguousarray(dense.T)) if transposed else dense
+    ia, ib = np.flatnonzero(fin_a), np.flatnonzero(fin_b)
+    # float32 rounding of the coordinates' difference: the exact test below decides
+    scale = float(max(np.abs(pa[ia]).max(), np.abs(pb[ib]).max(), float(w)))
+    slack = 1e-3 + 1e-5 * scale
+    near = cKDTree(pa[ia].astype(np.float64)).sparse_distance_matrix(
+        cKDTree(pb[ib].astype(np.float64)), float(w) + slack, p=np.inf, output_type="ndarray")
+    i, j = ia[near["i"]], ib[near["j"]]
+    keep = (np.abs(pa[i, 0] - pb[j, 0]) <= w) & (np.abs(pa[i, 1] - pb[j, 1]) <= w)
+    out = np.zeros((pa.shape[0], pb.shape[0]), np.uint8)
+    out[i[keep], j[keep]] = 1
+    if not transposed:
+        return out
+    out_t = np.zeros((pb.shape[0], pa.shape[0]), np.uint8)
+    out_t[j[keep], i[keep]] = 1
+    return out, out_t
+
+
+#: The k-d tree route of :func:`candidate_mask` is taken when the window's area is below this
+#: share of the b points' extent (measured: 3.5 vs 14 ms at 1.7 %, 26 vs 16 ms at 15 %).
+_SPARSE_MASK_SHARE = 0.05
 
 
 def knn_both_ways(
-    fa: Features, fb: Features, mask: NDArray[np.uint8] | None = None, matcher: str = "BF"
+    fa: Features, fb: Features, mask: NDArray[np.uint8] | None = None, matcher: str = "BF",
+    mask_t: NDArray[np.uint8] | None = None,
 ) -> tuple[KnnResult, KnnResult]:
-    """k=2 nearest neighbours a -> b and b -> a (brute force, or FLANN for float descriptors)."""
+    """k=2 nearest neighbours a -> b and b -> a (brute force, or FLANN for float descriptors).
+
+    ``mask_t``: the C-contiguous transpose of ``mask`` when the caller has it (else copied here).
+    """
     if fa.size == 0 or fb.size == 0:
         empty_a = KnnResult(np.full(fa.size, -1, np.int64), np.full(fa.size, np.inf), np.full(fa.size, np.inf))
         empty_b = KnnResult(np.full(fb.size, -1, np.int64), np.full(fb.size, np.inf), np.full(fb.size, np.inf))
@@ -56,7 +102,7 @@ def knn_both_ways(
         ba = m.knnMatch(fb.descriptors, fa.descriptors, k=2)
     else:
         ab = m.knnMatch(fa.descriptors, fb.descriptors, k=2, mask=mask)
-        ba = m.knnMatch(fb.descriptors, fa.descriptors, k=2, mask=np.ascontiguousarray(mask.T))
+        ba = m.knnMatch(fb.descriptors, fa.descriptors, k=2, mask=np.ascontiguousarray(mask.T) if mask_t is None else mask_t)
     return knn_from_opencv(ab, fa.size), knn_from_opencv(ba, fb.size)
 
 

@@ -431,8 +431,8 @@ def _match_core(
     rep.n_keypoints_ref, rep.n_keypoints_match = fa.size, fb.size
 
     # Descriptor route.
-    mask = candidate_mask(predicted, fb.points, window) if config.guided else None
-    ab, ba = knn_both_ways(fa, fb, mask, config.matcher)
+    mask, mask_t = candidate_mask(predicted, fb.points, window, transposed=True) if config.guided else (None, None)
+    ab, ba = knn_both_ways(fa, fb, mask, config.matcher, mask_t)
     ok_ab, ok_ba = ratio_test(ab, config.ratio), ratio_test(ba, config.ratio)
     rep.n_ratio = int(ok_ab.sum())
     ia, ib = symmetric_pairs(ab, ba, ok_ab, ok_ba)
@@ -852,7 +852,10 @@ def match_tile(
         return out
 
     threads = max(1, config.threads)
-    with _OpenCVThreads(1 if threads > 1 else cv2.getNumThreads()), ThreadPoolExecutor(max_workers=threads) as pool:
+    # ``threads`` is the whole tile's budget: OpenCV's own threads are set to 1 in either case (at
+    # threads == 1 its default pool of one thread per core cost 4-15 % more CPU for ~nothing on a
+    # shared machine: docs/benchmarks/match.md, session 11)
+    with _OpenCVThreads(1), ThreadPoolExecutor(max_workers=threads) as pool:
         pmap: Any = pool.map if threads > 1 else map  # threads == 1: all in the calling thread
         prepared = dict(zip(needed, pmap(prep, needed)))
         phase1 = list(pmap(run, range(len(pairs))))

@@ -10,10 +10,11 @@ neighbours along each axis, then polished by a few Gauss-Newton
 bias. Only the match-side position moves; the reference position (the
 keypoint, whose id the control network tracks) is kept.
 
-Written with numpy instead of a per-measure loop over ``cv2.matchTemplate`` /
-``cv2.findTransformECC`` because those take one template per call: a Python loop
-over hundreds of measures per pair. Here the loop runs over the (2 * search + 1)^2
-shifts and the iterations only, each a vectorized operation over all measures.
+The integer search is one ``cv2.matchTemplate`` (zero-mean NCC) per measure: a Python
+loop, but measured 4x faster than the batched numpy product over every measure's
+(2 * search + 1)^2 windows it replaced (session 11, docs/benchmarks/match.md), which had to
+copy all windows first. The Gauss-Newton polish is vectorized over all measures (numpy;
+``cv2.findTransformECC`` takes one template per call and has no gain/offset model).
 Bilinear sampling is done in numpy (``cv2.remap`` quantizes positions to 1/32 pixel).
 
 The positions can be found on other images than the score (``ref_pattern``,
@@ -70,12 +71,13 @@ def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], hal
     h, w = image.shape
     size = 2 * half + 1
     c = np.asarray(centres, dtype=np.float64)
-    x0 = np.floor(c[:, 0]) - half
-    y0 = np.floor(c[:, 1]) - half
-    fx = (c[:, 0] - np.floor(c[:, 0])).astype(np.float32)[:, None, None]
-    fy = (c[:, 1] - np.floor(c[:, 1])).astype(np.float32)[:, None, None]
-    x0 = np.clip(np.nan_to_num(x0, nan=0.0), -size - 2, w + 1).astype(np.intp)
-    y0 = np.clip(np.nan_to_num(y0, nan=0.0), -size - 2, h + 1).astype(np.intp)
+    fl = np.floor(c)
+    fx = (c[:, 0] - fl[:, 0]).astype(np.float32)[:, None, None]
+    fy = (c[:, 1] - fl[:, 1]).astype(np.float32)[:, None, None]
+    lo = fl - half
+    lo = np.where(np.isnan(lo), 0.0, lo)  # (not nan_to_num: its overhead showed in profiles; inf is clipped below)
+    x0 = np.clip(lo[:, 0], -size - 2, w + 1).astype(np.intp)
+    y0 = np.clip(lo[:, 1], -size - 2, h + 1).astype(np.intp)
     xi = np.clip(x0, 0, w - size - 1)
     yi = np.clip(y0, 0, h - size - 1)
     blocks = np.lib.stride_tricks.sliding_window_view(image, (size + 1, size + 1))[yi, xi]
@@ -85,9 +87,18 @@ def sample_patches(image: NDArray[np.float32], centres: NDArray[np.float64], hal
         xs = np.clip(x0[off, None] + r, 0, w - 1)
         ys = np.clip(y0[off, None] + r, 0, h - 1)
         blocks[off] = image[ys[:, :, None], xs[:, None, :]]
-    top = blocks[:, :-1, :-1] + fx * (blocks[:, :-1, 1:] - blocks[:, :-1, :-1])
-    bot = blocks[:, 1:, :-1] + fx * (blocks[:, 1:, 1:] - blocks[:, 1:, :-1])
-    return (top + fy * (bot - top)).astype(np.float32, copy=False)
+    # along the samples once for every row of the block (rows 0..size are the patch's top rows
+    # and 1..size+1 its bottom rows), then along the lines: the same float32 operations as
+    # ``top = b00 + fx (b01 - b00)``, ``bot = b10 + fx (b11 - b10)``, ``top + fy (bot - top)``
+    left = blocks[:, :, :-1]
+    rows = blocks[:, :, 1:] - left
+    rows *= fx
+    rows += left
+    top = rows[:, :-1]
+    out = rows[:, 1:] - top
+    out *= fy
+    out += top
+    return out
 
 
 def local_normalize(image: NDArray[np.float32], sigma_px: float) -> NDArray[np.float32]:
@@ -112,10 +123,20 @@ def _normalize(p: NDArray[np.float32]) -> NDArray[np.float32]:
     return q / np.maximum(n, 1e-12)
 
 
-def _box_count(mask: NDArray[np.bool_], lo: NDArray[np.int64], hi: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Number of True pixels in boxes [lo, hi] (inclusive, (N, 2) sample/line) via an integral image."""
+def integral_image(mask: NDArray[np.bool_]) -> NDArray[np.int32]:
+    """The (lines + 1, samples + 1) integral image of a bool mask, for :func:`_box_count` (compute once, reuse)."""
+    return cv2.integral(mask.view(np.uint8))
+
+
+def _box_count(mask: NDArray[np.bool_], lo: NDArray[np.int64], hi: NDArray[np.int64],
+               integral: NDArray[np.int32] | None = None) -> NDArray[np.int64]:
+    """Number of True pixels in boxes [lo, hi] (inclusive, (N, 2) sample/line) via an integral image.
+
+    ``integral``: :func:`integral_image` of ``mask`` when the caller has it (a 1024^2 one costs
+    ~1.4 ms; the propagation asks the same masks ~16 times per pair); None = computed here.
+    """
     h, w = mask.shape
-    ii = cv2.integral(mask.view(np.uint8))  # (h + 1, w + 1) int32
+    ii = integral_image(mask) if integral is None else integral  # (h + 1, w + 1) int32
     s0 = np.clip(lo[:, 0], 0, w)
     l0 = np.clip(lo[:, 1], 0, h)
     s1 = np.clip(hi[:, 0] + 1, 0, w)
@@ -136,6 +157,7 @@ def refine_matches(
     max_shift_px: float = 2.5,
     ref_pattern: NDArray[np.float32] | None = None,
     warped_pattern: NDArray[np.float32] | None = None,
+    valid_integral: NDArray[np.int32] | None = None,
 ) -> Refined:
     """Refine the warped-frame position of every match (see the module docstring).
 
@@ -154,6 +176,7 @@ def refine_matches(
     ref_pattern, warped_pattern : images (same shapes) the positions are found on, e.g.
         :func:`local_normalize` of ``ref`` and ``warped``; None = ``ref``, ``warped``. The
         score (and ``min_score``) is always the NCC of ``ref`` and ``warped`` at the result
+    valid_integral : :func:`integral_image` of ``valid``, when the caller has it (None = computed)
     """
     n = points_ref.shape[0]
     if n == 0:
@@ -172,17 +195,16 @@ def refine_matches(
     rp = ref if ref_pattern is None else ref_pattern
     wp = warped if warped_pattern is None else warped_pattern
     t_raw = sample_patches(rp, pa, half)
-    tmpl = _normalize(t_raw)
     big = sample_patches(wp, pb, half + search)
     k = 2 * search + 1
-    # All (2 search + 1)^2 windows of every measure as rows of one array, so the correlations
-    # are a single batched matrix product and the window sums plain row sums.
-    win = np.lib.stride_tricks.sliding_window_view(big, (window, window), axis=(1, 2)).reshape(n, k * k, -1)
-    num = np.matmul(win, tmpl.reshape(n, -1, 1))[..., 0]
-    ssum = win.sum(axis=-1)
-    ssq = np.einsum("nkp,nkp->nk", win, win)
-    den = np.sqrt(np.maximum(ssq - ssum * ssum / (window * window), 1e-12))
-    ncc = (num / den).reshape(n, k, k)
+    # The (2 search + 1)^2 zero-mean NCC scores of every measure: one cv2.matchTemplate per measure.
+    # A Python loop, but measured faster than one batched numpy product over all measures' windows
+    # (which must first copy every window: 400 measures x 49 shifts x 21^2 pixels = 35 MB per pair):
+    # 7 ms vs 30 ms for 400 measures (docs/benchmarks/match.md, session 11). Same scores to 3e-7.
+    ncc = np.empty((n, k, k), np.float32)
+    match_template, method = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
+    for b_i, t_i, out_i in zip(big, t_raw, ncc):  # written into ``ncc`` in place (a third cheaper than assigning)
+        match_template(b_i, t_i, method, out_i)
     flat = ncc.reshape(n, -1)
     best = np.argmax(flat, axis=1)
     bi, bj = np.divmod(best, k)
@@ -201,16 +223,20 @@ def refine_matches(
     dx = vertex(ncc[rows, bi_c, bj_c - 1], c0, ncc[rows, bi_c, bj_c + 1])
     d = np.stack([bj - search + dx, bi - search + dy], axis=-1)
 
-    # Gauss-Newton on ref ~ a * warped(x + d) + b, unknowns (a, b, a*dx, a*dy).
+    # Gauss-Newton on ref ~ a * warped(x + d) + b, unknowns (a, b, a*dx, a*dy). The design
+    # matrix is filled in place (its transpose, rows c, 1, gx, gy), not stacked anew each step.
     t_col = t_raw.reshape(n, -1, 1).astype(np.float64)
-    ones = np.ones((n, window * window))
+    a_t = np.empty((n, 4, window * window))
+    a_t[:, 1] = 1.0
+    a4 = a_t.reshape(n, 4, window, window)
+    a_mat = a_t.transpose(0, 2, 1)
     for _ in range(iterations):
-        p = sample_patches(wp, pb + d, half + 1).astype(np.float64)
-        gx = 0.5 * (p[:, 1:-1, 2:] - p[:, 1:-1, :-2])
-        gy = 0.5 * (p[:, 2:, 1:-1] - p[:, :-2, 1:-1])
-        c = p[:, 1:-1, 1:-1]
-        a_mat = np.stack([c.reshape(n, -1), ones, gx.reshape(n, -1), gy.reshape(n, -1)], -1)
-        a_t = a_mat.transpose(0, 2, 1)
+        p = sample_patches(wp, pb + d, half + 1)
+        a4[:, 0] = p[:, 1:-1, 1:-1]
+        np.subtract(p[:, 1:-1, 2:], p[:, 1:-1, :-2], out=a4[:, 2], dtype=np.float64)
+        a4[:, 2] *= 0.5
+        np.subtract(p[:, 2:, 1:-1], p[:, :-2, 1:-1], out=a4[:, 3], dtype=np.float64)
+        a4[:, 3] *= 0.5
         ata = np.matmul(a_t, a_mat)
         atb = np.matmul(a_t, t_col)
         ata += np.eye(4) * 1e-9 * np.trace(ata, axis1=1, axis2=2)[:, None, None]
@@ -220,8 +246,7 @@ def refine_matches(
         step = np.clip(np.nan_to_num(step), -1.0, 1.0)
         d = d + step
     final = pb + d
-    if ref_pattern is not None:
-        tmpl = _normalize(sample_patches(ref, pa, half))
+    tmpl = _normalize(t_raw if ref_pattern is None else sample_patches(ref, pa, half))
     score = np.sum(_normalize(sample_patches(warped, final, half)) * tmpl, axis=(1, 2)).astype(np.float64)
     moved = np.hypot(d[:, 0], d[:, 1])
     # The window's bilinear support must be valid data; the ring one pixel beyond it (the last
@@ -231,7 +256,7 @@ def refine_matches(
     lo = np.floor(f).astype(np.int64) - half
     hi = np.ceil(f).astype(np.int64) + half
     on_data = (lo[:, 0] >= 1) & (lo[:, 1] >= 1) & (hi[:, 0] < w - 1) & (hi[:, 1] < h - 1)
-    on_data &= _box_count(valid, lo, hi) == (hi - lo + 1).prod(axis=1)
+    on_data &= _box_count(valid, lo, hi, valid_integral) == (hi - lo + 1).prod(axis=1)
     inside &= on_data
     ok = inside & interior & np.isfinite(final).all(axis=1) & (score >= min_score) & (moved <= max_shift_px)
     return Refined(final, score, ok, inside, np.full(n, window, np.int64))
@@ -262,8 +287,9 @@ def refine_matches_adaptive(
     same acceptance rules (a smaller window is less precise, but such a measure was
     lost otherwise). ``window`` in the result says which size each measure used.
     """
+    ii = integral_image(valid) if points_ref.shape[0] else None  # shared by the retries
     r = refine_matches(ref, warped, valid, points_ref, points_warped, window, search, iterations, min_score, max_shift_px,
-                       ref_pattern, warped_pattern)
+                       ref_pattern, warped_pattern, ii)
     if r.on_data is None or r.on_data.all():
         return r
     points, score, ok, used = r.points.copy(), r.score.copy(), r.ok.copy(), r.window.copy()
@@ -272,7 +298,7 @@ def refine_matches_adaptive(
     while todo.size and w > min_window:
         w = max(min_window, int(round(w * 0.7)) | 1)
         s = refine_matches(ref, warped, valid, points_ref[todo], points_warped[todo], w, search, iterations,
-                           min_score, max_shift_px, ref_pattern, warped_pattern)
+                           min_score, max_shift_px, ref_pattern, warped_pattern, ii)
         points[todo], score[todo], ok[todo], used[todo] = s.points, s.score, s.ok, w
         todo = todo[~s.on_data]
     return Refined(points, score, ok, ~np.isin(np.arange(ok.size), todo), used)

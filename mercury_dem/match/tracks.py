@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from mercury_dem.match.features import spread_best
-from mercury_dem.match.refine import _box_count, refine_matches
+from mercury_dem.match.refine import _box_count, integral_image, refine_matches
 
 #: Neighbours (pair matches) whose median displacement predicts a propagated anchor's position.
 PREDICT_NEIGHBOURS = 6
@@ -95,14 +95,15 @@ def _away_from(existing: NDArray[np.float64], query: NDArray[np.float64], dist: 
     return np.asarray(d) > dist
 
 
-def _window_on(valid: NDArray[np.bool_], pts: NDArray[np.float64], half: int) -> NDArray[np.bool_]:
-    """Points whose (2 half + 3)^2 window lies entirely on ``valid`` pixels."""
+def _window_on(valid: NDArray[np.bool_], pts: NDArray[np.float64], half: int,
+               integral: NDArray[np.int32] | None = None) -> NDArray[np.bool_]:
+    """Points whose (2 half + 3)^2 window lies entirely on ``valid`` pixels (``integral``: its integral image)."""
     h, w = valid.shape
     f = np.nan_to_num(pts, nan=-1e9)
     lo = np.floor(f).astype(np.int64) - half - 1
     hi = np.ceil(f).astype(np.int64) + half + 1
     ok = (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
-    ok &= _box_count(valid, lo, hi) == (hi - lo + 1).prod(axis=1)
+    ok &= _box_count(valid, lo, hi, integral) == (hi - lo + 1).prod(axis=1)
     return ok
 
 
@@ -161,6 +162,8 @@ def propagate_pair(
         return Propagated(*empty, *empty)
     d_pair = pb - pa
     everywhere = np.ones(base.shape, bool)
+    # the two masks' integral images, once per pair (each window test and refinement asked for them anew)
+    ii = {id(valid): integral_image(valid), id(everywhere): integral_image(everywhere)}
     # window sizes tried, largest first (as refine_matches_adaptive: ~30 % smaller down to min_window)
     sizes = [int(window) | 1]
     while 0 < min_window < sizes[-1]:
@@ -169,7 +172,8 @@ def propagate_pair(
     def run(fixed_img, moving_img, moving_valid, fixed_valid, fixed, field, taken, sign, prio, fixed_pat, moving_pat):
         if fixed.shape[0] == 0:
             return empty
-        cand = np.flatnonzero(_away_from(taken, fixed, dedup_px) & _window_on(fixed_valid, fixed, sizes[-1] // 2 + 1))
+        cand = np.flatnonzero(_away_from(taken, fixed, dedup_px) & _window_on(fixed_valid, fixed, sizes[-1] // 2 + 1,
+                                                                                ii[id(fixed_valid)]))
         if cand.size == 0:
             return empty
         # the displacement field (warped - base) around each anchor, from the pair's matches on
@@ -180,8 +184,8 @@ def propagate_pair(
         # (near the edge of a small overlap only the smaller ones fit); the others are not refined
         size = np.zeros(cand.size, np.int64)
         for wsz in sizes:
-            fits = (size == 0) & _window_on(moving_valid, start, wsz // 2 + search + 1)
-            fits &= _window_on(fixed_valid, fixed[cand], wsz // 2 + 1)
+            fits = (size == 0) & _window_on(moving_valid, start, wsz // 2 + search + 1, ii[id(moving_valid)])
+            fits &= _window_on(fixed_valid, fixed[cand], wsz // 2 + 1, ii[id(fixed_valid)])
             size[fits] = wsz
         reach = size > 0
         cand, start, spread, size = cand[reach], start[reach], spread[reach], size[reach]
@@ -195,7 +199,7 @@ def propagate_pair(
         for wsz in np.unique(size):
             g = np.flatnonzero(size == wsz)
             r = refine_matches(fixed_img, moving_img, moving_valid, fixed[cand[g]], start[g], int(wsz), search,
-                               iterations, min_score, float(search), fixed_pat, moving_pat)
+                               iterations, min_score, float(search), fixed_pat, moving_pat, ii[id(moving_valid)])
             points[g], score[g], ok[g] = r.points, r.score, r.ok
         dev = np.linalg.norm(points - start, axis=1)
         ok &= dev <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px)

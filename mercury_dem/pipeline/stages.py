@@ -194,7 +194,7 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
     radiometry = {i: (r.saturation, r.dn_scale) for i in involved for r in [mission.radiometry(i)]}
     match_cfg = match_config_for(mission, config)
     image_errors.update(pixel_faults(pixels, radiometry, match_cfg))
-    matches, reports = match_tile(pixels, geom, pair_list, match_cfg, radiometry=radiometry)
+    matches, reports = match_tile(pixels, geom, pair_list, match_cfg, tracks=match_cfg.tracks, radiometry=radiometry)
     rows = pd.DataFrame(list(iter_rows(reports)))
     failures: dict[str, int] = {}
     if len(rows):

@@ -224,3 +224,43 @@ def test_flow_base_position_inverts_the_field() -> None:
     d, _ = flow_at(fl, pa)
     back, ok = base_position(fl, pa + d, pa + 0.7)
     assert ok.all() and np.abs(back - pa).max() < 0.05, np.abs(back - pa).max()
+
+
+def test_sample_patches_match_bilinear_interpolation_and_replicate_the_border() -> None:
+    """Patches equal scipy's order-1 (bilinear) interpolation, nearest-edge outside the image."""
+    from scipy.ndimage import map_coordinates
+
+    rng = np.random.default_rng(17)
+    img = rng.normal(size=(40, 50)).astype(np.float32)
+    centres = np.column_stack([rng.uniform(-6, 56, 300), rng.uniform(-6, 46, 300)])
+    half = 3
+    got = sample_patches(img, centres, half)
+    r = np.arange(-half, half + 1)
+    xs = np.broadcast_to(centres[:, 0, None, None] + r[None, None, :], got.shape)
+    ys = np.broadcast_to(centres[:, 1, None, None] + r[None, :, None], got.shape)
+    want = map_coordinates(img.astype(np.float64), [ys.ravel(), xs.ravel()], order=1, mode="nearest").reshape(got.shape)
+    assert got.dtype == np.float32 and got.shape == (300, 7, 7)
+    np.testing.assert_allclose(got, want, atol=2e-5)
+
+
+@pytest.mark.parametrize("window", [0.5, 6.0, 13.3, 45.0])
+def test_candidate_mask_is_the_per_axis_window_test(window: float) -> None:
+    """The k-d tree route (small windows) and the dense route give the all-pairs float32 test exactly,
+    points on the window's edge and non-finite predictions included."""
+    from mercury_dem.match.guided import candidate_mask
+
+    rng = np.random.default_rng(23)
+    pa = rng.uniform(0, 300, (400, 2))
+    pb = np.concatenate([pa[:150] + rng.normal(0, 4, (150, 2)), pa[150:200] + window, rng.uniform(0, 300, (250, 2))])
+    pa[7] = np.nan
+    pb[3] = np.inf
+    a32, b32, w32 = pa.astype(np.float32), pb.astype(np.float32), np.float32(window)
+    want = (np.abs(a32[:, None, 0] - b32[None, :, 0]) <= w32) & (np.abs(a32[:, None, 1] - b32[None, :, 1]) <= w32)
+    got = candidate_mask(pa, pb, window)
+    assert got.dtype == np.uint8 and got.shape == (400, 450)
+    np.testing.assert_array_equal(got.astype(bool), want)
+    m, m_t = candidate_mask(pa, pb, window, transposed=True)
+    np.testing.assert_array_equal(m, got)
+    assert m_t.flags.c_contiguous
+    np.testing.assert_array_equal(m_t, got.T)
+    assert want[150:200].any()  # the edge cases are in the test

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import resource
 import dataclasses
 import time
 from typing import Any
@@ -107,7 +108,23 @@ def floor_pair(a: np.ndarray, b: np.ndarray, config: MatchConfig) -> int:
     return int(mask.sum()) if mask is not None else 0
 
 
-def speed(sizes: list[int], n_images: int, repeats: int) -> None:
+def _cpu() -> float:
+    """CPU seconds of this process so far, all threads (``getrusage``: user + system)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+SPEED_VARIANTS = ("tracks_off", "extra0", "flow")
+
+
+def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ...] = SPEED_VARIANTS) -> None:
+    """Ours vs the floor, interleaved in every repetition; best-of and per-repetition ratios.
+
+    Every repetition runs ours (the defaults), then each requested variant, then the
+    floor, so a load change on the shared machine hits both sides of a ratio alike.
+    The per-repetition ratios (ours / floor of the same repetition) are printed as
+    well as the best-of ratios; CPU seconds are the process's (``getrusage``, all threads).
+    """
     rng = np.random.default_rng(5)
     print(f"# bench_match speed: {n_images} mutually overlapping images per tile, all pairs; best of {repeats}")
     print("Wall seconds per pair (CPU seconds of the process in brackets: the machine is shared, CPU time is the")
@@ -115,50 +132,52 @@ def speed(sizes: list[int], n_images: int, repeats: int) -> None:
     print("(The tile's views converge by < 2 deg, so the dense-flow step, for pairs converging by >= "
           f"{MatchConfig().flow_min_convergence_deg:g} deg, does not run by default; the column 'flow on every pair' "
           "forces it, flow_min_convergence_deg=0.)\n")
-    print("| size | threads | pairs | ours s/pair | floor s/pair | ratio wall | ratio CPU | ours without track propagation: ratio wall, CPU | ours, propagate_extra=0 (full pairs receive no anchors): ratio wall, CPU | ours with the flow on every pair: ratio wall, CPU | ours matches/pair | floor F-inliers/pair |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    titles = {"tracks_off": "ours without track propagation: ratio wall, CPU",
+              "extra0": "ours, propagate_extra=0 (full pairs receive no anchors): ratio wall, CPU",
+              "flow": "ours with the flow on every pair: ratio wall, CPU"}
+    head = ["size", "threads", "pairs", "ours s/pair", "floor s/pair", "ratio wall", "ratio CPU",
+            *[titles[v] for v in variants], "per repetition: wall ratios; CPU ratios", "ours matches/pair",
+            "floor F-inliers/pair"]
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
     for n in sizes:
         images, geom, pairs, _ = _tile(n, n_images, rng)
         for threads in (1, 2):
             cfg = MatchConfig(threads=threads)
-            cfg_flow = dataclasses.replace(cfg, flow_min_convergence_deg=0.0)
-            cfg_full = dataclasses.replace(cfg, propagate_extra=0.0)
-            t_ours, t_floor, c_ours, c_floor, t_pw, c_pw, t_fl, c_fl = [], [], [], [], [], [], [], []
-            t_nx: list[float] = []
-            c_nx: list[float] = []
+            runs = {
+                "ours": lambda: match_tile(images, geom, pairs, cfg),
+                "tracks_off": lambda: match_tile(images, geom, pairs, cfg, tracks=False),
+                "extra0": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, propagate_extra=0.0)),
+                "flow": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, flow_min_convergence_deg=0.0)),
+            }
+            wall: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
+            cpu: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
+            reps: Any = None
+            fl: list[int] = []
             for _ in range(repeats):
-                t0, c0 = time.perf_counter(), time.process_time()
-                m, reps = match_tile(images, geom, pairs, cfg)
-                t_ours.append(time.perf_counter() - t0)
-                c_ours.append(time.process_time() - c0)
-                t0, c0 = time.perf_counter(), time.process_time()
-                match_tile(images, geom, pairs, cfg, tracks=False)
-                t_pw.append(time.perf_counter() - t0)
-                c_pw.append(time.process_time() - c0)
-                t0, c0 = time.perf_counter(), time.process_time()
-                match_tile(images, geom, pairs, cfg_flow)
-                t_fl.append(time.perf_counter() - t0)
-                c_fl.append(time.process_time() - c0)
-                t0, c0 = time.perf_counter(), time.process_time()
-                m0, reps0 = match_tile(images, geom, pairs, cfg_full)
-                t_nx.append(time.perf_counter() - t0)
-                c_nx.append(time.process_time() - c0)
+                for key in ("ours", *variants):
+                    t0, c0 = time.perf_counter(), _cpu()
+                    out = runs[key]()
+                    wall[key].append(time.perf_counter() - t0)
+                    cpu[key].append(_cpu() - c0)
+                    if key == "ours":
+                        reps = out[1]
                 old = cv2.getNumThreads()
                 cv2.setNumThreads(threads)
-                t0, c0 = time.perf_counter(), time.process_time()
+                t0, c0 = time.perf_counter(), _cpu()
                 fl = [floor_pair(images[a], images[b], cfg) for a, b in pairs]
-                t_floor.append(time.perf_counter() - t0)
-                c_floor.append(time.process_time() - c0)
+                wall["floor"].append(time.perf_counter() - t0)
+                cpu["floor"].append(_cpu() - c0)
                 cv2.setNumThreads(old)
             k = len(pairs)
-            o, f = min(t_ours) / k, min(t_floor) / k
-            co, cf = min(c_ours) / k, min(c_floor) / k
-            pw, cpw = min(t_pw) / k, min(c_pw) / k
-            fw, cfw = min(t_fl) / k, min(c_fl) / k
-            nx, cnx = min(t_nx) / k, min(c_nx) / k
+            o, f = min(wall["ours"]) / k, min(wall["floor"]) / k
+            co, cf = min(cpu["ours"]) / k, min(cpu["floor"]) / k
+            cols = [f"{min(wall[v]) / k / f:.2f}, {min(cpu[v]) / k / cf:.2f}" for v in variants]
+            per_w = " ".join(f"{a / b:.2f}" for a, b in zip(wall["ours"], wall["floor"]))
+            per_c = " ".join(f"{a / b:.2f}" for a, b in zip(cpu["ours"], cpu["floor"]))
             print(f"| {n}^2 | {threads} | {k} | {o:.3f} ({co:.3f}) | {f:.3f} ({cf:.3f}) | {o / f:.2f} | {co / cf:.2f} | "
-                  f"{pw / f:.2f}, {cpw / cf:.2f} | {nx / f:.2f}, {cnx / cf:.2f} | {fw / f:.2f}, {cfw / cf:.2f} | "
-                  f"{np.mean([r.n_matches for r in reps]):.0f} | {np.mean(fl):.0f} |", flush=True)
+                  + "".join(c + " | " for c in cols)
+                  + f"{per_w}; {per_c} | {np.mean([r.n_matches for r in reps]):.0f} | {np.mean(fl):.0f} |", flush=True)
 
 
 def accuracy() -> None:
@@ -572,6 +591,9 @@ def main() -> None:
     p.add_argument("--sizes", default="512,1024")
     p.add_argument("--images", type=int, default=4)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--variants", default=",".join(SPEED_VARIANTS),
+                   help="speed: the variants of ours run beside the defaults, comma-separated from "
+                        f"{', '.join(SPEED_VARIANTS)} (empty: none)")
     p.add_argument("--tracks", nargs=2, metavar=("MISSION", "RUN"),
                    help="rays per point and true errors of every tile network (RUN holds the plan)")
     a = p.parse_args()
@@ -586,7 +608,11 @@ def main() -> None:
     elif a.accuracy:
         accuracy()
     else:
-        speed([int(s) for s in a.sizes.split(",")], a.images, a.repeats)
+        variants = tuple(v for v in a.variants.split(",") if v)
+        bad = [v for v in variants if v not in SPEED_VARIANTS]
+        if bad:
+            p.error(f"--variants: unknown {', '.join(bad)}; choose from {', '.join(SPEED_VARIANTS)}")
+        speed([int(s) for s in a.sizes.split(",")], a.images, a.repeats, variants)
 
 
 if __name__ == "__main__":

@@ -130,7 +130,10 @@ def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions
     instrument = dict(zip(ms.catalog["image_id"].astype(str), ms.catalog["instrument"].astype(str)))
     t0 = time.perf_counter()
     if study_matching:
-        study = tracks_study(str(mission), str(run), verbose=False, tracks=True)
+        from mercury_dem.config import load_config
+
+        mcfg = load_config(config).match  # the run's matching settings (the defaults without --config)
+        study = tracks_study(str(mission), str(run), config=mcfg, verbose=False, tracks=mcfg.tracks)
         rows = study["pair_rows"]
         figs = group_figures(np.asarray(study["pair_errors"], float), np.asarray(study["pair_of_error"], np.int64),
                              rows, study["pair_overlaps"], pair_groups(rows, instrument),
