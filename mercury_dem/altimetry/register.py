@@ -150,7 +150,7 @@ class RegisterOptions:
         near-parallel profiles also the rotation about their direction) are kept out of the nuisance:
         the offsets may exert no force on them, so there the transform is fitted as without the nuisance.
         0 gives the unconstrained joint fit (before session 11); measured gap between the mimicked
-        directions (≤ 0.008) and the others (≥ 0.10) on 43 tiles, docs/design/altimetry.md.
+        directions (≤ 0.008) and the others (≥ 0.10) on 42 tiles, docs/design/altimetry.md.
     """
 
     models: tuple[str, ...] = ("affine", "similarity", "translation", "vertical")
