@@ -29,6 +29,32 @@ def _open_map(path: str) -> Any:
     return xr.open_zarr(path, consolidated=False)
 
 
+def _shape_reference_of_maps(store: RunStore, registration: dict[str, Any], body: Any, ref: Any) -> dict[str, Any]:
+    """The registered and merged DEMs against the configured shape model (report.json
+    ``dem.reference_by_map``), over the same pixels as the adjusted DEM's comparison (within
+    ``reference.max_point_distance_m`` of a control point: the maps share the adjusted DEM's grid)."""
+    from dataclasses import replace
+
+    from mercury_dem.pipeline.reference_check import compare_with_references
+
+    from mercury_dem.pipeline.dem_stage import open_dem
+
+    adjusted = open_dem(store.dem_path)
+    shape_only = replace(ref, dem=None, altimetry=())
+    out: dict[str, Any] = {}
+    for key in ("registered", "merged"):
+        try:
+            ds = _open_map(registration[key])
+            dist = adjusted["distance_to_nearest_point"].transpose("lat", "lon")
+            if ds["elevation"].transpose("lat", "lon").shape != dist.shape:
+                raise ValueError(f"the {key} map's grid {ds['elevation'].shape} is not the DEM's {dist.shape}")
+            ds = ds.assign(distance_to_nearest_point=(("lat", "lon"), dist.values))
+            out[key] = compare_with_references(ds, body, shape_only)
+        except (OSError, KeyError, ValueError) as exc:
+            out[key] = {"error": str(exc)}
+    return out
+
+
 def global_levelling(store: RunStore) -> dict[str, Any] | None:
     """The global adjustment's levelling decision (:func:`mercury_dem.adjust.datum.levelling_decision`), or None.
 
@@ -156,6 +182,8 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
                                         for k in ("registered", "merged")}
             rep.message(f"products of the registered and merged DEMs: {len(reg_products['files'])} files in "
                         f"{time.perf_counter() - t:.1f} s")
+    if registration is not None and "error" not in registration and ref.shape_harmonics:
+        out["reference_by_map"] = _shape_reference_of_maps(store, registration, body, ref)
     store.commit_tree("products")  # a bucket run: the whole products directory, once
     if truth is not None:
         from mercury_dem.dem.accuracy import dem_accuracy

@@ -89,3 +89,14 @@ def reference_table(ref: dict[str, Any]) -> str:
                 lines.append("    RMS per degree 0.." + str(low["lmax"]) + ": "
                              + " ".join(f"{x:.0f}" for x in low["degree_rms_m"]) + " m")
     return "\n".join(lines) + "\n"
+
+
+def reference_by_map_table(by_map: dict[str, Any]) -> str:
+    """The printed form of ``dem.reference_by_map`` (the registered and merged maps against the references)."""
+    parts = []
+    for key, ref in by_map.items():
+        if ref.get("error"):
+            parts.append(f"\n{key.capitalize()} DEM: not compared with the references ({ref['error']})\n")
+        else:
+            parts.append(reference_table(ref).replace("DEM minus reference", f"{key.capitalize()} DEM minus reference", 1))
+    return "".join(parts)

@@ -222,9 +222,10 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         d = v.get("dem")
         if d:
             w(dem_validation_table(d))
-    from mercury_dem.pipeline.reference_check import reference_table
+    from mercury_dem.pipeline.reference_check import reference_by_map_table, reference_table
 
     w(reference_table((report.get("dem") or {}).get("reference") or {}))
+    w(reference_by_map_table((report.get("dem") or {}).get("reference_by_map") or {}))
     for rel, why in ((report.get("dem") or {}).get("products_skipped") or {}).items():
         w(f"not written: products/{rel} ({why})\n")
     tm = report.get("timings", {})

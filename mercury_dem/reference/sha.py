@@ -204,8 +204,30 @@ def parse_shadr(text: str, source: str = "<text>") -> ShapeHarmonics:
     )
 
 
+#: The prefix naming a shape table shipped with the package (``mercury_dem/reference/data/``).
+PACKAGE_PREFIX = "package:"
+#: MLA's GTMES_150V05 shape of Mercury, shipped whole (see ``mercury_dem/reference/data/README.md``).
+GTMES_PACKAGED = PACKAGE_PREFIX + "GTMES_150V05_SHA.TAB"
+
+
+def resolve_shape_path(path: str | Path) -> Path:
+    """The file a shape-table name designates: ``package:NAME`` is ``NAME`` in the package's
+    ``reference/data`` directory (so a configuration or a mission's ``truth/surface.json`` naming it
+    works on any machine the package is installed on); anything else is a path as given."""
+    text = str(path)
+    if text.startswith(PACKAGE_PREFIX):
+        name = text[len(PACKAGE_PREFIX):]
+        if not name or "/" in name or "\\" in name or name.startswith("."):
+            raise ReferenceDataError(f"{text}: not a packaged data file name (expected package:NAME, e.g. "
+                                     f"{GTMES_PACKAGED})")
+        return Path(__file__).resolve().parent / "data" / name
+    return Path(path)
+
+
 def read_shadr(path: str | Path) -> ShapeHarmonics:
     """Read a PDS SHADR shape table such as MLA's ``GTMES_150V05_SHA.TAB``.
+
+    ``path`` may be ``package:NAME`` for a table shipped with the package (:data:`GTMES_PACKAGED`).
 
     Layout (from the product's ``.LBL``): record 1 is the header (reference radius km,
     constant 1, its uncertainty 0, degree, order, normalisation state, reference longitude
@@ -217,7 +239,7 @@ def read_shadr(path: str | Path) -> ShapeHarmonics:
     ReferenceDataError
         The file cannot be read or is not a complete SHADR table (see :func:`parse_shadr`).
     """
-    path = Path(path)
+    path = resolve_shape_path(path)
     try:
         raw = path.read_bytes()
     except OSError as exc:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from mercury_dem.altimetry.simulate import AltimetryDesign
 from mercury_dem.exceptions import ConfigError
 from mercury_dem.synth.render import RenderSettings
-from mercury_dem.synth.terrain import SurfaceParams
+from mercury_dem.synth.terrain import GTMES_PACKAGED, SurfaceParams, with_shape_harmonics
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,11 @@ PRESETS: dict[str, MissionDesign] = {
         gaps=((-35.0, 250.0, 22.0),),
         isolated=((-35.0, 250.0),),
         truth_dem_ppd=4.0,
-        surface=SurfaceParams(crater_d_min_m=4000.0, rough_shortest_m=700.0),
+        # Mercury's real long wavelengths: MLA's GTMES_150V05 (shipped with the package) to degree 148
+        # in place of the synthetic long-wave noise and polar depression, so the demo DEM can be
+        # compared with the real shape at those wavelengths (workflows/demo.yaml's reference).
+        surface=with_shape_harmonics(SurfaceParams(crater_d_min_m=4000.0, rough_shortest_m=700.0),
+                                     GTMES_PACKAGED, lmax=148),
         # MESSENGER-like: periapsis 400 km at 70 N, ranging within 1,000 km: ~2.7 million shots,
         # >= 20 profiles per tile north of 60 N, 6-15 at 10-60 N, none in the south.
         altimetry=AltimetryDesign(n_orbits=200, max_range_m=1_000e3),

@@ -337,13 +337,20 @@ class Surface:
         }
 
 
+#: MLA's GTMES_150V05 shape of Mercury as shipped with the package (the same name as
+#: ``mercury_dem.reference.sha.GTMES_PACKAGED``; spelled here so the presets need not import the reference package).
+GTMES_PACKAGED = "package:GTMES_150V05_SHA.TAB"
+
+
 def with_shape_harmonics(params: SurfaceParams, path: str, lmax: int = 148) -> SurfaceParams:
     """``params`` with a real shape model's long wavelengths in place of the synthetic ones (the
     long-wave noise and the polar depression set to 0; craters, basins, plains and roughness kept)."""
     from dataclasses import replace
     from pathlib import Path
 
-    return replace(params, shape_harmonics=str(Path(path).resolve()), shape_lmax=int(lmax),
+    # a packaged table keeps its package name (portable truth/surface.json); a file its absolute path
+    name = str(path) if str(path).startswith("package:") else str(Path(path).resolve())
+    return replace(params, shape_harmonics=name, shape_lmax=int(lmax),
                    longwave_amplitude_m=0.0, polar_drop_m=0.0)
 
 

@@ -29,7 +29,8 @@ def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_tracks=200, sp
 # Seeds: 1 used while writing. With 30 m profile errors the plain two-step fit missed 10 % of the
 # rotation on 2 of 7 seeds (7, 7, 13, 12, 3, 3, 3.5 % on seeds 1, 7, 13, 21-24): constant per-profile
 # errors that line up with a rotation bias it. With the profile nuisance in the tile fit (the default)
-# seeds 1, 7, 13, 21, 22 are within 5 %; 41 was first run after that.
+# seeds 1, 7, 13, 21, 22 are within 5 %; 41 was first run after that. With the offsets kept out of the
+# directions they mimic (session 11): 3.8, 3.6, 5.0, 3.9, 2.4 % and 2.0 % (seed 41).
 @pytest.mark.parametrize("seed", [1, 13, 41])
 def test_injected_transform_recovered(seed):
     win, prof = _case(seed, sigma_h_m=30.0)
@@ -151,3 +152,27 @@ def test_tile_window_wraps_the_seam():
 def test_options_validated():
     with pytest.raises(ValueError, match="models"):
         RegisterOptions(models=("shear",))
+    with pytest.raises(ValueError, match="nuisance_min_within_share"):
+        RegisterOptions(nuisance_min_within_share=1.5)
+
+
+# Few near-parallel profiles (the 10^7-shot benchmark's tiles have 9-22): the profiles' offsets can mimic
+# the translation and the rotation about north exactly, and with the nuisance free in those directions the
+# transform alone fitted the shots much worse (seed 1: 5.5 m vs 3.2 m plain; the benchmark's registered
+# DEM 3.6 -> 9.6 m RMSE). The nuisance is now kept out of the directions it can mimic: the transform fits
+# as well as the plain fit's, and the rotation about up keeps the nuisance's benefit (plain: 20 / 10 / 12 %
+# off on seeds 1-3; these seeds were first run with the chosen threshold).
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_few_profiles_nuisance_does_not_loosen_the_transform(seed):
+    win, prof = _case(seed, n_tracks=12, spacing_deg=0.01, sigma_h_m=30.0)
+    args = (win, prof.lat, prof.lon, prof.radius, prof.track)
+    res = register_tile(*args, tile_id=0, centre=CENTRE)
+    plain = register_tile(*args, tile_id=0, centre=CENTRE, options=RegisterOptions(profile_nuisance=False))
+    assert res.transform.ok and plain.transform.ok
+    assert res.rms_registered_m <= 1.1 * plain.rms_registered_m, (res.rms_registered_m, plain.rms_registered_m)
+    assert abs(-res.transform.rotation_deg[2] - 0.02) <= 0.002, res.transform.rotation_deg
+    got = -np.asarray(res.transform.translation_enu_m)
+    mean_off = prof.offset_enu.mean(axis=0)
+    # vertical: 3 m profile errors over 12 profiles -> ~1 m; 3 m allows 3 sigma
+    assert abs(got[2] - (300.0 - mean_off[2])) < 3.0, got
+    assert res.rms_after_m < res.rms_registered_m
