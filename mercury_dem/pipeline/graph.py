@@ -187,8 +187,11 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                   dem: bool, t_start: float, timings: dict[str, float], stage: list[str],
                   integrity: dict[str, Any]) -> dict[str, Any]:
     from mercury_dem.mission import open_mission
-    store = prepare_store(mission_path, out, config, force)
+    from mercury_dem.pipeline.stages import pointing_sigma_urad_for
+
     mission = open_mission(mission_path)
+    pointing_sigma_urad_for(mission, config)  # a mission without one and no override: refused before RUN is touched
+    store = prepare_store(mission_path, out, config, force)
     t = time.perf_counter()
     stage[0] = "the plan (RUN/plan)"
     if store.plan_complete() and not _plan_corrupt(store, integrity, stream):
