@@ -113,6 +113,12 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             )
     elif not store.is_empty():
         raise StoreError(f"{out} exists and is not a mercury-dem run; choose an empty or new --out")
+    # the a-priori pointing sigma: a mission that declares none, with no override, is refused before RUN is
+    # written (a run.json written first would make the corrected configuration a "different configuration")
+    from mercury_dem.mission import open_mission
+    from mercury_dem.pipeline.stages import pointing_sigma_urad_for
+
+    pointing_sigma_urad_for(open_mission(mission_path), config)
     store.root.mkdir(parents=True, exist_ok=True)
     # A resumed run: what a killed writer left half-written is removed before anything else runs.
     sweep_temporaries(store.root)
@@ -187,11 +193,8 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                   dem: bool, t_start: float, timings: dict[str, float], stage: list[str],
                   integrity: dict[str, Any]) -> dict[str, Any]:
     from mercury_dem.mission import open_mission
-    from mercury_dem.pipeline.stages import pointing_sigma_urad_for
-
-    mission = open_mission(mission_path)
-    pointing_sigma_urad_for(mission, config)  # a mission without one and no override: refused before RUN is touched
     store = prepare_store(mission_path, out, config, force)
+    mission = open_mission(mission_path)
     t = time.perf_counter()
     stage[0] = "the plan (RUN/plan)"
     if store.plan_complete() and not _plan_corrupt(store, integrity, stream):
