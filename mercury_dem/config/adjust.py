@@ -9,6 +9,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class AdjustConfig(ConfigSection):
+    """The ``adjust`` section: a-priori constraints, robustness, solver and outputs of the bundle adjustment."""
+
     # -- a-priori constraints (weighted pseudo-observations) -------------------
     pointing_sigma_deg: float = param(
         0.2, "A-priori pointing constraint per axis (1 sigma) of the library's adjusters", unit="deg", lo=1e-9,

@@ -20,6 +20,8 @@ DESCRIPTORS = ("SIFT", "ORB", "AKAZE", "BRISK")
 
 @dataclass(frozen=True)
 class MatchConfig(ConfigSection):
+    """The ``match`` section: pre-transform, features, guidance, outlier chain and fallback of tile matching."""
+
     # -- features ------------------------------------------------------------
     detector: str = param("FAST", "OpenCV feature detector", choices=DETECTORS)
     descriptor: str = param("SIFT", "OpenCV descriptor extractor", choices=DESCRIPTORS)

@@ -45,7 +45,8 @@ from mercury_dem.io.atomic import atomic_directory
 if TYPE_CHECKING:
     import xarray as xr
 
-__all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
+__all__ = ["grid_dem", "make_products", "open_dem",  # noqa: F822 (lazy re-exports: __getattr__)
+           "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
 
 
 def __getattr__(name: str) -> Any:

@@ -530,4 +530,5 @@ def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, A
 
 
 def config_dict(config: Config) -> dict[str, Any]:
+    """The configuration tree as a plain nested dict (:func:`mercury_dem.config.to_dict`)."""
     return to_dict(config)
