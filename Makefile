@@ -13,7 +13,7 @@ STAMP  := $(VENV)/.installed
 DEB_PACKAGES := libsuitesparse-dev gdal-bin chromium chromium-driver slurm-wlm munge
 DEMO_DIR ?= demo_output
 
-.PHONY: setup system-deps test test-slow demo clean bench-deps
+.PHONY: setup system-deps test test-fast test-slow lint demo clean bench-deps
 
 setup: system-deps $(STAMP)
 
@@ -28,7 +28,7 @@ system-deps:
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q -e '.[test,cluster,browser]'
+	$(PY) -m pip install -q -e '.[test,cluster,browser,lint]'
 	@$(PY) -m pip install -q -e '.[cholmod]' 2>/dev/null \
 	  && echo "scikit-sparse (CHOLMOD) installed" \
 	  || echo "scikit-sparse not installed: the bundle adjustment uses its scipy fallback"
@@ -44,6 +44,15 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -m slow
+
+# The fast inner loop: everything but the whole-run tests, on both cores (pytest-xdist).
+test-fast: setup
+	$(PY) -m pytest -m "not integration" -n 2
+
+# ruff (with pydocstyle's numpy convention) and mypy on the package, configured in pyproject.toml.
+lint: setup
+	$(VENV)/bin/ruff check mercury_dem
+	$(VENV)/bin/mypy
 
 # The demo mission is generated once and reused; the run resumes when interrupted.
 demo: setup

@@ -35,6 +35,7 @@ def _command_modules() -> list:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``mercury-dem`` parser: global options and one subparser per discovered command module."""
     parser = argparse.ArgumentParser(
         prog="mercury-dem",
         description="Global planetary DEMs from orbital images: tile matching, hierarchical bundle "
@@ -54,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``mercury-dem`` with ``argv`` (default ``sys.argv[1:]``); the exit code (2 on a project error)."""
     parser = build_parser()
     argv_given = argv
     argv = list(sys.argv[1:] if argv is None else argv)

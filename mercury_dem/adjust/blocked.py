@@ -208,7 +208,7 @@ class PointBlockState:
         return self.model.residuals(FramingState(self._omega_c, self.zero_pos, self.points))
 
     def cost(self, omega: NDArray[np.float64], points: NDArray[np.float64] | None = None) -> tuple[float, NDArray[np.float64]]:
-        """This block's cost 0.5 sum rho(|r|^2) over measures in use plus its point priors, and its residuals."""
+        """The block's cost 0.5 sum rho(|r|^2) over measures in use plus its point priors, and its residuals."""
         st = self._state(omega, self.points if points is None else points)
         r = self.model.residuals(st)
         s = np.sum(r * r, axis=1)

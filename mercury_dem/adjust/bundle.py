@@ -120,12 +120,11 @@ def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None
     rms = float(np.sqrt(np.mean(rk * rk))) if rk.size else float("nan")
     image_sigmas = point_sigmas = None
     post_s = 0.0
-    if config.posterior_sigmas:
-        if problem.n_images * model.camera_dim <= config.posterior_max_unknowns:
-            tp = time.perf_counter()
-            image_sigmas, point_sigmas = posterior_sigmas(model, state, res.accepted & ~res.frozen_points[problem.measure_point],
-                                                          opt, res.sigma0, held)
-            post_s = time.perf_counter() - tp
+    if config.posterior_sigmas and problem.n_images * model.camera_dim <= config.posterior_max_unknowns:
+        tp = time.perf_counter()
+        image_sigmas, point_sigmas = posterior_sigmas(model, state, res.accepted & ~res.frozen_points[problem.measure_point],
+                                                      opt, res.sigma0, held)
+        post_s = time.perf_counter() - tp
     return AdjustmentResult(
         image_ids=problem.image_ids,
         point_ids=problem.point_ids,

@@ -98,7 +98,7 @@ class FramingModel:
             (k, np.flatnonzero(problem.image_camera[problem.measure_image] == k)) for k in range(len(problem.cameras))
         ]
         self._inv_sigma = 1.0 / problem.measure_sigma
-        sig = [s for s in point_sigma_m]
+        sig = list(point_sigma_m)
         per_point = problem.point_radius_sigma
         has_per_point = per_point is not None and bool(np.any(np.isfinite(per_point)))
         rows = [i for i, s in enumerate(sig) if s is not None or (i == 2 and has_per_point)]

@@ -94,7 +94,7 @@ def text_report(result: AdjustmentResult, config: AdjustConfig | None = None, ti
         f"  position                    {f'{config.position_sigma_m:g} m' if config.solve_positions else 'held (not solved)'}",
         f"  point lat/lon/radius        {config.point_latitude_sigma_m} / {config.point_longitude_sigma_m} / {config.radius_sigma_m} m",
         f"  robust loss                 {config.robust_loss} (scale {config.robust_scale:g} sigma)",
-        f"  rejection                   {'k = %g x MAD' % config.reject_k_mad if config.reject_outliers else 'off'}",
+        f"  rejection                   {f'k = {config.reject_k_mad:g} x MAD' if config.reject_outliers else 'off'}",
         "",
         "SOLUTION",
         f"  converged                   {'yes' if result.converged else 'no'} ({result.reason})",

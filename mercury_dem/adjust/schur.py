@@ -41,6 +41,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
+from mercury_dem.adjust.kernels import schur_pairs
+
 try:  # CHOLMOD through scikit-sparse; optional (needs Debian's libsuitesparse at run time)
     from sksparse import cholmod as _cholmod
 except Exception:  # pragma: no cover - depends on the machine
@@ -48,7 +50,6 @@ except Exception:  # pragma: no cover - depends on the machine
 
 HAVE_CHOLMOD = _cholmod is not None
 
-from mercury_dem.adjust.kernels import schur_pairs
 
 def inv3(a: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverses of stacked 3 x 3 matrices (..., 3, 3) by the adjugate (closed form).
@@ -110,7 +111,7 @@ class SchurStructure:
         n_points: int,
         camera_dim: int,
         eliminate: NDArray[np.bool_] | None = None,
-    ) -> "SchurStructure":
+    ) -> SchurStructure:
         self = cls(np.asarray(camera_index, np.int64), np.asarray(point_index, np.int64),
                    n_cameras, n_points, camera_dim)
         self._build(eliminate)

@@ -647,7 +647,7 @@ def _fit_transform(
 
         def cost(res: NDArray[np.float64], sel: NDArray[np.bool_], dd: NDArray[np.float64]) -> float:
             prior = 0.5 * float(np.sum(dd * dd * lam)) if nuis else 0.0
-            return _huber_cost(res[sel], scale, opt.huber_k) + prior
+            return _huber_cost(res[sel], scale, opt.huber_k) + prior  # noqa: B023 (called in this iteration only)
 
         cost0 = cost(rz, keep, d)
         step = 1.0

@@ -59,6 +59,7 @@ def add_launcher_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The launcher's command line (``python -m mercury_dem.cluster.jobqueue``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command: list[str] = []
     if "--" in argv:
@@ -166,6 +167,7 @@ def build_cluster(args: argparse.Namespace, dask_dir: Path):  # -> dask_jobqueue
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the launcher from a command line; its exit code."""
     return launch(parse_args(argv))
 
 

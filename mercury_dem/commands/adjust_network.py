@@ -34,7 +34,10 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     from mercury_dem.pipeline.network_adjust import adjust_network_store
 
-    cfg = config.adjust
+    from mercury_dem.config.apriori import adjust_config_with_sigma
+
+    # no mission here: apriori.pointing_sigma_urad when set, else the adjusters' default (0.2 deg)
+    cfg = adjust_config_with_sigma(config.adjust, config.apriori.pointing_sigma_urad)
     if args.max_iterations:
         cfg = dataclasses.replace(cfg, max_iterations=args.max_iterations)
     if args.sync:

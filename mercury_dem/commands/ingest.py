@@ -25,7 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="keep only this instrument (e.g. MDIS-NAC); repeat for several")
     p.add_argument("--pointing-sigma-urad", type=float, metavar="URAD",
                    help="how wrong the a-priori pointing may be (1 sigma per axis): sizes the matcher's guidance "
-                        "window and weights the adjustment's pointing constraint (default: the configuration's)")
+                        "window and weights the adjustment's pointing constraint (without it, a run needs "
+                        "apriori.pointing_sigma_urad in its configuration)")
     p.add_argument("--altimetry", nargs="+", metavar="CSV",
                    help="LOLA/MLA RDR shot tables (CSV) to keep with the mission (read against the mission's body)")
     p.add_argument("--altimetry-sigma-m", type=float, metavar="M",

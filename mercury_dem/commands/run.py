@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _run_on_batch_cluster(args: argparse.Namespace) -> int:
-    """This same run, as the command of ``mercury-dem cluster`` (scheduler here, workers as batch jobs)."""
+    """The same run, as the command of ``mercury-dem cluster`` (scheduler here, workers as batch jobs)."""
     from mercury_dem.cluster.jobqueue import check_launcher_arguments, launch
     from mercury_dem.exceptions import ConfigError
 

@@ -21,7 +21,7 @@ DESCRIPTION = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", metavar="OUT", help="mission directory to create")
-    p.add_argument("--preset", help="tiny, demo or large (default: synth.preset of the configuration)")
+    p.add_argument("--preset", help="tiny, demo or large (default: tiny)")
     p.add_argument("--seed", type=int, help="seed of the surface, the mission and the noise")
     p.add_argument("--pointing-sigma-urad", type=float, help="a-priori pointing error per axis (1 sigma), microradians")
     p.add_argument("--position-sigma-m", type=float, help="a-priori position error per axis (1 sigma), metres")
@@ -43,9 +43,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def synth_config(args: argparse.Namespace, config: Config) -> SynthConfig:
-    """The configuration's synth section overlaid by the flags (validated: errors name the key)."""
-    data = to_dict(config.synth)
+def synth_config(args: argparse.Namespace) -> SynthConfig:
+    """The generator's settings: its defaults overlaid by the flags (validated: errors name the key).
+
+    The run configuration holds no generator settings (``mercury_dem.config.apriori``): the mission
+    records the pointing sigma it injected, and a run may override it with ``apriori.pointing_sigma_urad``.
+    """
+    data = to_dict(SynthConfig())
     for flag, key in (("preset", "preset"), ("seed", "seed"), ("pointing_sigma_urad", "pointing_sigma_urad"),
                       ("position_sigma_m", "position_sigma_m")):
         v = getattr(args, flag)
@@ -59,7 +63,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.synth.generate import generate_mission
 
     refuse_remote(args.out, "mission", UPLOAD_HINT)
-    cfg = synth_config(args, config)
+    cfg = synth_config(args)
 
     from mercury_dem.progress import Reporter, counter
 

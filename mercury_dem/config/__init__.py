@@ -15,13 +15,13 @@ from typing import Any
 import yaml
 
 from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.config.apriori import AprioriConfig, refuse_retired_keys
 from mercury_dem.config.base import ConfigSection, from_dict, section, template, to_dict
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.config.execution import ExecutionConfig
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.config.network import NetworkConfig
 from mercury_dem.config.reference import ReferenceConfig
-from mercury_dem.config.synth import SynthConfig
 from mercury_dem.config.tiling import TilingConfig
 from mercury_dem.config.yaml_loader import DuplicateKeyError, safe_load_unique
 from mercury_dem.exceptions import ConfigError
@@ -29,8 +29,11 @@ from mercury_dem.exceptions import ConfigError
 
 @dataclass(frozen=True)
 class Config(ConfigSection):
+    """The run configuration: one section per stage (the generator's settings are ``synth``'s flags)."""
+
     tiling: TilingConfig = section(TilingConfig, "Tile grid, regions and overlap search")
-    synth: SynthConfig = section(SynthConfig, "Synthetic mission generator")
+    apriori: AprioriConfig = section(AprioriConfig, "A-priori uncertainty of the mission's pointing "
+                                     "(null: the mission's declared value)")
     match: MatchConfig = section(MatchConfig, "Feature matching per tile")
     network: NetworkConfig = section(NetworkConfig, "Control networks: tracks and merging")
     adjust: AdjustConfig = section(AdjustConfig, "Bundle adjustment at every level")
@@ -65,8 +68,10 @@ def load_config(path: str | Path | None = None, overrides: dict[str, Any] | None
             loaded = {}
         if not isinstance(loaded, dict):
             raise ConfigError(f"config file {p} must hold a mapping of sections, got {type(loaded).__name__}")
+        refuse_retired_keys(loaded, f"config file {p}")
         data = loaded
     if overrides:
+        refuse_retired_keys(overrides, "configuration overrides")
         data = _merge(data, overrides)
     return from_dict(Config, data)
 

@@ -26,13 +26,18 @@ def param(
     lo: float | None = None,
     hi: float | None = None,
     choices: typing.Sequence[Any] | None = None,
+    internal: str | None = None,
 ) -> Any:
     """A configuration field with its documentation and allowed values.
 
     ``lo``/``hi`` are inclusive bounds for numbers; ``choices`` the allowed values.
-    Mutable defaults (lists, dicts) are not allowed: use tuples.
+    Mutable defaults (lists, dicts) are not allowed: use tuples. ``internal`` marks a field of a
+    library's parameters that the run sets from another key (its text names that key): it is validated
+    like the others but is no configuration key (refused in a file, left out of templates and of
+    :func:`to_dict`, so of ``run.json``).
     """
-    meta = {"help": help, "unit": unit, "lo": lo, "hi": hi, "choices": tuple(choices) if choices else None}
+    meta = {"help": help, "unit": unit, "lo": lo, "hi": hi, "choices": tuple(choices) if choices else None,
+            "internal": internal}
     if is_dataclass(default):
         return field(default_factory=lambda: default, metadata=meta)
     return field(default=default, metadata=meta)
@@ -127,6 +132,8 @@ def from_dict(cls: type, data: dict[str, Any] | None, prefix: str = "") -> Any:
     kwargs: dict[str, Any] = {}
     known = {f.name: f for f in fields(cls)}
     for name in data:
+        if name in known and known[name].metadata.get("internal"):
+            raise ConfigError(f"config key '{prefix}{name}' is not a configuration key: {known[name].metadata['internal']}")
         if name not in known:
             raise ConfigError(
                 f"unknown config key '{prefix}{name}'; known keys here: {', '.join(sorted(known))}"
@@ -155,6 +162,8 @@ def to_dict(obj: Any) -> dict[str, Any]:
     """Nested plain dict (YAML/JSON safe) of a config dataclass."""
     out: dict[str, Any] = {}
     for f in fields(obj):
+        if f.metadata.get("internal"):
+            continue
         v = getattr(obj, f.name)
         if is_dataclass(v):
             out[f.name] = to_dict(v)
@@ -172,6 +181,8 @@ def template(obj: Any, indent: int = 0) -> str:
     lines: list[str] = []
     pad = "  " * indent
     for f in fields(obj):
+        if f.metadata.get("internal"):
+            continue
         v = getattr(obj, f.name)
         help_ = f.metadata.get("help", "")
         if is_dataclass(v):

@@ -17,6 +17,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class DemConfig(ConfigSection):
+    """The ``dem`` section: the map, the gridding and the products."""
+
     # --- the grid ---------------------------------------------------------------------------
     pixels_per_degree: float = param(64.0, "Output grid resolution", unit="pixel/deg", lo=0.01, hi=4096.0)
     # Bounds left unset (None) are taken from the control points: their footprint plus
@@ -110,8 +112,9 @@ class DemConfig(ConfigSection):
         return None in (self.lat_min, self.lat_max, self.lon_min, self.lon_max)
 
     def with_extent_of(self, points_xyz: Any, datum_radius_m: float | None = None) -> DemConfig:
-        """This configuration with its unset bounds taken from a point cloud (see
-        :func:`mercury_dem.dem.extent.points_extent`); set bounds are kept."""
+        """The configuration with its unset bounds taken from a point cloud (see
+        :func:`mercury_dem.dem.extent.points_extent`); set bounds are kept.
+        """
         if not self.extent_from_points:
             return self
         import dataclasses

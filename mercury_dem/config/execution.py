@@ -9,6 +9,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class ExecutionConfig(ConfigSection):
+    """The ``execution`` section: how the run uses Dask."""
+
     scheduler: str = param(
         "local", "'local' (LocalCluster), 'sync' (in-process) or a scheduler address tcp://host:port"
     )

@@ -20,6 +20,8 @@ DESCRIPTORS = ("SIFT", "ORB", "AKAZE", "BRISK")
 
 @dataclass(frozen=True)
 class MatchConfig(ConfigSection):
+    """The ``match`` section: pre-transform, features, guidance, outlier chain and fallback of tile matching."""
+
     # -- features ------------------------------------------------------------
     detector: str = param("FAST", "OpenCV feature detector", choices=DETECTORS)
     descriptor: str = param("SIFT", "OpenCV descriptor extractor", choices=DESCRIPTORS)
@@ -97,15 +99,13 @@ class MatchConfig(ConfigSection):
         True, "Restrict descriptor candidates to a window around the a-priori predicted position"
     )
     pointing_sigma_urad: float = param(
-        450.0, "A-priori pointing uncertainty per axis and image (1 sigma)", unit="urad", lo=0.0, hi=1e5
+        450.0, "A-priori pointing uncertainty per axis and image (1 sigma) of the library's matcher", unit="urad",
+        lo=0.0, hi=1e5, internal="a run sets it from the mission's declared a-priori pointing uncertainty or "
+        "apriori.pointing_sigma_urad (mercury_dem.config.apriori)",
     )
     position_sigma_m: float = param(
         100.0, "A-priori spacecraft position uncertainty per axis (1 sigma), seen as an angle from the camera",
         unit="m", lo=0.0, hi=1e7,
-    )
-    pointing_sigma_from_mission: bool = param(
-        True, "Use the mission's declared a-priori pointing uncertainty (mission.json pointing_sigma_urad: synth's "
-        "injected sigma, or 'ingest --pointing-sigma-urad') instead of pointing_sigma_urad when it has one",
     )
     guidance_sigmas: float = param(3.0, "Guidance window half-width in pointing sigmas", lo=0.5, hi=20.0)
     guidance_margin_px: float = param(

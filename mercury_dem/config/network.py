@@ -9,6 +9,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class NetworkConfig(ConfigSection):
+    """The ``network`` section: tracks and the merging of control networks."""
+
     merge_tolerance_px: float = param(
         1.0, "Measures of one image closer than this are the same measure when tracks and networks merge",
         unit="px", lo=0.0, hi=100.0,

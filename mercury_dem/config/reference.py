@@ -9,6 +9,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class ReferenceConfig(ConfigSection):
+    """The ``reference`` section: reference heights the DEM is compared with."""
+
     dem: str | None = param(
         None, "A reference DEM raster GDAL reads (e.g. a LOLA LDEM cube: heights = DN x Multiplier above the "
         "label's Base radius); the run's DEM minus it is reported (report.json dem.reference)",

@@ -9,6 +9,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class SynthConfig(ConfigSection):
+    """The generator's settings (``mercury-dem synth`` flags; not part of the run configuration)."""
+
     preset: str = param("tiny", "Synthetic mission preset", choices=("tiny", "demo", "large"))
     seed: int = param(42, "Seed of the surface, the mission and the noise", lo=0)
     pointing_sigma_urad: float = param(

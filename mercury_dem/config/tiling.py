@@ -9,6 +9,8 @@ from mercury_dem.config.base import ConfigSection, param
 
 @dataclass(frozen=True)
 class TilingConfig(ConfigSection):
+    """The ``tiling`` section: the tile grid and the overlap search."""
+
     tile_size_deg: float = param(
         10.0, "Size of the square lat/lon tiles; must divide 60 so regions are whole tiles", unit="deg",
         choices=(1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 10.0, 12.0, 15.0, 20.0, 30.0, 60.0),

@@ -30,6 +30,8 @@ from numpy.typing import ArrayLike, NDArray
 DATUM_RADIUS_M: float = 2_439_400.0
 #: Radius of the IAU 2015 Mercury sphere (the CRS `IAU_2015:19900`), metres.
 IAU_SPHERE_RADIUS_M: float = 2_440_530.0
+#: Radius of the IAU 2015 lunar sphere, which is also the datum of LOLA's products, metres.
+MOON_RADIUS_M: float = 1_737_400.0
 
 #: CRS codes the products use (pyproj knows them). Geographic sphere, planetocentric.
 CRS_GEOGRAPHIC = "IAU_2015:19900"
@@ -123,7 +125,7 @@ class Body:
 #: Mercury: the IAU 2015 sphere and the 2439.4 km datum of the MESSENGER global DEM.
 MERCURY = Body("MERCURY", 199, IAU_SPHERE_RADIUS_M, DATUM_RADIUS_M, 19900, CRS_DATUM_GEOGRAPHIC)
 #: The Moon: the IAU 2015 sphere (1737.4 km), which is also the LOLA datum.
-MOON = Body("MOON", 301, 1_737_400.0, 1_737_400.0, 30100, "IAU_2015:30100")
+MOON = Body("MOON", 301, MOON_RADIUS_M, MOON_RADIUS_M, 30100, "IAU_2015:30100")
 BODIES = {b.name: b for b in (MERCURY, MOON)}
 
 

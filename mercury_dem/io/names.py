@@ -1,8 +1,8 @@
-"""Names from inputs that become file or directory names: one check, so none escapes its directory.
+r"""Names from inputs that become file or directory names: one check, so none escapes its directory.
 
 Image ids (a cube's or ISD's file name, a mission catalog's ``image_id`` column) name
 ``images.zarr/<id>`` in a mission and ``<id>.json`` among corrected ISDs. A name such as
-``../x``, ``/abs/x``, ``..\\x``, ``.`` or the empty string would write outside that directory
+``../x``, ``/abs/x``, ``..\x``, ``.`` or the empty string would write outside that directory
 or over it (``images.zarr/`` itself), and control characters (NUL, newline) break the catalog,
 logs and ISIS's PVL. Such names are refused rather than encoded: an id is also what users
 see and what ISIS serial-number lists refer to, and a silently rewritten id would no longer

@@ -372,7 +372,7 @@ def ingest_mission(
     paired with the ISD of its stem in ``isd_dir`` (or beside it); ``image_list`` (an ``ISD,IMAGE`` CSV)
     names an ISD's image when the stems differ. ``pointing_sigma_urad`` records how wrong
     the a-priori pointing may be (1 sigma per axis): matching sizes its guidance window from it and the
-    adjustment weights its pointing constraint by it (``*.pointing_sigma_from_mission``). Rejected inputs are listed with
+    adjustment weights its pointing constraint by it (unless ``apriori.pointing_sigma_urad`` overrides it). Rejected inputs are listed with
     their reason; with no usable image at all, StoreError (nothing is written).
 
     ``altimetry`` names LOLA/MLA RDR shot tables (CSV, globs allowed) read against the mission's body

@@ -76,6 +76,7 @@ def write_truth_dem(
 
 
 def write_truth_tables(root: str | Path, poses: pd.DataFrame, surface: dict[str, Any]) -> None:
+    """Write a synthetic mission's truth: ``truth/poses.parquet`` and ``truth/surface.json`` under ``root``."""
     from mercury_dem.io.atomic import atomic_write_json
 
     (Path(root) / "truth").mkdir(exist_ok=True)

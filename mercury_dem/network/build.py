@@ -110,6 +110,8 @@ class BuildStats:
 
 
 class BuildResult(NamedTuple):
+    """A network built from tracks, and the counts of how it was built."""
+
     network: ControlNetwork
     stats: BuildStats
 

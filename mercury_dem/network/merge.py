@@ -60,6 +60,8 @@ class MergeStats:
 
 
 class MergeResult(NamedTuple):
+    """A merged network, and the counts of what the merge joined."""
+
     network: ControlNetwork
     stats: MergeStats
 

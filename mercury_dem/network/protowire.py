@@ -425,10 +425,12 @@ def encode_varint(v: int) -> bytes:
 
 
 def encode_field_bytes(field: int, payload: bytes) -> bytes:
+    """One length-delimited protobuf field: its key, the payload's length and the payload."""
     return encode_varint((field << 3) | WT_LEN) + encode_varint(len(payload)) + payload
 
 
 def encode_field_varint(field: int, value: int) -> bytes:
+    """One varint protobuf field: its key and the value."""
     return encode_varint((field << 3) | WT_VARINT) + encode_varint(value)
 
 

@@ -82,6 +82,7 @@ class Tracks:
 
 
 def components(n_nodes: int, edges: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Weakly connected component label of each of ``n_nodes`` nodes joined by ``edges`` (E, 2) (scipy.sparse.csgraph)."""
     if edges.size == 0:
         return np.arange(n_nodes, dtype=np.int64)
     g = coo_matrix((np.ones(edges.shape[0], np.int8), (edges[:, 0], edges[:, 1])), shape=(n_nodes, n_nodes)).tocsr()

@@ -98,6 +98,8 @@ def levelling_for(problem: Any, cfg: AdjustConfig, altimetry: Any = None) -> Any
 
 @dataclass(frozen=True)
 class UnitAdjustment:
+    """The result of adjusting one unit's network: the network, the poses, per-image counts, summary and report."""
+
     network: Any  # ControlNetwork with adjusted points, residuals, rejections
     rotations: NDArray[np.float64]
     positions: NDArray[np.float64]

@@ -47,7 +47,8 @@ if TYPE_CHECKING:
 
     from mercury_dem.pipeline.store_writer import ForkedStoreWriter
 
-__all__ = ["grid_dem", "make_products", "open_dem", "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
+__all__ = ["grid_dem", "make_products", "open_dem",  # noqa: F822 (lazy re-exports: __getattr__)
+           "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
 
 
 def __getattr__(name: str) -> Any:

@@ -289,7 +289,7 @@ class DaskShardEngine:
         workers = sorted(client.scheduler_info()["workers"])
         if not workers:
             raise AdjustmentError("the Dask cluster has no workers: start some, or use --sync")
-        runs = [r for r in np.array_split(np.arange(n_blocks), len(workers))]
+        runs = list(np.array_split(np.arange(n_blocks), len(workers)))
         pairs = [(w, [int(x) for x in r]) for w, r in zip(workers, runs) if len(r)]
         futures = [client.submit(BlockShard, (str(store), ids), setup, opt, actor=True, workers=[w],
                                  allow_other_workers=False, pure=False) for w, ids in pairs]

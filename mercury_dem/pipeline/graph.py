@@ -113,6 +113,12 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             )
     elif not store.is_empty():
         raise StoreError(f"{out} exists and is not a mercury-dem run; choose an empty or new --out")
+    # the a-priori pointing sigma: a mission that declares none, with no override, is refused before RUN is
+    # written (a run.json written first would make the corrected configuration a "different configuration")
+    from mercury_dem.mission import open_mission
+    from mercury_dem.pipeline.stages import pointing_sigma_urad_for
+
+    pointing_sigma_urad_for(open_mission(mission_path), config)
     store.root.mkdir(parents=True, exist_ok=True)
     # A resumed run: what a killed writer left half-written is removed before anything else runs.
     sweep_temporaries(store.root)

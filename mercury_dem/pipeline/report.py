@@ -53,6 +53,7 @@ def versions() -> dict[str, str]:
 def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[str, Any],
                  summaries: dict[str, list[dict[str, Any]]], timings: dict[str, float], conn: Any,
                  dem_summary: dict[str, Any] | None) -> dict[str, Any]:
+    """The run's report (``report.json``): images, levels, timings, validation against the truth and the DEM's summary."""
     tiles = summaries.get("tile", [])
     glob = summaries.get("global", [])
     ids_all = [str(x) for x in mission.catalog["image_id"]]
@@ -163,6 +164,7 @@ def _mission_ref(store: RunStore, mission: Mission) -> str:
 
 
 def write_report(store: RunStore, report: dict[str, Any]) -> None:
+    """Write ``report.json`` into the run store atomically (and commit it to a bucket run)."""
     atomic_write_json(store.report_json, report)
     store.commit_file("report.json")
 

@@ -435,34 +435,39 @@ def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) 
     return AltimetryShotsArrays.from_table(table)
 
 
+def pointing_sigma_urad_for(mission: Mission, config: Config) -> float:
+    """The a-priori pointing sigma of a run (µrad): ``apriori.pointing_sigma_urad``, else the mission's.
+
+    Raises :class:`~mercury_dem.exceptions.ConfigError` when neither says one
+    (:func:`mercury_dem.config.apriori.resolve_pointing_sigma_urad`).
+    """
+    from mercury_dem.config.apriori import resolve_pointing_sigma_urad
+
+    return resolve_pointing_sigma_urad(config.apriori.pointing_sigma_urad, mission.pointing_sigma_urad,
+                                       str(getattr(mission, "path", mission)))
+
+
 def match_config_for(mission: Mission, config: Config) -> Any:
-    """The matching configuration for a mission: the guidance window from its declared a-priori pointing
-    uncertainty when it has one (real SPICE pointing of another instrument can be 10x worse than MDIS's)."""
+    """The matching configuration for a mission: the guidance window from the run's a-priori pointing sigma
+    (real SPICE pointing of another instrument can be 10x worse than MDIS's)."""
     import dataclasses
 
-    cfg = config.match
-    sigma_urad = mission.pointing_sigma_urad
-    if cfg.pointing_sigma_from_mission and sigma_urad:
-        cfg = dataclasses.replace(cfg, pointing_sigma_urad=float(sigma_urad))
-    return cfg
+    return dataclasses.replace(config.match, pointing_sigma_urad=pointing_sigma_urad_for(mission, config))
 
 
 def adjust_config_for(mission: Mission, config: Config) -> Any:
-    """The adjustment configuration for a mission: its declared a-priori pointing sigma when asked.
+    """The adjustment configuration for a mission: its pointing constraint from the run's a-priori pointing sigma.
 
-    A mission (like SPICE with its CK quality) may state how wrong its a-priori
-    pointing is (``pointing_sigma_urad`` in mission.json). Weighting the pointing
-    constraint with the real uncertainty keeps the weakly determined directions of a
-    network without ground control (a horizontal shift of the whole block traded
-    against the pointing) near the a-priori instead of drifting.
+    A mission (like SPICE with its CK quality) states how wrong its a-priori pointing is
+    (``pointing_sigma_urad`` in mission.json). Weighting the pointing constraint with the real
+    uncertainty keeps the weakly determined directions of a network without ground control (a
+    horizontal shift of the whole block traded against the pointing) near the a-priori instead of
+    drifting. The library's adjusters take it in degrees (``AdjustConfig.pointing_sigma_deg``),
+    converted exactly as before session 11 so results are unchanged bit for bit.
     """
-    import dataclasses
+    from mercury_dem.config.apriori import adjust_config_with_sigma
 
-    cfg = config.adjust
-    sigma_urad = mission.pointing_sigma_urad
-    if cfg.pointing_sigma_from_mission and sigma_urad:
-        cfg = dataclasses.replace(cfg, pointing_sigma_deg=float(np.degrees(float(sigma_urad) * 1e-6)))
-    return cfg
+    return adjust_config_with_sigma(config.adjust, pointing_sigma_urad_for(mission, config))
 
 
 class _NoInput(MercuryDemError):
@@ -525,4 +530,5 @@ def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, A
 
 
 def config_dict(config: Config) -> dict[str, Any]:
+    """The configuration tree as a plain nested dict (:func:`mercury_dem.config.to_dict`)."""
     return to_dict(config)

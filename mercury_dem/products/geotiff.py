@@ -100,6 +100,7 @@ HEIGHT_TAGS = height_tags(MERCURY)
 
 
 def band_description(body: Body = MERCURY) -> str:
+    """The elevation band's description: heights above the body's datum sphere, with its radius."""
     return f"elevation above the {body.name.title()} datum sphere of radius {body.datum_radius_m:.0f} m"
 
 

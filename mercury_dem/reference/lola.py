@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 import xarray as xr
 
 from mercury_dem.exceptions import ReferenceDataError
-from mercury_dem.geometry.body import wrap_longitude
+from mercury_dem.geometry.body import MOON_RADIUS_M, wrap_longitude  # MOON_RADIUS_M: LOLA's reference sphere
 from mercury_dem.reference.sampling import sample_reference_dem
 
 __all__ = [
@@ -58,9 +58,6 @@ __all__ = [
     "read_lola_ldem",
     "sample_reference_dem",
 ]
-
-#: Radius of the lunar reference sphere of LOLA products, metres.
-MOON_RADIUS_M = 1_737_400.0
 
 #: Columns of the LOLA RDR query tool's point-per-row CSV, in file order, for files without a
 #: header row. ``unknown_16``/``unknown_17`` are not used; the others are named as the query

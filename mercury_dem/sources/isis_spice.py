@@ -267,9 +267,9 @@ def exposure_time(cube: IsisCube, pointing: CubeTable, naif: Mapping[str, Any]) 
 
 def _radii(naif: Mapping[str, Any]) -> tuple[float, float, float] | None:
     for k, v in naif.items():
-        if k.startswith("BODY") and k.endswith("_RADII") and isinstance(v, tuple) and len(v) == 3:
-            if all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in v):
-                return (float(v[0]) * 1e3, float(v[1]) * 1e3, float(v[2]) * 1e3)
+        if (k.startswith("BODY") and k.endswith("_RADII") and isinstance(v, tuple) and len(v) == 3
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in v)):
+            return (float(v[0]) * 1e3, float(v[1]) * 1e3, float(v[2]) * 1e3)
     return None
 
 

@@ -1,0 +1,1 @@
+"""The synthetic Mercury: procedural surface, MDIS-like cameras, rendered images, perturbed pointing (docs/design/synth.md)."""

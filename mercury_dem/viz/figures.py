@@ -98,7 +98,7 @@ def sigma0_figure(history: pd.DataFrame) -> Figure:
     """σ0 per iteration of every adjustment unit (from :func:`~mercury_dem.viz.status.sigma0_history`)."""
     fig = Figure(figsize=(6, 3.5), layout="constrained")
     ax = fig.add_subplot()
-    for (level, uid), g in history.groupby(["level", "id"], sort=False):
+    for (level, _uid), g in history.groupby(["level", "id"], sort=False):
         ax.plot(g["iteration"], g["sigma0"], "o-", ms=3, color=LEVEL_COLOURS.get(str(level), "k"), alpha=0.8,
                 label=str(g["name"].iloc[0]))
     ax.set(xlabel="iteration", ylabel="σ0", title="adjustment convergence")

@@ -148,3 +148,18 @@ def test_raw_dn_stored_as_floats_is_dn_of_the_instrument(tmp_path: Path) -> None
     assert 256 <= np.nanmin(img) and np.nanmax(img) <= 395
     # the boresight ground point of this image (README known value, via the cube's own SPICE)
     assert abs(m.catalog["center_lat"].iat[0] - 46.275) < 0.01 and abs(m.catalog["center_lon"].iat[0] - 248.068) < 0.01
+
+
+def test_a_run_of_a_mission_without_a_pointing_sigma_is_refused_before_anything_is_written(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Ingested without --pointing-sigma-urad and no apriori.pointing_sigma_urad: the run says which key to set,
+    and RUN is not created (a run.json written first would refuse the corrected configuration as different)."""
+    mission = tmp_path / "mdis"
+    assert main(["ingest", str(mission), str(MDIS_LEV1)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "run"
+    assert main(["run", str(mission), "--out", str(out), "--scheduler", "sync"]) == 2
+    err = capsys.readouterr().err
+    assert f"mission {mission} declares no a-priori pointing uncertainty" in err
+    assert "apriori.pointing_sigma_urad" in err and "--pointing-sigma-urad" in err
+    assert not out.exists()

@@ -50,7 +50,7 @@ def _paths(doc: object, prefix: tuple = ()) -> list[tuple]:
     return out
 
 
-@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "120")), deadline=None, database=None,
+@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "50")), deadline=None, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(str_ids=st.booleans(), how=st.sampled_from(("truncate", "flip", "delete", "rmarray", "json", "attr")),
        where=st.floats(0, 1), value=_json_values(), data=st.data())

@@ -49,7 +49,7 @@ def test_the_seed_reads(good_store: Path) -> None:
     _read_all(good_store)
 
 
-@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "40")), deadline=None, database=None,
+@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "20")), deadline=None, database=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(how=st.sampled_from(("truncate", "flip", "delete", "rmarray", "json", "attr")), where=st.floats(0, 1),
        value=_json_values(), data=st.data())

@@ -369,8 +369,8 @@ def test_export_isis_network_adjusts_to_the_runs_solution(sync_run, tiny_mission
         files.append(isd_dir / f"{i}.json")
         files[-1].write_text(json.dumps(isd))
     assert main(["export-isis", str(run_dir), str(tmp_path / "g.net"), "--level", "global"]) == 0
-    sigma = float(np.degrees(float(mission.meta["pointing_sigma_urad"]) * 1e-6))
-    (tmp_path / "cfg.yaml").write_text(f"adjust:\n  pointing_sigma_deg: {sigma!r}\n")
+    sigma = float(mission.meta["pointing_sigma_urad"])
+    (tmp_path / "cfg.yaml").write_text(f"apriori:\n  pointing_sigma_urad: {sigma!r}\n")
     capsys.readouterr()
     rc = main(["adjust-isis", str(tmp_path / "g.net"), "--cameras", *map(str, files), "--out", str(tmp_path / "a.net"),
                "--json", "--config", str(tmp_path / "cfg.yaml")])

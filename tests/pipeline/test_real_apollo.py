@@ -73,14 +73,12 @@ def test_moon_dem_products_and_lola_comparison(apollo_run: Path) -> None:
 
 def test_adjust_isis_of_the_exported_network_gives_the_runs_solution(apollo_run: Path, tmp_path: Path,
                                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    import math
-
     from mercury_dem.network.isis import read_isis_network, write_isis_network
 
     net_path = tmp_path / "apollo.net"
     assert main(["export-isis", str(apollo_run), str(net_path), "--level", "global"]) == 0
     cfg = tmp_path / "adjust.yaml"  # the mission's declared pointing sigma, as the run used it
-    cfg.write_text(f"adjust:\n  pointing_sigma_deg: {math.degrees(5000e-6)!r}\n")
+    cfg.write_text("apriori:\n  pointing_sigma_urad: 5000\n")
     capsys.readouterr()
     cams = [str(c) for c in CUBES[:3]]
     assert main(["adjust-isis", str(net_path), "--cameras", *cams, "--out", str(tmp_path / "out.net"),

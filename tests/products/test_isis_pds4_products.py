@@ -30,7 +30,13 @@ CASES = {
 PDS = ("equirectangular", "north_polar", "south_polar")
 
 
-@pytest.fixture(scope="module", params=list(CASES))
+#: The fast loop (-m "not integration") grids one Mercury case across 0 deg and one Moon case away from it
+#: (~5 s of fixture each); make test runs every case.
+_FAST = {"mercury_across_0", "moon_100_130"}
+
+
+@pytest.fixture(scope="module", params=[c if c in _FAST else pytest.param(c, marks=pytest.mark.integration)
+                                             for c in CASES])
 def run(request, tmp_path_factory):
     """(body, lon bounds, run dir, summary): dem.zarr and the products of a small regional DEM with a gap."""
     body, lons = CASES[request.param]

@@ -32,7 +32,13 @@ CASES = {
 TIFS = ("dem.tif", "pds/equirectangular.tif", "pds/north_polar.tif", "pds/south_polar.tif")
 
 
-@pytest.fixture(scope="module", params=list(CASES))
+#: The fast loop (-m "not integration") grids one Mercury case across 0 deg and one Moon case away from it
+#: (~5 s of fixture each); make test runs every case.
+_FAST = {"mercury_across_0", "moon_100_130"}
+
+
+@pytest.fixture(scope="module", params=[c if c in _FAST else pytest.param(c, marks=pytest.mark.integration)
+                                             for c in CASES])
 def run(request, tmp_path_factory):
     """(body, lon bounds, run dir): dem.zarr + coverage.zarr + products of a small regional DEM."""
     body, lons = CASES[request.param]

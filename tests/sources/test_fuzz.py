@@ -163,7 +163,7 @@ def fuzz_path() -> Iterator[Path]:
         yield Path(d) / "fuzzed_case.cub"
 
 
-@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "150")), deadline=None, database=None,
+@settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "60")), deadline=None, database=None,
           print_blob=True, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(data=mutated_cube())
 @example(data=SEEDS[0])
