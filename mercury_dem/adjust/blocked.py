@@ -346,10 +346,20 @@ class BlockShard:
         for b in self.blocks:
             b.cam_map = np.searchsorted(self.cams, b.cams)
             b.pair_map = np.searchsorted(self.pair_keys, b.pair_keys)
+        #: seconds this shard spent computing in its blocks' methods (the workers' share of an iteration,
+        #: against the client's reductions and solve: docs/benchmarks/cascade.md uses it)
+        self.busy_seconds = 0.0
 
     def _each(self, fn: Any) -> list[Any]:
+        t = time.perf_counter()
         with threadpool_limits(limits=1, user_api="blas"):
-            return [fn(b) for b in self.blocks]
+            out = [fn(b) for b in self.blocks]
+        self.busy_seconds += time.perf_counter() - t
+        return out
+
+    def busy(self) -> float:
+        """Seconds spent in the blocks' computations since the shard was made."""
+        return float(self.busy_seconds)
 
     def structure(self) -> tuple[NDArray[np.int64], NDArray[np.int64], int, int]:
         """(cams, pair keys, measures, points) of this shard."""
