@@ -454,6 +454,20 @@ class BlockShard:
         out["point_error_m"] = np.concatenate(out["point_error_m"]) if out["point_error_m"] else np.zeros(0, np.float32)
         return out
 
+    def initial_residuals(self, omega: NDArray[np.float64]) -> list[tuple[int, NDArray[np.float64]]]:
+        """(block, residuals in pixels (m, 2), NaN where a measure cannot be projected) at ``omega``, per block."""
+        out = []
+        for b in self.blocks:
+            _, r = b.cost(omega)
+            out.append((b.block, r * b.model.problem.measure_sigma[:, None]))
+        return out
+
+    def block_results(self) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
+                                          NDArray[np.float64]]]:
+        """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
+        return [(b.block, b.points, b.frozen, b.active, b.r_now * b.model.problem.measure_sigma[:, None])
+                for b in self.blocks]
+
     def solution(self) -> list[tuple[int, int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]]:
         """(block, first point, points, accepted measures, frozen points) of every block (tests, small runs)."""
         return [(b.block, b.point_start, b.points, b.active, b.frozen) for b in self.blocks]
