@@ -359,7 +359,7 @@ class BlockedCost:
     """The blocked distributed adjustment measured on ``workers`` workers, and its model on ``P`` shards.
 
     Measured (``adjust-network --workers 2 --json`` on one store): ``seconds_per_iteration``
-    (median), ``worker_seconds_per_iteration`` (the slowest shard's seconds in its blocks'
+    (mean), ``worker_seconds_per_iteration`` (the slowest shard's seconds in its blocks'
     computations over the run / iterations: ``shard_busy_seconds``), ``iterations``,
     ``load_seconds`` (actors reading their blocks), the peak memory of the largest worker and
     of the client, at ``measures`` measures and ``images`` images. Modelled (not measured at
@@ -403,7 +403,8 @@ class BlockedCost:
         its = int(rec["iterations"])
         return cls(measures=float(rec["measures"]), images=int(rec["images"]), points=int(rec["points"]),
                    workers=len(rec["peak_memory_bytes_shards"]),
-                   seconds_per_iteration=float(np.median(rec["seconds_per_iteration"])),
+                   # the mean, not the median: the shards' busy seconds are a total over the same iterations
+                   seconds_per_iteration=float(np.sum(rec["seconds_per_iteration"])) / its,
                    worker_seconds_per_iteration=float(max(rec["shard_busy_seconds"])) / its, iterations=its,
                    load_seconds=float(rec["load_seconds"]) + float(rec["setup_seconds"]),
                    worker_peak_bytes=float(max(rec["peak_memory_bytes_shards"])),
