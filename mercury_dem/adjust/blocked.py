@@ -333,13 +333,17 @@ class BlockShard:
     """
 
     def __init__(self, blocks: list[BlockData] | tuple[str, list[int]], setup: CameraSetup, opt: SolverOptions):
+        source: Any = blocks
         if isinstance(blocks, tuple):  # (store path, block ids): load here (a worker reads its own blocks)
             from mercury_dem.network.synthetic_store import BlockedNetwork
 
             net = BlockedNetwork(blocks[0])
-            blocks = [net.read_block(b) for b in blocks[1]]
+            # one block's raw data at a time: read, turned into its state, dropped (a list of them all held the
+            # shard's whole store data, ~48 B a measure, beside the states while they were built)
+            source = (net.read_block(b) for b in blocks[1])
         with threadpool_limits(limits=1, user_api="blas"):
-            self.blocks = [PointBlockState(d, setup, opt) for d in blocks if len(d.measure_image)]
+            self.blocks = [PointBlockState(d, setup, opt) for d in source if len(d.measure_image)]
+        del source
         self.n_images = setup.n_images
         self.cams = np.unique(np.concatenate([b.cams for b in self.blocks])) if self.blocks else np.zeros(0, np.int64)
         self.pair_keys = np.unique(np.concatenate([b.pair_keys for b in self.blocks])) if self.blocks else np.zeros(0, np.int64)
