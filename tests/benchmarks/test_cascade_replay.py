@@ -119,6 +119,13 @@ def test_blocked_cost_model_scales_as_documented() -> None:
     c2 = BlockedCost(**{**c.__dict__, "call_seconds": 0.01, "calls_per_iteration": 10,
                         "seconds_per_iteration": 100.2})
     assert c2.client_seconds_per_iteration(20_000, 50) == pytest.approx(20.0 + 5.0)
+    # from an adjust-network record: the mean iteration (the shards' busy seconds are a total), the slower shard
+    rec = {"measures": 2e7, "images": 20_000, "points": 2_800_000, "iterations": 4, "seconds_per_iteration": [1, 1, 1, 9],
+           "shard_busy_seconds": [6.0, 8.0], "load_seconds": 3.0, "setup_seconds": 1.0,
+           "peak_memory_bytes_shards": [2e9, 3e9], "peak_memory_bytes_client": 1e9}
+    r = BlockedCost.from_record(rec, call_seconds=0.0)
+    assert (r.seconds_per_iteration, r.worker_seconds_per_iteration, r.load_seconds, r.workers) == (3.0, 2.0, 4.0, 2)
+    assert r.worker_peak_bytes == 3e9 and r.client_seconds_per_iteration(20_000, 2) == pytest.approx(1.0)
     m = InMemoryCost(measures=1e6, seconds=100.0, peak_bytes=1e9)
     assert m.unit_seconds(3e6) == pytest.approx(300.0) and m.unit_bytes(3e6) == pytest.approx(3e9)
 
