@@ -236,9 +236,12 @@ class PointBlockState:
         jp[fixed[self.pt]] = 0.0
         u = np.zeros((self.n_cam, C, C))
         g_c = np.zeros((self.n_cam, C))
-        v = np.zeros((self.n_pt, 3, 3))
-        g_p = np.zeros((self.n_pt, 3))
-        wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        if getattr(self, "wm", None) is None:  # allocated once, refilled in place at every linearization
+            self.v, self.g_p = np.empty((self.n_pt, 3, 3)), np.empty((self.n_pt, 3))
+            self.wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        v, g_p, wm = self.v, self.g_p, self.wm
+        v.fill(0.0)
+        g_p.fill(0.0)
         normal_blocks(r, jc, jp, self.cam, self.pt, u, g_c, v, g_p, wm)
         del r, jc, jp
         pp = self.model.point_prior(st)
