@@ -236,9 +236,12 @@ class PointBlockState:
         jp[fixed[self.pt]] = 0.0
         u = np.zeros((self.n_cam, C, C))
         g_c = np.zeros((self.n_cam, C))
-        v = np.zeros((self.n_pt, 3, 3))
-        g_p = np.zeros((self.n_pt, 3))
-        wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        if getattr(self, "wm", None) is None:  # allocated once, refilled in place at every linearization
+            self.v, self.g_p = np.empty((self.n_pt, 3, 3)), np.empty((self.n_pt, 3))
+            self.wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        v, g_p, wm = self.v, self.g_p, self.wm
+        v.fill(0.0)
+        g_p.fill(0.0)
         normal_blocks(r, jc, jp, self.cam, self.pt, u, g_c, v, g_p, wm)
         del r, jc, jp
         pp = self.model.point_prior(st)
@@ -333,23 +336,37 @@ class BlockShard:
     """
 
     def __init__(self, blocks: list[BlockData] | tuple[str, list[int]], setup: CameraSetup, opt: SolverOptions):
+        source: Any = blocks
         if isinstance(blocks, tuple):  # (store path, block ids): load here (a worker reads its own blocks)
             from mercury_dem.network.synthetic_store import BlockedNetwork
 
             net = BlockedNetwork(blocks[0])
-            blocks = [net.read_block(b) for b in blocks[1]]
+            # one block's raw data at a time: read, turned into its state, dropped (a list of them all held the
+            # shard's whole store data, ~48 B a measure, beside the states while they were built)
+            source = (net.read_block(b) for b in blocks[1])
         with threadpool_limits(limits=1, user_api="blas"):
-            self.blocks = [PointBlockState(d, setup, opt) for d in blocks if len(d.measure_image)]
+            self.blocks = [PointBlockState(d, setup, opt) for d in source if len(d.measure_image)]
+        del source
         self.n_images = setup.n_images
         self.cams = np.unique(np.concatenate([b.cams for b in self.blocks])) if self.blocks else np.zeros(0, np.int64)
         self.pair_keys = np.unique(np.concatenate([b.pair_keys for b in self.blocks])) if self.blocks else np.zeros(0, np.int64)
         for b in self.blocks:
             b.cam_map = np.searchsorted(self.cams, b.cams)
             b.pair_map = np.searchsorted(self.pair_keys, b.pair_keys)
+        #: seconds this shard spent computing in its blocks' methods (the workers' share of an iteration,
+        #: against the client's reductions and solve: docs/benchmarks/cascade.md uses it)
+        self.busy_seconds = 0.0
 
     def _each(self, fn: Any) -> list[Any]:
+        t = time.perf_counter()
         with threadpool_limits(limits=1, user_api="blas"):
-            return [fn(b) for b in self.blocks]
+            out = [fn(b) for b in self.blocks]
+        self.busy_seconds += time.perf_counter() - t
+        return out
+
+    def busy(self) -> float:
+        """Seconds spent in the blocks' computations since the shard was made."""
+        return float(self.busy_seconds)
 
     def structure(self) -> tuple[NDArray[np.int64], NDArray[np.int64], int, int]:
         """(cams, pair keys, measures, points) of this shard."""
@@ -443,6 +460,20 @@ class BlockShard:
         out["accepted_per_image"] = acc
         out["point_error_m"] = np.concatenate(out["point_error_m"]) if out["point_error_m"] else np.zeros(0, np.float32)
         return out
+
+    def initial_residuals(self, omega: NDArray[np.float64]) -> list[tuple[int, NDArray[np.float64]]]:
+        """(block, residuals in pixels (m, 2), NaN where a measure cannot be projected) at ``omega``, per block."""
+        out = []
+        for b in self.blocks:
+            _, r = b.cost(omega)
+            out.append((b.block, r * b.model.problem.measure_sigma[:, None]))
+        return out
+
+    def block_results(self) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
+                                          NDArray[np.float64]]]:
+        """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
+        return [(b.block, b.points, b.frozen, b.active, b.r_now * b.model.problem.measure_sigma[:, None])
+                for b in self.blocks]
 
     def solution(self) -> list[tuple[int, int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]]:
         """(block, first point, points, accepted measures, frozen points) of every block (tests, small runs)."""

@@ -18,7 +18,10 @@ whole image-point graph, which the pipeline has in memory anyway.
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Callable
+from typing import Any, ContextManager
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +41,9 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.pose import angles_from_rotation
 from mercury_dem.network.synthetic_store import BlockData
+
+#: ``(blocks, setup, options) -> context manager of an Engine`` (see :func:`blocked_bundle_adjust`)
+EngineFactory = Callable[[list[BlockData], CameraSetup, Any], ContextManager[Any]]
 
 
 def point_blocks(problem: AdjustmentProblem, block_points: int) -> tuple[list[BlockData], list[NDArray[np.int64]]]:
@@ -61,7 +67,7 @@ def point_blocks(problem: AdjustmentProblem, block_points: int) -> tuple[list[Bl
 
 
 def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None, *,
-                          block_points: int = 25_000) -> AdjustmentResult:
+                          block_points: int = 25_000, engine_factory: EngineFactory | None = None) -> AdjustmentResult:
     """Adjust pointing and points like :func:`~mercury_dem.adjust.bundle.bundle_adjust`, over point blocks.
 
     Parameters
@@ -70,6 +76,11 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
     config : the adjustment configuration (``solve_positions`` must be false).
     block_points : points per block (each block keeps ~0.3 kB a measure between iterations and needs
         ~1 kB a measure of temporaries while it is linearized: docs/design/adjust.md).
+    engine_factory : ``engine_factory(blocks, setup, options)`` gives a context manager whose value is an
+        :class:`~mercury_dem.adjust.blocked.Engine` holding ``blocks`` (e.g. one
+        :class:`~mercury_dem.adjust.blocked.BlockShard` per Dask worker:
+        ``mercury_dem.pipeline.executors.worker_shard_engine``); leaving the context releases them.
+        None: one shard in this process.
 
     Returns
     -------
@@ -98,29 +109,39 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
     if problem.initial_rotations is not None:  # as FramingModel.initial_state
         omega0 = angles_from_rotation(np.matmul(problem.initial_rotations, np.swapaxes(problem.rotations, -1, -2)))
     blocks, index = point_blocks(problem, block_points)
-    shard = BlockShard(blocks, setup, opt)
+    index_of = {b.block: ix for b, ix in zip(blocks, index)}
+    point_start = {b.block: b.point_start for b in blocks}
+    del index
+    if engine_factory is None:
+        context: Any = contextlib.nullcontext(SyncEngine([BlockShard(blocks, setup, opt)]))
+    else:
+        context = engine_factory(blocks, setup, opt)
     del blocks
-    # the blocks without measures are dropped by the shard: keep the index of those it holds
-    kept = {b.block for b in shard.blocks}
-    index = [ix for k, ix in enumerate(index) if k in kept]
-    r0 = np.full((problem.n_measures, 2), np.nan)
-    for b, ix in zip(shard.blocks, index):
-        _, r = b.cost(omega0)
-        r0[ix] = r * b.model.problem.measure_sigma[:, None]
-    check_projectable(problem, r0)
-    initial_rms = float(np.sqrt(np.mean(r0 * r0)))
-    del r0
-    res = blocked_levenberg_marquardt(SyncEngine([shard]), setup, opt, initial_omega=omega0)
-
     points = np.array(problem.points, np.float64, copy=True)
     frozen = np.zeros(problem.n_points, bool)
     accepted = np.ones(problem.n_measures, bool)
     resid = np.zeros((problem.n_measures, 2))
-    for b, ix in zip(shard.blocks, index):
-        points[b.point_start:b.point_start + b.n_pt] = b.points
-        frozen[b.point_start:b.point_start + b.n_pt] = b.frozen
-        accepted[ix] = b.active
-        resid[ix] = b.r_now * b.model.problem.measure_sigma[:, None]
+    with context as engine:
+        where = getattr(engine, "description", "in process")
+        n_blocks = 0
+        # the blocks without measures are dropped by the shards: the results name the blocks they hold
+        r0 = np.full((problem.n_measures, 2), np.nan)
+        for part in engine.call("initial_residuals", omega0):
+            for blk, r in part:
+                r0[index_of[blk]] = r
+        check_projectable(problem, r0)
+        initial_rms = float(np.sqrt(np.mean(r0 * r0)))
+        del r0
+        res = blocked_levenberg_marquardt(engine, setup, opt, initial_omega=omega0)
+        for part in engine.call("block_results"):
+            n_blocks += len(part)
+            for blk, pts, frz, act, r in part:
+                ix = index_of[blk]
+                p0 = int(point_start[blk])
+                points[p0:p0 + len(pts)] = pts
+                frozen[p0:p0 + len(pts)] = frz
+                accepted[ix] = act
+                resid[ix] = r
     rejected = ~accepted
     keep = accepted & ~frozen[problem.measure_point]
     sq = np.sum(resid * resid, axis=1)
@@ -140,6 +161,6 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
         weak_images=(n_img_acc < config.min_image_measures) & ~held, iterations=res.iterations,
         converged=res.converged, reason=res.reason, log=tuple(res.log), seconds=time.perf_counter() - t0,
         solve_seconds=res.seconds, linear_method=res.linear_method, dof=res.dof, diagnosis=diag,
-        extra={"blocked": {"blocks": len(shard.blocks), "block_points": int(block_points),
+        extra={"blocked": {"blocks": n_blocks, "block_points": int(block_points), "engine": where,
                            "posterior_sigmas": "not computed by the blocked adjustment"}},
     )

@@ -107,6 +107,10 @@ class AdjustConfig(ConfigSection):
         ("hemisphere", "global"), "Levels whose units may use the blocked adjustment (see blocked_min_measures)"
     )
     blocked_block_points: int = param(25000, "Points per block of the blocked adjustment", lo=1)
+    blocked_on_workers: bool = param(
+        True, "A blocked unit running on a Dask worker spreads its point blocks over the run's workers (one shard "
+        "actor each, the unit's task seceded while it drives the loop); false: its blocks stay in the unit's process"
+    )
     blocked_float32: bool = param(
         True, "The blocked adjustment stores W = Jc^T Jp, the measures and their sigmas in float32 (138 instead "
         "of 190 bytes a measure held; the same stationary point, observations rounded by < 1e-4 px: "

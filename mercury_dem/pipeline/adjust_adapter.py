@@ -122,6 +122,7 @@ def adjust_network(
     altimetry: Any = None,
     recentre_point_priors: bool = False,
     level: str | None = None,
+    engine_factory: Any = None,
 ) -> UnitAdjustment:
     """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
 
@@ -168,7 +169,7 @@ def adjust_network(
         from mercury_dem.adjust.blocked_bundle import blocked_bundle_adjust
 
         def solve(p: Any, c: AdjustConfig) -> Any:
-            return blocked_bundle_adjust(p, c, block_points=cfg.blocked_block_points)
+            return blocked_bundle_adjust(p, c, block_points=cfg.blocked_block_points, engine_factory=engine_factory)
     if cfg.point_prior_center == "datum":
         held = np.asarray(problem.held_points, bool)[:, None]
         problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))

@@ -7,6 +7,7 @@ mode runs the same graph, in the same order of dependencies, in this process.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from collections.abc import Callable, Iterator
@@ -297,7 +298,82 @@ class DaskShardEngine:
         self.actors = [f.result() for f in futures]
         self._futures = futures  # the actors live as long as these futures
         self.client = client
+        self.description = f"dask ({len(self.actors)} workers)"
+
+    @classmethod
+    def from_blocks(cls, client: Any, blocks: list[Any], setup: Any, opt: Any) -> DaskShardEngine:
+        """The engine over ``blocks`` held by the caller (a run's unit): scattered to the workers, not read there.
+
+        Contiguous runs of blocks, one per worker (at most one per block); each run is scattered
+        straight to its worker and its actor built there from it; the scattered copies are then
+        released (the actor's block states are what stays). The caller's own process keeps
+        nothing of the blocks once it drops them.
+        """
+        import numpy as np
+
+        from mercury_dem.adjust.blocked import BlockShard
+        from mercury_dem.exceptions import AdjustmentError
+
+        workers = sorted(client.scheduler_info()["workers"])
+        if not workers:
+            raise AdjustmentError("the Dask cluster has no workers for the blocked adjustment's point blocks")
+        runs = [r for r in np.array_split(np.arange(len(blocks)), min(len(workers), max(1, len(blocks)))) if len(r)]
+        self = cls.__new__(cls)
+        self.client = client
+        self.workers, futures = [], []
+        for w, r in zip(workers, runs):
+            data = client.scatter([blocks[int(k)] for k in r], workers=[w], hash=False)
+            futures.append(client.submit(BlockShard, data, setup, opt, actor=True, workers=[w],
+                                         allow_other_workers=False, pure=False))
+            self.workers.append(w)
+        self.actors = [f.result() for f in futures]
+        self._futures = futures
+        self.description = f"dask ({len(self.actors)} workers)"
+        return self
 
     def call(self, method: str, *args: Any) -> list[Any]:
         pending = [getattr(a, method)(*args) for a in self.actors]
         return [p.result() for p in pending]
+
+    def close(self) -> None:
+        """Release the actors (their workers free the blocks).
+
+        Cancelled rather than only released: the actor handles keep their own references to the
+        keys, and a unit's later passes (re-centring, altimetry) make new actors on the same workers.
+        """
+        futures, self._futures, self.actors = self._futures, [], []
+        if futures:
+            self.client.cancel(futures, force=True)
+
+
+@contextlib.contextmanager
+def worker_shard_engine(blocks: list[Any], setup: Any, opt: Any) -> Iterator[DaskShardEngine]:
+    """The run's blocked adjustment on the run's own Dask workers, from inside a unit's task.
+
+    For :func:`~mercury_dem.adjust.blocked_bundle.blocked_bundle_adjust`'s ``engine_factory``. The
+    unit's task leaves the worker's thread pool (``worker_client`` secedes it, and rejoins at the
+    end) while it drives the loop: its worker's slot can then run the actors' construction and
+    the other units' tasks, and a task that blocked on tasks it submitted could deadlock a
+    cluster whose slots are all taken by such tasks. Called outside a Dask worker (a sync run, a
+    test), ``worker_client`` raises ``ValueError``: use ``engine_factory=None`` there
+    (:func:`shard_engine_factory` decides).
+    """
+    from distributed import worker_client
+
+    with worker_client() as client:
+        engine = DaskShardEngine.from_blocks(client, blocks, setup, opt)
+        try:
+            yield engine
+        finally:
+            engine.close()
+
+
+def shard_engine_factory() -> Any:
+    """:func:`worker_shard_engine` when called inside a Dask worker's task, else None (one process)."""
+    try:
+        from distributed import get_worker
+
+        get_worker()
+    except (ImportError, ValueError):
+        return None
+    return worker_shard_engine

@@ -24,7 +24,8 @@ from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
 from mercury_dem.io.run_store import RunStore
-from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect
+from mercury_dem.pipeline.executors import (ADJUST_RESOURCE, Connection, as_completed, connect,
+                                            shard_engine_factory)
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.stages import (failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile,
                                          unit_name)
@@ -56,7 +57,10 @@ def _tile_task(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
 
 
 def _unit_task(run_root: str, level: str, unit_id: int, config: Config, children: list[dict[str, Any]]) -> dict[str, Any]:
-    return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children)
+    # a blocked adjustment (adjust.blocked_min_measures) of a unit running on a Dask worker spreads its point
+    # blocks over the run's workers (executors.worker_shard_engine); in a sync run it stays in this process
+    factory = shard_engine_factory() if config.adjust.blocked_on_workers else None
+    return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children, factory)
 
 
 class Progress:

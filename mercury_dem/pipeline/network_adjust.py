@@ -56,6 +56,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     res = blocked_levenberg_marquardt(engine, setup, opt)
     summaries = engine.call("summary")
     shard_rss = [int(x) for x in engine.call("peak_rss_bytes")]
+    shard_busy = [float(x) for x in engine.call("busy")]
     client_rss = _peak_rss()
     acc = np.sum([s["accepted_per_image"] for s in summaries], axis=0)
     sq = sum(s["sum_sq_px"] for s in summaries)
@@ -73,6 +74,9 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
         "weak_images": int(np.sum(acc < config.min_image_measures)),
         "peak_memory_bytes": max([client_rss, *shard_rss]),
         "peak_memory_bytes_client": client_rss, "peak_memory_bytes_shards": shard_rss,
+        # each shard's seconds computing in its blocks (load excluded): the rest of an iteration is the
+        # client's (sums, the camera solve) and the messages
+        "shard_busy_seconds": [round(x, 3) for x in shard_busy],
     }
     true_rot = net.truth_images()
     if true_rot is not None:

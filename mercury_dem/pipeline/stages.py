@@ -284,11 +284,12 @@ def child_ids(level: str, unit_id: int, config: Config) -> list[int]:
 
 
 def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
-                    children: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+                    children: list[dict[str, Any]] | None = None, engine_factory: Any = None) -> dict[str, Any]:
     """Merge the networks of a unit's children and bundle adjust them (region, hemisphere, globe).
 
     ``children`` are the children's summaries (passed so a task graph orders the
-    work; the data itself is read from the store).
+    work; the data itself is read from the store). ``engine_factory``: where a blocked
+    adjustment's point blocks go (:func:`~mercury_dem.pipeline.adjust_adapter.adjust_network`).
     """
     store = RunStore(run_root)
     if store.unit_complete(level, unit_id):
@@ -298,7 +299,7 @@ def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
     summary: dict[str, Any] = {"level": level, "id": int(unit_id), "name": name, "ok": False, "error": None}
     files: dict[str, Any] = {}
     try:
-        result = _adjust_unit(store, level, unit_id, config)
+        result = _adjust_unit(store, level, unit_id, config, engine_factory=engine_factory)
         files = result.pop("_files", {})
         summary.update(result)
         summary["ok"] = True
@@ -325,7 +326,7 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
             + " — images in no other network keep their a-priori pointing")
 
 
-def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> dict[str, Any]:
+def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engine_factory: Any = None) -> dict[str, Any]:
     from mercury_dem.pipeline.adjust_adapter import adjust_network
     from mercury_dem.network.merge import merge_networks
     from mercury_dem.network.store import read_network
@@ -369,7 +370,8 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config) -> d
     adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
                          initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
                          altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
-                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level)
+                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
+                         engine_factory=engine_factory)
     return {
         "children": kids,
         **adj.summary,

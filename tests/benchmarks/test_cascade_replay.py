@@ -26,6 +26,8 @@ replay_on_dask = _replay.replay_on_dask
 scale_plan = _replay.scale_plan
 scheduler_overhead = _replay.scheduler_overhead
 sleep_cluster = _replay.sleep_cluster
+BlockedCost = _replay.BlockedCost
+InMemoryCost = _replay.InMemoryCost
 
 
 def test_critical_path_hand_made_graph() -> None:
@@ -76,6 +78,56 @@ def test_list_schedule_bounds() -> None:
     assert narrow.makespan >= max(cp, sum(dur.values()) / 2) - 1e-9
     for k, ds in g.deps.items():  # no task starts before its inputs finish
         assert all(narrow.start[k] >= narrow.finish[d] - 1e-12 for d in ds)
+
+
+class _Graph:
+    """A hand-made DAG with the attributes list_schedule reads."""
+
+    def __init__(self, order: list[str], deps: dict[str, tuple[str, ...]]):
+        self.order, self.deps = order, deps
+
+
+def test_list_schedule_gang_waits_for_its_workers() -> None:
+    # a (10 s) and b (1 s) start on the 2 workers; g (needs both) is ready at 1 but waits for a;
+    # d (ready from the start, submitted after g) does not jump the queue
+    g = _Graph(["a", "b", "g", "d"], {"a": (), "b": (), "g": ("b",), "d": ()})
+    dur = {"a": 10.0, "b": 1.0, "g": 3.0, "d": 2.0}
+    gang = list_schedule(g, dur, 2, {"g": 2})
+    assert gang.start == {"a": 0.0, "b": 0.0, "g": 10.0, "d": 13.0}
+    assert gang.makespan == pytest.approx(15.0)
+    plain = list_schedule(g, dur, 2)
+    assert plain.start == {"a": 0.0, "b": 0.0, "g": 1.0, "d": 4.0}
+    # a width above the cluster is capped at the cluster; width 1 everywhere is the plain schedule
+    assert list_schedule(g, dur, 2, {"g": 99}).start == gang.start
+    assert list_schedule(g, dur, 2, {k: 1 for k in g.order}).finish == plain.finish
+
+
+def test_blocked_cost_model_scales_as_documented() -> None:
+    c = BlockedCost(measures=2e7, images=20_000, points=2_800_000, workers=2, seconds_per_iteration=100.0,
+                    worker_seconds_per_iteration=80.0, iterations=10, load_seconds=40.0, worker_peak_bytes=3e9,
+                    client_peak_bytes=1e9, call_seconds=0.0)
+    # the measured point is reproduced: 10 x 100 s + 40 s load, 3 GB per worker, 1 GB client
+    assert c.unit_seconds(2e7, 20_000, 2) == pytest.approx(1040.0)
+    assert c.unit_bytes(2e7, 20_000, 2) == pytest.approx((3e9, 1e9))
+    # 4x the workers: the workers' share and the load / 4, the client's 20 s stays
+    assert c.unit_seconds(2e7, 20_000, 8) == pytest.approx(10 * (20.0 + 20.0) + 10.0)
+    # shards are whole blocks: 2.8e6 points / 25,000 = 112 blocks, so 648 workers give 112 shards
+    assert c.shards(2e7, 648) == 112
+    assert c.unit_seconds(2e7, 20_000, 648) == pytest.approx(c.unit_seconds(2e7, 20_000, 112))
+    # the client's share grows with the images, the per-call cost with the shards
+    assert c.client_seconds_per_iteration(40_000, 2) == pytest.approx(40.0)
+    c2 = BlockedCost(**{**c.__dict__, "call_seconds": 0.01, "calls_per_iteration": 10,
+                        "seconds_per_iteration": 100.2})
+    assert c2.client_seconds_per_iteration(20_000, 50) == pytest.approx(20.0 + 5.0)
+    # from an adjust-network record: the mean iteration (the shards' busy seconds are a total), the slower shard
+    rec = {"measures": 2e7, "images": 20_000, "points": 2_800_000, "iterations": 4, "seconds_per_iteration": [1, 1, 1, 9],
+           "shard_busy_seconds": [6.0, 8.0], "load_seconds": 3.0, "setup_seconds": 1.0,
+           "peak_memory_bytes_shards": [2e9, 3e9], "peak_memory_bytes_client": 1e9}
+    r = BlockedCost.from_record(rec, call_seconds=0.0)
+    assert (r.seconds_per_iteration, r.worker_seconds_per_iteration, r.load_seconds, r.workers) == (3.0, 2.0, 4.0, 2)
+    assert r.worker_peak_bytes == 3e9 and r.client_seconds_per_iteration(20_000, 2) == pytest.approx(1.0)
+    m = InMemoryCost(measures=1e6, seconds=100.0, peak_bytes=1e9)
+    assert m.unit_seconds(3e6) == pytest.approx(300.0) and m.unit_bytes(3e6) == pytest.approx(3e9)
 
 
 def _fake_run(root: Path) -> None:

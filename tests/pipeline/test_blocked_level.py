@@ -8,6 +8,7 @@ with float64 storage to solver tolerance, with the default float32 storage withi
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -45,3 +46,46 @@ def test_global_unit_blocked_equals_in_memory(sync_run: tuple[Path, dict[str, An
     # a hemisphere unit below the threshold keeps the in-memory path
     hemi = _adjust_unit(store, "hemisphere", 0, tiny_config(adjust={"blocked_min_measures": 10**9}))
     assert "blocked" not in hemi
+
+
+def _global_unit_on_worker(run: str, config: Any) -> dict[str, Any]:
+    """What ``graph._unit_task`` does on a worker, without writing the unit (the fixture's store is shared)."""
+    from mercury_dem.pipeline.executors import shard_engine_factory
+
+    factory = shard_engine_factory()
+    assert factory is not None  # inside a Dask worker's task
+    return _adjust_unit(RunStore(run), "global", 0, config, engine_factory=factory)
+
+
+def test_global_unit_blocks_on_the_runs_dask_workers(sync_run: tuple[Path, dict[str, Any]]) -> None:
+    """The unit's task, on a worker of a 2-worker LocalCluster, spreads its blocks over both workers
+    (shard actors, the task seceded meanwhile) and gets the in-process blocked solution."""
+    from distributed import Client
+
+    from mercury_dem.pipeline.executors import local_cluster, shard_engine_factory
+
+    assert shard_engine_factory() is None  # not in a worker: in process
+    run, _ = sync_run
+    cfg = tiny_config(adjust={"blocked_min_measures": 0, "blocked_block_points": 150, "blocked_float32": False})
+    ref = _adjust_unit(RunStore(run), "global", 0, cfg)
+    assert ref["blocked"]["engine"] == "in process"
+    with local_cluster(2, 1, processes=False, memory_limit=0) as cluster, Client(cluster) as client:
+        got = client.submit(_global_unit_on_worker, str(run), cfg, pure=False).result()
+        # the actors were released when the unit finished: nothing is left on the workers (freed asynchronously)
+        for _ in range(50):
+            left = client.run(lambda dask_worker: len(dask_worker.state.actors) + len(dask_worker.data))
+            if not any(left.values()):
+                break
+            time.sleep(0.1)
+        assert not any(left.values()), left
+    assert got["blocked"]["engine"] == "dask (2 workers)"
+    assert got["blocked"]["blocks"] == ref["blocked"]["blocks"] >= 2
+    assert got["iterations"] == ref["iterations"] and got["rejected"] == ref["rejected"]
+    a, b = ref["_files"], got["_files"]
+    assert np.array_equal(a["solution"]["image_ids"], b["solution"]["image_ids"])
+    # two shards sum the reduced system in another order than one: equal to rounding, not bit for bit
+    assert np.abs(a["solution"]["rotations"] - b["solution"]["rotations"]).max() < 1e-10
+    assert np.array_equal(a["network"].measure_rejected, b["network"].measure_rejected)
+    assert np.allclose(a["network"].residuals, b["network"].residuals, atol=1e-6, equal_nan=True)
+    assert np.allclose(a["network"].adjusted_xyz, b["network"].adjusted_xyz, atol=1e-3, equal_nan=True)  # metres
+    assert got["sigma0"] == pytest.approx(ref["sigma0"], rel=1e-9)

@@ -202,11 +202,18 @@ class Schedule:
         return {lvl: max(self.finish[k] for k in graph.keys(lvl)) for lvl in LEVELS if graph.keys(lvl)}
 
 
-def list_schedule(graph: CascadeGraph, durations: Mapping[str, float], n_workers: int) -> Schedule:
+def list_schedule(graph: CascadeGraph, durations: Mapping[str, float], n_workers: int,
+                  width: Mapping[str, int] | None = None) -> Schedule:
     """Greedy schedule: whenever a worker is free it takes the ready task submitted first.
 
     This is Dask's behaviour for a graph submitted up front without priorities, with
     zero scheduler overhead; :func:`replay_on_dask` measures the real thing.
+
+    ``width``: tasks that occupy several workers at once (a blocked adjustment whose point
+    blocks are spread over the cluster: a gang), at most ``n_workers``; 1 for the others. A
+    gang at the head of the ready queue waits until that many workers are free, and nothing
+    submitted after it starts meanwhile (no backfilling: the simplest policy that cannot
+    starve the gang; it wastes the free workers while the gang waits, so it is pessimistic).
     """
     rank = {k: n for n, k in enumerate(graph.order)}
     waiting = {k: len(graph.deps[k]) for k in graph.order}
@@ -214,22 +221,27 @@ def list_schedule(graph: CascadeGraph, durations: Mapping[str, float], n_workers
     for k, ds in graph.deps.items():
         for d in ds:
             children[d].append(k)
+    wide = {k: max(1, min(int(v), n_workers)) for k, v in (width or {}).items()}
     ready = [rank[k] for k in graph.order if waiting[k] == 0]
     heapq.heapify(ready)
-    running: list[tuple[float, int]] = []  # (finish time, rank)
+    running: list[tuple[float, int, int]] = []  # (finish time, rank, workers held)
     free, now = n_workers, 0.0
     start: dict[str, float] = {}
     finish: dict[str, float] = {}
     while ready or running:
         while ready and free > 0:
-            k = graph.order[heapq.heappop(ready)]
+            k = graph.order[ready[0]]
+            w = wide.get(k, 1)
+            if w > free:
+                break  # the gang at the head waits for its workers
+            heapq.heappop(ready)
             start[k] = now
-            heapq.heappush(running, (now + float(durations[k]), rank[k]))
-            free -= 1
-        now, r = heapq.heappop(running)
+            heapq.heappush(running, (now + float(durations[k]), rank[k], w))
+            free -= w
+        now, r, w = heapq.heappop(running)
         done = graph.order[r]
         finish[done] = now
-        free += 1
+        free += w
         for c in children[done]:
             waiting[c] -= 1
             if waiting[c] == 0:
@@ -320,6 +332,129 @@ def scale_plan(timings: Mapping[str, list[UnitTiming]], target: TargetSize, alph
         "images_per_tile": {"mean": float(n_img.mean()), "max": float(n_img.max()), "min": float(n_img.min())},
     }
     return ScaledPlan(graph=graph, durations=durations, images=images, measures=measures, notes=notes)
+
+
+# --------------------------------------------------------------------------- adjustment cost models
+@dataclass(frozen=True)
+class InMemoryCost:
+    """The in-memory adjuster (one process per unit) measured at one size, scaled linearly in measures.
+
+    Defaults: ``bundle_adjust`` on 4,946,512 measures, 342.3 s (10 iterations) and 4.11 GB peak
+    (docs/benchmarks/adjust.md, "Synthetic planetary networks", 2026-11-22).
+    """
+
+    measures: float = 4_946_512
+    seconds: float = 342.3
+    peak_bytes: float = 4.11e9
+
+    def unit_seconds(self, measures: float) -> float:
+        return self.seconds * measures / self.measures
+
+    def unit_bytes(self, measures: float) -> float:
+        return self.peak_bytes * measures / self.measures
+
+
+@dataclass(frozen=True)
+class BlockedCost:
+    """The blocked distributed adjustment measured on ``workers`` workers, and its model on ``P`` shards.
+
+    Measured (``adjust-network --workers 2 --json`` on one store): ``seconds_per_iteration``
+    (mean), ``worker_seconds_per_iteration`` (the slowest shard's seconds in its blocks'
+    computations over the run / iterations: ``shard_busy_seconds``), ``iterations``,
+    ``load_seconds`` (actors reading their blocks), the peak memory of the largest worker and
+    of the client, at ``measures`` measures and ``images`` images. Modelled (not measured at
+    other sizes or shard counts):
+
+    - the workers' share of an iteration is linear in the measures a shard holds
+      (``measures / P``; measured exponent 0.91 between 10^7 and 2.5*10^7 on 2 workers, so
+      linear is pessimistic);
+    - the client's share (the rest of the iteration: summing the shards' camera-pair blocks,
+      the PCG solve of the camera system, messages) is linear in the unit's images (a PCG
+      iteration is linear in the system's nonzero blocks; the CG iteration count is assumed
+      not to grow);
+    - every actor call costs the client ``call_seconds`` per shard (``calls_per_iteration``
+      calls an iteration; ``call_seconds`` is the measured per-task Dask overhead on this
+      machine, docs/benchmarks/cascade.md: 3.55-8.7 ms);
+    - ``P`` = min(workers, blocks): a shard holds whole blocks of ``block_points`` points
+      (``points_per_measure`` of the measured network);
+    - the largest worker's memory: the measured peak plus ``worker_bytes_per_measure`` (242 B,
+      the measured growth 10^7 -> 2.5*10^7) per measure more or less than the measured shard
+      held; the client's: measured peak scaled linearly with the images.
+    """
+
+    measures: float = 25_948_126
+    images: int = 26_596
+    points: int = 3_571_151
+    workers: int = 2
+    seconds_per_iteration: float = 89.0
+    worker_seconds_per_iteration: float = float("nan")
+    iterations: int = 9
+    load_seconds: float = float("nan")
+    worker_peak_bytes: float = 3.73e9
+    client_peak_bytes: float = 1.33e9
+    worker_bytes_per_measure: float = 242.0
+    block_points: int = 25_000
+    call_seconds: float = 0.00355
+    calls_per_iteration: int = 12
+
+    @classmethod
+    def from_record(cls, rec: Mapping[str, Any], **kw: Any) -> BlockedCost:
+        """From an ``adjust-network --json`` record (with ``shard_busy_seconds`` and ``log``)."""
+        its = int(rec["iterations"])
+        return cls(measures=float(rec["measures"]), images=int(rec["images"]), points=int(rec["points"]),
+                   workers=len(rec["peak_memory_bytes_shards"]),
+                   # the mean, not the median: the shards' busy seconds are a total over the same iterations
+                   seconds_per_iteration=float(np.sum(rec["seconds_per_iteration"])) / its,
+                   worker_seconds_per_iteration=float(max(rec["shard_busy_seconds"])) / its, iterations=its,
+                   load_seconds=float(rec["load_seconds"]) + float(rec["setup_seconds"]),
+                   worker_peak_bytes=float(max(rec["peak_memory_bytes_shards"])),
+                   client_peak_bytes=float(rec["peak_memory_bytes_client"]), **kw)
+
+    def shards(self, measures: float, n_workers: int) -> int:
+        blocks = max(1, int(np.ceil(measures * self.points / self.measures / self.block_points)))
+        return max(1, min(int(n_workers), blocks))
+
+    def client_seconds_per_iteration(self, images: float, n_shards: int) -> float:
+        fixed = max(0.0, self.seconds_per_iteration - self.worker_seconds_per_iteration
+                    - self.calls_per_iteration * self.workers * self.call_seconds)
+        return fixed * images / self.images + self.calls_per_iteration * n_shards * self.call_seconds
+
+    def unit_seconds(self, measures: float, images: float, n_workers: int) -> float:
+        p = self.shards(measures, n_workers)
+        share = measures / self.measures * self.workers / p
+        per_it = self.worker_seconds_per_iteration * share + self.client_seconds_per_iteration(images, p)
+        return self.iterations * per_it + self.load_seconds * share
+
+    def unit_bytes(self, measures: float, images: float, n_workers: int) -> tuple[float, float]:
+        """(largest worker, client) peak bytes."""
+        p = self.shards(measures, n_workers)
+        w = self.worker_peak_bytes + self.worker_bytes_per_measure * (measures / p - self.measures / self.workers)
+        return max(w, 0.0), self.client_peak_bytes * images / self.images
+
+
+def with_adjustment(plan: ScaledPlan, levels: Sequence[str], model: InMemoryCost | BlockedCost,
+                    n_workers: int = 1) -> tuple[dict[str, float], dict[str, int], dict[str, dict[str, float]]]:
+    """The plan's durations with ``levels``' units costed by ``model``; their widths and memory.
+
+    Returns (durations, width: workers each unit of ``levels`` occupies, per unit
+    ``{"measures", "seconds", "worker_bytes", "client_bytes", "shards"}``).
+    """
+    durations = dict(plan.durations)
+    width: dict[str, int] = {}
+    detail: dict[str, dict[str, float]] = {}
+    for lvl in levels:
+        for k in plan.graph.keys(lvl):
+            m, n = plan.measures[k], plan.images[k]
+            if isinstance(model, BlockedCost):
+                durations[k] = model.unit_seconds(m, n, n_workers)
+                width[k] = model.shards(m, n_workers)
+                wb, cb = model.unit_bytes(m, n, n_workers)
+            else:
+                durations[k] = model.unit_seconds(m)
+                wb, cb = model.unit_bytes(m), 0.0
+            detail[k] = {"measures": m, "seconds": durations[k], "worker_bytes": wb, "client_bytes": cb,
+                         "shards": float(width.get(k, 1))}
+    return durations, width, detail
 
 
 # --------------------------------------------------------------------------- Dask replay
