@@ -234,8 +234,8 @@ class LevelTask(_Line):
         self.reporter = reporter
         self.label = label
         self.totals = dict(totals)
-        self.done = {k: 0 for k in totals}
-        self.failed = {k: 0 for k in totals}
+        self.done = dict.fromkeys(totals, 0)
+        self.failed = dict.fromkeys(totals, 0)
         self.first_done: dict[str, float] = {}
         self.t0 = reporter.clock()
         self._last = -1e300

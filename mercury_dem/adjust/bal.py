@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.adjust.kernels import bal_project
 from mercury_dem.adjust.solver import SolverOptions, SolverResult, levenberg_marquardt
+from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles
 
 

@@ -78,7 +78,8 @@ def _rms_by(groups: NDArray[np.int64], sq: NDArray[np.float64], keep: NDArray[np
 
 def check_projectable(problem: AdjustmentProblem, r0: NDArray[np.float64]) -> None:
     """Raise :class:`AdjustmentError` naming the measures whose a-priori residuals ``r0`` are not finite
-    (the point behind the camera): the adjustment cannot start from such a state."""
+    (the point behind the camera): the adjustment cannot start from such a state.
+    """
     bad0 = ~np.all(np.isfinite(r0), axis=1)
     if bad0.any():
         which = np.flatnonzero(bad0)[:10]

@@ -30,7 +30,8 @@ def normal_blocks(
     w: NDArray[np.float64],
 ) -> None:
     """Accumulate U += Jc^T Jc, g_c += Jc^T r (per camera), V += Jp^T Jp, g_p += Jp^T r
-    (per point), and set W[m] = Jc^T Jp per measure. Rows are (M, 2, .) blocks."""
+    (per point), and set W[m] = Jc^T Jp per measure. Rows are (M, 2, .) blocks.
+    """
     c = jc.shape[2]
     for m in range(r.shape[0]):
         i = cam[m]
@@ -158,7 +159,8 @@ def bal_project(
     with_jacobian: bool,
 ) -> None:
     """BAL residuals (M, 2) and, when asked, Jacobians d r/d(dtheta, t, f, k1, k2) (M, 2, 9)
-    and d r/d X (M, 2, 3); see :mod:`mercury_dem.adjust.bal` for the model."""
+    and d r/d X (M, 2, 3); see :mod:`mercury_dem.adjust.bal` for the model.
+    """
     for m in range(cam.shape[0]):
         i = cam[m]
         j = pt[m]

@@ -73,7 +73,8 @@ def residuals_table(result: AdjustmentResult) -> pd.DataFrame:
 
 def text_report(result: AdjustmentResult, config: AdjustConfig | None = None, title: str = "bundle adjustment") -> str:
     """Human-readable summary: network, constraints, convergence, sigma0 per iteration, residual statistics,
-    flagged images and points, worst images."""
+    flagged images and points, worst images.
+    """
     config = config or AdjustConfig()
     n_img, n_pt, m = len(result.image_ids), len(result.point_ids), result.n_measures
     lines = [
@@ -132,7 +133,8 @@ def write_adjustment_report(
     result: AdjustmentResult, directory: str | Path, config: AdjustConfig | None = None
 ) -> dict[str, Path]:
     """Write ``bundleout.txt``, ``images.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json``
-    into ``directory`` (each atomically). Returns the paths by name."""
+    into ``directory`` (each atomically). Returns the paths by name.
+    """
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}

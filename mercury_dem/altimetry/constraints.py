@@ -362,7 +362,7 @@ class AltimetryShotsArrays:
     sigma_m: NDArray[np.float64] | float = 1.0
 
     @classmethod
-    def from_table(cls, table: Any, default_sigma_m: float = 1.0) -> "AltimetryShotsArrays":
+    def from_table(cls, table: Any, default_sigma_m: float = 1.0) -> AltimetryShotsArrays:
         """From a shot DataFrame (:mod:`mercury_dem.reference.lola` columns; ``sigma_m`` when present)."""
         sigma = table["sigma_m"].to_numpy(np.float64) if "sigma_m" in table else default_sigma_m
         return cls(table["lat"].to_numpy(np.float64), table["lon"].to_numpy(np.float64),

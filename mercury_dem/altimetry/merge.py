@@ -87,7 +87,8 @@ def transform_table(transforms: Sequence[TileTransform], tiles: TileGrid) -> tup
 def _tent_corners(tiles: TileGrid, lat: NDArray[np.float64], lon: NDArray[np.float64]
                   ) -> tuple[tuple[NDArray[np.int64], ...], tuple[NDArray[np.float64], ...]]:
     """The four tiles around each point (flat tile indices) and their bilinear tent weights over tile centres
-    (wrapping in longitude, clamped in latitude; NaN positions get finite indices, their values stay NaN)."""
+    (wrapping in longitude, clamped in latitude; NaN positions get finite indices, their values stay NaN).
+    """
     s = tiles.tile_size_deg
     fr = np.clip(np.nan_to_num((lat - (-90.0 + s / 2)) / s), 0.0, tiles.n_rows - 1)
     fc = np.nan_to_num(wrap_longitude(lon - s / 2) / s)

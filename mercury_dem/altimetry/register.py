@@ -454,7 +454,7 @@ class ProfileOffsets:
     fitted: NDArray[np.bool_]
 
     @staticmethod
-    def empty() -> "ProfileOffsets":
+    def empty() -> ProfileOffsets:
         z = np.zeros(0)
         zi = np.zeros(0, dtype=np.int64)
         return ProfileOffsets(zi, zi, np.zeros((0, 3)), np.zeros((0, 3)), z, z, zi, zi, z, z, np.zeros(0, bool))
@@ -471,7 +471,7 @@ class ProfileOffsets:
         return pd.DataFrame(d)
 
     @staticmethod
-    def concat(parts: list["ProfileOffsets"]) -> "ProfileOffsets":
+    def concat(parts: list[ProfileOffsets]) -> ProfileOffsets:
         parts = [p for p in parts if p.track_id.size]
         if not parts:
             return ProfileOffsets.empty()

@@ -300,7 +300,8 @@ def _empty() -> SimulatedAltimetry:
 def screen_shots(shots: pd.DataFrame, body_radius_m: float,
                  radius_tolerance_m: float = 25_000.0) -> tuple[pd.DataFrame, dict[str, int]]:
     """Drop what an RDR reader drops (:mod:`mercury_dem.reference.lola`): non-finite, off the body
-    (beyond ``body_radius_m`` ± tolerance), flagged; return the kept shots and the counts by reason."""
+    (beyond ``body_radius_m`` ± tolerance), flagged; return the kept shots and the counts by reason.
+    """
     lat, lon, rad = (shots[c].to_numpy(np.float64) for c in ("lat", "lon", "radius_m"))
     finite = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(rad) & (np.abs(lat) <= 90)
     in_range = np.abs(rad - body_radius_m) <= radius_tolerance_m

@@ -32,9 +32,8 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     import numpy as np
 
-    from mercury_dem.pipeline.network_adjust import adjust_network_store
-
     from mercury_dem.config.apriori import adjust_config_with_sigma
+    from mercury_dem.pipeline.network_adjust import adjust_network_store
 
     # no mission here: apriori.pointing_sigma_urad when set, else the adjusters' default (0.2 deg)
     cfg = adjust_config_with_sigma(config.adjust, config.apriori.pointing_sigma_urad)

@@ -26,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _run_truth(d: Path) -> Any:
     """The truth height of DIR's mission when DIR is a run of a mission with truth (as ``mercury-dem run``
-    gives its products), else None. A run whose mission has moved gets its products without truth."""
+    gives its products), else None. A run whose mission has moved gets its products without truth.
+    """
     import json
     import sys
 

@@ -31,10 +31,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    import resource
+
     from mercury_dem.network.synthetic import SyntheticSpec
     from mercury_dem.network.synthetic_store import write_synthetic_network
     from mercury_dem.progress import Reporter
-    import resource
 
     spec = SyntheticSpec(int(args.measures), seed=args.seed, outlier_fraction=args.outlier_fraction,
                          measures_per_image=args.measures_per_image, block_points=args.block_points)

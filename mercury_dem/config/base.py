@@ -12,7 +12,7 @@ import dataclasses
 import math
 import types
 import typing
-from dataclasses import MISSING, field, fields, is_dataclass
+from dataclasses import field, fields, is_dataclass
 from typing import Any, get_type_hints
 
 from mercury_dem.exceptions import ConfigError

@@ -128,7 +128,8 @@ class SphereBuckets:
 def _occupancy(lat, lon, c, nlat, nlon, nbin):  # pragma: no cover - compiled
     """One pass over the footprints: coarse lat/lon cells holding points (``nlat x nlon`` of
     edge c radians), the least and greatest longitude in each 2 pi / nbin longitude bin
-    (+inf / -inf where empty), and the latitude range."""
+    (+inf / -inf where empty), and the latitude range.
+    """
     occ = np.zeros(nlat * nlon, dtype=np.bool_)
     bin_lo = np.full(nbin, np.inf)
     bin_hi = np.full(nbin, -np.inf)
@@ -430,7 +431,8 @@ def build_buckets(
 @numba.njit(cache=True, inline="always")
 def _band_run(lo, hi, iw, last, lon_span, f, cell_start, out, n):  # pragma: no cover
     """Append to ``out`` the run of sorted points in the cells of the band starting at cell f
-    (cells 0..last, iw cells per radian) that meet the longitudes [lo, hi]; return the count."""
+    (cells 0..last, iw cells per radian) that meet the longitudes [lo, hi]; return the count.
+    """
     j0 = 0 if lo <= 0.0 else min(int(math.floor(lo * iw)), last)
     j1 = last if hi >= lon_span else min(int(math.floor(hi * iw)), last)
     out[n, 0] = cell_start[f + j0]
@@ -645,7 +647,8 @@ def _centres(lat_deg, lon_deg, rs, lon0, phi, c, z, icp, u, cl, sl):  # pragma: 
 def _centre(p, paired, ncol, phi_r, u_c, c_r, cl_c, sl_c, z_r, icp_r):  # pragma: no cover
     """Pixel p's centre: (latitude, longitude from the cells' origin, x, y, z, 1 / cos(latitude)) from
     the per-row/column tables;
-    ``paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid)."""
+    ``paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid).
+    """
     if paired:
         i = p
         j = p
@@ -825,7 +828,8 @@ def _knn_set(xyz, lat0, inv_bh, lon_span, band_invw, band_first, cell_start, phi
 @numba.njit(cache=True, inline="always")
 def _sort11(r):  # pragma: no cover
     """Sort r[:11] ascending in place with a 35-comparator sorting network (min/max pairs, no
-    branches; checked on all 2**11 0/1 inputs in the tests). Same values as any sort."""
+    branches; checked on all 2**11 0/1 inputs in the tests). Same values as any sort.
+    """
     v0, v1, v2, v3, v4, v5, v6, v7, v8, v9, v10 = r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10]
     v0, v9 = min(v0, v9), max(v0, v9)
     v1, v6 = min(v1, v6), max(v1, v6)
@@ -930,7 +934,8 @@ def _median_filtered(r, s, n, sigma):  # pragma: no cover
 def _angle_up(chord, rs):  # pragma: no cover
     """An upper bound of :func:`_angle` without the arcsine for small caps: with x = chord / 2 rs
     < SMALL_ANGLE, 2 asin(x) = 2 (x + x^3/6 + 3 x^5/40 + ...) <= 2 x (1 + x^2 / 5). A cap at
-    least as wide as needed is exact all the same (only its cost differs)."""
+    least as wide as needed is exact all the same (only its cost differs).
+    """
     x = chord / (2.0 * rs)
     if x < SMALL_ANGLE:
         return 2.0 * x * (1.0 + 0.2 * x * x)
@@ -1113,7 +1118,8 @@ def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating],
 
 def _search_tables(b: SphereBuckets) -> tuple[Any, ...]:
     """The index as the kernels read it: points, radii, the bands' origin and 1 / height, the
-    longitude span, each band's cells per radian, the bands' first cells and the cells' starts."""
+    longitude span, each band's cells per radian, the bands' first cells and the cells' starts.
+    """
     return (b.xyz, b.radius, b.lat0, 1.0 / b.band_h, b.lon_span, b.band_ncell / b.lon_span, b.band_first,
             b.cell_start)
 

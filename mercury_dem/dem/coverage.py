@@ -86,7 +86,8 @@ class CoverageResult:
 
     def to_dataset(self) -> Any:
         """An xarray Dataset of the two maps (coordinates in km on the sinusoidal grid), with its
-        CRS as a CF grid mapping ``spatial_ref`` (rioxarray; written to Zarr with the maps)."""
+        CRS as a CF grid mapping ``spatial_ref`` (rioxarray; written to Zarr with the maps).
+        """
         import pyproj
         import rioxarray  # noqa: F401  (registers .rio)
         import xarray as xr

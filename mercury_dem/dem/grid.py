@@ -166,7 +166,8 @@ class PointIndex:
     @cached_property
     def tree(self) -> Any:
         """kd-tree of the footprints (``scipy.spatial.cKDTree``, same order as ``radius``), built on first use
-        (scipy imported here: the bucket path of a plain ``mercury-dem grid`` never needs it)."""
+        (scipy imported here: the bucket path of a plain ``mercury-dem grid`` never needs it).
+        """
         from scipy.spatial import cKDTree
 
         # Sliding-midpoint (unbalanced) tree: builds in about half the time, queries as fast.

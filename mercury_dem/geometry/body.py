@@ -75,7 +75,8 @@ class Body:
 
     def crs(self, kind: str = "geographic") -> str:
         """The IAU 2015 CRS code of a product kind: geographic, equirectangular, equirectangular_180,
-        north_polar, south_polar, robinson_180."""
+        north_polar, south_polar, robinson_180.
+        """
         offsets = {"geographic": 0, "equirectangular": 10, "equirectangular_180": 15, "north_polar": 30,
                    "south_polar": 35, "robinson_180": 55}
         if kind not in offsets:
@@ -104,7 +105,7 @@ class Body:
                 "datum_radius_m": self.datum_radius_m, "iau_code": self.iau_code, "datum_crs": self.datum_crs}
 
     @staticmethod
-    def from_dict(d: dict[str, object]) -> "Body":
+    def from_dict(d: dict[str, object]) -> Body:
         """A body from :meth:`to_dict`'s mapping; a known name alone gives the catalogued body."""
         if not isinstance(d, dict):
             raise ValueError(f"a body is an object of name, naif_id, radius_m, ...; got {type(d).__name__}")

@@ -193,7 +193,7 @@ class FramingCamera:
         det = a * d - b * c
         return np.array([[d / det, -b / det], [-c / det, a / det]])
 
-    def with_size(self, samples: int) -> "FramingCamera":
+    def with_size(self, samples: int) -> FramingCamera:
         """The same camera read out at ``samples`` x ``samples`` by on-chip summing.
 
         The detector is ``samples * summing`` pixels wide; a smaller readout sums

@@ -320,7 +320,8 @@ def label_values(label: Mapping[str, Any]) -> dict[str, float]:
 @dataclass(frozen=True)
 class Comparison:
     """One row of ours-vs-label: ``difference`` is ours - label (wrapped for longitudes;
-    a fraction for ``kind == "rel"``); ``ok`` is None when no tolerance applies."""
+    a fraction for ``kind == "rel"``); ``ok`` is None when no tolerance applies.
+    """
 
     quantity: str
     ours: float

@@ -75,7 +75,7 @@ class AlphaCube:
                                 f"{self.scale_sample}, {self.scale_line}")
 
     @classmethod
-    def from_isis(cls, group: Mapping[str, Any]) -> "AlphaCube":
+    def from_isis(cls, group: Mapping[str, Any]) -> AlphaCube:
         """From the keywords of an ISIS ``Group = AlphaCube`` (1-based: ``alpha = slope (beta - 0.5) + start``)."""
         try:
             s0, s1 = float(group["AlphaStartingSample"]), float(group["AlphaEndingSample"])
@@ -149,7 +149,8 @@ def _distortion_model(keywords: Mapping[str, Any], prefix: str) -> str:
 def _focal_length(keywords: Mapping[str, Any], prefix: str, override: float | None,
                   temperature_c: float | None) -> float:
     """ISIS MdisCamera::computeFocalLength order: stored TempDependentFocalLength, the FL_TEMP_COEFFS
-    polynomial at the focal-plane temperature, FOCAL_LENGTH."""
+    polynomial at the focal-plane temperature, FOCAL_LENGTH.
+    """
     if override is not None:
         return float(override)
     if "TempDependentFocalLength" in keywords:

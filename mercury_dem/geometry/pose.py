@@ -13,7 +13,7 @@ image along line and sample, omega_z twists it about the boresight.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray

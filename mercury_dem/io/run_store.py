@@ -38,9 +38,9 @@ from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import CorruptUnitError, StoreError
 from mercury_dem.io.atomic import _tmp_sibling, atomic_write_json, is_complete, verify_complete
-from mercury_dem.io.tables import read_table
 from mercury_dem.io.location import resolve_location
 from mercury_dem.io.remote import RemoteDir, cache_dir_for
+from mercury_dem.io.tables import read_table
 from mercury_dem.plan.tree import LEVELS
 
 if TYPE_CHECKING:  # imported where tables are read or written: 'report' and 'verify' need neither
@@ -75,7 +75,7 @@ class RunStore:
         object.__setattr__(self, "root", Path(root))
 
     @classmethod
-    def open(cls, root: str | Path) -> "RunStore":
+    def open(cls, root: str | Path) -> RunStore:
         store = cls(root)
         if not store.has_run():
             r = store.location
@@ -151,7 +151,8 @@ class RunStore:
 
     def fetch_zarr(self, name: str) -> bool:
         """Make the cached ``RUN/name`` the bucket's committed Zarr store; False (and no cached copy) when
-        the bucket has none. A local run: whether the store exists."""
+        the bucket has none. A local run: whether the store exists.
+        """
         if self.url is None:
             return (self.root / name).exists()
         ok = self.remote.fetch_dir(name, self.root / name, last="zarr.json", token_marker=False,
@@ -387,8 +388,6 @@ def write_solution(path: Path, image_ids: np.ndarray, rotations: np.ndarray, pos
 
 def read_solution(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, pd.DataFrame]:
     """(image_ids, rotations (N,3,3), positions (N,3), the whole table)."""
-    import numpy as np
-
     df = read_table(path, "solution")
     rot = df[[f"rotation_{i}{j}" for i in range(3) for j in range(3)]].to_numpy().reshape(-1, 3, 3)
     pos = df[["position_x", "position_y", "position_z"]].to_numpy()

@@ -21,9 +21,10 @@ Per tile (``match_tile``): every image's features in its own geometry are comput
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -327,7 +328,8 @@ def _match_pair(
 ) -> PairResult | _PairState:
     """The pair up to its matches in the pair frame (a :class:`_PairState`), or a failed/skipped result.
 
-    ``keep_warped``: the state keeps the warped partner and its valid mask (for propagation)."""
+    ``keep_warped``: the state keeps the warped partner and its valid mask (for propagation).
+    """
     cv2.setRNGSeed(config.ransac_seed)
     cam_r, cam_m = ref_geom.camera, match_geom.camera
     if rf is None:
@@ -411,7 +413,8 @@ def _match_core(
     rep: PairReport,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], Any]:
     """Match ``other`` onto ``base`` (kept in its own geometry): base keypoint ids, base pixels,
-    warped-frame pixels and scores of the matches, and (warped image, valid mask)."""
+    warped-frame pixels and scores of the matches, and (warped image, valid mask).
+    """
     fa = base.features
     h = pg.homography
     warped, valid = warp_to_reference(other.image, h, base.image.shape, pg.match_px_per_ref_px, config.psf_sigma_px)
@@ -510,7 +513,8 @@ def _pair_flow(base_pattern: NDArray[np.float32], warped_pattern: NDArray[np.flo
 def _read_flow(flow: Flow, base_pts: NDArray[np.float64], partner_pts: NDArray[np.float64], config: MatchConfig,
                ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
     """Partner positions read from the flow at ``base_pts``, where the flow is usable, and where they
-    agree with ``partner_pts`` within ``flow_tolerance_px``."""
+    agree with ``partner_pts`` within ``flow_tolerance_px``.
+    """
     d, usable = flow_at(flow, base_pts)
     q = base_pts + d
     return q, usable, np.linalg.norm(q - partner_pts, axis=1) <= config.flow_tolerance_px
@@ -701,7 +705,8 @@ _NCC_PREDICT_MIN = 5
 
 def _ncc_predicted_radius(d: NDArray[np.float64], offset: NDArray[np.float64]) -> float:
     """Search half-width around a predicted position: 3 px plus 3 robust sigmas of the displacements (at
-    least 0.5 px: the first pass's integer peaks can all agree while relief parallax still varies)."""
+    least 0.5 px: the first pass's integer peaks can all agree while relief parallax still varies).
+    """
     spread = 1.4826 * float(np.median(np.linalg.norm(d - offset, axis=1)))
     return 3.0 + 3.0 * max(spread, 0.5)
 
@@ -721,7 +726,8 @@ def _shifted(mask: NDArray[np.bool_], offset: NDArray[np.float64]) -> NDArray[np
 def _ncc_pass(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], on: NDArray[np.bool_],
               offset: Any, radius: float, tpl: int, config: MatchConfig) -> Any:
     """One NCC search at the corners usable in ``on``: ids, base and warped pixels, scores (after
-    F and H) and the counts (NCC peaks, F inliers, H inliers)."""
+    F and H) and the counts (NCC peaks, F inliers, H inliers).
+    """
     fa = base.features
     ij = np.clip(np.rint(fa.points).astype(np.int64), 0, [on.shape[1] - 1, on.shape[0] - 1])
     usable = np.flatnonzero(on[ij[:, 1], ij[:, 0]]) if fa.size else np.zeros(0, np.int64)
@@ -892,7 +898,8 @@ def _other_id(pair: tuple[str, str], st: _PairState) -> str:
 
 def _anchors(pairs: Sequence[tuple[str, str]], states: Sequence[Any]) -> dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]]:
     """Image id -> (keypoint ids, sorted; in how many pairs each survived the chain) for the keypoints
-    that survived in at least one pair where the image is the base."""
+    that survived in at least one pair where the image is the base.
+    """
     found: dict[str, list[NDArray[np.int64]]] = {}
     for pair, st in zip(pairs, states):
         if isinstance(st, _PairState) and st.pa.shape[0] >= _PROPAGATE_MIN_MATCHES:
@@ -911,7 +918,8 @@ def _propagate(st: _PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np
     Each direction refines at most the pair's free room below ``max_matches`` plus
     ``propagate_extra`` x ``max_matches`` (default an eighth; for a full pair: 50 anchors that may replace single-pair matches in the
     thinning), those matched in more pairs first, spread: the cost stays bounded by about one
-    more refinement pass (a full pair: a quarter of one)."""
+    more refinement pass (a full pair: a quarter of one).
+    """
     if st.pa.shape[0] < _PROPAGATE_MIN_MATCHES or not st.base.described or not st.other.described:
         return
     new = ~np.isin(base_anchors[0], st.feat_base)
@@ -967,7 +975,8 @@ def _propagated_on_flow(prop: Any, flow: Flow, fwd_pts: NDArray[np.float64], rev
     """Propagated matches read from the pair's flow as phase 1's are: the partner position of a
     forward anchor (base side fixed) at ``base + flow(base)``, the base position of a reverse one
     (partner side fixed) where ``base + flow(base)`` reaches it; those the flow contradicts by more
-    than ``flow_tolerance_px`` dropped, those where it is not usable kept as refined."""
+    than ``flow_tolerance_px`` dropped, those where it is not usable kept as refined.
+    """
     qf, uf, af = _read_flow(flow, fwd_pts[prop.forward], prop.forward_points, config)
     qr, ur = base_position(flow, rev_pts[prop.reverse], prop.reverse_points)
     ar = np.linalg.norm(qr - prop.reverse_points, axis=1) <= config.flow_tolerance_px

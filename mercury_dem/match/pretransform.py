@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.body import DATUM_RADIUS_M
+from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import illumination_angles, image_to_ground, project
 
 
@@ -47,7 +47,7 @@ class ImageGeometry:
 
     @staticmethod
     def of(camera: FramingCamera, position: ArrayLike, rotation: ArrayLike, sun_position: ArrayLike,
-           datum_radius_m: float = DATUM_RADIUS_M) -> "ImageGeometry":
+           datum_radius_m: float = DATUM_RADIUS_M) -> ImageGeometry:
         return ImageGeometry(
             camera,
             np.asarray(position, dtype=np.float64).reshape(3),

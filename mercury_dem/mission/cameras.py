@@ -12,9 +12,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from mercury_dem.exceptions import GeometryError, StoreError
-from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.camera import FramingCamera, camera_to_dict
 from mercury_dem.geometry.camera import camera_from_dict as _from_dict
-from mercury_dem.geometry.camera import camera_to_dict
 
 
 def camera_from_dict(d: Mapping[str, Any], where: str = "camera") -> FramingCamera:

@@ -27,8 +27,8 @@ from numpy.typing import NDArray
 
 from mercury_dem.geometry.body import Body, xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera
-from mercury_dem.geometry.footprints import image_footprints
 from mercury_dem.geometry.caminfo import centre_geometry
+from mercury_dem.geometry.footprints import image_footprints
 from mercury_dem.geometry.pose import illumination_angles, intersect_sphere
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.mission.radiometry import RADIOMETRY_COLUMNS, Radiometry

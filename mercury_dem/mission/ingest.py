@@ -196,12 +196,10 @@ def _read_raster(path: Path) -> NDArray[Any]:
         px, valid = read_pixels(cube)
         return np.where(valid, px, np.nan).astype(np.float32) if cube.pixel_type == "Real" or not valid.all() \
             else _integer_image(px, valid, cube.pixel_type)[0]
-    import rasterio
-    from rasterio.errors import RasterioIOError
-
     import warnings
 
-    from rasterio.errors import NotGeoreferencedWarning
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
     try:
         with warnings.catch_warnings():
@@ -219,7 +217,8 @@ def _read_raster(path: Path) -> NDArray[Any]:
 
 def read_image_list(path: str | Path) -> dict[str, Path]:
     """An ``ISD,IMAGE`` CSV (one pair a line; '#' comments; relative paths from the CSV's folder) ->
-    {ISD stem: image path}. StoreError naming the file and line at fault."""
+    {ISD stem: image path}. StoreError naming the file and line at fault.
+    """
     p = Path(path)
     try:
         lines = p.read_text().splitlines()
@@ -334,7 +333,8 @@ def _raw_dn(image: NDArray[Any]) -> bool:
 
 def _radiometry(images: list[SourceImage]) -> list[Radiometry]:
     """Each image's pixel facts: integer DN by dtype; float raw DN (whole numbers) as DN of the instrument's
-    bits; other floats (I/F, radiance) share one scale from the mission's typical robust range."""
+    bits; other floats (I/F, radiance) share one scale from the mission's typical robust range.
+    """
     dn_floats = [im.pixels.dtype.kind == "f" and _raw_dn(im.pixels) for im in images]
     calibrated = [im for im, dn in zip(images, dn_floats) if im.pixels.dtype.kind == "f" and not dn]
     shared = float_radiometry([robust_range(im.pixels) for im in calibrated]) if calibrated else None

@@ -180,7 +180,8 @@ class Mission:
 
     def column(self, name: str) -> NDArray[Any]:
         """One catalog column as a numpy array (strings as an object array; integers with nulls as float
-        with NaN, as pandas gives them); KeyError when the catalog has no such column."""
+        with NaN, as pandas gives them); KeyError when the catalog has no such column.
+        """
         col = self._columns.get(name)
         if col is None:
             if name not in self._names:
@@ -212,7 +213,8 @@ class Mission:
     @property
     def pointing_sigma_urad(self) -> float | None:
         """How wrong the a-priori pointing may be, 1 sigma per axis (µrad), when the mission says
-        (synth: the injected sigma; ingest: ``--pointing-sigma-urad``); None otherwise."""
+        (synth: the injected sigma; ingest: ``--pointing-sigma-urad``); None otherwise.
+        """
         v = self.meta.get("pointing_sigma_urad")
         return None if v is None else float(v)
 
@@ -418,7 +420,8 @@ def open_mission(path: str | Path) -> Mission:
 
 def _check_image_sizes(p: Path, mission: Mission, cameras: dict[str, FramingCamera]) -> None:
     """Each image's (lines, samples) in the catalog is its camera's (a damaged catalog row is refused
-    here, not when a worker reads the image; found by the mission store fuzz test at 2000 inputs)."""
+    here, not when a worker reads the image; found by the mission store fuzz test at 2000 inputs).
+    """
     ids = [str(c) for c in mission._cam]
     want = np.array([(cameras[c].lines, cameras[c].samples) for c in ids], dtype=np.float64).reshape(-1, 2)
     try:

@@ -1,5 +1,6 @@
 """Summary of a mission (``mercury-dem info``): counts, ranges, images per tile, coverage, coverage map,
-and per image its footprint statistics (the quantities of ISIS's ``CameraStatistics``)."""
+and per image its footprint statistics (the quantities of ISIS's ``CameraStatistics``).
+"""
 
 from __future__ import annotations
 
@@ -53,7 +54,8 @@ def image_statistics(mission: Mission, radius_m: float | None = None, step: int 
 
 def _counts(values: np.ndarray) -> dict[Any, int]:
     """Rows per value, sorted by value, missing values (None, NaN) left out: ``DataFrame.groupby(col).size()``
-    without pandas (see :class:`~mercury_dem.mission.store.Mission`)."""
+    without pandas (see :class:`~mercury_dem.mission.store.Mission`).
+    """
     keep = [v for v in values.tolist() if v is not None and v == v]
     if not keep:
         return {}
@@ -70,7 +72,8 @@ def _range(values: np.ndarray) -> list[float]:
 
 def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """(summary dict, coverage arrays) of a mission. Coverage is over the mission's area: the design's,
-    else the images' footprints when they are regional, else the whole body."""
+    else the images' footprints when they are regional, else the whole body.
+    """
     col = mission.column
     area = mission.meta.get("area_deg") or data_area(mission)
     if step_deg is None and area is not None and mission.meta.get("area_deg") is None:
@@ -120,7 +123,8 @@ def mission_summary(mission: Mission, step_deg: float | None = None) -> tuple[di
 
 def coverage_map(cov: dict[str, Any], path: str | Path, title: str = "") -> Path:
     """PNG of the number of images seeing each grid point (written atomically; Pillow, see
-    :mod:`mercury_dem.mission.count_map` for why not matplotlib)."""
+    :mod:`mercury_dem.mission.count_map` for why not matplotlib).
+    """
     from mercury_dem.io.atomic import atomic_write_bytes
     from mercury_dem.mission.count_map import png_bytes, render_count_map
 

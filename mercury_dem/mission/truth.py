@@ -18,10 +18,9 @@ above the datum sphere ``datum_radius_m``.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import cached_property
 from pathlib import Path
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -112,7 +111,8 @@ class SyntheticTruth:
     @cached_property
     def altimetry_profiles(self) -> pd.DataFrame | None:
         """The orbit error injected into each simulated altimetry profile (track_id, along_m, cross_m,
-        radial_m, and east_m/north_m/up_m at the profile's middle shot lat_mid/lon_mid), or None."""
+        radial_m, and east_m/north_m/up_m at the profile's middle shot lat_mid/lon_mid), or None.
+        """
         p = self.path / "altimetry_profiles.parquet"
         import pandas as pd
 

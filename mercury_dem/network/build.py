@@ -68,7 +68,7 @@ class PairMatches:
         return int(self.image_a.shape[0])
 
     @classmethod
-    def concatenate(cls, parts: Sequence["PairMatches"]) -> "PairMatches":
+    def concatenate(cls, parts: Sequence[PairMatches]) -> PairMatches:
         """All rows of several tables, in order."""
         if not parts:
             z = np.zeros(0)

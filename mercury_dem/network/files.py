@@ -19,7 +19,8 @@ def is_isis_path(path: str | Path) -> bool:
 
 def load_serial_map(path: str | Path | None) -> dict[str, str] | None:
     """A serial-number -> image-id mapping from a JSON object file, or from a CSV/text
-    file with two columns ``serial,image_id`` (a header line starting 'serial' is skipped)."""
+    file with two columns ``serial,image_id`` (a header line starting 'serial' is skipped).
+    """
     if path is None:
         return None
     p = Path(path)

@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Mapping, Sequence
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,7 @@ from mercury_dem.exceptions import NetworkError
 from mercury_dem.io.atomic import atomic_write_bytes
 from mercury_dem.network import protowire as pw
 from mercury_dem.network.model import ControlNetwork, PointType, _take_measure_columns, as_string_array
-from mercury_dem.network.store import decode_strings, encode_strings
+from mercury_dem.network.store import encode_strings
 
 #: Where the protobuf header starts in files we write (as ISIS does).
 HEADER_START_BYTE = 65536
@@ -46,9 +46,9 @@ def _timestamp() -> str:
     exports of the same network are byte-identical; otherwise the clock's time.
     """
     epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
-    when = datetime.now(timezone.utc)
+    when = datetime.now(UTC)
     if epoch.isdigit():
-        when = datetime.fromtimestamp(int(epoch), timezone.utc)
+        when = datetime.fromtimestamp(int(epoch), UTC)
     return when.strftime("%Y-%m-%dT%H:%M:%S")
 
 
@@ -474,7 +474,7 @@ def _label(texts: Mapping[int, str], header_bytes: int, points_bytes: int, n: in
         "  End_Group\n"
         "End_Object\n"
         "End\n"
-    ).encode("utf-8")
+    ).encode()
     if len(text) > HEADER_START_BYTE:
         raise NetworkError("ISIS label longer than 65536 bytes; shorten the network description")
     return text + b"\0" * (HEADER_START_BYTE - len(text))

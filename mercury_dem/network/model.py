@@ -211,7 +211,7 @@ class ControlNetwork:
         sample: ArrayLike,
         line: ArrayLike,
         **columns: Any,
-    ) -> "ControlNetwork":
+    ) -> ControlNetwork:
         """A network from the required columns; every other column gets its default.
 
         Defaults: Free points, NaN coordinates/sigmas/residuals/a-priori pixels,
@@ -248,12 +248,12 @@ class ControlNetwork:
         )
 
     @classmethod
-    def empty(cls, image_ids: ArrayLike = ()) -> "ControlNetwork":
+    def empty(cls, image_ids: ArrayLike = ()) -> ControlNetwork:
         """A network with images but no points or measures."""
         z = np.zeros(0)
         return cls.from_arrays(image_ids, np.zeros(0, np.int64), z.astype(np.int64), z.astype(np.int64), z, z)
 
-    def replace(self, **changes: Any) -> "ControlNetwork":
+    def replace(self, **changes: Any) -> ControlNetwork:
         """A copy with some columns replaced (shapes re-checked)."""
         return replace(self, **changes)
 
@@ -337,7 +337,7 @@ class ControlNetwork:
         return lat, np.where(lon >= 360.0, 0.0, lon), r
 
     # -- derived networks -------------------------------------------------
-    def take_points(self, points: ArrayLike, keep_images: bool = True) -> "ControlNetwork":
+    def take_points(self, points: ArrayLike, keep_images: bool = True) -> ControlNetwork:
         """The network restricted to some points (indices in the wanted order, or a bool mask).
 
         Measures of the other points are dropped. Images are kept unless
@@ -357,7 +357,7 @@ class ControlNetwork:
         net = replace(self, **cols)
         return net if keep_images else net.drop_unused_images()
 
-    def select_measures(self, mask: ArrayLike, min_measures: int = 1, keep_images: bool = True) -> "ControlNetwork":
+    def select_measures(self, mask: ArrayLike, min_measures: int = 1, keep_images: bool = True) -> ControlNetwork:
         """The network with only the measures in ``mask`` (bool (M,) or indices).
 
         Points left with fewer than ``min_measures`` measures are dropped.
@@ -369,7 +369,7 @@ class ControlNetwork:
             net = net.take_points(np.flatnonzero(counts >= min_measures), keep_images=keep_images)
         return net
 
-    def subset_images(self, images: ArrayLike, min_measures: int = 1) -> "ControlNetwork":
+    def subset_images(self, images: ArrayLike, min_measures: int = 1) -> ControlNetwork:
         """The network seen by some images (ids, indices or a bool mask over the images table).
 
         The images table becomes the selected images (in the given order);
@@ -390,7 +390,7 @@ class ControlNetwork:
         counts = np.bincount(net.measure_point, minlength=net.n_points)
         return net.take_points(np.flatnonzero(counts >= min_measures))
 
-    def drop_unused_images(self) -> "ControlNetwork":
+    def drop_unused_images(self) -> ControlNetwork:
         """The network without images that have no measure (order of the rest kept)."""
         used = np.bincount(self.measure_image, minlength=self.n_images) > 0
         if used.all():
@@ -398,7 +398,7 @@ class ControlNetwork:
         new_of_old = np.cumsum(used) - 1
         return replace(self, image_ids=self.image_ids[used], measure_image=new_of_old[self.measure_image])
 
-    def sorted(self) -> "ControlNetwork":
+    def sorted(self) -> ControlNetwork:
         """The same network with measures ordered by (point, image), a canonical order."""
         order = np.lexsort((self.measure_image, self.measure_point))
         if np.array_equal(order, np.arange(order.size)):
@@ -411,7 +411,7 @@ class ControlNetwork:
         residuals: ArrayLike,
         measure_rejected: ArrayLike | None = None,
         adjusted_covariance: ArrayLike | None = None,
-    ) -> "ControlNetwork":
+    ) -> ControlNetwork:
         """The network with the results of a bundle adjustment recorded."""
         changes: dict[str, Any] = {"adjusted_xyz": adjusted_xyz, "residuals": residuals}
         if measure_rejected is not None:
@@ -421,11 +421,11 @@ class ControlNetwork:
         return replace(self, **changes)
 
     # -- comparison and export ----------------------------------------------
-    def equals(self, other: "ControlNetwork", check_metadata: bool = False, atol: float = 0.0) -> bool:
+    def equals(self, other: ControlNetwork, check_metadata: bool = False, atol: float = 0.0) -> bool:
         """True when both networks hold the same columns (NaN equal to NaN)."""
         return not self.differences(other, check_metadata=check_metadata, atol=atol)
 
-    def differences(self, other: "ControlNetwork", check_metadata: bool = False, atol: float = 0.0) -> list[str]:
+    def differences(self, other: ControlNetwork, check_metadata: bool = False, atol: float = 0.0) -> list[str]:
         """Names of the columns that differ (empty when the networks are equal)."""
         out = []
         for f in fields(self):

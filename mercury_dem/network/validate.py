@@ -113,7 +113,7 @@ class NetworkReport:
         lines = [
             f"{self.n_images} images, {self.n_points} points, {self.n_measures} measures "
             f"({self.n_active_measures} active), {self.n_islands} island(s); checked in {self.seconds:.2f} s",
-            f"measures per point: " + ", ".join(f"{k} {v:.3g}" for k, v in self.measures_per_point.items()),
+            "measures per point: " + ", ".join(f"{k} {v:.3g}" for k, v in self.measures_per_point.items()),
             "point types: " + ", ".join(f"{k} {v}" for k, v in self.point_types.items()),
         ]
         lines += [f"PROBLEM: {p}" for p in self.problems()]

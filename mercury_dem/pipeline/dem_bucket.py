@@ -74,7 +74,8 @@ def _worker_index(run_url: str, global_token: str, datum_radius_m: float) -> Poi
 def grid_chunk_to_bucket(run_url: str, global_token: str, grid: GridSpec, bounds: tuple[int, int, int, int],
                          cfg: Any, datum_radius_m: float) -> dict[str, Any]:
     """Task body: grid one chunk from the bucket's point cloud, write it into the bucket's ``dem.zarr``,
-    then its marker; return its counts (as :func:`~mercury_dem.pipeline.dem_stage.grid_dem`'s chunks do)."""
+    then its marker; return its counts (as :func:`~mercury_dem.pipeline.dem_stage.grid_dem`'s chunks do).
+    """
     t0 = time.perf_counter()
     index = _worker_index(run_url, global_token, datum_radius_m)
     layers = grid_chunk(index, grid, bounds, cfg)

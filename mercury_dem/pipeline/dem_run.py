@@ -32,12 +32,12 @@ def _open_map(path: str) -> Any:
 def _shape_reference_of_maps(store: RunStore, registration: dict[str, Any], body: Any, ref: Any) -> dict[str, Any]:
     """The registered and merged DEMs against the configured shape model (report.json
     ``dem.reference_by_map``), over the same pixels as the adjusted DEM's comparison (within
-    ``reference.max_point_distance_m`` of a control point: the maps share the adjusted DEM's grid)."""
+    ``reference.max_point_distance_m`` of a control point: the maps share the adjusted DEM's grid).
+    """
     from dataclasses import replace
 
-    from mercury_dem.pipeline.reference_check import compare_with_references
-
     from mercury_dem.pipeline.dem_stage import open_dem
+    from mercury_dem.pipeline.reference_check import compare_with_references
 
     adjusted = open_dem(store.dem_path)
     shape_only = replace(ref, dem=None, altimetry=())

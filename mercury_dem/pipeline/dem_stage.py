@@ -53,7 +53,8 @@ __all__ = ["grid_dem", "make_products", "open_dem",  # noqa: F822 (lazy re-expor
 
 def __getattr__(name: str) -> Any:
     """``make_products`` and ``open_dem`` are re-exported from :mod:`mercury_dem.products.make` on first use:
-    importing the products (matplotlib, pyproj) costs a cold ``mercury-dem grid`` ~0.3 s it never needs."""
+    importing the products (matplotlib, pyproj) costs a cold ``mercury-dem grid`` ~0.3 s it never needs.
+    """
     if name in ("make_products", "open_dem"):
         from mercury_dem.products import make
 
@@ -496,7 +497,8 @@ def _stopping_on_error(writer: ForkedStoreWriter | None) -> Iterator[None]:
 
 def mark_zarr_complete(store: Path) -> None:
     """The stores' completion mark: root attribute ``complete = true`` (a marker *file*
-    inside a Zarr v3 store would make zarr warn on every open)."""
+    inside a Zarr v3 store would make zarr warn on every open).
+    """
     import zarr
 
     zarr.open_group(str(store), mode="r+").attrs["complete"] = True

@@ -16,7 +16,7 @@ import json
 import sys
 import time
 from collections.abc import Callable, Iterator
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -24,11 +24,9 @@ from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
 from mercury_dem.io.run_store import RunStore
-from mercury_dem.pipeline.executors import (ADJUST_RESOURCE, Connection, as_completed, connect,
-                                            shard_engine_factory)
+from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
-from mercury_dem.pipeline.stages import (failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile,
-                                         unit_name)
+from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile, unit_name
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
@@ -141,7 +139,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
         "mission": mission_abs,
         "config": to_dict(config),
         "versions": versions(),
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
     })
     return store
 
@@ -253,7 +251,8 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
 @contextlib.contextmanager
 def _scheduler_loss(conn: Connection, out: str | Path) -> Iterator[None]:
     """Turn what the Dask client raises when its scheduler is gone (a connect timeout, cancelled futures)
-    into :class:`SchedulerLostError` saying how to resume; other errors pass unchanged."""
+    into :class:`SchedulerLostError` saying how to resume; other errors pass unchanged.
+    """
     import asyncio
 
     try:

@@ -21,12 +21,12 @@ if TYPE_CHECKING:  # annotations only: 'mercury-dem report' prints reference_tab
 
 def compare_with_references(dem: xr.Dataset, body: Body, cfg: Any) -> dict[str, Any]:
     """{reference name: statistics or {"error": why}} for every reference in ``cfg`` (a ReferenceConfig)."""
+    import numpy as np
+
     from mercury_dem.reference.compare import compare_dem_with_harmonics, compare_dem_with_shots, compare_heights
     from mercury_dem.reference.lola import read_altimetry_csv, read_lola_ldem
     from mercury_dem.reference.sampling import sample_reference_dem
     from mercury_dem.reference.sha import read_shadr
-
-    import numpy as np
 
     near = dem["distance_to_nearest_point"] <= cfg.max_point_distance_m
     elev = dem["elevation"].where(near).load()

@@ -112,7 +112,8 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
 def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], global_ok: bool,
                          image_errors: dict[str, str] | None = None) -> dict[str, str]:
     """Why each uncontrolled image is: excluded, its pixels unreadable or unusable (``image_errors``, from the
-    tiles), no a-priori overlap, no pair matched, or all measures rejected."""
+    tiles), no a-priori overlap, no pair matched, or all measures rejected.
+    """
     import pandas as pd
 
     if not ids:
@@ -158,7 +159,8 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
 
 def _mission_ref(store: RunStore, mission: Mission) -> str:
     """The mission as the user named it: its URL when it is read from a bucket (``mission.path`` is then
-    its local cached copy), else its path as before."""
+    its local cached copy), else its path as before.
+    """
     named = str(store.read_run().get("mission", ""))
     return named if "://" in named else str(mission.path)
 
@@ -236,7 +238,8 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
 
 def level_notes(row: dict[str, Any], limit: int = 5) -> list[str]:
     """The parts of an adjusted unit it could not determine, one line each, with what they mean and what to do:
-    islands (disconnected groups of images), images without measures, points seen by one image only."""
+    islands (disconnected groups of images), images without measures, points seen by one image only.
+    """
     def names(ids: list[Any]) -> str:
         return ", ".join(map(str, ids[:limit])) + (f" and {len(ids) - limit} more" if len(ids) > limit else "")
 
@@ -260,7 +263,8 @@ def level_notes(row: dict[str, Any], limit: int = 5) -> list[str]:
 
 def unit_message(error: Any, name: str) -> str:
     """``error`` without a leading ``"<name>: "`` (messages in report.json name their unit; lines that
-    already start with the unit's name print the rest)."""
+    already start with the unit's name print the rest).
+    """
     text, prefix = str(error), f"{name}: "
     return text[len(prefix):] if text.startswith(prefix) else text
 

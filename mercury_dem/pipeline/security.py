@@ -44,12 +44,12 @@ class TlsFiles:
     key: Path
 
     @classmethod
-    def in_directory(cls, directory: str | Path) -> "TlsFiles":
+    def in_directory(cls, directory: str | Path) -> TlsFiles:
         """``ca.pem``, ``cert.pem`` and ``key.pem`` in ``directory`` (as written by make-certs.sh)."""
         d = Path(directory)
         return cls(d / CA_NAME, d / CERT_NAME, d / KEY_NAME)
 
-    def check(self) -> "TlsFiles":
+    def check(self) -> TlsFiles:
         """Raise :class:`ConfigError` naming the first file that is missing, unreadable or not PEM."""
         for role, path, marker in (
             ("CA certificate (--tls-ca-file)", self.ca_file, "CERTIFICATE"),

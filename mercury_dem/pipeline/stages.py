@@ -327,9 +327,9 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 
 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engine_factory: Any = None) -> dict[str, Any]:
-    from mercury_dem.pipeline.adjust_adapter import adjust_network
     from mercury_dem.network.merge import merge_networks
     from mercury_dem.network.store import read_network
+    from mercury_dem.pipeline.adjust_adapter import adjust_network
 
     child_level = LEVEL_CHILD[level]
     kids = [c for c in child_ids(level, unit_id, config)
@@ -451,7 +451,8 @@ def pointing_sigma_urad_for(mission: Mission, config: Config) -> float:
 
 def match_config_for(mission: Mission, config: Config) -> Any:
     """The matching configuration for a mission: the guidance window from the run's a-priori pointing sigma
-    (real SPICE pointing of another instrument can be 10x worse than MDIS's)."""
+    (real SPICE pointing of another instrument can be 10x worse than MDIS's).
+    """
     import dataclasses
 
     return dataclasses.replace(config.match, pointing_sigma_urad=pointing_sigma_urad_for(mission, config))

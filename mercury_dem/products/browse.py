@@ -202,7 +202,8 @@ def _finish(fig: Any, path: str | Path) -> Path:
 
 def east_longitude_label(x: float, _pos: object = None) -> str:
     """Tick label of an east longitude axis: a map across the 0/360 seam runs on past 360 (or below
-    0) to stay continuous, its labels say the longitude itself (365 -> 5)."""
+    0) to stay continuous, its labels say the longitude itself (365 -> 5).
+    """
     return f"{round(float(x), 6) % 360.0:g}"
 
 
@@ -248,7 +249,8 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
 def write_error_png(error: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
                     path: str | Path, title: str) -> Path:
     """DEM minus truth on the map (degrees, diverging colours symmetric about 0 at the 98th percentile
-    of |error|), with the bias and RMSE in a corner: where the DEM is high, low, or without value."""
+    of |error|), with the bias and RMSE in a corner: where the DEM is high, low, or without value.
+    """
     v = error[np.isfinite(error)]
     lim = float(np.percentile(np.abs(v), 98)) if v.size else 1.0
     lim = lim if lim > 0 else 1.0
@@ -274,7 +276,8 @@ def write_error_png(error: NDArray[np.floating], lat: NDArray[np.float64], lon: 
 def robinson_central_meridian(h: NDArray[np.floating], lon: NDArray[np.float64]) -> float:
     """Central meridian of the global map: 180 (the reference's 0-360 E map) when the data span
     most longitudes, else the middle of the longitudes holding data (a regional DEM across
-    0/360 would otherwise be split between both edges of the map)."""
+    0/360 would otherwise be split between both edges of the map).
+    """
     has = np.isfinite(h).any(axis=0)
     if not has.any():
         return 180.0

@@ -54,7 +54,8 @@ def grid_geometry(lat: NDArray[np.floating], lon: NDArray[np.floating], pixels_p
 
 def crosses_zero_meridian(lon_min: float, lon_max: float) -> bool:
     """True when the map's longitudes contain the 0/360 meridian strictly inside (a global
-    map: when its columns do not start at 0, e.g. -180..180)."""
+    map: when its columns do not start at 0, e.g. -180..180).
+    """
     if lon_max - lon_min >= 360.0 - 1e-9:
         return abs(lon_min - 360.0 * round(lon_min / 360.0)) > 1e-9
     k = math.floor(lon_min / 360.0) + 1  # the first multiple of 360 east of lon_min
@@ -63,7 +64,8 @@ def crosses_zero_meridian(lon_min: float, lon_max: float) -> bool:
 
 def west_edge(lon_min: float, lon_max: float, central_meridian: float = 0.0) -> float:
     """The map's west edge as a longitude within 180 deg of ``central_meridian``, in
-    ``[central_meridian - 180, central_meridian + 180)`` (a shift by whole turns: the columns keep their order)."""
+    ``[central_meridian - 180, central_meridian + 180)`` (a shift by whole turns: the columns keep their order).
+    """
     return (lon_min - (central_meridian - 180.0)) % 360.0 + (central_meridian - 180.0)
 
 

@@ -24,7 +24,8 @@ from mercury_dem.products.sampling import sample_bilinear
 
 def polar_grid(cut_lat: float, pixel_m: float, radius_m: float = MERCURY.radius_m) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Pixel-centre x (W,) and y (H,, descending) of a square stereographic grid enclosing the cap
-    (``radius_m``: the CRS sphere)."""
+    (``radius_m``: the CRS sphere).
+    """
     rho = 2.0 * radius_m * math.tan(math.radians(90.0 - cut_lat) / 2.0)
     n = int(math.ceil(2.0 * rho / pixel_m))
     x = (np.arange(n) + 0.5 - n / 2.0) * pixel_m

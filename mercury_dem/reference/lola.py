@@ -38,8 +38,8 @@ from typing import Literal
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
 import xarray as xr
+from numpy.typing import NDArray
 
 from mercury_dem.exceptions import ReferenceDataError
 from mercury_dem.geometry.body import MOON_RADIUS_M, wrap_longitude  # MOON_RADIUS_M: LOLA's reference sphere

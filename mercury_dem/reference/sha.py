@@ -213,7 +213,8 @@ GTMES_PACKAGED = PACKAGE_PREFIX + "GTMES_150V05_SHA.TAB"
 def resolve_shape_path(path: str | Path) -> Path:
     """The file a shape-table name designates: ``package:NAME`` is ``NAME`` in the package's
     ``reference/data`` directory (so a configuration or a mission's ``truth/surface.json`` naming it
-    works on any machine the package is installed on); anything else is a path as given."""
+    works on any machine the package is installed on); anything else is a path as given.
+    """
     text = str(path)
     if text.startswith(PACKAGE_PREFIX):
         name = text[len(PACKAGE_PREFIX):]

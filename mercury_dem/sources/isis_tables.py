@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from mercury_dem.exceptions import CubeError
 from mercury_dem.geometry.naif_camera import AlphaCube

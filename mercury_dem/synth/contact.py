@@ -8,7 +8,6 @@ if TYPE_CHECKING:
     from mercury_dem.mission import Mission
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -16,7 +15,8 @@ import numpy as np
 def contact_sheet(mission: Mission, path: str | Path, image_ids: list[str] | None = None, columns: int = 4,
                   max_images: int = 12) -> Path:
     """Write a PNG of up to ``max_images`` images (default: spread over the catalog) with id, instrument,
-    pixel scale, incidence and emission in the titles. Returns the path."""
+    pixel scale, incidence and emission in the titles. Returns the path.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

@@ -168,7 +168,8 @@ def write_simulated_altimetry(writer: MissionWriter, root: Path, design: Mission
                               seed: int, tile_size_deg: float) -> dict[str, Any]:
     """Simulate the design's MLA profiles of the truth surface; write the shots (screened as an RDR reader
     would: flagged and off-body shots dropped and counted) into the mission's altimetry store and the injected
-    per-profile orbit errors into ``truth/altimetry_profiles.parquet``. Returns counts and seconds."""
+    per-profile orbit errors into ``truth/altimetry_profiles.parquet``. Returns counts and seconds.
+    """
     from mercury_dem.altimetry.simulate import screen_shots, simulate_altimetry
     from mercury_dem.altimetry.store import ShotSource, combine_shots
 

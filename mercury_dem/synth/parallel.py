@@ -116,9 +116,8 @@ def render_all(
 
     from mercury_dem.pipeline.executors import local_cluster
 
-    with local_cluster(workers, 1, host="127.0.0.1") as cluster:
-        with Client(cluster) as c:
-            return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
+    with local_cluster(workers, 1, host="127.0.0.1") as cluster, Client(cluster) as c:
+        return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 
 
 def _run_on(

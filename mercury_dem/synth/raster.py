@@ -62,7 +62,8 @@ def grid_directions(
 def grid_normal(points: NDArray[np.float64], j0: int, j: int, j1: int, i0: int, i: int,
                 i1: int) -> tuple[float, float, float]:
     """Outward unit normal at node (j, i) of a grid of points (ny, nx, 3) (x = east, y = north):
-    the cross product of the central differences along i (i0 -> i1) and along j (j0 -> j1)."""
+    the cross product of the central differences along i (i0 -> i1) and along j (j0 -> j1).
+    """
     ax = points[j, i1, 0] - points[j, i0, 0]
     ay = points[j, i1, 1] - points[j, i0, 1]
     az = points[j, i1, 2] - points[j, i0, 2]

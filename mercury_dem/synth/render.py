@@ -265,7 +265,8 @@ def _grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def grid_normals(points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Outward unit normals (3, ny, nx) of a grid of 3-D points (ny, nx, 3) (x = east, y = north),
-    by central differences (one-sided at the border)."""
+    by central differences (one-sided at the border).
+    """
     return _grid_normals(np.ascontiguousarray(points))
 
 

@@ -85,7 +85,7 @@ class SurfaceParams:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "SurfaceParams":
+    def from_dict(cls, data: dict[str, Any]) -> SurfaceParams:
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
@@ -182,7 +182,8 @@ class Surface:
 
     def _shape_grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """(height above the datum (H, W), pixel-centre lats, lons) of the shape model's expansion, on a
-        global grid of ``shape_grid_deg`` (evaluated once: scattered evaluation costs O(N L^2))."""
+        global grid of ``shape_grid_deg`` (evaluated once: scattered evaluation costs O(N L^2)).
+        """
         from mercury_dem.reference.sha import evaluate_grid, read_shadr
 
         p = self.params
@@ -344,7 +345,8 @@ GTMES_PACKAGED = "package:GTMES_150V05_SHA.TAB"
 
 def with_shape_harmonics(params: SurfaceParams, path: str, lmax: int = 148) -> SurfaceParams:
     """``params`` with a real shape model's long wavelengths in place of the synthetic ones (the
-    long-wave noise and the polar depression set to 0; craters, basins, plains and roughness kept)."""
+    long-wave noise and the polar depression set to 0; craters, basins, plains and roughness kept).
+    """
     from dataclasses import replace
     from pathlib import Path
 

@@ -10,8 +10,9 @@ error, and the share of truly overlapping pairs that gave enough matches.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -153,7 +154,8 @@ def true_overlap(a: TruePose, b: TruePose, height: HeightFunction, grid: int = 1
 
 def illumination_class(incidence_difference_deg: float, sun_azimuth_difference_deg: float) -> str:
     """'similar' (incidence within 15 deg and sun azimuth within 30 deg), 'incidence'
-    (incidence differs more, sun on the same side) or 'azimuth' (sun azimuth differs more than 30 deg)."""
+    (incidence differs more, sun on the same side) or 'azimuth' (sun azimuth differs more than 30 deg).
+    """
     if sun_azimuth_difference_deg > 30.0:
         return "azimuth"
     if incidence_difference_deg > 15.0:

@@ -57,7 +57,8 @@ def network_statistics(run: str | Path | RunStore, levels: tuple[str, ...] = LEV
 
 def residuals_by_level(run: str | Path | RunStore, levels: tuple[str, ...] = ADJUSTED_LEVELS) -> pd.DataFrame:
     """Every measure's residual of every adjusted unit: level, id, residual_sample, residual_line,
-    residual_px (length, px), active (used by the final adjustment)."""
+    residual_px (length, px), active (used by the final adjustment).
+    """
     parts = []
     for level, uid, net in _networks(as_store(run), levels):
         res = np.asarray(net.residuals)
@@ -92,7 +93,8 @@ def point_residuals(network: Any) -> pd.DataFrame:
 
 def image_residuals(network: Any, mission: Mission | None = None) -> pd.DataFrame:
     """Per image of an adjusted network: image_id, rms_px, n_active, and (with the mission) the
-    image centre lat, lon (deg, east -180..180) from the catalog."""
+    image centre lat, lon (deg, east -180..180) from the catalog.
+    """
     active = network.active_measures() & np.all(np.isfinite(network.residuals), axis=1)
     r2 = np.sum(network.residuals[active] ** 2, axis=1)
     rms, count = _rms_by(network.measure_image[active], r2, network.n_images)

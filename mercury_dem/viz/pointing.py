@@ -8,7 +8,6 @@ if TYPE_CHECKING:
     from mercury_dem.mission import Mission
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd

@@ -1,5 +1,6 @@
 """Helpers for interactive sessions: a configuration sized to a mission's area, a run in the
-background, and following a run's progress from its store."""
+background, and following a run's progress from its store.
+"""
 
 from __future__ import annotations
 
