@@ -21,7 +21,8 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from typing import Any, ContextManager
+from contextlib import AbstractContextManager
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,7 +44,7 @@ from mercury_dem.geometry.pose import angles_from_rotation
 from mercury_dem.network.synthetic_store import BlockData
 
 #: ``(blocks, setup, options) -> context manager of an Engine`` (see :func:`blocked_bundle_adjust`)
-EngineFactory = Callable[[list[BlockData], CameraSetup, Any], ContextManager[Any]]
+EngineFactory = Callable[[list[BlockData], CameraSetup, Any], AbstractContextManager[Any]]
 
 
 def point_blocks(problem: AdjustmentProblem, block_points: int) -> tuple[list[BlockData], list[NDArray[np.int64]]]:

@@ -33,6 +33,7 @@ start methods re-import the package in a new interpreter (``spawn``) or fork fro
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import struct
@@ -94,7 +95,7 @@ def _recv(fd: int) -> tuple[dict[str, Any], bytes] | None:
     n = _read_exact(fd, _LEN.size)
     head = None if n is None else _read_exact(fd, _LEN.unpack(n)[0])
     m = None if head is None else _read_exact(fd, _LEN.size)
-    if m is None:
+    if head is None or m is None:
         return None
     size = _LEN.unpack(m)[0]
     payload = _read_exact(fd, size) if size else b""
@@ -119,7 +120,9 @@ def _serve(rfd: int, wfd: int) -> int:
 
         from mercury_dem.pipeline import dem_stage
 
-        group = layers = store = None
+        group: Any = None
+        layers: dict[str, Any] | None = None
+        store: Any = None
         while True:
             msg = _recv(rfd)
             if msg is None:  # the parent failed or aborted: leave the store unmarked
@@ -130,7 +133,10 @@ def _serve(rfd: int, wfd: int) -> int:
                 store = head["store"]
                 grid, cfg, body = _objects(head)
                 group, layers = dem_stage.create_store(store, grid, cfg, head["attrs"], body)
+            elif kind in ("write", "attrs", "complete") and layers is None:
+                raise ValueError(f"message {kind!r} before 'create'")
             elif kind == "write":
+                assert layers is not None
                 r0, r1, c0, c1 = head["region"]
                 arr = np.frombuffer(payload, dtype=np.dtype(head["dtype"])).reshape(head["shape"])
                 layers[head["name"]][r0:r1, c0:c1] = arr
@@ -143,10 +149,8 @@ def _serve(rfd: int, wfd: int) -> int:
             else:
                 raise ValueError(f"unknown message {kind!r}")
     except BaseException as exc:  # noqa: BLE001 - reported to the parent, which raises it
-        try:
+        with contextlib.suppress(OSError):
             _send(wfd, {"kind": "error", "text": f"{type(exc).__name__}: {exc}"})
-        except OSError:
-            pass
         return 1
 
 
@@ -292,14 +296,10 @@ class ForkedStoreWriter:
             return
         self._done = True
         for fd in (self._wfd, self._rfd):
-            try:
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
-        try:
+        with contextlib.suppress(ChildProcessError):
             os.waitpid(self.pid, 0)
-        except ChildProcessError:
-            pass
 
     def _where(self) -> str:
         return f"writing {self._store or 'dem.zarr'}"
@@ -317,7 +317,5 @@ class ForkedStoreWriter:
                          f"or set {ENV}=inprocess to write from the gridding process")
 
     def __del__(self) -> None:  # a writer never completed nor aborted: do not leave the child waiting
-        try:
+        with contextlib.suppress(Exception):  # at interpreter shutdown anything may fail
             self._finish()
-        except Exception:  # noqa: BLE001 - interpreter shutdown
-            pass
