@@ -80,6 +80,16 @@ def least_squares_anchor(p: Any, cfg: Any) -> dict[str, Any]:
             "omega": ls.x[: 3 * ni].reshape(ni, 3)}
 
 
+def clean_store(directory: str | Path, measures: float, seed: int) -> Path:
+    """A ``synth-network`` store without gross outliers under ``directory`` (made once, then reused)."""
+    store = Path(directory) / f"clean_{measures:.0e}_s{seed}"
+    if not store.exists():
+        subprocess.run([sys.executable, "-m", "mercury_dem.cli", "synth-network", str(store), "--measures",
+                        str(int(measures)), "--seed", str(seed), "--outlier-fraction", "0", "--progress",
+                        "none"], check=True, capture_output=True)
+    return store
+
+
 def problem_from_store(store: Path) -> Any:
     """The whole stored network as one AdjustmentProblem (small stores only)."""
     from mercury_dem.adjust.problem import AdjustmentProblem
@@ -108,12 +118,7 @@ def main() -> None:
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.config.adjust import AdjustConfig
 
-    store = Path(args.dir) / f"clean_{args.measures:.0e}_s{args.seed}"
-    if not store.exists():
-        subprocess.run([sys.executable, "-m", "mercury_dem.cli", "synth-network", str(store), "--measures",
-                        str(int(args.measures)), "--seed", str(args.seed), "--outlier-fraction", "0", "--progress",
-                        "none"], check=True, capture_output=True)
-    p = problem_from_store(store)
+    p = problem_from_store(clean_store(args.dir, args.measures, args.seed))
     cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), robust_loss="none", reject_outliers=False)
     ifov = min(c.pixel_size_mm / c.focal_length_mm for c in p.cameras)
     out: dict[str, Any] = {"measures": p.n_measures, "images": p.n_images, "points": p.n_points}

@@ -34,7 +34,6 @@ import dataclasses
 import json
 import os
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -43,7 +42,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_blocked_anchor import problem_from_store  # noqa: E402
+from bench_blocked_anchor import clean_store, problem_from_store  # noqa: E402
 
 
 def _cpu() -> float:
@@ -147,11 +146,7 @@ def main() -> None:
     from mercury_dem.network.synthetic_store import BlockedNetwork
     from mercury_dem.validate.synthetic_network import pointing_errors
 
-    store = Path(args.dir) / f"clean_{args.measures:.0e}_s{args.seed}"
-    if not store.exists():
-        subprocess.run([sys.executable, "-m", "mercury_dem.cli", "synth-network", str(store), "--measures",
-                        str(int(args.measures)), "--seed", str(args.seed), "--outlier-fraction", "0", "--progress",
-                        "none"], check=True, capture_output=True)
+    store = clean_store(args.dir, args.measures, args.seed)
     p = problem_from_store(store)
     truth = BlockedNetwork(store).truth_images()
     ifov = np.array([p.cameras[k].ifov_rad for k in p.image_camera])
