@@ -19,7 +19,7 @@ def test_stereo_pair_runs_and_is_compared_with_mla(tmp_path: Path) -> None:
     # MESSENGER's reconstructed MDIS pointing: a few hundred µrad (the sigma matching used before session 11)
     assert main(["ingest", str(tmp_path / "m"), str(src / "*.json"), "--pointing-sigma-urad", "450"]) == 0
     cfg = tmp_path / "cfg.yaml"
-    cfg.write_text(f"reference:\n  shape_harmonics: {REAL / 'GTMES_150V05_SHA.TAB'}\n")
+    cfg.write_text("reference:\n  shape_harmonics: package:GTMES_150V05_SHA.TAB\n")  # the packaged table
     assert main(["run", str(tmp_path / "m"), "--out", str(tmp_path / "run"), "--scheduler", "sync",
                  "--config", str(cfg)]) == 0
     rep = json.loads((tmp_path / "run" / "report.json").read_text())

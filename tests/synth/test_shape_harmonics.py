@@ -12,11 +12,11 @@ import pytest
 from mercury_dem.exceptions import ReferenceDataError
 from mercury_dem.geometry.body import latlon_to_unit
 from mercury_dem.reference import sha
-from mercury_dem.reference.sha import evaluate, read_shadr
+from mercury_dem.reference.sha import evaluate, read_shadr, resolve_shape_path
 from mercury_dem.synth.presets import PRESETS
 from mercury_dem.synth.terrain import GTMES_PACKAGED, Surface, SurfaceParams, surface_from_dict, with_shape_harmonics
 
-SHA_TAB = Path(__file__).resolve().parents[1] / "data" / "real" / "GTMES_150V05_SHA.TAB"
+SHA_TAB = resolve_shape_path(GTMES_PACKAGED)  # the table the package ships
 R = 2_439_400.0
 
 
