@@ -55,12 +55,10 @@ PIPE_BYTES = 1 << 20
 
 def _widen(fd: int) -> None:
     """Ask for a :data:`PIPE_BYTES` pipe (best effort: elsewhere, or above the system's limit, it stays)."""
-    try:
+    with contextlib.suppress(ImportError, AttributeError, OSError):  # no fcntl, no F_SETPIPE_SZ, over the limit
         import fcntl
 
         fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-    except (ImportError, AttributeError, OSError):
-        pass
 
 
 def _write_all(fd: int, data: bytes | memoryview) -> None:
