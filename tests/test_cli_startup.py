@@ -18,11 +18,17 @@ HEAVY = ("dask", "distributed", "numba", "xarray", "cv2", "zarr", "rasterio", "s
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _fresh_python(code: str) -> subprocess.CompletedProcess[str]:
+    """Run ``code`` in a fresh interpreter with this checkout first on the path; exit status 0 asserted."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out
+
+
 def _loaded_after(code: str) -> list[str]:
     probe = code + f"\nimport json, sys\nprint(json.dumps([m for m in {HEAVY!r} if m in sys.modules]))"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, check=True, timeout=120)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return json.loads(_fresh_python(probe).stdout.strip().splitlines()[-1])
 
 
 def test_cli_import_and_parser_do_not_import_heavy_libraries() -> None:
@@ -64,10 +70,7 @@ def loaded_by_command(argv: list[str], mods: tuple[str, ...] = NOT_FOR_SMALL_COM
             "with contextlib.redirect_stdout(io.StringIO()):\n"
             f"    assert c.main({argv!r}) == 0\n"
             f"print(json.dumps([m for m in {mods!r} if m in sys.modules]))")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
-    assert out.returncode == 0, out.stderr[-2000:]
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return json.loads(_fresh_python(code).stdout.strip().splitlines()[-1])
 
 
 def test_info_imports_no_heavy_library(tiny_mission_path: Path, tmp_path: Path) -> None:
@@ -136,9 +139,7 @@ def test_numba_start_guard_is_scoped() -> None:
             "import scipy.linalg, cffi\n"
             "assert start_gridding_kernels() is False\n"
             "print('ok')\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+    assert _fresh_python(code).stdout.strip() == "ok"
 
 
 def test_numba_start_falls_back_when_a_refused_import_is_needed() -> None:
@@ -149,6 +150,4 @@ def test_numba_start_falls_back_when_a_refused_import_is_needed() -> None:
             "assert 'scipy.linalg' in sys.modules\n"
             "assert not any(type(f).__name__ == '_Refuse' for f in sys.meta_path)\n"
             "print('ok')\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
-    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr[-2000:]
+    assert _fresh_python(code).stdout.strip() == "ok"
