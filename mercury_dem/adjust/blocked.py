@@ -49,7 +49,7 @@ from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.framing import FramingModel, FramingState, inverse_left_jacobian
 from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs_grouped
-from mercury_dem.adjust.problem import AdjustmentProblem
+from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.robust import loss_rho, rejection_limit
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 from mercury_dem.adjust.solver import (
@@ -378,13 +378,11 @@ class BlockShard:
         for b in self.blocks:
             c, r = b.cost(omega)
             b._omega_c = omega[b.cams]
-            bad = ~np.all(np.isfinite(r), axis=1)
-            if bad.any():
-                which = np.flatnonzero(bad)[:10]
-                raise AdjustmentError(
-                    f"{int(bad.sum())} measures of block {b.block} cannot be projected at the a-priori state (point "
-                    f"behind the camera), e.g. points {(b.pt[which] + b.point_start).tolist()} in images "
-                    f"{b.cams[b.cam[which]].tolist()}: check the a-priori points and poses")
+            bad = unprojectable(r)
+            if bad.size:
+                which = bad[:10]
+                raise unprojectable_error(bad.size, f" of block {b.block}", (b.pt[which] + b.point_start).tolist(),
+                                          b.cams[b.cam[which]].tolist())
             out += c
         return out
 

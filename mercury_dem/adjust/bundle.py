@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from mercury_dem.adjust.diagnose import check_solvable, diagnose
 from mercury_dem.adjust.framing import FramingModel
 from mercury_dem.adjust.kernels import normal_blocks, prior_blocks
-from mercury_dem.adjust.problem import AdjustmentProblem
+from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.result import AdjustmentResult
 from mercury_dem.adjust.robust import loss_rho
 from mercury_dem.adjust.schur import SchurStructure, inv3
@@ -80,14 +80,11 @@ def check_projectable(problem: AdjustmentProblem, r0: NDArray[np.float64]) -> No
     """Raise :class:`AdjustmentError` naming the measures whose a-priori residuals ``r0`` are not finite
     (the point behind the camera): the adjustment cannot start from such a state.
     """
-    bad0 = ~np.all(np.isfinite(r0), axis=1)
-    if bad0.any():
-        which = np.flatnonzero(bad0)[:10]
-        raise AdjustmentError(
-            f"{int(bad0.sum())} measures cannot be projected at the a-priori state (point behind the camera), e.g. "
-            f"point {problem.point_ids[problem.measure_point[which]].tolist()} in images "
-            f"{[problem.image_ids[i] for i in problem.measure_image[which]]}: check the a-priori points and poses"
-        )
+    bad = unprojectable(r0)
+    if bad.size:
+        which = bad[:10]
+        raise unprojectable_error(bad.size, "", problem.point_ids[problem.measure_point[which]].tolist(),
+                                  [problem.image_ids[i] for i in problem.measure_image[which]])
 
 
 def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None) -> AdjustmentResult:

@@ -28,6 +28,21 @@ def _ids(name: str, values: NDArray[np.bool_], ids: tuple[str, ...] | NDArray[np
     return f"{name} {shown}{more}"
 
 
+def unprojectable(r0: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Indices of the measures whose a-priori residuals (M, 2) are not finite (the point behind the camera)."""
+    return np.flatnonzero(~np.all(np.isfinite(r0), axis=1))
+
+
+def unprojectable_error(n_bad: int, where: str, points: list[Any], images: list[Any]) -> AdjustmentError:
+    """The error both adjusters raise when measures cannot be projected at the a-priori state.
+
+    ``where``: e.g. ``" of block 3"``; ``points``/``images``: the ids of the first few such measures.
+    """
+    return AdjustmentError(
+        f"{n_bad} measures{where} cannot be projected at the a-priori state (point behind the camera), e.g. "
+        f"points {points} in images {images}: check the a-priori points and poses")
+
+
 @dataclass(frozen=True)
 class AdjustmentProblem:
     """A bundle adjustment of framing-camera images.
