@@ -52,6 +52,7 @@ def test_the_probe_can_fail() -> None:
     assert _loaded_after("import mercury_dem.cli\nimport numpy") == ["numpy"]
 
 
+@pytest.mark.integration  # a command's start-up in a fresh interpreter with numba
 def test_gridding_stage_does_not_import_the_products() -> None:
     """``mercury-dem grid`` needs the gridding stage only: the products (matplotlib) load on first use."""
     code = "import sys\nimport mercury_dem.pipeline.dem_stage as d\nassert 'matplotlib' not in sys.modules\n" \
@@ -94,6 +95,7 @@ def test_the_command_probe_can_fail(tiny_mission_path: Path) -> None:
     assert loaded_by_command(["info", str(tiny_mission_path), "--no-map", "--json"], ("numpy",)) == ["numpy"]
 
 
+@pytest.mark.integration  # a command's start-up in a fresh interpreter with numba
 def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A cold ``mercury-dem grid`` loads neither the products' nor numba's optional libraries
     (mercury_dem.dem.numba_start) nor zarr (its forked writer does), and grids exactly what the library gives in a process where they are loaded."""
@@ -131,6 +133,7 @@ def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path, mon
     assert np.isfinite(np.asarray(lib["elevation"][...])).mean() > 0.9
 
 
+@pytest.mark.integration  # a command's start-up in a fresh interpreter with numba
 def test_numba_start_guard_is_scoped() -> None:
     """The refusal lasts for the first call only, and is skipped when numba has already started."""
     code = ("import sys\nfrom mercury_dem.dem.numba_start import start_gridding_kernels\n"
@@ -142,6 +145,7 @@ def test_numba_start_guard_is_scoped() -> None:
     assert _fresh_python(code).stdout.strip() == "ok"
 
 
+@pytest.mark.integration  # a command's start-up in a fresh interpreter with numba
 def test_numba_start_falls_back_when_a_refused_import_is_needed() -> None:
     """A first call that does need a refused package (a future numba) runs again with it allowed."""
     code = ("import sys\nfrom mercury_dem.dem.numba_start import start_numba_lean\n"

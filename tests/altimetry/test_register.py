@@ -76,6 +76,7 @@ def test_injected_profile_offsets_recovered(seed):
     assert res.rms_after_m < res.rms_registered_m < res.rms_before_m
 
 
+@pytest.mark.integration  # the option off: 2.3 s; the default path is in the fast loop
 def test_plain_two_step_without_nuisance_still_runs():
     """The plain seed-004 step 1 (profile errors as shot noise) stays available and recovers the shift."""
     win, prof = _case(1, sigma_h_m=30.0)

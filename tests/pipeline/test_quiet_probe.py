@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 
+import pytest
+
 from mercury_dem.config.execution import ExecutionConfig
 from mercury_dem.pipeline.executors import _CommSizeProbeFilter, connect, quiet_comm_size_probe
 
@@ -27,6 +29,7 @@ def test_only_the_comm_probe_message_is_dropped() -> None:
     assert sum(isinstance(x, _CommSizeProbeFilter) for x in logging.getLogger("distributed.sizeof").filters) == 1
 
 
+@pytest.mark.integration  # starts a LocalCluster
 def test_local_cluster_workers_get_the_filter() -> None:
     conn = connect(ExecutionConfig(), "local", workers=1, threads_per_worker=1)
     try:

@@ -64,6 +64,7 @@ def _files(store: Path) -> dict[str, bytes]:
     return {f.relative_to(store).as_posix(): f.read_bytes() for f in sorted(store.rglob("*")) if f.is_file()}
 
 
+@pytest.mark.integration  # a whole `grid` in fresh interpreters (~1.5 s CPU, 4-9 s wall each)
 def test_forked_writer_writes_the_in_process_store_byte_for_byte(cloud: tuple[Path, Path], tmp_path: Path) -> None:
     pts, cfg = cloud
     forked = _result(_python(_grid_code(pts, cfg, tmp_path / "forked")))
@@ -89,6 +90,7 @@ def test_forked_writer_writes_the_in_process_store_byte_for_byte(cloud: tuple[Pa
     assert not [p for p in tmp_path.rglob("*") if ".tmp" in p.name]  # no temporary left
 
 
+@pytest.mark.integration  # a whole `grid` in fresh interpreters (~1.5 s CPU, 4-9 s wall each)
 def test_a_fault_in_the_writer_is_a_store_error_and_leaves_no_store(cloud: tuple[Path, Path], tmp_path: Path) -> None:
     """The child inherits a create_store that fails as a full disk would: the command says where and what."""
     pts, cfg = cloud
@@ -103,6 +105,7 @@ def test_a_fault_in_the_writer_is_a_store_error_and_leaves_no_store(cloud: tuple
     assert [p.name for p in (tmp_path / "out").iterdir()] == []  # nothing half-written, no temporary
 
 
+@pytest.mark.integration  # a whole `grid` in fresh interpreters (~1.5 s CPU, 4-9 s wall each)
 def test_a_fault_while_gridding_stops_the_writer_and_leaves_no_store(cloud: tuple[Path, Path], tmp_path: Path) -> None:
     pts, cfg = cloud
     prelude = ("import mercury_dem.pipeline.dem_stage as ds\nfrom mercury_dem.exceptions import GridError\n"
@@ -117,6 +120,7 @@ def test_a_fault_while_gridding_stops_the_writer_and_leaves_no_store(cloud: tupl
     assert [p.name for p in (tmp_path / "out").iterdir()] == []
 
 
+@pytest.mark.integration  # a whole `grid` in fresh interpreters (~1.5 s CPU, 4-9 s wall each)
 def test_the_writer_declines_where_it_does_not_apply(cloud: tuple[Path, Path], tmp_path: Path) -> None:
     """No fork with the variable set, with zarr imported, with another thread running; a request it cannot
     carry unchanged (a tuple attribute becomes a JSON list) stops the child and grid_dem writes in-process."""
