@@ -327,6 +327,8 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 
 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engine_factory: Any = None) -> dict[str, Any]:
+    from mercury_dem.adjust.cascade import rejudged_network
+    from mercury_dem.network.check import singular_parts
     from mercury_dem.network.merge import merge_networks
     from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.adjust_adapter import adjust_network
@@ -343,15 +345,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engi
         except CorruptUnitError:
             store.invalidate_unit(child_level, c)  # withdrawn (marker first): the resumed run recomputes it
             raise
-        net = read_network(store.network_path(child_level, c))
-        if child_level != "tile":
-            # Every measure is judged again at this level. The a-priori coordinates stay
-            # those of the tiles (the a-priori DEM of the validation is gridded from them).
-            net = net.replace(
-                measure_rejected=np.zeros_like(net.measure_rejected),
-                point_rejected=np.zeros_like(net.point_rejected),
-            )
-        nets.append(net)
+        nets.append(rejudged_network(read_network(store.network_path(child_level, c)), child_level))
     merged_all = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network
     merged = merged_all.drop_unused_images()
     if merged.n_measures == 0:
@@ -389,25 +383,6 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engi
     }
 
 
-def singular_parts(merged_all: Any, merged: Any, limit: int = 20) -> dict[str, Any]:
-    """What a unit's merged network holds that the adjustment cannot determine, by name.
-
-    ``images_without_measures``: images of the children's networks with no measure (left out of the
-    adjustment: they keep their a-priori pointing unless another unit adjusts them);
-    ``single_measure_points``: ids (the first ``limit``) and count of points seen by one image only
-    (left unadjusted: one ray fixes no position). ``merged_all`` is the merge, ``merged`` the same
-    without the images that have no measure.
-    """
-    dropped = sorted(set(map(str, merged_all.image_ids)) - set(map(str, merged.image_ids)))
-    per_point = merged.measures_per_point()
-    single = np.flatnonzero(per_point == 1)
-    ids = [p.item() if hasattr(p, "item") else p for p in merged.point_ids[single[:limit]]]  # JSON-able
-    return {
-        "images_without_measures": dropped,
-        "single_measure_points": {"count": int(single.size), "ids": ids},
-    }
-
-
 def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) -> Any:
     """The mission's altimetry shots around a unit's tie points, when this level is constrained by them.
 
@@ -419,21 +394,12 @@ def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) 
     store = getattr(mission, "altimetry", None)
     if store is None or not getattr(store, "n_shots", 0):
         return None
-    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
-    from mercury_dem.geometry.tiling import TileGrid
+    from mercury_dem.altimetry.constraints import AltimetryShotsArrays, shot_tiles_for_points
 
-    # The tiles' a-priori points (the merged children's adjusted points would do as well: the tiles read
-    # only need to hold them).
-    xyz = np.asarray(network.apriori_xyz, np.float64)
-    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
-    lat = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
-    lon = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) % 360.0
-    tiles = sorted(set(TileGrid(store.tile_size_deg).tile_of(lat, lon).tolist()) & set(store.tiles))
+    tiles = shot_tiles_for_points(network.apriori_xyz, store.tile_size_deg, list(store.tiles))
     if not tiles:
         return None
-    columns = ["lat", "lon", "radius_m", "sigma_m"]
-    table = (store.read(columns) if len(tiles) > len(store.tiles) // 2
-             else pd.concat([store.read_tile(t, columns) for t in tiles], ignore_index=True))
+    table = store.read_tiles(tiles, ["lat", "lon", "radius_m", "sigma_m"])
     return AltimetryShotsArrays.from_table(table)
 
 
@@ -479,24 +445,19 @@ class _NoInput(MercuryDemError):
 
 def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids: list[str],
                         rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Starting pointing of each image from the children's solutions.
+    """Starting pointing of each image from the children's solutions (read from the store).
 
-    An image near a border was adjusted in several children; it starts from the
-    child in which it had the most measures (the best-determined solution), ties
-    broken by the lower child id. Images no child adjusted keep their a-priori pose.
+    The rule (the child in which the image had the most measures, ties to the earlier child) is
+    :func:`mercury_dem.adjust.cascade.warm_start`; this reads the children's ``solution.parquet`` for it.
     """
-    index = {k: n for n, k in enumerate(ids)}
-    rot, pos = rotations.copy(), positions.copy()
-    best = np.full(len(ids), -1, dtype=np.int64)
-    for c in kids:
+    from mercury_dem.adjust.cascade import ChildSolution, warm_start
+
+    solutions = []
+    for c in kids:  # in the merge tree's order (ascending ids): the tie rule depends on it
         sid, srot, spos, table = read_solution(store.solution_path(child_level, c))
-        nmeas = table["n_measures"].to_numpy() if "n_measures" in table else np.ones(sid.size, int)
-        for k, image_id in enumerate(sid):
-            n = index.get(str(image_id))
-            if n is not None and nmeas[k] > best[n]:
-                best[n] = nmeas[k]
-                rot[n], pos[n] = srot[k], spos[k]
-    return rot, pos
+        nmeas = table["n_measures"].to_numpy() if "n_measures" in table else None
+        solutions.append(ChildSolution(sid, srot, spos, nmeas))
+    return warm_start(ids, rotations, positions, solutions)
 
 
 def fatal_error(exc: BaseException, level: str, unit_id: int, where: Any) -> MercuryDemError | None:
