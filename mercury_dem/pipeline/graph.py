@@ -12,7 +12,6 @@ skipped by the runners themselves, which is how a killed run resumes.
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -200,7 +199,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     t = time.perf_counter()
     stage[0] = "the plan (RUN/plan)"
     if store.plan_complete() and not _plan_corrupt(store, integrity, stream):
-        plan = json.loads((store.plan_dir / "plan.json").read_text())
+        plan = store.read_plan_info()
     else:
         plan = plan_run(store, mission, config)
     timings["plan"] = time.perf_counter() - t
@@ -238,8 +237,8 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     finally:
         if own:
             conn.close()
-        if conn.mode != "sync" and store.performance_html.is_file():
-            store.commit_file("performance.html")
+        if conn.mode != "sync":
+            store.commit_performance_report()
     timings["total"] = time.perf_counter() - t_start
     stage[0] = "the report (RUN/report.json)"
     report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
