@@ -58,6 +58,8 @@ SUMMARY_FILE = "summary.json"
 PLAN_INFO_FILE = "plan.json"
 PLAN_IMAGES_FILE = "images.parquet"
 PLAN_PAIRS_FILE = "overlaps.parquet"
+#: What the DEM stage writes into ``RUN/`` (removed by ``--force dem`` or an earlier stage).
+DEM_OUTPUTS = ("dem.zarr", "dem_chunks", "coverage.zarr", "products")
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from typing import Any, TextIO
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
-from mercury_dem.io.run_store import RunStore
+from mercury_dem.io.run_store import DEM_OUTPUTS, RunStore
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile, unit_name
@@ -132,7 +132,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             elif stage in LEVELS:
                 store.remove_level(stage)
             elif stage == "dem":
-                for name in ("dem.zarr", "dem_chunks", "coverage.zarr", "products"):
+                for name in DEM_OUTPUTS:
                     store.remove(name)
     store.write_run({
         "mission": mission_abs,
