@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 __all__ = ["AltimetryShotsArrays", "RadiusPriors", "altimetry_radius_priors", "bundle_adjust_with_altimetry",
-           "constrain_to_altimetry", "radius_priors_within", "unit_vectors"]
+           "constrain_to_altimetry", "radius_priors_within", "shot_tiles_for_points", "unit_vectors"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -409,3 +409,30 @@ def bundle_adjust_with_altimetry(
     second = dataclasses.replace(constrain_to_altimetry(problem, priors, directions=first.points),
                                  initial_rotations=np.asarray(first.rotations))
     return adjust(second, config), priors
+
+
+def shot_tiles_for_points(points_xyz: ArrayLike, tile_size_deg: float, shot_tiles: Sequence[int]) -> list[int]:
+    """The altimetry tiles a block's tie points lie in: the shots an adjustment of the block needs to read.
+
+    Parameters
+    ----------
+    points_xyz : (n, 3) body-fixed points (non-finite rows are ignored); the a-priori points of a
+        unit's network do (the merged children's adjusted points would do as well: the tiles read only
+        need to hold them).
+    tile_size_deg : float
+        The altimetry store's tile size.
+    shot_tiles : sequence of int
+        The tiles that hold shots.
+
+    Returns
+    -------
+    list of int
+        Sorted ids of the tiles of ``shot_tiles`` that hold at least one point; [] when none does.
+    """
+    from mercury_dem.geometry.tiling import TileGrid
+
+    xyz = np.asarray(points_xyz, np.float64).reshape(-1, 3)
+    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    lat = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
+    lon = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) % 360.0
+    return sorted(set(TileGrid(tile_size_deg).tile_of(lat, lon).tolist()) & {int(t) for t in shot_tiles})

@@ -307,6 +307,16 @@ class AltimetryStore:
             return empty if columns is None else empty[list(columns)]
         return self._read(groups, columns)
 
+    def read_tiles(self, tiles: Sequence[int], columns: Sequence[str] | None = None) -> pd.DataFrame:
+        """The shots of some tiles, or every shot when they are more than half the store's tiles (one read
+        of the whole file is then cheaper than one per tile; the caller selects shots by distance anyway).
+        """
+        if len(tiles) > len(self.tiles) // 2:
+            return self.read(columns)
+        import pandas as pd
+
+        return pd.concat([self.read_tile(t, columns) for t in tiles], ignore_index=True)
+
     def summary(self) -> dict[str, Any]:
         """Counts for ``info``: shots, profiles, tiles, drops, sources."""
         return {"n_shots": self.n_shots, "n_tracks": self.n_tracks, "n_tiles": len(self.tiles),

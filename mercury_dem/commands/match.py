@@ -28,7 +28,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     store = prepare_store(args.mission, args.out, config, None)
     if store.plan_complete():
-        plan = json.loads((store.plan_dir / "plan.json").read_text())
+        plan = store.read_plan_info()
     else:
         plan = plan_run(store, open_mission(args.mission), config)
     tiles = [int(t) for t in args.tiles.split(",")] if args.tiles else plan["non_empty_tiles"]

@@ -37,15 +37,29 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import CorruptUnitError, StoreError
-from mercury_dem.io.atomic import _tmp_sibling, atomic_write_json, is_complete, verify_complete
+from mercury_dem.io.atomic import _tmp_sibling, atomic_directory, atomic_write_json, is_complete, verify_complete
 from mercury_dem.io.location import resolve_location
 from mercury_dem.io.remote import RemoteDir, cache_dir_for
 from mercury_dem.io.tables import read_table
 from mercury_dem.plan.tree import LEVELS
 
 if TYPE_CHECKING:  # imported where tables are read or written: 'report' and 'verify' need neither
+    from collections.abc import Callable, Mapping
+
     import numpy as np
     import pandas as pd
+
+#: File names inside a unit directory (``RUN/<level>/<id>/``) and the plan (``RUN/plan/``).
+NETWORK_FILE = "network.zarr"
+PAIRS_FILE = "pairs.parquet"
+SOLUTION_FILE = "solution.parquet"
+BUNDLEOUT_FILE = "bundleout.txt"
+SUMMARY_FILE = "summary.json"
+PLAN_INFO_FILE = "plan.json"
+PLAN_IMAGES_FILE = "images.parquet"
+PLAN_PAIRS_FILE = "overlaps.parquet"
+#: What the DEM stage writes into ``RUN/`` (removed by ``--force dem`` or an earlier stage).
+DEM_OUTPUTS = ("dem.zarr", "dem_chunks", "coverage.zarr", "products")
 
 
 @dataclass(frozen=True)
@@ -213,6 +227,20 @@ class RunStore:
     def performance_html(self) -> Path:
         return self.root / "performance.html"
 
+    @property
+    def plan_json(self) -> Path:
+        return self.plan_dir / PLAN_INFO_FILE
+
+    def write_report(self, report: dict[str, Any]) -> None:
+        """Write ``report.json`` atomically (and commit it to a bucket run)."""
+        atomic_write_json(self.report_json, report)
+        self.commit_file(self.report_json.name)
+
+    def commit_performance_report(self) -> None:
+        """Upload ``performance.html`` (Dask's, written by the distributed client) to a bucket run, if written."""
+        if self.performance_html.is_file():
+            self.commit_file(self.performance_html.name)
+
     def read_run(self) -> dict[str, Any]:
         if self.url is not None:
             data = self.remote.read_bytes("run.json")
@@ -292,21 +320,36 @@ class RunStore:
         """Commit a unit written into :meth:`unit_dir` to the bucket (no-op for a local run)."""
         self.commit_dir(self._unit_key(level, unit_id))
 
+    def write_unit(self, level: str, unit_id: int, summary: Mapping[str, Any],
+                   files: Mapping[str, Callable[[Path], object]] | None = None) -> None:
+        """Write a unit directory atomically: its files, then ``summary.json``, then the completion marker.
+
+        ``files``: file name (:data:`NETWORK_FILE`, ...) -> a function writing that file at the path it is
+        given (:meth:`mercury_dem.pipeline.results.UnitFiles.writers`). The marker holds every file's
+        SHA-256, so a unit damaged after its commit is detected on resume. On a bucket run the directory
+        is built in the cache, then committed with the marker last (:mod:`mercury_dem.io.remote`).
+        """
+        with atomic_directory(self.unit_dir(level, unit_id), overwrite=True, checksums=True) as tmp:
+            for name, write in (files or {}).items():
+                write(tmp / name)
+            atomic_write_json(tmp / SUMMARY_FILE, dict(summary))
+        self.commit_unit(level, unit_id)
+
     def network_path(self, level: str, unit_id: int) -> Path:
-        return self.local_unit(level, unit_id) / "network.zarr"
+        return self.local_unit(level, unit_id) / NETWORK_FILE
 
     def solution_path(self, level: str, unit_id: int) -> Path:
-        return self.local_unit(level, unit_id) / "solution.parquet"
+        return self.local_unit(level, unit_id) / SOLUTION_FILE
 
     def unit_file(self, level: str, unit_id: int, name: str) -> Path:
         return self.local_unit(level, unit_id) / name
 
     def summary_path(self, level: str, unit_id: int) -> Path:
-        return self.unit_dir(level, unit_id) / "summary.json"
+        return self.unit_dir(level, unit_id) / SUMMARY_FILE
 
     def read_summary(self, level: str, unit_id: int) -> dict[str, Any]:
         if self.url is not None:
-            key = f"{self._unit_key(level, unit_id)}/summary.json"
+            key = f"{self._unit_key(level, unit_id)}/{SUMMARY_FILE}"
             data = self.remote.read_bytes(key)
             if data is None:
                 raise StoreError(f"{self.remote.url_of(key)} does not exist; resume the run to recompute the unit")
@@ -330,16 +373,27 @@ class RunStore:
             self.remote.remove(level)
 
     # -- plan ------------------------------------------------------------------------
+    def write_plan(self, images: pd.DataFrame, pairs: pd.DataFrame, info: dict[str, Any]) -> None:
+        """Write the plan (images table, overlap pairs, plan info) atomically with checksums, and commit it."""
+        with atomic_directory(self.plan_dir, overwrite=True, checksums=True) as tmp:
+            images.to_parquet(tmp / PLAN_IMAGES_FILE, index=False)
+            pairs.to_parquet(tmp / PLAN_PAIRS_FILE, index=False)
+            (tmp / PLAN_INFO_FILE).write_text(json.dumps(info, indent=2))
+        self.commit_dir("plan")
+
+    def read_plan_info(self) -> dict[str, Any]:
+        """The plan's ``plan.json`` (tile size, non-empty tiles, exclusions, counts) of a complete plan."""
+        return json.loads(self.plan_json.read_text())
+
     def read_plan(self) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Any]]:
         """(images table, overlap pairs table, plan info)."""
         if self.url is not None:
             self.remote.fetch_dir("plan", self.plan_dir)
         if not is_complete(self.plan_dir):
             raise StoreError(f"{self.plan_dir} is missing or incomplete; re-run 'mercury-dem run'")
-        images = read_table(self.plan_dir / "images.parquet", f"run plan {self.plan_dir}")
-        pairs = read_table(self.plan_dir / "overlaps.parquet", f"run plan {self.plan_dir}")
-        info = json.loads((self.plan_dir / "plan.json").read_text())
-        return images, pairs, info
+        images = read_table(self.plan_dir / PLAN_IMAGES_FILE, f"run plan {self.plan_dir}")
+        pairs = read_table(self.plan_dir / PLAN_PAIRS_FILE, f"run plan {self.plan_dir}")
+        return images, pairs, self.read_plan_info()
 
     def plan_complete(self) -> bool:
         """Whether the plan is committed (fetched into the cache for a URL run)."""

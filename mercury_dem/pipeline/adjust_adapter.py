@@ -7,70 +7,15 @@ unit's summary (the ``levels`` rows of report.json).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.adjust.datum import on_datum, recentre_on_block  # noqa: F401 - moved to adjust.datum; re-exported
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M
-
-
-def on_datum(xyz: NDArray[np.float64], datum_radius_m: float = DATUM_RADIUS_M) -> NDArray[np.float64]:
-    """Points moved radially onto the datum sphere (direction kept; zero vectors kept as they are).
-
-    The a-priori point of a control point is, as in ISIS with an ellipsoid shape,
-    where its ray meets the shape model — not the intersection of rays under the
-    a-priori pointing: with pointing errors of a few hundred µrad and the small
-    convergence of most pairs, that triangulation misplaces heights by kilometres, and
-    a radius constraint centred there pins the points (and, through them, the pointing)
-    to those errors. Measured on the tiny mission (global level, same network): image
-    registration error 0.90 px with the triangulated centre, 0.37 px with the datum.
-    """
-    xyz = np.asarray(xyz, np.float64)
-    r = np.linalg.norm(xyz, axis=-1, keepdims=True)
-    return np.where(r > 0, xyz * (datum_radius_m / np.where(r > 0, r, 1.0)), xyz)
-
-
-def recentre_on_block(problem: Any, cfg: AdjustConfig, datum_radius_m: float = DATUM_RADIUS_M,
-                      adjust: Any = None) -> tuple[Any, dict[str, Any]]:
-    """The problem with its free points' radius constraints centred on the block's own surface.
-
-    A first adjustment with the radius constraint loosened to ``cfg.point_prior_first_pass_sigma_m``
-    (the points follow their rays, unbiased but noisy where the rays are nearly parallel); each
-    point is then placed, along its first-pass direction, at the median first-pass radius of its
-    ``cfg.point_prior_neighbours`` nearest determined points
-    (:func:`mercury_dem.adjust.datum.neighbour_radii`), which is where its constraint (the
-    configured sigma) is centred; the pointing starts from the first pass. Why: centred on the
-    datum sphere, the constraint pulls weak points toward the sphere by a share of their true
-    height, and the block bends with the body's long-wavelength shape (docs/design/adjust.md,
-    "The block's long-wavelength shape"). Points without a usable neighbourhood keep their centre.
-    Returns the new problem and a summary for the unit's report. ``adjust(problem, config)`` runs the
-    first pass (default :func:`~mercury_dem.adjust.bundle.bundle_adjust`).
-    """
-    from mercury_dem.adjust.bundle import bundle_adjust
-    from mercury_dem.adjust.datum import neighbour_radii
-
-    first = (adjust or bundle_adjust)(problem, dataclasses.replace(cfg, radius_sigma_m=cfg.point_prior_first_pass_sigma_m))
-    held = np.asarray(problem.held_points, bool)
-    pts = np.asarray(first.points, np.float64)
-    usable = ~np.asarray(first.underdetermined_points, bool) & np.all(np.isfinite(pts), axis=1)
-    radii = neighbour_radii(pts, usable, cfg.point_prior_neighbours)
-    norm = np.linalg.norm(pts, axis=1)
-    move = ~held & np.isfinite(radii) & np.isfinite(norm) & (norm > 0)
-    new = np.array(problem.points, np.float64, copy=True)
-    new[move] = pts[move] / norm[move, None] * radii[move, None]
-    heights = radii[move] - datum_radius_m
-    summary = {
-        "recentred_points": int(move.sum()),
-        "first_pass_iterations": int(first.iterations),
-        "first_pass_sigma0": float(first.sigma0),
-        "centre_height_m": ({"median": float(np.median(heights)), "p5": float(np.percentile(heights, 5)),
-                             "p95": float(np.percentile(heights, 95))} if move.any() else None),
-    }
-    return dataclasses.replace(problem, points=new, initial_rotations=np.asarray(first.rotations)), summary
 
 
 def levelling_for(problem: Any, cfg: AdjustConfig, altimetry: Any = None) -> Any:
@@ -149,16 +94,14 @@ def adjust_network(
     altimetry), which gives the same solution to solver tolerance; ``summary["blocked"]`` says so.
     """
     from mercury_dem.adjust.bundle import bundle_adjust
+    from mercury_dem.adjust.cascade import unit_config
+    from mercury_dem.adjust.datum import centre_point_priors
     from mercury_dem.adjust.network import network_with_result, problem_from_network
     from mercury_dem.adjust.report import text_report
 
-    cfg = dataclasses.replace(config, allow_islands=True)
     ids = np.asarray(network.image_ids).astype(str)
-    # An image without a measure (an imported or edited network) carries no information: it is held at its
-    # a-priori pose and named, instead of making the whole solve an AdjustmentError.
-    no_measures = ids[np.bincount(network.measure_image, minlength=network.n_images) == 0]
-    if no_measures.size:
-        cfg = dataclasses.replace(cfg, held_images=tuple(dict.fromkeys([*cfg.held_images, *no_measures.tolist()])))
+    # islands allowed, images without measures held and named (adjust.cascade.unit_config)
+    cfg, no_measures = unit_config(config, ids, network.measure_image)
     problem, measure_index = problem_from_network(
         network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
     )
@@ -170,9 +113,7 @@ def adjust_network(
 
         def solve(p: Any, c: AdjustConfig) -> Any:
             return blocked_bundle_adjust(p, c, block_points=cfg.blocked_block_points, engine_factory=engine_factory)
-    if cfg.point_prior_center == "datum":
-        held = np.asarray(problem.held_points, bool)[:, None]
-        problem = dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
+    problem = centre_point_priors(problem, cfg.point_prior_center, datum_radius_m)
     prior_summary: dict[str, Any] | None = None
     decision = None
     if recentre_point_priors:
@@ -215,7 +156,7 @@ def adjust_network(
         "solve_seconds": float(result.solve_seconds),
         "flagged_images": flagged,
         "islands": islands if len(islands) > 1 else [],
-        "images_without_measures": no_measures.tolist(),
+        "images_without_measures": no_measures,
     }
     if blocked:
         summary["blocked"] = result.extra.get("blocked")

@@ -12,7 +12,6 @@ skipped by the runners themselves, which is how a killed run resumes.
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -23,7 +22,7 @@ from typing import Any, TextIO
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
-from mercury_dem.io.run_store import RunStore
+from mercury_dem.io.run_store import DEM_OUTPUTS, RunStore
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile, unit_name
@@ -133,7 +132,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             elif stage in LEVELS:
                 store.remove_level(stage)
             elif stage == "dem":
-                for name in ("dem.zarr", "dem_chunks", "coverage.zarr", "products"):
+                for name in DEM_OUTPUTS:
                     store.remove(name)
     store.write_run({
         "mission": mission_abs,
@@ -200,7 +199,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     t = time.perf_counter()
     stage[0] = "the plan (RUN/plan)"
     if store.plan_complete() and not _plan_corrupt(store, integrity, stream):
-        plan = json.loads((store.plan_dir / "plan.json").read_text())
+        plan = store.read_plan_info()
     else:
         plan = plan_run(store, mission, config)
     timings["plan"] = time.perf_counter() - t
@@ -238,8 +237,8 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     finally:
         if own:
             conn.close()
-        if conn.mode != "sync" and store.performance_html.is_file():
-            store.commit_file("performance.html")
+        if conn.mode != "sync":
+            store.commit_performance_report()
     timings["total"] = time.perf_counter() - t_start
     stage[0] = "the report (RUN/report.json)"
     report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)

@@ -14,8 +14,7 @@ import sys
 from typing import TYPE_CHECKING, Any, TextIO
 
 from mercury_dem.config import Config, to_dict
-from mercury_dem.io.atomic import atomic_write_json
-from mercury_dem.io.run_store import RunStore, read_solution
+from mercury_dem.io.run_store import PAIRS_FILE, RunStore, read_solution
 from mercury_dem.io.tables import read_table
 
 if TYPE_CHECKING:
@@ -126,7 +125,7 @@ def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], 
         partners[b] = partners.get(b, 0) + 1
     rows = []
     for t in store.completed_units("tile"):
-        p = store.unit_file("tile", t, "pairs.parquet")
+        p = store.unit_file("tile", t, PAIRS_FILE)
         if p.is_file():
             t = read_table(p, f"tile {t}")  # a tile without pairs wrote a table without columns
             if {"ref_id", "match_id", "status", "reason"} <= set(t.columns):
@@ -166,9 +165,8 @@ def _mission_ref(store: RunStore, mission: Mission) -> str:
 
 
 def write_report(store: RunStore, report: dict[str, Any]) -> None:
-    """Write ``report.json`` into the run store atomically (and commit it to a bucket run)."""
-    atomic_write_json(store.report_json, report)
-    store.commit_file("report.json")
+    """Write ``report.json`` into the run store atomically (and commit it to a bucket run): :meth:`RunStore.write_report`."""
+    store.write_report(report)
 
 
 def _f(x: Any, fmt: str = ".3f") -> str:

@@ -6,14 +6,19 @@ synchronous client or in a plain loop. Expected failures (a tile with no
 overlapping images, a region whose tiles all failed, an unsolvable adjustment)
 are returned as ``{"ok": False, "error": "..."}`` summaries, and written, so the
 run goes on and a resumed run does not retry them (``--force`` does).
+
+Thin runners (issue 20): a runner loads its inputs, calls the library and saves. The decisions that
+change a result are library functions (:mod:`mercury_dem.adjust.cascade`, :mod:`mercury_dem.adjust.datum`,
+:func:`mercury_dem.network.check.singular_parts`, :func:`mercury_dem.altimetry.constraints.shot_tiles_for_points`);
+summaries are typed (:mod:`mercury_dem.pipeline.results`, serialized there) and every file is written by
+:class:`~mercury_dem.io.run_store.RunStore` (``write_plan``, ``write_unit``).
 """
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import re
 import time
-import traceback
 from typing import Any
 
 import numpy as np
@@ -24,9 +29,18 @@ from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemEr
 from mercury_dem.geometry.footprints import overlap_graph
 from mercury_dem.geometry.pose import validate_pose
 from mercury_dem.geometry.tiling import TileGrid
-from mercury_dem.io.atomic import atomic_directory, atomic_write_json, disk_full_cause, disk_full_message
-from mercury_dem.io.run_store import RunStore, read_solution, unit_name, write_solution  # unit_name: re-exported
+from mercury_dem.io.atomic import disk_full_cause, disk_full_message
+from mercury_dem.io.run_store import RunStore, read_solution, unit_name  # unit_name: re-exported
 from mercury_dem.mission import Mission, open_mission
+from mercury_dem.pipeline.results import (
+    FailureSummary,
+    TileCounts,
+    TileSummary,
+    UnitFiles,
+    UnitSolution,
+    UnitSummary,
+    UnitTiming,
+)
 from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
 from mercury_dem.plan.tree import child_ids as _tree_child_ids
 
@@ -97,11 +111,7 @@ def plan_run(store: RunStore, mission: Mission, config: Config) -> dict[str, Any
         "overlap_pairs": int(len(pairs)),
         "seconds": time.perf_counter() - t0,
     }
-    with atomic_directory(store.plan_dir, overwrite=True, checksums=True) as tmp:
-        images.to_parquet(tmp / "images.parquet", index=False)
-        pairs.to_parquet(tmp / "overlaps.parquet", index=False)
-        (tmp / "plan.json").write_text(json.dumps(info, indent=2))
-    store.commit_dir("plan")
+    store.write_plan(images, pairs, info)
     return info
 
 
@@ -143,36 +153,34 @@ def _geometry(mission: Mission, image_ids: list[str]) -> tuple[dict[str, Any], l
 
 # --------------------------------------------------------------------------- tiles
 def run_tile(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
-    """Match every image of a tile with its overlaps and build the tile's control network."""
+    """Match every image of a tile with its overlaps and build the tile's control network.
+
+    Returns the tile's summary in its JSON form (:class:`~mercury_dem.pipeline.results.TileSummary`), as written.
+    """
     store = RunStore(run_root)
     if store.unit_complete("tile", tile_id):
         return store.read_summary("tile", tile_id)
     t0 = time.perf_counter()
-    summary: dict[str, Any] = {"level": "tile", "id": int(tile_id), "ok": False, "error": None}
     try:
-        summary.update(_run_tile(store, tile_id, config))
-        summary["ok"] = summary["points"] > 0
-        if not summary["ok"] and not summary["error"]:
-            summary["error"] = _no_points_reason(tile_id, summary)
+        counts, files = _run_tile(store, tile_id, config)
     except MercuryDemError as exc:
         raise_if_fatal(exc, "tile", tile_id, store)
-        summary["error"] = f"tile {tile_id}: {exc}"
-        _write_unit(store, "tile", tile_id, summary, t0)
-        return summary
-    _write_unit(store, "tile", tile_id, summary, t0, files=summary.pop("_files", {}))
-    return summary
+        return _write_unit(store, "tile", tile_id, TileSummary(id=int(tile_id), error=f"tile {tile_id}: {exc}"), t0)
+    ok = counts.points > 0
+    summary = TileSummary(id=int(tile_id), ok=ok, error=None if ok else _no_points_reason(tile_id, counts),
+                          counts=counts)
+    return _write_unit(store, "tile", tile_id, summary, t0, files=files)
 
 
-def _no_points_reason(tile_id: int, s: dict[str, Any]) -> str:
-    if s.get("pairs", 0) == 0:
-        return (f"tile {tile_id}: no overlapping image pairs ({s.get('images', 0)} images); "
+def _no_points_reason(tile_id: int, s: TileCounts) -> str:
+    if s.pairs == 0:
+        return (f"tile {tile_id}: no overlapping image pairs ({s.images} images); "
                 "nothing to match — add images that overlap these or accept them as uncontrolled")
-    reasons = s.get("pair_failures", {})
-    top = ", ".join(f"{k} ({v})" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])[:3])
-    return f"tile {tile_id}: {s.get('pairs', 0)} pairs gave no control point; pair failures: {top or 'none'}"
+    top = ", ".join(f"{k} ({v})" for k, v in sorted(s.pair_failures.items(), key=lambda kv: -kv[1])[:3])
+    return f"tile {tile_id}: {s.pairs} pairs gave no control point; pair failures: {top or 'none'}"
 
 
-def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
+def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
     from mercury_dem.match.matcher import iter_rows, match_tile
     from mercury_dem.network.build import build_network, convergence_sigma_factor
 
@@ -214,18 +222,18 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
         datum_radius_m=mission.body.datum_radius_m,
     )
     net = built.network
-    return {
-        "images": len(ref_ids),
-        "images_involved": len(involved),
-        "pairs": len(pair_list),
-        "pairs_matched": int((rows["status"] == "matched").sum()) if len(rows) else 0,
-        "routes": rows["route"].value_counts().to_dict() if len(rows) else {},
-        "pair_failures": failures,
-        "image_errors": image_errors,
-        "points": int(net.n_points),
-        "measures": int(net.n_measures),
-        "_files": {"network": net, "pairs": rows},
-    }
+    counts = TileCounts(
+        images=len(ref_ids),
+        images_involved=len(involved),
+        pairs=len(pair_list),
+        pairs_matched=int((rows["status"] == "matched").sum()) if len(rows) else 0,
+        routes=rows["route"].value_counts().to_dict() if len(rows) else {},
+        pair_failures=failures,
+        image_errors=image_errors,
+        points=int(net.n_points),
+        measures=int(net.n_measures),
+    )
+    return counts, UnitFiles(network=net, pairs=rows)
 
 
 def pixel_faults(pixels: dict[str, Any], radiometry: dict[str, tuple[float, float]], match_cfg: Any) -> dict[str, str]:
@@ -250,31 +258,12 @@ def pixel_faults(pixels: dict[str, Any], radiometry: dict[str, tuple[float, floa
     return out
 
 
-def _write_unit(store: RunStore, level: str, unit_id: int, summary: dict[str, Any], t0: float,
-                files: dict[str, Any] | None = None) -> None:
-    """Write a unit directory atomically: its files, then summary.json, then the marker.
-
-    On a bucket run the directory is built in the cache, then committed by
-    :meth:`RunStore.commit_unit` (the marker last, see :mod:`mercury_dem.io.remote`).
-    """
-    from mercury_dem.network.store import write_network
-
-    summary["seconds"] = time.perf_counter() - t0
-    summary["finished_at"] = time.time()  # wall clock (s since the epoch): level spans across workers
-    summary["started_at"] = summary["finished_at"] - summary["seconds"]
-    # the marker holds every file's SHA-256: a unit damaged after its commit is detected on resume
-    with atomic_directory(store.unit_dir(level, unit_id), overwrite=True, checksums=True) as tmp:
-        for name, obj in (files or {}).items():
-            if name == "network":
-                write_network(obj, tmp / "network.zarr")
-            elif name == "pairs":
-                obj.to_parquet(tmp / "pairs.parquet", index=False)
-            elif name == "solution":
-                write_solution(tmp / "solution.parquet", **obj)
-            elif name == "bundleout":
-                (tmp / "bundleout.txt").write_text(obj)
-        atomic_write_json(tmp / "summary.json", summary)
-    store.commit_unit(level, unit_id)  # a bucket run: data objects, then the marker last
+def _write_unit(store: RunStore, level: str, unit_id: int, summary: TileSummary | UnitSummary, t0: float,
+                files: UnitFiles | None = None) -> dict[str, Any]:
+    """Write a unit through :meth:`RunStore.write_unit` with its timing; return its summary's JSON form."""
+    out = dataclasses.replace(summary, timing=UnitTiming.since(t0)).to_json()
+    store.write_unit(level, unit_id, out, (files or UnitFiles()).writers())
+    return out
 
 
 # --------------------------------------------------------------------------- cascade
@@ -295,19 +284,12 @@ def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
     if store.unit_complete(level, unit_id):
         return store.read_summary(level, unit_id)
     t0 = time.perf_counter()
-    name = unit_name(level, unit_id)
-    summary: dict[str, Any] = {"level": level, "id": int(unit_id), "name": name, "ok": False, "error": None}
-    files: dict[str, Any] = {}
     try:
-        result = _adjust_unit(store, level, unit_id, config, engine_factory=engine_factory)
-        files = result.pop("_files", {})
-        summary.update(result)
-        summary["ok"] = True
+        summary, files = _adjust_unit(store, level, unit_id, config, engine_factory=engine_factory)
     except MercuryDemError as exc:
         raise_if_fatal(exc, level, unit_id, store)
-        summary["error"] = f"{name}: {exc}"
-    _write_unit(store, level, unit_id, summary, t0, files=files)
-    return summary
+        summary, files = UnitSummary(level, int(unit_id), error=f"{unit_name(level, unit_id)}: {exc}"), UnitFiles()
+    return _write_unit(store, level, unit_id, summary, t0, files=files)
 
 
 def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: str, config: Config) -> str:
@@ -326,7 +308,10 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
             + " — images in no other network keep their a-priori pointing")
 
 
-def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engine_factory: Any = None) -> dict[str, Any]:
+def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
+                 engine_factory: Any = None) -> tuple[UnitSummary, UnitFiles]:
+    from mercury_dem.adjust.cascade import rejudged_network
+    from mercury_dem.network.check import singular_parts
     from mercury_dem.network.merge import merge_networks
     from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.adjust_adapter import adjust_network
@@ -343,15 +328,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engi
         except CorruptUnitError:
             store.invalidate_unit(child_level, c)  # withdrawn (marker first): the resumed run recomputes it
             raise
-        net = read_network(store.network_path(child_level, c))
-        if child_level != "tile":
-            # Every measure is judged again at this level. The a-priori coordinates stay
-            # those of the tiles (the a-priori DEM of the validation is gridded from them).
-            net = net.replace(
-                measure_rejected=np.zeros_like(net.measure_rejected),
-                point_rejected=np.zeros_like(net.point_rejected),
-            )
-        nets.append(net)
+        nets.append(rejudged_network(read_network(store.network_path(child_level, c)), child_level))
     merged_all = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network
     merged = merged_all.drop_unused_images()
     if merged.n_measures == 0:
@@ -372,40 +349,14 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config, engi
                          altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
                          recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
                          engine_factory=engine_factory)
-    return {
-        "children": kids,
-        **adj.summary,
-        **singular,
-        "images_without_measures": sorted(set(singular["images_without_measures"])
-                                          | set(adj.summary.get("images_without_measures", []))),
-        "_files": {
-            "bundleout": adj.text_report,
-            "network": adj.network,
-            "solution": {
-                "image_ids": np.array(ids), "rotations": adj.rotations, "positions": adj.positions,
-                "extra": {"n_measures": adj.image_measures, "rms_px": adj.image_rms_px},
-            },
-        },
-    }
-
-
-def singular_parts(merged_all: Any, merged: Any, limit: int = 20) -> dict[str, Any]:
-    """What a unit's merged network holds that the adjustment cannot determine, by name.
-
-    ``images_without_measures``: images of the children's networks with no measure (left out of the
-    adjustment: they keep their a-priori pointing unless another unit adjusts them);
-    ``single_measure_points``: ids (the first ``limit``) and count of points seen by one image only
-    (left unadjusted: one ray fixes no position). ``merged_all`` is the merge, ``merged`` the same
-    without the images that have no measure.
-    """
-    dropped = sorted(set(map(str, merged_all.image_ids)) - set(map(str, merged.image_ids)))
-    per_point = merged.measures_per_point()
-    single = np.flatnonzero(per_point == 1)
-    ids = [p.item() if hasattr(p, "item") else p for p in merged.point_ids[single[:limit]]]  # JSON-able
-    return {
-        "images_without_measures": dropped,
-        "single_measure_points": {"count": int(single.size), "ids": ids},
-    }
+    adjustment = dict(adj.summary)
+    adjustment["images_without_measures"] = sorted(set(singular["images_without_measures"])
+                                                   | set(adj.summary.get("images_without_measures", [])))
+    summary = UnitSummary(level, int(unit_id), ok=True, children=kids, adjustment=adjustment,
+                          single_measure_points=singular["single_measure_points"])
+    solution = UnitSolution(np.array(ids), adj.rotations, adj.positions,
+                            {"n_measures": adj.image_measures, "rms_px": adj.image_rms_px})
+    return summary, UnitFiles(network=adj.network, solution=solution, bundleout=adj.text_report)
 
 
 def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) -> Any:
@@ -419,21 +370,12 @@ def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) 
     store = getattr(mission, "altimetry", None)
     if store is None or not getattr(store, "n_shots", 0):
         return None
-    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
-    from mercury_dem.geometry.tiling import TileGrid
+    from mercury_dem.altimetry.constraints import AltimetryShotsArrays, shot_tiles_for_points
 
-    # The tiles' a-priori points (the merged children's adjusted points would do as well: the tiles read
-    # only need to hold them).
-    xyz = np.asarray(network.apriori_xyz, np.float64)
-    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
-    lat = np.degrees(np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])))
-    lon = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])) % 360.0
-    tiles = sorted(set(TileGrid(store.tile_size_deg).tile_of(lat, lon).tolist()) & set(store.tiles))
+    tiles = shot_tiles_for_points(network.apriori_xyz, store.tile_size_deg, list(store.tiles))
     if not tiles:
         return None
-    columns = ["lat", "lon", "radius_m", "sigma_m"]
-    table = (store.read(columns) if len(tiles) > len(store.tiles) // 2
-             else pd.concat([store.read_tile(t, columns) for t in tiles], ignore_index=True))
+    table = store.read_tiles(tiles, ["lat", "lon", "radius_m", "sigma_m"])
     return AltimetryShotsArrays.from_table(table)
 
 
@@ -479,24 +421,19 @@ class _NoInput(MercuryDemError):
 
 def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids: list[str],
                         rotations: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Starting pointing of each image from the children's solutions.
+    """Starting pointing of each image from the children's solutions (read from the store).
 
-    An image near a border was adjusted in several children; it starts from the
-    child in which it had the most measures (the best-determined solution), ties
-    broken by the lower child id. Images no child adjusted keep their a-priori pose.
+    The rule (the child in which the image had the most measures, ties to the earlier child) is
+    :func:`mercury_dem.adjust.cascade.warm_start`; this reads the children's ``solution.parquet`` for it.
     """
-    index = {k: n for n, k in enumerate(ids)}
-    rot, pos = rotations.copy(), positions.copy()
-    best = np.full(len(ids), -1, dtype=np.int64)
-    for c in kids:
+    from mercury_dem.adjust.cascade import ChildSolution, warm_start
+
+    solutions = []
+    for c in kids:  # in the merge tree's order (ascending ids): the tie rule depends on it
         sid, srot, spos, table = read_solution(store.solution_path(child_level, c))
-        nmeas = table["n_measures"].to_numpy() if "n_measures" in table else np.ones(sid.size, int)
-        for k, image_id in enumerate(sid):
-            n = index.get(str(image_id))
-            if n is not None and nmeas[k] > best[n]:
-                best[n] = nmeas[k]
-                rot[n], pos[n] = srot[k], spos[k]
-    return rot, pos
+        nmeas = table["n_measures"].to_numpy() if "n_measures" in table else None
+        solutions.append(ChildSolution(sid, srot, spos, nmeas))
+    return warm_start(ids, rotations, positions, solutions)
 
 
 def fatal_error(exc: BaseException, level: str, unit_id: int, where: Any) -> MercuryDemError | None:
@@ -524,12 +461,8 @@ def raise_if_fatal(exc: BaseException, level: str, unit_id: int, store: RunStore
 
 
 def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, Any]:
-    """A summary for a task that died with an unexpected exception (a bug, a lost worker)."""
-    return {
-        "level": level, "id": int(unit_id), "name": unit_name(level, unit_id), "ok": False,
-        "error": f"{unit_name(level, unit_id)}: unexpected {type(exc).__name__}: {exc}",
-        "traceback": "".join(traceback.format_exception(exc))[-4000:],
-    }
+    """A summary for a task that died with an unexpected exception (a bug, a lost worker), in its JSON form."""
+    return FailureSummary.of(level, unit_id, exc).to_json()
 
 
 def config_dict(config: Config) -> dict[str, Any]:

@@ -54,7 +54,7 @@ def _read_json(path: Path) -> dict[str, Any] | None:
 
 
 def _plan(store: RunStore) -> dict[str, Any] | None:
-    return _read_json(store.plan_dir / "plan.json") if is_complete(store.plan_dir) else None
+    return _read_json(store.plan_json) if is_complete(store.plan_dir) else None
 
 
 def _tile_grid(store: RunStore, plan: dict[str, Any] | None) -> TileGrid:
@@ -66,7 +66,7 @@ def _tile_grid(store: RunStore, plan: dict[str, Any] | None) -> TileGrid:
 
 def _summary(store: RunStore, level: str, unit_id: int) -> dict[str, Any] | None:
     d = store.unit_dir(level, unit_id)
-    return _read_json(d / "summary.json") if is_complete(d) else None
+    return _read_json(store.summary_path(level, unit_id)) if is_complete(d) else None
 
 
 def _unit_row(level: str, unit_id: int, name: str, s: dict[str, Any] | None, state: str) -> dict[str, Any]:

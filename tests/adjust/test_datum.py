@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 
 from mercury_dem.adjust.bundle import bundle_adjust
-from mercury_dem.adjust.datum import neighbour_radii
+from mercury_dem.adjust.datum import centre_point_priors, neighbour_radii, on_datum, recentre_on_block
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M
-from mercury_dem.pipeline.adjust_adapter import on_datum, recentre_on_block
 from mercury_dem.validate.synthetic_network import make_synthetic_network
 
 
@@ -164,3 +163,24 @@ def test_levelling_for_counts_the_points_near_shots() -> None:
     assert 0.5 < (count >= 6).mean() <= d.altimetry_share <= (count >= 3).mean() < 1.0
     assert d.level_to_mean is (d.altimetry_share <= 0.5)
     assert levelling_for(problem, cfg, None).altimetry_share == 0.0
+
+
+def test_centre_point_priors_moves_free_points_onto_the_datum_and_keeps_held_ones() -> None:
+    import dataclasses
+
+    from mercury_dem.adjust.problem import AdjustmentProblem
+
+    rng = np.random.default_rng(11)
+    net = make_synthetic_network(300, rng=np.random.default_rng(5))
+    problem: AdjustmentProblem = net.problem
+    pts = problem.points * (1 + rng.uniform(-1e-3, 1e-3, (problem.n_points, 1)))
+    held = np.zeros(problem.n_points, bool)
+    held[:5] = True
+    problem = dataclasses.replace(problem, points=pts, held_points=held)
+    assert centre_point_priors(problem, "triangulated") is problem
+    out = centre_point_priors(problem, "datum", DATUM_RADIUS_M)
+    r = np.linalg.norm(out.points, axis=1)
+    np.testing.assert_allclose(r[~held], DATUM_RADIUS_M, rtol=1e-12)
+    np.testing.assert_array_equal(out.points[held], pts[held])
+    u_in, u_out = pts / np.linalg.norm(pts, axis=1)[:, None], out.points / r[:, None]
+    np.testing.assert_allclose(u_out, u_in, atol=1e-12)  # directions kept

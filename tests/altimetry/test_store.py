@@ -168,3 +168,28 @@ def test_corrupt_store_is_refused_by_name(tmp_path: Path) -> None:
     (tmp_path / "alt" / "shots.parquet").write_bytes(b"PAR1 not really")
     with pytest.raises(StoreError, match="cannot read shots.parquet"):
         open_altimetry(tmp_path / "alt")
+
+
+def test_shot_tiles_for_points_and_read_tiles(tmp_path: Path) -> None:
+    from mercury_dem.altimetry.constraints import shot_tiles_for_points
+
+    table = combine_shots([_table(2000, 5)], [ShotSource("a.csv", 2000, 2000, 40, {})], sigma_m=2.0)
+    write_altimetry(tmp_path / "alt", table, sources=[ShotSource("a.csv", 2000, 2000, 40, {})], body_radius_m=MERCURY_M)
+    store = open_altimetry(tmp_path / "alt")
+    grid = TileGrid(store.tile_size_deg)
+    # three points inside three known shot tiles (at their centres), one NaN row, one point in a tile without shots
+    shot = sorted(store.tiles)[:3]
+    empty = sorted(set(range(grid.n_tiles)) - set(store.tiles))[0]
+    lat, lon = [], []
+    for t in [*shot, empty]:
+        lat0, lat1, lon0, lon1 = grid.bounds(t)
+        lat.append((lat0 + lat1) / 2)
+        lon.append((lon0 + lon1) / 2)
+    la, lo = np.radians(lat), np.radians(lon)
+    xyz = MERCURY_M * np.stack([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)], axis=1)
+    xyz = np.vstack([xyz, [np.nan, 0, 0]])
+    assert shot_tiles_for_points(xyz, store.tile_size_deg, list(store.tiles)) == shot
+    assert shot_tiles_for_points(xyz[3:], store.tile_size_deg, list(store.tiles)) == []
+    few = store.read_tiles(shot, ["lat", "radius_m"])
+    assert len(few) == sum(store.tiles[t] for t in shot) and list(few.columns) == ["lat", "radius_m"]
+    assert len(store.read_tiles(sorted(store.tiles), ["lat"])) == store.n_shots  # most tiles: one whole read

@@ -27,28 +27,28 @@ pytestmark = pytest.mark.integration
 def test_global_unit_blocked_equals_in_memory(sync_run: tuple[Path, dict[str, Any]]) -> None:
     run, _ = sync_run
     store = RunStore(run)
-    ref = _adjust_unit(store, "global", 0, tiny_config())
+    summary, a = _adjust_unit(store, "global", 0, tiny_config())  # (UnitSummary, UnitFiles)
+    ref = summary.adjustment
     assert "blocked" not in ref
-    a = ref["_files"]
     mission = open_mission(store.read_run()["mission"])
     ifov = min(mission.camera(str(i)).pixel_size_mm / mission.camera(str(i)).focal_length_mm
-               for i in a["solution"]["image_ids"])
+               for i in a.solution.image_ids)
     for float32, bound_rad in ((False, 1e-10), (True, 1e-3 * ifov)):
-        blk = _adjust_unit(store, "global", 0, tiny_config(adjust={
+        blk_summary, b = _adjust_unit(store, "global", 0, tiny_config(adjust={
             "blocked_min_measures": 0, "blocked_block_points": 150, "blocked_float32": float32}))
+        blk = blk_summary.adjustment
         assert blk["blocked"]["blocks"] >= 2
         assert blk["iterations"] == ref["iterations"] and blk["rejected"] == ref["rejected"]
-        b = blk["_files"]
-        assert np.array_equal(a["solution"]["image_ids"], b["solution"]["image_ids"])
-        assert np.abs(a["solution"]["rotations"] - b["solution"]["rotations"]).max() < bound_rad
-        assert np.array_equal(a["network"].measure_rejected, b["network"].measure_rejected)
+        assert np.array_equal(a.solution.image_ids, b.solution.image_ids)
+        assert np.abs(a.solution.rotations - b.solution.rotations).max() < bound_rad
+        assert np.array_equal(a.network.measure_rejected, b.network.measure_rejected)
         assert blk["sigma0"] == pytest.approx(ref["sigma0"], rel=1e-6)
     # a hemisphere unit below the threshold keeps the in-memory path
-    hemi = _adjust_unit(store, "hemisphere", 0, tiny_config(adjust={"blocked_min_measures": 10**9}))
-    assert "blocked" not in hemi
+    hemi, _ = _adjust_unit(store, "hemisphere", 0, tiny_config(adjust={"blocked_min_measures": 10**9}))
+    assert "blocked" not in hemi.adjustment
 
 
-def _global_unit_on_worker(run: str, config: Any) -> dict[str, Any]:
+def _global_unit_on_worker(run: str, config: Any) -> Any:
     """What ``graph._unit_task`` does on a worker, without writing the unit (the fixture's store is shared)."""
     from mercury_dem.pipeline.executors import shard_engine_factory
 
@@ -67,10 +67,12 @@ def test_global_unit_blocks_on_the_runs_dask_workers(sync_run: tuple[Path, dict[
     assert shard_engine_factory() is None  # not in a worker: in process
     run, _ = sync_run
     cfg = tiny_config(adjust={"blocked_min_measures": 0, "blocked_block_points": 150, "blocked_float32": False})
-    ref = _adjust_unit(RunStore(run), "global", 0, cfg)
+    ref_summary, a = _adjust_unit(RunStore(run), "global", 0, cfg)
+    ref = ref_summary.adjustment
     assert ref["blocked"]["engine"] == "in process"
     with local_cluster(2, 1, processes=False, memory_limit=0) as cluster, Client(cluster) as client:
-        got = client.submit(_global_unit_on_worker, str(run), cfg, pure=False).result()
+        got_summary, b = client.submit(_global_unit_on_worker, str(run), cfg, pure=False).result()
+        got = got_summary.adjustment
         # the actors were released when the unit finished: nothing is left on the workers (freed asynchronously)
         for _ in range(50):
             left = client.run(lambda dask_worker: len(dask_worker.state.actors) + len(dask_worker.data))
@@ -81,11 +83,10 @@ def test_global_unit_blocks_on_the_runs_dask_workers(sync_run: tuple[Path, dict[
     assert got["blocked"]["engine"] == "dask (2 workers)"
     assert got["blocked"]["blocks"] == ref["blocked"]["blocks"] >= 2
     assert got["iterations"] == ref["iterations"] and got["rejected"] == ref["rejected"]
-    a, b = ref["_files"], got["_files"]
-    assert np.array_equal(a["solution"]["image_ids"], b["solution"]["image_ids"])
+    assert np.array_equal(a.solution.image_ids, b.solution.image_ids)
     # two shards sum the reduced system in another order than one: equal to rounding, not bit for bit
-    assert np.abs(a["solution"]["rotations"] - b["solution"]["rotations"]).max() < 1e-10
-    assert np.array_equal(a["network"].measure_rejected, b["network"].measure_rejected)
-    assert np.allclose(a["network"].residuals, b["network"].residuals, atol=1e-6, equal_nan=True)
-    assert np.allclose(a["network"].adjusted_xyz, b["network"].adjusted_xyz, atol=1e-3, equal_nan=True)  # metres
+    assert np.abs(a.solution.rotations - b.solution.rotations).max() < 1e-10
+    assert np.array_equal(a.network.measure_rejected, b.network.measure_rejected)
+    assert np.allclose(a.network.residuals, b.network.residuals, atol=1e-6, equal_nan=True)
+    assert np.allclose(a.network.adjusted_xyz, b.network.adjusted_xyz, atol=1e-3, equal_nan=True)  # metres
     assert got["sigma0"] == pytest.approx(ref["sigma0"], rel=1e-9)

@@ -18,7 +18,7 @@ from mercury_dem.altimetry.constraints import radius_priors_within
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.mission import open_mission
 from mercury_dem.network.store import read_network
-from mercury_dem.pipeline.adjust_adapter import on_datum
+from mercury_dem.adjust.datum import on_datum
 
 
 def main(run: str, mission_path: str) -> None:

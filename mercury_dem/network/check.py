@@ -251,3 +251,22 @@ def validate(
         },
         seconds=time.perf_counter() - t0,
     )
+
+
+def singular_parts(merged_all: ControlNetwork, merged: ControlNetwork, limit: int = 20) -> dict[str, Any]:
+    """What a unit's merged network holds that the adjustment cannot determine, by name.
+
+    ``images_without_measures``: images of the children's networks with no measure (left out of the
+    adjustment: they keep their a-priori pointing unless another unit adjusts them);
+    ``single_measure_points``: ids (the first ``limit``) and count of points seen by one image only
+    (left unadjusted: one ray fixes no position). ``merged_all`` is the merge, ``merged`` the same
+    without the images that have no measure.
+    """
+    dropped = sorted(set(map(str, merged_all.image_ids)) - set(map(str, merged.image_ids)))
+    per_point = merged.measures_per_point()
+    single = np.flatnonzero(per_point == 1)
+    ids = [p.item() if hasattr(p, "item") else p for p in merged.point_ids[single[:limit]]]  # JSON-able
+    return {
+        "images_without_measures": dropped,
+        "single_measure_points": {"count": int(single.size), "ids": ids},
+    }

@@ -70,3 +70,22 @@ def test_large_network_is_fast():
     rep = validate(net, image_sizes=np.full((k, 2), 1024))
     assert rep.ok and rep.n_islands == 1 and rep.n_measures == 10**6
     assert rep.seconds < 10.0
+
+
+def test_singular_parts_names_dropped_images_and_single_measure_points():
+    from mercury_dem.network.check import singular_parts
+
+    # A,B,C share point 10; point 11 is seen by C only; D has no measure
+    net = ControlNetwork.from_arrays(
+        ["A", "B", "C", "D"], [10, 11], [0, 0, 0, 1], [0, 1, 2, 2],
+        [1.0, 2, 3, 4], [1.0, 2, 3, 4], apriori_xyz=np.ones((2, 3)),
+    )
+    used = net.drop_unused_images()
+    out = singular_parts(net, used)
+    assert out["images_without_measures"] == ["D"]
+    assert out["single_measure_points"] == {"count": 1, "ids": [11]}
+    assert isinstance(out["single_measure_points"]["ids"][0], int)  # JSON-able, not numpy
+    capped = singular_parts(net, used, limit=0)
+    assert capped["single_measure_points"] == {"count": 1, "ids": []}
+    none = singular_parts(used, used)
+    assert none["images_without_measures"] == []

@@ -1,0 +1,229 @@
+"""Typed results of the stage runners: unit summaries and the files of a unit, serialized in one place.
+
+A unit's ``summary.json`` (and the dict a runner returns to the task graph, the same thing) is the
+JSON form of one of these dataclasses; :meth:`to_json` writes it and :func:`summary_from_json` reads
+it back. The JSON is the contract the readers rely on (``report.json``'s levels, ``mercury-dem
+report``, the dashboard, ``viz.status``, the notebooks): its keys, their order and their values are
+exactly those of the dicts the runners built before these types existed (session 12; a round trip
+is tested on a run's summaries in ``tests/pipeline/test_results.py``).
+
+:class:`UnitFiles` replaces the ``"_files"`` key the runners once smuggled through the summary dict:
+a runner's computation returns its summary fields and the files to write side by side, and
+:meth:`mercury_dem.io.run_store.RunStore.write_unit` writes them (names from the run store).
+
+Why dataclasses of our own and not a schema library (pydantic, attrs): the package's configuration
+and results are frozen standard-library dataclasses already, and these only need a fixed key order
+and a pass-through for the adjustment's open-ended summary.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import traceback
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.io.run_store import BUNDLEOUT_FILE, NETWORK_FILE, PAIRS_FILE, SOLUTION_FILE, unit_name, write_solution
+
+__all__ = ["FailureSummary", "TileCounts", "TileSummary", "UnitFiles", "UnitSolution", "UnitSummary", "UnitTiming",
+           "summary_from_json"]
+
+_TIMING_KEYS = ("seconds", "finished_at", "started_at")
+
+
+@dataclass(frozen=True)
+class UnitTiming:
+    """When a unit ran: its duration and wall-clock end and start (s since the epoch: level spans across workers)."""
+
+    seconds: float
+    finished_at: float
+    started_at: float
+
+    @classmethod
+    def since(cls, t0: float) -> UnitTiming:
+        """The timing of a unit that started at ``t0`` (``time.perf_counter()``) and ends now."""
+        seconds = time.perf_counter() - t0
+        finished = time.time()
+        return cls(seconds=seconds, finished_at=finished, started_at=finished - seconds)
+
+    def to_json(self) -> dict[str, float]:
+        return {"seconds": self.seconds, "finished_at": self.finished_at, "started_at": self.started_at}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> UnitTiming | None:
+        if not all(k in d for k in _TIMING_KEYS):
+            return None
+        return cls(**{k: d[k] for k in _TIMING_KEYS})
+
+
+@dataclass(frozen=True)
+class TileCounts:
+    """What a tile's matching and network building gave (the keys of a tile's summary after ``error``)."""
+
+    images: int
+    images_involved: int
+    pairs: int
+    pairs_matched: int
+    routes: dict[str, int]
+    pair_failures: dict[str, int]
+    image_errors: dict[str, str]
+    points: int
+    measures: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+@dataclass(frozen=True)
+class TileSummary:
+    """A tile's ``summary.json``.
+
+    ``counts`` is None when the tile failed before matching (its ``error`` says why); ``timing`` is
+    None until the unit is written.
+    """
+
+    id: int
+    ok: bool = False
+    error: str | None = None
+    counts: TileCounts | None = None
+    timing: UnitTiming | None = None
+    level: str = field(default="tile", init=False)
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"level": "tile", "id": int(self.id), "ok": self.ok, "error": self.error}
+        if self.counts is not None:
+            out.update(self.counts.to_json())
+        if self.timing is not None:
+            out.update(self.timing.to_json())
+        return out
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> TileSummary:
+        names = [f.name for f in dataclasses.fields(TileCounts)]
+        counts = TileCounts(**{k: d[k] for k in names}) if all(k in d for k in names) else None
+        return cls(id=int(d["id"]), ok=bool(d["ok"]), error=d.get("error"), counts=counts,
+                   timing=UnitTiming.from_json(d))
+
+
+@dataclass(frozen=True)
+class UnitSummary:
+    """The ``summary.json`` of a merged unit (region, hemisphere, globe).
+
+    Attributes
+    ----------
+    children : ids of the children merged; None when the unit failed before merging.
+    adjustment : the adjustment's summary (:attr:`mercury_dem.pipeline.adjust_adapter.UnitAdjustment.summary`:
+        images, points, rms_px, sigma0, ..., and the optional ``blocked``, ``altimetry``, ``levelling``,
+        ``point_prior``), with ``images_without_measures`` covering the merge's too; open-ended, kept in order.
+    single_measure_points : count and first ids (:func:`mercury_dem.network.check.singular_parts`).
+    """
+
+    level: str
+    id: int
+    ok: bool = False
+    error: str | None = None
+    children: list[int] | None = None
+    adjustment: dict[str, Any] = field(default_factory=dict)
+    single_measure_points: dict[str, Any] | None = None
+    timing: UnitTiming | None = None
+
+    @property
+    def name(self) -> str:
+        return unit_name(self.level, self.id)
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"level": self.level, "id": int(self.id), "name": self.name, "ok": self.ok,
+                               "error": self.error}
+        if self.children is not None:
+            out["children"] = self.children
+            out.update(self.adjustment)
+            if self.single_measure_points is not None:
+                out["single_measure_points"] = self.single_measure_points
+        if self.timing is not None:
+            out.update(self.timing.to_json())
+        return out
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> UnitSummary:
+        own = {"level", "id", "name", "ok", "error", "children", "single_measure_points", *_TIMING_KEYS}
+        return cls(level=str(d["level"]), id=int(d["id"]), ok=bool(d["ok"]), error=d.get("error"),
+                   children=d.get("children"), adjustment={k: v for k, v in d.items() if k not in own},
+                   single_measure_points=d.get("single_measure_points"), timing=UnitTiming.from_json(d))
+
+
+@dataclass(frozen=True)
+class FailureSummary:
+    """The summary of a task that died with an unexpected exception (a bug, a lost worker); not written."""
+
+    level: str
+    id: int
+    error: str
+    traceback: str
+
+    @classmethod
+    def of(cls, level: str, unit_id: int, exc: BaseException) -> FailureSummary:
+        return cls(level=level, id=int(unit_id),
+                   error=f"{unit_name(level, unit_id)}: unexpected {type(exc).__name__}: {exc}",
+                   traceback="".join(traceback.format_exception(exc))[-4000:])
+
+    def to_json(self) -> dict[str, Any]:
+        return {"level": self.level, "id": int(self.id), "name": unit_name(self.level, self.id), "ok": False,
+                "error": self.error, "traceback": self.traceback}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> FailureSummary:
+        return cls(level=str(d["level"]), id=int(d["id"]), error=str(d["error"]), traceback=str(d["traceback"]))
+
+
+def summary_from_json(d: Mapping[str, Any]) -> TileSummary | UnitSummary | FailureSummary:
+    """The typed summary of a unit's JSON (``summary.json``, or a summary a runner returned)."""
+    if "traceback" in d:
+        return FailureSummary.from_json(d)
+    if d.get("level") == "tile":
+        return TileSummary.from_json(d)
+    return UnitSummary.from_json(d)
+
+
+@dataclass(frozen=True)
+class UnitSolution:
+    """A merged unit's adjusted pointing (its ``solution.parquet``): per image, rotation, position, extra columns."""
+
+    image_ids: NDArray[Any]
+    rotations: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    extra: dict[str, NDArray[Any]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class UnitFiles:
+    """The data files of a unit, next to its summary; each None is not written."""
+
+    network: Any = None  # ControlNetwork -> network.zarr
+    pairs: Any = None  # pandas.DataFrame, one row per matched pair -> pairs.parquet (tiles)
+    solution: UnitSolution | None = None  # -> solution.parquet (merged units)
+    bundleout: str | None = None  # jigsaw-like report -> bundleout.txt (merged units)
+
+    def writers(self) -> dict[str, Callable[[Path], object]]:
+        """For :meth:`~mercury_dem.io.run_store.RunStore.write_unit`: file name -> a function writing it at a path."""
+        out: dict[str, Callable[[Path], object]] = {}
+        if self.bundleout is not None:
+            text = self.bundleout
+            out[BUNDLEOUT_FILE] = lambda p: p.write_text(text)
+        if self.network is not None:
+            from mercury_dem.network.store import write_network
+
+            net = self.network
+            out[NETWORK_FILE] = lambda p: write_network(net, p)
+        if self.pairs is not None:
+            pairs = self.pairs
+            out[PAIRS_FILE] = lambda p: pairs.to_parquet(p, index=False)
+        if self.solution is not None:
+            sol = self.solution
+            out[SOLUTION_FILE] = lambda p: write_solution(p, sol.image_ids, sol.rotations, sol.positions, sol.extra)
+        return out

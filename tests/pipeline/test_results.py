@@ -1,0 +1,126 @@
+"""Typed unit summaries (pipeline.results): the JSON they write is the dicts the runners wrote before, key for key."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mercury_dem.io.atomic import is_complete, verify_complete
+from mercury_dem.io.run_store import RunStore, read_solution, unit_name
+from mercury_dem.network import ControlNetwork, read_network
+from mercury_dem.pipeline.results import (
+    FailureSummary,
+    TileCounts,
+    TileSummary,
+    UnitFiles,
+    UnitSolution,
+    UnitSummary,
+    UnitTiming,
+    summary_from_json,
+)
+
+TIMING = UnitTiming(seconds=1.5, finished_at=1_800_000_001.5, started_at=1_800_000_000.0)
+COUNTS = TileCounts(images=3, images_involved=5, pairs=4, pairs_matched=3, routes={"features": 3},
+                    pair_failures={"too few matches (N)": 1}, image_errors={"X": "image X: blank"}, points=120,
+                    measures=300)
+ADJUSTMENT = {  # an adjustment summary as adjust_adapter builds it (order kept), with its optional keys
+    "images": 4, "points": 120, "measures": 300, "rms_px": 0.12, "initial_rms_px": 2.5, "sigma0": 0.2,
+    "rejected": 3, "underdetermined_points": 0, "weak_images": [], "iterations": 7, "converged": True,
+    "reason": "converged", "sigma0_history": [3.0, 0.2], "linear_method": "schur", "solve_seconds": 0.3,
+    "flagged_images": [{"image": "A", "rms_px": 2.5}], "islands": [], "images_without_measures": ["Z"],
+    "altimetry": {"shots": 10}, "levelling": {"recentre": False},
+}
+
+
+def _legacy_tile(ok: bool) -> dict[str, Any]:
+    """The dict the tile runner built before session 12 (summary, update, then the timing)."""
+    s: dict[str, Any] = {"level": "tile", "id": 7, "ok": False, "error": None}
+    s.update(COUNTS.to_json())
+    s["ok"] = ok
+    if not ok:
+        s["error"] = "tile 7: why"
+    s.update(seconds=TIMING.seconds, finished_at=TIMING.finished_at, started_at=TIMING.started_at)
+    return s
+
+
+def test_tile_summary_writes_the_legacy_keys_in_order_and_round_trips() -> None:
+    for ok in (True, False):
+        typed = TileSummary(id=7, ok=ok, error=None if ok else "tile 7: why", counts=COUNTS, timing=TIMING)
+        d = typed.to_json()
+        assert list(d) == list(_legacy_tile(ok)) and d == _legacy_tile(ok)
+        assert TileSummary.from_json(d) == typed and summary_from_json(json.loads(json.dumps(d))) == typed
+    failed = TileSummary(id=7, error="tile 7: unreadable", timing=TIMING).to_json()
+    assert list(failed) == ["level", "id", "ok", "error", "seconds", "finished_at", "started_at"]
+    assert summary_from_json(failed).to_json() == failed
+    assert TileSummary.from_json(failed).counts is None
+
+
+def test_unit_summary_writes_the_legacy_keys_in_order_and_round_trips() -> None:
+    singular = {"images_without_measures": ["Y"], "single_measure_points": {"count": 2, "ids": [5, 9]}}
+    legacy: dict[str, Any] = {"level": "region", "id": 3, "name": unit_name("region", 3), "ok": False, "error": None}
+    legacy.update({"children": [1, 2], **ADJUSTMENT, **singular, "images_without_measures": ["Y", "Z"]})
+    legacy["ok"] = True
+    legacy.update(TIMING.to_json())
+    adjustment = {**ADJUSTMENT, "images_without_measures": ["Y", "Z"]}
+    typed = UnitSummary("region", 3, ok=True, children=[1, 2], adjustment=adjustment,
+                        single_measure_points=singular["single_measure_points"], timing=TIMING)
+    d = typed.to_json()
+    assert list(d) == list(legacy) and d == legacy
+    assert UnitSummary.from_json(d) == typed and summary_from_json(json.loads(json.dumps(d))) == typed
+    failed = UnitSummary("global", 0, error="global: no input", timing=TIMING).to_json()
+    assert list(failed) == ["level", "id", "name", "ok", "error", "seconds", "finished_at", "started_at"]
+    assert failed["name"] == "global" and summary_from_json(failed).to_json() == failed
+
+
+def test_failure_summary() -> None:
+    try:
+        raise RuntimeError("boom")
+    except RuntimeError as exc:
+        f = FailureSummary.of("hemisphere", 1, exc)
+    d = f.to_json()
+    assert list(d) == ["level", "id", "name", "ok", "error", "traceback"]
+    assert d["name"] == "hemisphere south" and d["ok"] is False
+    assert d["error"] == "hemisphere south: unexpected RuntimeError: boom" and "boom" in d["traceback"]
+    assert summary_from_json(d) == f
+
+
+def test_unit_files_are_written_by_the_run_store(tmp_path: Path) -> None:
+    store = RunStore(tmp_path / "run")
+    net = ControlNetwork.from_arrays(["A", "B"], [1], [0, 0], [0, 1], [1.0, 2.0], [3.0, 4.0],
+                                     apriori_xyz=np.ones((1, 3)))
+    rng = np.random.default_rng(3)
+    sol = UnitSolution(np.array(["A", "B"]), rng.normal(size=(2, 3, 3)), rng.normal(size=(2, 3)),
+                       {"n_measures": np.array([1, 1])})
+    summary = UnitSummary("region", 2, ok=True, children=[4], adjustment={"images": 2}, timing=TIMING).to_json()
+    store.write_unit("region", 2, summary, UnitFiles(network=net, solution=sol, bundleout="report\n").writers())
+    d = store.unit_dir("region", 2)
+    assert is_complete(d) and verify_complete(d) == []
+    assert sorted(p.name for p in d.iterdir() if not p.name.startswith(".")) == [
+        "bundleout.txt", "network.zarr", "solution.parquet", "summary.json"]
+    assert store.read_summary("region", 2) == summary
+    ids, rot, pos, table = read_solution(store.solution_path("region", 2))
+    assert ids.tolist() == ["A", "B"] and np.array_equal(rot, sol.rotations) and np.array_equal(pos, sol.positions)
+    assert table["n_measures"].tolist() == [1, 1]
+    assert read_network(store.network_path("region", 2)).n_measures == 2
+    tile = TileSummary(id=1, ok=True, counts=COUNTS, timing=TIMING).to_json()
+    store.write_unit("tile", 1, tile, UnitFiles(network=net, pairs=pd.DataFrame({"route": ["features"]})).writers())
+    assert sorted(p.name for p in store.unit_dir("tile", 1).iterdir() if not p.name.startswith(".")) == [
+        "network.zarr", "pairs.parquet", "summary.json"]
+
+
+@pytest.mark.integration
+def test_every_summary_of_a_run_round_trips(sync_run: tuple[Path, dict[str, Any]]) -> None:
+    run, _ = sync_run
+    paths = sorted(run.glob("*/*/summary.json"))
+    assert any(p.parts[-3] == "tile" for p in paths) and any(p.parts[-3] == "global" for p in paths)
+    for p in paths:
+        d = json.loads(p.read_text())
+        typed = summary_from_json(d)
+        assert isinstance(typed, TileSummary if d["level"] == "tile" else UnitSummary)
+        back = typed.to_json()
+        assert list(back) == list(d) and back == d, p
