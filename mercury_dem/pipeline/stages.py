@@ -173,7 +173,8 @@ def _no_points_reason(tile_id: int, s: dict[str, Any]) -> str:
 
 
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> dict[str, Any]:
-    from mercury_dem.match.matcher import iter_rows, match_tile
+    from mercury_dem.match.result import iter_rows
+    from mercury_dem.match.tile import match_tile
     from mercury_dem.network.build import build_network, convergence_sigma_factor
 
     run = store.read_run()
