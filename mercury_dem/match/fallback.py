@@ -83,11 +83,14 @@ def _spaced(pts: NDArray[np.float64], have: NDArray[np.float64], spacing: float,
 
 #: Cell size of the NCC fallback's grid seeds on a patch with too few corners (pixels).
 _EXTRA_GRID_CELL_PX = 4
+#: Neighbourhood (pixels) of the grid seeds' corner strength (``cv2.cornerMinEigenVal`` blockSize):
+#: 3, the smallest, as ``goodFeaturesToTrack``'s default for the corners it adds to.
+_GRID_SEED_BLOCK_PX = 3
 
 
 def _grid_seeds(i8: NDArray[np.uint8], on: NDArray[np.bool_]) -> NDArray[np.float64]:
     """The strongest pixel (min eigenvalue, Shi-Tomasi) of each grid cell of ``on`` above the quality level."""
-    eig = np.where(on, cv2.cornerMinEigenVal(i8, 3), 0.0)
+    eig = np.where(on, cv2.cornerMinEigenVal(i8, _GRID_SEED_BLOCK_PX), 0.0)
     top = float(eig.max())
     if top <= 0:
         return np.zeros((0, 2))
@@ -104,6 +107,11 @@ def _grid_seeds(i8: NDArray[np.uint8], on: NDArray[np.bool_]) -> NDArray[np.floa
 
 #: Smallest template of the NCC fallback on a small warped patch (pixels, odd).
 NCC_MIN_TEMPLATE_PX = 9
+#: A shrunk template is at most this fraction of the patch's side: 4, so that a few templates'
+#: worth of corners fit across the patch (a 50-px patch with a +-10 px search gets 13 px).
+_NCC_TEMPLATES_PER_SIDE = 4.0
+#: Mask of the chessboard distance transform (``cv2.DIST_C``): 3, with which it is exact.
+_DIST_MASK_PX = 3
 
 
 def ncc_template_size(valid: NDArray[np.bool_], template_px: int, search_px: float) -> int:
@@ -121,10 +129,10 @@ def ncc_template_size(valid: NDArray[np.bool_], template_px: int, search_px: flo
     t = int(template_px) | 1
     if not valid.any():
         return t
-    dist = cv2.distanceTransform(valid.view(np.uint8), cv2.DIST_C, 3)
+    dist = cv2.distanceTransform(valid.view(np.uint8), cv2.DIST_C, _DIST_MASK_PX)
     side = 2.0 * float(dist.max())  # the largest square fully on valid data
     want = 0.5 * (side - 2.0 * float(search_px))  # the template fits twice beside the search window
-    fit = min(want, side / 4.0) if want < t else float(t)
+    fit = min(want, side / _NCC_TEMPLATES_PER_SIDE) if want < t else float(t)
     return int(max(NCC_MIN_TEMPLATE_PX, min(t, int(fit) | 1)))
 
 
@@ -138,7 +146,6 @@ def _away(have: NDArray[np.float64], query: NDArray[np.float64], dist: float) ->
         return np.ones(query.shape[0], bool)
     d, _ = cKDTree(have).query(query, k=1)
     return np.asarray(d) > dist
-
 
 
 def ncc_fallback(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], pg: PairGeometry,
@@ -192,14 +199,23 @@ def _ncc_search(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray
 
 #: Matches needed to predict the NCC fallback's search position from their median displacement.
 _NCC_PREDICT_MIN = 5
+#: Search half-width around the predicted position: this many pixels plus ``_NCC_PREDICTED_SIGMAS``
+#: robust sigmas of the displacements, the sigma at least ``_NCC_PREDICTED_MIN_SPREAD_PX`` (see
+#: :func:`_ncc_predicted_radius`; the values the fallback was measured with, docs/design/match.md
+#: step 9, not tuned one by one).
+_NCC_PREDICTED_BASE_PX = 3.0
+_NCC_PREDICTED_SIGMAS = 3.0
+_NCC_PREDICTED_MIN_SPREAD_PX = 0.5
+#: 1.4826 x MAD is the standard deviation of a normal distribution (NMAD).
+_NMAD = 1.4826
 
 
 def _ncc_predicted_radius(d: NDArray[np.float64], offset: NDArray[np.float64]) -> float:
     """Search half-width around a predicted position: 3 px plus 3 robust sigmas of the displacements (at
     least 0.5 px: the first pass's integer peaks can all agree while relief parallax still varies).
     """
-    spread = 1.4826 * float(np.median(np.linalg.norm(d - offset, axis=1)))
-    return 3.0 + 3.0 * max(spread, 0.5)
+    spread = _NMAD * float(np.median(np.linalg.norm(d - offset, axis=1)))
+    return _NCC_PREDICTED_BASE_PX + _NCC_PREDICTED_SIGMAS * max(spread, _NCC_PREDICTED_MIN_SPREAD_PX)
 
 
 def _shifted(mask: NDArray[np.bool_], offset: NDArray[np.float64]) -> NDArray[np.bool_]:

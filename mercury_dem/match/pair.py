@@ -60,13 +60,34 @@ from mercury_dem.match.refine import refine_matches_adaptive
 from mercury_dem.match.result import PairReport, PairResult, failed_result
 
 
-@dataclass
+@dataclass(frozen=True)
+class WarpedPartner:
+    """The pair's warped image in the base geometry, as the chain left it (kept for the propagation).
+
+    Attributes
+    ----------
+    image : ndarray (lines, samples) float32, the partner resampled into the base geometry
+    valid : ndarray (lines, samples) bool, where it has data
+    pattern : ndarray float32 or None, ``image`` locally normalized (:func:`refine_pattern`);
+        None when the refinement works on the DN
+    flow : Flow or None, the pair's dense flow when its measures were read from it
+    """
+
+    image: NDArray[np.float32]
+    valid: NDArray[np.bool_]
+    pattern: NDArray[np.float32] | None
+    flow: Flow | None
+
+
+@dataclass(frozen=True)
 class PairState:
     """A pair after the chain, before mapping back: matches in the pair frame (base pixels).
 
     ``base`` is the image kept in its own geometry (the match image when ``swap``), ``other``
     the warped one; ``feat_base``/``feat_other`` are keypoint ids in each image's own features
     (-1 where the position is not a keypoint); ``pa`` base pixels, ``pb`` warped-frame pixels.
+    Frozen: each step (propagation, thinning, mapping back) returns a new state
+    (:meth:`take`, :func:`dataclasses.replace`); the tile keeps the current one per pair.
     """
 
     swap: bool
@@ -81,17 +102,17 @@ class PairState:
     score: NDArray[np.float64]
     other_exact: NDArray[np.float64] | None = None  # (K, 2) original pixels where feat_other >= 0
     kind: NDArray[np.int8] | None = None  # (K,) PairResult.propagated; None = all 0
-    warped: Any = None  # (warped partner, valid mask, its pattern or None, Flow or None) kept for the propagation
+    warped: WarpedPartner | None = None  # kept for the propagation (None: it warps again)
     flow_used: bool = False  # the pair's measures were read from the dense flow
 
-    def take(self, keep: NDArray[Any]) -> None:
-        if self.kind is None:
-            self.kind = np.zeros(self.pa.shape[0], np.int8)
-        for name in ("feat_base", "feat_other", "pa", "pb", "score", "kind"):
-            setattr(self, name, getattr(self, name)[keep])
-        if self.other_exact is not None:
-            self.other_exact = self.other_exact[keep]
-
+    def take(self, keep: NDArray[Any]) -> PairState:
+        """The state with only the matches ``keep`` (a boolean mask or indices); ``kind`` becomes an array."""
+        kind = self.kind if self.kind is not None else np.zeros(self.pa.shape[0], np.int8)
+        return replace(
+            self, feat_base=self.feat_base[keep], feat_other=self.feat_other[keep], pa=self.pa[keep], pb=self.pb[keep],
+            score=self.score[keep], kind=kind[keep],
+            other_exact=self.other_exact[keep] if self.other_exact is not None else None,
+        )
 
 
 def match_pair(
@@ -183,9 +204,9 @@ def match_in_pair_frame(
         base = with_features(base, config)
     if base.pattern is None and pattern_on(config):  # features prepared elsewhere without it
         base = replace(base, pattern=refine_pattern(base.image, config))
-    feat, pa, pb, score, warped = _match_core(base, other, base_geom, other_geom, pg, config, rep)
+    feat, pa, pb, score, partner = _match_core(base, other, base_geom, other_geom, pg, config, rep)
     return PairState(swap, pg, base, other, other_geom, feat, np.full(feat.size, -1, np.int64), pa, pb, score,
-                      warped=warped if keep_warped else None, flow_used=warped[3] is not None)
+                     warped=partner if keep_warped else None, flow_used=partner.flow is not None)
 
 
 def finish_pair(st: PairState, config: MatchConfig, rep: PairReport) -> PairResult:
@@ -195,7 +216,7 @@ def finish_pair(st: PairState, config: MatchConfig, rep: PairReport) -> PairResu
         exact = st.feat_other >= 0
         pm[exact] = st.other_exact[exact]
     inside = st.other_geom.camera.in_image(pm) & np.isfinite(pm).all(axis=1)
-    st.take(inside)
+    st = st.take(inside)
     pm = pm[inside]
     n = int(st.pa.shape[0])
     if n < config.min_matches:
@@ -209,9 +230,13 @@ def finish_pair(st: PairState, config: MatchConfig, rep: PairReport) -> PairResu
     return PairResult(pa, pm, fa, fo, sc, rep, st.kind)
 
 
+#: The configuration's pointing sigma is in microradians, :func:`pair_geometry` takes radians.
+_RAD_PER_URAD = 1e-6
+
+
 def _pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig) -> PairGeometry | str:
     return pair_geometry(
-        a, b, config.pretransform_grid, config.pointing_sigma_urad * 1e-6,
+        a, b, config.pretransform_grid, config.pointing_sigma_urad * _RAD_PER_URAD,
         config.guidance_sigmas, config.guidance_margin_px, config.position_sigma_m,
     )
 
@@ -224,9 +249,9 @@ def _match_core(
     pg: PairGeometry,
     config: MatchConfig,
     rep: PairReport,
-) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], Any]:
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], WarpedPartner]:
     """Match ``other`` onto ``base`` (kept in its own geometry): base keypoint ids, base pixels,
-    warped-frame pixels and scores of the matches, and (warped image, valid mask).
+    warped-frame pixels and scores of the matches, and the warped partner.
     """
     fa = base.features
     h = pg.homography
@@ -306,8 +331,7 @@ def _match_core(
                 kept = ~drop
                 feat, pa, pb, score = feat[kept], pa[kept], pb[kept], np.asarray(score)[kept]
                 rep.n_flow, rep.n_flow_dropped = int(move.sum()), int(drop.sum())
-    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), (warped, valid, wpat, flow)
-
+    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), WarpedPartner(warped, valid, wpat, flow)
 
 
 #: Least share of a pair's measures (where the flow is usable) whose flow position agrees with the
@@ -338,7 +362,6 @@ def flow_on(config: MatchConfig, pg: PairGeometry) -> bool:
     return bool(config.flow_refine and pattern_on(config) and not pg.convergence_deg < config.flow_min_convergence_deg)
 
 
-
 def _refine(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_],
             warped_pattern: NDArray[np.float32] | None, feat: NDArray[np.int64],
             pa: NDArray[np.float64], pb: NDArray[np.float64], quality: NDArray[np.float64], window: int,
@@ -360,7 +383,6 @@ def _local(feat: NDArray[np.int64], pa: NDArray[np.float64], pb: NDArray[np.floa
         return feat, pa, pb, score
     ok = local_consistency(pa, pb, config.local_tolerance_px, config.local_neighbours)
     return feat[ok], pa[ok], pb[ok], score[ok]
-
 
 
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:

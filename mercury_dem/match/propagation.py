@@ -42,8 +42,8 @@ the control network's points.)
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import Any, cast
+from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,15 +57,17 @@ from mercury_dem.match.pair import PairState, pair_flow, read_flow
 from mercury_dem.match.prepare import refine_pattern
 from mercury_dem.match.pretransform import apply_homography, warp_to_reference
 from mercury_dem.match.refine import _box_count, integral_image, refine_matches
-from mercury_dem.match.result import PairReport
+from mercury_dem.match.result import PairReport, PairResult
 
 #: Neighbours (pair matches) whose median displacement predicts a propagated anchor's position.
 PREDICT_NEIGHBOURS = 6
 #: Anchors closer than this (pixels of the pair frame) to a match the pair has are not tried.
 DEDUP_PX = 2.0
 _NONE = np.zeros(0, np.int64)
-#: The anchors of an image that has none: (keypoint ids, in how many pairs each survived).
-NO_ANCHORS = (_NONE, _NONE)
+#: An image's anchors: (keypoint ids in its own features, sorted; in how many pairs each survived the chain).
+Anchors = tuple[NDArray[np.int64], NDArray[np.int64]]
+#: The anchors of an image that has none.
+NO_ANCHORS: Anchors = (_NONE, _NONE)
 #: Lowest NCC of a propagated match: measured on the tiny mission, propagated matches with a
 #: refined NCC of 0.5-0.7 had a median true error of 0.6-0.9 px (0.2-0.4 px above 0.8).
 PROPAGATE_MIN_SCORE = 0.7
@@ -75,6 +77,32 @@ PROPAGATE_SEARCH_PX = 2
 PROPAGATE_MIN_WINDOW_PX = 11
 #: Pairs with fewer matches after the chain neither give anchors nor receive them.
 _PROPAGATE_MIN_MATCHES = 8
+#: Window sizes a propagated anchor tries shrink by this factor per step down to ``min_window``
+#: (~30 %, as :func:`mercury_dem.match.refine.refine_matches_adaptive` does in phase 1).
+WINDOW_SHRINK = 0.7
+#: Cells per side of the grid over which ``max_candidates`` anchors are spread (the keypoints'
+#: ``keypoint_grid`` default, 8): candidates from the whole overlap, not one corner of it.
+CANDIDATE_GRID = 8
+#: A propagated match is kept when its position is within this many robust sigmas of the
+#: neighbours' spread of the predicted one, the limit bounded to 1-``ACCEPT_MAX_TOLERANCES`` x
+#: the local-consistency tolerance (a smooth neighbourhood cannot make it stricter than phase 1's
+#: check, a rough one not looser than twice it).
+ACCEPT_SIGMAS = 3.0
+ACCEPT_MAX_TOLERANCES = 2.0
+#: The tolerance used when the local-consistency check is switched off (``local_tolerance_px`` 0).
+_TOLERANCE_WITHOUT_LOCAL_PX = 1.0
+#: Priority weight of the thinning (:func:`thin`): ``weight x pairs + score``. Two refined NCC
+#: scores differ by less than 2 (at the default ``refine_min_score`` 0.5, by at most 0.5), so
+#: an anchor matched in more pairs comes before one in fewer, the score deciding among equals
+#: (then :func:`select_spread` spreads them over the image).
+THIN_PRIORITY_WEIGHT = 2.0
+#: (image index, keypoint id) packed into one int64 key as ``index x stride + id`` (keypoint
+#: ids are below 2^32).
+_IMAGE_KEY_STRIDE = 1 << 32
+#: 1.4826 x MAD is the standard deviation of a normal distribution (NMAD).
+_NMAD = 1.4826
+#: Stands for a NaN position in the window test: far off every image, so it fails the bounds.
+_OFF_IMAGE = -1e9
 
 
 @dataclass(frozen=True)
@@ -112,7 +140,7 @@ def predict_displacement(
     idx = np.asarray(idx).reshape(query.shape[0], k)
     nb = displacement[idx]
     med = np.median(nb, axis=1)
-    spread = 1.4826 * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
+    spread = _NMAD * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
     return med, spread
 
 
@@ -127,7 +155,7 @@ def _window_on(valid: NDArray[np.bool_], pts: NDArray[np.float64], half: int,
                integral: NDArray[np.int32] | None = None) -> NDArray[np.bool_]:
     """Points whose (2 half + 3)^2 window lies entirely on ``valid`` pixels (``integral``: its integral image)."""
     h, w = valid.shape
-    f = np.nan_to_num(pts, nan=-1e9)
+    f = np.nan_to_num(pts, nan=_OFF_IMAGE)
     lo = np.floor(f).astype(np.int64) - half - 1
     hi = np.ceil(f).astype(np.int64) + half + 1
     ok = (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
@@ -195,7 +223,7 @@ def propagate_pair(
     # window sizes tried, largest first (as refine_matches_adaptive: ~30 % smaller down to min_window)
     sizes = [int(window) | 1]
     while 0 < min_window < sizes[-1]:
-        sizes.append(max(int(min_window) | 1, int(round(sizes[-1] * 0.7)) | 1))
+        sizes.append(max(int(min_window) | 1, int(round(sizes[-1] * WINDOW_SHRINK)) | 1))
 
     def run(fixed_img, moving_img, moving_valid, fixed_valid, fixed, field, taken, sign, prio, fixed_pat, moving_pat):
         if fixed.shape[0] == 0:
@@ -221,7 +249,7 @@ def propagate_pair(
             return empty
         if 0 < max_candidates < cand.size:
             p = np.zeros(cand.size) if prio is None else np.asarray(prio, np.float64)[cand]
-            keep = spread_best(start, p, max_candidates, base.shape, 8)
+            keep = spread_best(start, p, max_candidates, base.shape, CANDIDATE_GRID)
             cand, start, spread, size = cand[keep], start[keep], spread[keep], size[keep]
         points, score, ok = np.zeros((cand.size, 2)), np.zeros(cand.size), np.zeros(cand.size, bool)
         for wsz in np.unique(size):
@@ -230,7 +258,7 @@ def propagate_pair(
                                iterations, min_score, float(search), fixed_pat, moving_pat, ii[id(moving_valid)])
             points[g], score[g], ok[g] = r.points, r.score, r.ok
         dev = np.linalg.norm(points - start, axis=1)
-        ok &= dev <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px)
+        ok &= dev <= np.clip(ACCEPT_SIGMAS * spread, tolerance_px, ACCEPT_MAX_TOLERANCES * tolerance_px)
         return cand[ok], points[ok], score[ok]
 
     fwd = run(base, warped, valid, everywhere, forward, pa, pa, +1, forward_priority, base_pattern, warped_pattern)
@@ -250,7 +278,7 @@ def other_id(pair: tuple[str, str], st: PairState) -> str:
     return pair[0] if st.swap else pair[1]
 
 
-def anchors_of(pairs: Sequence[tuple[str, str]], states: Sequence[Any]) -> dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]]:
+def anchors_of(pairs: Sequence[tuple[str, str]], states: Sequence[PairResult | PairState]) -> dict[str, Anchors]:
     """Image id -> (keypoint ids, sorted; in how many pairs each survived the chain) for the keypoints
     that survived in at least one pair where the image is the base.
     """
@@ -258,37 +286,38 @@ def anchors_of(pairs: Sequence[tuple[str, str]], states: Sequence[Any]) -> dict[
     for pair, st in zip(pairs, states):
         if isinstance(st, PairState) and st.pa.shape[0] >= _PROPAGATE_MIN_MATCHES:
             found.setdefault(base_id(pair, st), []).append(st.feat_base[st.feat_base >= 0])
-    out = {}
+    out: dict[str, Anchors] = {}
     for k, v in found.items():
         ids, counts = np.unique(np.concatenate(v), return_counts=True)
         out[k] = (ids, counts.astype(np.int64))
     return out
 
 
-def propagate_into(st: PairState, base_anchors: tuple[NDArray[np.int64], NDArray[np.int64]],
-                   other_anchors: tuple[NDArray[np.int64], NDArray[np.int64]], config: MatchConfig, rep: PairReport) -> None:
-    """Add the base's and the partner's anchors this pair does not have yet (see the module docstring).
+def propagate_into(st: PairState, base_anchors: Anchors, other_anchors: Anchors, config: MatchConfig,
+                   rep: PairReport) -> PairState:
+    """The pair with the base's and the partner's anchors it does not have yet added (see the module docstring).
 
     Each direction refines at most the pair's free room below ``max_matches`` plus
     ``propagate_extra`` x ``max_matches`` (default an eighth; for a full pair: 50 anchors that may replace single-pair matches in the
     thinning), those matched in more pairs first, spread: the cost stays bounded by about one
-    more refinement pass (a full pair: a quarter of one).
+    more refinement pass (a full pair: a quarter of one). The returned state no longer holds the
+    warped partner once it has been used; ``rep.n_propagated`` (and the flow counts) are set.
     """
     if st.pa.shape[0] < _PROPAGATE_MIN_MATCHES or not st.base.described or not st.other.described:
-        return
+        return st
     new = ~np.isin(base_anchors[0], st.feat_base)
     fwd, fwd_count = base_anchors[0][new], base_anchors[1][new]
     rev, rev_count = other_anchors
     cap = max(config.max_matches - st.pa.shape[0], 0) + int(round(config.max_matches * config.propagate_extra))
     if (fwd.size == 0 and rev.size == 0) or cap <= 0:  # (propagate_pair reads 0 as "no cap")
-        return
+        return st
     h = st.pg.homography
     rev_orig = st.other.features.points[rev]
     rev_pair = apply_homography(cast(NDArray[np.float64], np.linalg.inv(h)), rev_orig) if rev.size else np.zeros((0, 2))
     flow: Flow | None = None
     if st.warped is not None:
-        warped, valid, wpat, flow = st.warped
-        st.warped = None
+        warped, valid, wpat, flow = st.warped.image, st.warped.valid, st.warped.pattern, st.warped.flow
+        st = replace(st, warped=None)
     else:
         warped, valid = warp_to_reference(st.other.image, h, st.base.image.shape, st.pg.match_px_per_ref_px,
                                           config.psf_sigma_px)
@@ -299,7 +328,7 @@ def propagate_into(st: PairState, base_anchors: tuple[NDArray[np.int64], NDArray
     prop = propagate_pair(
         st.base.image, warped, valid, st.pa, st.pb, st.base.features.points[fwd], rev_pair,
         config.refine_window_px | 1, min(config.refine_search_px, PROPAGATE_SEARCH_PX), config.refine_iterations,
-        max(config.refine_min_score, PROPAGATE_MIN_SCORE), config.local_tolerance_px if config.local_tolerance_px > 0 else 1.0,
+        max(config.refine_min_score, PROPAGATE_MIN_SCORE), config.local_tolerance_px if config.local_tolerance_px > 0 else _TOLERANCE_WITHOUT_LOCAL_PX,
         max_candidates=cap,
         forward_priority=fwd_count.astype(np.float64),
         reverse_priority=rev_count.astype(np.float64),
@@ -310,22 +339,25 @@ def propagate_into(st: PairState, base_anchors: tuple[NDArray[np.int64], NDArray
         prop = _propagated_on_flow(prop, flow, st.base.features.points[fwd], rev_pair, config, rep)
     nf, nr = prop.forward.size, prop.reverse.size
     if nf + nr == 0:
-        return
-    if st.other_exact is None:
-        st.other_exact = np.full((st.pa.shape[0], 2), np.nan)
-    st.feat_base = np.concatenate([st.feat_base, fwd[prop.forward], np.full(nr, -1, np.int64)])
-    st.feat_other = np.concatenate([st.feat_other, np.full(nf, -1, np.int64), rev[prop.reverse]])
-    st.pa = np.concatenate([st.pa, st.base.features.points[fwd[prop.forward]], prop.reverse_points])
-    st.pb = np.concatenate([st.pb, prop.forward_points, rev_pair[prop.reverse]])
-    st.score = np.concatenate([st.score, prop.forward_score, prop.reverse_score])
-    st.other_exact = np.concatenate([st.other_exact, np.full((nf, 2), np.nan), rev_orig[prop.reverse]])
-    kind = st.kind if st.kind is not None else np.zeros(st.pa.shape[0] - nf - nr, np.int8)
-    st.kind = np.concatenate([kind, np.ones(nf, np.int8), np.full(nr, 2, np.int8)])
+        return st
+    n = st.pa.shape[0]
+    other_exact = st.other_exact if st.other_exact is not None else np.full((n, 2), np.nan)
+    kind = st.kind if st.kind is not None else np.zeros(n, np.int8)
     rep.n_propagated = nf + nr
+    return replace(
+        st,
+        feat_base=np.concatenate([st.feat_base, fwd[prop.forward], np.full(nr, -1, np.int64)]),
+        feat_other=np.concatenate([st.feat_other, np.full(nf, -1, np.int64), rev[prop.reverse]]),
+        pa=np.concatenate([st.pa, st.base.features.points[fwd[prop.forward]], prop.reverse_points]),
+        pb=np.concatenate([st.pb, prop.forward_points, rev_pair[prop.reverse]]),
+        score=np.concatenate([st.score, prop.forward_score, prop.reverse_score]),
+        other_exact=np.concatenate([other_exact, np.full((nf, 2), np.nan), rev_orig[prop.reverse]]),
+        kind=np.concatenate([kind, np.ones(nf, np.int8), np.full(nr, 2, np.int8)]),
+    )
 
 
-def _propagated_on_flow(prop: Any, flow: Flow, fwd_pts: NDArray[np.float64], rev_pts: NDArray[np.float64],
-                        config: MatchConfig, rep: PairReport) -> Any:
+def _propagated_on_flow(prop: Propagated, flow: Flow, fwd_pts: NDArray[np.float64], rev_pts: NDArray[np.float64],
+                        config: MatchConfig, rep: PairReport) -> Propagated:
     """Propagated matches read from the pair's flow as phase 1's are: the partner position of a
     forward anchor (base side fixed) at ``base + flow(base)``, the base position of a reverse one
     (partner side fixed) where ``base + flow(base)`` reaches it; those the flow contradicts by more
@@ -339,19 +371,19 @@ def _propagated_on_flow(prop: Any, flow: Flow, fwd_pts: NDArray[np.float64], rev
     rep.n_flow_dropped += int((~kf).sum() + (~kr).sum())
     fp = np.where((uf & af)[:, None], qf, prop.forward_points)
     rp = np.where((ur & ar)[:, None], qr, prop.reverse_points)
-    return type(prop)(prop.forward[kf], fp[kf], prop.forward_score[kf], prop.reverse[kr], rp[kr], prop.reverse_score[kr])
+    return Propagated(prop.forward[kf], fp[kf], prop.forward_score[kf], prop.reverse[kr], rp[kr], prop.reverse_score[kr])
 
 
-def priorities(pairs: Sequence[tuple[str, str]], states: Sequence[Any], index: Mapping[str, int]) -> list[NDArray[np.int64]]:
+def priorities(pairs: Sequence[tuple[str, str]], states: Sequence[PairResult | PairState],
+               index: Mapping[str, int]) -> list[NDArray[np.int64]]:
     """Per pair, for every match: in how many pairs of the tile its anchor (image, keypoint) is matched."""
     keys: list[NDArray[np.int64]] = []
-    big = 1 << 32
     for pair, st in zip(pairs, states):
         if not isinstance(st, PairState):
             keys.append(_NONE)
             continue
-        kb = index[base_id(pair, st)] * big + st.feat_base
-        ko = index[other_id(pair, st)] * big + st.feat_other
+        kb = index[base_id(pair, st)] * _IMAGE_KEY_STRIDE + st.feat_base
+        ko = index[other_id(pair, st)] * _IMAGE_KEY_STRIDE + st.feat_other
         keys.append(np.where(st.feat_base >= 0, kb, np.where(st.feat_other >= 0, ko, -1)))
     allk = np.concatenate(keys) if keys else _NONE
     u, c = np.unique(allk[allk >= 0], return_counts=True)
@@ -362,7 +394,7 @@ def priorities(pairs: Sequence[tuple[str, str]], states: Sequence[Any], index: M
     return out
 
 
-def thin(st: PairState, priority: NDArray[np.int64], config: MatchConfig, rep: PairReport) -> None:
+def thin(st: PairState, priority: NDArray[np.int64], config: MatchConfig) -> PairState:
     """At most ``max_matches``: anchors matched in more pairs first, then the score, spread."""
-    keep = select_spread(st.pa, 2.0 * priority + st.score, config.max_matches, st.base.image.shape)
-    st.take(keep)
+    keep = select_spread(st.pa, THIN_PRIORITY_WEIGHT * priority + st.score, config.max_matches, st.base.image.shape)
+    return st.take(keep)

@@ -123,13 +123,11 @@ class TileMatches:
         return {k: v for k, v in asdict(self).items() if k != "image_ids"}
 
 
-
 def failed_result(report: PairReport, reason: str, status: str = "failed") -> PairResult:
     """A pair without matches: ``report`` gets the status (``failed`` or ``skipped``) and the reason."""
     report.status, report.reason = status, reason
     z = np.zeros((0, 2))
     return PairResult(z, z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), report)
-
 
 
 def tile_matches(

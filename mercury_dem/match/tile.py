@@ -14,10 +14,10 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 import cv2
-import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.config.match import MatchConfig
@@ -26,6 +26,7 @@ from mercury_dem.match.prepare import ImageFeatures, pattern_on, prepare_image
 from mercury_dem.match.pretransform import ImageGeometry
 from mercury_dem.match.propagation import (
     NO_ANCHORS,
+    Anchors,
     anchors_of,
     base_id,
     other_id,
@@ -35,8 +36,17 @@ from mercury_dem.match.propagation import (
 )
 from mercury_dem.match.result import PairReport, PairResult, TileMatches, failed_result, tile_matches
 
-#: Memory the warped partners (float32 + bool mask + float32 pattern) of a tile may take between phases 1 and 2.
+#: Memory the warped partners of a tile may take between phases 1 and 2 (bytes): within it every
+#: pair keeps its partner (and flow) for the propagation, beyond it the propagation warps (and
+#: computes the flow) again, trading that time for a worker's memory. A budget, not a measured
+#: optimum (the largest tile of the tiny mission, 80 pairs of 256^2 images, needs ~94 MB of it).
 _KEEP_WARPED_BYTES = 256 * 2**20
+#: Bytes per pixel of a kept warped partner: float32 image (4) + bool valid mask (1).
+_WARPED_BYTES_PER_PX = 5
+#: ... plus its float32 locally normalized pattern, when the refinement uses one.
+_PATTERN_BYTES_PER_PX = 4
+#: ... plus the dense flow, when used: float32 (sample, line) displacement (8) + bool usable mask (1).
+_FLOW_BYTES_PER_PX = 9
 
 
 class _OpenCVThreads:
@@ -99,24 +109,29 @@ def match_tile(
         if missing:
             return rep, failed_result(rep, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
         t0 = time.perf_counter()
-        out = match_in_pair_frame(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b], rep,
-                          keep_warped=keep_warped)
+        out = match_in_pair_frame(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b],
+                                  rep, keep_warped=keep_warped)
         rep.seconds = time.perf_counter() - t0
         return rep, out
 
     propagate = tracks and config.refine
     # the warped partners are kept for the propagation when they all fit in the budget, else re-warped
     largest = max((geometry[x].camera.lines * geometry[x].camera.samples for x in needed), default=0)
-    per_px = 5 + (4 if pattern_on(config) else 0) + (9 if config.flow_refine else 0)  # (+ pattern, flow)
+    per_px = (_WARPED_BYTES_PER_PX + (_PATTERN_BYTES_PER_PX if pattern_on(config) else 0)
+              + (_FLOW_BYTES_PER_PX if config.flow_refine else 0))
     keep_warped = propagate and len(pairs) * largest * per_px <= _KEEP_WARPED_BYTES
-    anchors: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
+    anchors: dict[str, Anchors] = {}
+    # phase1[k]: pair k's report and its current state (or its failed result); each phase
+    # replaces the state of its own pair only (the pool's tasks touch distinct k)
+    phase1: list[tuple[PairReport, PairResult | PairState]]
 
     def extend(k: int) -> None:
         rep, st = phase1[k]
         if isinstance(st, PairState):
             t0 = time.perf_counter()
-            propagate_into(st, anchors.get(base_id(pairs[k], st), NO_ANCHORS),
-                       anchors.get(other_id(pairs[k], st), NO_ANCHORS), config, rep)
+            st = propagate_into(st, anchors.get(base_id(pairs[k], st), NO_ANCHORS),
+                                anchors.get(other_id(pairs[k], st), NO_ANCHORS), config, rep)
+            phase1[k] = (rep, st)
             rep.seconds += time.perf_counter() - t0
 
     def finish(k: int) -> PairResult:
@@ -124,9 +139,10 @@ def match_tile(
         if isinstance(st, PairResult):
             return st
         t0 = time.perf_counter()
-        st.warped = None
+        st = replace(st, warped=None)
+        phase1[k] = (rep, st)  # the warped partner is freed now, not at the end of the tile
         if propagate and st.pa.shape[0] > config.max_matches:
-            thin(st, priority[k], config, rep)
+            st = thin(st, priority[k], config)
         out = finish_pair(st, config, rep)
         rep.seconds += time.perf_counter() - t0
         return out
