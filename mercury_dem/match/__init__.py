@@ -5,16 +5,11 @@ Public API: :func:`match_tile`, :func:`match_pair`, :func:`prepare_image`, :clas
 :class:`TileMatches`, :class:`PairReport`, :class:`PairResult`.
 """
 
-from mercury_dem.match.matcher import (
-    ImageFeatures,
-    PairReport,
-    PairResult,
-    TileMatches,
-    match_pair,
-    match_tile,
-    prepare_image,
-)
+from mercury_dem.match.pair import match_pair
+from mercury_dem.match.prepare import ImageFeatures, prepare_image
 from mercury_dem.match.pretransform import ImageGeometry
+from mercury_dem.match.result import PairReport, PairResult, TileMatches
+from mercury_dem.match.tile import match_tile
 
 __all__ = [
     "ImageFeatures",

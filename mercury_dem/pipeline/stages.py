@@ -181,7 +181,8 @@ def _no_points_reason(tile_id: int, s: TileCounts) -> str:
 
 
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
-    from mercury_dem.match.matcher import iter_rows, match_tile
+    from mercury_dem.match.result import iter_rows
+    from mercury_dem.match.tile import match_tile
     from mercury_dem.network.build import build_network, convergence_sigma_factor
 
     run = store.read_run()

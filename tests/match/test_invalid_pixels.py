@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from mercury_dem.config import load_config
-from mercury_dem.match.matcher import prepare_image
+from mercury_dem.match.prepare import prepare_image
 
 
 def test_no_keypoints_on_or_next_to_invalid_pixels() -> None:

@@ -1,4 +1,4 @@
-"""Multi-image tracks inside a tile (mercury_dem.match.tracks): anchors propagated to every pair of their image."""
+"""Multi-image tracks inside a tile (mercury_dem.match.propagation): anchors propagated to every pair of their image."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from mercury_dem.config.match import MatchConfig
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
 from mercury_dem.match import ImageGeometry, match_tile
-from mercury_dem.match.tracks import predict_displacement, propagate_pair
+from mercury_dem.match.propagation import predict_displacement, propagate_pair
 from mercury_dem.validate.matching import TruePose, network_true_errors, rays_histogram, standard_pairs, true_errors
 
 

@@ -157,7 +157,7 @@ def test_detectors_selectable_by_name() -> None:
 def test_ncc_template_shrinks_to_a_small_warped_patch() -> None:
     import numpy as np
 
-    from mercury_dem.match.matcher import NCC_MIN_TEMPLATE_PX, ncc_template_size
+    from mercury_dem.match.fallback import NCC_MIN_TEMPLATE_PX, ncc_template_size
 
     big = np.ones((256, 256), bool)
     assert ncc_template_size(big, 31, 16.0) == 31  # whole image on data: the configured template
