@@ -8,6 +8,7 @@ through the map), for several height models and map poses:
     truth_true     the true surface and the true poses (the upper bound)
     truth_adj      the true surface, poses with an adjusted-like pointing error (0.3 px per axis)
     truth_apriori  the true surface, the a-priori poses
+    rundem_adj / rundem_apriori   a run's dem.zarr (``dem=PATH``: the first pass's DEM)
     lpK_adj / lpK_true   the true surface Gaussian-low-passed with sigma K km on a local lat/lon grid
                    (RMSE against the truth printed), adjusted-like / true poses
 
@@ -19,6 +20,8 @@ per convergence band. Scenes: ``scene`` (``validate.matching.convergent_views``:
 Run (accuracy only; deterministic; a few minutes):
     STRIDE=1 .venv/bin/python workflows/benchmarks/bench_ortho.py scene variants=truth_true,lp2_adj
     STRIDE=1 .venv/bin/python workflows/benchmarks/bench_ortho.py mission MISSION 24 variants=truth_true,truth_adj,lp2_adj
+    STRIDE=1 .venv/bin/python workflows/benchmarks/bench_ortho.py mission MISSION 24 dem=RUN/dem.zarr \
+        variants=truth_true,rundem_adj,rundem_apriori   # the run's own (first-pass) DEM
 """
 
 from __future__ import annotations
@@ -51,7 +54,35 @@ VARIANTS: dict[str, tuple[Any, Any]] = {
     "lp2_true": (2000.0, "true"),
     "lp2_adj": (2000.0, 0.3),
     "lp5_adj": (5000.0, 0.3),
+    "rundem_adj": ("run", 0.3),
+    "rundem_apriori": ("run", "apriori"),
 }
+RUN_DEM: list[Any] = []  # the height function of dem=PATH (a run's dem.zarr), set by main
+
+
+def run_dem_height(path: str) -> Any:
+    """A run's ``dem.zarr`` (elevation above the datum on a lat/lon grid) as a height function; the datum
+    (0 m) where the grid has no value or outside it.
+    """
+    import xarray as xr
+
+    d = xr.open_zarr(path, consolidated=False)
+    lat = np.asarray(d["lat"].values, float)
+    lon = np.asarray(d["lon"].values, float)
+    elev = np.asarray(d["elevation"].values, float)
+    if lat[0] > lat[-1]:
+        lat, elev = lat[::-1], elev[::-1]
+    elev = np.where(np.isfinite(elev), elev, 0.0)
+    f = RegularGridInterpolator((lat, lon), elev, bounds_error=False, fill_value=0.0)
+    lon0 = float(lon[0])
+
+    def fn(lat_: Any, lon_: Any) -> Any:
+        lat_ = np.asarray(lat_, float)
+        lo = (np.asarray(lon_, float) - lon0) % 360.0 + lon0
+        return f(np.stack([lat_.ravel(), lo.ravel()], -1)).reshape(lat_.shape)
+
+    return fn
+
 
 
 def lowpass_height(height: Any, g: ImageGeometry, sigma_m: float, margin_px: float = 40.0) -> tuple[Any, float, float]:
@@ -102,6 +133,8 @@ def run_pairs(images: Any, geom: Any, truth: Any, pairs: Any, height_true: Any, 
             hspec, poses = VARIANTS[name]
             if hspec == "truth":
                 h = height_true
+            elif hspec == "run":
+                h = RUN_DEM[0]
             else:
                 h, r, s = lowpass_height(height_true, geom[a], hspec)
                 rmse[name] = (r, s)
@@ -154,6 +187,8 @@ def main() -> None:
     opts = dict(x.split("=", 1) for x in args if "=" in x)
     pos = [x for x in args if "=" not in x]
     variants = opts.get("variants", "truth_true,lp2_adj").split(",")
+    if "dem" in opts:
+        RUN_DEM.append(run_dem_height(opts["dem"]))
     if pos[0] == "scene":
         from mercury_dem.synth.render import RenderSettings
         from mercury_dem.synth.terrain import Surface, SurfaceParams
