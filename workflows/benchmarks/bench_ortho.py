@@ -8,6 +8,8 @@ through the map), for several height models and map poses:
     truth_true     the true surface and the true poses (the upper bound)
     truth_adj      the true surface, poses with an adjusted-like pointing error (0.3 px per axis)
     truth_apriori  the true surface, the a-priori poses
+    sphere_remap   the datum sphere and a-priori poses through the same path (remap, identity geometry, edge
+                   cut, no dense flow): the control that isolates what the surface changes
     rundem_adj / rundem_apriori   a run's dem.zarr (``dem=PATH``: the first pass's DEM)
     lpK_adj / lpK_true   the true surface Gaussian-low-passed with sigma K km on a local lat/lon grid
                    (RMSE against the truth printed), adjusted-like / true poses
@@ -55,6 +57,7 @@ VARIANTS: dict[str, tuple[Any, Any]] = {
     "lp2_adj": (2000.0, 0.3),
     "lp5_adj": (5000.0, 0.3),
     "rundem_adj": ("run", 0.3),
+    "sphere_remap": ("sphere", "apriori"),
     "rundem_apriori": ("run", "apriori"),
 }
 RUN_DEM: list[Any] = []  # the height function of dem=PATH (a run's dem.zarr), set by main
@@ -135,6 +138,8 @@ def run_pairs(images: Any, geom: Any, truth: Any, pairs: Any, height_true: Any, 
                 h = height_true
             elif hspec == "run":
                 h = RUN_DEM[0]
+            elif hspec == "sphere":
+                h = None
             else:
                 h, r, s = lowpass_height(height_true, geom[a], hspec)
                 rmse[name] = (r, s)
