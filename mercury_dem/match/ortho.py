@@ -184,7 +184,7 @@ def match_pair_on_surface(
     -------
     points_a, points_b : ndarray (M, 2) (sample, line), 0-based pixels of ``pair[0]`` and ``pair[1]``
     """
-    from mercury_dem.match.matcher import match_tile  # the matcher imports nothing from here
+    from mercury_dem.match.tile import match_tile  # the matcher imports nothing from here
 
     a, b = pair
     empty = np.zeros((0, 2))
