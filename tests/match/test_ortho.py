@@ -90,6 +90,7 @@ def lambert_pair() -> dict[str, Any]:
     return {"images": images, "geom": geom, "truth": truth, "height": surface.height}
 
 
+@pytest.mark.integration  # renders and matches a scene (~4 s); the study's option is not in the pipeline
 def test_dem_pretransform_with_the_true_surface_removes_the_along_line_bias(lambert_pair: dict[str, Any]) -> None:
     """With the datum pre-transform the 45-deg pair's matches lie along the epipolar line, biased by the
     relief inside the window (measured on surfaces 42 / 11 at 50 deg: median along-line +0.16 px, p95

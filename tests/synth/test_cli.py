@@ -47,6 +47,7 @@ def test_synth_names_a_bad_image_selection(tmp_path, capsys):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+@pytest.mark.integration  # a whole `synth` run (~2 s)
 def test_info_says_a_mission_is_partial(tmp_path, capsys):
     out = tmp_path / "p"
     assert main(["synth", str(out), "--preset", "tiny", "--limit", "2", "--quiet"]) == 0
