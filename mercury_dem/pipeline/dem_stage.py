@@ -583,8 +583,9 @@ def failed_chunks_of(path: str | Path) -> list[dict[str, Any]]:
     try:
         records = json.loads(raw) if raw else []
         if not isinstance(records, list) or not all(
-                isinstance(r, dict) and len(r.get("bounds", ())) == 4 for r in records):
-            raise ValueError("not a list of chunk records with 4 bounds")
+                isinstance(r, dict) and isinstance(r.get("bounds"), list) and len(r["bounds"]) == 4
+                and all(type(v) is int and v >= 0 for v in r["bounds"]) for r in records):
+            raise ValueError("not a list of chunk records with 4 whole-number bounds")
     except ValueError as exc:
         raise StoreError(f"{path}: its '{FAILED_CHUNKS_ATTR}' attribute is damaged ({exc}); grid the DEM again "
                          f"(mercury-dem run ... --force dem)") from exc
@@ -637,7 +638,7 @@ def regrid_failed_chunks(
     still = [r for r in results if r.get("failed")]
     for line in failed_chunk_lines(still, label):
         rep.message(line)
-    recovered = sum(f["pixels"] for f in failed) - sum(r["pixels"] for r in still)
+    recovered = sum((b[1] - b[0]) * (b[3] - b[2]) for b in todo) - sum(r["pixels"] for r in still)
     no_value = int(group.attrs.get("no_value_pixels", 0)) - recovered + sum(
         r["no_value"] for r in results if not r.get("failed"))
     kept = [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")} for f in still]

@@ -6,6 +6,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 import zarr
 
 from mercury_dem.config.dem import DemConfig
@@ -132,3 +134,31 @@ def test_a_damaged_failed_chunks_record_is_a_named_store_error(normal, tmp_path)
         zarr.open_group(str(path), mode="r+").attrs[FAILED_CHUNKS_ATTR] = bad
         with pytest.raises(StoreError, match=f"{path}.*damaged.*--force dem"):
             failed_chunks_of(path)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzz_failed_chunks_record(normal, tmp_path_factory, data):
+    """Any bytes in the record (a valid one cut, characters replaced or inserted): a list of chunk records
+    with four whole-number bounds, or a StoreError naming the store; never another exception."""
+    import shutil
+
+    from mercury_dem.exceptions import StoreError
+
+    path = tmp_path_factory.mktemp("fuzz") / "dem.zarr"
+    shutil.copytree(normal[0], path)
+    seed = json.dumps([{"bounds": [48, 96, 0, 48], "pixels": 2304, "error": "RuntimeError: x"},
+                       {"bounds": [0, 48, 48, 96], "pixels": 2304}])
+    text = seed
+    for _ in range(data.draw(st.integers(1, 3))):
+        i = data.draw(st.integers(0, len(text)))
+        how = data.draw(st.sampled_from(("cut", "replace", "insert")))
+        ch = data.draw(st.sampled_from(list('0123456789-.,:[]{}"e ') + ["x", "\u00e9", "null", "1e400"]))
+        text = text[:i] if how == "cut" else text[:i] + ch + text[i + (how == "replace"):]
+    zarr.open_group(str(path), mode="r+").attrs[FAILED_CHUNKS_ATTR] = text
+    try:
+        records = failed_chunks_of(path)
+    except StoreError as exc:
+        assert str(path) in str(exc) and "--force dem" in str(exc)
+    else:
+        assert all(len(r["bounds"]) == 4 and all(type(v) is int for v in r["bounds"]) for r in records)
