@@ -129,18 +129,20 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
     ncol = cen.u.size
     P = cen.phi.size if cen.paired else cen.phi.size * ncol
     nblk = (P + BLOCK - 1) // BLOCK
+    r2count = prm.search_r * prm.search_r
     for blk in prange(nblk):
         ranges = np.empty((2 * t.band_invw.size + 2, 2), dtype=np.int64)
+        dk2 = np.empty(max(k, BUFFER))
         ik = np.empty(max(k, BUFFER), dtype=np.int64)
-        sc = (ranges, np.empty(max(k, BUFFER)), ik, np.empty(BUFFER), np.empty(BUFFER, dtype=np.int64))
+        bd2 = np.empty(BUFFER)
+        bi = np.empty(BUFFER, dtype=np.int64)
         rr = np.empty(k)
         rs_scratch = np.empty(k)
         t2 = np.inf
         dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
         px = py = pz = 0.0
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            q = _centre(p, cen)
-            qx, qy, qz = q[2], q[3], q[4]
+            phi, u, qx, qy, qz, icp = _centre(p, cen)
             a_first = a0
             cap2_first = -1.0
             bound = -1.0
@@ -158,7 +160,8 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
                 else:
                     cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
-            done, cnt, d2near, d2k = _knn_set(t, q, sc, prm, a_first, cap2_first, bound, t2)
+            done, cnt, d2near, d2k = _knn_set(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first,
+                                              cap2_first, -a0, bound, a_min, ang_max, rs, r2count, t2)
             if not done:
                 status[p] = NEEDS_FALLBACK
                 t2 = np.inf

@@ -13,7 +13,9 @@ marked for the kd-tree). Distances are chords between footprints on the datum sp
 The index comes as one :class:`~mercury_dem.dem.index.SearchTables`, a pixel's centre as
 the tuple :func:`_centre` returns (latitude, longitude from the cells' origin, x, y, z,
 1 / cos latitude), the per-block buffers as one tuple (:data:`SCRATCH_FIELDS`): tuples numba
-passes as single arguments (a jitclass would compile much more slowly).
+passes as single arguments (a jitclass would compile much more slowly). Except in :func:`_knn_set`,
+the median11 kernel's per-pixel hot path, whose scalars and buffers stay separate arguments: packed,
+that kernel measured 7-12 % slower.
 """
 
 from __future__ import annotations
@@ -34,8 +36,9 @@ BUFFER = 2048
 SMALL_ANGLE = 0.01
 
 
-#: The per-block buffers of a kernel, passed as one plain tuple ``sc = (ranges, dk2, ik, bd2, bi)``
-#: (numba's parallel transform cannot build a NamedTuple inside ``prange``): ``ranges`` (2 B + 2, 2)
+#: The per-block buffers of a kernel, passed to :func:`_knn` as one plain tuple ``sc = (ranges, dk2, ik, bd2, bi)``
+#: (numba's parallel transform cannot build a NamedTuple inside ``prange``; :func:`_knn_set`, the hot
+#: path, takes them one by one): ``ranges`` (2 B + 2, 2)
 #: int64, the ``[start, end)`` runs of sorted points of a cap (:func:`_ranges`); ``dk2``/``ik``
 #: float64/int64, the k nearest found (squared chord, point; room for ``max(k, BUFFER)`` where
 #: :func:`_knn_set` is used); ``bd2``/``bi`` (BUFFER,) float64/int64, a cap's candidates before ranking.
@@ -426,24 +429,22 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn_set(t, q, sc, prm, a_first, cap2_first, bound, t2):  # pragma: no cover
+def _knn_set(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first, cap2_first, a_second, bound, a_min,
+             ang_max, rs, r2count, t2):  # pragma: no cover
     """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
 
-    ``prm``: the kernel's settings (``Median11Params`` of :mod:`mercury_dem.dem.buckets`: k, the
-    count radius ``search_r``, ``a_min``, ``a0``, ``ang_max``, ``rs``). The first cap's squared
-    chord is ``cap2_first`` when > 0 (a chord the caller knows, saving the angle's round trip),
-    else that of ``a_first``. The second cap is computed only if the first fails, from the chord
-    ``bound`` (>= 0) not below ``a_min`` and not above ``a0``. Any cap scanned whole is exact
-    (only the cost differs), so these shortcuts never change the result. ``sc.dk2``/``sc.ik``
-    need room for ``BUFFER`` values. Returns (done, count within r2count, smallest squared
-    distance, k-th smallest squared distance).
+    Takes the centre (phi, icp, u, qx, qy, qz), the scratch buffers and the settings as separate
+    arguments, not as the tuples :func:`_knn` takes: this is the median11 kernel's per-pixel hot
+    path, and with tuples here the kernel measured 7-12 % slower (``bench_dem_kernels.py``, session
+    12); with scalars it is within 1-2 % of the unpacked original. The first cap's squared chord is
+    ``cap2_first`` when > 0 (a chord the caller knows, saving the angle's round trip), else that of
+    ``a_first``. ``a_second`` < 0: the second cap is computed only if the first fails, from the chord
+    ``bound`` (>= 0) not below ``a_min`` and not above ``a_second``'s absolute value. Any cap scanned
+    whole is exact (only the cost differs), so these shortcuts never change the result. ``dk2``/``ik``
+    need room for ``BUFFER`` values. Returns (done, count within r2count, smallest squared distance,
+    k-th smallest squared distance).
     """
-    phi, u, qx, qy, qz, icp = q
     xyz = t.xyz
-    ranges, dk2, ik, bd2, bi = sc
-    k, a_min, ang_max, rs = prm.k, prm.a_min, prm.ang_max, prm.rs
-    r2count = prm.search_r * prm.search_r
-    a_second = -prm.a0
     a = a_first
     cap2 = cap2_first if cap2_first > 0.0 else _cap_chord2(a, rs)
     while True:
