@@ -10,7 +10,6 @@ metres above the 2439.4 km datum sphere.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from mercury_dem.config.base import ConfigSection, param
 
@@ -22,7 +21,8 @@ class DemConfig(ConfigSection):
     # --- the grid ---------------------------------------------------------------------------
     pixels_per_degree: float = param(64.0, "Output grid resolution", unit="pixel/deg", lo=0.01, hi=4096.0)
     # Bounds left unset (None) are taken from the control points: their footprint plus
-    # max_distance_m, snapped outward to whole degrees (mercury_dem.dem.extent); all four
+    # max_distance_m, snapped outward to whole degrees (mercury_dem.dem.extent.config_with_extent,
+    # which imports this module: config never imports dem/); all four
     # unset on a global cloud give the globe. Set them to fix the map's extent.
     lat_min: float | None = param(None, "Southern edge of the grid; unset: from the points", unit="deg",
                                   lo=-90.0, hi=90.0)
@@ -108,25 +108,10 @@ class DemConfig(ConfigSection):
 
     @property
     def extent_from_points(self) -> bool:
-        """True when some bound is unset and comes from the point cloud (:meth:`with_extent_of`)."""
-        return None in (self.lat_min, self.lat_max, self.lon_min, self.lon_max)
-
-    def with_extent_of(self, points_xyz: Any, datum_radius_m: float | None = None) -> DemConfig:
-        """The configuration with its unset bounds taken from a point cloud (see
-        :func:`mercury_dem.dem.extent.points_extent`); set bounds are kept.
+        """True when some bound is unset and comes from the point cloud
+        (:func:`mercury_dem.dem.extent.config_with_extent`).
         """
-        if not self.extent_from_points:
-            return self
-        import dataclasses
-
-        from mercury_dem.dem.extent import points_extent
-
-        if datum_radius_m is None:
-            auto = points_extent(points_xyz, self.max_distance_m, self.pixels_per_degree)
-        else:
-            auto = points_extent(points_xyz, self.max_distance_m, self.pixels_per_degree, datum_radius_m)
-        names = ("lat_min", "lat_max", "lon_min", "lon_max")
-        return dataclasses.replace(self, **{n: a for n, a in zip(names, auto) if getattr(self, n) is None})
+        return None in (self.lat_min, self.lat_max, self.lon_min, self.lon_max)
 
     def __post_init__(self) -> None:
         super().__post_init__()

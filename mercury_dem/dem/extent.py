@@ -17,11 +17,13 @@ all longitudes.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.config.dem import DemConfig
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
 
@@ -80,3 +82,18 @@ def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
         shift = 360.0 * math.floor(lon_min / 360.0)
         lon_min, lon_max = lon_min - shift, lon_max - shift
     return float(lat_min), float(lat_max), float(lon_min), float(lon_max)
+
+
+def config_with_extent(cfg: DemConfig, points_xyz: NDArray[np.floating],
+                       datum_radius_m: float = DATUM_RADIUS_M) -> DemConfig:
+    """``cfg`` with its unset bounds taken from a point cloud (:func:`points_extent` with the margin
+    ``cfg.max_distance_m``); set bounds are kept, and ``cfg`` itself is returned when all four are set.
+
+    Here and not a method of :class:`~mercury_dem.config.dem.DemConfig`: ``dem/`` depends on
+    ``config/``, never the reverse.
+    """
+    if not cfg.extent_from_points:
+        return cfg
+    auto = points_extent(points_xyz, cfg.max_distance_m, cfg.pixels_per_degree, datum_radius_m)
+    names = ("lat_min", "lat_max", "lon_min", "lon_max")
+    return dataclasses.replace(cfg, **{n: a for n, a in zip(names, auto) if getattr(cfg, n) is None})

@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.config.dem import DemConfig
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
 
@@ -93,7 +94,7 @@ class GridSpec:
                 )
 
     @classmethod
-    def from_config(cls, cfg: Any, datum_radius_m: float = DATUM_RADIUS_M) -> GridSpec:
+    def from_config(cls, cfg: DemConfig, datum_radius_m: float = DATUM_RADIUS_M) -> GridSpec:
         """The grid of a :class:`~mercury_dem.config.dem.DemConfig` (unset bounds: the globe's)."""
         return cls(cfg.pixels_per_degree, *cfg.bounds(), datum_radius_m=datum_radius_m)
 
@@ -217,14 +218,14 @@ def build_point_index(points_xyz: NDArray[np.floating], datum_radius_m: float = 
     return PointIndex(buckets=build_buckets(p, datum_radius_m, prepared=f), datum_radius_m=float(datum_radius_m))
 
 
-def _threads(cfg: Any) -> int:
+def _threads(cfg: DemConfig) -> int:
     """kd-tree query threads (``dem.query_threads``; -1 = all cores). Results do not depend on it."""
     t = int(getattr(cfg, "query_threads", -1))
     return -1 if t == 0 else t
 
 
 def _median11(
-    index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: float
+    index: PointIndex, q: NDArray[np.float64], cfg: DemConfig, search_r: float
 ) -> dict[str, NDArray[Any]]:
     """median11 on query points q (P, 3); returns flat per-pixel layers (radius float64)."""
     k = min(int(cfg.neighbours), index.n_points)
@@ -282,7 +283,7 @@ def _weighted_mean(w: NDArray[np.float64], r: NDArray[np.float64], d: NDArray[np
     return ref[:, 0] + m, np.where(nused >= 2, np.sqrt(var), np.nan)
 
 
-def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: float) -> dict[str, NDArray[Any]]:
+def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: DemConfig, search_r: float) -> dict[str, NDArray[Any]]:
     """Modified Shepard IDW on query points q (P, 3); flat per-pixel layers (radius float64)."""
     P = len(q)
     kmax = min(int(cfg.shepard_max_points), index.n_points)
@@ -320,12 +321,12 @@ def _shepard(index: PointIndex, q: NDArray[np.float64], cfg: Any, search_r: floa
     return {"radius": value, "nearest": nearest, "spread": spread, "count": count, "count_capped": count == kmax}
 
 
-def _search_radius(index: PointIndex, cfg: Any) -> float:
+def _search_radius(index: PointIndex, cfg: DemConfig) -> float:
     """Radial search radius R (m): ``search_radius_factor`` x the north-south pixel size."""
     return cfg.search_radius_factor * 2.0 * math.pi * index.datum_radius_m / 360.0 / cfg.pixels_per_degree
 
 
-def _give_up_angle(index: PointIndex, cfg: Any, k: int) -> float:
+def _give_up_angle(index: PointIndex, cfg: DemConfig, k: int) -> float:
     """Largest cap (radians) the bucket search scans before leaving a pixel to the kd-tree.
 
     Twice the no-value distance or 8 x the starting cap, whichever is larger: pixels
@@ -335,7 +336,7 @@ def _give_up_angle(index: PointIndex, cfg: Any, k: int) -> float:
     return min(math.pi, max(2.0 * a_gap, 8.0 * index.buckets.start_angle(k)))
 
 
-def _kdtree_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: Any,
+def _kdtree_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: DemConfig,
                    search_r: float) -> dict[str, NDArray[Any]]:
     """The same layers from kd-tree queries (the exact fallback of the bucket search)."""
     P = lat.size
@@ -360,7 +361,7 @@ def _kdtree_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.
 
 
 def grid_pixels(
-    index: PointIndex, lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], cfg: Any,
+    index: PointIndex, lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating], cfg: DemConfig,
     *, use_kdtree: bool = False,
 ) -> dict[str, NDArray[Any]]:
     """Grid the point cloud at arbitrary pixel centres (no smoothing).
@@ -389,7 +390,7 @@ def grid_pixels(
     return _bucket_pixels(index, lat, lon, cfg, grid=False)
 
 
-def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: Any, *,
+def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: DemConfig, *,
                    grid: bool) -> dict[str, NDArray[Any]]:
     """:func:`grid_pixels` by the bucket search; ``grid=True``: every (lat[i], lon[j]), row-major."""
     from mercury_dem.dem.buckets import NEEDS_FALLBACK, median11_search, shepard_search
@@ -415,7 +416,7 @@ def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.
     return _layers(res, cfg, index.datum_radius_m)
 
 
-def _layers(res: dict[str, NDArray[Any]], cfg: Any, datum_radius_m: float) -> dict[str, NDArray[Any]]:
+def _layers(res: dict[str, NDArray[Any]], cfg: DemConfig, datum_radius_m: float) -> dict[str, NDArray[Any]]:
     gap = res["nearest"] > cfg.max_distance_m
     return {
         "height": np.where(gap, np.nan, res["radius"] - datum_radius_m),
@@ -426,7 +427,7 @@ def _layers(res: dict[str, NDArray[Any]], cfg: Any, datum_radius_m: float) -> di
 
 
 def grid_chunk(
-    index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: Any
+    index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: DemConfig
 ) -> dict[str, NDArray[Any]]:
     """Grid one map chunk, smoothing included, independent of the chunking.
 

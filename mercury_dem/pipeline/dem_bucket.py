@@ -41,10 +41,12 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
+from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import RunStore
+from mercury_dem.pipeline.executors import runs_in_process
 
 __all__ = ["CHUNKS_DIR", "grid_chunk_to_bucket", "grid_dem_on_bucket"]
 
@@ -61,7 +63,6 @@ def _marker_name(bounds: tuple[int, int, int, int]) -> str:
 def _worker_index(run_url: str, global_token: str, datum_radius_m: float) -> PointIndex:
     """The global network's adjusted points, indexed; once per worker process and commit of the network."""
     from mercury_dem.network.store import read_network
-    from mercury_dem.pipeline.dem_run import point_cloud
 
     store = RunStore(run_url)
     token = store.remote.commit_token("global/0")
@@ -182,10 +183,10 @@ def grid_dem_on_bucket(
     todo = [b for b in chunks if _marker_name(b) not in markers]
     results = [json.loads(remote.read_bytes(f"{CHUNKS_DIR}/{_marker_name(b)}") or b"{}") for b in done]
     rep.message(f"{label}: {len(todo)} of {len(chunks)} chunks to grid "
-                f"{'on the workers' if client is not None else 'in this process'}, straight into {store.url}/{DEM}"
+                f"{'in this process' if runs_in_process(client) else 'on the workers'}, straight into {store.url}/{DEM}"
                 + (f" ({len(done)} committed before)" if done else ""))
     with rep.task(f"{label} grid", len(todo), "chunks") as task:
-        if client is None:
+        if runs_in_process(client):
             for b in todo:
                 results.append(grid_chunk_to_bucket(store.url, global_token, grid, b, cfg, datum))
                 task.update()
@@ -222,7 +223,7 @@ def grid_dem_on_bucket(
         "n_points": index.n_points,
         "n_chunks": len(chunks),
         "chunks_reused": len(done),
-        "on_workers": client is not None,
+        "on_workers": not runs_in_process(client),
         "no_value_pixels": no_value,
         "no_value_fraction": no_value / npix,
         "elevation_min_m": min(mins) if mins else math.nan,

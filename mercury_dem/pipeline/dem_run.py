@@ -8,19 +8,11 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 from mercury_dem.config import Config
+from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.run_store import RunStore
 from mercury_dem.mission import Mission
-
-
-def point_cloud(network: Any, adjusted: bool = True) -> np.ndarray:
-    """Body-fixed points (N, 3) of a network: adjusted (not rejected, finite) or a-priori."""
-    xyz = network.adjusted_xyz if adjusted else network.apriori_xyz
-    ok = np.all(np.isfinite(xyz), axis=1) & ~np.asarray(network.point_rejected)
-    return np.asarray(xyz[ok])
 
 
 def _open_map(path: str) -> Any:
@@ -112,6 +104,12 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
 def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
     """Grid ``dem.zarr`` from the global network, then the products; returns the report's ``dem`` block.
 
+    ``client`` is the run's client, the one the cascade used (the synchronous client grids in this
+    process). A chunk that fails is recorded (``failed_chunks`` of the block: which, why, what to do),
+    its pixels left NaN, and the stage goes on; a resume grids only those chunks again
+    (:func:`~mercury_dem.pipeline.dem_stage.regrid_failed_chunks`) on a disk run. On a bucket run a
+    chunk failure still stops the stage (its chunk has no marker: the resume grids it again).
+
     With truth, the a-priori (unadjusted) points are gridded too (into a
     temporary store) so the report shows what the adjustment bought.
 
@@ -122,8 +120,9 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     The registration and the a-priori DEM of the validation read the run's local cache,
     so on a bucket run they run in this process.
     """
+    from mercury_dem.dem.extent import config_with_extent
     from mercury_dem.network.store import read_network
-    from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+    from mercury_dem.pipeline.dem_stage import failed_chunks_of, grid_dem, open_dem, regrid_failed_chunks
     from mercury_dem.products.make import make_products
     from mercury_dem.progress import Reporter
 
@@ -133,7 +132,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     pts = point_cloud(net, adjusted=True)
     # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
     body = mission.body
-    dem_cfg = config.dem.with_extent_of(pts, body.datum_radius_m) if pts.shape[0] else config.dem
+    dem_cfg = config_with_extent(config.dem, pts, body.datum_radius_m) if pts.shape[0] else config.dem
     # an existing complete DEM is reused (resume); products are always rewritten
     remote = store.url is not None
     if remote:
@@ -146,7 +145,10 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
             grid_summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body, attrs=attrs, progress=rep)
             store.fetch_zarr("dem.zarr")  # the committed store into the cache, for the products
         else:
-            grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep)
+            grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep,
+                                    record_failures=True)
+    elif not remote and failed_chunks_of(store.dem_path):  # resume: only the chunks that failed last time
+        grid_summary = regrid_failed_chunks(pts, dem_cfg, store.dem_path, client, body=body, progress=rep)
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
     if remote:
@@ -159,6 +161,8 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         "points": int(pts.shape[0]),
         "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
         "coverage": grid_summary.get("coverage"),
+        # chunks that could not be gridded (their pixels NaN): which, why, what to do; [] when none
+        "failed_chunks": grid_summary.get("failed_chunks", []),
         "statistics": products.get("statistics"),
         "files": [str(f) for f in products.get("files", [])],
         "products_skipped": products.get("skipped", {}),
@@ -197,7 +201,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         tmp = store.root / "dem_apriori.zarr"
         shutil.rmtree(tmp, ignore_errors=True)
         try:
-            grid_dem(apri, dem_cfg, tmp, client, coverage=False, body=body,
+            grid_dem(apri, dem_cfg, tmp, client, coverage=False, body=body, record_failures=True,
                      attrs={"source": "a-priori control points"}, progress=rep, label="dem (a-priori points)")
             ds = open_dem(tmp)
             validation["a_priori"] = dem_accuracy(

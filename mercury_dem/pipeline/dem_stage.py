@@ -36,10 +36,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
+from mercury_dem.dem.extent import config_with_extent
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
-from mercury_dem.exceptions import GridError, StoreError
+from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import MERCURY, Body
-from mercury_dem.io.atomic import atomic_directory
+from mercury_dem.io.atomic import atomic_directory, disk_full_cause
+from mercury_dem.pipeline.executors import runs_in_process
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -343,6 +345,65 @@ def _grid_and_write(
     }
 
 
+#: Root attribute of a ``dem.zarr`` listing its chunks that could not be gridded (JSON; absent when none).
+FAILED_CHUNKS_ATTR = "failed_chunks"
+
+
+def _chunk_failure(grid: GridSpec, bounds: tuple[int, int, int, int], exc: BaseException) -> dict[str, Any]:
+    """The record of a chunk that could not be gridded: which chunk, why, and what to do.
+
+    A full disk is not the chunk's fault and stops the stage (:class:`~mercury_dem.exceptions.DiskFullError`):
+    recording it would leave a store that cannot be completed either.
+    """
+    if isinstance(exc, DiskFullError) or disk_full_cause(exc) is not None:
+        raise exc
+    r0, r1, c0, c1 = (int(v) for v in bounds)
+    lat = grid.lat_centres(np.arange(r0, r1))
+    lon = grid.lon_centres(np.arange(c0, c1))
+    return {
+        "bounds": [r0, r1, c0, c1],
+        "failed": True,
+        "pixels": (r1 - r0) * (c1 - c0),
+        "lat_deg": [float(lat.min()), float(lat.max())],
+        "lon_deg": [float(lon.min()), float(lon.max())],
+        "error": f"{type(exc).__name__}: {exc}",
+        "what_to_do": ("its pixels are left NaN (point_count 0) and the rest of the DEM is written; run the "
+                       "same command again to grid only the failed chunks (the run resumes them), and if it "
+                       "fails again report the error"),
+        "no_value": (r1 - r0) * (c1 - c0),
+        "min": math.nan,
+        "max": math.nan,
+    }
+
+
+def _grid_and_write_or_record(
+    index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: Any,
+    store: str | Mapping[str, zarr.Array],
+) -> dict[str, Any]:
+    """:func:`_grid_and_write`, with a failure returned as a value (:func:`_chunk_failure`), not raised."""
+    try:
+        return _grid_and_write(index, grid, bounds, cfg, store)
+    except Exception as exc:  # the chunk's own failure: recorded, the other chunks go on
+        return _chunk_failure(grid, bounds, exc)
+
+
+def _result_or_record(grid: GridSpec, bounds: tuple[int, int, int, int], future: Any) -> dict[str, Any]:
+    """A chunk task's result, or the record of its failure when the task itself was lost (a dead worker)."""
+    try:
+        return dict(future.result())
+    except Exception as exc:
+        if "Cancelled" in type(exc).__name__:  # the scheduler went away: the run's error, not the chunk's
+            raise
+        return _chunk_failure(grid, bounds, exc)
+
+
+def failed_chunk_lines(failed: list[dict[str, Any]], label: str = "dem") -> list[str]:
+    """One line per failed chunk, for the stage's progress messages and the report's text."""
+    return [f"{label}: chunk rows {f['bounds'][0]}-{f['bounds'][1]}, columns {f['bounds'][2]}-{f['bounds'][3]} "
+            f"(lat {f['lat_deg'][0]:.3f}..{f['lat_deg'][1]:.3f}, lon {f['lon_deg'][0]:.3f}..{f['lon_deg'][1]:.3f}) "
+            f"failed: {f['error']}; {f['what_to_do']}" for f in failed]
+
+
 def grid_dem(
     points_xyz: NDArray[np.floating],
     config: Any,
@@ -356,6 +417,7 @@ def grid_dem(
     progress: Any = None,
     label: str = "dem",
     writer: ForkedStoreWriter | None = None,
+    record_failures: bool = False,
 ) -> dict[str, Any]:
     """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
 
@@ -364,8 +426,9 @@ def grid_dem(
     points_xyz : ndarray of shape (N, 3), body-fixed metres (the adjusted point cloud)
     config : Config or DemConfig
     out_path : path of the store to create (e.g. ``RUN/dem.zarr``)
-    client : dask.distributed.Client or None
-        None grids the chunks in this process, in a plain loop (same result).
+    client : dask.distributed.Client, the synchronous client, or None
+        The run's client (the cascade's). The synchronous client or None grid the chunks in this
+        process, two at a time (same result).
     overwrite : replace an existing store (only once the new one is complete)
     attrs : extra global attributes (e.g. run id, source of the points)
     coverage : also compute the point-cloud coverage into ``coverage.zarr`` beside the store
@@ -378,11 +441,20 @@ def grid_dem(
         With ``client=None``: a forked process that creates and writes the store
         (:mod:`mercury_dem.pipeline.store_writer`; this process then never imports zarr).
         The store is the same as without it. It is stopped (and waited for) if this call fails.
+    record_failures : a chunk whose gridding raises is recorded and the others written (True: the
+        run's DEM stage), or its error stops the call and nothing is written (False: ``mercury-dem grid``)
 
     Returns
     -------
     dict: path, shape, n_points, n_chunks, no_value_pixels, no_value_fraction,
-    elevation_min/max (m), seconds, memory_estimate_bytes, coverage (summary dict or None).
+    elevation_min/max (m), seconds, memory_estimate_bytes, coverage (summary dict or None),
+    failed_chunks (list, one record per chunk that could not be gridded: ``bounds`` [r0, r1, c0, c1],
+    ``pixels``, ``lat_deg``/``lon_deg`` ranges, ``error``, ``what_to_do``).
+
+    With ``record_failures``, a chunk whose gridding raises is recorded as a value, not raised: the rest of the DEM is written,
+    the chunk's pixels are NaN (counted as no-value pixels; ``point_count`` 0) and the store's root
+    attribute ``failed_chunks`` lists them, so a resume grids only them again
+    (:func:`regrid_failed_chunks`). A full disk still stops the stage.
 
     Raises
     ------
@@ -400,15 +472,17 @@ def grid_dem(
     pts = np.asarray(points_xyz, dtype=np.float64)
     n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
     if n_points and cfg.extent_from_points:  # unset bounds: the cloud's footprint (mercury_dem.dem.extent)
-        cfg = cfg.with_extent_of(pts, body.datum_radius_m)
+        cfg = config_with_extent(cfg, pts, body.datum_radius_m)
     grid = GridSpec.from_config(cfg, body.datum_radius_m)
     est = check_memory(grid, max(n_points, 0), cfg)
     if n_points == 0:
         build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error before anything is created
     chunks = grid.chunks(cfg.chunk_size)
-    if writer is not None and client is not None:
+    in_process = runs_in_process(client)
+    if writer is not None and not in_process:
         raise ValueError("a forked store writer is for in-process gridding (client=None)")
     forked: list[Any] = [writer]  # the writer, or None once it declined (then this process writes)
+    chunk_task = _grid_and_write_or_record if record_failures else _grid_and_write
 
     def mark(tmp: Path) -> None:
         (mark_zarr_complete if forked[0] is None else forked[0].complete)(tmp)
@@ -426,12 +500,12 @@ def grid_dem(
                     f"({len(chunks)} chunks, {cfg.method})")
         index = index_job.result()
         with rep.task(f"{label} grid", len(chunks), "chunks") as task:
-            if client is None:
+            if in_process:
                 # Two chunks in flight: one in the compiled kernel (all its threads, GIL released),
                 # the other being smoothed and written (numpy, compression): the cores stay busy.
                 # Each chunk's result is independent of the other: same arrays as a plain loop.
                 results = []
-                for r in pool.map(lambda b: _grid_and_write(index, grid, b, cfg, layer_arrays), chunks):
+                for r in pool.map(lambda b: chunk_task(index, grid, b, cfg, layer_arrays), chunks):
                     results.append(r)
                     task.update()
             else:
@@ -439,12 +513,19 @@ def grid_dem(
 
                 index_f = client.scatter(index, broadcast=True)
                 futures = [
-                    client.submit(_grid_and_write, index_f, grid, b, cfg, store, pure=False)
+                    client.submit(chunk_task, index_f, grid, b, cfg, store, pure=False)
                     for b in chunks
                 ]
                 for _ in as_completed(client, futures):  # Dask's completion order: counts as chunks land
                     task.update()
-                results = client.gather(futures)
+                results = ([_result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
+                           else client.gather(futures))
+        failed = [r for r in results if r.get("failed")]
+        for line in failed_chunk_lines(failed, label):
+            rep.message(line)
+        if failed and len(failed) == len(results):  # nothing to keep: a stage error, not a partial DEM
+            raise GridError(f"{out_path}: none of the {len(chunks)} chunks could be gridded (the first: "
+                            f"{failed[0]['error']}); nothing was written")
         cov_summary = None
         if coverage:
             rep.message(f"{label}: point coverage")
@@ -470,18 +551,104 @@ def grid_dem(
             "elevation_max_m": max(maxs) if maxs else math.nan,
             "memory_estimate_bytes": est,
             "coverage": cov_summary,
+            "failed_chunks": [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")}
+                              for f in failed],
         }
         final_attrs = {
             "n_points": index.n_points,
             "no_value_pixels": int(no_value),
             "coverage": json.dumps(cov_summary) if cov_summary else "",
         }
+        if failed:  # read back on resume (regrid_failed_chunks); absent from a complete DEM
+            final_attrs[FAILED_CHUNKS_ATTR] = json.dumps(summary["failed_chunks"])
         if forked[0] is None:
             group.attrs.update(final_attrs)
         else:
             forked[0].update_attrs(final_attrs)
     summary["seconds"] = time.perf_counter() - t0
     return summary
+
+
+def failed_chunks_of(path: str | Path) -> list[dict[str, Any]]:
+    """The failed-chunk records a ``dem.zarr`` carries (:data:`FAILED_CHUNKS_ATTR`); [] when none or no store.
+
+    Raises :class:`StoreError` when the attribute is there but damaged (not the JSON list it writes).
+    """
+    import zarr
+
+    try:
+        raw = zarr.open_group(str(path), mode="r").attrs.get(FAILED_CHUNKS_ATTR, "")
+    except (OSError, ValueError, KeyError):
+        return []
+    try:
+        records = json.loads(raw) if raw else []
+        if not isinstance(records, list) or not all(
+                isinstance(r, dict) and isinstance(r.get("bounds"), list) and len(r["bounds"]) == 4
+                and all(type(v) is int and v >= 0 for v in r["bounds"]) for r in records):
+            raise ValueError("not a list of chunk records with 4 whole-number bounds")
+    except ValueError as exc:
+        raise StoreError(f"{path}: its '{FAILED_CHUNKS_ATTR}' attribute is damaged ({exc}); grid the DEM again "
+                         f"(mercury-dem run ... --force dem)") from exc
+    return records
+
+
+def regrid_failed_chunks(
+    points_xyz: NDArray[np.floating], config: Any, path: str | Path, client: Any = None, *,
+    body: Body = MERCURY, progress: Any = None, label: str = "dem",
+) -> dict[str, Any]:
+    """Grid again, in place, the chunks a ``dem.zarr`` records as failed (the resume of :func:`grid_dem`).
+
+    ``config`` must give the store's grid (the run's DEM settings with its extent, as at the first
+    try); the chunks' regions are written over their NaN pixels with the same function as the other
+    chunks, so a store whose failed chunks all succeed now equals one gridded whole. The record is
+    updated last: a chunk that fails again stays listed (with its new error), one interrupted
+    mid-write is still listed and done again next time.
+
+    Returns
+    -------
+    dict: path, reused (True), regridded (bounds of the chunks now gridded), failed_chunks (those
+    still failing), no_value_pixels.
+    """
+    import zarr
+
+    from mercury_dem.progress import NULL
+
+    rep = progress if progress is not None else NULL
+    cfg = _dem_config(config)
+    pts = np.asarray(points_xyz, dtype=np.float64)
+    if pts.ndim == 2 and pts.shape[0] and cfg.extent_from_points:
+        cfg = config_with_extent(cfg, pts, body.datum_radius_m)
+    grid = GridSpec.from_config(cfg, body.datum_radius_m)
+    failed = failed_chunks_of(path)
+    group = zarr.open_group(str(path), mode="r+")
+    if tuple(group["elevation"].shape) != grid.shape:
+        raise StoreError(f"{path}: its grid {tuple(group['elevation'].shape)} is not the configured {grid.shape}; "
+                         f"grid the DEM again (mercury-dem run --force dem)")
+    todo = [tuple(int(v) for v in f["bounds"]) for f in failed]
+    rep.message(f"{label}: {len(todo)} chunk(s) that failed before, gridded again")
+    index = build_point_index(pts, body.datum_radius_m)
+    layer_arrays = {name: group[name] for name in LAYERS}
+    if runs_in_process(client):
+        results = [_grid_and_write_or_record(index, grid, b, cfg, layer_arrays) for b in todo]  # type: ignore[arg-type]
+    else:
+        index_f = client.scatter(index, broadcast=True)
+        futures = [client.submit(_grid_and_write_or_record, index_f, grid, b, cfg, str(path), pure=False)
+                   for b in todo]
+        results = [_result_or_record(grid, b, f) for b, f in zip(todo, futures)]  # type: ignore[arg-type]
+    still = [r for r in results if r.get("failed")]
+    for line in failed_chunk_lines(still, label):
+        rep.message(line)
+    recovered = sum((b[1] - b[0]) * (b[3] - b[2]) for b in todo) - sum(r["pixels"] for r in still)
+    no_value = int(group.attrs.get("no_value_pixels", 0)) - recovered + sum(
+        r["no_value"] for r in results if not r.get("failed"))
+    kept = [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")} for f in still]
+    group.attrs["no_value_pixels"] = int(no_value)
+    if kept:
+        group.attrs[FAILED_CHUNKS_ATTR] = json.dumps(kept)
+    else:
+        group.attrs.__delitem__(FAILED_CHUNKS_ATTR)
+    return {"path": str(path), "reused": True, "regridded": [list(r["bounds"]) for r in results if not r.get("failed")],
+            "failed_chunks": kept, "no_value_pixels": int(no_value)}
 
 
 @contextlib.contextmanager

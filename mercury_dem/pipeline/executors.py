@@ -83,6 +83,15 @@ def as_completed(client: Any, futures: list[Any]) -> Iterator[Any]:
     yield from _as_completed(futures)
 
 
+def runs_in_process(client: Any) -> bool:
+    """True when tasks given to ``client`` run in this process: None or the synchronous client.
+
+    The stages take the run's one client (the cascade's, :func:`connect`) and ask this, rather
+    than each deciding from the connection's mode, where to run a loop of their own tasks.
+    """
+    return client is None or bool(getattr(client, "synchronous", False))
+
+
 @dataclass
 class Connection:
     """A client and what must be closed with it."""

@@ -232,7 +232,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                 from mercury_dem.pipeline.dem_run import run_dem_stage
 
                 stage[0] = "the DEM stage (dem.zarr, coverage.zarr, products)"
-                dem_summary = run_dem_stage(store, mission, config, None if conn.mode == "sync" else client, stream)
+                dem_summary = run_dem_stage(store, mission, config, client, stream)  # the cascade's client
                 timings["dem"] = time.perf_counter() - t
     finally:
         if own:

@@ -1,4 +1,4 @@
-"""The bucket index of the gridding search: its sort and its longitude extent, against plain numpy."""
+"""The bucket index of the gridding search (dem/index.py): its sort and its longitude extent, against plain numpy."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from mercury_dem.dem import buckets as B
+from mercury_dem.dem import index as B
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
 
 

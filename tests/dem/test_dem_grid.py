@@ -194,7 +194,7 @@ def test_sort11_network_sorts():
     0-1 principle, every input) and random radii with ties exactly as np.sort does."""
     import itertools
 
-    from mercury_dem.dem.buckets import _sort11
+    from mercury_dem.dem.reduce import _sort11
 
     for bits in itertools.product((0.0, 1.0), repeat=11):
         r = np.array(bits)
@@ -212,7 +212,7 @@ def test_smallest_set_breaks_ties_by_point_index():
     """The k-NN selection of the median11 kernel keeps the k smallest distances, ties at the k-th
     place broken by point index (as the sorted (distance, index) order does), whether the
     distances are distinct or heavily tied (duplicated points)."""
-    from mercury_dem.dem.buckets import _smallest_set
+    from mercury_dem.dem.search import _smallest_set
 
     rng = np.random.default_rng(5)
     k = 11

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mercury_dem.config.dem import DemConfig
-from mercury_dem.dem.extent import points_extent, whole_pixel_step
+from mercury_dem.dem.extent import config_with_extent, points_extent, whole_pixel_step
 from mercury_dem.dem.grid import GridSpec
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
@@ -75,8 +75,8 @@ def test_config_bounds_that_are_set_are_kept() -> None:
     pts, _, _ = _cloud((-12.3, 7.8), (100.4, 131.2))
     assert DemConfig().bounds() == (-90.0, 90.0, 0.0, 360.0)
     fixed = DemConfig(lat_min=-30.0, lat_max=30.0, lon_min=90.0, lon_max=150.0)
-    assert not fixed.extent_from_points and fixed.with_extent_of(pts) is fixed
-    part = DemConfig(lat_min=-40.0).with_extent_of(pts)
+    assert not fixed.extent_from_points and config_with_extent(fixed, pts) is fixed
+    part = config_with_extent(DemConfig(lat_min=-40.0), pts)
     assert part.lat_min == -40.0 and part.lat_max == 9.0 and part.lon_min == 99.0 and part.lon_max == 133.0
 
 

@@ -198,12 +198,13 @@ def test_dem_chunks_run_on_dask_workers(s3_run: list[str], sync_run: tuple[Path,
 
     from mercury_dem.geometry.body import MERCURY
     from mercury_dem.pipeline.dem_bucket import _worker_index, grid_dem_on_bucket
-    from mercury_dem.pipeline.dem_run import point_cloud
+    from mercury_dem.dem.cloud import point_cloud
+    from mercury_dem.dem.extent import config_with_extent
 
     store = RunStore(RUN)
     r = store.remote
     pts = point_cloud(read_network(store.network_path("global", 0)))
-    cfg = tiny_config().dem.with_extent_of(pts, MERCURY.datum_radius_m)
+    cfg = config_with_extent(tiny_config().dem, pts, MERCURY.datum_radius_m)
     for n in _chunk_tokens(r):
         r.remove(f"dem_chunks/{n}")  # every chunk must be gridded again
     _worker_index.cache_clear()
