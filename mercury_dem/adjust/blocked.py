@@ -37,6 +37,8 @@ actors and futures).
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import resource
 import time
 from dataclasses import dataclass, field
@@ -48,7 +50,14 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.framing import FramingModel, FramingState, inverse_left_jacobian
-from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs_grouped
+from mercury_dem.adjust.kernels import (
+    normal_blocks,
+    point_rhs,
+    prior_blocks,
+    reduced_rhs,
+    schur_pairs_grouped,
+    schur_pairs_table,
+)
 from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.robust import loss_rho, rejection_limit
 from mercury_dem.adjust.schur import HAVE_CHOLMOD, ReducedSolver, SchurStructure, _cholmod, choose_method, inv3
@@ -67,6 +76,27 @@ from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles
 from mercury_dem.network.synthetic_store import BlockData
 
 C = 3  # camera unknowns: pointing corrections
+
+
+def _libc_malloc_trim() -> Any:
+    """glibc's ``malloc_trim`` (None elsewhere: musl, macOS)."""
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        return None
+
+
+_MALLOC_TRIM = _libc_malloc_trim()
+#: when a shard gives glibc's free heap pages back to the system: ``"block"`` after every block's step (the
+#: default: a block's temporaries, ~1 kB a measure, otherwise stay resident in holes between the blocks'
+#: long-lived arrays, docs/benchmarks/adjust.md), ``"call"`` after each shard method, ``"never"``
+HEAP_TRIM = "block"
+
+
+def release_heap() -> None:
+    """Return the free pages of glibc's heap to the system (``malloc_trim(0)``); nothing elsewhere."""
+    if _MALLOC_TRIM is not None:
+        _MALLOC_TRIM(0)
 
 
 @dataclass(frozen=True)
@@ -182,7 +212,15 @@ class PointBlockState:
         use = use[np.argsort(self.pt[use], kind="stable")]
         self.pair_order = use.astype(np.int32)
         self.pair_ptr = np.concatenate([[0], np.cumsum(np.bincount(self.pt[use], minlength=self.n_pt))]).astype(np.int32)
-        self.struct.pair_block = self.struct.pair_block.astype(np.int32)
+        # each pair's camera-pair block: from a table of the block's images where that is smaller (the usual case:
+        # a block of 25,000 neighbouring points sees a few hundred images), else the per-pair index
+        self.pair_table: NDArray[np.int32] | None = None
+        if 4 * self.n_cam**2 < 2 * len(self.struct.pair_block):
+            self.pair_table = np.full((self.n_cam, self.n_cam), -1, np.int32)
+            self.pair_table[self.struct.block_row, self.struct.block_col] = np.arange(self.struct.n_blocks, dtype=np.int32)
+            self.struct.pair_block = np.zeros(0, np.int32)
+        else:
+            self.struct.pair_block = self.struct.pair_block.astype(np.int32)
         self.struct.pair_first = self.struct.pair_second = np.zeros(0, np.int32)
         self.struct.camera_index, self.struct.point_index = self.cam, self.pt  # not its int64 copies
         n = setup.n_images
@@ -254,15 +292,24 @@ class PointBlockState:
         self.dv = np.clip(np.diagonal(v, axis1=1, axis2=2), 1e-6, 1e32)
         return u, g_c, n_prior
 
-    def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
+    def _v_inv(self, lam: float) -> NDArray[np.float64]:
+        """Inverses of the damped point blocks ``V + lam diag(V)``: recomputed by :meth:`reduce` and :meth:`step`
+        (the same bits both times) rather than kept between them (72 B a point, ~10 B a measure).
+        """
         vd = self.v.copy()
         vd[:, range(3), range(3)] += lam * self.dv
-        self.v_inv = inv3(vd)
+        return inv3(vd)
+
+    def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
+        v_inv = self._v_inv(lam)
         blocks = np.zeros((self.struct.n_blocks, C, C))
         s = self.struct
-        schur_pairs_grouped(self.wm, self.v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
-        t_p = np.matmul(self.v_inv, self.g_p[:, :, None])[:, :, 0]
+        if self.pair_table is not None:
+            schur_pairs_table(self.wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, self.pair_table, blocks)
+        else:
+            schur_pairs_grouped(self.wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
+        t_p = np.matmul(v_inv, self.g_p[:, :, None])[:, :, 0]
         b = np.zeros((self.n_cam, C))
         reduced_rhs(self.wm, t_p, self.cam, self.pt, b)
         return -blocks, b
@@ -276,7 +323,7 @@ class PointBlockState:
         dc = dc_all[self.cams]
         q = np.zeros((self.n_pt, 3))
         point_rhs(self.wm, dc, self.cam, self.pt, q)
-        dp = np.matmul(self.v_inv, (-self.g_p - q)[:, :, None])[:, :, 0]
+        dp = np.matmul(self._v_inv(lam), (-self.g_p - q)[:, :, None])[:, :, 0]
         dp[self.held_p | self.frozen] = 0.0
         pred = lam * float(np.sum(self.dv * dp * dp)) - float(np.sum(self.g_p * dp))
         new_points = self.points + dp
@@ -359,8 +406,14 @@ class BlockShard:
 
     def _each(self, fn: Any) -> list[Any]:
         t = time.perf_counter()
+        out = []
         with threadpool_limits(limits=1, user_api="blas"):
-            out = [fn(b) for b in self.blocks]
+            for b in self.blocks:
+                out.append(fn(b))
+                if HEAP_TRIM == "block":
+                    release_heap()
+        if HEAP_TRIM == "call":
+            release_heap()
         self.busy_seconds += time.perf_counter() - t
         return out
 
