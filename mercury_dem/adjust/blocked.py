@@ -195,8 +195,9 @@ class PointBlockState:
         self.float32 = bool(setup.float32)
         if self.float32:  # the block's own copies (AdjustmentProblem validates in float64, then they are narrowed)
             object.__setattr__(problem, "measures", problem.measures.astype(np.float32))
-            object.__setattr__(problem, "measure_sigma", problem.measure_sigma.astype(np.float32))
             self.model._inv_sigma = self.model._inv_sigma.astype(np.float32)
+        # the model whitens with 1 / sigma; the sigmas themselves are not kept (pixels: :meth:`pixels`)
+        object.__setattr__(problem, "measure_sigma", np.zeros(0, np.float32))
         self.opt = opt
         self.cam, self.pt = self.model.camera_index, self.model.point_index
         self.n_cam, self.n_pt, self.m = len(cams), problem.n_points, problem.n_measures
@@ -239,6 +240,10 @@ class PointBlockState:
 
     def _state(self, omega: NDArray[np.float64], points: NDArray[np.float64]) -> FramingState:
         return FramingState(omega[self.cams], self.zero_pos, points)
+
+    def pixels(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Whitened residuals (M, 2) in pixels."""
+        return r / self.model._inv_sigma[:, None]
 
     @property
     def r_now(self) -> NDArray[np.float64]:
@@ -497,7 +502,7 @@ class BlockShard:
             keep = b.active & ~b.frozen[b.pt]
             acc += np.bincount(b.cams[b.cam[keep]], minlength=self.n_images)
             out["underdetermined_points"] += int(np.sum(b.frozen))
-            resid = b.r_now * b.model.problem.measure_sigma[:, None]
+            resid = b.pixels(b.r_now)
             out["sum_sq_px"] += float(np.sum(resid[keep] ** 2))
             out["n_px"] += int(2 * np.sum(keep))
             if b.outlier is not None:
@@ -517,13 +522,13 @@ class BlockShard:
         out = []
         for b in self.blocks:
             _, r = b.cost(omega)
-            out.append((b.block, r * b.model.problem.measure_sigma[:, None]))
+            out.append((b.block, b.pixels(r)))
         return out
 
     def block_results(self) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
                                           NDArray[np.float64]]]:
         """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
-        return [(b.block, b.points, b.frozen, b.active, b.r_now * b.model.problem.measure_sigma[:, None])
+        return [(b.block, b.points, b.frozen, b.active, b.pixels(b.r_now))
                 for b in self.blocks]
 
     def solution(self) -> list[tuple[int, int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]]:
