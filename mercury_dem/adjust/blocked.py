@@ -114,6 +114,9 @@ class CameraSetup:
     #: precision: W = Jc^T Jp, the measures and their sigmas (see :class:`PointBlockState`); False: all float64
     #: (bit for bit the in-memory adjuster's sums)
     float32: bool = False
+    #: W not kept between the linearization and the trials but recomputed from the Jacobians at each trial's
+    #: reduction and back-substitution (36 B a measure in float32 fewer, two more Jacobian evaluations a trial)
+    recompute_w: bool = False
 
     @property
     def n_images(self) -> int:
@@ -193,6 +196,8 @@ class PointBlockState:
         self.model.camera_index, self.model.point_index = mi, mp
         self.model._groups = [(k, g.astype(np.int32)) for k, g in self.model._groups]
         self.float32 = bool(setup.float32)
+        self.recompute_w = bool(setup.recompute_w)
+        self.wm: NDArray[np.float64] | None = None
         if self.float32:  # the block's own copies (AdjustmentProblem validates in float64, then they are narrowed)
             object.__setattr__(problem, "measures", problem.measures.astype(np.float32))
             self.model._inv_sigma = self.model._inv_sigma.astype(np.float32)
@@ -263,37 +268,56 @@ class PointBlockState:
         return c, r
 
     # -- the steps of one iteration ----------------------------------------------
-    def linearize(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
-        """Normal blocks at the current state; returns this block's U (n_cam, c, c), g_c (n_cam, c), prior rows."""
-        st = self._state(omega, self.points)
+    def _weighted_jacobians(self, st: FramingState) -> tuple[NDArray[np.float64], ...]:
+        """Robustly weighted residuals and Jacobians at ``st`` (held cameras' and fixed points' columns zero)."""
         r, jc, jp = self.model.linearize(st)
         s = np.sum(r * r, axis=1)
         _, w = loss_rho(np.where(self.use, s, 0.0), self.opt.loss, self.opt.loss_scale)
         sw = np.sqrt(np.where(self.use, w, 0.0))
         r = r * sw[:, None]
         jc = jc * sw[:, None, None]
-        self._lin = (st.omega, self.points)  # where the rejection test's point Jacobians are recomputed
         jp *= sw[:, None, None]
         jc[self.held_c[self.cam]] = 0.0
+        jp[(self.held_p | self.frozen)[self.pt]] = 0.0
+        return r, jc, jp
+
+    def _w(self) -> NDArray[np.float64]:
+        """``W = Jc^T Jp`` of the last linearization: kept, or (``setup.recompute_w``) recomputed from the
+        Jacobians at that state, the same bits (same code, same state, same weights: the accepted set only
+        changes between a rejection round and the next linearization).
+        """
+        if self.wm is not None:
+            return self.wm
+        r, jc, jp = self._weighted_jacobians(FramingState(self._lin[0], self.zero_pos, self._lin[1]))
+        wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        normal_blocks(r, jc, jp, self.cam, self.pt, np.zeros((self.n_cam, C, C)), np.zeros((self.n_cam, C)),
+                      np.zeros((self.n_pt, 3, 3)), np.zeros((self.n_pt, 3)), wm)
+        return wm
+
+    def linearize(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+        """Normal blocks at the current state; returns this block's U (n_cam, c, c), g_c (n_cam, c), prior rows."""
+        st = self._state(omega, self.points)
+        r, jc, jp = self._weighted_jacobians(st)
+        self._lin = (st.omega, self.points)  # where the rejection test's point Jacobians are recomputed
         fixed = self.held_p | self.frozen
-        jp[fixed[self.pt]] = 0.0
         u = np.zeros((self.n_cam, C, C))
         g_c = np.zeros((self.n_cam, C))
-        if getattr(self, "wm", None) is None:  # allocated once, refilled in place at every linearization
+        if getattr(self, "v", None) is None:  # allocated once, refilled in place at every linearization
             self.v, self.g_p = np.empty((self.n_pt, 3, 3)), np.empty((self.n_pt, 3))
-            self.wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
-        v, g_p, wm = self.v, self.g_p, self.wm
+            if not self.recompute_w:
+                self.wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        v, g_p = self.v, self.g_p
+        wm = self.wm if self.wm is not None else np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
         v.fill(0.0)
         g_p.fill(0.0)
         normal_blocks(r, jc, jp, self.cam, self.pt, u, g_c, v, g_p, wm)
-        del r, jc, jp
+        del r, jc, jp, wm
         pp = self.model.point_prior(st)
         n_prior = 0
         if pp is not None:
             n_prior = int(np.sum(~fixed)) * pp[0].shape[1]
             prior_blocks(pp[0], pp[1], v, g_p)
         v[fixed], g_p[fixed] = np.eye(3), 0.0
-        self.v, self.g_p, self.wm = v, g_p, wm
         self.dv = np.clip(np.diagonal(v, axis1=1, axis2=2), 1e-6, 1e32)
         return u, g_c, n_prior
 
@@ -310,13 +334,14 @@ class PointBlockState:
         v_inv = self._v_inv(lam)
         blocks = np.zeros((self.struct.n_blocks, C, C))
         s = self.struct
+        wm = self._w()
         if self.pair_table is not None:
-            schur_pairs_table(self.wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, self.pair_table, blocks)
+            schur_pairs_table(wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, self.pair_table, blocks)
         else:
-            schur_pairs_grouped(self.wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
+            schur_pairs_grouped(wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
         t_p = np.matmul(v_inv, self.g_p[:, :, None])[:, :, 0]
         b = np.zeros((self.n_cam, C))
-        reduced_rhs(self.wm, t_p, self.cam, self.pt, b)
+        reduced_rhs(wm, t_p, self.cam, self.pt, b)
         return -blocks, b
 
     def step(self, lam: float, dc_all: NDArray[np.float64], new_omega: NDArray[np.float64]) -> tuple[float, float, float, float]:
@@ -327,7 +352,7 @@ class PointBlockState:
         """
         dc = dc_all[self.cams]
         q = np.zeros((self.n_pt, 3))
-        point_rhs(self.wm, dc, self.cam, self.pt, q)
+        point_rhs(self._w(), dc, self.cam, self.pt, q)
         dp = np.matmul(self._v_inv(lam), (-self.g_p - q)[:, :, None])[:, :, 0]
         dp[self.held_p | self.frozen] = 0.0
         pred = lam * float(np.sum(self.dv * dp * dp)) - float(np.sum(self.g_p * dp))

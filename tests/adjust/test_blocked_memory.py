@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from mercury_dem.adjust import blocked
@@ -40,9 +42,10 @@ def test_pair_table_gives_the_pair_index_sums_bit_for_bit() -> None:
     assert np.array_equal(got, ref) and np.abs(ref).max() > 0
 
 
-def _adjust(p, monkeypatch, table: bool, trim: str):
+def _adjust(p, monkeypatch, table: bool, trim: str, recompute_w: bool = False):
     cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
     setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, cfg, float32=True)
+    setup = dataclasses.replace(setup, recompute_w=recompute_w)
     opt = options_from_config(cfg, float(np.median(p.measure_sigma)))
     monkeypatch.setattr(blocked, "HEAP_TRIM", trim)
     shard = BlockShard(blocks_from_problem(p, 3), setup, opt)
@@ -73,6 +76,19 @@ def test_table_index_and_heap_trim_change_nothing(monkeypatch) -> None:
     p = _problem(59)
     a, sa = _adjust(p, monkeypatch, table=True, trim="block")
     b, sb = _adjust(p, monkeypatch, table=False, trim="never")
+    assert a.iterations == b.iterations and a.rejected == b.rejected and a.rejected > 10
+    assert np.array_equal(a.omega, b.omega)
+    for x, y in zip(sa.blocks, sb.blocks):
+        assert np.array_equal(x.points, y.points) and np.array_equal(x.active, y.active)
+
+
+def test_recomputed_w_changes_nothing(monkeypatch) -> None:
+    """``recompute_w``: W rebuilt at each trial from the Jacobians of the last linearization, the same bits as
+    the kept W, so the same adjustment (seed 61), and no W held between calls."""
+    p = _problem(61)
+    a, sa = _adjust(p, monkeypatch, table=True, trim="block")
+    b, sb = _adjust(p, monkeypatch, table=True, trim="block", recompute_w=True)
+    assert all(x.wm is None for x in sb.blocks) and all(x.wm is not None for x in sa.blocks)
     assert a.iterations == b.iterations and a.rejected == b.rejected and a.rejected > 10
     assert np.array_equal(a.omega, b.omega)
     for x, y in zip(sa.blocks, sb.blocks):

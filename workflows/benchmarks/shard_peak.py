@@ -1,7 +1,7 @@
 """Peak RSS of one shard of N blocks of a store adjusted in this process (SyncEngine): memory, not speed.
 
-Usage: shard_peak.py STORE N_BLOCKS MAX_ITERATIONS [block|call|never] (when the shard trims glibc's heap,
-``blocked.HEAP_TRIM``; default block). The store's other images have no measures here and are held
+Usage: shard_peak.py STORE N_BLOCKS MAX_ITERATIONS [block|call|never] [recompute_w] (when the shard trims glibc's
+heap, ``blocked.HEAP_TRIM``; default block; ``recompute_w``: W not kept, ``CameraSetup.recompute_w``). The store's other images have no measures here and are held
 by the camera prior; the marginal bytes a measure between two N is the shard's growth (docs/benchmarks/adjust.md).
 In one process the client's share (the rejection limit over all measures' norms) is in the same peak.
 """
@@ -53,6 +53,7 @@ def main() -> None:
     im = net.images
     cfg = dataclasses.replace(AdjustConfig(), pointing_sigma_deg=0.025783100780887047, max_iterations=its)
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True)
+    setup = dataclasses.replace(setup, recompute_w="recompute_w" in sys.argv[5:])
     opt = options_from_config(cfg)
     r0, t = rss(), time.perf_counter()
     sh = BlockShard((store, list(range(n))), setup, opt)
@@ -61,7 +62,7 @@ def main() -> None:
     r2 = rss()
     m = sum(b.m for b in sh.blocks)
     print(f"blocks {n} measures {m} its {res.iterations} rejected {res.rejected} | peak GB: start {r0 / 1e9:.3f} "
-          f"built {r1 / 1e9:.3f} adjusted {r2 / 1e9:.3f} | {time.perf_counter() - t:.0f} s | trim {blocked.HEAP_TRIM} | "
+          f"built {r1 / 1e9:.3f} adjusted {r2 / 1e9:.3f} | {time.perf_counter() - t:.0f} s | trim {blocked.HEAP_TRIM}, recompute_w {setup.recompute_w} | "
           f"now: rss {current_rss() / 1e9:.3f} GB, {heap()}", flush=True)
 
 
