@@ -143,7 +143,8 @@ def setup_from_config(cameras: tuple[FramingCamera, ...], image_camera: NDArray[
     return CameraSetup(tuple(cameras), np.asarray(image_camera, np.int64), np.asarray(positions, np.float64),
                        np.asarray(rotations, np.float64), np.zeros(len(positions), bool),
                        float(np.radians(config.pointing_sigma_deg)),
-                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m), float32)
+                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m), float32,
+                       config.blocked_recompute_w)
 
 
 def blocks_from_problem(problem: AdjustmentProblem, n_blocks: int) -> list[BlockData]:

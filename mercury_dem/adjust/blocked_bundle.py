@@ -107,7 +107,7 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
                         np.asarray(problem.positions, np.float64), np.asarray(problem.rotations, np.float64), held,
                         float(np.radians(config.pointing_sigma_deg)),
                         (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m),
-                        config.blocked_float32)
+                        config.blocked_float32, config.blocked_recompute_w)
     opt = options_from_config(config, float(np.median(problem.measure_sigma)))
     omega0 = np.zeros((problem.n_images, 3))
     if problem.initial_rotations is not None:  # as FramingModel.initial_state
