@@ -4,7 +4,11 @@ Usage: blocked_posterior_cost.py STORE. All blocks in one process, the system at
 not depend on the state), sigma0 = 1; CHOLMOD column solves, then block-Jacobi. Do not ask for the dense inverse
 at 10^4 images: 32k unknowns are 8 GB a copy (it was OOM-killed here).
 """
-import sys, time, types, resource
+import resource
+import sys
+import time
+import types
+
 import numpy as np
 from mercury_dem.adjust.blocked import BlockShard, SyncEngine, blocked_posterior_sigmas, options_from_config, setup_from_config
 from mercury_dem.config.adjust import AdjustConfig
