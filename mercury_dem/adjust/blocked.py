@@ -28,8 +28,8 @@ iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
 stays in the orchestration layer). The loop,
 :func:`blocked_levenberg_marquardt`, does not know which.
 
-Pointing corrections only (camera_dim 3, positions fixed); no a-posteriori sigmas
-yet; no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
+Pointing corrections only (camera_dim 3, positions fixed); a-posteriori sigmas of the images only
+(:func:`blocked_posterior_sigmas`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
 Why our own: no library offers a distributed Schur-complement bundle adjustment
 (Ceres and scipy are single-process; the Dask engine underneath is distributed's
 actors and futures).
@@ -37,6 +37,8 @@ actors and futures).
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import resource
 import time
 from dataclasses import dataclass, field
@@ -48,10 +50,17 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.framing import FramingModel, FramingState, inverse_left_jacobian
-from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs, schur_pairs_grouped
+from mercury_dem.adjust.kernels import (
+    normal_blocks,
+    point_rhs,
+    prior_blocks,
+    reduced_rhs,
+    schur_pairs_grouped,
+    schur_pairs_table,
+)
 from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.robust import loss_rho, rejection_limit
-from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
+from mercury_dem.adjust.schur import HAVE_CHOLMOD, ReducedSolver, SchurStructure, _cholmod, choose_method, inv3
 from mercury_dem.adjust.solver import (
     READMIT_FRACTION,
     SolverOptions,
@@ -69,6 +78,27 @@ from mercury_dem.network.synthetic_store import BlockData
 C = 3  # camera unknowns: pointing corrections
 
 
+def _libc_malloc_trim() -> Any:
+    """glibc's ``malloc_trim`` (None elsewhere: musl, macOS)."""
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):  # pragma: no cover - not glibc
+        return None
+
+
+_MALLOC_TRIM = _libc_malloc_trim()
+#: when a shard gives glibc's free heap pages back to the system: ``"block"`` after every block's step (the
+#: default: a block's temporaries, ~1 kB a measure, otherwise stay resident in holes between the blocks'
+#: long-lived arrays, docs/benchmarks/adjust.md), ``"call"`` after each shard method, ``"never"``
+HEAP_TRIM = "block"
+
+
+def release_heap() -> None:
+    """Return the free pages of glibc's heap to the system (``malloc_trim(0)``); nothing elsewhere."""
+    if _MALLOC_TRIM is not None:
+        _MALLOC_TRIM(0)
+
+
 @dataclass(frozen=True)
 class CameraSetup:
     """What every block needs of the images (sent once to every shard)."""
@@ -84,6 +114,9 @@ class CameraSetup:
     #: precision: W = Jc^T Jp, the measures and their sigmas (see :class:`PointBlockState`); False: all float64
     #: (bit for bit the in-memory adjuster's sums)
     float32: bool = False
+    #: W not kept between the linearization and the trials but recomputed from the Jacobians at each trial's
+    #: reduction and back-substitution (36 B a measure in float32 fewer, two more Jacobian evaluations a trial)
+    recompute_w: bool = False
 
     @property
     def n_images(self) -> int:
@@ -110,7 +143,8 @@ def setup_from_config(cameras: tuple[FramingCamera, ...], image_camera: NDArray[
     return CameraSetup(tuple(cameras), np.asarray(image_camera, np.int64), np.asarray(positions, np.float64),
                        np.asarray(rotations, np.float64), np.zeros(len(positions), bool),
                        float(np.radians(config.pointing_sigma_deg)),
-                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m), float32)
+                       (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m), float32,
+                       config.blocked_recompute_w)
 
 
 def blocks_from_problem(problem: AdjustmentProblem, n_blocks: int) -> list[BlockData]:
@@ -163,10 +197,13 @@ class PointBlockState:
         self.model.camera_index, self.model.point_index = mi, mp
         self.model._groups = [(k, g.astype(np.int32)) for k, g in self.model._groups]
         self.float32 = bool(setup.float32)
+        self.recompute_w = bool(setup.recompute_w)
+        self.wm: NDArray[np.float64] | None = None
         if self.float32:  # the block's own copies (AdjustmentProblem validates in float64, then they are narrowed)
             object.__setattr__(problem, "measures", problem.measures.astype(np.float32))
-            object.__setattr__(problem, "measure_sigma", problem.measure_sigma.astype(np.float32))
             self.model._inv_sigma = self.model._inv_sigma.astype(np.float32)
+        # the model whitens with 1 / sigma; the sigmas themselves are not kept (pixels: :meth:`pixels`)
+        object.__setattr__(problem, "measure_sigma", np.zeros(0, np.float32))
         self.opt = opt
         self.cam, self.pt = self.model.camera_index, self.model.point_index
         self.n_cam, self.n_pt, self.m = len(cams), problem.n_points, problem.n_measures
@@ -182,7 +219,15 @@ class PointBlockState:
         use = use[np.argsort(self.pt[use], kind="stable")]
         self.pair_order = use.astype(np.int32)
         self.pair_ptr = np.concatenate([[0], np.cumsum(np.bincount(self.pt[use], minlength=self.n_pt))]).astype(np.int32)
-        self.struct.pair_block = self.struct.pair_block.astype(np.int32)
+        # each pair's camera-pair block: from a table of the block's images where that is smaller (the usual case:
+        # a block of 25,000 neighbouring points sees a few hundred images), else the per-pair index
+        self.pair_table: NDArray[np.int32] | None = None
+        if 4 * self.n_cam**2 < 2 * len(self.struct.pair_block):
+            self.pair_table = np.full((self.n_cam, self.n_cam), -1, np.int32)
+            self.pair_table[self.struct.block_row, self.struct.block_col] = np.arange(self.struct.n_blocks, dtype=np.int32)
+            self.struct.pair_block = np.zeros(0, np.int32)
+        else:
+            self.struct.pair_block = self.struct.pair_block.astype(np.int32)
         self.struct.pair_first = self.struct.pair_second = np.zeros(0, np.int32)
         self.struct.camera_index, self.struct.point_index = self.cam, self.pt  # not its int64 copies
         n = setup.n_images
@@ -202,6 +247,10 @@ class PointBlockState:
     def _state(self, omega: NDArray[np.float64], points: NDArray[np.float64]) -> FramingState:
         return FramingState(omega[self.cams], self.zero_pos, points)
 
+    def pixels(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Whitened residuals (M, 2) in pixels."""
+        return r / self.model._inv_sigma[:, None]
+
     @property
     def r_now(self) -> NDArray[np.float64]:
         """Whitened residuals (M, 2) at the current state (recomputed: 16 bytes a measure not kept)."""
@@ -220,51 +269,80 @@ class PointBlockState:
         return c, r
 
     # -- the steps of one iteration ----------------------------------------------
-    def linearize(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
-        """Normal blocks at the current state; returns this block's U (n_cam, c, c), g_c (n_cam, c), prior rows."""
-        st = self._state(omega, self.points)
+    def _weighted_jacobians(self, st: FramingState) -> tuple[NDArray[np.float64], ...]:
+        """Robustly weighted residuals and Jacobians at ``st`` (held cameras' and fixed points' columns zero)."""
         r, jc, jp = self.model.linearize(st)
         s = np.sum(r * r, axis=1)
         _, w = loss_rho(np.where(self.use, s, 0.0), self.opt.loss, self.opt.loss_scale)
         sw = np.sqrt(np.where(self.use, w, 0.0))
         r = r * sw[:, None]
         jc = jc * sw[:, None, None]
-        self._lin = (st.omega, self.points)  # where the rejection test's point Jacobians are recomputed
         jp *= sw[:, None, None]
         jc[self.held_c[self.cam]] = 0.0
+        jp[(self.held_p | self.frozen)[self.pt]] = 0.0
+        return r, jc, jp
+
+    def _w(self) -> NDArray[np.float64]:
+        """``W = Jc^T Jp`` of the last linearization: kept, or (``setup.recompute_w``) recomputed from the
+        Jacobians at that state, the same bits (same code, same state, same weights: the accepted set only
+        changes between a rejection round and the next linearization).
+        """
+        if self.wm is not None:
+            return self.wm
+        r, jc, jp = self._weighted_jacobians(FramingState(self._lin[0], self.zero_pos, self._lin[1]))
+        wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        normal_blocks(r, jc, jp, self.cam, self.pt, np.zeros((self.n_cam, C, C)), np.zeros((self.n_cam, C)),
+                      np.zeros((self.n_pt, 3, 3)), np.zeros((self.n_pt, 3)), wm)
+        return wm
+
+    def linearize(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+        """Normal blocks at the current state; returns this block's U (n_cam, c, c), g_c (n_cam, c), prior rows."""
+        st = self._state(omega, self.points)
+        r, jc, jp = self._weighted_jacobians(st)
+        self._lin = (st.omega, self.points)  # where the rejection test's point Jacobians are recomputed
         fixed = self.held_p | self.frozen
-        jp[fixed[self.pt]] = 0.0
         u = np.zeros((self.n_cam, C, C))
         g_c = np.zeros((self.n_cam, C))
-        if getattr(self, "wm", None) is None:  # allocated once, refilled in place at every linearization
+        if getattr(self, "v", None) is None:  # allocated once, refilled in place at every linearization
             self.v, self.g_p = np.empty((self.n_pt, 3, 3)), np.empty((self.n_pt, 3))
-            self.wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
-        v, g_p, wm = self.v, self.g_p, self.wm
+            if not self.recompute_w:
+                self.wm = np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
+        v, g_p = self.v, self.g_p
+        wm = self.wm if self.wm is not None else np.empty((self.m, C, 3), np.float32 if self.float32 else np.float64)
         v.fill(0.0)
         g_p.fill(0.0)
         normal_blocks(r, jc, jp, self.cam, self.pt, u, g_c, v, g_p, wm)
-        del r, jc, jp
+        del r, jc, jp, wm
         pp = self.model.point_prior(st)
         n_prior = 0
         if pp is not None:
             n_prior = int(np.sum(~fixed)) * pp[0].shape[1]
             prior_blocks(pp[0], pp[1], v, g_p)
         v[fixed], g_p[fixed] = np.eye(3), 0.0
-        self.v, self.g_p, self.wm = v, g_p, wm
         self.dv = np.clip(np.diagonal(v, axis1=1, axis2=2), 1e-6, 1e32)
         return u, g_c, n_prior
 
-    def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
+    def _v_inv(self, lam: float) -> NDArray[np.float64]:
+        """Inverses of the damped point blocks ``V + lam diag(V)``: recomputed by :meth:`reduce` and :meth:`step`
+        (the same bits both times) rather than kept between them (72 B a point, ~10 B a measure).
+        """
         vd = self.v.copy()
         vd[:, range(3), range(3)] += lam * self.dv
-        self.v_inv = inv3(vd)
+        return inv3(vd)
+
+    def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
+        v_inv = self._v_inv(lam)
         blocks = np.zeros((self.struct.n_blocks, C, C))
         s = self.struct
-        schur_pairs_grouped(self.wm, self.v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
-        t_p = np.matmul(self.v_inv, self.g_p[:, :, None])[:, :, 0]
+        wm = self._w()
+        if self.pair_table is not None:
+            schur_pairs_table(wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, self.pair_table, blocks)
+        else:
+            schur_pairs_grouped(wm, v_inv, self.pt, self.cam, self.pair_order, self.pair_ptr, s.pair_block, blocks)
+        t_p = np.matmul(v_inv, self.g_p[:, :, None])[:, :, 0]
         b = np.zeros((self.n_cam, C))
-        reduced_rhs(self.wm, t_p, self.cam, self.pt, b)
+        reduced_rhs(wm, t_p, self.cam, self.pt, b)
         return -blocks, b
 
     def step(self, lam: float, dc_all: NDArray[np.float64], new_omega: NDArray[np.float64]) -> tuple[float, float, float, float]:
@@ -275,8 +353,8 @@ class PointBlockState:
         """
         dc = dc_all[self.cams]
         q = np.zeros((self.n_pt, 3))
-        point_rhs(self.wm, dc, self.cam, self.pt, q)
-        dp = np.matmul(self.v_inv, (-self.g_p - q)[:, :, None])[:, :, 0]
+        point_rhs(self._w(), dc, self.cam, self.pt, q)
+        dp = np.matmul(self._v_inv(lam), (-self.g_p - q)[:, :, None])[:, :, 0]
         dp[self.held_p | self.frozen] = 0.0
         pred = lam * float(np.sum(self.dv * dp * dp)) - float(np.sum(self.g_p * dp))
         new_points = self.points + dp
@@ -359,8 +437,14 @@ class BlockShard:
 
     def _each(self, fn: Any) -> list[Any]:
         t = time.perf_counter()
+        out = []
         with threadpool_limits(limits=1, user_api="blas"):
-            out = [fn(b) for b in self.blocks]
+            for b in self.blocks:
+                out.append(fn(b))
+                if HEAP_TRIM == "block":
+                    release_heap()
+        if HEAP_TRIM == "call":
+            release_heap()
         self.busy_seconds += time.perf_counter() - t
         return out
 
@@ -444,7 +528,7 @@ class BlockShard:
             keep = b.active & ~b.frozen[b.pt]
             acc += np.bincount(b.cams[b.cam[keep]], minlength=self.n_images)
             out["underdetermined_points"] += int(np.sum(b.frozen))
-            resid = b.r_now * b.model.problem.measure_sigma[:, None]
+            resid = b.pixels(b.r_now)
             out["sum_sq_px"] += float(np.sum(resid[keep] ** 2))
             out["n_px"] += int(2 * np.sum(keep))
             if b.outlier is not None:
@@ -464,13 +548,13 @@ class BlockShard:
         out = []
         for b in self.blocks:
             _, r = b.cost(omega)
-            out.append((b.block, r * b.model.problem.measure_sigma[:, None]))
+            out.append((b.block, b.pixels(r)))
         return out
 
     def block_results(self) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
                                           NDArray[np.float64]]]:
         """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
-        return [(b.block, b.points, b.frozen, b.active, b.r_now * b.model.problem.measure_sigma[:, None])
+        return [(b.block, b.points, b.frozen, b.active, b.pixels(b.r_now))
                 for b in self.blocks]
 
     def solution(self) -> list[tuple[int, int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]]:
@@ -700,3 +784,91 @@ def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_
         final_cost=cost, sigma0=sigma0, iterations=it, converged=converged, reason=reason, rejected=rejected, log=log,
         seconds=time.perf_counter() - t0, setup_seconds=setup_s, linear_method=method, measures=m, points=n_points, dof=dof,
     )
+
+
+@dataclass(frozen=True)
+class BlockedPosterior:
+    """A-posteriori pointing sigmas of the blocked adjustment (see :func:`blocked_posterior_sigmas`).
+
+    ``image_sigmas`` (n_img, 3) rad, 0 for held images; ``method``: ``"dense"`` or ``"cholmod"`` (exact: the
+    diagonal blocks of ``sigma0^2 S^-1``), or ``"block-jacobi"`` (``sigma0^2 S_ii^-1``: each image's sigma with
+    every other image held, a *lower bound* of the exact one, labelled so wherever it is reported).
+    """
+
+    image_sigmas: NDArray[np.float64]
+    method: str
+    seconds: float
+
+
+def _inverse_diagonal_blocks(matrix: sp.bsr_matrix, n_cam: int, method: str, batch: int = 256) -> NDArray[np.float64]:
+    """The (n_cam, C, C) diagonal blocks of ``matrix^-1`` (symmetric positive definite), exactly.
+
+    ``"dense"``: LAPACK inverse of the dense matrix (O(n^3), n^2 floats). ``"cholmod"``: one sparse Cholesky
+    factorization, then the unit columns solved ``batch`` images at a time and only their diagonal blocks kept
+    (O(n_cam nnz(L)) time, n x 3 batch floats beside the factor). Why not a selected inverse (Takahashi): no
+    library here offers one (scikit-sparse's ``inv`` forms the whole inverse); the column solves reuse CHOLMOD.
+    """
+    if method == "dense":
+        inv = np.linalg.inv(matrix.toarray())
+        idx = np.arange(n_cam)[:, None] * C + np.arange(C)
+        return inv[idx[:, :, None], idx[:, None, :]]
+    factor = _cholmod.cholesky(matrix.tocsc(), mode="supernodal")  # type: ignore[union-attr]
+    out = np.empty((n_cam, C, C))
+    n = n_cam * C
+    for i0 in range(0, n_cam, batch):
+        i1 = min(n_cam, i0 + batch)
+        k = (i1 - i0) * C
+        rhs = np.zeros((n, k))
+        rhs[i0 * C + np.arange(k), np.arange(k)] = 1.0
+        x = factor(rhs)[i0 * C:i1 * C]  # (k, k): rows and columns of these images
+        out[i0:i1] = x.reshape(i1 - i0, C, i1 - i0, C)[np.arange(i1 - i0), :, np.arange(i1 - i0), :]
+    return out
+
+
+def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: BlockedResult, dense_max_unknowns: int = 6000,
+                             exact_max_unknowns: int = 60_000) -> BlockedPosterior:
+    """Per-image a-posteriori pointing sigmas at the solution of :func:`blocked_levenberg_marquardt`.
+
+    The undamped reduced camera system ``S`` (the shards' ``linearize`` and ``reduce(0)`` at the final state,
+    the same robust weights and accepted set as the last iteration, plus the pointing prior) is assembled as in
+    an iteration; the sigmas are ``sigma0 sqrt(diag((S^-1)_ii))``, as the in-memory adjuster's
+    (``bundle.posterior_sigmas``). Up to ``dense_max_unknowns`` camera unknowns the inverse is dense; up to
+    ``exact_max_unknowns`` (CHOLMOD importable) its diagonal blocks come from column solves with one sparse
+    factor; above, or without CHOLMOD, each block is inverted alone (``"block-jacobi"``: the sigma of an image
+    with all the others held, a lower bound; what a PCG-sized system affords). Point sigmas are not computed
+    (they need the off-diagonal blocks of ``S^-1`` of every pair of images sharing a point).
+
+    Leaves the shards' linearization at the final state (their points, accepted sets and residuals unchanged).
+    """
+    t0 = time.perf_counter()
+    n_cam, held_c = setup.n_images, setup.held
+    with threadpool_limits(limits=1, user_api="blas"):
+        structs = engine.call("structure")
+        shard_cams = [s[0] for s in structs]
+        glob = GlobalStructure(np.unique(np.concatenate([s[1] for s in structs])), n_cam)
+        shard_pairs = [np.searchsorted(glob.keys, s[1]) for s in structs]
+        u = np.zeros((n_cam, C, C))
+        for cams, (us, _, _) in zip(shard_cams, engine.call("linearize", result.omega)):
+            u[cams] += us
+        sigma_c = setup.pointing_sigma_rad
+        prior_blocks(result.omega / sigma_c, inverse_left_jacobian(result.omega) / sigma_c, u, np.zeros((n_cam, C)))
+        u[held_c] = np.eye(C)
+        blocks = np.zeros((len(glob.keys), C, C))
+        for pairs, (ss, _) in zip(shard_pairs, engine.call("reduce", 0.0)):
+            blocks[pairs] += ss
+        blocks[glob.diag_block] += u
+        # the held images' rows and columns: identity (their W are zero, their pair blocks with others too)
+        n = n_cam * C
+        if n <= dense_max_unknowns:
+            method = "dense"
+        elif n <= exact_max_unknowns and HAVE_CHOLMOD:
+            method = "cholmod"
+        else:
+            method = "block-jacobi"
+        if method == "block-jacobi":
+            cov = np.linalg.inv(blocks[glob.diag_block])
+        else:
+            cov = _inverse_diagonal_blocks(glob.to_bsr(blocks), n_cam, method)
+    sig = result.sigma0 * np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
+    sig[held_c] = 0.0
+    return BlockedPosterior(sig, method, time.perf_counter() - t0)

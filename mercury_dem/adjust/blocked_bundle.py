@@ -11,8 +11,9 @@ and the re-centred point priors work on it unchanged. Same loop, same rules: the
 equals ``bundle_adjust``'s to solver tolerance (``tests/adjust/test_blocked_bundle.py``).
 
 Limits (those of the blocked loop): pointing only (``adjust.solve_positions`` is an
-error), no a-posteriori sigmas (``adjust.posterior_sigmas`` is ignored, and said so in
-``result.extra``). The diagnosis (islands, images without measures) still runs on the
+error); a-posteriori sigmas (``adjust.posterior_sigmas``) of the images only, exact up to
+``blocked.blocked_posterior_sigmas``' size limits and block-Jacobi lower bounds above (the
+method is named in ``result.extra``), no point sigmas. The diagnosis (islands, images without measures) still runs on the
 whole image-point graph, which the pipeline has in memory anyway.
 """
 
@@ -32,6 +33,7 @@ from mercury_dem.adjust.blocked import (
     CameraSetup,
     SyncEngine,
     blocked_levenberg_marquardt,
+    blocked_posterior_sigmas,
     options_from_config,
 )
 from mercury_dem.adjust.bundle import _rms_by, check_projectable, held_image_mask
@@ -85,7 +87,8 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
 
     Returns
     -------
-    AdjustmentResult in ``problem``'s measure and point order; ``image_sigmas``/``point_sigmas`` None.
+    AdjustmentResult in ``problem``'s measure and point order; ``image_sigmas`` when ``config.posterior_sigmas``
+    (pointing, rad), ``point_sigmas`` None.
 
     Raises
     ------
@@ -104,7 +107,7 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
                         np.asarray(problem.positions, np.float64), np.asarray(problem.rotations, np.float64), held,
                         float(np.radians(config.pointing_sigma_deg)),
                         (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m),
-                        config.blocked_float32)
+                        config.blocked_float32, config.blocked_recompute_w)
     opt = options_from_config(config, float(np.median(problem.measure_sigma)))
     omega0 = np.zeros((problem.n_images, 3))
     if problem.initial_rotations is not None:  # as FramingModel.initial_state
@@ -134,6 +137,9 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
         initial_rms = float(np.sqrt(np.mean(r0 * r0)))
         del r0
         res = blocked_levenberg_marquardt(engine, setup, opt, initial_omega=omega0)
+        post = None
+        if config.posterior_sigmas:
+            post = blocked_posterior_sigmas(engine, setup, res, dense_max_unknowns=config.posterior_max_unknowns)
         for part in engine.call("block_results"):
             n_blocks += len(part)
             for blk, pts, frz, act, r in part:
@@ -163,5 +169,8 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
         converged=res.converged, reason=res.reason, log=tuple(res.log), seconds=time.perf_counter() - t0,
         solve_seconds=res.seconds, linear_method=res.linear_method, dof=res.dof, diagnosis=diag,
         extra={"blocked": {"blocks": n_blocks, "block_points": int(block_points), "engine": where,
-                           "posterior_sigmas": "not computed by the blocked adjustment"}},
+                           "posterior_sigmas": "not asked (adjust.posterior_sigmas)" if post is None else
+                           f"images only ({post.method}{': lower bounds, each image with the others held' if post.method == 'block-jacobi' else ''}); no point sigmas"}},
+        image_sigmas=None if post is None else post.image_sigmas,
+        posterior_seconds=0.0 if post is None else post.seconds,
     )

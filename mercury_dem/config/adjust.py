@@ -112,9 +112,14 @@ class AdjustConfig(ConfigSection):
         "actor each, the unit's task seceded while it drives the loop); false: its blocks stay in the unit's process"
     )
     blocked_float32: bool = param(
-        True, "The blocked adjustment stores W = Jc^T Jp, the measures and their sigmas in float32 (138 instead "
-        "of 190 bytes a measure held; the same stationary point, observations rounded by < 1e-4 px: "
+        True, "The blocked adjustment stores W = Jc^T Jp, the measures and their inverse sigmas in float32 (107 "
+        "instead of 155 bytes a measure held; the same stationary point, observations rounded by < 1e-4 px: "
         "docs/design/adjust.md, 'Memory'); false: float64 throughout, the in-memory adjuster's sums bit for bit"
+    )
+    blocked_recompute_w: bool = param(
+        False, "The blocked adjustment rebuilds W = Jc^T Jp from the Jacobians at each trial step instead of "
+        "keeping it (36 fewer bytes a measure held in float32, the same results bit for bit, two more Jacobian "
+        "evaluations a trial: docs/benchmarks/adjust.md)"
     )
     # -- outputs ----------------------------------------------------------------
     posterior_sigmas: bool = param(False, "Compute a-posteriori sigmas of images and points (small networks)")

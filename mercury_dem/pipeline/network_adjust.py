@@ -64,7 +64,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     its = [e["seconds"] for e in res.log]
     record: dict[str, Any] = {
         "store": str(store), "engine": where, "measures": res.measures, "points": res.points, "images": net.n_images,
-        "blocks": net.n_blocks, "float32": bool(config.blocked_float32), "iterations": res.iterations, "converged": res.converged, "reason": res.reason,
+        "blocks": net.n_blocks, "float32": bool(config.blocked_float32), "recompute_w": bool(config.blocked_recompute_w), "iterations": res.iterations, "converged": res.converged, "reason": res.reason,
         "seconds": round(time.perf_counter() - t0, 3), "load_seconds": round(load_s, 3),
         "setup_seconds": round(res.setup_seconds, 3),
         "seconds_per_iteration": [round(x, 3) for x in its],

@@ -39,6 +39,7 @@ def main() -> None:
     ap.add_argument("--dir", default="/tmp/bigadj_bench")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", action="store_true", help="reuse existing networks and keep them")
+    ap.add_argument("--config", default=str(Path(__file__).with_name("bigadj.yaml")), help="adjust-network --config")
     args = ap.parse_args()
     exe = [sys.executable, "-m", "mercury_dem.cli"]
     root = Path(args.dir)
@@ -53,7 +54,7 @@ def main() -> None:
         for mode in args.modes:
             where = ["--sync"] if mode == "sync" else ["--workers", mode]
             rec = _run(exe + ["adjust-network", str(store), *where, "--json", "--progress", "none",
-                              "--config", str(Path(__file__).with_name("bigadj.yaml"))])
+                              "--config", args.config])
             rec.pop("log", None)
             print(json.dumps(rec), flush=True)
             rows.append((n, mode, rec))

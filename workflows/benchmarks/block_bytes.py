@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python workflows/benchmarks/block_bytes.py [--float64] [--dir /tmp/block_bytes]
+    .venv/bin/python workflows/benchmarks/block_bytes.py [--float64] [--recompute-w] [--dir /tmp/block_bytes]
 
 Writes (once) ``synth-network --measures 2e5 --seed 3 --block-points 10000``, adjusts it in process with the
 benchmark configuration, then walks every numpy array reachable from the block states (a view counted once, by
@@ -46,13 +46,15 @@ def arrays(obj: Any, path: str, seen: dict[int, tuple[str, int]], depth: int = 0
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--float64", action="store_true", help="adjust.blocked_float32: false")
+    ap.add_argument("--recompute-w", action="store_true", help="adjust.blocked_recompute_w: true")
     ap.add_argument("--dir", default="/tmp/block_bytes")
     args = ap.parse_args()
     out = Path(args.dir) / "net"
     if not out.exists():
         write_synthetic_network(SyntheticSpec(200_000, seed=3, block_points=10_000), out)
     net = BlockedNetwork(out)
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), blocked_float32=not args.float64)
+    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), blocked_float32=not args.float64,
+                       blocked_recompute_w=args.recompute_w)
     im = net.images
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=cfg.blocked_float32)
     opt = options_from_config(cfg)

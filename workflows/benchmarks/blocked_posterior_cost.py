@@ -1,0 +1,28 @@
+"""Cost of the blocked path's a-posteriori pointing sigmas on a stored network (docs/benchmarks/adjust.md).
+
+Usage: blocked_posterior_cost.py STORE. All blocks in one process, the system at the a-priori state (the cost does
+not depend on the state), sigma0 = 1; CHOLMOD column solves, then block-Jacobi. Do not ask for the dense inverse
+at 10^4 images: 32k unknowns are 8 GB a copy (it was OOM-killed here).
+"""
+import resource
+import sys
+import time
+import types
+
+import numpy as np
+from mercury_dem.adjust.blocked import BlockShard, SyncEngine, blocked_posterior_sigmas, options_from_config, setup_from_config
+from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.network.synthetic_store import BlockedNetwork
+net = BlockedNetwork(sys.argv[1]); im = net.images
+cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
+setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True)
+opt = options_from_config(cfg)
+t = time.perf_counter()
+eng = SyncEngine([BlockShard((str(net.root), list(range(net.n_blocks))), setup, opt)])
+eng.call("initial_cost", np.zeros((setup.n_images, 3)))
+print("loaded", round(time.perf_counter() - t, 1), "s", flush=True)
+res = types.SimpleNamespace(omega=np.zeros((setup.n_images, 3)), sigma0=1.0)
+for dense_max, exact_max in ((0, 10**9), (0, 0)):
+    p = blocked_posterior_sigmas(eng, setup, res, dense_max_unknowns=dense_max, exact_max_unknowns=exact_max)
+    print(setup.n_images, "images", p.method, round(p.seconds, 1), "s, median sigma urad", round(float(np.median(p.image_sigmas)) * 1e6, 3),
+          "peak GB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, flush=True)
