@@ -102,3 +102,29 @@ def with_features(im: ImageFeatures, config: MatchConfig) -> ImageFeatures:
     feats = detect_and_describe(stretch_to_8bit(im.image, im.quality.low, im.quality.high), config, im.detect_mask)
     return ImageFeatures(im.quality, im.image, feats, pattern=im.pattern, detect_mask=im.detect_mask)
 
+
+def pixel_faults(pixels: dict[str, NDArray[Any] | None], radiometry: dict[str, tuple[float, float]],
+                 config: MatchConfig) -> dict[str, str]:
+    """Images whose pixels cannot be matched at all (blank, saturated, textureless), by id, with why and what to do.
+
+    The matcher's own quality check (:func:`~mercury_dem.match.features.image_quality`) decides; the tile
+    stage runs it once more per image read (a percentile on every 4th pixel, ~1 ms per 256^2 image) so the
+    tile's summary names the image and its fault, not only the pairs that failed because of it. Unreadable
+    images (``None``) are skipped: the reader's error already names them.
+
+    Parameters
+    ----------
+    pixels : image id -> DN array (None when it could not be read)
+    radiometry : image id -> (saturation value, DN scale), as :func:`image_quality` takes them
+    config : the matcher's configuration (its stretch percentiles and quality thresholds)
+    """
+    out: dict[str, str] = {}
+    for image_id, image in pixels.items():
+        if image is None:
+            continue
+        q = image_quality(image, config, *radiometry[image_id])
+        if not q.ok:
+            out[image_id] = (f"image {image_id}: {q.reason}; its pixels carry nothing to match, so it is left out "
+                             "of matching and stays uncontrolled — check the source image and its calibration, "
+                             "or remove it from the mission")
+    return out

@@ -181,6 +181,7 @@ def _no_points_reason(tile_id: int, s: TileCounts) -> str:
 
 
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
+    from mercury_dem.match.prepare import pixel_faults
     from mercury_dem.match.result import iter_rows
     from mercury_dem.match.tile import match_tile
     from mercury_dem.network.build import build_network, convergence_sigma_factor
@@ -235,28 +236,6 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts
         measures=int(net.n_measures),
     )
     return counts, UnitFiles(network=net, pairs=rows)
-
-
-def pixel_faults(pixels: dict[str, Any], radiometry: dict[str, tuple[float, float]], match_cfg: Any) -> dict[str, str]:
-    """Images whose pixels cannot be matched at all (blank, saturated, textureless), by id, with why and what to do.
-
-    The matcher's own quality check (:func:`mercury_dem.match.features.image_quality`) decides; it is
-    run here once more (a percentile on every 4th pixel, ~1 ms per 256^2 image) so the tile's summary
-    names the image and its fault, not only the pairs that failed because of it. Unreadable images
-    (``None``) are already named by the reader's error.
-    """
-    from mercury_dem.match.features import image_quality
-
-    out: dict[str, str] = {}
-    for image_id, image in pixels.items():
-        if image is None:
-            continue
-        q = image_quality(image, match_cfg, *radiometry[image_id])
-        if not q.ok:
-            out[image_id] = (f"image {image_id}: {q.reason}; its pixels carry nothing to match, so it is left out "
-                             "of matching and stays uncontrolled — check the source image and its calibration, "
-                             "or remove it from the mission")
-    return out
 
 
 def _write_unit(store: RunStore, level: str, unit_id: int, summary: TileSummary | UnitSummary, t0: float,
