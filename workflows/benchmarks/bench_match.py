@@ -239,12 +239,13 @@ def accuracy() -> None:
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
 
 
-def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None, breakdown: bool = False) -> None:
-    """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
-    from mercury_dem.geometry.footprints import overlap_graph
-    from mercury_dem.mission import open_mission
+def a_priori_overlaps(ms: Any) -> tuple[list[str], list[Any], np.ndarray, np.ndarray, list[tuple[str, str]]]:
+    """A mission's a-priori overlapping pairs (footprints overlapping by >= 2 %), as the plan finds them.
 
-    ms = open_mission(path)
+    Returns the image ids, their cameras, a-priori positions (n, 3) and rotations (n, 3, 3), and the pairs.
+    """
+    from mercury_dem.geometry.footprints import overlap_graph
+
     ids = ms.image_ids
     cams = [ms.camera(i) for i in ids]
     uniq: list[Any] = []
@@ -256,7 +257,15 @@ def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None =
     pos = np.array([ms.a_priori_pose(i)[0] for i in ids])
     rot = np.array([ms.a_priori_pose(i)[1] for i in ids])
     g = overlap_graph(uniq, np.array(cam_index), pos, rot, min_fraction=0.02)
-    pairs = [(ids[a], ids[b]) for a, b in zip(g.i, g.j)]
+    return ids, cams, pos, rot, [(ids[a], ids[b]) for a, b in zip(g.i, g.j)]
+
+
+def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None, breakdown: bool = False) -> None:
+    """Every a-priori overlapping pair of a synthetic mission (the first of each pair as reference), true errors by class."""
+    from mercury_dem.mission import open_mission
+
+    ms = open_mission(path)
+    ids, cams, pos, rot, pairs = a_priori_overlaps(ms)
     n_all = len(pairs)
     if max_pairs and len(pairs) > max_pairs:
         pick = np.sort(np.random.default_rng(1).choice(len(pairs), max_pairs, replace=False))

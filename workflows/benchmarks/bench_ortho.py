@@ -214,25 +214,17 @@ def main() -> None:
                     rows += run_pairs(images, geom, truth, [pair], base.height, variants, f"surface {sseed} emission {em}")
         summary(rows, ["sphere", *variants], bands=((0, 40), (40, 60), (60, 90)))
         return
-    from mercury_dem.geometry.footprints import overlap_graph
     from mercury_dem.mission import open_mission
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from bench_match import a_priori_overlaps
 
     path, n_pairs = pos[1], int(pos[2])
     ms = open_mission(path)
-    ids = ms.image_ids
-    cams = [ms.camera(i) for i in ids]
-    uniq: list[Any] = []
-    ci = []
-    for c in cams:
-        if c not in uniq:
-            uniq.append(c)
-        ci.append(uniq.index(c))
-    p = np.array([ms.a_priori_pose(i)[0] for i in ids])
-    r = np.array([ms.a_priori_pose(i)[1] for i in ids])
-    g = overlap_graph(uniq, np.array(ci), p, r, min_fraction=0.02)
+    ids, cams, p, r, overlaps = a_priori_overlaps(ms)
     geom = {i: ImageGeometry.of(c, pp, rr, ms.sun_position(i)) for i, c, pp, rr in zip(ids, cams, p, r)}
     similar = []
-    for a, b in ((ids[i], ids[j]) for i, j in zip(g.i, g.j)):
+    for a, b in overlaps:
         pg = pair_geometry(geom[a], geom[b])
         if not isinstance(pg, str) and illumination_class(
                 abs(pg.incidence_ref_deg - pg.incidence_match_deg), pg.sun_azimuth_difference_deg) == "similar":
