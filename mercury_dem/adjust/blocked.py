@@ -42,7 +42,7 @@ import ctypes.util
 import resource
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -405,6 +405,45 @@ class PointBlockState:
         return self.cost(omega)[0]
 
 
+class Partial(NamedTuple):
+    """A share of a sum over point blocks in global indices: ``(keys, values)`` per term, and counts.
+
+    The unit of the reduction tree. A shard's sums over its blocks are its first level
+    (:meth:`BlockShard.partial`); partials are merged pairwise by :func:`merge_partials`, on the
+    workers (``DaskShardEngine``'s tree) or by the client, and added into the client's dense arrays
+    last. Keys are sorted and unique within a term: camera indices (``cams``) or camera-pair keys
+    (``row * n_images + col``).
+    """
+
+    terms: tuple[tuple[NDArray[np.int64], NDArray[np.float64]], ...]
+    counts: tuple[int, ...]
+
+
+def merge_partials(a: Partial, b: Partial) -> Partial:
+    """The sum of two partials: each term over the union of their keys (``a``'s values added first)."""
+    terms = []
+    for (ka, va), (kb, vb) in zip(a.terms, b.terms):
+        keys = np.union1d(ka, kb)
+        vals = np.zeros((len(keys),) + va.shape[1:], dtype=np.result_type(va, vb))
+        vals[np.searchsorted(keys, ka)] += va
+        vals[np.searchsorted(keys, kb)] += vb
+        terms.append((keys, vals))
+    return Partial(tuple(terms), tuple(x + y for x, y in zip(a.counts, b.counts)))
+
+
+def tree_rounds(n: int) -> list[list[tuple[int, int]]]:
+    """The pairwise merges of a reduction tree over ``n`` shards: per round, ``(absorber, absorbed)`` pairs.
+
+    Round ``k`` merges shard ``i + 2^k`` into shard ``i`` for every ``i`` a multiple of ``2^(k+1)``;
+    after ceil(log2 n) rounds shard 0 holds the sum of all, each other shard given up exactly once.
+    """
+    rounds, step = [], 1
+    while step < n:
+        rounds.append([(i, i + step) for i in range(0, n - step, 2 * step)])
+        step *= 2
+    return rounds
+
+
 class BlockShard:
     """Several point blocks in one process; every method sums over its blocks (first level of the tree sum).
 
@@ -431,6 +470,7 @@ class BlockShard:
         for b in self.blocks:
             b.cam_map = np.searchsorted(self.cams, b.cams)
             b.pair_map = np.searchsorted(self.pair_keys, b.pair_keys)
+        self._held: Partial | None = None
         #: seconds this shard spent computing in its blocks' methods (the workers' share of an iteration,
         #: against the client's reductions and solve: docs/benchmarks/cascade.md uses it)
         self.busy_seconds = 0.0
@@ -487,6 +527,37 @@ class BlockShard:
             s[b.pair_map] += sb
             rhs[b.cam_map] += rb
         return s, rhs
+
+    def partial(self, method: str, *args: Any) -> Partial:
+        """The shard's sum of ``linearize`` or ``reduce`` as a :class:`Partial` (global camera / pair keys)."""
+        if method == "linearize":
+            u, g, n_prior = self.linearize(*args)
+            return Partial(((self.cams, u), (self.cams, g)), (n_prior,))
+        if method == "reduce":
+            s, rhs = self.reduce(*args)
+            return Partial(((self.pair_keys, s), (self.cams, rhs)), ())
+        raise ValueError(f"no partial sum for BlockShard.{method}")
+
+    def hold(self, method: str, *args: Any) -> None:
+        """Compute :meth:`partial` and keep it here for the tree's merges (:meth:`absorb`, :meth:`take`)."""
+        self._held = self.partial(method, *args)
+
+    def take(self) -> Partial:
+        """The partial held here (and forget it)."""
+        held, self._held = self._held, None
+        if held is None:
+            raise AdjustmentError("the blocked adjustment's reduction tree asked a shard for a sum it does not hold")
+        return held
+
+    def absorb(self, other: Any) -> None:
+        """Merge the partial held by ``other`` (a shard, or a Dask actor handle of one) into this one's.
+
+        On a cluster ``other`` lives on another worker: its partial moves worker to worker, not
+        through the client.
+        """
+        got = other.take()
+        got = got.result() if hasattr(got, "result") else got
+        self._held = merge_partials(self.take(), got)
 
     def step(self, lam: float, dc: NDArray[np.float64], new_omega: NDArray[np.float64]) -> tuple[float, ...]:
         parts = self._each(lambda b: b.step(lam, dc, new_omega))
@@ -566,9 +637,16 @@ class BlockShard:
 
 
 class Engine(Protocol):
-    """Runs a :class:`BlockShard` method on every shard and returns the results in shard order."""
+    """Runs :class:`BlockShard` methods on every shard.
+
+    ``call`` returns the results in shard order; ``summed`` returns :class:`Partial` s whose sum is
+    the sum over all shards of ``linearize`` or ``reduce`` (one per shard, or fewer when the engine
+    merged them on its side: a reduction tree).
+    """
 
     def call(self, method: str, *args: Any) -> list[Any]: ...
+
+    def summed(self, method: str, *args: Any) -> list[Partial]: ...
 
 
 class SyncEngine:
@@ -579,6 +657,9 @@ class SyncEngine:
 
     def call(self, method: str, *args: Any) -> list[Any]:
         return [getattr(s, method)(*args) for s in self.shards]
+
+    def summed(self, method: str, *args: Any) -> list[Partial]:
+        return [s.partial(method, *args) for s in self.shards]
 
 
 @dataclass
@@ -644,9 +725,7 @@ def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_
     structs = engine.call("structure")
     m = int(sum(s[2] for s in structs))
     n_points = int(sum(s[3] for s in structs))
-    shard_cams = [s[0] for s in structs]
     glob = GlobalStructure(np.unique(np.concatenate([s[1] for s in structs])), n_cam)
-    shard_pairs = [np.searchsorted(glob.keys, s[1]) for s in structs]
     del structs
     method = choose_method(opt.solver, n_cam * C, opt.direct_max_unknowns)
     lin_solver = ReducedSolver(method, C, opt.pcg_tolerance, opt.pcg_max_iterations)
@@ -680,10 +759,11 @@ def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_
         u = np.zeros((n_cam, C, C))
         g_c = np.zeros((n_cam, C))
         n_pt_prior = 0
-        for cams, (us, gs, npr) in zip(shard_cams, engine.call("linearize", omega)):
-            u[cams] += us
-            g_c[cams] += gs
-            n_pt_prior += npr
+        for part in engine.summed("linearize", omega):
+            (cams_u, us), (cams_g, gs) = part.terms
+            u[cams_u] += us
+            g_c[cams_g] += gs
+            n_pt_prior += part.counts[0]
         # the camera prior, as FramingModel.camera_prior
         n_cam_prior = int(np.sum(~held_c)) * C
         prior_blocks(omega / sigma_c, inverse_left_jacobian(omega) / sigma_c, u, g_c)
@@ -697,8 +777,9 @@ def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_
             ta = time.perf_counter()
             blocks = np.zeros((len(glob.keys), C, C))
             b = -g_c
-            for cams, pairs, (ss, rs) in zip(shard_cams, shard_pairs, engine.call("reduce", lam)):
-                blocks[pairs] += ss
+            for part in engine.summed("reduce", lam):
+                (keys, ss), (cams, rs) = part.terms
+                blocks[np.searchsorted(glob.keys, keys)] += ss
                 b[cams] += rs
             ud = u.copy()
             ud[:, range(C), range(C)] += lam * du
@@ -844,18 +925,19 @@ def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: Blocked
     n_cam, held_c = setup.n_images, setup.held
     with threadpool_limits(limits=1, user_api="blas"):
         structs = engine.call("structure")
-        shard_cams = [s[0] for s in structs]
         glob = GlobalStructure(np.unique(np.concatenate([s[1] for s in structs])), n_cam)
-        shard_pairs = [np.searchsorted(glob.keys, s[1]) for s in structs]
+        del structs
         u = np.zeros((n_cam, C, C))
-        for cams, (us, _, _) in zip(shard_cams, engine.call("linearize", result.omega)):
+        for part in engine.summed("linearize", result.omega):
+            cams, us = part.terms[0]
             u[cams] += us
         sigma_c = setup.pointing_sigma_rad
         prior_blocks(result.omega / sigma_c, inverse_left_jacobian(result.omega) / sigma_c, u, np.zeros((n_cam, C)))
         u[held_c] = np.eye(C)
         blocks = np.zeros((len(glob.keys), C, C))
-        for pairs, (ss, _) in zip(shard_pairs, engine.call("reduce", 0.0)):
-            blocks[pairs] += ss
+        for part in engine.summed("reduce", 0.0):
+            keys, ss = part.terms[0]
+            blocks[np.searchsorted(glob.keys, keys)] += ss
         blocks[glob.diag_block] += u
         # the held images' rows and columns: identity (their W are zero, their pair blocks with others too)
         n = n_cam * C

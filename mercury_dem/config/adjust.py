@@ -111,6 +111,11 @@ class AdjustConfig(ConfigSection):
         True, "A blocked unit running on a Dask worker spreads its point blocks over the run's workers (one shard "
         "actor each, the unit's task seceded while it drives the loop); false: its blocks stay in the unit's process"
     )
+    blocked_tree_min_workers: int = param(
+        4, "From this many Dask workers holding point blocks on, the blocked adjustment's sums (the reduced camera "
+        "system) are merged pairwise on the workers in log2(N) rounds and the client receives one; below, every "
+        "worker's sum goes to the client", lo=2
+    )
     blocked_float32: bool = param(
         True, "The blocked adjustment stores W = Jc^T Jp, the measures and their inverse sigmas in float32 (107 "
         "instead of 155 bytes a measure held; the same stationary point, observations rounded by < 1e-4 px: "

@@ -8,6 +8,7 @@ mode runs the same graph, in the same order of dependencies, in this process.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 from collections.abc import Callable, Iterator
@@ -272,6 +273,11 @@ def connect(
     return Connection(client, "scheduler", description=f"scheduler {target}")
 
 
+#: From this many shard actors on, the blocked adjustment's sums are merged on the workers (a tree)
+#: rather than at the client (``adjust.blocked_tree_min_workers``).
+TREE_MIN_WORKERS = 4
+
+
 class DaskShardEngine:
     """The distributed engine of the blocked adjustment: one ``BlockShard`` Dask actor per worker.
 
@@ -288,9 +294,11 @@ class DaskShardEngine:
     store : the network store path (the workers must see it: a shared file system)
     n_blocks : point blocks in the store
     setup, opt : ``CameraSetup`` and ``SolverOptions`` (sent once to every actor)
+    tree_min_workers : from this many actors on, the sums are merged on the workers (:meth:`summed`)
     """
 
-    def __init__(self, client: Any, store: str, n_blocks: int, setup: Any, opt: Any):
+    def __init__(self, client: Any, store: str, n_blocks: int, setup: Any, opt: Any,
+                 tree_min_workers: int = TREE_MIN_WORKERS):
         import numpy as np
 
         from mercury_dem.adjust.blocked import BlockShard
@@ -307,10 +315,12 @@ class DaskShardEngine:
         self.actors = [f.result() for f in futures]
         self._futures = futures  # the actors live as long as these futures
         self.client = client
+        self.tree_min_workers = tree_min_workers
         self.description = f"dask ({len(self.actors)} workers)"
 
     @classmethod
-    def from_blocks(cls, client: Any, blocks: list[Any], setup: Any, opt: Any) -> DaskShardEngine:
+    def from_blocks(cls, client: Any, blocks: list[Any], setup: Any, opt: Any,
+                    tree_min_workers: int = TREE_MIN_WORKERS) -> DaskShardEngine:
         """The engine over ``blocks`` held by the caller (a run's unit): scattered to the workers, not read there.
 
         Contiguous runs of blocks, one per worker (at most one per block); each run is scattered
@@ -329,6 +339,7 @@ class DaskShardEngine:
         runs = [r for r in np.array_split(np.arange(len(blocks)), min(len(workers), max(1, len(blocks)))) if len(r)]
         self = cls.__new__(cls)
         self.client = client
+        self.tree_min_workers = tree_min_workers
         self.workers, futures = [], []
         for w, r in zip(workers, runs):
             data = client.scatter([blocks[int(k)] for k in r], workers=[w], hash=False)
@@ -344,6 +355,25 @@ class DaskShardEngine:
         pending = [getattr(a, method)(*args) for a in self.actors]
         return [p.result() for p in pending]
 
+    def summed(self, method: str, *args: Any) -> list[Any]:
+        """The shards' sums of ``method`` (``linearize``/``reduce``): one partial a shard, or one in all by a tree.
+
+        Below ``tree_min_workers`` actors every shard's partial comes to the client (which adds them in
+        shard order). From it on, the partials are merged on the workers in ceil(log2 N) rounds, actor
+        ``i`` absorbing actor ``i + 2^k``'s (moved worker to worker), so the client receives one
+        partial instead of N and its memory and network share stay those of one shard's.
+        """
+        if len(self.actors) < self.tree_min_workers:
+            return self.call("partial", method, *args)
+        for p in [a.hold(method, *args) for a in self.actors]:
+            p.result()
+        from mercury_dem.adjust.blocked import tree_rounds
+
+        for merges in tree_rounds(len(self.actors)):
+            for p in [self.actors[i].absorb(self.actors[j]) for i, j in merges]:
+                p.result()
+        return [self.actors[0].take().result()]
+
     def close(self) -> None:
         """Release the actors (their workers free the blocks).
 
@@ -356,7 +386,8 @@ class DaskShardEngine:
 
 
 @contextlib.contextmanager
-def worker_shard_engine(blocks: list[Any], setup: Any, opt: Any) -> Iterator[DaskShardEngine]:
+def worker_shard_engine(blocks: list[Any], setup: Any, opt: Any,
+                        tree_min_workers: int = TREE_MIN_WORKERS) -> Iterator[DaskShardEngine]:
     """The run's blocked adjustment on the run's own Dask workers, from inside a unit's task.
 
     For :func:`~mercury_dem.adjust.blocked_bundle.blocked_bundle_adjust`'s ``engine_factory``. The
@@ -370,14 +401,14 @@ def worker_shard_engine(blocks: list[Any], setup: Any, opt: Any) -> Iterator[Das
     from distributed import worker_client
 
     with worker_client() as client:
-        engine = DaskShardEngine.from_blocks(client, blocks, setup, opt)
+        engine = DaskShardEngine.from_blocks(client, blocks, setup, opt, tree_min_workers)
         try:
             yield engine
         finally:
             engine.close()
 
 
-def shard_engine_factory() -> Any:
+def shard_engine_factory(tree_min_workers: int = TREE_MIN_WORKERS) -> Any:
     """:func:`worker_shard_engine` when called inside a Dask worker's task, else None (one process)."""
     try:
         from distributed import get_worker
@@ -385,4 +416,4 @@ def shard_engine_factory() -> Any:
         get_worker()
     except (ImportError, ValueError):
         return None
-    return worker_shard_engine
+    return functools.partial(worker_shard_engine, tree_min_workers=tree_min_workers)

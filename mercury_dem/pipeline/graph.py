@@ -56,7 +56,7 @@ def _tile_task(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
 def _unit_task(run_root: str, level: str, unit_id: int, config: Config, children: list[dict[str, Any]]) -> dict[str, Any]:
     # a blocked adjustment (adjust.blocked_min_measures) of a unit running on a Dask worker spreads its point
     # blocks over the run's workers (executors.worker_shard_engine); in a sync run it stays in this process
-    factory = shard_engine_factory() if config.adjust.blocked_on_workers else None
+    factory = shard_engine_factory(config.adjust.blocked_tree_min_workers) if config.adjust.blocked_on_workers else None
     return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children, factory)
 
 

@@ -50,7 +50,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     else:
         from mercury_dem.pipeline.executors import DaskShardEngine
 
-        engine = DaskShardEngine(client, str(net.root), net.n_blocks, setup, opt)
+        engine = DaskShardEngine(client, str(net.root), net.n_blocks, setup, opt, config.blocked_tree_min_workers)
         where = f"dask ({len(engine.actors)} workers)"
     load_s = time.perf_counter() - t0
     res = blocked_levenberg_marquardt(engine, setup, opt)

@@ -10,11 +10,14 @@ import pytest
 
 from mercury_dem.adjust.blocked import (
     BlockShard,
+    Partial,
     SyncEngine,
     blocked_levenberg_marquardt,
     blocks_from_problem,
+    merge_partials,
     options_from_config,
     setup_from_config,
+    tree_rounds,
 )
 from mercury_dem.adjust.bundle import bundle_adjust
 from mercury_dem.config.adjust import AdjustConfig
@@ -105,6 +108,89 @@ def test_localcluster_equals_sync(store: Path) -> None:
     assert np.abs(dist.omega - sync.omega).max() < 1e-12
     for b, _, x, a, _ in shard.solution():
         assert np.abs(got[b][0] - x).max() < 1e-6 and np.array_equal(got[b][1], a)
+
+
+@pytest.mark.integration
+def test_localcluster_tree_sum_equals_sync(store: Path) -> None:
+    """Five Dask workers, the sums merged on the workers (a tree of 3 rounds): the in-process solution."""
+    from distributed import Client, LocalCluster
+
+    from mercury_dem.pipeline.executors import DaskShardEngine
+
+    bn = BlockedNetwork(store)
+    im = bn.images
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG)
+    opt = options_from_config(CFG)
+    sync = blocked_levenberg_marquardt(SyncEngine([BlockShard((str(store), list(range(bn.n_blocks))), setup, opt)]),
+                                       setup, opt)
+    with LocalCluster(n_workers=5, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0") as cl, \
+            Client(cl) as client:
+        engine = DaskShardEngine(client, str(store), bn.n_blocks, setup, opt, tree_min_workers=2)
+        assert len(engine.actors) == 5
+        parts = engine.summed("linearize", np.zeros((setup.n_images, 3)))
+        assert len(parts) == 1  # merged on the workers: the client received one partial
+        dist = blocked_levenberg_marquardt(engine, setup, opt)
+    assert dist.iterations == sync.iterations and dist.rejected == sync.rejected
+    assert np.abs(dist.omega - sync.omega).max() < 1e-12
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 8, 13])
+def test_tree_rounds_merge_every_shard_once_into_the_first(n: int) -> None:
+    holds = {i: {i} for i in range(n)}
+    for merges in tree_rounds(n):
+        absorbed = [j for _, j in merges]
+        assert len(set(absorbed)) == len(absorbed)
+        for i, j in merges:
+            holds[i] |= holds.pop(j)  # a shard given up is never used again
+    assert holds == {0: set(range(n))}
+    assert len(tree_rounds(n)) == int(np.ceil(np.log2(n))) if n > 1 else tree_rounds(n) == []
+
+
+def test_merge_partials_sums_over_the_union_of_keys() -> None:
+    rng = np.random.default_rng(5)
+    dense = np.zeros((40, 3, 3))
+    counts = 0
+    parts = []
+    for k in range(4):
+        keys = np.unique(rng.integers(0, 40, 15))
+        vals = rng.normal(size=(len(keys), 3, 3))
+        dense[keys] += vals
+        counts += k
+        parts.append(Partial(((keys, vals),), (k,)))
+    got = parts[0]
+    for p in parts[1:]:
+        got = merge_partials(got, p)
+    (keys, vals), = got.terms
+    assert np.array_equal(keys, np.unique(np.concatenate([p.terms[0][0] for p in parts])))
+    assert np.allclose(vals, dense[keys], rtol=0, atol=1e-12) and got.counts == (counts,)
+
+
+def test_shards_merged_as_a_tree_give_the_flat_sums() -> None:
+    """The tree's merges (BlockShard.hold / absorb / take, as DaskShardEngine runs them on workers) in process."""
+    net = make_synthetic_network(3_000, rng=np.random.default_rng(41), min_views=3)
+    p = net.problem
+    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG)
+    opt = options_from_config(CFG, float(np.median(p.measure_sigma)))
+    blocks = blocks_from_problem(p, 5)
+    shards = [BlockShard([b], setup, opt) for b in blocks]
+    omega = np.zeros((setup.n_images, 3))
+    for s in shards:
+        s.initial_cost(omega)
+    for method, args in (("linearize", (omega,)), ("reduce", (1e-3,))):
+        flat = SyncEngine(shards).summed(method, *args)
+        total = flat[0]
+        for q in flat[1:]:
+            total = merge_partials(total, q)
+        for s in shards:
+            s.hold(method, *args)
+        for merges in tree_rounds(len(shards)):
+            for i, j in merges:
+                shards[i].absorb(shards[j])
+        tree = shards[0].take()
+        for (kf, vf), (kt, vt) in zip(total.terms, tree.terms):
+            assert np.array_equal(kf, kt)
+            assert np.allclose(vt, vf, rtol=1e-12, atol=1e-12 * np.abs(vf).max())
+        assert tree.counts == total.counts
 
 
 def test_unprojectable_measure_is_named() -> None:
