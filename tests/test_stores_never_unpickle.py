@@ -143,7 +143,7 @@ def test_run_solution_and_plan_tables_with_pickled_extension_are_refused(tmp_pat
 
 
 def test_network_store_column_with_pickle_codec_is_refused(tmp_path: Path, marker: Path) -> None:
-    from mercury_dem.network import read_network, write_network
+    from mercury_dem.io.network_store import read_network, write_network
     from tests.network.test_model_store import _net
 
     path = write_network(_net(str_ids=False), tmp_path / "net")

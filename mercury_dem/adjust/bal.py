@@ -1,4 +1,4 @@
-"""Bundle Adjustment in the Large (BAL): reader and camera model.
+"""Bundle Adjustment in the Large (BAL): the text format parsed (:func:`parse_bal`) and the camera model.
 
 The BAL text format (Agarwal et al., ECCV 2010; ``../shared/data/README.md``):
 a header ``n_cameras n_points n_observations``, one line per observation
@@ -57,15 +57,13 @@ class BalProblem:
         return len(self.observations)
 
 
-def read_bal(path: str | Path) -> BalProblem:
-    """Read a BAL text file; :class:`AdjustmentError` naming the file when malformed."""
-    path = Path(path)
-    try:
-        tokens = path.read_text().split()
-    except OSError as exc:
-        raise AdjustmentError(f"cannot read BAL file {path}: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise AdjustmentError(f"BAL file {path} is not text: {exc.reason} at byte {exc.start}") from None
+def parse_bal(text: str, path: str | Path) -> BalProblem:
+    """The problem in the text of a BAL file (``path`` names it in messages; nothing is opened).
+
+    Raises :class:`AdjustmentError` naming the file when it is malformed. Reading the file is
+    :func:`mercury_dem.io.bal.read_bal`.
+    """
+    tokens = text.split()
     try:
         if len(tokens) < 3:
             raise ValueError("no header 'n_cameras n_points n_observations'")

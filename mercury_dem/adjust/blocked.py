@@ -41,6 +41,7 @@ import ctypes
 import ctypes.util
 import resource
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple, Protocol
 
@@ -73,7 +74,7 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles
-from mercury_dem.network.synthetic_store import BlockData
+from mercury_dem.network.blocks import BlockData
 
 C = 3  # camera unknowns: pointing corrections
 
@@ -452,15 +453,12 @@ class BlockShard:
     computed once; the client maps them into the global system.
     """
 
-    def __init__(self, blocks: list[BlockData] | tuple[str, list[int]], setup: CameraSetup, opt: SolverOptions):
-        source: Any = blocks
-        if isinstance(blocks, tuple):  # (store path, block ids): load here (a worker reads its own blocks)
-            from mercury_dem.network.synthetic_store import BlockedNetwork
-
-            net = BlockedNetwork(blocks[0])
-            # one block's raw data at a time: read, turned into its state, dropped (a list of them all held the
-            # shard's whole store data, ~48 B a measure, beside the states while they were built)
-            source = (net.read_block(b) for b in blocks[1])
+    def __init__(self, blocks: Iterable[BlockData], setup: CameraSetup, opt: SolverOptions):
+        # ``blocks``: a list, or blocks read as they are iterated (a worker reads its own blocks:
+        # ``mercury_dem.io.synthetic_network_store.StoredBlocks``), one block's raw data at a time: read, turned
+        # into its state, dropped (a list of them all held the shard's whole store data, ~48 B a measure, beside
+        # the states while they were built)
+        source: Any = iter(blocks)
         with threadpool_limits(limits=1, user_api="blas"):
             self.blocks = [PointBlockState(d, setup, opt) for d in source if len(d.measure_image)]
         del source

@@ -43,7 +43,7 @@ from mercury_dem.adjust.result import AdjustmentResult
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.pose import angles_from_rotation
-from mercury_dem.network.synthetic_store import BlockData
+from mercury_dem.network.blocks import BlockData
 
 #: ``(blocks, setup, options) -> context manager of an Engine`` (see :func:`blocked_bundle_adjust`)
 EngineFactory = Callable[[list[BlockData], CameraSetup, Any], AbstractContextManager[Any]]

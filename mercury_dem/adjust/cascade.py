@@ -11,6 +11,7 @@ saves the unit:
   the most measures.
 - :func:`unit_config`: a unit's network may hold islands (each held by its a-priori constraints)
   and images without measures (held at their a-priori pose and named), neither of which stops it.
+- :func:`adjusts_by_blocks`: a large unit of the configured levels is adjusted over point blocks.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from numpy.typing import NDArray
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.plan.tree import ADJUSTED_LEVELS
 
-__all__ = ["ChildSolution", "rejudged_network", "unit_config", "warm_start"]
+__all__ = ["ChildSolution", "adjusts_by_blocks", "rejudged_network", "unit_config", "warm_start"]
 
 
 def rejudged_network(network: Any, child_level: str) -> Any:
@@ -138,3 +139,14 @@ def unit_config(config: AdjustConfig, image_ids: Sequence[str], measure_image: N
     if no_measures.size:
         cfg = dataclasses.replace(cfg, held_images=tuple(dict.fromkeys([*cfg.held_images, *no_measures.tolist()])))
     return cfg, no_measures.tolist()
+
+
+def adjusts_by_blocks(config: AdjustConfig, level: str | None, n_measures: int) -> bool:
+    """Whether a unit is adjusted over point blocks (:mod:`mercury_dem.adjust.blocked_bundle`).
+
+    A unit of ``config.blocked_levels`` with at least ``config.blocked_min_measures`` measures is (the same
+    solution to solver tolerance, less memory); ``blocked_min_measures`` None: never, 0: always on those
+    levels; ``level`` None (a network adjusted outside the cascade): never.
+    """
+    return (level is not None and level in config.blocked_levels and config.blocked_min_measures is not None
+            and n_measures >= config.blocked_min_measures)

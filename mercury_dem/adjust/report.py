@@ -1,14 +1,11 @@
 """Reports of a bundle adjustment: a text report in the spirit of jigsaw's ``bundleout.txt``,
 and tables of images, points and residuals.
 
-The functions return strings and DataFrames; only :func:`write_adjustment_report`
-touches the disk (atomically, through :mod:`mercury_dem.io.atomic`).
+The functions return strings and DataFrames; writing them to files is
+:func:`mercury_dem.io.adjustment_report.write_adjustment_report`'s job.
 """
 
 from __future__ import annotations
-
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -16,7 +13,6 @@ import pandas as pd
 from mercury_dem.adjust.result import AdjustmentResult
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.geometry.body import xyz_to_latlon
-from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
 
 
 def images_table(result: AdjustmentResult) -> pd.DataFrame:
@@ -127,20 +123,3 @@ def text_report(result: AdjustmentResult, config: AdjustConfig | None = None, ti
         lines += ["", "UNDER-DETERMINED POINTS (not adjusted)",
                   "  " + ", ".join(str(result.point_ids[i]) for i in und[:50]) + (" ..." if len(und) > 50 else "")]
     return "\n".join(lines) + "\n"
-
-
-def write_adjustment_report(
-    result: AdjustmentResult, directory: str | Path, config: AdjustConfig | None = None
-) -> dict[str, Path]:
-    """Write ``bundleout.txt``, ``images.csv``, ``points.csv``, ``residuals.csv`` and ``summary.json``
-    into ``directory`` (each atomically). Returns the paths by name.
-    """
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    out: dict[str, Path] = {}
-    out["report"] = atomic_write_text(d / "bundleout.txt", text_report(result, config))
-    for name, table in (("images", images_table), ("points", points_table), ("residuals", residuals_table)):
-        out[name] = atomic_write_text(d / f"{name}.csv", table(result).to_csv(index=False))
-    summary: dict[str, Any] = result.summary()
-    out["summary"] = atomic_write_json(d / "summary.json", summary)
-    return out

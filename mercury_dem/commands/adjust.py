@@ -64,8 +64,8 @@ def _write_tables(store, level: str, unit: int, directory: str) -> None:  # type
     """CSV tables of the unit's adjusted network (images, points, residuals)."""
     from pathlib import Path
 
+    from mercury_dem.io.network_store import read_network
     from mercury_dem.io.run_store import BUNDLEOUT_FILE, read_solution
-    from mercury_dem.network.store import read_network
 
     d = Path(directory) / f"{level}_{unit}"
     d.mkdir(parents=True, exist_ok=True)

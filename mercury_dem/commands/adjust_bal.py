@@ -21,9 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.adjust.bal import adjust_bal, read_bal  # numba kernels: imported when the command runs
+    from mercury_dem.adjust.bal import adjust_bal  # numba kernels: imported when the command runs
     from mercury_dem.adjust.solver import SolverOptions
     from mercury_dem.exceptions import AdjustmentError
+    from mercury_dem.io.bal import read_bal
 
     t0 = time.perf_counter()
     problem = read_bal(args.file)

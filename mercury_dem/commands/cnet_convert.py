@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.network.files import load_serial_map, read_any_network, write_any_network
+    from mercury_dem.io.network_files import load_serial_map, read_any_network, write_any_network
 
     mapping = load_serial_map(args.serial_map)
     net = read_any_network(args.input, serial_to_image=mapping)

@@ -37,8 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.io.network_files import read_any_network
     from mercury_dem.network.check import validate
-    from mercury_dem.network.files import read_any_network
 
     net = read_any_network(args.net)
     sizes = None

@@ -19,9 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
+    from mercury_dem.io.isis_net import write_isis_network
+    from mercury_dem.io.network_store import read_network
     from mercury_dem.io.run_store import RunStore
-    from mercury_dem.network.isis import write_isis_network
-    from mercury_dem.network.store import read_network
     from mercury_dem.plan.tree import LEVELS
 
     store = RunStore.open(args.run_dir)

@@ -20,9 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.network.files import load_serial_map
-    from mercury_dem.network.isis import read_isis_network
-    from mercury_dem.network.store import write_network
+    from mercury_dem.io.isis_net import read_isis_network
+    from mercury_dem.io.network_files import load_serial_map
+    from mercury_dem.io.network_store import write_network
 
     mapping = load_serial_map(args.serial_map)
     catalog = sorted(set(mapping.values())) if mapping is not None else None

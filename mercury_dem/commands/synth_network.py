@@ -3,7 +3,7 @@
 Generated point block by point block and streamed to ``OUT/network`` (a network store
 with the images' a-priori geometry and the block table) and ``OUT/truth`` (true poses,
 points, outlier flags); see :mod:`mercury_dem.network.synthetic` and
-:mod:`mercury_dem.network.synthetic_store`.
+:mod:`mercury_dem.io.synthetic_network_store`.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, config: Config) -> int:
     import resource
 
+    from mercury_dem.io.synthetic_network_store import write_synthetic_network
     from mercury_dem.network.synthetic import SyntheticSpec
-    from mercury_dem.network.synthetic_store import write_synthetic_network
     from mercury_dem.progress import Reporter
 
     spec = SyntheticSpec(int(args.measures), seed=args.seed, outlier_fraction=args.outlier_fraction,

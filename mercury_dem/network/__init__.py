@@ -1,24 +1,24 @@
-"""Control networks: columnar model, building from matches, merging, validation, storage, ISIS files.
+"""Control networks: columnar model, building from matches, merging, validation, the ISIS codec (pure).
 
-Public API (pure functions on arrays; only :mod:`.store` and :mod:`.isis` touch files)::
+Public API (pure functions on arrays; the files are :mod:`mercury_dem.io`'s: ``io.network_store``
+``write_network``/``read_network``/``open_network`` (Zarr v3 group), ``io.isis_net``
+``read_isis_network``/``write_isis_network`` (ISIS3 .net v2/v5), ``io.network_files`` (by file kind))::
 
     ControlNetwork, PointType, MeasureType            model.py
     PairMatches, build_network, triangulate_points    build.py
     merge_networks                                    merge.py
     validate, NetworkReport                           check.py   (structural checks; truth is validate/)
-    write_network, read_network, open_network         store.py   (Zarr v3 group)
-    read_isis_network, write_isis_network             isis.py    (ISIS3 .net v2/v5)
+    decode_isis_network, encode_isis_network          isis.py    (ISIS3 .net v2/v5, bytes in and out)
 """
 
 from mercury_dem.network.build import BuildResult, BuildStats, PairMatches, build_network, triangulate_points
 from mercury_dem.network.check import NetworkReport, validate
-from mercury_dem.network.isis import read_isis_network, write_isis_network
+from mercury_dem.network.isis import decode_isis_network, encode_isis_network
 from mercury_dem.network.merge import MergeResult, MergeStats, merge_networks
 from mercury_dem.network.model import ControlNetwork, MeasureType, PointType
-from mercury_dem.network.store import NetworkStore, open_network, read_network, write_network
 
 __all__ = [
     "BuildResult", "BuildStats", "ControlNetwork", "MeasureType", "MergeResult", "MergeStats", "NetworkReport",
-    "NetworkStore", "PairMatches", "PointType", "build_network", "merge_networks", "open_network",
-    "read_isis_network", "read_network", "triangulate_points", "validate", "write_isis_network", "write_network",
+    "PairMatches", "PointType", "build_network", "decode_isis_network", "encode_isis_network", "merge_networks",
+    "triangulate_points", "validate",
 ]

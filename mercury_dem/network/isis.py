@@ -1,4 +1,8 @@
-"""ISIS3 binary control networks (``.net``), versions 2 and 5: read and write.
+"""ISIS3 binary control networks (``.net``), versions 2 and 5: the codec, bytes in and out.
+
+:func:`decode_isis_network` turns a file's bytes into a :class:`ControlNetwork`, :func:`encode_isis_network`
+a network into a file's bytes; opening and writing the files is :mod:`mercury_dem.io.isis_net`'s job
+(``read_isis_network``, ``write_isis_network``, ``isis_network_info``).
 
 File layout (``../shared/data/README.md``): a zero-padded PVL text label at byte
 0 (``HeaderStartByte``, ``HeaderBytes``, ``PointsStartByte``, ``PointsBytes``,
@@ -30,11 +34,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+import mercury_dem.network.protowire as pw
 from mercury_dem.exceptions import NetworkError
-from mercury_dem.io.atomic import atomic_write_bytes
-from mercury_dem.network import protowire as pw
 from mercury_dem.network.model import ControlNetwork, PointType, _take_measure_columns, as_string_array
-from mercury_dem.network.store import encode_strings
+from mercury_dem.network.strings import encode_strings
 
 #: Where the protobuf header starts in files we write (as ISIS does).
 HEADER_START_BYTE = 65536
@@ -82,18 +85,20 @@ def _header_fields(path: Path, data: bytes, start: int, size: int) -> list[tuple
         raise NetworkError(f"{path}: corrupt protobuf header: {exc}") from exc
 
 
-def read_isis_network(
+def decode_isis_network(
+    data: bytes,
     path: str | Path,
     serial_to_image: Mapping[str, str] | None = None,
     image_ids: Sequence[str] | NDArray[np.str_] | None = None,
     drop_unknown: bool = False,
     int_point_ids: bool = True,
 ) -> ControlNetwork:
-    """Read an ISIS3 binary control network (version 2 or 5).
+    """Decode the bytes of an ISIS3 binary control network (version 2 or 5).
 
     Parameters
     ----------
-    path : the ``.net`` file
+    data : the bytes of a ``.net`` file
+    path : the file they came from, for the messages (nothing is opened)
     serial_to_image : optional mapping ISIS serial number -> our image id; serial
         numbers not in it are kept as they are.
     image_ids : optional catalog of image ids; when given it becomes the images
@@ -115,10 +120,6 @@ def read_isis_network(
     serial numbers that match no catalog image.
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise NetworkError(f"cannot read control network {path}: {exc}") from exc
     label = _parse_label(path, data)
     version = label["Version"]
     if version not in (2, 5):
@@ -369,7 +370,18 @@ def encode_isis_network(
     created: str | None = None,
     last_modified: str | None = None,
 ) -> bytes:
-    """The bytes of an ISIS ``.net`` file holding ``network`` (see :func:`write_isis_network`)."""
+    """The bytes of an ISIS ``.net`` file holding ``network``.
+
+    Parameters
+    ----------
+    network : the network (0-based pixels; written 1-based)
+    version : 2 or 5
+    image_to_serial : optional mapping our image id -> ISIS serial number
+        (image ids not in it are written as they are)
+    network_id, target_name, description, user_name, created, last_modified : the header texts
+        (defaults: the network's metadata, then "mercury_dem", "Mercury", now). Point ids are written
+        as text (int ids as decimals).
+    """
     if version not in (2, 5):
         raise NetworkError(f"ISIS control network version {version} cannot be written (only 2 and 5)")
     net = network
@@ -485,38 +497,9 @@ def _pvl_value(v: str) -> str:
     return s if s and re.fullmatch(r"[A-Za-z0-9_.:+\-/]+", s) else '"' + s.replace('"', "'") + '"'
 
 
-def write_isis_network(
-    network: ControlNetwork,
-    path: str | Path,
-    version: int = 5,
-    image_to_serial: Mapping[str, str] | None = None,
-    **header: str,
-) -> Path:
-    """Write ``network`` as an ISIS3 binary control network, atomically.
-
-    Parameters
-    ----------
-    network : the network (0-based pixels; written 1-based)
-    path : output ``.net`` file
-    version : 2 or 5
-    image_to_serial : optional mapping our image id -> ISIS serial number
-        (image ids not in it are written as they are)
-    **header : network_id, target_name, description, user_name, created,
-        last_modified (defaults: the network's metadata, then "mercury_dem",
-        "Mercury", now). Point ids are written as text (int ids as decimals).
-
-    Returns the path.
-    """
-    return atomic_write_bytes(path, encode_isis_network(network, version, image_to_serial, **header))
+def label_fields(path: str | Path, data: bytes) -> dict[str, Any]:
+    """The label keywords of a ``.net`` file from its first bytes (``path`` names it in messages)."""
+    return dict(_parse_label(Path(path), data))
 
 
-def isis_network_info(path: str | Path) -> dict[str, Any]:
-    """The label and header fields of a ``.net`` file, without decoding the points."""
-    path = Path(path)
-    with open(path, "rb") as fh:
-        data = fh.read(HEADER_START_BYTE + (1 << 20))
-    label = _parse_label(path, data)
-    return dict(label)
-
-
-__all__ = ["read_isis_network", "write_isis_network", "encode_isis_network", "isis_network_info"]
+__all__ = ["decode_isis_network", "encode_isis_network", "label_fields", "HEADER_START_BYTE"]

@@ -6,7 +6,7 @@ A pure, seeded generator: :func:`make_images` draws the whole image set at once
 and a-priori coordinates. Blocks are equal-area cells of the covered cap, each
 drawn from its own random stream (``default_rng([seed, 1, block])``), so a block
 is the same whichever order (or process) makes it and the whole network never
-has to be in memory: :mod:`mercury_dem.network.synthetic_store` streams the
+has to be in memory: :mod:`mercury_dem.io.synthetic_network_store` streams the
 blocks into a network store.
 
 Geometry as :mod:`mercury_dem.validate.synthetic_network` (whose helpers it

@@ -13,32 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.adjust.datum import on_datum, recentre_on_block  # noqa: F401 - moved to adjust.datum; re-exported
+from mercury_dem.adjust.datum import recentre_on_block
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M
-
-
-def levelling_for(problem: Any, cfg: AdjustConfig, altimetry: Any = None) -> Any:
-    """The :class:`~mercury_dem.adjust.datum.LevellingDecision` of a block about to be adjusted.
-
-    Its extent from the problem's (a-priori) points; the points the altimetry would constrain from
-    the shots within the largest search radius of those points
-    (:func:`~mercury_dem.altimetry.constraints.radius_priors_within`: the count, not the priors the
-    adjustment will use, which are fitted around the first pass's points).
-    """
-    from mercury_dem.adjust.datum import levelling_decision
-
-    pts = np.asarray(problem.points, np.float64)
-    constrained = None
-    if altimetry is not None and len(altimetry.radius_m):
-        from mercury_dem.altimetry.constraints import radius_priors_within
-
-        constrained = radius_priors_within(
-            pts, altimetry.lat_deg, altimetry.lon_deg, altimetry.radius_m, shot_sigma_m=altimetry.sigma_m,
-            search_radius_m=float(max(cfg.altimetry_search_m)), min_shots=cfg.altimetry_min_shots,
-        ).constrained
-    return levelling_decision(pts, constrained, min_extent_deg=cfg.point_prior_recentre_min_extent_deg,
-                              max_altimetry_share=cfg.point_prior_recentre_max_altimetry_share)
 
 
 @dataclass(frozen=True)
@@ -85,16 +62,18 @@ def adjust_network(
 
     ``recentre_point_priors``: the radius constraints of the non-held points are first re-centred
     on the block's own surface (:func:`recentre_on_block`, one more adjustment) instead of the
-    datum sphere — when the block calls for it (:func:`levelling_for`: wide enough to carry its own
-    surface, not mostly held by the altimetry); the decision is the summary's ``levelling``.
+    datum sphere — when the block calls for it (:func:`~mercury_dem.altimetry.levelling.levelling_for`: wide
+    enough to carry its own surface, not mostly held by the altimetry); the decision is the summary's
+    ``levelling``.
 
     ``level``: the unit's level; a unit of ``config.blocked_levels`` with at least
     ``config.blocked_min_measures`` measures is adjusted over point blocks
+    (:func:`~mercury_dem.adjust.cascade.adjusts_by_blocks`)
     (:func:`~mercury_dem.adjust.blocked_bundle.blocked_bundle_adjust`, every pass: re-centring,
     altimetry), which gives the same solution to solver tolerance; ``summary["blocked"]`` says so.
     """
     from mercury_dem.adjust.bundle import bundle_adjust
-    from mercury_dem.adjust.cascade import unit_config
+    from mercury_dem.adjust.cascade import adjusts_by_blocks, unit_config
     from mercury_dem.adjust.datum import centre_point_priors
     from mercury_dem.adjust.network import network_with_result, problem_from_network
     from mercury_dem.adjust.report import text_report
@@ -106,8 +85,7 @@ def adjust_network(
         network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
     )
     solve = bundle_adjust
-    blocked = (level is not None and level in cfg.blocked_levels and cfg.blocked_min_measures is not None
-               and problem.n_measures >= cfg.blocked_min_measures)
+    blocked = adjusts_by_blocks(cfg, level, problem.n_measures)
     if blocked:
         from mercury_dem.adjust.blocked_bundle import blocked_bundle_adjust
 
@@ -117,8 +95,10 @@ def adjust_network(
     prior_summary: dict[str, Any] | None = None
     decision = None
     if recentre_point_priors:
-        decision = levelling_for(problem, cfg, altimetry)
-        if decision.recentre and cfg.radius_sigma_m is not None:  # without a radius constraint: nothing to centre
+        from mercury_dem.altimetry.levelling import levelling_for, recentres
+
+        decision = levelling_for(problem.points, cfg, altimetry)
+        if recentres(decision, cfg):
             problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m, adjust=solve)
     altimetry_summary: dict[str, Any] | None = None
     if altimetry is not None and len(altimetry.radius_m):

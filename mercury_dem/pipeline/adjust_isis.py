@@ -143,8 +143,8 @@ def run_adjust_isis(
     attach=true"), a malformed serials CSV, a serial number without a camera when
     ``require_all``, or no measure left to adjust.
     """
+    from mercury_dem.io.isis_net import read_isis_network, write_isis_network
     from mercury_dem.network.build import triangulate_points
-    from mercury_dem.network.isis import read_isis_network, write_isis_network
     from mercury_dem.network.jigsaw import camera_keys_with_serials, cut_adjustable, match_serials, merge_adjustment
     from mercury_dem.pipeline.adjust_adapter import adjust_network
 

@@ -62,7 +62,7 @@ def _marker_name(bounds: tuple[int, int, int, int]) -> str:
 @functools.lru_cache(maxsize=2)
 def _worker_index(run_url: str, global_token: str, datum_radius_m: float) -> PointIndex:
     """The global network's adjusted points, indexed; once per worker process and commit of the network."""
-    from mercury_dem.network.store import read_network
+    from mercury_dem.io.network_store import read_network
 
     store = RunStore(run_url)
     token = store.remote.commit_token("global/0")

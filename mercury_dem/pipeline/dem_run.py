@@ -121,7 +121,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     so on a bucket run they run in this process.
     """
     from mercury_dem.dem.extent import config_with_extent
-    from mercury_dem.network.store import read_network
+    from mercury_dem.io.network_store import read_network
     from mercury_dem.pipeline.dem_stage import failed_chunks_of, grid_dem, open_dem, regrid_failed_chunks
     from mercury_dem.products.make import make_products
     from mercury_dem.progress import Reporter

@@ -303,13 +303,14 @@ class DaskShardEngine:
 
         from mercury_dem.adjust.blocked import BlockShard
         from mercury_dem.exceptions import AdjustmentError
+        from mercury_dem.io.synthetic_network_store import StoredBlocks
 
         workers = sorted(client.scheduler_info()["workers"])
         if not workers:
             raise AdjustmentError("the Dask cluster has no workers: start some, or use --sync")
         runs = list(np.array_split(np.arange(n_blocks), len(workers)))
-        pairs = [(w, [int(x) for x in r]) for w, r in zip(workers, runs) if len(r)]
-        futures = [client.submit(BlockShard, (str(store), ids), setup, opt, actor=True, workers=[w],
+        pairs = [(w, tuple(int(x) for x in r)) for w, r in zip(workers, runs) if len(r)]
+        futures = [client.submit(BlockShard, StoredBlocks(str(store), ids), setup, opt, actor=True, workers=[w],
                                  allow_other_workers=False, pure=False) for w, ids in pairs]
         self.workers = [w for w, _ in pairs]
         self.actors = [f.result() for f in futures]

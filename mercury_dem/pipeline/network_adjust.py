@@ -25,7 +25,7 @@ from mercury_dem.adjust.blocked import (
     setup_from_config,
 )
 from mercury_dem.config.adjust import AdjustConfig
-from mercury_dem.network.synthetic_store import BlockedNetwork
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
 from mercury_dem.validate.synthetic_network import pointing_errors
 
 
@@ -45,7 +45,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config, float32=config.blocked_float32)
     opt = options_from_config(config)
     if client is None:
-        engine: Any = SyncEngine([BlockShard((str(net.root), list(range(net.n_blocks))), setup, opt)])
+        engine: Any = SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)])
         where = "sync"
     else:
         from mercury_dem.pipeline.executors import DaskShardEngine

@@ -79,7 +79,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
         nmeas = table["n_measures"].to_numpy()
         controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
         if mission.truth is not None:
-            from mercury_dem.network.store import read_network
+            from mercury_dem.io.network_store import read_network
             from mercury_dem.validate.run import validate_run
 
             net = read_network(store.network_path("global", 0))

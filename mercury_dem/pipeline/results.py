@@ -216,7 +216,7 @@ class UnitFiles:
             text = self.bundleout
             out[BUNDLEOUT_FILE] = lambda p: p.write_text(text)
         if self.network is not None:
-            from mercury_dem.network.store import write_network
+            from mercury_dem.io.network_store import write_network
 
             net = self.network
             out[NETWORK_FILE] = lambda p: write_network(net, p)

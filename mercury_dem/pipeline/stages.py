@@ -291,9 +291,9 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
                  engine_factory: Any = None) -> tuple[UnitSummary, UnitFiles]:
     from mercury_dem.adjust.cascade import rejudged_network
+    from mercury_dem.io.network_store import read_network
     from mercury_dem.network.check import singular_parts
     from mercury_dem.network.merge import merge_networks
-    from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.adjust_adapter import adjust_network
 
     child_level = LEVEL_CHILD[level]

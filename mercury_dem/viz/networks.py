@@ -19,7 +19,7 @@ from mercury_dem.viz.status import as_store
 
 
 def _networks(store: RunStore, levels: tuple[str, ...]) -> list[tuple[str, int, Any]]:
-    from mercury_dem.network.store import read_network
+    from mercury_dem.io.network_store import read_network
 
     out = []
     for level in levels:

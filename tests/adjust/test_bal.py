@@ -7,10 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from mercury_dem.adjust.bal import BalModel, BalProblem, adjust_bal, bal_cost, read_bal
+from mercury_dem.adjust.bal import BalModel, BalProblem, adjust_bal, bal_cost
 from mercury_dem.adjust.solver import SolverOptions
 from mercury_dem.cli import main
 from mercury_dem.exceptions import AdjustmentError
+from mercury_dem.io.bal import read_bal
 
 
 def test_initial_costs_exact(bal_path):

@@ -21,8 +21,8 @@ from mercury_dem.adjust.blocked import (
 )
 from mercury_dem.adjust.bundle import bundle_adjust
 from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks, write_synthetic_network
 from mercury_dem.network.synthetic import SyntheticSpec
-from mercury_dem.network.synthetic_store import BlockedNetwork, write_synthetic_network
 from mercury_dem.validate.synthetic_network import make_synthetic_network
 
 CFG = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
@@ -96,7 +96,7 @@ def test_localcluster_equals_sync(store: Path) -> None:
     im = bn.images
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG)
     opt = options_from_config(CFG)
-    shard = BlockShard((str(store), list(range(bn.n_blocks))), setup, opt)
+    shard = BlockShard(StoredBlocks(str(store), tuple(range(bn.n_blocks))), setup, opt)
     sync = blocked_levenberg_marquardt(SyncEngine([shard]), setup, opt)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0") as cl, \
             Client(cl) as client:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mercury_dem.adjust.cascade import ChildSolution, rejudged_network, unit_config, warm_start
+from mercury_dem.adjust.cascade import ChildSolution, adjusts_by_blocks, rejudged_network, unit_config, warm_start
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.network import ControlNetwork
 
@@ -62,3 +62,13 @@ def test_unit_config_allows_islands_and_holds_images_without_measures():
     assert out.held_images == ("B", "C", "D")  # kept, then the new ones, no repeat
     out, missing = unit_config(AdjustConfig(), ["A", "B"], np.array([0, 1]))
     assert missing == [] and out.held_images == () and out.allow_islands
+
+
+def test_units_adjusted_over_blocks_are_large_units_of_the_blocked_levels():
+    cfg = AdjustConfig(blocked_min_measures=1000, blocked_levels=("hemisphere", "global"))
+    assert adjusts_by_blocks(cfg, "global", 1000) and adjusts_by_blocks(cfg, "hemisphere", 5000)
+    assert not adjusts_by_blocks(cfg, "global", 999)  # too small
+    assert not adjusts_by_blocks(cfg, "region", 10**6)  # not a blocked level
+    assert not adjusts_by_blocks(cfg, None, 10**6)  # outside the cascade
+    assert not adjusts_by_blocks(AdjustConfig(blocked_min_measures=None), "global", 10**9)  # off by default
+    assert adjusts_by_blocks(AdjustConfig(blocked_min_measures=0), "global", 0)  # 0: always on those levels

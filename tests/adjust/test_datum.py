@@ -136,35 +136,6 @@ def test_levelling_decision_follows_the_block_and_its_altimetry() -> None:
     assert d.summary()["extent_deg"] == d.extent_deg
 
 
-def test_levelling_for_counts_the_points_near_shots() -> None:
-    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
-    from mercury_dem.pipeline.adjust_adapter import levelling_for
-
-    net = make_synthetic_network(800, rng=np.random.default_rng(31), relief_m=1000.0, min_views=2, max_views=3,
-                                 outlier_fraction=0.0)
-    problem = dataclasses.replace(net.problem, points=on_datum(net.problem.points))
-    cfg = AdjustConfig()
-    u = problem.points / np.linalg.norm(problem.points, axis=1, keepdims=True)
-    lat, lon = np.degrees(np.arcsin(u[:, 2])), np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360.0
-    # shots (20 scattered within ~2 km) around the northern half of the points only
-    north = lat > np.median(lat)
-    rng = np.random.default_rng(1)
-    k = np.repeat(np.flatnonzero(north), 20)
-    jit = rng.normal(0.0, 1000.0 / (DATUM_RADIUS_M * np.pi / 180.0), (k.size, 2))
-    shots = AltimetryShotsArrays(lat[k] + jit[:, 0], (lon[k] + jit[:, 1]) % 360.0,
-                                 np.full(k.size, DATUM_RADIUS_M), 1.0)
-    d = levelling_for(problem, cfg, shots)
-    # the points with >= 6 shots within the largest search radius (10 km; a plane), or >= 3 (a profile fit may
-    # take them), counted by brute force
-    su = np.stack([np.cos(np.radians(shots.lat_deg)) * np.cos(np.radians(shots.lon_deg)),
-                   np.cos(np.radians(shots.lat_deg)) * np.sin(np.radians(shots.lon_deg)),
-                   np.sin(np.radians(shots.lat_deg))], axis=1)
-    count = (np.arccos(np.clip(u @ su.T, -1, 1)) * DATUM_RADIUS_M <= 10_000.0).sum(axis=1)
-    assert 0.5 < (count >= 6).mean() <= d.altimetry_share <= (count >= 3).mean() < 1.0
-    assert d.level_to_mean is (d.altimetry_share <= 0.5)
-    assert levelling_for(problem, cfg, None).altimetry_share == 0.0
-
-
 def test_centre_point_priors_moves_free_points_onto_the_datum_and_keeps_held_ones() -> None:
     import dataclasses
 

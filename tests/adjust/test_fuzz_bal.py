@@ -18,8 +18,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from mercury_dem.adjust.bal import BalProblem, bal_cost, read_bal
+from mercury_dem.adjust.bal import BalProblem, bal_cost
 from mercury_dem.exceptions import AdjustmentError
+from mercury_dem.io.bal import read_bal
 from tests.fuzzing import mutate_lines
 
 

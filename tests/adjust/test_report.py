@@ -9,8 +9,9 @@ import pandas as pd
 
 from mercury_dem.adjust.bundle import bundle_adjust
 from mercury_dem.adjust.network import network_with_result, problem_from_network
-from mercury_dem.adjust.report import images_table, points_table, residuals_table, text_report, write_adjustment_report
+from mercury_dem.adjust.report import images_table, points_table, residuals_table, text_report
 from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.io.adjustment_report import write_adjustment_report
 from mercury_dem.network.model import ControlNetwork, PointType
 from mercury_dem.validate.synthetic_network import make_synthetic_network
 

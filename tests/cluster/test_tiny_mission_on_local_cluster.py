@@ -83,8 +83,8 @@ def test_tiny_mission_runs_through_the_local_scripts_over_tls(mission: Path, tmp
     import numpy as np
 
     from mercury_dem.config import load_config
+    from mercury_dem.io.network_store import read_network
     from mercury_dem.io.run_store import RunStore, read_solution
-    from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.graph import run_pipeline
 
     serial = tmp_path / "serial"

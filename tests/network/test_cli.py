@@ -6,11 +6,11 @@ import json
 
 import numpy as np
 import pytest
+from network_world import require_isis
 
 from mercury_dem.cli import main
-from mercury_dem.network import read_isis_network, read_network
-
-from network_world import require_isis
+from mercury_dem.io.isis_net import read_isis_network
+from mercury_dem.io.network_store import read_network
 
 
 @pytest.mark.integration  # three commands end to end on a real ISIS network

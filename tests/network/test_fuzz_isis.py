@@ -29,8 +29,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from mercury_dem.exceptions import NetworkError
+from mercury_dem.io.isis_net import read_isis_network
 from mercury_dem.network import ControlNetwork
-from mercury_dem.network.isis import encode_isis_network, read_isis_network
+from mercury_dem.network.isis import encode_isis_network
 from tests.network.network_world import ISIS_DIR
 from tests.network.test_isis import _random_network
 

@@ -19,7 +19,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from mercury_dem.exceptions import NetworkError, StoreError
-from mercury_dem.network import ControlNetwork, read_network, write_network
+from mercury_dem.io.network_store import read_network, write_network
+from mercury_dem.network import ControlNetwork
 from tests.network.test_model_store import _net
 
 

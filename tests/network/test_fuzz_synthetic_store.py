@@ -1,4 +1,4 @@
-"""Fuzzing the blocked-network reader (``network.synthetic_store.BlockedNetwork``, what adjust-network reads).
+"""Fuzzing the blocked-network reader (``io.synthetic_network_store.BlockedNetwork``, what adjust-network reads).
 
 Seed: a small synth-network store (network group with geometry and blocks, truth apart).
 Mutations as in ``test_fuzz_store``: truncate or flip bytes of any file, delete a file or
@@ -20,8 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mercury_dem.exceptions import StoreError
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, write_synthetic_network
 from mercury_dem.network.synthetic import SyntheticSpec
-from mercury_dem.network.synthetic_store import BlockedNetwork, write_synthetic_network
 from tests.network.test_fuzz_store import _json_values, _paths
 
 

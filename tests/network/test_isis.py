@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from network_world import require_isis
 
 from mercury_dem.exceptions import NetworkError
-from mercury_dem.network import ControlNetwork, read_isis_network, write_isis_network
+from mercury_dem.io.isis_net import read_isis_network, write_isis_network
+from mercury_dem.network import ControlNetwork
 from mercury_dem.network.isis import encode_isis_network
-
-from network_world import require_isis
 
 PUBLISHED = {  # file: (points, measures, images, version)
     "apollo_out.net": (395, 969, 7, 2),

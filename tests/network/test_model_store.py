@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from mercury_dem.exceptions import NetworkError, StoreError
-from mercury_dem.network import ControlNetwork, open_network, read_network, write_network
-from mercury_dem.network.store import decode_strings, encode_strings
+from mercury_dem.io.network_store import open_network, read_network, write_network
+from mercury_dem.network import ControlNetwork
+from mercury_dem.network.strings import decode_strings, encode_strings
 
 
 def _net(str_ids=False):

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from mercury_dem.exceptions import NetworkError, StoreError
-from mercury_dem.network.store import read_network
+from mercury_dem.io.network_store import read_network
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, write_synthetic_network
 from mercury_dem.network.synthetic import SyntheticSpec, make_images, point_block
-from mercury_dem.network.synthetic_store import BlockedNetwork, write_synthetic_network
 from mercury_dem.validate.synthetic_network import pointing_errors
 
 SPEC = SyntheticSpec(20_000, seed=11, measures_per_image=100, block_points=600)
@@ -75,7 +75,7 @@ def test_store_round_trip_blocks_and_truth(tmp_path: Path) -> None:
 
 
 def test_store_without_geometry_is_named(tmp_path: Path) -> None:
-    from mercury_dem.network.store import write_network
+    from mercury_dem.io.network_store import write_network
 
     p = write_network(read_network_from(tmp_path), tmp_path / "plain")
     with pytest.raises(StoreError, match=r"plain.*geometry"):
@@ -92,7 +92,7 @@ def test_generation_memory_is_bounded_by_a_block_not_the_network(tmp_path: Path,
     """Four times the measures, same block size: the traced peak stays (the columns are flushed per chunk)."""
     import tracemalloc
 
-    import mercury_dem.network.synthetic_store as ss
+    import mercury_dem.io.synthetic_network_store as ss
 
     monkeypatch.setattr(ss, "CHUNK_ROWS", 4096)
     peaks = []

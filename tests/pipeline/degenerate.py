@@ -95,9 +95,9 @@ def inject_singular(run: Path) -> tuple[int, int, str]:
     The tile's network gets an image with no measures (:data:`NO_MEASURES`) and a point seen by one
     image only (one measure, in a corner of the first measure's image). Returns (tile id, point id, measured image).
     """
+    from mercury_dem.io.network_store import read_network, write_network
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.network.model import MEASURE_COLUMNS, POINT_COLUMNS
-    from mercury_dem.network.store import read_network, write_network
 
     store = RunStore(run)
     tiles = [t for t in store.completed_units("tile") if store.read_summary("tile", t).get("ok")]

@@ -21,7 +21,7 @@ import pytest
 import yaml
 
 from mercury_dem.cli import main
-from mercury_dem.network.isis import read_isis_network, write_isis_network
+from mercury_dem.io.isis_net import read_isis_network, write_isis_network
 from mercury_dem.network.model import ControlNetwork, PointType
 
 from .conftest import TINY_OVERRIDES

@@ -145,8 +145,8 @@ def test_an_image_without_measures_is_held_not_fatal(degenerate_run: tuple[Path,
     whole solve was an AdjustmentError ("1 images have no measures"); now the image is held at its a-priori
     pose, named, and the others come out as without it."""
     from mercury_dem.config import load_config
+    from mercury_dem.io.network_store import read_network
     from mercury_dem.mission import open_mission
-    from mercury_dem.network.store import read_network
     from mercury_dem.pipeline.adjust_adapter import adjust_network
     from mercury_dem.pipeline.stages import adjust_config_for
 

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from mercury_dem.io.network_store import read_network
 from mercury_dem.io.run_store import RunStore
-from mercury_dem.network.store import read_network
 from mercury_dem.pipeline.graph import run_pipeline
 
 from .conftest import tiny_config

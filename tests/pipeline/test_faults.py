@@ -32,8 +32,8 @@ import pytest
 from mercury_dem.cli import main
 from mercury_dem.exceptions import DiskFullError, SchedulerLostError
 from mercury_dem.io.atomic import COMPLETE_MARKER, verify_complete
+from mercury_dem.io.network_store import read_network
 from mercury_dem.io.run_store import LEVELS, RunStore, read_solution
-from mercury_dem.network.store import read_network
 from mercury_dem.pipeline.graph import run_pipeline
 from mercury_dem.products.make import open_dem
 

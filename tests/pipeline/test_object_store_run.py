@@ -19,9 +19,9 @@ import yaml
 
 from mercury_dem.cli import main
 from mercury_dem.config import to_dict
+from mercury_dem.io.network_store import read_network
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import RunStore, read_solution
-from mercury_dem.network.store import read_network
 
 from ..s3_server import make_bucket, s3_endpoint  # noqa: F401 - the fixture
 from .conftest import tiny_config
@@ -196,10 +196,10 @@ def test_dem_chunks_run_on_dask_workers(s3_run: list[str], sync_run: tuple[Path,
     the same store (threads here; the slow LocalCluster test above runs the whole run on worker processes)."""
     from distributed import Client, LocalCluster
 
-    from mercury_dem.geometry.body import MERCURY
-    from mercury_dem.pipeline.dem_bucket import _worker_index, grid_dem_on_bucket
     from mercury_dem.dem.cloud import point_cloud
     from mercury_dem.dem.extent import config_with_extent
+    from mercury_dem.geometry.body import MERCURY
+    from mercury_dem.pipeline.dem_bucket import _worker_index, grid_dem_on_bucket
 
     store = RunStore(RUN)
     r = store.remote

@@ -45,7 +45,7 @@ def test_three_frames_controlled_and_the_fourth_explained(apollo_run: Path) -> N
 
 
 def test_every_overlapping_pair_is_tied_by_at_least_100_points(apollo_run: Path) -> None:
-    from mercury_dem.network.store import read_network
+    from mercury_dem.io.network_store import read_network
 
     net = read_network(apollo_run / "global" / "0" / "network.zarr")
     ok = ~np.asarray(net.measure_rejected)
@@ -73,7 +73,7 @@ def test_moon_dem_products_and_lola_comparison(apollo_run: Path) -> None:
 
 def test_adjust_isis_of_the_exported_network_gives_the_runs_solution(apollo_run: Path, tmp_path: Path,
                                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    from mercury_dem.network.isis import read_isis_network, write_isis_network
+    from mercury_dem.io.isis_net import read_isis_network, write_isis_network
 
     net_path = tmp_path / "apollo.net"
     assert main(["export-isis", str(apollo_run), str(net_path), "--level", "global"]) == 0

@@ -11,8 +11,9 @@ import pandas as pd
 import pytest
 
 from mercury_dem.io.atomic import is_complete, verify_complete
+from mercury_dem.io.network_store import read_network
 from mercury_dem.io.run_store import RunStore, read_solution, unit_name
-from mercury_dem.network import ControlNetwork, read_network
+from mercury_dem.network import ControlNetwork
 from mercury_dem.pipeline.results import (
     FailureSummary,
     TileCounts,

@@ -12,8 +12,8 @@ import pytest
 import xarray as xr
 
 from mercury_dem.cli import main
+from mercury_dem.io.network_store import read_network
 from mercury_dem.io.run_store import RunStore, read_solution
-from mercury_dem.network.store import read_network
 from mercury_dem.pipeline.graph import run_pipeline
 
 from .conftest import read_report, tiny_config

@@ -16,9 +16,9 @@ from mercury_dem.viz import (
     dem_validation_figure,
     hillshade_figure,
     image_residuals,
+    point_residuals,
     pointing_errors,
     pointing_figure,
-    point_residuals,
     residual_histograms_figure,
     residual_map_figure,
     residuals_by_level,
@@ -50,7 +50,7 @@ def test_run_figures(tiny_run: Path, tiny_mission, tmp_path: Path) -> None:
     _png(fig, tmp_path / "hist.png")
     _png(sigma0_figure(sigma0_history(tiny_run)), tmp_path / "sigma0.png")
     _png(pointing_figure(pointing_errors(tiny_run, tiny_mission)), tmp_path / "pointing.png")
-    from mercury_dem.network.store import read_network
+    from mercury_dem.io.network_store import read_network
 
     net = read_network(Path(tiny_run) / "global" / "0" / "network.zarr")
     _png(residual_map_figure(point_residuals(net), image_residuals(net, tiny_mission)), tmp_path / "map.png")

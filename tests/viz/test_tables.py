@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mercury_dem.exceptions import StoreError
+from mercury_dem.io.network_store import read_network
 from mercury_dem.io.run_store import RunStore, read_solution
-from mercury_dem.network.store import read_network
 from mercury_dem.viz import (
     image_residuals,
     network_statistics,

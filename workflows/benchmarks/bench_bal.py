@@ -21,9 +21,10 @@ import time
 
 import numpy as np
 
-from mercury_dem.adjust.bal import BalProblem, adjust_bal, read_bal
+from mercury_dem.adjust.bal import BalProblem, adjust_bal
 from mercury_dem.adjust.solver import SolverOptions
 from mercury_dem.geometry.pose import rotation_from_angles
+from mercury_dem.io.bal import read_bal
 
 
 def ours(problem: BalProblem, target: float, iterations: int) -> dict:

@@ -93,7 +93,7 @@ def clean_store(directory: str | Path, measures: float, seed: int) -> Path:
 def problem_from_store(store: Path) -> Any:
     """The whole stored network as one AdjustmentProblem (small stores only)."""
     from mercury_dem.adjust.problem import AdjustmentProblem
-    from mercury_dem.network.synthetic_store import BlockedNetwork
+    from mercury_dem.io.synthetic_network_store import BlockedNetwork
 
     net = BlockedNetwork(store)
     im = net.images

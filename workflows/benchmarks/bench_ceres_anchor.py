@@ -143,7 +143,7 @@ def main() -> None:
 
     from mercury_dem.adjust.blocked_bundle import blocked_bundle_adjust
     from mercury_dem.config.adjust import AdjustConfig
-    from mercury_dem.network.synthetic_store import BlockedNetwork
+    from mercury_dem.io.synthetic_network_store import BlockedNetwork
     from mercury_dem.validate.synthetic_network import pointing_errors
 
     store = clean_store(args.dir, args.measures, args.seed)

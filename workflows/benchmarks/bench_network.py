@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mercury_dem.network import ControlNetwork, merge_networks, read_isis_network, validate
+from mercury_dem.io.isis_net import read_isis_network
+from mercury_dem.network import ControlNetwork, merge_networks, validate
 from mercury_dem.network.isis import encode_isis_network
 
 

@@ -18,10 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from mercury_dem.adjust.blocked import BlockShard, SyncEngine, blocked_levenberg_marquardt, options_from_config, setup_from_config
+from mercury_dem.adjust.blocked import (
+    BlockShard,
+    SyncEngine,
+    blocked_levenberg_marquardt,
+    options_from_config,
+    setup_from_config,
+)
 from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks, write_synthetic_network
 from mercury_dem.network.synthetic import SyntheticSpec
-from mercury_dem.network.synthetic_store import BlockedNetwork, write_synthetic_network
 
 
 def arrays(obj: Any, path: str, seen: dict[int, tuple[str, int]], depth: int = 0) -> None:
@@ -58,7 +64,7 @@ def main() -> None:
     im = net.images
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=cfg.blocked_float32)
     opt = options_from_config(cfg)
-    shard = BlockShard((str(net.root), list(range(net.n_blocks))), setup, opt)
+    shard = BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)
     res = blocked_levenberg_marquardt(SyncEngine([shard]), setup, opt)
     print(f"iterations {res.iterations}, rejected {res.rejected}, pointing RMS {np.sqrt(np.mean(res.omega**2)):.12e} rad")
     seen: dict[int, tuple[str, int]] = {}

@@ -10,15 +10,23 @@ import time
 import types
 
 import numpy as np
-from mercury_dem.adjust.blocked import BlockShard, SyncEngine, blocked_posterior_sigmas, options_from_config, setup_from_config
+
+from mercury_dem.adjust.blocked import (
+    BlockShard,
+    SyncEngine,
+    blocked_posterior_sigmas,
+    options_from_config,
+    setup_from_config,
+)
 from mercury_dem.config.adjust import AdjustConfig
-from mercury_dem.network.synthetic_store import BlockedNetwork
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
+
 net = BlockedNetwork(sys.argv[1]); im = net.images
 cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
 setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True)
 opt = options_from_config(cfg)
 t = time.perf_counter()
-eng = SyncEngine([BlockShard((str(net.root), list(range(net.n_blocks))), setup, opt)])
+eng = SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)])
 eng.call("initial_cost", np.zeros((setup.n_images, 3)))
 print("loaded", round(time.perf_counter() - t, 1), "s", flush=True)
 res = types.SimpleNamespace(omega=np.zeros((setup.n_images, 3)), sigma0=1.0)

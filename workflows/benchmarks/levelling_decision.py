@@ -13,12 +13,11 @@ import time
 
 import numpy as np
 
-from mercury_dem.adjust.datum import levelling_decision
+from mercury_dem.adjust.datum import levelling_decision, on_datum
 from mercury_dem.altimetry.constraints import radius_priors_within
 from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.io.network_store import read_network
 from mercury_dem.mission import open_mission
-from mercury_dem.network.store import read_network
-from mercury_dem.adjust.datum import on_datum
 
 
 def main(run: str, mission_path: str) -> None:

@@ -21,7 +21,7 @@ from mercury_dem.adjust.blocked import (
     setup_from_config,
 )
 from mercury_dem.config.adjust import AdjustConfig
-from mercury_dem.network.synthetic_store import BlockedNetwork
+from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
 
 
 def rss() -> int:
@@ -56,7 +56,7 @@ def main() -> None:
     setup = dataclasses.replace(setup, recompute_w="recompute_w" in sys.argv[5:])
     opt = options_from_config(cfg)
     r0, t = rss(), time.perf_counter()
-    sh = BlockShard((store, list(range(n))), setup, opt)
+    sh = BlockShard(StoredBlocks(str(store), tuple(range(n))), setup, opt)
     r1 = rss()
     res = blocked_levenberg_marquardt(SyncEngine([sh]), setup, opt)
     r2 = rss()

@@ -2,7 +2,7 @@
 
 Layout of ``OUT`` (written under a temporary name, renamed when complete)::
 
-    OUT/network/     a network store (mercury_dem.network.store: every column, readable by
+    OUT/network/     a network store (mercury_dem.io.network_store: every column, readable by
                      open_network/read_network), plus
         geometry/    image_camera (K,), positions (K, 3) m, rotations (K, 3, 3) a-priori;
                      attrs "cameras": the distinct cameras (camera_to_dict)
@@ -19,7 +19,7 @@ and appended to the Zarr arrays, so memory is bounded by one block, not the netw
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,10 +30,11 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from mercury_dem.exceptions import StoreError
-from mercury_dem.geometry.camera import FramingCamera, camera_from_dict, camera_to_dict
+from mercury_dem.geometry.camera import camera_from_dict, camera_to_dict
 from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_directory, is_complete
+from mercury_dem.io.network_store import CHUNK_ROWS, FORMAT_NAME, FORMAT_VERSION, NetworkStore, write_strings
+from mercury_dem.network.blocks import BlockData, ImageTable
 from mercury_dem.network.model import MEASURE_COLUMNS, POINT_COLUMNS, MeasureType, PointType
-from mercury_dem.network.store import CHUNK_ROWS, FORMAT_NAME, FORMAT_VERSION, NetworkStore, _write_strings
 from mercury_dem.network.synthetic import SyntheticSpec, make_images, point_block
 
 
@@ -104,7 +105,7 @@ def write_synthetic_network(
     with atomic_directory(out, overwrite=overwrite) as tmp:
         net = zarr.open_group(str(tmp / "network"), mode="w", zarr_format=3)
         truth = zarr.open_group(str(tmp / "truth"), mode="w", zarr_format=3)
-        _write_strings(net, "image_ids", np.array([f"SYN{i:07d}" for i in range(n_img)]))
+        write_strings(net, "image_ids", np.array([f"SYN{i:07d}" for i in range(n_img)]))
         geo = net.create_group("geometry")
         geo.create_array("image_camera", data=images.image_camera)
         geo.create_array("positions", data=images.positions)
@@ -164,39 +165,6 @@ def write_synthetic_network(
         truth.attrs.update({"outliers": n_out, "synthetic_spec": spec_attrs})
         (tmp / "network" / COMPLETE_MARKER).write_text("complete\n")
     return SynthSummary(out, n_img, p_off[-1], m_off[-1], spec.n_blocks, n_out, time.perf_counter() - t0)
-
-
-@dataclass(frozen=True)
-class ImageTable:
-    """The a-priori geometry of a stored network's images."""
-
-    cameras: tuple[FramingCamera, ...]
-    image_camera: NDArray[np.int64]
-    positions: NDArray[np.float64]
-    rotations: NDArray[np.float64]
-
-    @property
-    def n_images(self) -> int:
-        return len(self.positions)
-
-
-@dataclass(frozen=True)
-class BlockData:
-    """One point block as read from the store (point indices local to the block)."""
-
-    block: int
-    point_start: int
-    apriori_points: NDArray[np.float64]
-    measure_image: NDArray[np.int64]
-    measure_point: NDArray[np.int64]
-    measures: NDArray[np.float64]
-    sigma: NDArray[np.float64]  # (M,) px
-    held_points: NDArray[np.bool_]
-    outlier: NDArray[np.bool_] | None  # truth, when present
-    true_points: NDArray[np.float64] | None
-    #: (n,) per-point radius constraint, m (NaN: the configured one; None: none given), as
-    #: ``AdjustmentProblem.point_radius_sigma`` (altimetry-constrained points of a pipeline unit)
-    point_radius_sigma: NDArray[np.float64] | None = None
 
 
 class BlockedNetwork:
@@ -322,3 +290,20 @@ class BlockedNetwork:
             held_points=self._read(g, "point_type", "int8", (n,), ps) == PointType.FIXED,
             outlier=outlier, true_points=true_points,
         )
+
+
+@dataclass(frozen=True)
+class StoredBlocks:
+    """Point blocks ``ids`` of the store at ``path``, read one at a time as they are iterated.
+
+    What a :class:`~mercury_dem.adjust.blocked.BlockShard` is given when it is to read its own blocks (a Dask
+    worker's actor): small to send, and only one block's raw data is held at a time (read, turned into its
+    state by the shard, dropped).
+    """
+
+    path: str
+    ids: tuple[int, ...]
+
+    def __iter__(self) -> Iterator[BlockData]:
+        net = BlockedNetwork(self.path)
+        return (net.read_block(b) for b in self.ids)

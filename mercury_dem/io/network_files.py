@@ -7,9 +7,9 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from mercury_dem.exceptions import NetworkError
-from mercury_dem.network.isis import read_isis_network, write_isis_network
+from mercury_dem.io.isis_net import read_isis_network, write_isis_network
+from mercury_dem.io.network_store import read_network, write_network
 from mercury_dem.network.model import ControlNetwork
-from mercury_dem.network.store import read_network, write_network
 
 
 def is_isis_path(path: str | Path) -> bool:

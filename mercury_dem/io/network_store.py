@@ -10,7 +10,7 @@ Layout of a network group (every column of :class:`ControlNetwork` is one array)
       point_type, apriori_xyz, ..., measure_point, sample, ...  one array per column
       .complete                written last (see mercury_dem.io.atomic)
 
-Strings are stored as bytes plus offsets rather than as a Zarr string dtype:
+Strings are stored as bytes plus offsets (:mod:`mercury_dem.network.strings`) rather than as a Zarr string dtype:
 fixed-width and variable-length string types are not part of the Zarr v3 core
 spec (zarr-python warns about them) and bytes + offsets are compact and fast.
 
@@ -22,7 +22,7 @@ attributes and the images table; columns load on demand.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 import zarr
@@ -36,48 +36,12 @@ from mercury_dem.network.model import (
     POINT_COLUMNS,
     ControlNetwork,
 )
+from mercury_dem.network.strings import decode_strings, encode_strings
 
 FORMAT_NAME = "mercury_dem.control_network"
 FORMAT_VERSION = 1
 #: Rows per chunk of the points and measures columns.
 CHUNK_ROWS = 1 << 20
-
-
-def encode_strings(values: NDArray[Any]) -> tuple[NDArray[np.uint8], NDArray[np.int64]]:
-    """UTF-8 bytes of all strings back to back, and offsets of shape (n + 1,)."""
-    if values.size == 0:
-        return np.zeros(0, np.uint8), np.zeros(1, np.int64)
-    values = values.astype(str, copy=False)
-    try:
-        encoded = values.astype("S")  # ASCII fast path
-    except UnicodeEncodeError:
-        encoded = np.char.encode(values, "utf-8")
-    width = encoded.dtype.itemsize
-    raw = encoded.view(np.uint8).reshape(values.size, width)
-    keep = raw != 0  # strings hold no NUL: the padding is the zeros
-    lengths = keep.sum(axis=1, dtype=np.int64)
-    offsets = np.zeros(values.size + 1, np.int64)
-    np.cumsum(lengths, out=offsets[1:])
-    return raw[keep], offsets
-
-
-def decode_strings(data: NDArray[np.uint8], offsets: NDArray[np.int64]) -> NDArray[np.str_]:
-    """Inverse of :func:`encode_strings`: a numpy unicode array."""
-    n = offsets.size - 1
-    if n <= 0:
-        return np.zeros(0, "U1")
-    lengths = np.diff(offsets)
-    width = max(int(lengths.max()), 1)
-    col = np.arange(width)[None, :]
-    idx = offsets[:-1, None] + col
-    valid = col < lengths[:, None]
-    buf = np.zeros((n, width), np.uint8)
-    buf[valid] = data[idx[valid]]
-    raw = buf.view(f"S{width}").ravel()
-    try:
-        return raw.astype(f"U{width}")  # ASCII fast path
-    except UnicodeDecodeError:
-        return np.char.decode(raw, "utf-8")
 
 
 def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
@@ -88,7 +52,8 @@ def _write_array(group: Any, name: str, arr: NDArray[Any]) -> None:
     group.create_array(name, data=np.ascontiguousarray(arr), chunks=_chunks(arr.shape))
 
 
-def _write_strings(group: Any, name: str, values: NDArray[Any]) -> None:
+def write_strings(group: Any, name: str, values: NDArray[Any]) -> None:
+    """A string column as the subgroup ``name`` of ``group``: arrays ``data`` (UTF-8 bytes) and ``offsets``."""
     data, offsets = encode_strings(values)
     sub = group.create_group(name)
     _write_array(sub, "data", data)
@@ -106,9 +71,9 @@ def write_network(network: ControlNetwork, path: str | Path, overwrite: bool = F
         raise StoreError(f"network store {path} already exists; remove it or pass overwrite=True")
     with atomic_directory(path, overwrite=overwrite) as tmp:
         g = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        _write_strings(g, "image_ids", network.image_ids)
+        write_strings(g, "image_ids", network.image_ids)
         if network.point_ids.dtype.kind == "U":
-            _write_strings(g, "point_ids", network.point_ids)
+            write_strings(g, "point_ids", network.point_ids)
             kind = "str"
         else:
             _write_array(g, "point_ids", network.point_ids)
@@ -154,7 +119,7 @@ class NetworkStore:
             )
         try:
             self._group = zarr.open_group(str(self.path), mode="r", zarr_format=3)
-            attrs = dict(self._group.attrs)
+            attrs: dict[str, Any] = dict(self._group.attrs)
         except Exception as exc:  # zarr raises several types for a damaged group
             raise StoreError(f"network store {self.path} cannot be opened as Zarr: {exc}") from exc
         if attrs.get("format") != FORMAT_NAME:
@@ -254,7 +219,7 @@ class NetworkStore:
             raise StoreError(f"network store {self.path}: {exc}") from None
 
 
-def _is_count(v: Any) -> bool:
+def _is_count(v: Any) -> TypeGuard[int]:
     return isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**62
 
 
