@@ -121,7 +121,7 @@ def test_localcluster_tree_sum_equals_sync(store: Path) -> None:
     im = bn.images
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG)
     opt = options_from_config(CFG)
-    sync = blocked_levenberg_marquardt(SyncEngine([BlockShard((str(store), list(range(bn.n_blocks))), setup, opt)]),
+    sync = blocked_levenberg_marquardt(SyncEngine([BlockShard(StoredBlocks(str(store), tuple(range(bn.n_blocks))), setup, opt)]),
                                        setup, opt)
     with LocalCluster(n_workers=5, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=":0") as cl, \
             Client(cl) as client:
