@@ -27,10 +27,7 @@ import traceback
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
-
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.io.run_store import (
     BUNDLEOUT_FILE,
@@ -41,6 +38,10 @@ from mercury_dem.io.run_store import (
     unit_name,
     write_solution,
 )
+
+if TYPE_CHECKING:  # numpy only in annotations: the readers of summaries ('mercury-dem report') load no numpy
+    import numpy as np
+    from numpy.typing import NDArray
 
 __all__ = ["FailureSummary", "Summary", "TileCounts", "TileSummary", "UnitFiles", "UnitSolution", "UnitSummary",
            "UnitTiming", "read_summary", "summary_from_json"]
