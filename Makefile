@@ -32,7 +32,7 @@ $(STAMP): pyproject.toml
 	@$(PY) -m pip install -q -e '.[cholmod]' 2>/dev/null \
 	  && echo "scikit-sparse (CHOLMOD) installed" \
 	  || echo "scikit-sparse not installed: the bundle adjustment uses its scipy fallback"
-	$(PY) -m mercury_dem.dem.warm  # numba's kernel cache and the CRS cache: a first 'grid' starts warm
+	$(PY) -m mercury_dem.pipeline.warm  # numba's kernel cache and the CRS cache: a first 'grid' starts warm
 	touch $(STAMP)
 
 # The benchmarks' outside anchors (Ceres through pycolmap); the project itself does not need them.

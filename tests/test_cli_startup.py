@@ -107,7 +107,7 @@ def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path, mon
     from mercury_dem.pipeline.dem_stage import _spatial_ref_attrs, grid_dem
     from tests.dem.dem_synthetic import sample_cloud
 
-    # The CRS cache as `make setup` leaves it (python -m mercury_dem.dem.warm), in a cache of this test's own:
+    # The CRS cache as `make setup` leaves it (python -m mercury_dem.pipeline.warm), in a cache of this test's own:
     # the suite's object-store fixture points $MERCURY_DEM_CACHE at a fresh directory for its session.
     monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "cache"))
     _spatial_ref_attrs.cache_clear()

@@ -65,7 +65,7 @@ def _write_tables(store, level: str, unit: int, directory: str) -> None:  # type
     from pathlib import Path
 
     from mercury_dem.io.network_store import read_network
-    from mercury_dem.io.run_store import BUNDLEOUT_FILE, read_solution
+    from mercury_dem.io.run_store import BUNDLEOUT_FILE, SUMMARY_FILE, read_solution
 
     d = Path(directory) / f"{level}_{unit}"
     d.mkdir(parents=True, exist_ok=True)
@@ -74,7 +74,7 @@ def _write_tables(store, level: str, unit: int, directory: str) -> None:  # type
     net.measures_frame().to_csv(d / "residuals.csv", index=False)
     _, _, _, table = read_solution(store.solution_path(level, unit))
     table.to_csv(d / "images.csv", index=False)
-    (d / "summary.json").write_text(json.dumps(store.read_summary(level, unit), indent=2))
+    (d / SUMMARY_FILE).write_text(json.dumps(store.read_summary(level, unit), indent=2))
     report = store.unit_dir(level, unit) / BUNDLEOUT_FILE
     if report.exists():
-        shutil.copyfile(report, d / "bundleout.txt")
+        shutil.copyfile(report, d / BUNDLEOUT_FILE)

@@ -22,6 +22,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.io.isis_net import write_isis_network
     from mercury_dem.io.network_store import read_network
     from mercury_dem.io.run_store import RunStore
+    from mercury_dem.pipeline.results import read_summary
     from mercury_dem.plan.tree import LEVELS
 
     store = RunStore.open(args.run_dir)
@@ -33,7 +34,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
         raise StoreError(f"{args.run_dir} has no complete {level} {unit} network")
     path = store.network_path(level, unit)
     if not path.exists():
-        raise StoreError(f"{level} {unit} of {args.run_dir} failed and has no network: {store.read_summary(level, unit).get('error')}")
+        raise StoreError(f"{level} {unit} of {args.run_dir} failed and has no network: {read_summary(store, level, unit).error}")
     net = read_network(path)
     write_isis_network(net, args.out, version=args.version, network_id=f"mercury-dem {level} {unit}",
                        target_name=_target_name(store))

@@ -135,6 +135,7 @@ def _grid(args: argparse.Namespace, config: Any, dem: Any, out: Path, writer: An
     except ValueError as exc:
         raise ConfigError(f"--body: {exc}") from None
     points = read_points(args.points)
+    from mercury_dem.io.run_store import DEM_FILE
     from mercury_dem.pipeline.dem_stage import grid_dem
     from mercury_dem.progress import Reporter
 
@@ -153,7 +154,7 @@ def _grid(args: argparse.Namespace, config: Any, dem: Any, out: Path, writer: An
         cluster = local_cluster(args.workers, 1, host=config.execution.host)
         client = Client(cluster)
     try:
-        return grid_dem(points, dem, out / "dem.zarr", client=client, overwrite=args.overwrite,
+        return grid_dem(points, dem, out / DEM_FILE, client=client, overwrite=args.overwrite,
                         coverage=not args.no_coverage, attrs={"source": str(args.points)},
                         progress=Reporter(sys.stderr), body=body, writer=writer)
     finally:

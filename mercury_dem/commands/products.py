@@ -31,7 +31,9 @@ def _run_truth(d: Path) -> Any:
     import json
     import sys
 
-    run_json = d / "run.json"
+    from mercury_dem.io.run_store import RUN_FILE
+
+    run_json = d / RUN_FILE
     if not run_json.is_file():
         return None
     try:
@@ -45,6 +47,7 @@ def _run_truth(d: Path) -> Any:
 
 
 def run(args: argparse.Namespace, config: Any) -> int:
+    from mercury_dem.io.run_store import COVERAGE_FILE, DEM_FILE, PRODUCTS_DIR
     from mercury_dem.products.make import make_products
     from mercury_dem.products.profile import parse_profile
 
@@ -60,17 +63,17 @@ def run(args: argparse.Namespace, config: Any) -> int:
         from mercury_dem.io.run_store import RunStore
 
         store = RunStore.open(loc)
-        store.fetch_zarr("coverage.zarr")
-        if not store.fetch_zarr("dem.zarr"):
-            raise MercuryDemError(f"{loc} has no complete dem.zarr; run 'mercury-dem run' to the end first")
+        store.fetch_zarr(COVERAGE_FILE)
+        if not store.fetch_zarr(DEM_FILE):
+            raise MercuryDemError(f"{loc} has no complete {DEM_FILE}; run 'mercury-dem run' to the end first")
         loc = store.root
     d = loc
-    out = refuse_remote(args.out, "--out", "omit --out to write DIR/products") if args.out else d / "products"
+    out = refuse_remote(args.out, "--out", "omit --out to write DIR/products") if args.out else d / PRODUCTS_DIR
     truth = _run_truth(d)
-    summary = make_products(d / "dem.zarr", out, config, truth_height=truth, profiles=profiles,
+    summary = make_products(d / DEM_FILE, out, config, truth_height=truth, profiles=profiles,
                             overwrite=args.overwrite or store is not None)
     if store is not None and not args.out:
-        store.commit_tree("products")
+        store.commit_tree(PRODUCTS_DIR)
     print(summary["table"])
     if summary.get("accuracy"):
         a = summary["accuracy"]

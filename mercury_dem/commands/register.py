@@ -69,11 +69,12 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
 
 def run(args: argparse.Namespace, config: Any) -> int:
     from mercury_dem.geometry.body import body_by_name
+    from mercury_dem.io.run_store import DEM_FILE, PRODUCTS_DIR, REGISTRATION_DIR
     from mercury_dem.pipeline.executors import connect
     from mercury_dem.pipeline.register_stage import _jsonable, register_dem_store
     from mercury_dem.products.make import dem_body, open_dem
 
-    dem_path = Path(args.dir) / "dem.zarr"
+    dem_path = Path(args.dir) / DEM_FILE
     body = None
     if args.body:
         try:
@@ -81,12 +82,11 @@ def run(args: argparse.Namespace, config: Any) -> int:
         except ValueError as exc:
             raise ConfigError(f"--body: {exc}") from None
     ds_body = dem_body(open_dem(dem_path))
-    products_dir = Path(args.dir) / "products"
+    products_dir = Path(args.dir) / PRODUCTS_DIR
     shots = read_shots(args.altimetry, ds_body.datum_radius_m)
-    products_dir = Path(args.dir) / "products"
     conn = connect(config.execution, scheduler=args.scheduler)
     try:
-        from mercury_dem.pipeline.register_stage import REGISTRATION_DIR, REGISTRATION_PRODUCTS
+        from mercury_dem.pipeline.register_stage import REGISTRATION_PRODUCTS
 
         summary = register_dem_store(
             dem_path, shots, client=conn.client, body=body, overwrite=args.overwrite, source=", ".join(args.altimetry),

@@ -119,12 +119,12 @@ class GridSpec:
     def lat_centres(self, rows: NDArray[np.integer] | None = None) -> NDArray[np.float64]:
         """Latitudes (deg) of the pixel centres of global row indices (all rows by default)."""
         i = np.arange(self.shape[0]) if rows is None else np.asarray(rows)
-        return self.lat_max - (i + 0.5) / self.pixels_per_degree
+        return np.asarray(self.lat_max - (i + 0.5) / self.pixels_per_degree, dtype=np.float64)
 
     def lon_centres(self, cols: NDArray[np.integer] | None = None) -> NDArray[np.float64]:
         """Longitudes (deg) of the pixel centres of global column indices (all by default)."""
         j = np.arange(self.shape[1]) if cols is None else np.asarray(cols)
-        return self.lon_min + (j + 0.5) / self.pixels_per_degree
+        return np.asarray(self.lon_min + (j + 0.5) / self.pixels_per_degree, dtype=np.float64)
 
     def chunks(self, chunk_size: int) -> list[tuple[int, int, int, int]]:
         """Chunk bounds ``(row0, row1, col0, col1)`` tiling the grid, row-major."""
@@ -340,8 +340,8 @@ def _kdtree_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.
                    search_r: float) -> dict[str, NDArray[Any]]:
     """The same layers from kd-tree queries (the exact fallback of the bucket search)."""
     P = lat.size
-    out = {"radius": np.empty(P), "count": np.empty(P, dtype=np.int32), "nearest": np.empty(P),
-           "spread": np.empty(P)}
+    out: dict[str, NDArray[Any]] = {"radius": np.empty(P), "count": np.empty(P, dtype=np.int32),
+                                    "nearest": np.empty(P), "spread": np.empty(P)}
     kernel = _median11 if cfg.method == "median11" else _shepard
     for s in range(0, P, QUERY_BATCH):
         sl = slice(s, min(s + QUERY_BATCH, P))

@@ -8,7 +8,9 @@ Layout of ``RUN/``::
     region/<id>/              network.zarr (adjusted), solution.parquet, summary.json, .complete
     hemisphere/<id>/          the same
     global/0/                 the same; the run's result
-    dem.zarr, coverage.zarr   the gridded DEM (written by the DEM stage)
+    dem.zarr, coverage.zarr   the gridded DEM (written by the DEM stage; dem_chunks/: its chunks' markers on a bucket)
+    registered.zarr, merged.zarr, registration/
+                              the DEM registered to the mission's altimetry, merged with it, and the tables
     products/                 GeoTIFF, polar products, browse PNGs, statistics
     report.json               the stable report contract (see docs/design.md)
     performance.html          Dask's performance report (distributed runs)
@@ -58,8 +60,36 @@ SUMMARY_FILE = "summary.json"
 PLAN_INFO_FILE = "plan.json"
 PLAN_IMAGES_FILE = "images.parquet"
 PLAN_PAIRS_FILE = "overlaps.parquet"
+#: Run-level files and directories of ``RUN/`` (the paths: :class:`RunStore`'s properties).
+RUN_FILE = "run.json"
+REPORT_FILE = "report.json"
+PERFORMANCE_FILE = "performance.html"
+PLAN_DIR = "plan"
+PRODUCTS_DIR = "products"
+#: The DEM stage's stores: the DEM (also the name ``mercury-dem grid`` writes in its output directory), its
+#: coverage maps, the per-chunk markers of a DEM gridded into a bucket (with the chunk plan), and the
+#: scratch DEM of the a-priori points (validation; removed when done).
+DEM_FILE = "dem.zarr"
+COVERAGE_FILE = "coverage.zarr"
+DEM_CHUNKS_DIR = "dem_chunks"
+DEM_CHUNKS_PLAN_FILE = "plan.json"
+DEM_APRIORI_FILE = "dem_apriori.zarr"
+#: The registration to laser altimetry (``RUN/``, or the directory of ``mercury-dem register``): its maps by
+#: key (the key names them in ``report.json`` and is their products' directory, ``products/<key>/``), and the
+#: directory of its tables with the files in it; the scratch store of its transformed map (in a temporary
+#: directory).
+REGISTERED_FILE = "registered.zarr"
+MERGED_FILE = "merged.zarr"
+REGISTRATION_MAPS = {"registered": REGISTERED_FILE, "merged": MERGED_FILE}
+REGISTRATION_DIR = "registration"
+REGISTRATION_TILES_TABLE = "tiles.parquet"
+REGISTRATION_TILES_JSON = "tiles.json"
+REGISTRATION_PROFILES_TABLE = "profiles.parquet"
+REGISTRATION_FIGURE = "rms_per_tile.png"
+REGISTRATION_SUMMARY_FILE = SUMMARY_FILE
+REGISTRATION_SCRATCH_FILE = "transformed.zarr"
 #: What the DEM stage writes into ``RUN/`` (removed by ``--force dem`` or an earlier stage).
-DEM_OUTPUTS = ("dem.zarr", "dem_chunks", "coverage.zarr", "products")
+DEM_OUTPUTS = (DEM_FILE, DEM_CHUNKS_DIR, COVERAGE_FILE, PRODUCTS_DIR)
 
 
 @dataclass(frozen=True)
@@ -95,8 +125,8 @@ class RunStore:
             r = store.location
             raise StoreError(f"{r} is not a mercury-dem run (no run.json); run 'mercury-dem run MISSION --out {r}'")
         if store.url is not None:
-            store.fetch_file("run.json")
-            store.fetch_file("report.json")
+            store.fetch_file(RUN_FILE)
+            store.fetch_file(REPORT_FILE)
         return store
 
     @property
@@ -133,7 +163,7 @@ class RunStore:
     def has_run(self) -> bool:
         """Whether the run's ``run.json`` exists (on the bucket for a URL run)."""
         if self.url is not None:
-            return self.remote.exists("run.json")
+            return self.remote.exists(RUN_FILE)
         return self.run_json.is_file()
 
     def is_empty(self) -> bool:
@@ -205,27 +235,35 @@ class RunStore:
     # -- run-level files ---------------------------------------------------------
     @property
     def run_json(self) -> Path:
-        return self.root / "run.json"
+        return self.root / RUN_FILE
 
     @property
     def plan_dir(self) -> Path:
-        return self.root / "plan"
+        return self.root / PLAN_DIR
 
     @property
     def report_json(self) -> Path:
-        return self.root / "report.json"
+        return self.root / REPORT_FILE
 
     @property
     def dem_path(self) -> Path:
-        return self.root / "dem.zarr"
+        return self.root / DEM_FILE
+
+    @property
+    def coverage_path(self) -> Path:
+        return self.root / COVERAGE_FILE
+
+    @property
+    def registration_dir(self) -> Path:
+        return self.root / REGISTRATION_DIR
 
     @property
     def products_dir(self) -> Path:
-        return self.root / "products"
+        return self.root / PRODUCTS_DIR
 
     @property
     def performance_html(self) -> Path:
-        return self.root / "performance.html"
+        return self.root / PERFORMANCE_FILE
 
     @property
     def plan_json(self) -> Path:
@@ -243,7 +281,7 @@ class RunStore:
 
     def read_run(self) -> dict[str, Any]:
         if self.url is not None:
-            data = self.remote.read_bytes("run.json")
+            data = self.remote.read_bytes(RUN_FILE)
             if data is None:
                 raise StoreError(f"{self.url} has no run.json; run 'mercury-dem run MISSION --out {self.url}'")
             return json.loads(data)
@@ -251,7 +289,7 @@ class RunStore:
 
     def write_run(self, info: dict[str, Any]) -> None:
         atomic_write_json(self.run_json, info)
-        self.commit_file("run.json")
+        self.commit_file(RUN_FILE)
 
     # -- units ---------------------------------------------------------------------
     def unit_dir(self, level: str, unit_id: int) -> Path:
@@ -379,7 +417,7 @@ class RunStore:
             images.to_parquet(tmp / PLAN_IMAGES_FILE, index=False)
             pairs.to_parquet(tmp / PLAN_PAIRS_FILE, index=False)
             (tmp / PLAN_INFO_FILE).write_text(json.dumps(info, indent=2))
-        self.commit_dir("plan")
+        self.commit_dir(PLAN_DIR)
 
     def read_plan_info(self) -> dict[str, Any]:
         """The plan's ``plan.json`` (tile size, non-empty tiles, exclusions, counts) of a complete plan."""
@@ -388,7 +426,7 @@ class RunStore:
     def read_plan(self) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Any]]:
         """(images table, overlap pairs table, plan info)."""
         if self.url is not None:
-            self.remote.fetch_dir("plan", self.plan_dir)
+            self.remote.fetch_dir(PLAN_DIR, self.plan_dir)
         if not is_complete(self.plan_dir):
             raise StoreError(f"{self.plan_dir} is missing or incomplete; re-run 'mercury-dem run'")
         images = read_table(self.plan_dir / PLAN_IMAGES_FILE, f"run plan {self.plan_dir}")
@@ -398,7 +436,7 @@ class RunStore:
     def plan_complete(self) -> bool:
         """Whether the plan is committed (fetched into the cache for a URL run)."""
         if self.url is not None:
-            return self.remote.fetch_dir("plan", self.plan_dir)
+            return self.remote.fetch_dir(PLAN_DIR, self.plan_dir)
         return is_complete(self.plan_dir)
 
 

@@ -25,7 +25,7 @@ from mercury_dem.match.guided import ncc_matches
 from mercury_dem.match.outliers import fundamental_inliers, homography_inliers, select_spread
 from mercury_dem.match.prepare import ImageFeatures
 from mercury_dem.match.pretransform import PairGeometry
-from mercury_dem.match.result import PairReport
+from mercury_dem.match.result import Matches, PairReport
 
 #: Shi-Tomasi corners added to the NCC fallback's candidates: quality level and spacing (pixels).
 _EXTRA_CORNER_QUALITY = 0.005
@@ -151,14 +151,14 @@ def _away(have: NDArray[np.float64], query: NDArray[np.float64], dist: float) ->
 def ncc_fallback(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], pg: PairGeometry,
                  tpl: int, config: MatchConfig, rep: PairReport, pa_have: NDArray[np.float64],
                  pb_have: NDArray[np.float64],
-                 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+                 ) -> Matches:
     """The fallback's new matches: :func:`_ncc_search`'s, less those within ``NCC_DEDUP_PX`` of a
     match the pair has (``pa_have``, base pixels): base keypoint ids (-1 for added corners), base
     pixels, warped-frame pixels and peak NCC; ``rep`` gets the NCC counts.
     """
     c_feat, c_pa, c_pb, c_sc = _ncc_search(base, warped, valid, pg, tpl, config, rep, pa_have, pb_have)
     new = _away(pa_have, c_pa, NCC_DEDUP_PX)
-    return c_feat[new], c_pa[new], c_pb[new], c_sc[new]
+    return Matches(c_feat[new], c_pa[new], c_pb[new], c_sc[new])
 
 
 def _ncc_search(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_], pg: PairGeometry,

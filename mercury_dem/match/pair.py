@@ -57,7 +57,7 @@ from mercury_dem.match.pretransform import (
     warp_to_reference,
 )
 from mercury_dem.match.refine import refine_matches_adaptive
-from mercury_dem.match.result import PairReport, PairResult, failed_result
+from mercury_dem.match.result import Matches, PairReport, PairResult, failed_result
 
 
 @dataclass(frozen=True)
@@ -204,8 +204,8 @@ def match_in_pair_frame(
         base = with_features(base, config)
     if base.pattern is None and pattern_on(config):  # features prepared elsewhere without it
         base = replace(base, pattern=refine_pattern(base.image, config))
-    feat, pa, pb, score, partner = _match_core(base, other, base_geom, other_geom, pg, config, rep)
-    return PairState(swap, pg, base, other, other_geom, feat, np.full(feat.size, -1, np.int64), pa, pb, score,
+    m, partner = _match_core(base, other, base_geom, other_geom, pg, config, rep)
+    return PairState(swap, pg, base, other, other_geom, m.feat, np.full(m.feat.size, -1, np.int64), m.pa, m.pb, m.score,
                      warped=partner if keep_warped else None, flow_used=partner.flow is not None)
 
 
@@ -249,9 +249,9 @@ def _match_core(
     pg: PairGeometry,
     config: MatchConfig,
     rep: PairReport,
-) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], WarpedPartner]:
-    """Match ``other`` onto ``base`` (kept in its own geometry): base keypoint ids, base pixels,
-    warped-frame pixels and scores of the matches, and the warped partner.
+) -> tuple[Matches, WarpedPartner]:
+    """Match ``other`` onto ``base`` (kept in its own geometry): the matches (base keypoint ids, base pixels,
+    warped-frame pixels and scores) and the warped partner.
     """
     fa = base.features
     h = pg.homography
@@ -279,59 +279,54 @@ def _match_core(
     rep.n_ratio = int(ok_ab.sum())
     ia, ib = symmetric_pairs(ab, ba, ok_ab, ok_ba)
     rep.n_symmetry = int(ia.size)
-    pa, pb = fa.points[ia], fb.points[ib]
-    quality = -ab.d1[ia]
-    inl = fundamental_inliers(pa, pb, config.fundamental_tolerance_px, config.fundamental_confidence)
+    m = Matches(ia, fa.points[ia], fb.points[ib], -ab.d1[ia])  # score: the descriptor quality until refined
+    inl = fundamental_inliers(m.pa, m.pb, config.fundamental_tolerance_px, config.fundamental_confidence)
     rep.n_fundamental = int(inl.sum())
-    feat, pa, pb, quality = ia[inl], pa[inl], pb[inl], quality[inl]
-    inl, _ = homography_inliers(pa, pb, config.homography_tolerance_px)
+    m = m.take(inl)
+    inl, _ = homography_inliers(m.pa, m.pb, config.homography_tolerance_px)
     rep.n_homography = int(inl.sum())
-    feat, pa, pb, quality = feat[inl], pa[inl], pb[inl], quality[inl]
+    m = m.take(inl)
     if not config.pretransform:  # into the warped frame, where refinement works
-        pb = apply_homography(cast(NDArray[np.float64], np.linalg.inv(h)), pb)
+        m = m._replace(pb=apply_homography(cast(NDArray[np.float64], np.linalg.inv(h)), m.pb))
     rep.route = "guided" if config.guided else "descriptor"
 
     # Keep the best, spread; refine; local consistency.
-    keep = select_spread(pa, quality, config.max_matches, base.image.shape)
-    feat, pa, pb, quality = feat[keep], pa[keep], pb[keep], quality[keep]
-    rep.n_kept = int(feat.size)
-    feat, pa, pb, score = _refine(base, warped, valid, wpat, feat, pa, pb, quality, config.refine_window_px | 1, config)
-    rep.n_refined = int(feat.size)
-    feat, pa, pb, score = _local(feat, pa, pb, score, config)
-    rep.n_local = int(feat.size)
+    m = m.take(select_spread(m.pa, m.score, config.max_matches, base.image.shape))
+    rep.n_kept = int(m.feat.size)
+    m = _refine(base, warped, valid, wpat, m, config.refine_window_px | 1, config)
+    rep.n_refined = int(m.feat.size)
+    m = _local(m, config)
+    rep.n_local = int(m.feat.size)
 
     # Area-based fallback, when the descriptors leave too few refined matches: NCC at corners
     # of the base within the guidance window, the same geometric checks, refined with (at most)
     # the template that found them (on a small warped patch a larger window leaves the data or
     # takes in shading the template did not see), added to the descriptor matches.
-    if feat.size < config.min_matches and config.ncc_fallback:
+    if m.feat.size < config.min_matches and config.ncc_fallback:
         tpl = ncc_template_size(valid, config.ncc_template_px | 1, pg.guidance_px)
-        c_feat, c_pa, c_pb, c_sc = ncc_fallback(base, warped, valid, pg, tpl, config, rep, pa, pb)
-        n_kept = c_feat.size
-        c_feat, c_pa, c_pb, c_sc = _refine(base, warped, valid, wpat, c_feat, c_pa, c_pb, c_sc, tpl, config)
-        u_feat = np.concatenate([feat, c_feat])
-        u_pa, u_pb, u_sc = np.concatenate([pa, c_pa]), np.concatenate([pb, c_pb]), np.concatenate([score, c_sc])
-        u_feat, u_pa, u_pb, u_sc = _local(u_feat, u_pa, u_pb, u_sc, config)
-        if u_feat.size > feat.size:
+        c = ncc_fallback(base, warped, valid, pg, tpl, config, rep, m.pa, m.pb)
+        n_kept = c.feat.size
+        c = _refine(base, warped, valid, wpat, c, tpl, config)
+        u = _local(Matches.concat(m, c), config)
+        if u.feat.size > m.feat.size:
             rep.route = "ncc"
             rep.n_kept += n_kept
-            rep.n_refined += int(c_feat.size)
-            feat, pa, pb, score = u_feat, u_pa, u_pb, u_sc
-            rep.n_local = int(feat.size)
+            rep.n_refined += int(c.feat.size)
+            m = u
+            rep.n_local = int(m.feat.size)
     flow = None
-    if flow_on(config, pg) and feat.size and wpat is not None and base.pattern is not None:
-        flow = pair_flow(base.pattern, wpat, valid, pa, pb, config)
+    if flow_on(config, pg) and m.feat.size and wpat is not None and base.pattern is not None:
+        flow = pair_flow(base.pattern, wpat, valid, m.pa, m.pb, config)
         if flow is not None:
-            q, usable, agree = read_flow(flow, pa, pb, config)
+            q, usable, agree = read_flow(flow, m.pa, m.pb, config)
             if agree[usable].mean() < FLOW_MIN_AGREEMENT if usable.any() else True:
                 flow = None  # the flow contradicts most refined measures: it failed, not they
             else:
                 move, drop = usable & agree, usable & ~agree
-                pb = np.where(move[:, None], q, pb)
-                kept = ~drop
-                feat, pa, pb, score = feat[kept], pa[kept], pb[kept], np.asarray(score)[kept]
+                m = m._replace(pb=np.where(move[:, None], q, m.pb), score=np.asarray(m.score)).take(~drop)
                 rep.n_flow, rep.n_flow_dropped = int(move.sum()), int(drop.sum())
-    return feat.astype(np.int64), pa, pb, np.asarray(score, np.float64), WarpedPartner(warped, valid, wpat, flow)
+    m = Matches(m.feat.astype(np.int64), m.pa, m.pb, np.asarray(m.score, np.float64))
+    return m, WarpedPartner(warped, valid, wpat, flow)
 
 
 #: Least share of a pair's measures (where the flow is usable) whose flow position agrees with the
@@ -363,26 +358,23 @@ def flow_on(config: MatchConfig, pg: PairGeometry) -> bool:
 
 
 def _refine(base: ImageFeatures, warped: NDArray[np.float32], valid: NDArray[np.bool_],
-            warped_pattern: NDArray[np.float32] | None, feat: NDArray[np.int64],
-            pa: NDArray[np.float64], pb: NDArray[np.float64], quality: NDArray[np.float64], window: int,
-            config: MatchConfig) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Sub-pixel refinement (when ``config.refine``): the accepted measures and their NCC."""
-    if not config.refine or feat.size == 0:
-        return feat, pa, pb, np.asarray(quality, np.float64)
+            warped_pattern: NDArray[np.float32] | None, m: Matches, window: int, config: MatchConfig) -> Matches:
+    """Sub-pixel refinement (when ``config.refine``): the accepted measures, scored by their NCC."""
+    if not config.refine or m.feat.size == 0:
+        return m._replace(score=np.asarray(m.score, np.float64))
     r = refine_matches_adaptive(
-        base.image, warped, valid, pa, pb, window, config.refine_search_px,
+        base.image, warped, valid, m.pa, m.pb, window, config.refine_search_px,
         config.refine_iterations, config.refine_min_score, config.refine_max_shift_px,
         ref_pattern=base.pattern if warped_pattern is not None else None, warped_pattern=warped_pattern,
     )
-    return feat[r.ok], pa[r.ok], r.points[r.ok], r.score[r.ok]
+    return Matches(m.feat[r.ok], m.pa[r.ok], r.points[r.ok], r.score[r.ok])
 
 
-def _local(feat: NDArray[np.int64], pa: NDArray[np.float64], pb: NDArray[np.float64], score: NDArray[np.float64],
-           config: MatchConfig) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+def _local(m: Matches, config: MatchConfig) -> Matches:
+    """The matches that agree with their neighbours (``local_tolerance_px``; all when it is 0)."""
     if config.local_tolerance_px <= 0:
-        return feat, pa, pb, score
-    ok = local_consistency(pa, pb, config.local_tolerance_px, config.local_neighbours)
-    return feat[ok], pa[ok], pb[ok], score[ok]
+        return m
+    return m.take(local_consistency(m.pa, m.pb, config.local_tolerance_px, config.local_neighbours))
 
 
 def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,6 +59,33 @@ class PairReport:
 
     def as_row(self) -> dict[str, Any]:
         return asdict(self)
+
+
+class Matches(NamedTuple):
+    """A pair's matches in the pair frame while the pair chain works on them (:mod:`mercury_dem.match.pair`),
+    one row each.
+
+    Attributes
+    ----------
+    feat : (N,) int64, the base image's keypoint id (-1: a corner the NCC fallback added)
+    pa : (N, 2) base pixels
+    pb : (N, 2) the partner's pixels in the warped (pair) frame
+    score : (N,) the descriptor quality before refinement, the peak NCC after it
+    """
+
+    feat: NDArray[np.int64]
+    pa: NDArray[np.float64]
+    pb: NDArray[np.float64]
+    score: NDArray[np.float64]
+
+    def take(self, keep: NDArray[Any]) -> Matches:
+        """The rows ``keep`` selects (a boolean mask or indices)."""
+        return Matches(self.feat[keep], self.pa[keep], self.pb[keep], self.score[keep])
+
+    @staticmethod
+    def concat(first: Matches, second: Matches) -> Matches:
+        """The rows of ``first`` then those of ``second``."""
+        return Matches(*(np.concatenate([a, b]) for a, b in zip(first, second)))
 
 
 @dataclass(frozen=True)

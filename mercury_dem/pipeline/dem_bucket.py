@@ -45,14 +45,13 @@ from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
-from mercury_dem.io.run_store import RunStore
+from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore
 from mercury_dem.pipeline.executors import runs_in_process
 
-__all__ = ["CHUNKS_DIR", "grid_chunk_to_bucket", "grid_dem_on_bucket"]
+__all__ = ["grid_chunk_to_bucket", "grid_dem_on_bucket"]
 
-#: Prefix (under the run) of the chunk markers and the plan they belong to.
-CHUNKS_DIR = "dem_chunks"
-DEM = "dem.zarr"
+# The names under the run (the DEM store, the prefix of the chunk markers and of the plan they belong to,
+# the coverage store) are the run store's (io/run_store.py: DEM_FILE, DEM_CHUNKS_DIR, ...).
 
 
 def _marker_name(bounds: tuple[int, int, int, int]) -> str:
@@ -83,7 +82,7 @@ def grid_chunk_to_bucket(run_url: str, global_token: str, grid: GridSpec, bounds
     remote = RemoteDir(run_url)
     r0, r1, c0, c1 = bounds
     for name, arr in layers.items():
-        zarr.open_array(remote.url_of(f"{DEM}/{name}"), mode="r+")[r0:r1, c0:c1] = arr
+        zarr.open_array(remote.url_of(f"{DEM_FILE}/{name}"), mode="r+")[r0:r1, c0:c1] = arr
     elev = layers["elevation"]
     valid = np.isfinite(elev)
     summary = {
@@ -95,7 +94,7 @@ def grid_chunk_to_bucket(run_url: str, global_token: str, grid: GridSpec, bounds
         "seconds": time.perf_counter() - t0,
         "token": uuid.uuid4().hex,
     }
-    remote.write_bytes(f"{CHUNKS_DIR}/{_marker_name(bounds)}", json.dumps(summary).encode())  # last
+    remote.write_bytes(f"{DEM_CHUNKS_DIR}/{_marker_name(bounds)}", json.dumps(summary).encode())  # last
     return summary
 
 
@@ -103,12 +102,12 @@ def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str,
     """The store's template in the cache; every object but the root ``zarr.json`` uploaded. Returns the cache path."""
     from mercury_dem.pipeline.dem_stage import create_store
 
-    local = store.root / DEM
+    local = store.dem_path
     shutil.rmtree(local, ignore_errors=True)
     create_store(str(local), grid, cfg, attrs, body)
     files = [p for p in sorted(local.rglob("*")) if p.is_file() and p.relative_to(local).as_posix() != "zarr.json"]
     remote = store.remote
-    remote.fs.put([str(p) for p in files], [remote.key(f"{DEM}/{p.relative_to(local).as_posix()}") for p in files])
+    remote.fs.put([str(p) for p in files], [remote.key(f"{DEM_FILE}/{p.relative_to(local).as_posix()}") for p in files])
     return local
 
 
@@ -164,26 +163,26 @@ def grid_dem_on_bucket(
     plan = {"grid": dataclasses.asdict(grid), "dem": to_dict(cfg) if dataclasses.is_dataclass(cfg) else repr(cfg),
             "global_token": global_token, "body": body.name, "attrs": attrs or {}}
     plan = json.loads(json.dumps(plan, default=str))
-    remote.remove(f"{DEM}/zarr.json")  # from here the store is not trusted (it was not, or fetch_zarr had taken it)
-    old = remote.read_bytes(f"{CHUNKS_DIR}/plan.json")
+    remote.remove(f"{DEM_FILE}/zarr.json")  # from here the store is not trusted (it was not, or fetch_zarr had taken it)
+    old = remote.read_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}")
     if old is not None and json.loads(old) == plan:
         from mercury_dem.pipeline.dem_stage import create_store
 
-        local = store.root / DEM  # the same template again, locally only: its root zarr.json is committed last
+        local = store.dem_path  # the same template again, locally only: its root zarr.json is committed last
         shutil.rmtree(local, ignore_errors=True)
         create_store(str(local), grid, cfg, attrs, body)
-        markers = {n for n in remote.list(CHUNKS_DIR) if n != "plan.json"}
+        markers = {n for n in remote.list(DEM_CHUNKS_DIR) if n != DEM_CHUNKS_PLAN_FILE}
     else:
-        remote.remove(CHUNKS_DIR)
-        remote.remove(DEM)
+        remote.remove(DEM_CHUNKS_DIR)
+        remote.remove(DEM_FILE)
         local = _upload_template(store, grid, cfg, attrs, body)
-        remote.write_bytes(f"{CHUNKS_DIR}/plan.json", json.dumps(plan).encode())
+        remote.write_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}", json.dumps(plan).encode())
         markers = set()
     done = [b for b in chunks if _marker_name(b) in markers]
     todo = [b for b in chunks if _marker_name(b) not in markers]
-    results = [json.loads(remote.read_bytes(f"{CHUNKS_DIR}/{_marker_name(b)}") or b"{}") for b in done]
+    results = [json.loads(remote.read_bytes(f"{DEM_CHUNKS_DIR}/{_marker_name(b)}") or b"{}") for b in done]
     rep.message(f"{label}: {len(todo)} of {len(chunks)} chunks to grid "
-                f"{'in this process' if runs_in_process(client) else 'on the workers'}, straight into {store.url}/{DEM}"
+                f"{'in this process' if runs_in_process(client) else 'on the workers'}, straight into {store.url}/{DEM_FILE}"
                 + (f" ({len(done)} committed before)" if done else ""))
     with rep.task(f"{label} grid", len(todo), "chunks") as task:
         if runs_in_process(client):
@@ -202,8 +201,8 @@ def grid_dem_on_bucket(
     cov = point_coverage(index, cfg.coverage_pixel_km_for(datum), threads=cfg.query_threads or -1,
                          bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
     cov_summary = cov.summary()
-    write_coverage(cov, store.root / "coverage.zarr", overwrite=True)
-    store.commit_zarr("coverage.zarr")
+    write_coverage(cov, store.coverage_path, overwrite=True)
+    store.commit_zarr(COVERAGE_FILE)
     no_value = sum(int(r["no_value"]) for r in results)
     mins = [r["min"] for r in results if r.get("min") is not None]
     maxs = [r["max"] for r in results if r.get("max") is not None]
@@ -212,10 +211,10 @@ def grid_dem_on_bucket(
         "coverage": json.dumps(cov_summary) if cov_summary else "",
     })
     mark_zarr_complete(local)
-    remote.write_bytes(f"{DEM}/zarr.json", (local / "zarr.json").read_bytes())  # the store's commit, last
+    remote.write_bytes(f"{DEM_FILE}/zarr.json", (local / "zarr.json").read_bytes())  # the store's commit, last
     npix = grid.shape[0] * grid.shape[1]
     return {
-        "path": f"{store.url}/{DEM}",
+        "path": f"{store.url}/{DEM_FILE}",
         "shape": list(grid.shape),
         "pixels_per_degree": grid.pixels_per_degree,
         "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],

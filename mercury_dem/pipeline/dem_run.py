@@ -11,8 +11,18 @@ from typing import Any, TextIO
 from mercury_dem.config import Config
 from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.exceptions import MercuryDemError
-from mercury_dem.io.run_store import RunStore
+from mercury_dem.io.run_store import (
+    COVERAGE_FILE,
+    DEM_APRIORI_FILE,
+    DEM_FILE,
+    PRODUCTS_DIR,
+    REGISTRATION_DIR,
+    REGISTRATION_MAPS,
+    REGISTRATION_TILES_JSON,
+    RunStore,
+)
 from mercury_dem.mission import Mission
+from mercury_dem.pipeline.results import UnitSummary, read_summary
 
 
 def _open_map(path: str) -> Any:
@@ -34,7 +44,7 @@ def _shape_reference_of_maps(store: RunStore, registration: dict[str, Any], body
     adjusted = open_dem(store.dem_path)
     shape_only = replace(ref, dem=None, altimetry=())
     out: dict[str, Any] = {}
-    for key in ("registered", "merged"):
+    for key in REGISTRATION_MAPS:
         try:
             ds = _open_map(registration[key])
             dist = adjusted["distance_to_nearest_point"].transpose("lat", "lon")
@@ -55,10 +65,11 @@ def global_levelling(store: RunStore) -> dict[str, Any] | None:
     shots' mean, as it always did.
     """
     try:
-        level = store.read_summary("global", 0).get("levelling")
-    except (OSError, ValueError, MercuryDemError):
+        summary = read_summary(store, "global", 0)
+    except (OSError, ValueError, KeyError, MercuryDemError):
         return None
-    return level if isinstance(level, dict) and "level_to_mean" in level else None
+    level = summary.levelling if isinstance(summary, UnitSummary) else None
+    return level if level is not None and "level_to_mean" in level else None
 
 
 def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Config, client: Any,
@@ -84,11 +95,11 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     except MercuryDemError as exc:
         rep.message(f"registration: failed ({exc})")
         return {"error": f"registration to the mission's altimetry: {exc}"}
-    for name in ("registered.zarr", "merged.zarr"):  # a bucket run: committed like dem.zarr (no-ops locally)
+    for name in REGISTRATION_MAPS.values():  # a bucket run: committed like dem.zarr (no-ops locally)
         store.commit_zarr(name)
-    store.commit_tree("registration")
+    store.commit_tree(REGISTRATION_DIR)
     tiles = summary.pop("tiles", [])
-    summary["tiles_table"] = str(Path(summary["tables"]) / "tiles.json")
+    summary["tiles_table"] = str(Path(summary["tables"]) / REGISTRATION_TILES_JSON)
     summary["tiles_failed"] = [t_ for t_ in tiles if not t_.get("ok", True)]
     # Seed 004's check: per tile with >= 20 profiles, the profiles' residual RMS before and after.
     dense = [t_ for t_ in tiles if t_.get("ok") and t_.get("n_profiles", 0) >= 20]
@@ -136,14 +147,14 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     # an existing complete DEM is reused (resume); products are always rewritten
     remote = store.url is not None
     if remote:
-        store.fetch_zarr("coverage.zarr")
-    if not store.fetch_zarr("dem.zarr"):
+        store.fetch_zarr(COVERAGE_FILE)
+    if not store.fetch_zarr(DEM_FILE):
         attrs = {"source": "global adjusted control points"}
         if remote:  # chunks gridded where the tasks run, straight into the bucket (pipeline/dem_bucket.py)
             from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
 
             grid_summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body, attrs=attrs, progress=rep)
-            store.fetch_zarr("dem.zarr")  # the committed store into the cache, for the products
+            store.fetch_zarr(DEM_FILE)  # the committed store into the cache, for the products
         else:
             grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep,
                                     record_failures=True)
@@ -183,22 +194,22 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
             reg_products = make_registration_products(store.root, store.products_dir, config, overwrite=True)
             out["files"] += reg_products["files"]
             registration["products"] = {k: {f: reg_products[k][f] for f in ("statistics", "skipped")}
-                                        for k in ("registered", "merged")}
+                                        for k in REGISTRATION_MAPS}
             rep.message(f"products of the registered and merged DEMs: {len(reg_products['files'])} files in "
                         f"{time.perf_counter() - t:.1f} s")
     if registration is not None and "error" not in registration and ref.shape_harmonics:
         out["reference_by_map"] = _shape_reference_of_maps(store, registration, body, ref)
-    store.commit_tree("products")  # a bucket run: the whole products directory, once
+    store.commit_tree(PRODUCTS_DIR)  # a bucket run: the whole products directory, once
     if truth is not None:
         from mercury_dem.dem.accuracy import dem_accuracy
 
         validation: dict[str, Any] = {"adjusted": products.get("accuracy")}
         if registration is not None and "error" not in registration:
-            for key in ("registered", "merged"):
+            for key in REGISTRATION_MAPS:
                 ds = _open_map(registration[key])
                 validation[key] = dem_accuracy(ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth)
         apri = point_cloud(net, adjusted=False)
-        tmp = store.root / "dem_apriori.zarr"
+        tmp = store.root / DEM_APRIORI_FILE
         shutil.rmtree(tmp, ignore_errors=True)
         try:
             grid_dem(apri, dem_cfg, tmp, client, coverage=False, body=body, record_failures=True,

@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,16 +41,39 @@ from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index
 from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import MERCURY, Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
+from mercury_dem.io.run_store import COVERAGE_FILE
 from mercury_dem.pipeline.executors import runs_in_process
 
 if TYPE_CHECKING:
     import xarray as xr
     import zarr
 
-    from mercury_dem.pipeline.store_writer import ForkedStoreWriter
-
 __all__ = ["grid_dem", "make_products", "open_dem",  # noqa: F822 (lazy re-exports: __getattr__)
-           "estimate_memory_bytes", "check_memory", "dem_template", "create_store"]
+           "estimate_memory_bytes", "check_memory", "dem_template", "create_store", "StoreWriter"]
+
+
+class StoreWriter(Protocol):
+    """What :func:`grid_dem` asks of a process that writes its store for it
+    (:class:`mercury_dem.pipeline.store_writer.ForkedStoreWriter`, which imports this module to create the
+    store; the protocol keeps the two modules from importing each other).
+    """
+
+    def create(self, store: str, grid: Any, cfg: Any, attrs: dict[str, Any] | None, body: Any,
+               name: str | None = None) -> Mapping[str, Any] | None:
+        """Create the empty store; its layers for region writes, or None when it declines (then the caller writes)."""
+        ...
+
+    def update_attrs(self, attrs: dict[str, Any]) -> None:
+        """Set the store's final root attributes."""
+        ...
+
+    def complete(self, tmp: Any = None) -> None:
+        """Mark the store complete and wait (the store's ``mark_complete``)."""
+        ...
+
+    def abort(self) -> None:
+        """Stop without marking the store complete, and wait (idempotent)."""
+        ...
 
 
 def __getattr__(name: str) -> Any:
@@ -416,7 +439,7 @@ def grid_dem(
     body: Body = MERCURY,
     progress: Any = None,
     label: str = "dem",
-    writer: ForkedStoreWriter | None = None,
+    writer: StoreWriter | None = None,
     record_failures: bool = False,
 ) -> dict[str, Any]:
     """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
@@ -437,7 +460,7 @@ def grid_dem(
         Shows the chunks gridded (count, elapsed, ETA) as they finish, under ``label``;
         presentation only, the store is the same with or without it.
     label : the name progress lines start with
-    writer : ForkedStoreWriter or None
+    writer : StoreWriter (a ForkedStoreWriter) or None
         With ``client=None``: a forked process that creates and writes the store
         (:mod:`mercury_dem.pipeline.store_writer`; this process then never imports zarr).
         The store is the same as without it. It is stopped (and waited for) if this call fails.
@@ -481,7 +504,7 @@ def grid_dem(
     in_process = runs_in_process(client)
     if writer is not None and not in_process:
         raise ValueError("a forked store writer is for in-process gridding (client=None)")
-    forked: list[Any] = [writer]  # the writer, or None once it declined (then this process writes)
+    forked: list[StoreWriter | None] = [writer]  # the writer, or None once it declined (then this process writes)
     chunk_task = _grid_and_write_or_record if record_failures else _grid_and_write
 
     def mark(tmp: Path) -> None:
@@ -532,7 +555,7 @@ def grid_dem(
             cov = point_coverage(index, cfg.coverage_pixel_km_for(body.datum_radius_m), threads=cfg.query_threads or -1,
                                  bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
             cov_summary = cov.summary()
-            write_coverage(cov, out_path.parent / "coverage.zarr", overwrite=True)
+            write_coverage(cov, out_path.parent / COVERAGE_FILE, overwrite=True)
         no_value = sum(r["no_value"] for r in results)
         npix = grid.shape[0] * grid.shape[1]
         mins = [r["min"] for r in results if not math.isnan(r["min"])]
@@ -652,7 +675,7 @@ def regrid_failed_chunks(
 
 
 @contextlib.contextmanager
-def _stopping_on_error(writer: ForkedStoreWriter | None) -> Iterator[None]:
+def _stopping_on_error(writer: StoreWriter | None) -> Iterator[None]:
     """Stop a forked writer (and wait for it) when the block fails, before its store is removed."""
     try:
         yield

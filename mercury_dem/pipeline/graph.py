@@ -22,9 +22,10 @@ from typing import Any, TextIO
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
-from mercury_dem.io.run_store import DEM_OUTPUTS, RunStore
+from mercury_dem.io.run_store import DEM_OUTPUTS, PLAN_DIR, RunStore
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
+from mercury_dem.pipeline.results import FailureSummary, Summary, summary_from_json
 from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile, unit_name
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
@@ -77,12 +78,9 @@ class Progress:
         self.done = self.task.done
         self.failed = self.task.failed
 
-    def update(self, summary: dict[str, Any]) -> None:
-        level = summary.get("level", "?")
-        name = summary.get("name") or f"{level} {summary.get('id')}"
-        ok = bool(summary.get("ok"))
-        msg = "" if ok else f"{name} FAILED: {unit_message(summary.get('error'), name)}"
-        self.task.update(level, failed=not ok, message=msg)
+    def update(self, summary: Summary) -> None:
+        msg = "" if summary.ok else f"{summary.name} FAILED: {unit_message(summary.error, summary.name)}"
+        self.task.update(summary.level, failed=not summary.ok, message=msg)
 
     def close(self) -> None:
         self.task.close()
@@ -128,7 +126,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             raise StoreError(f"--force takes one of {', '.join(STAGES)}, got {force!r}")
         for stage in STAGES[STAGES.index(force):]:
             if stage == "plan":
-                store.remove("plan")
+                store.remove(PLAN_DIR)
             elif stage in LEVELS:
                 store.remove_level(stage)
             elif stage == "dem":
@@ -219,7 +217,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
         from distributed import performance_report
 
         perf = performance_report(filename=str(store.performance_html))
-    summaries: dict[str, list[dict[str, Any]]] = {k: [] for k in LEVELS}
+    summaries: dict[str, list[Summary]] = {k: [] for k in LEVELS}
     try:
         with _scheduler_loss(conn, out), perf:
             stage[0] = "the adjustment cascade"
@@ -227,7 +225,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
             timings.update(level_seconds)
             dem_summary = None
             glob = summaries["global"][0] if summaries["global"] else None
-            if dem and glob is not None and glob.get("ok"):
+            if dem and glob is not None and glob.ok:
                 t = time.perf_counter()
                 from mercury_dem.pipeline.dem_run import run_dem_stage
 
@@ -281,15 +279,15 @@ def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | N
 
 def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
                  stream: TextIO | None, integrity: dict[str, Any] | None = None,
-                 ) -> tuple[dict[str, list[dict[str, Any]]], dict[str, float]]:
+                 ) -> tuple[dict[str, list[Summary]], dict[str, float]]:
     root = store.location  # tasks open the run from it: the bucket URL of a bucket run
     retries = config.execution.retries
     heavy = {"resources": {ADJUST_RESOURCE: 1}} if use_adjust_resource(conn, config, stream) else {}
     tree = merge_tree(config.tiling.tile_size_deg, [int(t) for t in plan["non_empty_tiles"]])
-    done: dict[str, dict[int, dict[str, Any]]] = {k: {} for k in LEVELS}
+    done: dict[str, dict[int, Summary]] = {k: {} for k in LEVELS}
     totals = tree.totals()
     progress = Progress(totals, stream)
-    out: dict[str, list[dict[str, Any]]] = {k: [] for k in totals}
+    out: dict[str, list[Summary]] = {k: [] for k in totals}
     recorded: set[str] = set()
     sync = getattr(client, "synchronous", False)
 
@@ -298,14 +296,14 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
 
     def record(level: str, uid: int, fut: Any) -> None:
         try:
-            s = fut.result()
+            s = summary_from_json(fut.result())
         except (DiskFullError, CorruptUnitError):
             raise  # stops the run (see safe_call)
         except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
             fatal = fatal_error(exc, level, uid, store.location)
             if fatal is not None:
                 raise fatal from exc
-            s = failure_summary(level, uid, exc)
+            s = FailureSummary.of(level, uid, exc)
         out[level].append(s)
         progress.update(s)
 
@@ -338,10 +336,11 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     def submit(fn: Callable[..., dict[str, Any]], level: str, uid: int, *args: Any, **kw: Any) -> Any:
         """A future, or the stored summary of a unit a previous run finished (not resubmitted)."""
         if trusted(level, uid):
-            done[level][uid] = store.read_summary(level, uid)
+            raw = store.read_summary(level, uid)
+            done[level][uid] = summary_from_json(raw)
             out[level].append(done[level][uid])
             progress.update(done[level][uid])
-            return done[level][uid]
+            return raw  # a parent's argument, in the JSON form its task's results have (it only orders the work)
         fut = client.submit(fn, *args, key=f"{level}-{uid}", retries=retries, pure=False, **kw)
         if sync:  # the synchronous client ran it already: count it now, so progress is live
             record(level, uid, fut)
@@ -370,20 +369,20 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     finally:
         progress.close()
     for lvl in out:
-        out[lvl].sort(key=lambda s: s["id"])
+        out[lvl].sort(key=lambda s: s.id)
     seconds: dict[str, float] = {}
     if getattr(client, "synchronous", False):
         # in-process, every unit ran at submission: a level's time is the sum of its units'
         for lvl in LEVELS:
-            seconds[lvl] = float(sum(s.get("seconds", 0.0) or 0.0 for s in out[lvl]))
+            seconds[lvl] = float(sum(s.seconds or 0.0 for s in out[lvl]))
         return out, seconds
     # distributed: a level's span, from its first unit's start to its last unit's end (units
     # of this run only; wall clock written by the workers), which overlaps the next level
     for lvl in LEVELS:
-        ran = [s for uid, s in ((s["id"], s) for s in out[lvl]) if uid not in done[lvl]
-               and s.get("started_at") is not None]
-        if ran:
-            seconds[lvl] = float(max(s["finished_at"] for s in ran) - min(s["started_at"] for s in ran))
+        spans = [(s.timing.started_at, s.timing.finished_at) for s in out[lvl] if s.id not in done[lvl]
+                 and s.timing is not None and s.timing.started_at is not None and s.timing.finished_at is not None]
+        if spans:
+            seconds[lvl] = float(max(f for _, f in spans) - min(st for st, _ in spans))
         elif out[lvl]:
             seconds[lvl] = 0.0  # every unit was finished by an earlier run
     return out, seconds

@@ -67,6 +67,18 @@ from mercury_dem.exceptions import ReferenceDataError, StoreError
 from mercury_dem.geometry.body import Body, latlon_to_unit, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
+from mercury_dem.io.run_store import (
+    MERGED_FILE,
+    REGISTERED_FILE,
+    REGISTRATION_DIR,
+    REGISTRATION_FIGURE,
+    REGISTRATION_MAPS,
+    REGISTRATION_PROFILES_TABLE,
+    REGISTRATION_SCRATCH_FILE,
+    REGISTRATION_SUMMARY_FILE,
+    REGISTRATION_TILES_JSON,
+    REGISTRATION_TILES_TABLE,
+)
 from mercury_dem.pipeline.dem_stage import atomic_store
 from mercury_dem.reference.compare import compare_heights
 from mercury_dem.reference.sampling import sample_grid
@@ -75,8 +87,8 @@ __all__ = ["REGISTRATION_PRODUCTS", "SHOT_COLUMNS", "check_shots", "make_registr
 
 #: Columns a shot table must have (``reference.lola.read_altimetry_csv`` gives them).
 SHOT_COLUMNS = ("lat", "lon", "radius_m", "track_id")
-REGISTRATION_DIR = "registration"
-#: The maps whose products :func:`make_registration_products` writes: store name → what it is.
+#: The maps whose products :func:`make_registration_products` writes: key (of
+#: :data:`~mercury_dem.io.run_store.REGISTRATION_MAPS`, their store names) → what it is.
 REGISTRATION_PRODUCTS = {"registered": "DEM registered to laser altimetry",
                          "merged": "DEM merged from laser altimetry and the registered DEM"}
 
@@ -253,7 +265,7 @@ def _register_and_merge_blockwise(
 
     reg_path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=".register-scratch-", dir=reg_path.parent) as scratch_dir:
-        scratch = zarr.create_array(str(Path(scratch_dir) / "transformed.zarr"), shape=(H, W),
+        scratch = zarr.create_array(str(Path(scratch_dir) / REGISTRATION_SCRATCH_FILE), shape=(H, W),
                                     chunks=(block_rows, W), dtype=np.float64, fill_value=np.nan, compressors=None)
         for r0, r1 in blocks:  # pass 1: the tile transforms
             i0, i1 = max(r0 - hr, 0), min(r1 + hr, H)
@@ -411,7 +423,7 @@ def register_dem_store(
     t0 = time.perf_counter()
     dem_path = Path(dem_path)
     out = Path(out_dir) if out_dir is not None else dem_path.parent
-    reg_path, merged_path, table_dir = out / "registered.zarr", out / "merged.zarr", out / REGISTRATION_DIR
+    reg_path, merged_path, table_dir = out / REGISTERED_FILE, out / MERGED_FILE, out / REGISTRATION_DIR
     ds = open_dem(dem_path)
     dem_b = dem_body(ds)
     if body is not None and body.name != dem_b.name:
@@ -480,11 +492,11 @@ def register_dem_store(
         "tiles": [_jsonable(r.summary()) for r in results],
     }
     with atomic_directory(table_dir, overwrite=overwrite) as tmp:
-        atomic_write_bytes(tmp / "tiles.parquet", _parquet(table))
-        atomic_write_json(tmp / "tiles.json", summary["tiles"])
-        atomic_write_bytes(tmp / "profiles.parquet", _parquet(pf))
-        atomic_write_bytes(tmp / "rms_per_tile.png", _figure_png(table, pf))
-        atomic_write_json(tmp / "summary.json", _jsonable({k: v for k, v in summary.items() if k != "tiles"}))
+        atomic_write_bytes(tmp / REGISTRATION_TILES_TABLE, _parquet(table))
+        atomic_write_json(tmp / REGISTRATION_TILES_JSON, summary["tiles"])
+        atomic_write_bytes(tmp / REGISTRATION_PROFILES_TABLE, _parquet(pf))
+        atomic_write_bytes(tmp / REGISTRATION_FIGURE, _figure_png(table, pf))
+        atomic_write_json(tmp / REGISTRATION_SUMMARY_FILE, _jsonable({k: v for k, v in summary.items() if k != "tiles"}))
     summary["seconds"] = time.perf_counter() - t0
     return summary
 
@@ -514,13 +526,13 @@ def make_registration_products(out_dir: str | Path, products_dir: str | Path, co
     from mercury_dem.products.make import make_products
 
     out, prod = Path(out_dir), Path(products_dir)
-    fig = out / REGISTRATION_DIR / "rms_per_tile.png"
-    fig_out = prod / REGISTRATION_DIR / "rms_per_tile.png"
+    fig = out / REGISTRATION_DIR / REGISTRATION_FIGURE
+    fig_out = prod / REGISTRATION_DIR / REGISTRATION_FIGURE
     if fig_out.exists() and not overwrite:
         raise StoreError(f"product {fig_out} already exists; pass --overwrite (overwrite=True) to replace it")
     summary: dict[str, Any] = {"files": []}
     for key, what in REGISTRATION_PRODUCTS.items():
-        res = make_products(out / f"{key}.zarr", prod / key, config, overwrite=overwrite, coverage=False, name=what)
+        res = make_products(out / REGISTRATION_MAPS[key], prod / key, config, overwrite=overwrite, coverage=False, name=what)
         summary[key] = {k: res.get(k) for k in ("statistics", "skipped", "seconds", "pds", "isis", "files")}
         summary["files"] += res["files"]
     fig_out.parent.mkdir(parents=True, exist_ok=True)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 from mercury_dem.config import Config, to_dict
 from mercury_dem.io.run_store import PAIRS_FILE, RunStore, read_solution
 from mercury_dem.io.tables import read_table
+from mercury_dem.pipeline.results import Summary, TileSummary, UnitSummary
 
 if TYPE_CHECKING:
     from mercury_dem.mission import Mission
@@ -26,8 +27,16 @@ LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_
               "images_without_measures", "single_measure_points")
 
 
-def _level_row(s: dict[str, Any]) -> dict[str, Any]:
-    return {k: s.get(k) for k in LEVEL_KEYS if k in s or k in ("id", "ok", "error")}
+def _level_row(s: Summary) -> dict[str, Any]:
+    """A unit's row of ``report.json``'s levels: the keys of ``LEVEL_KEYS`` its summary has, in that order."""
+    has: dict[str, Any] = {"id": s.id, "name": s.name, "ok": s.ok, "error": s.error}
+    if isinstance(s, UnitSummary) and s.children is not None:  # merged: its adjustment's figures
+        has.update(s.adjustment, children=s.children)
+        if s.single_measure_points is not None:
+            has["single_measure_points"] = s.single_measure_points
+    if s.seconds is not None:
+        has["seconds"] = s.seconds
+    return {k: has[k] for k in LEVEL_KEYS if k in has}
 
 
 def versions() -> dict[str, str]:
@@ -50,9 +59,12 @@ def versions() -> dict[str, str]:
 
 
 def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[str, Any],
-                 summaries: dict[str, list[dict[str, Any]]], timings: dict[str, float], conn: Any,
+                 summaries: dict[str, list[Summary]], timings: dict[str, float], conn: Any,
                  dem_summary: dict[str, Any] | None) -> dict[str, Any]:
-    """The run's report (``report.json``): images, levels, timings, validation against the truth and the DEM's summary."""
+    """The run's report (``report.json``): images, levels, timings, validation against the truth and the DEM's summary.
+
+    ``summaries``: the typed summaries of each level's units (:mod:`mercury_dem.pipeline.results`).
+    """
     tiles = summaries.get("tile", [])
     glob = summaries.get("global", [])
     ids_all = [str(x) for x in mission.catalog["image_id"]]
@@ -63,9 +75,9 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
         "tiles": {
             "total": int(plan["tiles_total"]),
             "non_empty": len(plan["non_empty_tiles"]),
-            "succeeded": sum(1 for s in tiles if s.get("ok")),
-            "failed": [{"tile": s["id"], "error": s.get("error")} for s in tiles if not s.get("ok")],
-            "image_errors": {k: v for s in tiles for k, v in (s.get("image_errors") or {}).items()},
+            "succeeded": sum(1 for s in tiles if s.ok),
+            "failed": [{"tile": s.id, "error": s.error} for s in tiles if not s.ok],
+            "image_errors": {k: v for s in tiles if isinstance(s, TileSummary) for k, v in s.image_errors.items()},
         },
         "levels": {
             "region": [_level_row(s) for s in summaries.get("region", [])],
@@ -74,7 +86,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
         },
     }
     validation = None
-    if glob and glob[0].get("ok"):
+    if glob and glob[0].ok:
         sid, rot, pos, table = read_solution(store.solution_path("global", 0))
         nmeas = table["n_measures"].to_numpy()
         controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
@@ -91,7 +103,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
         "input": len(ids_all),
         "controlled": len(controlled),
         "uncontrolled": uncontrolled,
-        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, bool(glob and glob[0].get("ok")),
+        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, bool(glob and glob[0].ok),
                                                      report["tiles"]["image_errors"]),
         "excluded": plan.get("excluded", {}),
     }

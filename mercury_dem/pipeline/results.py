@@ -2,7 +2,10 @@
 
 A unit's ``summary.json`` (and the dict a runner returns to the task graph, the same thing) is the
 JSON form of one of these dataclasses; :meth:`to_json` writes it and :func:`summary_from_json` reads
-it back. The JSON is the contract the readers rely on (``report.json``'s levels, ``mercury-dem
+it back (:func:`read_summary` from a run store). Every reader (the task graph's bookkeeping,
+``report.json``, ``viz.status`` and so the dashboard, ``viz.tables``, the commands) takes the typed
+summary and reads attributes; :func:`summary_from_json` accepts the summaries of older runs that lack
+fields, as the readers did when they read dicts (``.get`` with a default). The JSON is the contract the readers rely on (``report.json``'s levels, ``mercury-dem
 report``, the dashboard, ``viz.status``, the notebooks): its keys, their order and their values are
 exactly those of the dicts the runners built before these types existed (session 12; a round trip
 is tested on a run's summaries in ``tests/pipeline/test_results.py``).
@@ -24,15 +27,24 @@ import traceback
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from numpy.typing import NDArray
+from mercury_dem.io.run_store import (
+    BUNDLEOUT_FILE,
+    NETWORK_FILE,
+    PAIRS_FILE,
+    SOLUTION_FILE,
+    RunStore,
+    unit_name,
+    write_solution,
+)
 
-from mercury_dem.io.run_store import BUNDLEOUT_FILE, NETWORK_FILE, PAIRS_FILE, SOLUTION_FILE, unit_name, write_solution
+if TYPE_CHECKING:  # numpy only in annotations: the readers of summaries ('mercury-dem report') load no numpy
+    import numpy as np
+    from numpy.typing import NDArray
 
-__all__ = ["FailureSummary", "TileCounts", "TileSummary", "UnitFiles", "UnitSolution", "UnitSummary", "UnitTiming",
-           "summary_from_json"]
+__all__ = ["FailureSummary", "Summary", "TileCounts", "TileSummary", "UnitFiles", "UnitSolution", "UnitSummary",
+           "UnitTiming", "read_summary", "summary_from_json"]
 
 _TIMING_KEYS = ("seconds", "finished_at", "started_at")
 
@@ -42,8 +54,8 @@ class UnitTiming:
     """When a unit ran: its duration and wall-clock end and start (s since the epoch: level spans across workers)."""
 
     seconds: float
-    finished_at: float
-    started_at: float
+    finished_at: float | None = None
+    started_at: float | None = None
 
     @classmethod
     def since(cls, t0: float) -> UnitTiming:
@@ -53,13 +65,17 @@ class UnitTiming:
         return cls(seconds=seconds, finished_at=finished, started_at=finished - seconds)
 
     def to_json(self) -> dict[str, float]:
-        return {"seconds": self.seconds, "finished_at": self.finished_at, "started_at": self.started_at}
+        out = {"seconds": self.seconds, "finished_at": self.finished_at, "started_at": self.started_at}
+        return {k: v for k, v in out.items() if v is not None}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> UnitTiming | None:
-        if not all(k in d for k in _TIMING_KEYS):
+        """The timing keys of a summary; None without ``seconds`` (a unit not written yet). The wall-clock
+        ``finished_at``/``started_at`` may be missing (older runs): None then.
+        """
+        if d.get("seconds") is None:
             return None
-        return cls(**{k: d[k] for k in _TIMING_KEYS})
+        return cls(**{k: d[k] for k in _TIMING_KEYS if k in d})
 
 
 @dataclass(frozen=True)
@@ -78,6 +94,16 @@ class TileCounts:
 
     def to_json(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> TileCounts | None:
+        """The counts of a tile's summary; None when it has none (the tile failed before matching). A count an
+        older run did not record reads as empty (0, ``{}``), as the readers of the dicts had it.
+        """
+        if "images" not in d:
+            return None
+        empty: dict[str, Any] = {"routes": {}, "pair_failures": {}, "image_errors": {}}
+        return cls(**{f.name: d.get(f.name, empty.get(f.name, 0)) for f in dataclasses.fields(cls)})
 
 
 @dataclass(frozen=True)
@@ -105,10 +131,33 @@ class TileSummary:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> TileSummary:
-        names = [f.name for f in dataclasses.fields(TileCounts)]
-        counts = TileCounts(**{k: d[k] for k in names}) if all(k in d for k in names) else None
-        return cls(id=int(d["id"]), ok=bool(d["ok"]), error=d.get("error"), counts=counts,
+        return cls(id=int(d["id"]), ok=bool(d.get("ok")), error=d.get("error"), counts=TileCounts.from_json(d),
                    timing=UnitTiming.from_json(d))
+
+    @property
+    def name(self) -> str:
+        return unit_name("tile", self.id)
+
+    @property
+    def seconds(self) -> float | None:
+        return None if self.timing is None else self.timing.seconds
+
+    @property
+    def images(self) -> int | None:
+        return None if self.counts is None else self.counts.images
+
+    @property
+    def points(self) -> int | None:
+        return None if self.counts is None else self.counts.points
+
+    @property
+    def measures(self) -> int | None:
+        return None if self.counts is None else self.counts.measures
+
+    @property
+    def image_errors(self) -> dict[str, str]:
+        """Images whose pixels could not be used (id -> reason); empty without counts."""
+        return {} if self.counts is None else dict(self.counts.image_errors or {})
 
 
 @dataclass(frozen=True)
@@ -137,6 +186,54 @@ class UnitSummary:
     def name(self) -> str:
         return unit_name(self.level, self.id)
 
+    @property
+    def seconds(self) -> float | None:
+        return None if self.timing is None else self.timing.seconds
+
+    # the adjustment's figures the readers show (None when the unit has none: it failed, or an older run)
+    @property
+    def images(self) -> int | None:
+        return self.adjustment.get("images")
+
+    @property
+    def points(self) -> int | None:
+        return self.adjustment.get("points")
+
+    @property
+    def measures(self) -> int | None:
+        return self.adjustment.get("measures")
+
+    @property
+    def rms_px(self) -> float | None:
+        return self.adjustment.get("rms_px")
+
+    @property
+    def sigma0(self) -> float | None:
+        return self.adjustment.get("sigma0")
+
+    @property
+    def iterations(self) -> int | None:
+        return self.adjustment.get("iterations")
+
+    @property
+    def sigma0_history(self) -> list[float]:
+        return list(self.adjustment.get("sigma0_history") or [])
+
+    @property
+    def flagged_images(self) -> list[dict[str, Any]]:
+        """Images flagged for their residuals: ``{"image", "rms_px", ...}`` each."""
+        return list(self.adjustment.get("flagged_images") or [])
+
+    @property
+    def weak_images(self) -> list[str]:
+        return list(self.adjustment.get("weak_images") or [])
+
+    @property
+    def levelling(self) -> dict[str, Any] | None:
+        """The levelling decision of the unit (:func:`mercury_dem.adjust.datum.levelling_decision`), if any."""
+        lev = self.adjustment.get("levelling")
+        return lev if isinstance(lev, dict) else None
+
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"level": self.level, "id": int(self.id), "name": self.name, "ok": self.ok,
                                "error": self.error}
@@ -152,7 +249,7 @@ class UnitSummary:
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> UnitSummary:
         own = {"level", "id", "name", "ok", "error", "children", "single_measure_points", *_TIMING_KEYS}
-        return cls(level=str(d["level"]), id=int(d["id"]), ok=bool(d["ok"]), error=d.get("error"),
+        return cls(level=str(d["level"]), id=int(d["id"]), ok=bool(d.get("ok")), error=d.get("error"),
                    children=d.get("children"), adjustment={k: v for k, v in d.items() if k not in own},
                    single_measure_points=d.get("single_measure_points"), timing=UnitTiming.from_json(d))
 
@@ -165,6 +262,16 @@ class FailureSummary:
     id: int
     error: str
     traceback: str
+    ok: bool = field(default=False, init=False)
+    timing: UnitTiming | None = field(default=None, init=False)
+
+    @property
+    def name(self) -> str:
+        return unit_name(self.level, self.id)
+
+    @property
+    def seconds(self) -> float | None:
+        return None
 
     @classmethod
     def of(cls, level: str, unit_id: int, exc: BaseException) -> FailureSummary:
@@ -181,13 +288,23 @@ class FailureSummary:
         return cls(level=str(d["level"]), id=int(d["id"]), error=str(d["error"]), traceback=str(d["traceback"]))
 
 
-def summary_from_json(d: Mapping[str, Any]) -> TileSummary | UnitSummary | FailureSummary:
+#: A unit's summary, whatever its level and outcome (the readers use ``level``, ``id``, ``name``, ``ok``,
+#: ``error``, ``timing`` and ``seconds`` of each).
+Summary = TileSummary | UnitSummary | FailureSummary
+
+
+def summary_from_json(d: Mapping[str, Any]) -> Summary:
     """The typed summary of a unit's JSON (``summary.json``, or a summary a runner returned)."""
     if "traceback" in d:
         return FailureSummary.from_json(d)
     if d.get("level") == "tile":
         return TileSummary.from_json(d)
     return UnitSummary.from_json(d)
+
+
+def read_summary(store: RunStore, level: str, unit_id: int) -> Summary:
+    """The typed ``summary.json`` of a unit of a run (:meth:`RunStore.read_summary` reads its JSON)."""
+    return summary_from_json(store.read_summary(level, unit_id))
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ from mercury_dem.pipeline.results import (
     UnitSolution,
     UnitSummary,
     UnitTiming,
+    read_summary,
 )
 from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
 from mercury_dem.plan.tree import child_ids as _tree_child_ids
@@ -280,7 +281,7 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
         if not store.unit_complete(child_level, c):
             empty += 1
             continue
-        err = store.read_summary(child_level, c).get("error") or "no network"
+        err = read_summary(store, child_level, c).error or "no network"
         failed.append(str(err))
     parts = "; ".join(failed[:5]) + (f"; ... {len(failed) - 5} more" if len(failed) > 5 else "")
     return (f"no successful {child_level} network to merge: {len(failed)} failed"
@@ -298,7 +299,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
 
     child_level = LEVEL_CHILD[level]
     kids = [c for c in child_ids(level, unit_id, config)
-            if store.unit_complete(child_level, c) and store.read_summary(child_level, c).get("ok")]
+            if store.unit_complete(child_level, c) and read_summary(store, child_level, c).ok]
     if not kids:
         raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
     nets = []

@@ -30,6 +30,7 @@ import pandas as pd
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import is_complete
 from mercury_dem.io.run_store import RunStore
+from mercury_dem.pipeline.results import Summary, TileSummary, UnitSummary, summary_from_json
 from mercury_dem.plan.tree import ADJUSTED_LEVELS, CHILD_LEVEL, LEVELS, MergeTree, merge_tree
 
 #: The unit states, in display order.
@@ -64,24 +65,31 @@ def _tile_grid(store: RunStore, plan: dict[str, Any] | None) -> TileGrid:
     return TileGrid(float(run.get("config", {}).get("tiling", {}).get("tile_size_deg", 10.0)))
 
 
-def _summary(store: RunStore, level: str, unit_id: int) -> dict[str, Any] | None:
+def _summary(store: RunStore, level: str, unit_id: int) -> Summary | None:
+    """The typed summary of a complete unit; None before (the level and id default to the unit's own)."""
     d = store.unit_dir(level, unit_id)
-    return _read_json(store.summary_path(level, unit_id)) if is_complete(d) else None
+    raw = _read_json(store.summary_path(level, unit_id)) if is_complete(d) else None
+    return None if raw is None else summary_from_json({"level": level, "id": int(unit_id), **raw})
 
 
-def _unit_row(level: str, unit_id: int, name: str, s: dict[str, Any] | None, state: str) -> dict[str, Any]:
-    s = s or {}
+def _unit_row(level: str, unit_id: int, name: str, s: Summary | None, state: str) -> dict[str, Any]:
+    figures: dict[str, Any] = {}
+    if isinstance(s, TileSummary):
+        figures = {"images": s.images, "points": s.points, "measures": s.measures}
+    elif isinstance(s, UnitSummary):
+        figures = {"images": s.images, "points": s.points, "measures": s.measures, "rms_px": s.rms_px,
+                   "sigma0": s.sigma0, "iterations": s.iterations}
     return {
-        "level": level, "id": int(unit_id), "name": name, "state": state, "error": s.get("error") or "",
-        "images": s.get("images"), "points": s.get("points"), "measures": s.get("measures"),
-        "rms_px": s.get("rms_px"), "sigma0": s.get("sigma0"), "iterations": s.get("iterations"),
-        "seconds": s.get("seconds"),
+        "level": level, "id": int(unit_id), "name": name, "state": state,
+        "error": (s.error if s is not None else None) or "",
+        **{k: figures.get(k) for k in ("images", "points", "measures", "rms_px", "sigma0", "iterations")},
+        "seconds": s.seconds if s is not None else None,
     }
 
 
-def _state(s: dict[str, Any] | None, ready: bool) -> str:
+def _state(s: Summary | None, ready: bool) -> str:
     if s is not None:
-        return "done" if s.get("ok") else "failed"
+        return "done" if s.ok else "failed"
     return "running" if ready else "pending"
 
 
@@ -156,8 +164,8 @@ def sigma0_history(run: str | Path | RunStore) -> pd.DataFrame:
     rows = []
     for level in ADJUSTED_LEVELS:
         for uid in store.completed_units(level):
-            s = _summary(store, level, uid) or {}
-            for k, v in enumerate(s.get("sigma0_history") or []):
+            s = _summary(store, level, uid)
+            for k, v in enumerate(s.sigma0_history if isinstance(s, UnitSummary) else []):
                 rows.append({"level": level, "id": uid, "name": unit_name(level, uid), "iteration": k,
                              "sigma0": float(v) if v is not None else np.nan})
     return pd.DataFrame(rows, columns=["level", "id", "name", "iteration", "sigma0"])

@@ -11,6 +11,7 @@ import pandas as pd
 
 from mercury_dem.exceptions import StoreError
 from mercury_dem.io.run_store import RunStore, read_solution
+from mercury_dem.pipeline.results import TileSummary, UnitSummary, read_summary
 from mercury_dem.plan.tree import ADJUSTED_LEVELS
 from mercury_dem.viz.status import as_store
 
@@ -87,18 +88,19 @@ def problem_images(run: str | Path | RunStore, rms_flag_px: float | None = None)
         if why:
             rows.append((str(iid), "excluded", "plan", str(why)))
     for tid in store.completed_units("tile"):
-        s = store.read_summary("tile", tid)
-        for iid, why in (s.get("image_errors") or {}).items():
+        tile = read_summary(store, "tile", tid)
+        for iid, why in (tile.image_errors if isinstance(tile, TileSummary) else {}).items():
             rows.append((str(iid), "unreadable", f"tile {tid}", str(why)))
     for level in ADJUSTED_LEVELS:
         for uid in store.completed_units(level):
-            s = store.read_summary(level, uid)
-            name = s.get("name") or f"{level} {uid}"
-            for f in s.get("flagged_images") or []:
+            s = read_summary(store, level, uid)
+            if not isinstance(s, UnitSummary):
+                continue
+            for f in s.flagged_images:
                 if rms_flag_px is None or f["rms_px"] > rms_flag_px:
-                    rows.append((f["image"], "flagged", name, f"RMS residual {f['rms_px']:.2f} px"))
-            for iid in s.get("weak_images") or []:
-                rows.append((str(iid), "weak", name, "too few measures to determine its pointing"))
+                    rows.append((f["image"], "flagged", s.name, f"RMS residual {f['rms_px']:.2f} px"))
+            for iid in s.weak_images:
+                rows.append((str(iid), "weak", s.name, "too few measures to determine its pointing"))
     if store.unit_complete("global", 0) and store.solution_path("global", 0).is_file():
         sid, _, _, table = read_solution(store.solution_path("global", 0))
         nm = table["n_measures"].to_numpy() if "n_measures" in table else np.ones(sid.size, int)

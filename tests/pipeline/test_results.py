@@ -125,3 +125,63 @@ def test_every_summary_of_a_run_round_trips(sync_run: tuple[Path, dict[str, Any]
         assert isinstance(typed, TileSummary if d["level"] == "tile" else UnitSummary)
         back = typed.to_json()
         assert list(back) == list(d) and back == d, p
+
+
+def _dict_level_row(s: dict[str, Any]) -> dict[str, Any]:
+    """report.json's level row as report.py built it from the summary dict (before session 13)."""
+    from mercury_dem.pipeline.report import LEVEL_KEYS
+
+    return {k: s.get(k) for k in LEVEL_KEYS if k in s or k in ("id", "ok", "error")}
+
+
+def test_report_rows_from_typed_summaries_are_the_dict_rows() -> None:
+    from mercury_dem.pipeline.report import _level_row
+
+    singular = {"count": 2, "ids": [5, 9]}
+    done = UnitSummary("region", 3, ok=True, children=[1, 2], adjustment=dict(ADJUSTMENT),
+                       single_measure_points=singular, timing=TIMING)
+    failed = UnitSummary("global", 0, error="global: no input", timing=TIMING)
+    try:
+        raise RuntimeError("boom")
+    except RuntimeError as exc:
+        crashed = FailureSummary.of("hemisphere", 1, exc)
+    for typed in (done, failed, crashed, UnitSummary("region", 4, error="region 4: x")):
+        d = typed.to_json()
+        row = _level_row(typed)
+        assert list(row) == list(_dict_level_row(d)) and row == _dict_level_row(d), typed
+    assert _level_row(done)["seconds"] == TIMING.seconds and _level_row(done)["children"] == [1, 2]
+    assert "seconds" not in _level_row(crashed) and _level_row(crashed)["ok"] is False
+
+
+def test_summaries_of_older_runs_read_as_the_dict_readers_had_them() -> None:
+    # a tile summary without image_errors nor the wall-clock keys, a region without started_at
+    old_tile = {"level": "tile", "id": 2, "ok": True, "error": None, "images": 3, "images_involved": 3, "pairs": 2,
+                "pairs_matched": 2, "routes": {}, "pair_failures": {}, "points": 10, "measures": 25, "seconds": 4.0}
+    t = summary_from_json(old_tile)
+    assert isinstance(t, TileSummary) and t.counts is not None
+    assert (t.images, t.points, t.measures, t.image_errors, t.seconds) == (3, 10, 25, {}, 4.0)
+    assert t.timing is not None and t.timing.started_at is None
+    old_region = {"level": "region", "id": 1, "name": unit_name("region", 1), "ok": True, "error": None, "children": [0],
+                  "images": 3, "points": 10, "measures": 25, "rms_px": 0.2, "sigma0": 0.9, "iterations": 4,
+                  "seconds": 2.0}
+    r = summary_from_json(old_region)
+    assert isinstance(r, UnitSummary)
+    assert (r.images, r.rms_px, r.sigma0, r.iterations, r.seconds) == (3, 0.2, 0.9, 4, 2.0)
+    assert r.sigma0_history == [] and r.flagged_images == [] and r.weak_images == [] and r.levelling is None
+    assert r.to_json() == old_region  # nothing invented on the way back
+
+
+def test_status_rows_read_typed_summaries(tmp_path: Path) -> None:
+    from mercury_dem.viz.status import _summary, _unit_row
+
+    store = RunStore(tmp_path / "run")
+    tile = TileSummary(id=1, ok=True, counts=COUNTS, timing=TIMING).to_json()
+    store.write_unit("tile", 1, tile, {})
+    region = UnitSummary("region", 2, ok=True, children=[1], adjustment=dict(ADJUSTMENT), timing=TIMING).to_json()
+    store.write_unit("region", 2, region, {})
+    for level, uid, d in (("tile", 1, tile), ("region", 2, region)):
+        row = _unit_row(level, uid, unit_name(level, uid), _summary(store, level, uid), "done")
+        assert row == {"level": level, "id": uid, "name": unit_name(level, uid), "state": "done", "error": "",
+                       **{k: d.get(k) for k in ("images", "points", "measures", "rms_px", "sigma0", "iterations",
+                                                "seconds")}}
+    assert _summary(store, "region", 9) is None

@@ -1,4 +1,4 @@
-"""Fill the on-disk caches a cold ``mercury-dem grid`` reads: ``python -m mercury_dem.dem.warm``.
+"""Fill the on-disk caches a cold ``mercury-dem grid`` reads: ``python -m mercury_dem.pipeline.warm``.
 
 ``make setup`` runs it once after installing. It grids a small synthetic cloud with each method
 for each catalogued body into a temporary directory, so that
@@ -8,7 +8,8 @@ for each catalogued body into a temporary directory, so that
 - the CRS attributes of every body's ``spatial_ref`` are in the user's cache
   (``$MERCURY_DEM_CACHE/crs/``, :func:`mercury_dem.pipeline.dem_stage._spatial_ref_attrs`).
 
-Nothing is kept but the caches; running it again is cheap.
+Nothing is kept but the caches; running it again is cheap. It lives with the DEM stage it runs (until
+session 13 it was ``mercury_dem.dem.warm``, the one import of ``pipeline`` by ``dem/``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ def warm_caches() -> float:
 
     from mercury_dem.config.dem import DemConfig
     from mercury_dem.geometry.body import BODIES, latlon_to_xyz
+    from mercury_dem.io.run_store import DEM_FILE
     from mercury_dem.pipeline.dem_stage import grid_dem
 
     t0 = time.perf_counter()
@@ -34,7 +36,7 @@ def warm_caches() -> float:
             pts = latlon_to_xyz(lat, lon, rng.normal(0, 100, lat.size), datum_radius_m=body.datum_radius_m)
             for method in ("median11", "shepard"):
                 cfg = DemConfig(pixels_per_degree=8, lat_min=-5, lat_max=5, lon_min=0, lon_max=10, method=method)
-                grid_dem(pts, cfg, Path(tmp) / f"{body.name}-{method}" / "dem.zarr", body=body, coverage=False)
+                grid_dem(pts, cfg, Path(tmp) / f"{body.name}-{method}" / DEM_FILE, body=body, coverage=False)
     return time.perf_counter() - t0
 
 
