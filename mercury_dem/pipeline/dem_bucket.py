@@ -98,6 +98,21 @@ def grid_chunk_to_bucket(run_url: str, global_token: str, grid: GridSpec, bounds
     return summary
 
 
+def grid_chunk_to_bucket_or_record(run_url: str, global_token: str, grid: GridSpec, bounds: tuple[int, int, int, int],
+                                   cfg: Any, datum_radius_m: float) -> dict[str, Any]:
+    """:func:`grid_chunk_to_bucket`, with the chunk's own failure returned as a record, not raised.
+
+    The record is the disk run's (:func:`~mercury_dem.pipeline.dem_stage.chunk_failure`: bounds, lat/lon,
+    error, what to do); the chunk gets no marker, so the next run grids it again. A full disk is re-raised.
+    """
+    from mercury_dem.pipeline.dem_stage import chunk_failure
+
+    try:
+        return grid_chunk_to_bucket(run_url, global_token, grid, bounds, cfg, datum_radius_m)
+    except Exception as exc:  # the chunk's own failure: recorded, the other chunks go on
+        return chunk_failure(grid, bounds, exc)
+
+
 def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> Path:
     """The store's template in the cache; every object but the root ``zarr.json`` uploaded. Returns the cache path."""
     from mercury_dem.pipeline.dem_stage import create_store
@@ -141,8 +156,15 @@ def grid_dem_on_bucket(
     """
     from mercury_dem.config import to_dict
     from mercury_dem.dem.coverage import point_coverage
-    from mercury_dem.exceptions import StoreError
-    from mercury_dem.pipeline.dem_stage import check_memory, mark_zarr_complete, write_coverage
+    from mercury_dem.exceptions import GridError, StoreError
+    from mercury_dem.pipeline.dem_stage import (
+        FAILED_CHUNKS_ATTR,
+        check_memory,
+        failed_chunk_lines,
+        mark_zarr_complete,
+        result_or_record,
+        write_coverage,
+    )
     from mercury_dem.progress import NULL
 
     t0 = time.perf_counter()
@@ -187,16 +209,23 @@ def grid_dem_on_bucket(
     with rep.task(f"{label} grid", len(todo), "chunks") as task:
         if runs_in_process(client):
             for b in todo:
-                results.append(grid_chunk_to_bucket(store.url, global_token, grid, b, cfg, datum))
+                results.append(grid_chunk_to_bucket_or_record(store.url, global_token, grid, b, cfg, datum))
                 task.update()
         else:
             from mercury_dem.pipeline.executors import as_completed
 
-            futures = [client.submit(grid_chunk_to_bucket, store.url, global_token, grid, b, cfg, datum, pure=False)
-                       for b in todo]
+            futures = [client.submit(grid_chunk_to_bucket_or_record, store.url, global_token, grid, b, cfg, datum,
+                                     pure=False) for b in todo]
             for _ in as_completed(client, futures):
                 task.update()
-            results += client.gather(futures)
+            results += [result_or_record(grid, b, f) for b, f in zip(todo, futures)]
+    failed = [r for r in results if r.get("failed")]
+    for line in failed_chunk_lines(failed, label):
+        rep.message(line)
+    if failed and len(failed) == len(results):  # nothing to keep: a stage error, not a partial DEM
+        raise GridError(f"{store.url}/{DEM_FILE}: none of the {len(chunks)} chunks could be gridded (the first: "
+                        f"{failed[0]['error']}); the store was not committed")
+    failed_records = [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")} for f in failed]
     rep.message(f"{label}: point coverage")
     cov = point_coverage(index, cfg.coverage_pixel_km_for(datum), threads=cfg.query_threads or -1,
                          bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
@@ -204,12 +233,15 @@ def grid_dem_on_bucket(
     write_coverage(cov, store.coverage_path, overwrite=True)
     store.commit_zarr(COVERAGE_FILE)
     no_value = sum(int(r["no_value"]) for r in results)
-    mins = [r["min"] for r in results if r.get("min") is not None]
-    maxs = [r["max"] for r in results if r.get("max") is not None]
-    zarr.open_group(str(local), mode="r+").attrs.update({
+    mins = [r["min"] for r in results if r.get("min") is not None and not math.isnan(r["min"])]
+    maxs = [r["max"] for r in results if r.get("max") is not None and not math.isnan(r["max"])]
+    final_attrs: dict[str, Any] = {
         "n_points": index.n_points, "no_value_pixels": no_value,
         "coverage": json.dumps(cov_summary) if cov_summary else "",
-    })
+    }
+    if failed_records:  # read back on resume (run_dem_stage grids again the chunks without a marker)
+        final_attrs[FAILED_CHUNKS_ATTR] = json.dumps(failed_records)
+    zarr.open_group(str(local), mode="r+").attrs.update(final_attrs)
     mark_zarr_complete(local)
     remote.write_bytes(f"{DEM_FILE}/zarr.json", (local / "zarr.json").read_bytes())  # the store's commit, last
     npix = grid.shape[0] * grid.shape[1]
@@ -229,5 +261,6 @@ def grid_dem_on_bucket(
         "elevation_max_m": max(maxs) if maxs else math.nan,
         "memory_estimate_bytes": est,
         "coverage": cov_summary,
+        "failed_chunks": failed_records,
         "seconds": time.perf_counter() - t0,
     }

@@ -118,8 +118,8 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     ``client`` is the run's client, the one the cascade used (the synchronous client grids in this
     process). A chunk that fails is recorded (``failed_chunks`` of the block: which, why, what to do),
     its pixels left NaN, and the stage goes on; a resume grids only those chunks again
-    (:func:`~mercury_dem.pipeline.dem_stage.regrid_failed_chunks`) on a disk run. On a bucket run a
-    chunk failure still stops the stage (its chunk has no marker: the resume grids it again).
+    (:func:`~mercury_dem.pipeline.dem_stage.regrid_failed_chunks` on a disk run; on a bucket run the
+    chunks without a marker, :func:`~mercury_dem.pipeline.dem_bucket.grid_dem_on_bucket`).
 
     With truth, the a-priori (unadjusted) points are gridded too (into a
     temporary store) so the report shows what the adjustment bought.
@@ -158,8 +158,15 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         else:
             grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep,
                                     record_failures=True)
-    elif not remote and failed_chunks_of(store.dem_path):  # resume: only the chunks that failed last time
-        grid_summary = regrid_failed_chunks(pts, dem_cfg, store.dem_path, client, body=body, progress=rep)
+    elif failed_chunks_of(store.dem_path):  # resume: only the chunks that failed last time
+        if remote:  # the chunks without a marker (pipeline/dem_bucket.py), then the store committed again
+            from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
+
+            grid_summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body,
+                                              attrs={"source": "global adjusted control points"}, progress=rep)
+            store.fetch_zarr(DEM_FILE)
+        else:
+            grid_summary = regrid_failed_chunks(pts, dem_cfg, store.dem_path, client, body=body, progress=rep)
     else:
         grid_summary = {"path": str(store.dem_path), "reused": True}
     if remote:

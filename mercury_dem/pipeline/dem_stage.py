@@ -372,7 +372,7 @@ def _grid_and_write(
 FAILED_CHUNKS_ATTR = "failed_chunks"
 
 
-def _chunk_failure(grid: GridSpec, bounds: tuple[int, int, int, int], exc: BaseException) -> dict[str, Any]:
+def chunk_failure(grid: GridSpec, bounds: tuple[int, int, int, int], exc: BaseException) -> dict[str, Any]:
     """The record of a chunk that could not be gridded: which chunk, why, and what to do.
 
     A full disk is not the chunk's fault and stops the stage (:class:`~mercury_dem.exceptions.DiskFullError`):
@@ -403,21 +403,21 @@ def _grid_and_write_or_record(
     index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: Any,
     store: str | Mapping[str, zarr.Array],
 ) -> dict[str, Any]:
-    """:func:`_grid_and_write`, with a failure returned as a value (:func:`_chunk_failure`), not raised."""
+    """:func:`_grid_and_write`, with a failure returned as a value (:func:`chunk_failure`), not raised."""
     try:
         return _grid_and_write(index, grid, bounds, cfg, store)
     except Exception as exc:  # the chunk's own failure: recorded, the other chunks go on
-        return _chunk_failure(grid, bounds, exc)
+        return chunk_failure(grid, bounds, exc)
 
 
-def _result_or_record(grid: GridSpec, bounds: tuple[int, int, int, int], future: Any) -> dict[str, Any]:
+def result_or_record(grid: GridSpec, bounds: tuple[int, int, int, int], future: Any) -> dict[str, Any]:
     """A chunk task's result, or the record of its failure when the task itself was lost (a dead worker)."""
     try:
         return dict(future.result())
     except Exception as exc:
         if "Cancelled" in type(exc).__name__:  # the scheduler went away: the run's error, not the chunk's
             raise
-        return _chunk_failure(grid, bounds, exc)
+        return chunk_failure(grid, bounds, exc)
 
 
 def failed_chunk_lines(failed: list[dict[str, Any]], label: str = "dem") -> list[str]:
@@ -541,7 +541,7 @@ def grid_dem(
                 ]
                 for _ in as_completed(client, futures):  # Dask's completion order: counts as chunks land
                     task.update()
-                results = ([_result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
+                results = ([result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
                            else client.gather(futures))
         failed = [r for r in results if r.get("failed")]
         for line in failed_chunk_lines(failed, label):
@@ -657,7 +657,7 @@ def regrid_failed_chunks(
         index_f = client.scatter(index, broadcast=True)
         futures = [client.submit(_grid_and_write_or_record, index_f, grid, b, cfg, str(path), pure=False)
                    for b in todo]
-        results = [_result_or_record(grid, b, f) for b, f in zip(todo, futures)]  # type: ignore[arg-type]
+        results = [result_or_record(grid, b, f) for b, f in zip(todo, futures)]  # type: ignore[arg-type]
     still = [r for r in results if r.get("failed")]
     for line in failed_chunk_lines(still, label):
         rep.message(line)

@@ -191,6 +191,59 @@ def test_dem_chunks_are_committed_one_by_one_and_resumed(s3_run: list[str], sync
     np.testing.assert_array_equal(dem["elevation"].values, ref["elevation"].values)
 
 
+def test_a_failed_dem_chunk_on_the_bucket_is_recorded_and_resumed(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]],
+                                                                  tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A chunk failing on a bucket run is a value: report.json names it, the rest of dem.zarr is committed (the
+    chunk NaN, no marker); the next run grids that chunk alone and the store equals the local run's."""
+    import json
+
+    from mercury_dem.pipeline import dem_bucket
+
+    store = RunStore(RUN)
+    r = store.remote
+    tokens = _chunk_tokens(r)
+    cs = tiny_config().dem.chunk_size
+    victim = sorted(tokens)[-1]
+    r0, c0 = (int(v) for v in victim[:-5].split("_"))
+    r.remove("dem.zarr/zarr.json")
+    r.remove(f"dem_chunks/{victim}")
+    r.remove(f"dem.zarr/elevation/c/{r0 // cs}/{c0 // cs}")
+    real = dem_bucket.grid_chunk
+
+    def fake(index: Any, grid: Any, bounds: Any, cfg: Any) -> Any:
+        if (bounds[0], bounds[2]) == (r0, c0):
+            raise RuntimeError("injected fault in this chunk")
+        return real(index, grid, bounds, cfg)
+
+    monkeypatch.setattr(dem_bucket, "grid_chunk", fake)
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "machine-1"))
+    assert main(s3_run) == 0
+    report = json.loads(r.read_bytes("report.json"))
+    (f,) = report["dem"]["failed_chunks"]
+    assert (f["bounds"][0], f["bounds"][2]) == (r0, c0) and f["error"] == "RuntimeError: injected fault in this chunk"
+    assert victim not in _chunk_tokens(r)
+    dem = xr.open_zarr(f"{RUN}/dem.zarr", consolidated=False)
+    ref = xr.open_zarr(sync_run[0] / "dem.zarr", consolidated=False)
+    assert dem.attrs["complete"] is True and json.loads(dem.attrs["failed_chunks"])[0]["bounds"] == f["bounds"]
+    got, want = dem["elevation"].values, ref["elevation"].values
+    inside = np.zeros(got.shape, bool)
+    inside[f["bounds"][0]:f["bounds"][1], f["bounds"][2]:f["bounds"][3]] = True
+    assert np.isnan(got[inside]).all()
+    np.testing.assert_array_equal(got[~inside], want[~inside])
+
+    monkeypatch.setattr(dem_bucket, "grid_chunk", real)
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "machine-2"))
+    before = _chunk_tokens(r)
+    assert main(s3_run) == 0
+    after = _chunk_tokens(r)
+    assert set(after) == set(tokens) and all(after[n] == before[n] for n in before)  # only the victim gridded
+    report = json.loads(r.read_bytes("report.json"))
+    assert report["dem"]["failed_chunks"] == [] and report["dem"]["grid"]["chunks_reused"] == len(tokens) - 1
+    dem = xr.open_zarr(f"{RUN}/dem.zarr", consolidated=False)
+    assert "failed_chunks" not in dem.attrs
+    np.testing.assert_array_equal(dem["elevation"].values, want)
+
+
 def test_dem_chunks_run_on_dask_workers(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]]) -> None:
     """The chunk tasks on a dask.distributed cluster read the point cloud from the bucket themselves and write
     the same store (threads here; the slow LocalCluster test above runs the whole run on worker processes)."""
