@@ -92,6 +92,25 @@ REGISTRATION_SCRATCH_FILE = "transformed.zarr"
 DEM_OUTPUTS = (DEM_FILE, DEM_CHUNKS_DIR, COVERAGE_FILE, PRODUCTS_DIR)
 
 
+
+def write_registration_tables(table_dir: str | Path, *, tiles_parquet: bytes, tiles: Any, profiles_parquet: bytes,
+                              figure_png: bytes, summary: Any, overwrite: bool = False) -> Path:
+    """Write the registration's table directory (``registration/``) as one unit, atomically.
+
+    The tiles' and profiles' Parquet tables, the tiles' JSON, the before/after RMS figure and the
+    summary, under :data:`REGISTRATION_DIR`'s file names; the directory appears whole or not at all
+    (:func:`~mercury_dem.io.atomic.atomic_directory`). Returns the directory.
+    """
+    from mercury_dem.io.atomic import atomic_write_bytes
+
+    with atomic_directory(table_dir, overwrite=overwrite) as tmp:
+        atomic_write_bytes(tmp / REGISTRATION_TILES_TABLE, tiles_parquet)
+        atomic_write_json(tmp / REGISTRATION_TILES_JSON, tiles)
+        atomic_write_bytes(tmp / REGISTRATION_PROFILES_TABLE, profiles_parquet)
+        atomic_write_bytes(tmp / REGISTRATION_FIGURE, figure_png)
+        atomic_write_json(tmp / REGISTRATION_SUMMARY_FILE, summary)
+    return Path(table_dir)
+
 @dataclass(frozen=True)
 class RunStore:
     """Paths and small readers/writers of one run directory (local, or cached from a bucket).

@@ -66,18 +66,15 @@ from mercury_dem.altimetry.register import (
 from mercury_dem.exceptions import ReferenceDataError, StoreError
 from mercury_dem.geometry.body import Body, latlon_to_unit, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
-from mercury_dem.io.atomic import atomic_directory, atomic_write_bytes, atomic_write_json
+from mercury_dem.io.atomic import atomic_write_bytes
 from mercury_dem.io.run_store import (
     MERGED_FILE,
     REGISTERED_FILE,
     REGISTRATION_DIR,
     REGISTRATION_FIGURE,
     REGISTRATION_MAPS,
-    REGISTRATION_PROFILES_TABLE,
     REGISTRATION_SCRATCH_FILE,
-    REGISTRATION_SUMMARY_FILE,
-    REGISTRATION_TILES_JSON,
-    REGISTRATION_TILES_TABLE,
+    write_registration_tables,
 )
 from mercury_dem.pipeline.dem_stage import atomic_store
 from mercury_dem.reference.compare import compare_heights
@@ -491,12 +488,9 @@ def register_dem_store(
         "seconds_tiles": t_tiles, "seconds": time.perf_counter() - t0,
         "tiles": [_jsonable(r.summary()) for r in results],
     }
-    with atomic_directory(table_dir, overwrite=overwrite) as tmp:
-        atomic_write_bytes(tmp / REGISTRATION_TILES_TABLE, _parquet(table))
-        atomic_write_json(tmp / REGISTRATION_TILES_JSON, summary["tiles"])
-        atomic_write_bytes(tmp / REGISTRATION_PROFILES_TABLE, _parquet(pf))
-        atomic_write_bytes(tmp / REGISTRATION_FIGURE, _figure_png(table, pf))
-        atomic_write_json(tmp / REGISTRATION_SUMMARY_FILE, _jsonable({k: v for k, v in summary.items() if k != "tiles"}))
+    write_registration_tables(table_dir, tiles_parquet=_parquet(table), tiles=summary["tiles"],
+                              profiles_parquet=_parquet(pf), figure_png=_figure_png(table, pf),
+                              summary=_jsonable({k: v for k, v in summary.items() if k != "tiles"}), overwrite=overwrite)
     summary["seconds"] = time.perf_counter() - t0
     return summary
 
