@@ -303,8 +303,16 @@ def summary_from_json(d: Mapping[str, Any]) -> Summary:
 
 
 def read_summary(store: RunStore, level: str, unit_id: int) -> Summary:
-    """The typed ``summary.json`` of a unit of a run (:meth:`RunStore.read_summary` reads its JSON)."""
-    return summary_from_json(store.read_summary(level, unit_id))
+    """The typed ``summary.json`` of a unit of a run (:meth:`RunStore.read_summary` reads its JSON).
+
+    The unit's level and id come from where it is stored when its JSON lacks them (a damaged or foreign
+    file is then judged by the unit's checksums where it is merged, as the dict readers left it, not by a
+    ``KeyError`` here).
+    """
+    d = dict(store.read_summary(level, unit_id))
+    d.setdefault("level", level)
+    d.setdefault("id", unit_id)
+    return summary_from_json(d)
 
 
 @dataclass(frozen=True)
