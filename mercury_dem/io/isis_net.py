@@ -32,19 +32,12 @@ def read_isis_network(
     Parameters
     ----------
     path : the ``.net`` file
-    serial_to_image : optional mapping ISIS serial number -> our image id; serial
-        numbers not in it are kept as they are.
-    image_ids : optional catalog of image ids; when given it becomes the images
-        table (in this order) and every measure's image must be in it.
-    drop_unknown : with ``image_ids``, drop measures of images not in the catalog
-        instead of raising (the count is in ``metadata['dropped_measures']``).
-    int_point_ids : when every point id is a canonical decimal integer, return
-        int64 point ids (so networks we wrote read back identically).
+    serial_to_image, image_ids, drop_unknown, int_point_ids : as
+        :func:`mercury_dem.network.isis.decode_isis_network`, which decodes the bytes read here.
 
     Returns
     -------
-    ControlNetwork with 0-based pixels; ``metadata`` holds the header texts and
-    ``isis_version``.
+    ControlNetwork (see :func:`~mercury_dem.network.isis.decode_isis_network`).
 
     Raises
     ------
