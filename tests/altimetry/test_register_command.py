@@ -79,6 +79,7 @@ def test_register_command_json(dem_dir, capsys):
     assert "--overwrite" in capsys.readouterr().err
 
 
+@pytest.mark.integration  # the whole register stage on a synthetic DEM (its option-off path)
 def test_register_without_products(dem_dir, tmp_path, capsys):
     import shutil
 

@@ -88,6 +88,7 @@ def read_network_from(tmp_path: Path):  # noqa: ANN201 - a small plain network
     return read_network(out / "network")
 
 
+@pytest.mark.integration  # a memory measurement of the generator (tracemalloc over a whole store), not a recovery test
 def test_generation_memory_is_bounded_by_a_block_not_the_network(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Four times the measures, same block size: the traced peak stays (the columns are flushed per chunk)."""
     import tracemalloc

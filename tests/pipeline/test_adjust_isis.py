@@ -228,6 +228,7 @@ def test_serials_csv_and_unmatched_images(tmp_path: Path, capsys: pytest.Capture
 # -- c. errors name the file ------------------------------------------------------------
 
 
+@pytest.mark.integration  # the whole adjust-isis command on each bad input in turn
 def test_errors_name_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cubes = _apollo_cubes()
     net, _, _, _ = _world(cubes, seed=2, n_points=60)

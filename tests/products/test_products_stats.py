@@ -90,6 +90,7 @@ def test_sampling_wraps_the_seam_and_skips_gaps():
     assert v2[0] == pytest.approx(np.cos(np.radians(0.5)), abs=1e-6) and np.isnan(v2[1])
 
 
+@pytest.mark.integration  # two whole commands (grid, products) end to end
 def test_cli_grid_then_products(tmp_path, capsys):
     from products_synthetic import truth_height
 

@@ -163,6 +163,7 @@ def fuzz_path() -> Iterator[Path]:
         yield Path(d) / "fuzzed_case.cub"
 
 
+@pytest.mark.integration  # 60 mutated real cubes + 18 recorded seeds (3 s of CPU): the fast loop keeps the other readers' fuzzing
 @settings(max_examples=int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", "60")), deadline=None, database=None,
           print_blob=True, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(data=mutated_cube())
