@@ -421,13 +421,22 @@ class Partial(NamedTuple):
 
 
 def merge_partials(a: Partial, b: Partial) -> Partial:
-    """The sum of two partials: each term over the union of their keys (``a``'s values added first)."""
+    """The sum of two partials: each term over the union of their keys (``a``'s values added first).
+
+    Terms over the same key arrays (``linearize``'s ``u`` and ``g``, both over ``cams``) share one union
+    and its positions, and the result's terms share its key array again, so merges up a tree sort once.
+    """
     terms = []
+    unions: dict[tuple[int, int], tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]] = {}
     for (ka, va), (kb, vb) in zip(a.terms, b.terms):
-        keys = np.union1d(ka, kb)
+        pair = (id(ka), id(kb))
+        if pair not in unions:
+            keys = np.union1d(ka, kb)
+            unions[pair] = (keys, np.searchsorted(keys, ka), np.searchsorted(keys, kb))
+        keys, at_a, at_b = unions[pair]
         vals = np.zeros((len(keys),) + va.shape[1:], dtype=np.result_type(va, vb))
-        vals[np.searchsorted(keys, ka)] += va
-        vals[np.searchsorted(keys, kb)] += vb
+        vals[at_a] += va
+        vals[at_b] += vb
         terms.append((keys, vals))
     return Partial(tuple(terms), tuple(x + y for x, y in zip(a.counts, b.counts)))
 

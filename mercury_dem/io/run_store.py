@@ -39,7 +39,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import CorruptUnitError, StoreError
-from mercury_dem.io.atomic import _tmp_sibling, atomic_directory, atomic_write_json, is_complete, verify_complete
+from mercury_dem.io.atomic import (
+    _tmp_sibling,
+    atomic_directory,
+    atomic_write_bytes,
+    atomic_write_json,
+    is_complete,
+    verify_complete,
+)
 from mercury_dem.io.location import resolve_location
 from mercury_dem.io.remote import RemoteDir, cache_dir_for
 from mercury_dem.io.tables import read_table
@@ -101,8 +108,6 @@ def write_registration_tables(table_dir: str | Path, *, tiles_parquet: bytes, ti
     summary, under :data:`REGISTRATION_DIR`'s file names; the directory appears whole or not at all
     (:func:`~mercury_dem.io.atomic.atomic_directory`). Returns the directory.
     """
-    from mercury_dem.io.atomic import atomic_write_bytes
-
     with atomic_directory(table_dir, overwrite=overwrite) as tmp:
         atomic_write_bytes(tmp / REGISTRATION_TILES_TABLE, tiles_parquet)
         atomic_write_json(tmp / REGISTRATION_TILES_JSON, tiles)

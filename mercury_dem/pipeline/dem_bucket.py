@@ -156,11 +156,11 @@ def grid_dem_on_bucket(
     """
     from mercury_dem.config import to_dict
     from mercury_dem.dem.coverage import point_coverage
-    from mercury_dem.exceptions import GridError, StoreError
+    from mercury_dem.exceptions import StoreError
     from mercury_dem.pipeline.dem_stage import (
         FAILED_CHUNKS_ATTR,
         check_memory,
-        failed_chunk_lines,
+        judge_chunk_results,
         mark_zarr_complete,
         result_or_record,
         write_coverage,
@@ -219,13 +219,7 @@ def grid_dem_on_bucket(
             for _ in as_completed(client, futures):
                 task.update()
             results += [result_or_record(grid, b, f) for b, f in zip(todo, futures)]
-    failed = [r for r in results if r.get("failed")]
-    for line in failed_chunk_lines(failed, label):
-        rep.message(line)
-    if failed and len(failed) == len(results):  # nothing to keep: a stage error, not a partial DEM
-        raise GridError(f"{store.url}/{DEM_FILE}: none of the {len(chunks)} chunks could be gridded (the first: "
-                        f"{failed[0]['error']}); the store was not committed")
-    failed_records = [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")} for f in failed]
+    failed_records = judge_chunk_results(results, f"{store.url}/{DEM_FILE}", rep, label)
     rep.message(f"{label}: point coverage")
     cov = point_coverage(index, cfg.coverage_pixel_km_for(datum), threads=cfg.query_threads or -1,
                          bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))

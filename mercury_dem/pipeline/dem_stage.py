@@ -420,6 +420,24 @@ def result_or_record(grid: GridSpec, bounds: tuple[int, int, int, int], future: 
         return chunk_failure(grid, bounds, exc)
 
 
+def judge_chunk_results(results: list[dict[str, Any]], where: str, rep: Any, label: str = "dem",
+                        all_failed_is_error: bool = True) -> list[dict[str, Any]]:
+    """The failed chunks' records among a stage's chunk results, as stored (``failed_chunks``), each reported.
+
+    One line per failed chunk goes to ``rep``; when every chunk failed (and ``all_failed_is_error``)
+    there is nothing worth keeping: :class:`GridError` naming ``where`` and the first error, before
+    anything is committed. Used by the disk run (:func:`grid_dem`, :func:`regrid_failed_chunks`) and the
+    bucket run (:func:`~mercury_dem.pipeline.dem_bucket.grid_dem_on_bucket`).
+    """
+    failed = [r for r in results if r.get("failed")]
+    for line in failed_chunk_lines(failed, label):
+        rep.message(line)
+    if all_failed_is_error and failed and len(failed) == len(results):  # a stage error, not a partial DEM
+        raise GridError(f"{where}: none of the {len(results)} chunks could be gridded (the first: "
+                        f"{failed[0]['error']}); nothing was committed")
+    return [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")} for f in failed]
+
+
 def failed_chunk_lines(failed: list[dict[str, Any]], label: str = "dem") -> list[str]:
     """One line per failed chunk, for the stage's progress messages and the report's text."""
     return [f"{label}: chunk rows {f['bounds'][0]}-{f['bounds'][1]}, columns {f['bounds'][2]}-{f['bounds'][3]} "
@@ -543,12 +561,7 @@ def grid_dem(
                     task.update()
                 results = ([result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
                            else client.gather(futures))
-        failed = [r for r in results if r.get("failed")]
-        for line in failed_chunk_lines(failed, label):
-            rep.message(line)
-        if failed and len(failed) == len(results):  # nothing to keep: a stage error, not a partial DEM
-            raise GridError(f"{out_path}: none of the {len(chunks)} chunks could be gridded (the first: "
-                            f"{failed[0]['error']}); nothing was written")
+        failed = judge_chunk_results(results, str(out_path), rep, label)
         cov_summary = None
         if coverage:
             rep.message(f"{label}: point coverage")
@@ -574,8 +587,7 @@ def grid_dem(
             "elevation_max_m": max(maxs) if maxs else math.nan,
             "memory_estimate_bytes": est,
             "coverage": cov_summary,
-            "failed_chunks": [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")}
-                              for f in failed],
+            "failed_chunks": failed,
         }
         final_attrs = {
             "n_points": index.n_points,
@@ -658,13 +670,11 @@ def regrid_failed_chunks(
         futures = [client.submit(_grid_and_write_or_record, index_f, grid, b, cfg, str(path), pure=False)
                    for b in todo]
         results = [result_or_record(grid, b, f) for b, f in zip(todo, futures)]  # type: ignore[arg-type]
-    still = [r for r in results if r.get("failed")]
-    for line in failed_chunk_lines(still, label):
-        rep.message(line)
-    recovered = sum((b[1] - b[0]) * (b[3] - b[2]) for b in todo) - sum(r["pixels"] for r in still)
+    # the DEM was committed before: chunks failing again keep their records, never a stage error
+    kept = judge_chunk_results(results, str(path), rep, label, all_failed_is_error=False)
+    recovered = sum((b[1] - b[0]) * (b[3] - b[2]) for b in todo) - sum(r["pixels"] for r in kept)
     no_value = int(group.attrs.get("no_value_pixels", 0)) - recovered + sum(
         r["no_value"] for r in results if not r.get("failed"))
-    kept = [{k: v for k, v in f.items() if k not in ("failed", "no_value", "min", "max")} for f in still]
     group.attrs["no_value_pixels"] = int(no_value)
     if kept:
         group.attrs[FAILED_CHUNKS_ATTR] = json.dumps(kept)
