@@ -133,6 +133,21 @@ class MatchConfig(ConfigSection):
         "issue 21), which the adjustment cannot reject and which bends the finer images' pointing", unit="deg",
         lo=0.0, hi=180.0,
     )
+    redundant_convergence_deg: float = param(
+        45.0, "Pairs whose views converge by more than this are matched only when no narrower route joins their "
+        "images: they are skipped (status skipped, reason 'redundant') when a third image of the tile is matched "
+        "to both by pairs converging by at most this and covers redundant_route_cover of their overlap, so the "
+        "tracks join them through its points. Their matches carry up to ~1 px of relief and emission error that "
+        "no refinement removes (docs/benchmarks/match.md, issue 21, session 14); 180 = match every pair",
+        unit="deg", lo=0.0, hi=180.0,
+    )
+    redundant_route_min_matches: int = param(
+        20, "A route's pairs count only if each gave at least this many matches", lo=1, hi=100000,
+    )
+    redundant_route_cover: float = param(
+        0.5, "A route's third image must see at least this share of the wide pair's a-priori overlap",
+        lo=0.0, hi=1.0,
+    )
     # -- sub-pixel refinement ------------------------------------------------
     refine: bool = param(True, "Sub-pixel refinement of every measure on the pre-transformed images")
     refine_window_px: int = param(21, "Refinement correlation window (odd)", unit="px", lo=5, hi=101)

@@ -175,10 +175,10 @@ def match_in_pair_frame(
     if not mf.quality.ok:
         return failed_result(rep, f"match image {rep.match_id}: {mf.quality.reason}")
 
-    pg = _pair_geometry(ref_geom, match_geom, config)
+    pg = configured_pair_geometry(ref_geom, match_geom, config)
     if isinstance(pg, str):
         return failed_result(rep, pg)
-    _record_geometry(rep, pg)
+    record_geometry(rep, pg)
     if rep.incidence_difference_deg > config.max_incidence_difference_deg:
         return failed_result(rep, f"incidence differs by {rep.incidence_difference_deg:.0f} deg "
                      f"> max_incidence_difference_deg {config.max_incidence_difference_deg:g}", "skipped")
@@ -192,7 +192,7 @@ def match_in_pair_frame(
     # The coarser image stays in its own geometry; the finer one is warped (low-passed) onto it.
     swap = config.warp_finer and pg.match_px_per_ref_px < 1.0 / config.swap_scale_ratio
     if swap:
-        pg2 = _pair_geometry(match_geom, ref_geom, config)
+        pg2 = configured_pair_geometry(match_geom, ref_geom, config)
         if isinstance(pg2, str):
             return failed_result(rep, pg2)
         pg, base, other, base_geom, other_geom = pg2, mf, rf, match_geom, ref_geom
@@ -234,7 +234,8 @@ def finish_pair(st: PairState, config: MatchConfig, rep: PairReport) -> PairResu
 _RAD_PER_URAD = 1e-6
 
 
-def _pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig) -> PairGeometry | str:
+def configured_pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig) -> PairGeometry | str:
+    """:func:`pair_geometry` with the configuration's grid, pointing and position sigmas and guidance."""
     return pair_geometry(
         a, b, config.pretransform_grid, config.pointing_sigma_urad * _RAD_PER_URAD,
         config.guidance_sigmas, config.guidance_margin_px, config.position_sigma_m,
@@ -377,7 +378,8 @@ def _local(m: Matches, config: MatchConfig) -> Matches:
     return m.take(local_consistency(m.pa, m.pb, config.local_tolerance_px, config.local_neighbours))
 
 
-def _record_geometry(rep: PairReport, pg: PairGeometry) -> None:
+def record_geometry(rep: PairReport, pg: PairGeometry) -> None:
+    """Put what the a-priori geometry says about the pair (overlap, scale, illumination, convergence) in its report."""
     rep.overlap_apriori = pg.overlap
     rep.scale_ratio = pg.scale_ratio
     rep.match_px_per_ref_px = pg.match_px_per_ref_px

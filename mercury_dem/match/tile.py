@@ -18,10 +18,17 @@ from dataclasses import replace
 from typing import Any
 
 import cv2
+import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.config.match import MatchConfig
-from mercury_dem.match.pair import PairState, finish_pair, match_in_pair_frame
+from mercury_dem.match.pair import (
+    PairState,
+    configured_pair_geometry,
+    finish_pair,
+    match_in_pair_frame,
+    record_geometry,
+)
 from mercury_dem.match.prepare import ImageFeatures, pattern_on, prepare_image
 from mercury_dem.match.pretransform import ImageGeometry
 from mercury_dem.match.propagation import (
@@ -35,6 +42,7 @@ from mercury_dem.match.propagation import (
     thin,
 )
 from mercury_dem.match.result import PairReport, PairResult, TileMatches, failed_result, tile_matches
+from mercury_dem.match.selection import pair_convergences, redundant_reason, wide_pairs
 
 #: Memory the warped partners of a tile may take between phases 1 and 2 (bytes): within it every
 #: pair keeps its partner (and flow) for the propagation, beyond it the propagation warps (and
@@ -47,6 +55,11 @@ _WARPED_BYTES_PER_PX = 5
 _PATTERN_BYTES_PER_PX = 4
 #: ... plus the dense flow, when used: float32 (sample, line) displacement (8) + bool usable mask (1).
 _FLOW_BYTES_PER_PX = 9
+
+
+def _n_matches(state: PairResult | PairState) -> int:
+    """Matches a pair has after phase 1 (0 for a failed or skipped pair)."""
+    return int(state.pa.shape[0]) if isinstance(state, PairState) else int(state.feature_ref.size)
 
 
 class _OpenCVThreads:
@@ -154,7 +167,28 @@ def match_tile(
     with _OpenCVThreads(1), ThreadPoolExecutor(max_workers=threads) as pool:
         pmap: Any = pool.map if threads > 1 else map  # threads == 1: all in the calling thread
         prepared = dict(zip(needed, pmap(prep, needed)))
-        phase1 = list(pmap(run, range(len(pairs))))
+        # the wide pairs go last: each is matched only if no narrower route of matched pairs joins its images
+        conv = (pair_convergences(pairs, geometry, config) if config.redundant_convergence_deg < 180.0
+                else np.full(len(pairs), np.nan))
+        wide = wide_pairs(conv, config)
+        first = [k for k in range(len(pairs)) if not wide[k]]
+        done = dict(zip(first, pmap(run, first)))
+        if wide.any():
+            counts = [_n_matches(done[j][1]) if j in done else 0 for j in range(len(pairs))]
+
+            def run_wide(k: int) -> tuple[PairReport, PairResult | PairState]:
+                why = redundant_reason(k, pairs, conv, counts, geometry, config)
+                if why is None:
+                    return run(k)
+                rep = PairReport(ref_id=pairs[k][0], match_id=pairs[k][1])
+                pg = configured_pair_geometry(geometry[pairs[k][0]], geometry[pairs[k][1]], config)
+                if not isinstance(pg, str):  # a wide pair has a geometry (its convergence came from it)
+                    record_geometry(rep, pg)
+                return rep, failed_result(rep, why, "skipped")
+
+            later = [k for k in range(len(pairs)) if wide[k]]
+            done.update(zip(later, pmap(run_wide, later)))
+        phase1 = [done[k] for k in range(len(pairs))]
         if propagate:
             anchors = anchors_of(pairs, [st for _, st in phase1])
             list(pmap(extend, range(len(pairs))))

@@ -69,6 +69,8 @@ def pair_groups(rows: list[dict[str, Any]], instrument: dict[str, str]) -> dict[
         names.append("-".join(ins))
         if names[1] == "similar":
             names.append("similar " + "-".join(ins))
+            if np.isfinite(conv):  # the class's tail is its convergent pairs (issue 21 §2)
+                names.append("similar, convergence " + ("< 45" if conv < 45 else ">= 45"))
         for n in names:
             groups.setdefault(n, []).append(k)
     return groups
@@ -80,7 +82,10 @@ def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]],
     """Per group: pairs, overlapping pairs, share of them with >= min_matches, measures, median, p95, > 2 px;
     with ``across`` (the error across the epipolar line, ``true_error_components``) its median and p95 too."""
     counts = np.bincount(pair, minlength=len(rows)) if pair.size else np.zeros(len(rows), np.int64)
-    ov_all = np.asarray(overlaps, float) >= 0.10
+    # a pair skipped as redundant (``match.redundant_convergence_deg``: a narrower route joins its images) was
+    # not tried, so it is not a pair that failed to match
+    redundant = np.array([str(r.get("reason", "")).startswith("redundant") for r in rows], bool)
+    ov_all = (np.asarray(overlaps, float) >= 0.10) & ~redundant
     out: dict[str, dict[str, float]] = {}
     for name, members in groups.items():
         m = np.asarray(members, np.int64)
@@ -90,6 +95,7 @@ def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]],
         out[name] = {
             "n_pairs": float(m.size), "n_overlapping": float(ov.sum()),
             "share_with_min_matches": float(np.mean(counts[m][ov] >= min_matches)) if ov.any() else float("nan"),
+            "n_redundant": float(redundant[m].sum()),
             "n_measures": float(e.size),
             "median_px": float(np.median(e)) if e.size else float("nan"),
             "p95_px": float(np.percentile(e, 95)) if e.size else float("nan"),
