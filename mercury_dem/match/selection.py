@@ -35,18 +35,20 @@ from mercury_dem.match.pretransform import ImageGeometry
 _COVER_GRID = 17
 
 
+def pair_convergence(ref: ImageGeometry | None, match: ImageGeometry | None, config: MatchConfig) -> float:
+    """Convergence angle (deg) of a pair at its a-priori overlap centre, as the pair chain computes it
+    (:func:`configured_pair_geometry`); NaN when an image has no geometry or the pair no overlap.
+    """
+    if ref is None or match is None:
+        return float("nan")
+    pg = configured_pair_geometry(ref, match, config)
+    return float("nan") if isinstance(pg, str) else float(pg.convergence_deg)
+
+
 def pair_convergences(pairs: Sequence[tuple[str, str]], geometry: Mapping[str, ImageGeometry],
                       config: MatchConfig) -> NDArray[np.float64]:
-    """Convergence angle (deg) of each pair at its a-priori overlap centre, as the pair chain computes it
-    (:func:`configured_pair_geometry`); NaN where it has none.
-    """
-    out = np.full(len(pairs), np.nan)
-    for k, (a, b) in enumerate(pairs):
-        if a in geometry and b in geometry:
-            pg = configured_pair_geometry(geometry[a], geometry[b], config)
-            if not isinstance(pg, str):
-                out[k] = pg.convergence_deg
-    return out
+    """:func:`pair_convergence` of every pair (deg, NaN where none)."""
+    return np.array([pair_convergence(geometry.get(a), geometry.get(b), config) for a, b in pairs], np.float64)
 
 
 def _inside(ground: NDArray[np.float64], g: ImageGeometry) -> NDArray[np.bool_]:

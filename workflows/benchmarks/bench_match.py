@@ -114,7 +114,7 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-SPEED_VARIANTS = ("tracks_off", "extra0", "flow")
+SPEED_VARIANTS = ("tracks_off", "extra0", "flow", "all_pairs")
 
 
 def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ...] = SPEED_VARIANTS) -> None:
@@ -134,7 +134,8 @@ def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ..
           "forces it, flow_min_convergence_deg=0.)\n")
     titles = {"tracks_off": "ours without track propagation: ratio wall, CPU",
               "extra0": "ours, propagate_extra=0 (full pairs receive no anchors): ratio wall, CPU",
-              "flow": "ours with the flow on every pair: ratio wall, CPU"}
+              "flow": "ours with the flow on every pair: ratio wall, CPU",
+              "all_pairs": "ours without the wide-pair route rule (redundant_convergence_deg=180): ratio wall, CPU"}
     head = ["size", "threads", "pairs", "ours s/pair", "floor s/pair", "ratio wall", "ratio CPU",
             *[titles[v] for v in variants], "per repetition: wall ratios; CPU ratios", "ours matches/pair",
             "floor F-inliers/pair"]
@@ -149,6 +150,7 @@ def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ..
                 "tracks_off": lambda: match_tile(images, geom, pairs, cfg, tracks=False),
                 "extra0": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, propagate_extra=0.0)),
                 "flow": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, flow_min_convergence_deg=0.0)),
+                "all_pairs": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, redundant_convergence_deg=180.0)),
             }
             wall: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
             cpu: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
