@@ -40,7 +40,8 @@ def run(args: argparse.Namespace, config: Config) -> int:
         out.append(s)
         if not args.json:
             state = "ok" if s["ok"] else f"FAILED: {unit_message(s['error'], f'tile {t}')}"
-            print(f"tile {t}: {s.get('pairs', 0)} pairs, {s.get('pairs_matched', 0)} matched, "
+            redundant = f" ({s['pairs_redundant']} redundant, not tried)" if s.get("pairs_redundant") else ""
+            print(f"tile {t}: {s.get('pairs', 0)} pairs{redundant}, {s.get('pairs_matched', 0)} matched, "
                   f"{s.get('points', 0)} points, {s.get('measures', 0)} measures, {s.get('seconds', 0):.1f} s  {state}",
                   file=sys.stdout)
     if args.json:

@@ -30,6 +30,10 @@ from mercury_dem.geometry.pose import image_to_ground, project
 from mercury_dem.match.pair import configured_pair_geometry
 from mercury_dem.match.pretransform import ImageGeometry
 
+#: How the reason of a pair skipped by this rule begins (``PairReport.reason``): the run counts such pairs
+#: apart from the pairs that failed.
+REDUNDANT_REASON = "redundant:"
+
 #: Reference grid (per side) on which a route's cover of the wide pair's overlap is measured; the
 #: pre-transform's 9 x 9 is too coarse for a share (1/81 steps at thin overlaps).
 _COVER_GRID = 17
@@ -115,7 +119,7 @@ def redundant_reason(
         if cover > best_cover:
             best, best_cover = x, cover
     if best and best_cover >= config.redundant_route_cover:
-        return (f"redundant: views converge by {convergence[k]:.0f} deg > redundant_convergence_deg {limit:g}, "
+        return (f"{REDUNDANT_REASON} views converge by {convergence[k]:.0f} deg > redundant_convergence_deg {limit:g}, "
                 f"and both images are matched to {best} (covering {100 * best_cover:.0f} % of the overlap) by "
                 f"pairs converging less; joined through its points instead")
     return None

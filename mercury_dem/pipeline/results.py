@@ -91,6 +91,9 @@ class TileCounts:
     image_errors: dict[str, str]
     points: int
     measures: int
+    #: pairs not matched because a narrower route joins their images (``match.redundant_convergence_deg``):
+    #: neither matched nor failed
+    pairs_redundant: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}

@@ -184,6 +184,7 @@ def _no_points_reason(tile_id: int, s: TileCounts) -> str:
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
     from mercury_dem.match.prepare import pixel_faults
     from mercury_dem.match.result import iter_rows
+    from mercury_dem.match.selection import REDUNDANT_REASON
     from mercury_dem.match.tile import match_tile
     from mercury_dem.network.build import build_network, convergence_sigma_factor
 
@@ -208,8 +209,12 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts
     matches, reports = match_tile(pixels, geom, pair_list, match_cfg, tracks=match_cfg.tracks, radiometry=radiometry)
     rows = pd.DataFrame(list(iter_rows(reports)))
     failures: dict[str, int] = {}
+    redundant = 0
     if len(rows):
         for reason in rows.loc[rows["status"] != "matched", "reason"]:
+            if str(reason).startswith(REDUNDANT_REASON):  # not tried: a narrower route joins its images
+                redundant += 1
+                continue
             key = re.sub(r"\d+(\.\d+)?", "N", str(reason))[:100]  # category: numbers folded
             failures[key] = failures.get(key, 0) + 1
     conv = np.array([r.convergence_deg for r in reports], np.float64)
@@ -235,6 +240,7 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts
         image_errors=image_errors,
         points=int(net.n_points),
         measures=int(net.n_measures),
+        pairs_redundant=redundant,
     )
     return counts, UnitFiles(network=net, pairs=rows)
 

@@ -160,6 +160,7 @@ def test_summaries_of_older_runs_read_as_the_dict_readers_had_them() -> None:
     t = summary_from_json(old_tile)
     assert isinstance(t, TileSummary) and t.counts is not None
     assert (t.images, t.points, t.measures, t.image_errors, t.seconds) == (3, 10, 25, {}, 4.0)
+    assert t.counts.pairs_redundant == 0  # a count older runs did not record (session 14)
     assert t.timing is not None and t.timing.started_at is None
     old_region = {"level": "region", "id": 1, "name": unit_name("region", 1), "ok": True, "error": None, "children": [0],
                   "images": 3, "points": 10, "measures": 25, "rms_px": 0.2, "sigma0": 0.9, "iterations": 4,
