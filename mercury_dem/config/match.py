@@ -135,7 +135,7 @@ class MatchConfig(ConfigSection):
     )
     redundant_convergence_deg: float = param(
         45.0, "Pairs whose views converge by more than this are matched only when no narrower route joins their "
-        "images: they get the status 'redundant' (not tried, with the reason) when a third image of the tile is matched "
+        "images: they are skipped (status skipped, reason 'redundant') when a third image of the tile is matched "
         "to both by pairs converging by at most this and covers redundant_route_cover of their overlap, so the "
         "tracks join them through its points. Their matches carry up to ~1 px of relief and emission error that "
         "no refinement removes (docs/benchmarks/match.md, issue 21, session 14); 180 = match every pair",

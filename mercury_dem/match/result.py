@@ -15,9 +15,8 @@ from numpy.typing import NDArray
 
 #: Routes a pair can take (``PairReport.route``).
 ROUTES = ("guided", "descriptor", "ncc", "none")
-#: Statuses of a pair (``PairReport.status``): ``skipped`` beyond an illumination or view limit,
-#: ``redundant`` not tried because a narrower route joins its images (:mod:`mercury_dem.match.selection`).
-STATUSES = ("matched", "failed", "skipped", "redundant")
+#: Statuses of a pair (``PairReport.status``).
+STATUSES = ("matched", "failed", "skipped")
 
 
 @dataclass
@@ -152,7 +151,7 @@ class TileMatches:
 
 
 def failed_result(report: PairReport, reason: str, status: str = "failed") -> PairResult:
-    """A pair without matches: ``report`` gets the status (``failed``, ``skipped`` or ``redundant``) and the reason."""
+    """A pair without matches: ``report`` gets the status (``failed`` or ``skipped``) and the reason."""
     report.status, report.reason = status, reason
     z = np.zeros((0, 2))
     return PairResult(z, z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), report)

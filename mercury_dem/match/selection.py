@@ -30,6 +30,10 @@ from numpy.typing import NDArray
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.match.pretransform import ImageGeometry, datum_grid, sees
 
+#: How the reason of a pair skipped by this rule begins (``PairReport.reason``): the run counts such pairs
+#: apart from the pairs that failed.
+REDUNDANT_REASON = "redundant:"
+
 #: Reference grid (per side) on which a route's cover of the wide pair's overlap is measured; the
 #: pre-transform's 9 x 9 is too coarse for a share (1/81 steps at thin overlaps).
 _COVER_GRID = 17
@@ -87,7 +91,7 @@ def redundant_reason(
         if cover > best_cover:
             best, best_cover = x, cover
     if best and best_cover >= config.redundant_route_cover:
-        return (f"redundant: views converge by {convergence_deg:.0f} deg > redundant_convergence_deg "
+        return (f"{REDUNDANT_REASON} views converge by {convergence_deg:.0f} deg > redundant_convergence_deg "
                 f"{config.redundant_convergence_deg:g}, and both images are matched to {best} (covering "
                 f"{100 * best_cover:.0f} % of the overlap) by pairs converging less; joined through its points instead")
     return None

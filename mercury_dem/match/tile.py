@@ -191,7 +191,7 @@ def match_tile(
                     return run(k)
                 rep = PairReport(ref_id=pairs[k][0], match_id=pairs[k][1])
                 record_geometry(rep, cast(PairGeometry, pgs[k]))  # a wide pair has one: its convergence came from it
-                return rep, failed_result(rep, why, "redundant")
+                return rep, failed_result(rep, why, "skipped")
 
             later = [k for k in range(len(pairs)) if wide[k]]
             done.update(zip(later, pmap(run_wide, later)))

@@ -184,6 +184,7 @@ def _no_points_reason(tile_id: int, s: TileCounts) -> str:
 def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
     from mercury_dem.match.prepare import pixel_faults
     from mercury_dem.match.result import iter_rows
+    from mercury_dem.match.selection import REDUNDANT_REASON
     from mercury_dem.match.tile import match_tile
     from mercury_dem.network.build import build_network, convergence_sigma_factor
 
@@ -210,8 +211,10 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts
     failures: dict[str, int] = {}
     redundant = 0
     if len(rows):
-        redundant = int((rows["status"] == "redundant").sum())  # not tried: a narrower route joins its images
-        for reason in rows.loc[~rows["status"].isin(("matched", "redundant")), "reason"]:
+        for reason in rows.loc[rows["status"] != "matched", "reason"]:
+            if str(reason).startswith(REDUNDANT_REASON):  # not tried: a narrower route joins its images
+                redundant += 1
+                continue
             key = re.sub(r"\d+(\.\d+)?", "N", str(reason))[:100]  # category: numbers folded
             failures[key] = failures.get(key, 0) + 1
     conv = np.array([r.convergence_deg for r in reports], np.float64)

@@ -75,7 +75,7 @@ def test_the_tile_skips_the_wide_pair_only_when_the_route_matched(three_views: d
     w = three_views
     cfg = MatchConfig(threads=1)
     m, reps = match_tile(w["images"], w["geom"], PAIRS, cfg)
-    assert [r.status for r in reps] == ["matched", "matched", "redundant"], [r.reason for r in reps]
+    assert [r.status for r in reps] == ["matched", "matched", "skipped"], [r.reason for r in reps]
     assert reps[2].reason.startswith("redundant") and reps[2].convergence_deg == pytest.approx(50.0, abs=0.5)
     assert np.isfinite(reps[2].incidence_difference_deg) and reps[2].overlap_apriori > 0.5
     # the v0 keypoints matched into both partners: the network's tracks join v1 and v2 through them

@@ -84,7 +84,9 @@ def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]],
     counts = np.bincount(pair, minlength=len(rows)) if pair.size else np.zeros(len(rows), np.int64)
     # a pair skipped as redundant (``match.redundant_convergence_deg``: a narrower route joins its images) was
     # not tried, so it is not a pair that failed to match
-    redundant = np.array([r.get("status") == "redundant" for r in rows], bool)
+    from mercury_dem.match.selection import REDUNDANT_REASON
+
+    redundant = np.array([str(r.get("reason", "")).startswith(REDUNDANT_REASON) for r in rows], bool)
     ov_all = (np.asarray(overlaps, float) >= 0.10) & ~redundant
     out: dict[str, dict[str, float]] = {}
     for name, members in groups.items():
