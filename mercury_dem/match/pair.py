@@ -159,12 +159,10 @@ def match_in_pair_frame(
     mf: ImageFeatures | None,
     rep: PairReport,
     keep_warped: bool = False,
-    pair_geom: PairGeometry | str | None = None,
 ) -> PairResult | PairState:
     """The pair up to its matches in the pair frame (a :class:`PairState`), or a failed/skipped result.
 
     ``keep_warped``: the state keeps the warped partner and its valid mask (for propagation).
-    ``pair_geom``: :func:`configured_pair_geometry` of the pair when the caller has it (None = computed here).
     """
     cv2.setRNGSeed(config.ransac_seed)
     cam_r, cam_m = ref_geom.camera, match_geom.camera
@@ -177,7 +175,7 @@ def match_in_pair_frame(
     if not mf.quality.ok:
         return failed_result(rep, f"match image {rep.match_id}: {mf.quality.reason}")
 
-    pg = configured_pair_geometry(ref_geom, match_geom, config) if pair_geom is None else pair_geom
+    pg = configured_pair_geometry(ref_geom, match_geom, config)
     if isinstance(pg, str):
         return failed_result(rep, pg)
     record_geometry(rep, pg)

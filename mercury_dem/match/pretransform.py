@@ -114,33 +114,6 @@ def apply_homography(h: NDArray[np.float64], points: NDArray[np.float64]) -> NDA
         return q[:, :2] / q[:, 2:3]
 
 
-def datum_grid(
-    image: ImageGeometry, grid: int
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-    """A ``grid`` x ``grid`` of an image's pixels (cell centres) and their rays' points on the datum.
-
-    Returns (pixels (N, 2), ground (N, 3) body-fixed metres, hit (N,): the ray meets the datum).
-    """
-    cam = image.camera
-    t = (np.arange(grid) + 0.5) / grid
-    ss, ll = np.meshgrid(t * cam.samples - 0.5, t * cam.lines - 0.5)
-    px = np.stack([ss.ravel(), ll.ravel()], axis=-1)
-    ground, hit = image_to_ground(cam, image.position, image.rotation, px, datum_radius_m=image.datum_radius_m)
-    return px, ground, hit
-
-
-def sees(
-    image: ImageGeometry, ground: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
-    """Where ground points (N, 3) fall in an image (datum, no occlusion).
-
-    Returns (pixels (N, 2), front (N,): in front of the camera with finite pixels, inside (N,): and in the frame).
-    """
-    px, depth = project(image.camera, image.position, image.rotation, ground)
-    front = (depth > 0) & np.all(np.isfinite(px), axis=-1)
-    return px, front, front & image.camera.in_image(np.nan_to_num(px, nan=-1e9))
-
-
 def pair_geometry(
     ref: ImageGeometry,
     match: ImageGeometry,
@@ -155,11 +128,16 @@ def pair_geometry(
     Returns a string (the reason) when the reference does not see the body or the
     pair has no a-priori overlap.
     """
-    cam_m = match.camera
-    px_r, ground, hit = datum_grid(ref, grid)
+    cam_r, cam_m = ref.camera, match.camera
+    t = (np.arange(grid) + 0.5) / grid
+    ss, ll = np.meshgrid(t * cam_r.samples - 0.5, t * cam_r.lines - 0.5)
+    px_r = np.stack([ss.ravel(), ll.ravel()], axis=-1)
+    ground, hit = image_to_ground(cam_r, ref.position, ref.rotation, px_r, datum_radius_m=ref.datum_radius_m)
     if hit.sum() < 4:
         return "reference image does not see the body at enough grid points for the pre-transform"
-    px_m, front, inside = sees(match, ground[hit])
+    px_m, depth = project(cam_m, match.position, match.rotation, ground[hit])
+    front = (depth > 0) & np.all(np.isfinite(px_m), axis=-1)
+    inside = front & cam_m.in_image(np.nan_to_num(px_m, nan=-1e9))
     overlap = float(inside.sum()) / float(px_r.shape[0])
     if not inside.any():
         return "no a-priori overlap (no reference grid point projects into the match image)"
@@ -189,7 +167,7 @@ def pair_geometry(
     range_m = float(np.linalg.norm(g - match.position))
     ang_r = float(np.hypot(pointing_sigma_rad, position_sigma_m / range_r))
     ang_m = float(np.hypot(pointing_sigma_rad, position_sigma_m / range_m))
-    sig_r = ang_r / ref.camera.ifov_rad
+    sig_r = ang_r / cam_r.ifov_rad
     sig_m = ang_m / cam_m.ifov_rad / max(scale, 1e-9)
     guidance = guidance_sigmas * float(np.hypot(sig_r, sig_m)) + guidance_margin_px
     ray_r, ray_m = (ref.position - g) / range_r, (match.position - g) / range_m

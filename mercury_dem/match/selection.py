@@ -15,9 +15,7 @@ connections.
 
 The decision is made after the narrower pairs are matched (:func:`match.tile.match_tile` runs the
 wide pairs last), so a route counts only if both its pairs actually gave matches. Pure functions
-of the a-priori geometry (the pairs' convergences come from the pre-transform's
-:class:`~mercury_dem.match.pretransform.PairGeometry`, computed once per pair by the tile and handed
-to the pair chain) and the narrower pairs' match counts.
+of the a-priori geometry and the narrower pairs' match counts.
 """
 
 from __future__ import annotations
@@ -28,7 +26,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.config.match import MatchConfig
-from mercury_dem.match.pretransform import ImageGeometry, datum_grid, sees
+from mercury_dem.geometry.pose import image_to_ground, project
+from mercury_dem.match.pair import configured_pair_geometry
+from mercury_dem.match.pretransform import ImageGeometry
 
 #: How the reason of a pair skipped by this rule begins (``PairReport.reason``): the run counts such pairs
 #: apart from the pairs that failed.
@@ -39,15 +39,45 @@ REDUNDANT_REASON = "redundant:"
 _COVER_GRID = 17
 
 
+def pair_convergence(ref: ImageGeometry | None, match: ImageGeometry | None, config: MatchConfig) -> float:
+    """Convergence angle (deg) of a pair at its a-priori overlap centre, as the pair chain computes it
+    (:func:`configured_pair_geometry`); NaN when an image has no geometry or the pair no overlap.
+    """
+    if ref is None or match is None:
+        return float("nan")
+    pg = configured_pair_geometry(ref, match, config)
+    return float("nan") if isinstance(pg, str) else float(pg.convergence_deg)
+
+
+def pair_convergences(pairs: Sequence[tuple[str, str]], geometry: Mapping[str, ImageGeometry],
+                      config: MatchConfig) -> NDArray[np.float64]:
+    """:func:`pair_convergence` of every pair (deg, NaN where none)."""
+    return np.array([pair_convergence(geometry.get(a), geometry.get(b), config) for a, b in pairs], np.float64)
+
+
+def _inside(ground: NDArray[np.float64], g: ImageGeometry) -> NDArray[np.bool_]:
+    """Which ground points (N, 3) an image sees inside its frame (datum, no occlusion)."""
+    px, depth = project(g.camera, g.position, g.rotation, ground)
+    ok = (depth > 0) & np.all(np.isfinite(px), axis=-1)
+    return ok & g.camera.in_image(np.nan_to_num(px, nan=-1e9))
+
+
 def route_cover(ref: ImageGeometry, match: ImageGeometry, via: ImageGeometry) -> float:
     """Share of a pair's a-priori overlap (reference grid points on the datum seen by ``match``)
     that ``via`` sees too: 0..1, 0 when the pair has no overlap.
     """
-    _, ground, hit = datum_grid(ref, _COVER_GRID)
-    in_m = sees(match, ground[hit])[2]
+    cam = ref.camera
+    t = (np.arange(_COVER_GRID) + 0.5) / _COVER_GRID
+    ss, ll = np.meshgrid(t * cam.samples - 0.5, t * cam.lines - 0.5)
+    px = np.stack([ss.ravel(), ll.ravel()], axis=-1)
+    ground, hit = image_to_ground(cam, ref.position, ref.rotation, px, datum_radius_m=ref.datum_radius_m)
+    g = ground[hit]
+    if g.shape[0] == 0:
+        return 0.0
+    in_m = _inside(g, match)
     if not in_m.any():
         return 0.0
-    return float(np.mean(sees(via, ground[hit][in_m])[2]))
+    return float(np.mean(_inside(g[in_m], via)))
 
 
 def wide_pairs(convergence: NDArray[np.float64], config: MatchConfig) -> NDArray[np.bool_]:
@@ -55,43 +85,41 @@ def wide_pairs(convergence: NDArray[np.float64], config: MatchConfig) -> NDArray
     return np.asarray(np.isfinite(convergence) & (convergence > config.redundant_convergence_deg), bool)
 
 
-def narrow_neighbours(
-    pairs: Sequence[tuple[str, str]], convergence: NDArray[np.float64], matched: Sequence[int], config: MatchConfig
-) -> dict[str, set[str]]:
-    """Image -> the images it is joined to by a pair converging by at most ``redundant_convergence_deg``
-    that gave at least ``redundant_route_min_matches`` matches (``matched[j]``: pair j's matches, 0 when
-    it has none or was not matched).
-    """
-    out: dict[str, set[str]] = {}
-    for (p, q), c, n in zip(pairs, convergence, matched):
-        if np.isfinite(c) and c <= config.redundant_convergence_deg and n >= config.redundant_route_min_matches:
-            out.setdefault(p, set()).add(q)
-            out.setdefault(q, set()).add(p)
-    return out
-
-
 def redundant_reason(
-    a: str,
-    b: str,
-    convergence_deg: float,
-    neighbours: Mapping[str, set[str]],
+    k: int,
+    pairs: Sequence[tuple[str, str]],
+    convergence: NDArray[np.float64],
+    matched: Sequence[int],
     geometry: Mapping[str, ImageGeometry],
     config: MatchConfig,
 ) -> str | None:
-    """Why the wide pair (a, b) need not be matched, or None when it must.
+    """Why wide pair ``k`` need not be matched, or None when it must.
 
-    It need not when a third image x is among both images' :func:`narrow_neighbours` and sees at
-    least ``redundant_route_cover`` of the pair's a-priori overlap.
+    It need not when a third image x of the tile is matched to both of its images by pairs
+    converging by at most ``redundant_convergence_deg`` that gave at least
+    ``redundant_route_min_matches`` matches each, and x sees at least ``redundant_route_cover`` of
+    the pair's a-priori overlap. ``matched[j]`` is pair j's number of matches (0 for a pair not
+    matched or not yet matched).
     """
+    a, b = pairs[k]
+    limit = config.redundant_convergence_deg
+    good: dict[str, set[str]] = {}
+    for j, (p, q) in enumerate(pairs):
+        if j == k or not (np.isfinite(convergence[j]) and convergence[j] <= limit):
+            continue
+        if matched[j] < config.redundant_route_min_matches:
+            continue
+        good.setdefault(p, set()).add(q)
+        good.setdefault(q, set()).add(p)
     best, best_cover = "", 0.0
-    for x in sorted((neighbours.get(a, set()) & neighbours.get(b, set())) - {a, b}):
+    for x in sorted(good.get(a, set()) & good.get(b, set())):
         if x not in geometry or a not in geometry or b not in geometry:
             continue
         cover = route_cover(geometry[a], geometry[b], geometry[x])
         if cover > best_cover:
             best, best_cover = x, cover
     if best and best_cover >= config.redundant_route_cover:
-        return (f"{REDUNDANT_REASON} views converge by {convergence_deg:.0f} deg > redundant_convergence_deg "
-                f"{config.redundant_convergence_deg:g}, and both images are matched to {best} (covering "
-                f"{100 * best_cover:.0f} % of the overlap) by pairs converging less; joined through its points instead")
+        return (f"{REDUNDANT_REASON} views converge by {convergence[k]:.0f} deg > redundant_convergence_deg {limit:g}, "
+                f"and both images are matched to {best} (covering {100 * best_cover:.0f} % of the overlap) by "
+                f"pairs converging less; joined through its points instead")
     return None

@@ -15,7 +15,7 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import Any, cast
+from typing import Any
 
 import cv2
 import numpy as np
@@ -30,7 +30,7 @@ from mercury_dem.match.pair import (
     record_geometry,
 )
 from mercury_dem.match.prepare import ImageFeatures, pattern_on, prepare_image
-from mercury_dem.match.pretransform import ImageGeometry, PairGeometry
+from mercury_dem.match.pretransform import ImageGeometry
 from mercury_dem.match.propagation import (
     NO_ANCHORS,
     Anchors,
@@ -42,7 +42,7 @@ from mercury_dem.match.propagation import (
     thin,
 )
 from mercury_dem.match.result import PairReport, PairResult, TileMatches, failed_result, tile_matches
-from mercury_dem.match.selection import narrow_neighbours, redundant_reason, wide_pairs
+from mercury_dem.match.selection import pair_convergence, redundant_reason, wide_pairs
 
 #: Memory the warped partners of a tile may take between phases 1 and 2 (bytes): within it every
 #: pair keeps its partner (and flow) for the propagation, beyond it the propagation warps (and
@@ -123,16 +123,10 @@ def match_tile(
             return rep, failed_result(rep, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
         t0 = time.perf_counter()
         out = match_in_pair_frame(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b],
-                                  rep, keep_warped=keep_warped, pair_geom=pgs[k])
+                                  rep, keep_warped=keep_warped)
         rep.seconds = time.perf_counter() - t0
         return rep, out
 
-    def pair_geom_of(pair: tuple[str, str]) -> PairGeometry | str | None:
-        a, b = pair
-        return configured_pair_geometry(geometry[a], geometry[b], config) if a in geometry and b in geometry else None
-
-    # each pair's a-priori geometry when the pair selection needs it first (None: the chain computes it)
-    pgs: list[PairGeometry | str | None] = [None] * len(pairs)
     propagate = tracks and config.refine
     # the warped partners are kept for the propagation when they all fit in the budget, else re-warped
     largest = max((geometry[x].camera.lines * geometry[x].camera.samples for x in needed), default=0)
@@ -173,24 +167,24 @@ def match_tile(
     with _OpenCVThreads(1), ThreadPoolExecutor(max_workers=threads) as pool:
         pmap: Any = pool.map if threads > 1 else map  # threads == 1: all in the calling thread
         prepared = dict(zip(needed, pmap(prep, needed)))
-        # the wide pairs go last: each is matched only if no narrower route of matched pairs joins its images;
-        # their pair geometries (~0.7 ms a pair) are computed once, here on the pool, and handed to the chain
-        if config.redundant_convergence_deg < 180.0:
-            pgs = list(pmap(pair_geom_of, pairs))
-        conv = np.array([pg.convergence_deg if isinstance(pg, PairGeometry) else np.nan for pg in pgs])
+        # the wide pairs go last: each is matched only if no narrower route of matched pairs joins its images
+        conv = np.full(len(pairs), np.nan)
+        if config.redundant_convergence_deg < 180.0:  # ~0.7 ms a pair, on the pool
+            conv[:] = list(pmap(lambda p: pair_convergence(geometry.get(p[0]), geometry.get(p[1]), config), pairs))
         wide = wide_pairs(conv, config)
         first = [k for k in range(len(pairs)) if not wide[k]]
         done = dict(zip(first, pmap(run, first)))
         if wide.any():
-            routes = narrow_neighbours(pairs, conv, [_n_matches(done[j][1]) if j in done else 0
-                                                     for j in range(len(pairs))], config)
+            counts = [_n_matches(done[j][1]) if j in done else 0 for j in range(len(pairs))]
 
             def run_wide(k: int) -> tuple[PairReport, PairResult | PairState]:
-                why = redundant_reason(*pairs[k], float(conv[k]), routes, geometry, config)
+                why = redundant_reason(k, pairs, conv, counts, geometry, config)
                 if why is None:
                     return run(k)
                 rep = PairReport(ref_id=pairs[k][0], match_id=pairs[k][1])
-                record_geometry(rep, cast(PairGeometry, pgs[k]))  # a wide pair has one: its convergence came from it
+                pg = configured_pair_geometry(geometry[pairs[k][0]], geometry[pairs[k][1]], config)
+                if not isinstance(pg, str):  # a wide pair has a geometry (its convergence came from it)
+                    record_geometry(rep, pg)
                 return rep, failed_result(rep, why, "skipped")
 
             later = [k for k in range(len(pairs)) if wide[k]]

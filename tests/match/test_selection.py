@@ -10,15 +10,13 @@ import pytest
 
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.match import match_tile
-from mercury_dem.match.pair import configured_pair_geometry
-from mercury_dem.match.selection import narrow_neighbours, redundant_reason, route_cover, wide_pairs
+from mercury_dem.match.selection import pair_convergences, redundant_reason, route_cover, wide_pairs
 
 
 @pytest.fixture(scope="module")
 def three_views() -> dict[str, Any]:
     """A nadir view and two views tilted 25 deg north and south of it (WAC 256^2, 1.8 km/px): the
-    outer pair converges by ~50 deg, each with the nadir one by ~25 deg.
-    """
+    outer pair converges by ~50 deg, each with the nadir one by ~25 deg."""
     pytest.importorskip("mercury_dem.synth.render")
     from mercury_dem.synth.terrain import Surface, SurfaceParams
     from mercury_dem.validate.matching import convergent_views
@@ -31,16 +29,11 @@ def three_views() -> dict[str, Any]:
 PAIRS = [("v0", "v1"), ("v0", "v2"), ("v1", "v2")]
 
 
-def _convergences(geom: dict[str, Any], cfg: MatchConfig) -> np.ndarray:
-    return np.array([configured_pair_geometry(geom[a], geom[b], cfg).convergence_deg for a, b in PAIRS])
-
-
 def test_convergence_and_cover_of_the_three_views(three_views: dict[str, Any]) -> None:
     """The convergences are the tilts' (to the a-priori pointing, 450 urad) and the nadir view, which
-    looks at the same centre, sees nearly all of the outer pair's overlap; a view elsewhere sees none.
-    """
+    looks at the same centre, sees nearly all of the outer pair's overlap; a view elsewhere sees none."""
     g = three_views["geom"]
-    conv = _convergences(g, MatchConfig())
+    conv = pair_convergences(PAIRS, g, MatchConfig())
     np.testing.assert_allclose(conv, [25.0, 25.0, 50.0], atol=0.5)
     assert list(wide_pairs(conv, MatchConfig())) == [False, False, True]
     assert route_cover(g["v1"], g["v2"], g["v0"]) >= 0.9
@@ -49,29 +42,20 @@ def test_convergence_and_cover_of_the_three_views(three_views: dict[str, Any]) -
 
 
 def test_a_route_counts_only_with_enough_matches_on_both_legs(three_views: dict[str, Any]) -> None:
-    """A route needs both legs narrow enough with enough matches, and the third image over the overlap."""
     g, cfg = three_views["geom"], MatchConfig()
-    conv = _convergences(g, cfg)
-
-    def why(matched: list[int], geom: dict[str, Any] = g, c: MatchConfig = cfg) -> str | None:
-        return redundant_reason("v1", "v2", float(conv[2]), narrow_neighbours(PAIRS, conv, matched, c), geom, c)
-
-    reason = why([400, 400, 0])
-    assert reason is not None and "v0" in reason and "converge by 50 deg" in reason
-    assert "redundant_convergence_deg 45" in reason
-    assert why([400, cfg.redundant_route_min_matches - 1, 0]) is None
-    assert why([400, 400, 0], c=dataclasses.replace(cfg, redundant_convergence_deg=20.0)) is None
+    conv = pair_convergences(PAIRS, g, cfg)
+    why = redundant_reason(2, PAIRS, conv, [400, 400, 0], g, cfg)
+    assert why is not None and "v0" in why and "converge by 50 deg" in why and "redundant_convergence_deg 45" in why
+    assert redundant_reason(2, PAIRS, conv, [400, cfg.redundant_route_min_matches - 1, 0], g, cfg) is None
+    assert redundant_reason(2, PAIRS, conv, [400, 400, 0], g, dataclasses.replace(cfg, redundant_convergence_deg=20.0)) is None
     far = dict(g, v0=dataclasses.replace(g["v0"], position=-g["v0"].position))  # v0 sees none of the overlap
-    assert why([400, 400, 0], geom=far) is None
-    # the wide pair itself is no route, even when it matched
-    assert narrow_neighbours(PAIRS, conv, [0, 0, 400], cfg) == {}
+    assert redundant_reason(2, PAIRS, conv, [400, 400, 0], far, cfg) is None
 
 
 def test_the_tile_skips_the_wide_pair_only_when_the_route_matched(three_views: dict[str, Any]) -> None:
     """Defaults: the two 25-deg pairs match, the 50-deg pair is skipped with the reason and its geometry
     recorded, and its images share points through v0's keypoints (tracks). With the rule off (180) it is
-    matched; when v0 is unreadable (no route) it is matched too.
-    """
+    matched; when v0 is unreadable (no route) it is matched too."""
     w = three_views
     cfg = MatchConfig(threads=1)
     m, reps = match_tile(w["images"], w["geom"], PAIRS, cfg)
