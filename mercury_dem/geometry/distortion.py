@@ -336,8 +336,11 @@ class CsmDistortion:
         return self.axes[0] * x, self.axes[1] * y
 
     def distort_jacobian(self, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
-        """d(x_d, y_d)/d(x, y) at undistorted points, shape (..., 2, 2); analytic (inverse function theorem
-        for the models whose closed form is the undistortion)."""
+        """d(x_d, y_d)/d(x, y) at undistorted points, shape (..., 2, 2).
+
+        Analytic: the inverse of the closed form's Jacobian (inverse function theorem) for the
+        models whose closed form is the undistortion.
+        """
         xi, yi = self._isd_axes(x, y)
         if self.model in _CLOSED_UNDISTORT:
             xd, yd = self._invert(xi, yi)
