@@ -497,10 +497,13 @@ def _ale_pose(r: _Reader, et: float, require_sun: bool, warnings: list[str]) -> 
     qi = _at_time(r, "instrument_pointing", "quaternions", 4, et)
     j2000_to_body = quaternion_to_matrix(qb)
     j2000_to_frame = quaternion_to_matrix(qi)
-    if not r.has("instrument_pointing.constant_rotation"):
+    if r.has("instrument_pointing.constant_rotation"):
+        const = _rotation(r, "instrument_pointing.constant_rotation")
+    elif not r.has("instrument_pointing.time_dependent_frames"):
+        const = np.eye(3)  # ALE's default when the table names no frame chain
+    else:
         raise r.error("instrument_pointing.constant_rotation",
                       "is missing; it rotates the pointing frame into the instrument frame (9 numbers, row-major)")
-    const = _rotation(r, "instrument_pointing.constant_rotation")
     rotation = const @ j2000_to_frame @ j2000_to_body.T
     scale = r.unit_scale("instrument_position.unit", "km")
     position = j2000_to_body @ (_at_time(r, "instrument_position", "positions", 3, et) * scale)
@@ -575,7 +578,7 @@ def isd_from_dict(isd: Mapping[str, Any], source: str = "<dict>", require_sun: b
     else:
         position, rotation, sun, j2b = _csm_pose(r, require_sun, warnings)
         pos_key = "sensor_position.positions"
-    if float(np.linalg.norm(position)) <= radius_m:
+    if float(np.linalg.norm(position)) < radius_m:
         raise r.error(pos_key, f"puts the camera {np.linalg.norm(position):.1f} m from the body centre, inside "
                                f"the {radius_m:.1f} m sphere: check its unit and frame")
     turned = bool(np.any(turn != np.eye(3)))

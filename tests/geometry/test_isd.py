@@ -199,7 +199,7 @@ def _write(tmp_path: Path, d: dict, name: str = "bad_isd.json") -> Path:
 
 @pytest.mark.parametrize(
     "key",
-    ["instrument_position.positions", "instrument_pointing.quaternions", "instrument_pointing.constant_rotation",
+    ["instrument_position.positions", "instrument_pointing.quaternions",
      "body_rotation", "body_rotation.quaternions", "sun_position", "focal_length_model", "focal2pixel_lines",
      "detector_center.sample", "starting_detector_line", "detector_sample_summing", "image_samples",
      "radii.semimajor", "optical_distortion.transverse.y"],
@@ -212,6 +212,16 @@ def test_missing_key_names_file_and_key(tmp_path: Path, key: str) -> None:
     assert str(path) in msg
     assert key.split(".")[0] in msg
     assert not isinstance(info.value, KeyError)
+
+
+def test_constant_rotation_defaults_as_ale(tmp_path: Path) -> None:
+    """ALE's getInstrumentPointing: identity without a frame chain, required with ``time_dependent_frames``."""
+    isd = _drop(ale_isd(), "instrument_pointing.constant_rotation")
+    assert np.allclose(read_isd(_write(tmp_path, isd, "a.json")).rotation, read_isd(_write(tmp_path, _set(
+        ale_isd(), "instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]), "b.json")).rotation)
+    chained = _set(isd, "instrument_pointing.time_dependent_frames", [-236820, 1])
+    with pytest.raises(IsdError, match=r"c\.json: key 'instrument_pointing.constant_rotation' is missing"):
+        read_isd(_write(tmp_path, chained, "c.json"))
 
 
 @pytest.mark.parametrize("key", ["sensor_position.positions", "sensor_orientation.quaternions", "sun_position"])
