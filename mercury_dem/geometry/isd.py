@@ -62,6 +62,8 @@ ROTATION_ORTHO_TOL = 1e-6
 #: (Mercury is 46.0e9 to 69.8e9 m from the Sun; the margin catches unit mistakes only).
 SUN_DISTANCE_RANGE_M = (3.0e10, 1.0e11)
 
+#: Detector pixels per image pixel an ISD may state (usgscsm takes any number; beyond these, corrupt).
+SUMMING_RANGE = (1e-6, 1e6)
 #: Distortion models of ALE/usgscsm ISDs that are refused, and why.
 REFUSED_DISTORTION = {
     "lunarorbiter": "usgscsm's frame sensor applies no distortion for it (Distortion.cpp has no case), so an "
@@ -371,27 +373,31 @@ def _distortion(r: _Reader, f_mm: float, axes: tuple[float, float],
 
 
 def _check_distortion(r: _Reader, camera: FramingCamera) -> None:
-    """Refuse a distortion that folds the image: its Jacobian must stay invertible and orientation-keeping
-    at the image's corners, edge midpoints and centre (usgscsm silently returns the distorted point
-    where its Newton step meets a singular Jacobian).
+    """Refuse a distortion that folds the image.
+
+    On a 9 x 9 grid over the image (edges included) the model must invert consistently
+    (distort(undistort(p)) = p to 1e-9 mm) with a Jacobian that stays orientation-keeping
+    (determinant > 1e-6). usgscsm instead returns the distorted point where its Newton step meets a
+    singular Jacobian, and may converge to another branch of a folding model.
     """
     if not camera.has_distortion:
         return
-    s, ln = np.meshgrid([-0.5, camera.samples / 2 - 0.5, camera.samples - 0.5],
-                        [-0.5, camera.lines / 2 - 0.5, camera.lines - 0.5])
+    s, ln = np.meshgrid(np.linspace(-0.5, camera.samples - 0.5, 9), np.linspace(-0.5, camera.lines - 0.5, 9))
     px = np.stack([s.ravel(), ln.ravel()], axis=-1)
     with np.errstate(all="ignore"):
         lin = camera.pixel_to_focal_matrix()
-        xd, yd = np.einsum("ij,nj->ni", lin, px - [camera.boresight_sample, camera.boresight_line]).T
+        xd, yd = np.einsum("ij,nj->in", lin, px - [camera.boresight_sample, camera.boresight_line])
         xu, yu = camera.undistort(xd, yd)
+        xr, yr = camera.distort(xu, yu)
         jac = camera.distortion_jacobian(xu, yu)
         det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
-    ok = np.isfinite(xu) & np.isfinite(yu) & np.isfinite(det) & (det > 1e-6)
+        back = np.maximum(np.abs(xr - xd), np.abs(yr - yd))
+    ok = np.isfinite(xu) & np.isfinite(yu) & (back <= 1e-9) & np.isfinite(det) & (det > 1e-6)
     if not np.all(ok):
         worst = float(np.nanmin(det)) if np.any(np.isfinite(det)) else math.nan
         raise r.error("optical_distortion", f"'{camera.distortion_model}' folds or degenerates inside the image "
-                      f"(its Jacobian determinant is {worst:.3g} or undefined at an image corner, edge midpoint or "
-                      "the centre; it must be > 0): the coefficients are wrong")
+                      f"(over a 9 x 9 grid of its pixels the model does not invert consistently or its Jacobian "
+                      f"determinant, least {worst:.3g}, is not > 0): the coefficients are wrong")
 
 
 def _camera(r: _Reader, warnings: list[str]) -> tuple[FramingCamera, NDArray[np.float64]]:
@@ -413,6 +419,9 @@ def _camera(r: _Reader, warnings: list[str]) -> tuple[FramingCamera, NDArray[np.
     t = np.array([[m[1, 1], -m[0, 1]], [-m[1, 0], m[0, 0]]]) / det
     s_sum = r.number("detector_sample_summing", positive=True)
     l_sum = r.number("detector_line_summing", positive=True)
+    for key, value in (("detector_sample_summing", s_sum), ("detector_line_summing", l_sum)):
+        if not SUMMING_RANGE[0] <= value <= SUMMING_RANGE[1]:
+            raise r.error(key, f"is {value:g}: detector pixels per image pixel must be within {SUMMING_RANGE}")
     c_s = r.number("detector_center.sample")
     c_l = r.number("detector_center.line")
     start_s = r.number("starting_detector_sample")
