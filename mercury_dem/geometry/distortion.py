@@ -1,6 +1,7 @@
 """Lens distortion models of the framing camera, in our focal-plane millimetres.
 
-Two real models are represented (the third, ``none``, is the identity):
+Two real models are written out here first (``none`` is the identity; usgscsm's other frame
+models are :class:`CsmDistortion`, at the end of this module):
 
 ``transverse``
     MDIS (ISIS ``TaylorCameraDistortionMap``, CSM "transverse"): ten-term cubic
