@@ -22,7 +22,8 @@ DESCRIPTION = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("net", metavar="NET.net", help="ISIS3 binary control network")
     p.add_argument("--cameras", nargs="+", required=True, metavar="FILE",
-                   help="cubes with SPICE attached (.cub) and/or CSM frame ISDs (.json) of the network's images")
+                   help="cubes with SPICE attached (.cub) and/or CSM frame ISDs of the network's images "
+                        "(recognised by content: .json, .isd or any extension)")
     p.add_argument("--serials", metavar="CSV", help="'file,serial' lines: the ISIS serial number of a camera file")
     p.add_argument("--out", required=True, metavar="OUT.net", help="adjusted network to write (ISIS v5)")
     p.add_argument("--require-all", action="store_true",

@@ -48,7 +48,7 @@ _ROWS: list[tuple[str, str, str]] = [  # (CamInfo field, label, format)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("isd", metavar="ISD.json", help="CSM frame-camera ISD (ALE or usgscsm layout)")
+    p.add_argument("isd", metavar="ISD", help="CSM frame-camera ISD (ALE or usgscsm layout; JSON, any extension)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--label", metavar="LBL", help="PDS3 label of the same image: also print its values and our differences")
     p.add_argument("--radius-km", type=float, metavar="R",

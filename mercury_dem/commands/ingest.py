@@ -15,7 +15,8 @@ HELP = "build a mission from real images: ISIS cubes after spiceinit attach=true
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("mission", metavar="MISSION", help="mission directory to create")
     p.add_argument("files", metavar="FILE", nargs="+",
-                   help="cubes (.cub), ISDs (.json) or images with an ISD of the same stem; globs allowed")
+                   help="cubes (.cub), CSM ISDs (JSON, any extension) or images with an ISD of the same stem "
+                        "(X.json, X.isd or X); globs allowed")
     p.add_argument("--isd-dir", metavar="DIR", help="where the ISDs of the given image files are")
     p.add_argument("--image-list", metavar="CSV",
                    help="ISD,IMAGE pairs (one a line) when an ISD's image does not share its file stem")

@@ -12,7 +12,9 @@ Frames and pixels (docs/conventions.md):
   polynomial of MDIS mapping undistorted focal-plane millimetres to distorted ones
   with the ten terms ``1, x, y, x^2, xy, y^2, x^3, x^2 y, x y^2, y^3``;
   ``apollo_metric``, ISIS's radial + decentering model about a principal point
-  (:class:`mercury_dem.geometry.distortion.ApolloMetricDistortion`); or ``none``;
+  (:class:`mercury_dem.geometry.distortion.ApolloMetricDistortion`); the other models of
+  usgscsm's frame sensor (``radial``, ``cahvor``, ``dawnfc``, ``radtan``, ``lrolrocnac``,
+  ``kaguyalism``: :class:`mercury_dem.geometry.distortion.CsmDistortion`); or ``none``;
 * pixels: 0-based, the centre of the first pixel at (sample, line) = (0, 0); ISIS
   is 1-based and CSM puts 0.5 at the first pixel centre: both are converted at the
   boundary only. Image pixel -> distorted focal plane is one 2-D affine map,
@@ -37,10 +39,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError
-from mercury_dem.geometry.distortion import ApolloMetricDistortion, newton_inverse
+from mercury_dem.geometry.distortion import (
+    CSM_DISTORTION_SIZES,
+    ApolloMetricDistortion,
+    CsmDistortion,
+    newton_inverse,
+)
 
 #: The distortion models a :class:`FramingCamera` can carry.
-DISTORTION_MODELS = ("none", "transverse", "apollo_metric")
+DISTORTION_MODELS = ("none", "transverse", "apollo_metric", *CSM_DISTORTION_SIZES)
 
 #: MDIS-NAC transverse distortion coefficients (NAIF kernel msgr_mdis_v160.ti,
 #: INS-236820_OD_T_X / _Y, as carried by the CSM ISD of EN1072174528M).
@@ -91,6 +98,8 @@ class FramingCamera:
         as four numbers ``(dx/ds, dx/dl, dy/ds, dy/dl)``, mm per image pixel (row-major 2 x 2).
         Empty means ``L = pixel_size_mm * I`` (square pixels, x along samples, y along lines).
     apollo_distortion : the ``apollo_metric`` model, or None
+    csm_distortion : one of usgscsm's other models (:class:`~mercury_dem.geometry.distortion.CsmDistortion`),
+        or None
 
     Notes
     -----
@@ -114,6 +123,7 @@ class FramingCamera:
     distortion_y: tuple[float, ...] = field(default=())
     focal_plane_map: tuple[float, ...] = field(default=())
     apollo_distortion: ApolloMetricDistortion | None = None
+    csm_distortion: CsmDistortion | None = None
 
     def __post_init__(self) -> None:
         if not (self.focal_length_mm > 0 and np.isfinite(self.focal_length_mm)):
@@ -126,9 +136,9 @@ class FramingCamera:
             raise GeometryError(
                 f"camera {self.name}: distortion_x/distortion_y need 10 coefficients each (or none)"
             )
-        if self.apollo_distortion is not None and self.distortion_x:
-            raise GeometryError(f"camera {self.name}: give either transverse distortion_x/_y or "
-                                "apollo_distortion, not both")
+        if sum((bool(self.distortion_x), self.apollo_distortion is not None, self.csm_distortion is not None)) > 1:
+            raise GeometryError(f"camera {self.name}: give one distortion model (transverse distortion_x/_y, "
+                                "apollo_distortion or csm_distortion), not several")
         if self.focal_plane_map:
             m = self.focal_plane_map
             if len(m) != 4 or not all(math.isfinite(float(c)) for c in m):
@@ -161,11 +171,13 @@ class FramingCamera:
 
     @property
     def distortion_model(self) -> str:
-        """``"transverse"``, ``"apollo_metric"`` or ``"none"``."""
+        """One of :data:`DISTORTION_MODELS`: ``"transverse"``, ``"apollo_metric"``, a usgscsm model name or ``"none"``."""
         if len(self.distortion_x) == 10:
             return "transverse"
         if self.apollo_distortion is not None:
             return "apollo_metric"
+        if self.csm_distortion is not None:
+            return self.csm_distortion.model
         return "none"
 
     @property
@@ -223,12 +235,15 @@ class FramingCamera:
     def distort(self, x: ArrayLike, y: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Undistorted focal-plane mm -> distorted focal-plane mm.
 
-        Closed form for ``transverse``; a Newton iteration for ``apollo_metric``.
+        Closed form for ``transverse``; a Newton iteration for ``apollo_metric``; as
+        :meth:`CsmDistortion.distort <mercury_dem.geometry.distortion.CsmDistortion.distort>` says for the others.
         """
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
         if self.apollo_distortion is not None:
             return self.apollo_distortion.distort(x, y)
+        if self.csm_distortion is not None:
+            return self.csm_distortion.distort(x, y)
         if not self.has_distortion:
             return x, y
         t = _poly_terms(x, y)
@@ -240,6 +255,8 @@ class FramingCamera:
         y = np.asarray(y, dtype=np.float64)
         if self.apollo_distortion is not None:
             return self.apollo_distortion.distort_jacobian(x, y)
+        if self.csm_distortion is not None:
+            return self.csm_distortion.distort_jacobian(x, y)
         jac = np.zeros(x.shape + (2, 2))
         if not self.has_distortion:
             jac[..., 0, 0] = 1.0
@@ -263,6 +280,8 @@ class FramingCamera:
         yd = np.asarray(yd, dtype=np.float64)
         if self.apollo_distortion is not None:
             return self.apollo_distortion.undistort(xd, yd)
+        if self.csm_distortion is not None:
+            return self.csm_distortion.undistort(xd, yd)
         if not self.has_distortion:
             return xd, yd
         return newton_inverse(self.distort, self.distortion_jacobian, xd, yd, xd, yd, tol_mm, max_iter)
@@ -323,6 +342,67 @@ class FramingCamera:
         s, l = px[..., 0], px[..., 1]
         lo = -0.5 + margin
         return (s >= lo) & (l >= lo) & (s <= self.samples - 0.5 - margin) & (l <= self.lines - 0.5 - margin)
+
+
+def detector_affine(
+    detector_to_focal: ArrayLike,
+    focal_origin: ArrayLike,
+    scale: tuple[float, float],
+    offset: tuple[float, float],
+    square_mm: float | None = None,
+) -> tuple[float, float, tuple[float, ...]]:
+    """The image pixel -> distorted focal plane affine of a detector, as :class:`FramingCamera` holds it.
+
+    The one place where a detector's affine (NAIF ``TRANSX``/``TRANSY`` of a cube, a CSM ISD's
+    ``focal2pixel_samples``/``_lines``) becomes the camera's ``boresight_sample``/``_line`` and
+    ``focal_plane_map``. Per axis, the detector pixel centred on the detector origin is
+    ``c = scale * p + offset`` for our 0-based image pixel ``p``; the focal plane is
+    ``(x, y) = T (c - c0)`` with ``T = detector_to_focal`` and ``c0 = focal_origin``.
+
+    Parameters
+    ----------
+    detector_to_focal : (2, 2) ``T``, mm per centred detector pixel (any invertible matrix:
+        mirrored, rotated, non-square pixels)
+    focal_origin : (2,) ``c0``, the centred detector (sample, line) of the focal-plane origin
+    scale, offset : per axis (sample, line), image pixel -> centred detector pixel
+    square_mm : when ``T diag(scale)`` equals ``square_mm * I`` to 1e-12 (relative), the camera
+        keeps the square-pixel form (empty ``focal_plane_map``) with this pixel size
+
+    Returns
+    -------
+    boresight_sample, boresight_line : our pixel of the focal-plane origin
+    focal_plane_map : ``T diag(scale)`` as 4 numbers, or empty for the square-pixel form
+
+    Raises
+    ------
+    GeometryError : ``T`` singular or not finite, or a zero scale
+    """
+    t = np.asarray(detector_to_focal, dtype=np.float64).reshape(2, 2)
+    c0 = np.asarray(focal_origin, dtype=np.float64).reshape(2)
+    det = float(t[0, 0] * t[1, 1] - t[0, 1] * t[1, 0])
+    if not (np.all(np.isfinite(t)) and math.isfinite(det) and det != 0.0):
+        raise GeometryError(f"the detector -> focal plane map {t.tolist()} is singular")
+    if not all(math.isfinite(a) and a != 0 for a in scale):
+        raise GeometryError(f"the image -> detector pixel scale {scale} must be finite and non-zero")
+    bore_s = (c0[0] - offset[0]) / scale[0]
+    bore_l = (c0[1] - offset[1]) / scale[1]
+    lin = t @ np.diag(scale)
+    if square_mm is not None and np.all(np.abs(lin - square_mm * np.eye(2)) <= 1e-12 * abs(square_mm)):
+        return float(bore_s), float(bore_l), ()
+    return float(bore_s), float(bore_l), tuple(float(c) for c in lin.ravel())
+
+
+def minus_z_turn(detector_to_focal: ArrayLike) -> NDArray[np.float64]:
+    """The rotation from a -Z-looking instrument frame to our +Z-looking camera frame, (3, 3).
+
+    A 180° turn, ``diag(sx, -sx, -1)``, about the focal-plane axis chosen so that our +x keeps
+    running along increasing sample where the detector's x does (``sx = -1`` when
+    ``dx/dsample < 0``). Cubes (ISIS's Apollo Metric camera) and ISDs with a negative focal
+    length (usgscsm's way of writing a -Z look) are turned by it.
+    """
+    t = np.asarray(detector_to_focal, dtype=np.float64).reshape(2, 2)
+    sx = -1.0 if t[0, 0] < 0 else 1.0
+    return np.diag([sx, -sx, -1.0])
 
 
 def mdis_nac(samples: int = 1024, distortion: bool = True) -> FramingCamera:
@@ -402,6 +482,11 @@ def camera_to_dict(cam: FramingCamera) -> dict[str, Any]:
         dist["principal_point_mm"] = [float(c) for c in a.principal_point_mm]
         dist["radial"] = [float(c) for c in a.radial]
         dist["decentering"] = [float(c) for c in a.decentering]
+    elif cam.csm_distortion is not None:
+        m = cam.csm_distortion
+        dist["coefficients"] = [float(c) for c in m.coefficients]
+        dist["focal_length_mm"] = float(m.focal_length_mm)
+        dist["axes"] = [float(c) for c in m.axes]
     d["distortion"] = dist
     return d
 
@@ -454,4 +539,9 @@ def camera_from_dict(d: Mapping[str, Any]) -> FramingCamera:
         k = _dict_numbers(dist, "radial", 3, "distortion.")
         j = _dict_numbers(dist, "decentering", 3, "distortion.")
         kw["apollo_distortion"] = ApolloMetricDistortion((pp[0], pp[1]), (k[0], k[1], k[2]), (j[0], j[1], j[2]))
+    elif dist["model"] in CSM_DISTORTION_SIZES:
+        coeffs = _dict_numbers(dist, "coefficients", CSM_DISTORTION_SIZES[dist["model"]], "distortion.")
+        (f,) = _dict_numbers({"f": [dist.get("focal_length_mm")]}, "f", 1, "distortion.focal_length_mm")
+        axes = _dict_numbers(dist, "axes", 2, "distortion.")
+        kw["csm_distortion"] = CsmDistortion(dist["model"], coeffs, f, (axes[0], axes[1]))
     return FramingCamera(**kw)

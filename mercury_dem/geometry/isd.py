@@ -48,7 +48,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError, IsdError
-from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.camera import FramingCamera, detector_affine, minus_z_turn
+from mercury_dem.geometry.distortion import CSM_DISTORTION_SIZES, CsmDistortion
 
 #: Largest magnitude any ISD number may have (the Sun is ~1e11 m away; larger values are corrupt and
 #: would overflow the geometry's squares).
@@ -60,6 +61,16 @@ ROTATION_ORTHO_TOL = 1e-6
 #: Heliocentric distance range that a Mercury ISD's sun position must lie in, metres
 #: (Mercury is 46.0e9 to 69.8e9 m from the Sun; the margin catches unit mistakes only).
 SUN_DISTANCE_RANGE_M = (3.0e10, 1.0e11)
+
+#: Detector pixels per image pixel an ISD may state (usgscsm takes any number; beyond these, corrupt).
+SUMMING_RANGE = (1e-6, 1e6)
+#: Distortion models of ALE/usgscsm ISDs that are refused, and why.
+REFUSED_DISTORTION = {
+    "lunarorbiter": "usgscsm's frame sensor applies no distortion for it (Distortion.cpp has no case), so an "
+                    "ISD with it does not say what its images need; ISIS's LoHighDistortionMap is not implemented here",
+    "kplo_shadowcam": "the KPLO ShadowCam model belongs to a line-scan camera, not a frame camera",
+    "cahvore": "the CAHVORE fish-eye model has no usgscsm frame-sensor implementation",
+}
 
 _UNIT_TO_M = {"m": 1.0, "meters": 1.0, "metres": 1.0, "km": 1000.0, "kilometers": 1000.0}
 
@@ -82,6 +93,9 @@ class IsdGeometry:
     j2000_to_body : ndarray of shape (3, 3) (J2000 -> body-fixed) for the ``ale`` flavour, else ``None``
     warnings : what was assumed because the ISD did not say it (no distortion model,
         no usable sun position with ``require_sun=False``); callers show these
+    sensor_to_camera : ndarray of shape (3, 3), the ISD's sensor frame -> our camera frame
+        (``rotation = sensor_to_camera @ R_body->sensor``): a 180° turn for a negative focal
+        length (a -Z look), None (identity) otherwise
     """
 
     source: str
@@ -94,6 +108,7 @@ class IsdGeometry:
     ephemeris_time: float
     j2000_to_body: NDArray[np.float64] | None = None
     warnings: tuple[str, ...] = ()
+    sensor_to_camera: NDArray[np.float64] | None = None
 
 
 # -- rotations ------------------------------------------------------------------
@@ -306,44 +321,123 @@ def _check_sun(r: _Reader, key: str, sun: NDArray[np.float64]) -> NDArray[np.flo
 
 # -- camera -----------------------------------------------------------------------
 
-def _camera(r: _Reader, warnings: list[str]) -> FramingCamera:
-    f_mm = r.number("focal_length_model.focal_length", positive=True)
+def _distortion(r: _Reader, f_mm: float, axes: tuple[float, float],
+                warnings: list[str]) -> tuple[tuple[float, ...], tuple[float, ...], CsmDistortion | None]:
+    """``optical_distortion`` as usgscsm reads it: (transverse x, transverse y, other model)."""
+    if not r.has("optical_distortion"):
+        warnings.append("no 'optical_distortion' key: an ideal pinhole camera is assumed (MDIS-NAC's "
+                        "distortion moves its corner pixels by about 0.5 px)")
+        return (), (), None
+    model = r.get("optical_distortion")
+    known = ["transverse", *CSM_DISTORTION_SIZES]
+    if not isinstance(model, Mapping) or len(model) != 1:
+        got = sorted(map(str, model)) if isinstance(model, Mapping) else repr(model)[:60]
+        raise r.error("optical_distortion", f"must name exactly one distortion model (one of {known}), got {got}")
+    name = str(next(iter(model)))
+    if name in REFUSED_DISTORTION:
+        raise r.error(f"optical_distortion.{name}", f"model is not supported: {REFUSED_DISTORTION[name]}")
+    if name not in known:
+        raise r.error("optical_distortion", f"model {name!r} is not supported; supported are {known}")
+    if name == "transverse":
+        # ALE pads short lists with zeros; ten terms at most
+        cx = r.array("optical_distortion.transverse.x", (-1,))
+        cy = r.array("optical_distortion.transverse.y", (-1,))
+        for key, c in (("x", cx), ("y", cy)):
+            if c.size > 10:
+                raise r.error(f"optical_distortion.transverse.{key}", f"has {c.size} terms; the model has 10")
+        px, py = np.zeros(10), np.zeros(10)
+        px[: cx.size], py[: cy.size] = cx, cy
+        if axes != (1.0, 1.0):  # our x = sx x_isd: term x^i y^j of x_d' = sx P(sx x, sy y) scales by sx sx^i sy^j
+            sx, sy = axes
+            powers = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2), (3, 0), (2, 1), (1, 2), (0, 3)]
+            px = np.array([sx * sx**i * sy**j * c for (i, j), c in zip(powers, px)])
+            py = np.array([sy * sx**i * sy**j * c for (i, j), c in zip(powers, py)])
+        if not np.any(px) and not np.any(py):
+            return (), (), None
+        return tuple(px.tolist()), tuple(py.tolist()), None
+    if name == "kaguyalism":
+        ax = r.array("optical_distortion.kaguyalism.x", (-1,))
+        ay = r.array("optical_distortion.kaguyalism.y", (-1,))
+        if ax.size > 4 or ay.size > 4:
+            raise r.error("optical_distortion.kaguyalism", "x and y have at most 4 terms each")
+        px, py = np.zeros(4), np.zeros(4)
+        px[: ax.size], py[: ay.size] = ax, ay
+        coeffs = (r.number("optical_distortion.kaguyalism.boresight_x"), *px.tolist(),
+                  r.number("optical_distortion.kaguyalism.boresight_y"), *py.tolist())
+    else:
+        n = CSM_DISTORTION_SIZES[name]
+        coeffs = tuple(r.array(f"optical_distortion.{name}.coefficients", (n,)).tolist())
+    if name in ("radial", "dawnfc", "lrolrocnac", "radtan") and not any(coeffs):
+        return (), (), None  # all-zero coefficients: no distortion
+    return (), (), CsmDistortion(name, coeffs, abs(f_mm), axes)
+
+
+def _check_distortion(r: _Reader, camera: FramingCamera) -> None:
+    """Refuse a distortion that folds the image.
+
+    On a 9 x 9 grid over the image (edges included) the model must invert consistently
+    (distort(undistort(p)) = p to 1e-9 mm) with a Jacobian that stays orientation-keeping
+    (determinant > 1e-6). usgscsm instead returns the distorted point where its Newton step meets a
+    singular Jacobian, and may converge to another branch of a folding model.
+    """
+    if not camera.has_distortion:
+        return
+    s, ln = np.meshgrid(np.linspace(-0.5, camera.samples - 0.5, 9), np.linspace(-0.5, camera.lines - 0.5, 9))
+    px = np.stack([s.ravel(), ln.ravel()], axis=-1)
+    with np.errstate(all="ignore"):
+        lin = camera.pixel_to_focal_matrix()
+        xd, yd = np.einsum("ij,nj->in", lin, px - [camera.boresight_sample, camera.boresight_line])
+        xu, yu = camera.undistort(xd, yd)
+        xr, yr = camera.distort(xu, yu)
+        jac = camera.distortion_jacobian(xu, yu)
+        det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
+        back = np.maximum(np.abs(xr - xd), np.abs(yr - yd))
+    ok = np.isfinite(xu) & np.isfinite(yu) & (back <= 1e-9) & np.isfinite(det) & (det > 1e-6)
+    if not np.all(ok):
+        worst = float(np.nanmin(det)) if np.any(np.isfinite(det)) else math.nan
+        raise r.error("optical_distortion", f"'{camera.distortion_model}' folds or degenerates inside the image "
+                      f"(over a 9 x 9 grid of its pixels the model does not invert consistently or its Jacobian "
+                      f"determinant, least {worst:.3g}, is not > 0): the coefficients are wrong")
+
+
+def _camera(r: _Reader, warnings: list[str]) -> tuple[FramingCamera, NDArray[np.float64]]:
+    """The camera and the rotation from the ISD's sensor frame to our camera frame (identity unless the
+    focal length is negative: usgscsm's -Z look, turned as :func:`~mercury_dem.geometry.camera.minus_z_turn`).
+    """
+    f_mm = r.number("focal_length_model.focal_length")
+    if f_mm == 0:
+        raise r.error("focal_length_model.focal_length", "is 0; a frame camera needs a non-zero focal length")
     ts = r.array("focal2pixel_samples", (3,))
     tl = r.array("focal2pixel_lines", (3,))
-    # Our camera needs x along samples, y along lines and square pixels.
-    pitch_inv = ts[1]
-    if not (pitch_inv > 0 and abs(ts[2]) <= 1e-9 * pitch_inv and abs(tl[1]) <= 1e-9 * pitch_inv
-            and abs(tl[2] - pitch_inv) <= 1e-9 * pitch_inv):
-        raise r.error("focal2pixel_samples", f"/ focal2pixel_lines ({ts.tolist()}, {tl.tolist()}) are not "
-                      "supported: FramingCamera needs (a0, k, 0) and (b0, 0, k), k > 0 (square pixels, "
-                      "focal-plane x along samples and y along lines)")
-    s_sum = r.integer("detector_sample_summing", 1)
-    l_sum = r.integer("detector_line_summing", 1)
-    if s_sum != l_sum:
-        raise r.error("detector_line_summing", f"({l_sum}) differs from detector_sample_summing ({s_sum}); "
-                      "FramingCamera supports equal summing only")
+    # focal2pixel: centred detector (sample, line) = m @ (x, y) + (a0, b0); its inverse maps detector -> focal
+    m = np.array([[ts[1], ts[2]], [tl[1], tl[2]]])
+    det = float(m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0])
+    scale_m = float(np.abs(m).max())
+    if not (math.isfinite(det) and scale_m > 0 and abs(det) > 1e-12 * scale_m * scale_m):
+        raise r.error("focal2pixel_samples", f"/ focal2pixel_lines ({ts.tolist()}, {tl.tolist()}) are singular "
+                      f"(determinant {det:.3g}): no pixel -> focal plane map exists")
+    t = np.array([[m[1, 1], -m[0, 1]], [-m[1, 0], m[0, 0]]]) / det
+    s_sum = r.number("detector_sample_summing", positive=True)
+    l_sum = r.number("detector_line_summing", positive=True)
+    for key, value in (("detector_sample_summing", s_sum), ("detector_line_summing", l_sum)):
+        if not SUMMING_RANGE[0] <= value <= SUMMING_RANGE[1]:
+            raise r.error(key, f"is {value:g}: detector pixels per image pixel must be within {SUMMING_RANGE}")
     c_s = r.number("detector_center.sample")
     c_l = r.number("detector_center.line")
     start_s = r.number("starting_detector_sample")
     start_l = r.number("starting_detector_line")
     samples = r.integer("image_samples", 1)
     lines = r.integer("image_lines", 1)
-    dist_x: tuple[float, ...] = ()
-    dist_y: tuple[float, ...] = ()
-    model = r.get("optical_distortion") if r.has("optical_distortion") else None
-    if model is None:
-        warnings.append("no 'optical_distortion' key: an ideal pinhole camera is assumed (MDIS-NAC's "
-                        "distortion moves its corner pixels by about 0.5 px)")
-    elif not isinstance(model, Mapping) or not model:
-        raise r.error("optical_distortion", "must name a distortion model ('transverse')")
-    elif "transverse" in model:
-        dist_x = tuple(r.array("optical_distortion.transverse.x", (10,)).tolist())
-        dist_y = tuple(r.array("optical_distortion.transverse.y", (10,)).tolist())
-    elif "radial" in model and not np.any(r.array("optical_distortion.radial.coefficients", (-1,))):
-        pass  # an all-zero radial model is no distortion
-    else:
-        raise r.error("optical_distortion", f"model {sorted(model)} is not supported; only 'transverse' "
-                      "(MDIS) or an all-zero 'radial' are")
+    if r.has("jitter") and _has_jitter(r.get("jitter")):
+        raise r.error("jitter", "(rolling-shutter jitter) is not supported: its line/sample offsets vary along "
+                      "the image, which a frame camera's single affine cannot describe")
+    turn = minus_z_turn(t) if f_mm < 0 else np.eye(3)
+    axes = (float(turn[0, 0]), float(turn[1, 1]))
+    dist_x, dist_y, csm = _distortion(r, f_mm, axes, warnings)
+    # usgscsm: detector = csm pixel * summing + starting detector; csm pixel = ours + 0.5
+    diagonal = ts[2] == 0 and tl[1] == 0 and ts[1] == tl[2] and ts[1] > 0 and s_sum == l_sum and s_sum == int(s_sum)
+    summing = int(s_sum) if diagonal else 1
+    pitch = 1.0 / ts[1] if diagonal else 1.0 / math.sqrt(abs(det))
     name = str(r.isd.get("instrument_id") or r.isd.get("name_sensor") or "unknown")
     names = f"{r.isd.get('instrument_id', '')} {r.isd.get('name_sensor', '')}".upper()
     if "NARROW ANGLE" in names or "MDIS_NAC" in names:
@@ -351,20 +445,39 @@ def _camera(r: _Reader, warnings: list[str]) -> FramingCamera:
     elif "WIDE ANGLE" in names or "MDIS_WAC" in names:
         name = "MDIS-WAC"
     try:
-        return FramingCamera(
+        bore_s, bore_l, fmap = detector_affine(
+            turn[:2, :2] @ t, (ts[0], tl[0]), (s_sum, l_sum),
+            (0.5 * s_sum + start_s - c_s, 0.5 * l_sum + start_l - c_l),
+            square_mm=pitch * summing if diagonal else None)
+        camera = FramingCamera(
             name=name,
-            focal_length_mm=f_mm,
-            pixel_pitch_mm=1.0 / pitch_inv,
-            summing=s_sum,
+            focal_length_mm=abs(f_mm),
+            pixel_pitch_mm=pitch,
+            summing=summing,
             samples=samples,
             lines=lines,
-            boresight_sample=(c_s + ts[0] - start_s) / s_sum - 0.5,
-            boresight_line=(c_l + tl[0] - start_l) / l_sum - 0.5,
+            boresight_sample=bore_s,
+            boresight_line=bore_l,
             distortion_x=dist_x,
             distortion_y=dist_y,
+            focal_plane_map=fmap,
+            csm_distortion=csm,
         )
     except GeometryError as exc:
         raise IsdError(f"ISD {r.source}: camera keys give an invalid camera: {exc}") from None
+    _check_distortion(r, camera)
+    return camera, turn
+
+
+def _has_jitter(node: Any) -> bool:
+    """True when a ``jitter`` entry asks for any non-zero offset (or cannot be read)."""
+    if not isinstance(node, Mapping):
+        return True
+    try:
+        return any(float(c) != 0.0 for key in ("lineJitterCoefficients", "sampleJitterCoefficients")
+                   for c in (node.get(key) or ()))
+    except (TypeError, ValueError):
+        return True
 
 
 # -- the two flavours ---------------------------------------------------------------
@@ -393,10 +506,13 @@ def _ale_pose(r: _Reader, et: float, require_sun: bool, warnings: list[str]) -> 
     qi = _at_time(r, "instrument_pointing", "quaternions", 4, et)
     j2000_to_body = quaternion_to_matrix(qb)
     j2000_to_frame = quaternion_to_matrix(qi)
-    if not r.has("instrument_pointing.constant_rotation"):
+    if r.has("instrument_pointing.constant_rotation"):
+        const = _rotation(r, "instrument_pointing.constant_rotation")
+    elif not r.has("instrument_pointing.time_dependent_frames"):
+        const = np.eye(3)  # ALE's default when the table names no frame chain
+    else:
         raise r.error("instrument_pointing.constant_rotation",
                       "is missing; it rotates the pointing frame into the instrument frame (9 numbers, row-major)")
-    const = _rotation(r, "instrument_pointing.constant_rotation")
     rotation = const @ j2000_to_frame @ j2000_to_body.T
     scale = r.unit_scale("instrument_position.unit", "km")
     position = j2000_to_body @ (_at_time(r, "instrument_position", "positions", 3, et) * scale)
@@ -464,19 +580,40 @@ def isd_from_dict(isd: Mapping[str, Any], source: str = "<dict>", require_sun: b
         if abs(minor - radius_m) > 1e-9 * radius_m:
             warnings.append(f"radii: an ellipsoid ({radius_m:.1f} m x {minor:.1f} m); the sphere of the "
                             "semimajor radius is used")
-    camera = _camera(r, warnings)
+    camera, turn = _camera(r, warnings)
     if flavour == "ale":
         position, rotation, sun, j2b = _ale_pose(r, et, require_sun, warnings)
         pos_key = "instrument_position.positions"
     else:
         position, rotation, sun, j2b = _csm_pose(r, require_sun, warnings)
         pos_key = "sensor_position.positions"
-    if float(np.linalg.norm(position)) <= radius_m:
+    if float(np.linalg.norm(position)) < radius_m:
         raise r.error(pos_key, f"puts the camera {np.linalg.norm(position):.1f} m from the body centre, inside "
                                f"the {radius_m:.1f} m sphere: check its unit and frame")
-    return IsdGeometry(source=source, flavour=flavour, camera=camera, position=position, rotation=rotation,
-                       sun_position=sun, radius_m=radius_m, ephemeris_time=et, j2000_to_body=j2b,
-                       warnings=tuple(warnings))
+    turned = bool(np.any(turn != np.eye(3)))
+    return IsdGeometry(source=source, flavour=flavour, camera=camera, position=position,
+                       rotation=turn @ rotation if turned else rotation, sun_position=sun, radius_m=radius_m,
+                       ephemeris_time=et, j2000_to_body=j2b, warnings=tuple(warnings),
+                       sensor_to_camera=turn if turned else None)
+
+
+#: Bytes read from the start of a file to recognise an ISD by its content.
+SNIFF_BYTES = 4096
+
+
+def is_isd_file(path: str | Path) -> bool:
+    """True when ``path`` holds a JSON object (its first non-blank byte is ``{``): a CSM ISD candidate.
+
+    ISDs are recognised by content, whatever their extension (``.json``, ``.isd`` or none):
+    the reader (:func:`read_isd`) then says precisely what is wrong with one that is not a
+    usable frame ISD. A file that cannot be opened is not an ISD (False).
+    """
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(SNIFF_BYTES)
+    except OSError:
+        return False
+    return head.removeprefix(b"\xef\xbb\xbf").lstrip().startswith(b"{")
 
 
 def read_isd(path: str | Path, require_sun: bool = True) -> IsdGeometry:
@@ -486,9 +623,11 @@ def read_isd(path: str | Path, require_sun: bool = True) -> IsdGeometry:
     """
     p = Path(path)
     try:
-        text = p.read_text()
+        text = p.read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise IsdError(f"ISD {p}: cannot be read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise IsdError(f"ISD {p}: not UTF-8 text, so not a JSON ISD (byte {exc.start}: {exc.reason})") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:

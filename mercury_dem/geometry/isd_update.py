@@ -53,6 +53,10 @@ def updated_isd(isd: Mapping[str, Any], rotation: ArrayLike, position: ArrayLike
     """
     old = isd_from_dict(isd, source=source, require_sun=False)
     r_new = np.asarray(rotation, np.float64)
+    r_old = old.rotation
+    if old.sensor_to_camera is not None:  # a -Z-looking ISD: back from our camera frame to its sensor frame
+        r_new = old.sensor_to_camera.T @ r_new
+        r_old = old.sensor_to_camera.T @ r_old
     c_new = np.asarray(position, np.float64)
     out = copy.deepcopy(dict(isd))
     if old.flavour == "usgscsm":
@@ -66,7 +70,7 @@ def updated_isd(isd: Mapping[str, Any], rotation: ArrayLike, position: ArrayLike
             out["sensor_position"]["positions"] = (pos + dc / _scale(isd, "sensor_position", "m")).tolist()
         return out
     const = np.asarray(isd["instrument_pointing"]["constant_rotation"], np.float64).reshape(3, 3)
-    d = r_new @ old.rotation.T
+    d = r_new @ r_old.T
     turn = const.T @ d @ const
     rows = np.asarray(isd["instrument_pointing"]["quaternions"], np.float64)
     new_rows = [_continuous(matrix_to_quaternion(turn @ quaternion_to_matrix(q)), q) for q in rows]
@@ -95,8 +99,9 @@ def usgscsm_frame_isd(
 ) -> dict[str, Any]:
     """A usgscsm frame-camera ISD of one of our cameras at a pose.
 
-    Cameras with ``transverse`` distortion or none only: ``apollo_metric`` has no usgscsm
-    model (:class:`IsdError`). The detector is described in image pixels when the camera
+    ``apollo_metric`` distortion has no usgscsm model (:class:`IsdError`); usgscsm's other
+    models are written as read (a camera turned from a -Z-looking ISD's frame is refused
+    unless its model is rotationally symmetric: ``radial`` or ``dawnfc``). The detector is described in image pixels when the camera
     has a general ``focal_plane_map`` (summing 1, ``focal2pixel`` = ``L^-1``), in detector
     pixels otherwise (pitch and summing as the camera states them).
     """
@@ -111,8 +116,18 @@ def usgscsm_frame_isd(
         summing = camera.summing
         m = np.eye(2) / camera.pixel_pitch_mm
     distortion: dict[str, Any]
+    csm = camera.csm_distortion
     if model == "transverse":
         distortion = {"transverse": {"x": list(camera.distortion_x), "y": list(camera.distortion_y)}}
+    elif csm is not None:
+        if csm.axes != (1.0, 1.0) and csm.model not in ("radial", "dawnfc"):
+            raise IsdError(f"camera {camera.name}: its '{csm.model}' distortion is in a turned sensor frame "
+                           "(a -Z-looking ISD); no frame ISD of our camera frame is written for it")
+        c = list(csm.coefficients)
+        if csm.model == "kaguyalism":
+            distortion = {"kaguyalism": {"x": c[1:5], "y": c[6:10], "boresight_x": c[0], "boresight_y": c[5]}}
+        else:
+            distortion = {csm.model: {"coefficients": c}}
     else:
         distortion = {"radial": {"coefficients": [0.0, 0.0, 0.0]}}
     q = matrix_to_quaternion(np.asarray(rotation, np.float64).T)

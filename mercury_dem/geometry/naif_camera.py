@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError
-from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.camera import FramingCamera, detector_affine, minus_z_turn
 from mercury_dem.geometry.distortion import ApolloMetricDistortion
 
 #: NAIF instrument codes of the Apollo 15/16/17 Metric cameras (ISIS ApolloMetricCamera).
@@ -269,24 +269,13 @@ def camera_from_naif(
         a_l, b_l = axis(alpha.start_line, alpha.scale_line, float(start_detector_line), origin[1])
 
     # -Z look: turn 180° about the focal-plane axis that keeps x along increasing sample
-    z_dir = -1.0 if model == "apollo_metric" else 1.0
-    if z_dir > 0:
-        sx, sy = 1.0, 1.0
-    else:
-        sx = -1.0 if t[0, 0] < 0 else 1.0
-        sy = -sx
-    instrument_to_camera = np.diag([sx, sy, z_dir])
+    instrument_to_camera = minus_z_turn(t) if model == "apollo_metric" else np.eye(3)
+    sx, sy = float(instrument_to_camera[0, 0]), float(instrument_to_camera[1, 1])
 
-    # our focal plane = S (t @ (a s + b) + t0);  L = S t diag(a);  focal origin at c* = -t^-1 t0
-    lin = np.diag([sx, sy]) @ t @ np.diag([a_s, a_l])
+    # our focal plane = S (t @ (a s + b) + t0) = S t (a s + b - c*), focal origin at c* = -t^-1 t0
     c_star = -np.linalg.solve(t, t0) if np.any(t0) else np.zeros(2)
-    bore_s = (c_star[0] - b_s) / a_s
-    bore_l = (c_star[1] - b_l) / a_l
-    square = pitch * summing
-    if lin[0, 1] == 0 and lin[1, 0] == 0 and lin[0, 0] == square and lin[1, 1] == square:
-        fmap: tuple[float, ...] = ()  # the diagonal form of the MDIS presets
-    else:
-        fmap = tuple(float(c) for c in lin.ravel())
+    bore_s, bore_l, fmap = detector_affine(instrument_to_camera[:2, :2] @ t, c_star, (a_s, a_l), (b_s, b_l),
+                                           square_mm=pitch * summing)
 
     dist_x: tuple[float, ...] = ()
     dist_y: tuple[float, ...] = ()

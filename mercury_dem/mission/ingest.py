@@ -7,10 +7,12 @@
   (:mod:`mercury_dem.sources`) and the camera from its ``NaifKeywords``
   (:func:`mercury_dem.geometry.naif_camera.camera_from_naif`: focal plane map, distortion,
   AlphaCube crop/reduce, the look direction);
-* ``*.json`` — a CSM frame ISD (ALE or usgscsm layout, :func:`mercury_dem.geometry.isd.read_isd`)
+* a CSM frame ISD (ALE or usgscsm layout, :func:`mercury_dem.geometry.isd.read_isd`), recognised
+  by its content (a JSON object: ``.json``, ``.isd`` or any name; :func:`~mercury_dem.geometry.isd.is_isd_file`)
   with its image beside it (or in ``--isd-dir``'s counterpart): any GDAL-readable raster (PDS3
   ``.IMG``, GeoTIFF, PNG) or an ISIS cube, matched by file stem (``X.json`` <-> ``X.png``, or
-  ``X_anything.png`` when exactly one such image exists).
+  ``X_anything.png`` when exactly one such image exists); an image given alone finds its ISD
+  as ``X.json``, ``X.isd`` or ``X`` (:data:`ISD_NAMES`).
 
 Every input that cannot be used is rejected with a reason naming the file and what to do
 (no SPICE: "run spiceinit attach=true"; image size != camera size; unknown distortion model;
@@ -37,6 +39,7 @@ from numpy.typing import NDArray
 from mercury_dem.exceptions import IsdError, MercuryDemError, StoreError
 from mercury_dem.geometry.body import Body, body_by_name
 from mercury_dem.geometry.camera import FramingCamera
+from mercury_dem.geometry.isd import is_isd_file
 from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.io.names import name_fault
 from mercury_dem.mission.cameras import camera_to_dict
@@ -215,6 +218,31 @@ def _read_raster(path: Path) -> NDArray[Any]:
     return np.where(mask, np.nan, data.astype(np.float32)).astype(np.float32)
 
 
+#: Names an image's ISD may have beside it (or in --isd-dir), tried in this order; each is checked by content.
+ISD_NAMES = ("{stem}.json", "{stem}.isd", "{stem}.ISD", "{stem}")
+
+
+def is_cube_file(path: Path) -> bool:
+    """An ISIS cube: named ``*.cub`` or starting with its label's ``Object = IsisCube``."""
+    if path.suffix.lower() == ".cub":
+        return True
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(64).lstrip().startswith(b"Object = IsisCube")
+    except OSError:
+        return False
+
+
+def _isd_of_image(image: Path, isd_dirs: Sequence[Path]) -> Path | None:
+    """The ISD of an image file: the first of :data:`ISD_NAMES` in ``isd_dirs`` then beside it that holds JSON."""
+    for d in [*isd_dirs, image.parent]:
+        for pattern in ISD_NAMES:
+            cand = d / pattern.format(stem=image.stem)
+            if cand != image and cand.is_file() and is_isd_file(cand):
+                return cand
+    return None
+
+
 def read_image_list(path: str | Path) -> dict[str, Path]:
     """An ``ISD,IMAGE`` CSV (one pair a line; '#' comments; relative paths from the CSV's folder) ->
     {ISD stem: image path}. StoreError naming the file and line at fault.
@@ -252,7 +280,7 @@ def read_isd_image(isd_path: Path, image_dirs: Sequence[Path], *, pixels: bool =
     from mercury_dem.geometry.isd import isd_from_dict
 
     try:
-        raw = json.loads(isd_path.read_text())
+        raw = json.loads(isd_path.read_text(encoding="utf-8-sig"))
     except (OSError, ValueError) as exc:
         raise IngestError(f"ISD {isd_path}: not readable JSON ({exc})") from None
     if not isinstance(raw, dict):
@@ -396,22 +424,24 @@ def ingest_mission(
             suffix = f.suffix.lower()
             if not f.is_file():
                 raise IngestError(f"{f}: no such file")
-            if suffix == ".cub" and not isd_dirs:
+            if is_cube_file(f) and not isd_dirs:
                 images.append(read_cube_image(f))
-            elif suffix == ".json":
+            elif is_isd_file(f):
                 seen_isds.add(f.resolve())
                 images.append(read_isd_image(f, [f.parent, *isd_dirs], image_path=listed.get(f.stem)))
-            elif suffix in IMAGE_SUFFIXES:
-                isd = next((d / f"{f.stem}.json" for d in [*isd_dirs, f.parent] if (d / f"{f.stem}.json").is_file()), None)
+            elif suffix in IMAGE_SUFFIXES or is_cube_file(f):
+                isd = _isd_of_image(f, isd_dirs)
                 if isd is None:
-                    raise IngestError(f"{f}: an image without geometry (no {f.stem}.json ISD beside it or in "
-                                      "--isd-dir); give a cube with SPICE attached or the image's CSM ISD")
+                    raise IngestError(f"{f}: an image without geometry (no ISD {f.stem}.json, {f.stem}.isd or "
+                                      f"{f.stem} beside it or in --isd-dir); give a cube with SPICE attached or the "
+                                      "image's CSM ISD")
                 if isd.resolve() in seen_isds:
                     continue
                 seen_isds.add(isd.resolve())
                 images.append(read_isd_image(isd, [f.parent]))
             else:
-                raise IngestError(f"{f}: not a cube (.cub), an ISD (.json) or an image ({', '.join(IMAGE_SUFFIXES)})")
+                raise IngestError(f"{f}: not an ISIS cube, a CSM ISD (a JSON object: .json, .isd or any name) or an "
+                                  f"image ({', '.join(IMAGE_SUFFIXES)})")
         except MercuryDemError as exc:
             rejected[str(f)] = str(exc)
         finally:

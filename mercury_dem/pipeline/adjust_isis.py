@@ -45,7 +45,8 @@ class AdjustIsisError(MercuryDemError):
 def read_cameras(files: Sequence[str | Path], body_hint: str | None = None) -> list[Any]:
     """SourceImages (geometry only) of cubes and ISDs, in the order given."""
     from mercury_dem.geometry.body import body_by_name
-    from mercury_dem.mission.ingest import read_cube_image, read_isd_image
+    from mercury_dem.geometry.isd import is_isd_file
+    from mercury_dem.mission.ingest import is_cube_file, read_cube_image, read_isd_image
 
     hint = None
     if body_hint:
@@ -58,13 +59,14 @@ def read_cameras(files: Sequence[str | Path], body_hint: str | None = None) -> l
         p = Path(f)
         if not p.is_file():
             raise AdjustIsisError(f"camera file {p}: no such file")
-        suffix = p.suffix.lower()
-        if suffix == ".cub":
+        if is_cube_file(p):
             out.append(read_cube_image(p, pixels=False))
-        elif suffix == ".json":
+        elif is_isd_file(p):  # by content: .json, .isd or any name
             out.append(read_isd_image(p, [], pixels=False, body=hint))
         else:
-            raise AdjustIsisError(f"camera file {p}: neither a cube with SPICE attached (.cub) nor a CSM ISD (.json)")
+            raise AdjustIsisError(f"camera file {p}: neither an ISIS cube with SPICE attached (.cub, or a file "
+                                  "starting 'Object = IsisCube') nor a CSM ISD (a JSON object, whatever its "
+                                  "extension: .json, .isd, none)")
     return out
 
 
@@ -96,6 +98,7 @@ def _isd_outputs(images: list[Any], rotations: np.ndarray, positions: np.ndarray
                  out_dir: Path) -> tuple[dict[str, str], dict[str, str]]:
     """Write the corrected ISDs; return image id -> path written, image id -> why none."""
     from mercury_dem.exceptions import IsdError
+    from mercury_dem.geometry.isd import is_isd_file
     from mercury_dem.geometry.isd_update import updated_isd, usgscsm_frame_isd
 
     written: dict[str, str] = {}
@@ -109,8 +112,9 @@ def _isd_outputs(images: list[Any], rotations: np.ndarray, positions: np.ndarray
             continue
         target = out_dir / f"{im.image_id}.json"
         try:
-            if src.suffix.lower() == ".json":
-                isd = updated_isd(json.loads(src.read_text()), rotations[j], positions[j], source=str(src))
+            if is_isd_file(src):
+                isd = updated_isd(json.loads(src.read_text(encoding="utf-8-sig")), rotations[j], positions[j],
+                                  source=str(src))
             else:
                 isd = usgscsm_frame_isd(im.camera, positions[j], rotations[j], sun_position=im.sun,
                                         radius_m=im.body.radius_m, ephemeris_time=im.time,

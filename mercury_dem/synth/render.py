@@ -323,7 +323,7 @@ def _render_supersampled(
     sun_position: ArrayLike,
     settings: RenderSettings,
 ) -> NDArray[np.float64]:
-    if camera.focal_plane_map or camera.distortion_model == "apollo_metric":
+    if camera.focal_plane_map or camera.distortion_model not in ("none", "transverse"):
         # the compiled projection knows only L = p I and the transverse polynomial
         raise GeometryError(f"camera {camera.name}: rendering supports square-pixel cameras with 'transverse' "
                             f"or no distortion, not a general focal_plane_map or "

@@ -199,7 +199,7 @@ def _write(tmp_path: Path, d: dict, name: str = "bad_isd.json") -> Path:
 
 @pytest.mark.parametrize(
     "key",
-    ["instrument_position.positions", "instrument_pointing.quaternions", "instrument_pointing.constant_rotation",
+    ["instrument_position.positions", "instrument_pointing.quaternions",
      "body_rotation", "body_rotation.quaternions", "sun_position", "focal_length_model", "focal2pixel_lines",
      "detector_center.sample", "starting_detector_line", "detector_sample_summing", "image_samples",
      "radii.semimajor", "optical_distortion.transverse.y"],
@@ -212,6 +212,16 @@ def test_missing_key_names_file_and_key(tmp_path: Path, key: str) -> None:
     assert str(path) in msg
     assert key.split(".")[0] in msg
     assert not isinstance(info.value, KeyError)
+
+
+def test_constant_rotation_defaults_as_ale(tmp_path: Path) -> None:
+    """ALE's getInstrumentPointing: identity without a frame chain, required with ``time_dependent_frames``."""
+    isd = _drop(ale_isd(), "instrument_pointing.constant_rotation")
+    assert np.allclose(read_isd(_write(tmp_path, isd, "a.json")).rotation, read_isd(_write(tmp_path, _set(
+        ale_isd(), "instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]), "b.json")).rotation)
+    chained = _set(isd, "instrument_pointing.time_dependent_frames", [-236820, 1])
+    with pytest.raises(IsdError, match=r"c\.json: key 'instrument_pointing.constant_rotation' is missing"):
+        read_isd(_write(tmp_path, chained, "c.json"))
 
 
 @pytest.mark.parametrize("key", ["sensor_position.positions", "sensor_orientation.quaternions", "sun_position"])
@@ -234,11 +244,16 @@ def test_missing_key_usgscsm(tmp_path: Path, key: str) -> None:
         ("instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.1], "not a proper rotation"),
         ("instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, -1.0], "not a proper rotation"),
         ("sun_position.positions", [[1.0e4, 2.0e4, 3.0e4]], "check the position's unit"),
-        ("focal_length_model.focal_length", -5.0, "positive"),
-        ("detector_line_summing", 4, "equal summing"),
-        ("detector_sample_summing", 1.5, "integer"),
-        ("focal2pixel_lines", [0.0, 71.4, 0.0], "not supported"),
-        ("optical_distortion", {"radial": {"coefficients": [0.0, 1e-5, 0.0]}}, "not supported"),
+        ("focal_length_model.focal_length", 0.0, "non-zero focal length"),
+        ("detector_line_summing", 0, "positive"),
+        ("focal2pixel_lines", [0.0, 71.4, 0.0], "singular"),
+        ("optical_distortion", {"lunarorbiter": {"perspective_x": 0.0}}, "applies no distortion"),
+        ("optical_distortion", {"fisheye": {"coefficients": [0.0]}}, "'fisheye' is not supported"),
+        ("optical_distortion", {"radial": {"coefficients": [0.0, 0.0, 0.0]}, "dawnfc": {"coefficients": [0.0]}},
+         "exactly one"),
+        ("optical_distortion", {"radial": {"coefficients": [0.0, 1e-5]}}, "radial.coefficients' must be 3"),
+        ("optical_distortion", {"transverse": {"x": [0.0, 1.0], "y": [0.0, 1.0]}}, "folds or degenerates"),
+        ("jitter", {"lineJitterCoefficients": [0.0, 0.1], "sampleJitterCoefficients": [0.0]}, "jitter"),
         ("radii.unit", "furlong", "unit"),
         ("instrument_pointing.reference_frame", 2, "reference_frame"),
     ],

@@ -341,7 +341,8 @@ def test_camera_dict_errors_name_the_field():
         ("samples", 500.5, "'samples' must be an integer"),
         ("focal_length_mm", "76", "'focal_length_mm' must be a finite number"),
         ("focal_plane_map", [1.0, 2.0], "'focal_plane_map' must be a list of 4"),
-        ("distortion", {"model": "radial"}, "'distortion.model' must be one of"),
+        ("distortion", {"model": "fisheye"}, "'distortion.model' must be one of"),
+        ("distortion", {"model": "radial"}, "'distortion.coefficients' must be a list of 3"),
         ("distortion", {"model": "apollo_metric", "radial": [1.0], "principal_point_mm": [0.0, 0.0],
                         "decentering": [0.0, 0.0, 0.0]}, "'distortion.radial' must be a list of 3"),
     ]:

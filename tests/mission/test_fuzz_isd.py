@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -18,6 +20,19 @@ from mercury_dem.mission.ingest import read_isd_image, read_image_list
 REAL = Path(__file__).resolve().parents[1] / "data" / "real" / "mdis_stereo"
 ISD = REAL / "EN0213023991M.json"  # knoten/usgscsm layout, with its image
 ALE_ISD = REAL.parent / "EN1072174528M_ale_isd.json"  # ALE layout (geometry only: its pixels are not here)
+USGSCSM = REAL.parents[1] / "usgscsm"
+APOLLO_ISD = REAL.parents[1] / "ale" / "apollometric_isd.json"  # mirrored focal2pixel
+#: Every distortion model the reader knows, on usgscsm's orbitalFramer (rotated focal2pixel).
+MODELS = {
+    "radial": {"coefficients": [1e-4, 2e-6, 0.0]},
+    "cahvor": {"coefficients": [1e-4, 2e-6, 0.0, 0.01, -0.02]},
+    "dawnfc": {"coefficients": [8.4e-6]},
+    "radtan": {"coefficients": [0.03, -0.01, 1e-3, -2e-3, 1e-3]},
+    "lrolrocnac": {"coefficients": [1.81e-5]},
+    "kaguyalism": {"x": [-0.00096, 0.00098, 8.6e-06, -3.7e-06], "y": [-0.00138, 1.35e-05, 2.7e-06, -6.2e-06],
+                   "boresight_x": -0.0725, "boresight_y": 0.0214},
+    "transverse": {"x": [0.0, 1.0, 0.0, 1e-4], "y": [0.0, 0.0, 1.0, 0.0, 2e-4]},
+}
 EXAMPLES = int(os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES", 150))
 
 
@@ -69,6 +84,64 @@ def test_damaged_isd_gives_our_error(tmp_path_factory: pytest.TempPathFactory, w
         return
     assert im.camera.samples > 0
     assert not pixels or im.pixels.shape == (im.camera.lines, im.camera.samples)
+
+
+@settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(which=st.sampled_from(("dawnfc_radtan", "apollo", *MODELS)), how=st.sampled_from(("value", "delete", "truncate")),
+       name=st.sampled_from(("X.json", "X.isd", "X")), data=st.data())
+def test_damaged_usgscsm_model_isd_gives_our_error(tmp_path_factory: pytest.TempPathFactory, which: str, how: str,
+                                                   name: str, data: st.DataObject) -> None:
+    """usgscsm's/ALE's ISDs with every distortion model and a mirrored or rotated detector, any file name."""
+    from mercury_dem.geometry.body import MOON
+
+    if which == "apollo":
+        doc = json.loads(APOLLO_ISD.read_text())
+    elif which == "dawnfc_radtan":
+        doc = json.loads((USGSCSM / "dawnfc_radtan.json").read_text())
+    else:
+        doc = json.loads((USGSCSM / "orbitalFramer.json").read_text())
+        doc["optical_distortion"] = {which: copy.deepcopy(MODELS[which])}
+    target = tmp_path_factory.mktemp("isdm") / name
+    raw = json.dumps(doc)
+    if how == "truncate":
+        target.write_text(raw[: data.draw(st.integers(0, len(raw) - 1))])
+    else:
+        path = data.draw(st.sampled_from(_paths(doc)))
+        node = doc
+        for k in path[:-1]:
+            node = node[k]
+        if how == "delete" and isinstance(node, dict):
+            del node[path[-1]]
+        else:
+            node[path[-1]] = data.draw(VALUES)
+        target.write_text(json.dumps(doc))
+    try:
+        im = read_isd_image(target, [], pixels=False, body=MOON)
+    except MercuryDemError as exc:
+        assert str(target) in str(exc), str(exc)
+        return
+    assert im.camera.samples > 0
+    px = np.array([[0.0, 0.0], [im.camera.samples - 1.0, im.camera.lines - 1.0]])
+    v = im.camera.pixel_to_camera(px)
+    back = im.camera.camera_to_pixel(v)
+    cam = im.camera
+    tol = 1e-9 * max(1e3, cam.samples, cam.lines, abs(cam.boresight_sample), abs(cam.boresight_line))
+    assert np.all(np.isfinite(v)) and np.abs(back - px).max() < tol
+
+
+@settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(head=st.binary(max_size=64))
+def test_any_bytes_are_an_isd_or_not(tmp_path_factory: pytest.TempPathFactory, head: bytes) -> None:
+    """Sniffing never raises; what it calls an ISD is read or refused with our error naming the file."""
+    from mercury_dem.geometry.isd import is_isd_file, read_isd
+
+    f = tmp_path_factory.mktemp("sniff") / "blob"
+    f.write_bytes(head)
+    if is_isd_file(f):
+        try:
+            read_isd(f)
+        except MercuryDemError as exc:
+            assert "blob" in str(exc)
 
 
 @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -53,13 +53,16 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(t) * kx + (1 - np.cos(t)) * kx @ kx
 
 
-def _world(cubes: list[Path], seed: int, n_points: int = 400, outliers: float = 0.0):
-    """(network with serials as image ids, true points, outlier mask, images) — measures grouped by point."""
+def _world(cubes: list[Path], seed: int, n_points: int = 400, outliers: float = 0.0, read=None):
+    """(network with serials as image ids, true points, outlier mask, images) — measures grouped by point.
+
+    ``read(path)`` reads a camera file's geometry (default: a cube's).
+    """
     from mercury_dem.geometry.pose import intersect_sphere, pixel_rays
     from mercury_dem.mission.ingest import read_cube_image
 
     rng = np.random.default_rng(seed)
-    ims = [read_cube_image(c, pixels=False) for c in cubes]
+    ims = [read(c) if read is not None else read_cube_image(c, pixels=False) for c in cubes]
     radius = ims[0].body.datum_radius_m
     true_rot = np.array([_rotation(rng.normal(0, POINTING_RAD, 3)) @ im.rotation for im in ims])
     centres = np.array([im.position for im in ims])
