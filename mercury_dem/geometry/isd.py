@@ -58,9 +58,11 @@ MAX_MAGNITUDE = 1e20
 QUATERNION_NORM_TOL = 1e-6
 #: Largest allowed max|M M^T - I| of a rotation matrix given as nine numbers.
 ROTATION_ORTHO_TOL = 1e-6
-#: Heliocentric distance range that a Mercury ISD's sun position must lie in, metres
-#: (Mercury is 46.0e9 to 69.8e9 m from the Sun; the margin catches unit mistakes only).
-SUN_DISTANCE_RANGE_M = (3.0e10, 1.0e11)
+#: Heliocentric distance range that any ISD's sun position must lie in, metres: from inside Mercury's
+#: perihelion (4.6e10 m) to beyond Pluto's aphelion (7.4e12 m). The reader does not know the body's orbit;
+#: the range catches unit mistakes only (kilometres read as metres put the Earth–Moon system at 1.5e8 m,
+#: metres read as kilometres put Mercury at 4.6e13 m), for every body ALE supports.
+SUN_DISTANCE_RANGE_M = (3.0e10, 1.0e13)
 
 #: Detector pixels per image pixel an ISD may state (usgscsm takes any number; beyond these, corrupt).
 SUMMING_RANGE = (1e-6, 1e6)
@@ -314,7 +316,8 @@ def _check_sun(r: _Reader, key: str, sun: NDArray[np.float64]) -> NDArray[np.flo
     dist = float(np.linalg.norm(sun))
     lo, hi = SUN_DISTANCE_RANGE_M
     if not lo <= dist <= hi:
-        raise r.error(key, f"puts the Sun {dist:.4g} m from the body; Mercury is 4.6e10-7.0e10 m "
+        raise r.error(key, f"puts the Sun {dist:.4g} m from the body; every solar-system body "
+                           f"ALE supports is {SUN_DISTANCE_RANGE_M[0]:.1e}-{SUN_DISTANCE_RANGE_M[1]:.1e} m "
                            "from the Sun: check the position's unit")
     return sun
 

@@ -345,3 +345,17 @@ def test_ale_and_usgscsm_layouts_of_the_same_image_agree() -> None:
                                        / np.linalg.norm(ale.sun_position) / np.linalg.norm(csm.sun_position)))
     assert sun_angle < 1e-3
     assert ale.camera == csm.camera
+
+
+@pytest.mark.parametrize("au", [1.0, 9.5])
+def test_sun_of_a_body_beyond_mercury_is_kept(au: float) -> None:
+    """An ISD of the Moon (1 AU) or of Saturn's moons (9.5 AU) keeps its sun position: the unit check
+    knows the solar system, not Mercury's orbit alone (it used to drop every non-Mercury sun)."""
+    sun = SUN / np.linalg.norm(SUN) * au * 1.495978707e11
+    d = _set(csm_isd(), "sun_position.positions", [sun.tolist()])
+    g = isd_from_dict(d, "far.json")
+    assert g.sun_position is not None and g.warnings == ()
+    assert np.abs(g.sun_position - sun).max() < 1e-3 * au
+    # the same position written in kilometres but labelled metres is still a unit mistake
+    with pytest.raises(IsdError, match="check the position's unit"):
+        isd_from_dict(_set(csm_isd(), "sun_position.positions", [(sun / 1000).tolist()]), "far.json")
