@@ -148,7 +148,9 @@ class PointIndex:
     """
 
     buckets: SphereBuckets
-    datum_radius_m: float = DATUM_RADIUS_M
+    #: The body's datum sphere (m): footprints lie on it, heights are measured from it. No default: an index
+    #: without it once gridded a Moon DEM as "radius minus Mercury's datum" on Dask workers.
+    datum_radius_m: float
 
     @property
     def radius(self) -> NDArray[np.float64]:
@@ -175,8 +177,10 @@ class PointIndex:
         return cKDTree(self.footprint, balanced_tree=False)
 
     def __getstate__(self) -> dict[str, Any]:
-        # Ship the buckets only: a worker rebuilds the tree if it ever needs it.
-        return {"buckets": self.buckets}
+        # Ship the buckets and the datum, not the tree: a worker rebuilds the tree if it ever needs it.
+        # The datum must travel: left out, the unpickled index read the class attribute of a field
+        # default, and heights on Dask workers were measured from the wrong body's sphere.
+        return {"buckets": self.buckets, "datum_radius_m": self.datum_radius_m}
 
     def __sizeof__(self) -> int:
         """Bytes held by the index's arrays (``sys.getsizeof``, hence ``dask.sizeof``, count them)."""

@@ -83,6 +83,17 @@ def test_point_index_pickles_for_workers(global_cloud):
     np.testing.assert_array_equal(back.radius, index.radius)
 
 
+def test_point_index_keeps_its_body_datum_through_pickling(global_cloud):
+    """A worker's copy of a Moon index measures heights from the Moon's datum, not a default's."""
+    import pickle
+
+    from mercury_dem.geometry.body import MOON
+
+    moon = global_cloud / DATUM_RADIUS_M * MOON.datum_radius_m
+    back = pickle.loads(pickle.dumps(build_point_index(moon, MOON.datum_radius_m), protocol=5))
+    assert back.datum_radius_m == MOON.datum_radius_m == back.buckets.sphere_radius
+
+
 def test_existing_store_needs_overwrite(serial_store, global_cloud):
     path, _ = serial_store
     with pytest.raises(StoreError, match="overwrite"):
