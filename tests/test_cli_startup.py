@@ -124,7 +124,7 @@ def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path, mon
                               "--no-coverage"], mods) == []
     import scipy.linalg  # noqa: F401  (this process: numba started as usual, with scipy)
 
-    grid_dem(pts, load_config(cfg).dem, tmp_path / "lib" / "dem.zarr", coverage=False)
+    grid_dem(pts, load_config(cfg).dem, tmp_path / "lib" / "dem.zarr", coverage=False, body=MERCURY)
     cli, lib = zarr.open_group(tmp_path / "cli" / "dem.zarr", mode="r"), zarr.open_group(tmp_path / "lib" / "dem.zarr", mode="r")
     assert sorted(cli.array_keys()) == sorted(lib.array_keys())
     for name in lib.array_keys():

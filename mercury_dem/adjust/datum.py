@@ -27,13 +27,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from mercury_dem.geometry.body import DATUM_RADIUS_M
-
 __all__ = ["LevellingDecision", "block_extent_deg", "centre_point_priors", "levelling_decision", "neighbour_radii",
            "on_datum", "recentre_on_block"]
 
 
-def on_datum(xyz: NDArray[np.float64], datum_radius_m: float = DATUM_RADIUS_M) -> NDArray[np.float64]:
+def on_datum(xyz: NDArray[np.float64], datum_radius_m: float) -> NDArray[np.float64]:
     """Points moved radially onto the datum sphere (direction kept; zero vectors kept as they are).
 
     The a-priori point of a control point is, as in ISIS with an ellipsoid shape,
@@ -49,7 +47,7 @@ def on_datum(xyz: NDArray[np.float64], datum_radius_m: float = DATUM_RADIUS_M) -
     return np.where(r > 0, xyz * (datum_radius_m / np.where(r > 0, r, 1.0)), xyz)
 
 
-def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: float = DATUM_RADIUS_M) -> Any:
+def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: float) -> Any:
     """The problem with its free points' a-priori coordinates (their radius constraints' centre) as configured.
 
     ``point_prior_center == "datum"``: every point that is not held moves onto the datum sphere
@@ -219,7 +217,7 @@ def levelling_decision(points_xyz: ArrayLike, altimetry_constrained: ArrayLike |
                              extent_deg=extent, altimetry_share=share, reason=reason)
 
 
-def recentre_on_block(problem: Any, cfg: Any, datum_radius_m: float = DATUM_RADIUS_M,
+def recentre_on_block(problem: Any, cfg: Any, datum_radius_m: float,
                       adjust: Any = None) -> tuple[Any, dict[str, Any]]:
     """The problem with its free points' radius constraints centred on the block's own surface.
 

@@ -12,7 +12,7 @@ import pandas as pd
 
 from mercury_dem.adjust.result import AdjustmentResult
 from mercury_dem.config.adjust import AdjustConfig
-from mercury_dem.geometry.body import xyz_to_latlon
+from mercury_dem.geometry.body import xyz_to_lat_lon
 
 
 def images_table(result: AdjustmentResult) -> pd.DataFrame:
@@ -38,7 +38,7 @@ def images_table(result: AdjustmentResult) -> pd.DataFrame:
 def points_table(result: AdjustmentResult) -> pd.DataFrame:
     """One row per point: adjusted XYZ (m), lat/lon (deg, planetocentric east), radius (m), RMS."""
     p = result.points
-    lat, lon, _ = xyz_to_latlon(p)
+    lat, lon = xyz_to_lat_lon(p)
     df = pd.DataFrame({
         "point_id": result.point_ids,
         "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],

@@ -37,12 +37,18 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from mercury_dem.exceptions import ConfigError
-from mercury_dem.geometry.body import DATUM_RADIUS_M, wrap_longitude
+from mercury_dem.geometry.body import wrap_longitude
 
 #: Mercury's GM, m^3 s^-2 (MESSENGER gravity field GGMES, 2.2031815e13).
 MERCURY_GM = 2.2031815e13
 #: Mercury's sidereal rotation period, seconds (58.6462 d).
 MERCURY_ROTATION_S = 58.6462 * 86400.0
+#: The Moon's GM, m^3 s^-2 (GRAIL GL0660B, 4.9028e12), and its sidereal rotation period, seconds (27.3217 d).
+MOON_GM = 4.9028e12
+MOON_ROTATION_S = 27.321661 * 86400.0
+#: (GM, rotation period) of each catalogued body by name, for a simulation of its orbiter.
+ORBIT_CONSTANTS: dict[str, tuple[float, float]] = {"MERCURY": (MERCURY_GM, MERCURY_ROTATION_S),
+                                                   "MOON": (MOON_GM, MOON_ROTATION_S)}
 #: Start of the synthetic clock of the altimetry (seconds, like the images' ET-like times).
 START_TIME_S = 2.0e8
 
@@ -153,10 +159,10 @@ def simulate_altimetry(
     height: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
     rng: np.random.Generator,
     *,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    datum_radius_m: float,
     area_deg: tuple[float, float, float, float] | None = None,
-    gm: float = MERCURY_GM,
-    rotation_period_s: float = MERCURY_ROTATION_S,
+    gm: float,
+    rotation_period_s: float,
 ) -> SimulatedAltimetry:
     """Simulate MLA-like profiles of a truth surface (see the module docstring for the model).
 
@@ -313,4 +319,4 @@ def screen_shots(shots: pd.DataFrame, body_radius_m: float,
 
 
 __all__ = ["AltimetryDesign", "SimulatedAltimetry", "simulate_altimetry", "screen_shots", "MERCURY_GM",
-           "MERCURY_ROTATION_S"]
+           "MERCURY_ROTATION_S", "MOON_GM", "MOON_ROTATION_S", "ORBIT_CONSTANTS"]

@@ -95,7 +95,8 @@ def _label_run(g: IsdGeometry, path: str) -> tuple[dict[str, float], CamInfo, li
             raise IsdError(f"label {path}: RA_DEC_REF_PIXEL {ref} is not a pixel of the "
                            f"{g.camera.samples}x{g.camera.lines} image")
     info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position,
-                           lab.get("radius_m", g.radius_m), g.j2000_to_body, centre_pixel=centre)
+                           radius_m=lab.get("radius_m", g.radius_m), j2000_to_body=g.j2000_to_body,
+                           centre_pixel=centre)
     return lab, info, compare_with_label(info, lab), centre
 
 
@@ -112,7 +113,8 @@ def run(args: argparse.Namespace, config: Config) -> int:
     radius = g.radius_m if args.radius_km is None else args.radius_km * 1000.0
     if not (math.isfinite(radius) and radius > 0):
         raise GeometryError(f"--radius-km must be a positive number, got {args.radius_km}")
-    info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, radius, g.j2000_to_body)
+    info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, radius_m=radius,
+                           j2000_to_body=g.j2000_to_body)
     lab = rows = centre = linfo = None
     if args.label:
         lab, linfo, rows, centre = _label_run(g, args.label)

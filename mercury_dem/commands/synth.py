@@ -22,6 +22,9 @@ DESCRIPTION = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", metavar="OUT", help="mission directory to create")
     p.add_argument("--preset", help="tiny, demo or large (default: tiny)")
+    p.add_argument("--body", choices=("mercury", "moon"),
+                   help="target body (default mercury): its datum sphere, IAU CRS and orbit constants; the "
+                        "preset's area, cameras and pixel scales are kept (on the Moon its area holds fewer images)")
     p.add_argument("--seed", type=int, help="seed of the surface, the mission and the noise")
     p.add_argument("--pointing-sigma-urad", type=float, help="a-priori pointing error per axis (1 sigma), microradians")
     p.add_argument("--position-sigma-m", type=float, help="a-priori position error per axis (1 sigma), metres")
@@ -50,7 +53,7 @@ def synth_config(args: argparse.Namespace) -> SynthConfig:
     records the pointing sigma it injected, and a run may override it with ``apriori.pointing_sigma_urad``.
     """
     data = to_dict(SynthConfig())
-    for flag, key in (("preset", "preset"), ("seed", "seed"), ("pointing_sigma_urad", "pointing_sigma_urad"),
+    for flag, key in (("preset", "preset"), ("body", "body"), ("seed", "seed"), ("pointing_sigma_urad", "pointing_sigma_urad"),
                       ("position_sigma_m", "position_sigma_m")):
         v = getattr(args, flag)
         if v is not None:

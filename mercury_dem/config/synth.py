@@ -12,6 +12,8 @@ class SynthConfig(ConfigSection):
     """The generator's settings (``mercury-dem synth`` flags; not part of the run configuration)."""
 
     preset: str = param("tiny", "Synthetic mission preset", choices=("tiny", "demo", "large"))
+    body: str = param("mercury", "Target body of the synthetic mission (its datum, CRS, orbit constants)",
+                      choices=("mercury", "moon"))
     seed: int = param(42, "Seed of the surface, the mission and the noise", lo=0)
     pointing_sigma_urad: float = param(
         450.0, "A-priori pointing error per axis and image (1 sigma)", unit="urad", lo=0.0, hi=1e5

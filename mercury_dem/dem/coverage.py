@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
+from mercury_dem.geometry.body import latlon_to_unit
 
 #: Map rows handled per kd-tree query block (bounds memory at 1 km/pixel).
 ROW_BLOCK = 256
@@ -47,7 +47,7 @@ class CoverageResult:
     y_km: NDArray[np.float64]
     count: NDArray[np.int32]
     nearest_km: NDArray[np.float32]
-    radius_m: float = DATUM_RADIUS_M
+    radius_m: float
 
     def summary(self) -> dict[str, Any]:
         """The reference's figures, as a JSON-safe dict."""
@@ -113,7 +113,7 @@ class CoverageResult:
         return ds
 
 
-def sinusoidal_grid(pixel_km: float, radius_m: float = DATUM_RADIUS_M) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def sinusoidal_grid(pixel_km: float, radius_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Pixel-centre coordinates (x_km (W,), y_km (H,), y descending) of the sinusoidal grid."""
     rk = radius_m / 1000.0
     nx = int(math.ceil(2 * math.pi * rk / pixel_km))

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.exceptions import GridError
-from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
+from mercury_dem.geometry.body import xyz_to_latlon
 
 
 def whole_pixel_step(pixels_per_degree: float, max_step: int = 360) -> int:
@@ -39,7 +39,7 @@ def whole_pixel_step(pixels_per_degree: float, max_step: int = 360) -> int:
 
 
 def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
-                  pixels_per_degree: float, datum_radius_m: float = DATUM_RADIUS_M) -> tuple[float, float, float, float]:
+                  pixels_per_degree: float, datum_radius_m: float) -> tuple[float, float, float, float]:
     """(lat_min, lat_max, lon_min, lon_max) in degrees covering the points plus ``margin_m``.
 
     Bounds are snapped outward to multiples of :func:`whole_pixel_step` degrees (whole
@@ -52,7 +52,7 @@ def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
     if p.shape[0] == 0:
         raise GridError("the point cloud is empty: no extent to grid (did the adjustment keep any points?)")
     d = whole_pixel_step(pixels_per_degree)
-    lat, lon = xyz_to_latlon(p)[:2]
+    lat, lon = xyz_to_latlon(p, datum_radius_m)[:2]
     margin_deg = math.degrees(margin_m / datum_radius_m)
     lo = max(-90.0, float(lat.min()) - margin_deg)
     hi = min(90.0, float(lat.max()) + margin_deg)
@@ -85,7 +85,7 @@ def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
 
 
 def config_with_extent(cfg: DemConfig, points_xyz: NDArray[np.floating],
-                       datum_radius_m: float = DATUM_RADIUS_M) -> DemConfig:
+                       datum_radius_m: float) -> DemConfig:
     """``cfg`` with its unset bounds taken from a point cloud (:func:`points_extent` with the margin
     ``cfg.max_distance_m``); set bounds are kept, and ``cfg`` itself is returned when all four are set.
 

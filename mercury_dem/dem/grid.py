@@ -3,9 +3,9 @@
 Frames and units
 ----------------
 * Points: body-fixed XYZ, metres, shape (N, 3). Their radius ``|p|`` is what is
-  gridded; heights are ``radius - DATUM_RADIUS_M`` (2439.4 km datum).
+  gridded; heights are ``radius - datum_radius_m`` (the body's datum, carried by the index and the grid).
 * Neighbour search: over the points' *footprints* on the datum sphere
-  (``p / |p| * DATUM_RADIUS_M``), queried with pixel centres on the same sphere,
+  (``p / |p| * datum_radius_m``), queried with pixel centres on the same sphere,
   by the compiled bucket search of :mod:`mercury_dem.dem.buckets` (search and
   reduction fused per pixel); a ``scipy.spatial.cKDTree`` of the same footprints
   is the exact fallback for pixels far from every point and the independent
@@ -42,7 +42,7 @@ chunk's result is identical whatever the chunking.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.exceptions import GridError
-from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
+from mercury_dem.geometry.body import latlon_to_unit
 
 if TYPE_CHECKING:
     from mercury_dem.dem.buckets import SphereBuckets
@@ -82,7 +82,8 @@ class GridSpec:
     lat_max: float = 90.0
     lon_min: float = 0.0
     lon_max: float = 360.0
-    datum_radius_m: float = DATUM_RADIUS_M
+    #: The body's datum sphere (m): pixel sizes and distances are measured on it. Keyword-only, no default.
+    datum_radius_m: float = field(kw_only=True)
 
     def __post_init__(self) -> None:
         for name, span in (("latitude", self.lat_max - self.lat_min), ("longitude", self.lon_max - self.lon_min)):
@@ -94,7 +95,7 @@ class GridSpec:
                 )
 
     @classmethod
-    def from_config(cls, cfg: DemConfig, datum_radius_m: float = DATUM_RADIUS_M) -> GridSpec:
+    def from_config(cls, cfg: DemConfig, datum_radius_m: float) -> GridSpec:
         """The grid of a :class:`~mercury_dem.config.dem.DemConfig` (unset bounds: the globe's)."""
         return cls(cfg.pixels_per_degree, *cfg.bounds(), datum_radius_m=datum_radius_m)
 
@@ -148,7 +149,9 @@ class PointIndex:
     """
 
     buckets: SphereBuckets
-    datum_radius_m: float = DATUM_RADIUS_M
+    #: The body's datum sphere (m): footprints lie on it, heights are measured from it. No default: an index
+    #: without it once gridded a Moon DEM as "radius minus Mercury's datum" on Dask workers.
+    datum_radius_m: float
 
     @property
     def radius(self) -> NDArray[np.float64]:
@@ -175,8 +178,10 @@ class PointIndex:
         return cKDTree(self.footprint, balanced_tree=False)
 
     def __getstate__(self) -> dict[str, Any]:
-        # Ship the buckets only: a worker rebuilds the tree if it ever needs it.
-        return {"buckets": self.buckets}
+        # Ship the buckets and the datum, not the tree: a worker rebuilds the tree if it ever needs it.
+        # The datum must travel: left out, the unpickled index read the class attribute of a field
+        # default, and heights on Dask workers were measured from the wrong body's sphere.
+        return {"buckets": self.buckets, "datum_radius_m": self.datum_radius_m}
 
     def __sizeof__(self) -> int:
         """Bytes held by the index's arrays (``sys.getsizeof``, hence ``dask.sizeof``, count them)."""
@@ -185,7 +190,7 @@ class PointIndex:
         return object.__sizeof__(self) + sum(int(a.nbytes) for a in arrays)
 
 
-def build_point_index(points_xyz: NDArray[np.floating], datum_radius_m: float = DATUM_RADIUS_M) -> PointIndex:
+def build_point_index(points_xyz: NDArray[np.floating], datum_radius_m: float) -> PointIndex:
     """Validate a point cloud and index it.
 
     Parameters
@@ -439,7 +444,7 @@ def grid_chunk(
     Returns
     -------
     dict of (row1 - row0, col1 - col0) arrays named as :data:`LAYERS`:
-    ``elevation`` (float32, m above the 2439.4 km datum, NaN = no value),
+    ``elevation`` (float32, m above the body's datum, NaN = no value),
     ``radius`` (float32, m), ``point_count`` (int32), ``distance_to_nearest_point``
     (float32, m), ``spread`` (float32, m).
     """

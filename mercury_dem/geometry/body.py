@@ -2,9 +2,9 @@
 
 :class:`Body` is what a mission says about its target: name, NAIF id, the IAU
 sphere radius, the datum radius heights refer to, and the IAU 2015 CRS codes of
-its products. :data:`MERCURY` is the default; :data:`MOON` the first other body.
+its products. :data:`MERCURY` and :data:`MOON`; no body is a default below the mission.
 Stage code takes the body from the mission (``mission.body``); the module
-constants below are Mercury's and remain only as defaults of pure functions.
+constants below are Mercury's (for the synthetic presets, the command line and tests).
 
 Conventions (see docs/conventions.md):
 
@@ -174,16 +174,28 @@ def latlon_to_unit(lat_deg: ArrayLike, lon_deg: ArrayLike) -> NDArray[np.float64
 def latlon_to_xyz(
     lat_deg: ArrayLike,
     lon_deg: ArrayLike,
-    height_m: ArrayLike = 0.0,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    height_m: ArrayLike,
+    datum_radius_m: float,
 ) -> NDArray[np.float64]:
     """Body-fixed XYZ (metres, shape (..., 3)) of points at a height above the datum."""
     radius = datum_radius_m + np.asarray(height_m, dtype=np.float64)
     return latlon_to_unit(lat_deg, lon_deg) * radius[..., None]
 
 
+def xyz_to_lat_lon(xyz: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Latitude and east longitude in [0, 360) (degrees) of body-fixed vectors of any length (no datum needed).
+
+    Parameters
+    ----------
+    xyz : array of shape (..., 3), body-fixed (metres, or unit vectors)
+    """
+    p = np.asarray(xyz, dtype=np.float64)
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    return np.degrees(np.arctan2(z, np.hypot(x, y))), wrap_longitude(np.degrees(np.arctan2(y, x)))
+
+
 def xyz_to_latlon(
-    xyz: ArrayLike, datum_radius_m: float = DATUM_RADIUS_M
+    xyz: ArrayLike, datum_radius_m: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Latitude, east longitude in [0, 360) (degrees) and height above the datum (m).
 

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError
-from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
+from mercury_dem.geometry.body import xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import illumination_angles, image_to_ground, intersect_sphere, pixel_rays
 
@@ -128,7 +128,8 @@ def compute_caminfo(
     position: ArrayLike,
     rotation: ArrayLike,
     sun_position: ArrayLike | None = None,
-    radius_m: float = DATUM_RADIUS_M,
+    *,
+    radius_m: float,
     j2000_to_body: ArrayLike | None = None,
     centre_pixel: tuple[float, float] | None = None,
 ) -> CamInfo:

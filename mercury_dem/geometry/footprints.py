@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
+from mercury_dem.geometry.body import xyz_to_lat_lon
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import intersect_sphere, pixel_rays
 
@@ -25,7 +25,8 @@ def image_footprint(
     position: ArrayLike,
     rotation: ArrayLike,
     per_side: int = 8,
-    radius_m: float = DATUM_RADIUS_M,
+    *,
+    radius_m: float,
 ) -> NDArray[np.float64]:
     """Unit vectors (4*per_side, 3) of the image border on the sphere, counter-clockwise in the image.
 
@@ -47,7 +48,8 @@ def image_footprints(
     positions: ArrayLike,
     rotations: ArrayLike,
     per_side: int = 8,
-    radius_m: float = DATUM_RADIUS_M,
+    *,
+    radius_m: float,
 ) -> NDArray[np.float64]:
     """Footprints (N, 4*per_side, 3) of N images taken with the same camera (batched :func:`image_footprint`)."""
     c = np.asarray(positions, dtype=np.float64)
@@ -64,8 +66,7 @@ def image_footprints(
 
 def footprint_latlon(footprint: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Latitude and east longitude (degrees) of footprint vertices."""
-    lat, lon, _ = xyz_to_latlon(np.asarray(footprint) * DATUM_RADIUS_M)
-    return lat, lon
+    return xyz_to_lat_lon(footprint)
 
 
 def _tangent_basis(c: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -124,7 +125,7 @@ def footprint_caps(footprints: ArrayLike) -> tuple[NDArray[np.float64], NDArray[
     return c, np.arccos(cosang.min(axis=1))
 
 
-def footprint_area_m2(footprints: ArrayLike, radius_m: float = DATUM_RADIUS_M) -> NDArray[np.float64]:
+def footprint_area_m2(footprints: ArrayLike, radius_m: float) -> NDArray[np.float64]:
     """Areas (N,) of footprints (N, K, 3) on the sphere (shoelace on a gnomonic projection about each centre)."""
     f = np.asarray(footprints, dtype=np.float64)
     c, _ = footprint_caps(f)
@@ -181,7 +182,8 @@ def overlap_graph(
     min_fraction: float = 0.0,
     samples_per_side: int = 8,
     footprint_per_side: int = 4,
-    radius_m: float = DATUM_RADIUS_M,
+    *,
+    radius_m: float,
     chunk_pairs: int = 20000,
 ) -> OverlapGraph:
     """All pairs of images whose a-priori footprints overlap.
@@ -214,7 +216,7 @@ def overlap_graph(
     for c, cam in enumerate(cameras):
         rows = cam_idx == c
         if np.any(rows):
-            fps[rows] = image_footprints(cam, pos[rows], rot[rows], footprint_per_side, radius_m)
+            fps[rows] = image_footprints(cam, pos[rows], rot[rows], footprint_per_side, radius_m=radius_m)
             grid[rows] = _image_grid_ground(cam, pos[rows], rot[rows], samples_per_side, radius_m)
     area = footprint_area_m2(fps, radius_m)
     centre, ang = footprint_caps(fps)

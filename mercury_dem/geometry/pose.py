@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import GeometryError
-from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz, xyz_to_latlon
+from mercury_dem.geometry.body import xyz_to_latlon
 from mercury_dem.geometry.camera import FramingCamera
 
 #: A height model: (lat_deg, lon_deg) arrays -> height above the datum, metres.
@@ -154,7 +154,8 @@ def image_to_ground(
     rotation: ArrayLike,
     pixels: ArrayLike,
     height: HeightFunction | None = None,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    *,
+    datum_radius_m: float,
     tol_m: float = 1e-4,
     max_iter: int = 50,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -213,7 +214,3 @@ def pixel_scale_m(camera: FramingCamera, slant_distance_m: ArrayLike) -> NDArray
     """Pixel scale at a slant distance: distance x IFOV (the PDS label convention)."""
     return np.asarray(slant_distance_m, dtype=np.float64) * camera.ifov_rad
 
-
-def latlon_point(lat: float, lon: float, height: float = 0.0) -> NDArray[np.float64]:
-    """Convenience: one body-fixed point (3,) from lat/lon/height."""
-    return latlon_to_xyz(lat, lon, height)

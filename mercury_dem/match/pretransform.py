@@ -21,7 +21,6 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import illumination_angles, image_to_ground, project
 
@@ -43,11 +42,11 @@ class ImageGeometry:
     position: NDArray[np.float64]
     rotation: NDArray[np.float64]
     sun_position: NDArray[np.float64]
-    datum_radius_m: float = DATUM_RADIUS_M
+    datum_radius_m: float
 
     @staticmethod
     def of(camera: FramingCamera, position: ArrayLike, rotation: ArrayLike, sun_position: ArrayLike,
-           datum_radius_m: float = DATUM_RADIUS_M) -> ImageGeometry:
+           datum_radius_m: float) -> ImageGeometry:
         return ImageGeometry(
             camera,
             np.asarray(position, dtype=np.float64).reshape(3),

@@ -23,7 +23,6 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import coo_matrix
 
 from mercury_dem.exceptions import NetworkError
-from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import intersect_sphere, pixel_rays
 from mercury_dem.network.model import ControlNetwork, MeasureType, PointType, as_string_array
@@ -135,7 +134,8 @@ def triangulate_points(
     n_points: int,
     min_convergence_deg: float = 1.0,
     max_height_m: float = 50_000.0,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    *,
+    datum_radius_m: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.int8]]:
     """A-priori point coordinates from measures and poses.
 
@@ -311,7 +311,7 @@ def build_network(
     sigma_px: float = np.nan,
     min_convergence_deg: float = 1.0,
     max_height_m: float = 50_000.0,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    datum_radius_m: float,
     metadata: Mapping[str, str] | None = None,
     sigma_factor: ArrayLike | None = None,
 ) -> BuildResult:
@@ -391,7 +391,7 @@ def build_network(
     mp = tracks.group_track
     xyz, method = triangulate_points(
         mp, tracks.group_image, np.column_stack([tracks.sample, tracks.line]), cameras, positions, rotations, n,
-        min_convergence_deg, max_height_m, datum_radius_m,
+        min_convergence_deg, max_height_m, datum_radius_m=datum_radius_m,
     )
     g = mp.size
     net = ControlNetwork.from_arrays(

@@ -228,7 +228,7 @@ def point_block(spec: SyntheticSpec, images: ImageSet, block: int, tree: cKDTree
     true_points = points[used]
     if len(used):
         ap = intersect_rays(images.cameras, images.image_camera, images.positions, images.rotations,
-                            meas_img, meas_pt, measures, len(used))
+                            meas_img, meas_pt, measures, len(used), DATUM_RADIUS_M)
     else:
         ap = np.zeros((0, 3))
     return PointBlock(block, true_points, ap, meas_img, meas_pt.astype(np.int64), measures, outlier)

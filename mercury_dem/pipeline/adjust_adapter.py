@@ -15,7 +15,6 @@ from numpy.typing import NDArray
 
 from mercury_dem.adjust.datum import recentre_on_block
 from mercury_dem.config.adjust import AdjustConfig
-from mercury_dem.geometry.body import DATUM_RADIUS_M
 
 
 @dataclass(frozen=True)
@@ -40,7 +39,7 @@ def adjust_network(
     *,
     initial_rotations: NDArray[np.float64] | None = None,
     rms_flag_px: float = 2.0,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    datum_radius_m: float,
     altimetry: Any = None,
     recentre_point_priors: bool = False,
     level: str | None = None,

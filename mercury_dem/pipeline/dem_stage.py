@@ -39,7 +39,7 @@ from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.exceptions import DiskFullError, GridError, StoreError
-from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
 from mercury_dem.io.run_store import COVERAGE_FILE
 from mercury_dem.pipeline.executors import runs_in_process
@@ -145,7 +145,7 @@ def check_memory(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
     return est
 
 
-def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, body: Body = MERCURY) -> xr.Dataset:
+def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> xr.Dataset:
     """The lazy (Dask-backed, never computed) Dataset that defines the store's layout."""
     import dask.array as da
     import rioxarray  # noqa: F401  (registers the .rio accessor)
@@ -176,7 +176,7 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, 
     return ds
 
 
-def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body = MERCURY) -> dict[str, Any]:
+def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> dict[str, Any]:
     code = body.crs("geographic")
     if body.datum_is_iau_sphere:
         reference = (f"elevation is metres above the {body.name.title()} IAU 2015 sphere of radius "
@@ -305,7 +305,7 @@ _NAN_FILL_ATTR = base64.standard_b64encode(np.array(np.nan, dtype="<f8").tobytes
 
 
 def create_store(
-    store: str, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None = None, body: Body = MERCURY
+    store: str, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body
 ) -> tuple[zarr.Group, dict[str, zarr.Array]]:
     """Create the empty ``dem.zarr`` layout with zarr directly: the same metadata as
     ``dem_template(grid, cfg, attrs).to_zarr(store, compute=False)`` (a test checks it)
@@ -454,7 +454,7 @@ def grid_dem(
     overwrite: bool = False,
     attrs: dict[str, Any] | None = None,
     coverage: bool = True,
-    body: Body = MERCURY,
+    body: Body,
     progress: Any = None,
     label: str = "dem",
     writer: StoreWriter | None = None,
@@ -629,7 +629,7 @@ def failed_chunks_of(path: str | Path) -> list[dict[str, Any]]:
 
 def regrid_failed_chunks(
     points_xyz: NDArray[np.floating], config: Any, path: str | Path, client: Any = None, *,
-    body: Body = MERCURY, progress: Any = None, label: str = "dem",
+    body: Body, progress: Any = None, label: str = "dem",
 ) -> dict[str, Any]:
     """Grid again, in place, the chunks a ``dem.zarr`` records as failed (the resume of :func:`grid_dem`).
 

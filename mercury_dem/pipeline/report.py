@@ -72,6 +72,8 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
     report: dict[str, Any] = {
         "run": store.location,
         "mission": _mission_ref(store, mission),
+        # the target, as the mission declares it: the datum its heights refer to and its CRS
+        "body": mission.body.to_dict(),
         "tiles": {
             "total": int(plan["tiles_total"]),
             "non_empty": len(plan["non_empty_tiles"]),

@@ -23,12 +23,11 @@ import pyproj  # noqa: E402
 from matplotlib import colors, ticker  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, Body  # noqa: E402
+from mercury_dem.geometry.body import Body  # noqa: E402
 from mercury_dem.products.sampling import sample_bilinear  # noqa: E402
 from mercury_dem.products.stats import block_centres, block_mean  # noqa: E402
 
 #: Robinson, central meridian 180 (the map runs 0..360 E like the reference's Fig. 1).
-CRS_ROBINSON_180 = MERCURY.crs("robinson_180")
 CMAP = "turbo"
 
 
@@ -45,7 +44,7 @@ def _spacing(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> tuple[float,
     return dlat, dlon, abs(dlon * lon.size - 360.0) < 1e-6
 
 
-def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64], radius_m: float = DATUM_RADIUS_M) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64], radius_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """East and north height gradients (m/m) by central differences; columns wrap on a global grid."""
     dlat, dlon, wrap = _spacing(lat, lon)
     z = np.asarray(h, dtype=np.float64)
@@ -61,7 +60,7 @@ def _gradients(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[n
 
 def hillshade(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
               azimuth_deg: float = 315.0, altitude_deg: float = 45.0, exaggeration: float = 1.0,
-              radius_m: float = DATUM_RADIUS_M) -> NDArray[np.float64]:
+              *, radius_m: float) -> NDArray[np.float64]:
     """Lambertian shaded relief in [0, 1] (NaN where no value or next to a gap).
 
     The surface normal ``(-dz/de, -dz/dn, 1)`` (east, north, up; true metric spacing
@@ -77,7 +76,7 @@ def hillshade(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np
 
 
 def auto_exaggeration(h: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
-                      target_deg: float = 12.0, radius_m: float = DATUM_RADIUS_M) -> float:
+                      target_deg: float = 12.0, *, radius_m: float) -> float:
     """A vertical exaggeration (1..200) making the 90th-percentile browse slope about ``target_deg``."""
     ge, gn = _gradients(h, lat, lon, radius_m)
     g = np.hypot(ge, gn)[np.abs(lat) < 75.0]
@@ -209,7 +208,7 @@ def east_longitude_label(x: float, _pos: object = None) -> str:
 
 def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
                      lon: NDArray[np.float64], path: str | Path, title: str, exaggeration: float,
-                     radius_m: float = DATUM_RADIUS_M) -> Path:
+                     radius_m: float) -> Path:
     """Annotated colour-coded elevation over shaded relief: axes in degrees, colour ramp, scale bar."""
     vmin, vmax = _limits(h)
     rgba = colour_relief(h, shade, vmin, vmax)
@@ -292,7 +291,7 @@ def robinson_central_meridian(h: NDArray[np.floating], lon: NDArray[np.float64])
     return float(np.mod(round(start + span / 2.0), 360.0))  # a whole degree
 
 
-def robinson_crs(central_meridian: float, body: Body = MERCURY) -> str:
+def robinson_crs(central_meridian: float, body: Body) -> str:
     """Robinson on the body's IAU sphere: the IAU code for a central meridian of 180, else a PROJ string."""
     if central_meridian == 180.0:
         return body.crs("robinson_180")
@@ -301,7 +300,7 @@ def robinson_crs(central_meridian: float, body: Body = MERCURY) -> str:
 
 def write_robinson_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: NDArray[np.float64],
                        lon: NDArray[np.float64], path: str | Path, width: int, title: str | None = None,
-                       central_meridian: float | None = None, body: Body = MERCURY) -> Path:
+                       central_meridian: float | None = None, *, body: Body) -> Path:
     """Global colour-coded shaded relief in Robinson projection with graticule.
 
     The central meridian is 180 (0-360 E) unless the data are regional

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.body import Body
 
 
 def grid_geometry(lat: NDArray[np.floating], lon: NDArray[np.floating], pixels_per_degree: float | None = None,
@@ -81,7 +81,7 @@ def pixel_transform(west: float, north: float, res: float) -> Any:
     return Affine(res, 0.0, west, 0.0, -res, north)
 
 
-def height_tags(body: Body = MERCURY, crs_is_datum: bool = False) -> dict[str, str]:
+def height_tags(body: Body, crs_is_datum: bool = False) -> dict[str, str]:
     """The metadata tags that state what a raster's values are heights above.
 
     ``crs_is_datum``: the file's CRS is the datum sphere (:meth:`Body.datum_geographic_crs`).
@@ -98,10 +98,9 @@ def height_tags(body: Body = MERCURY, crs_is_datum: bool = False) -> dict[str, s
     }
 
 
-HEIGHT_TAGS = height_tags(MERCURY)
 
 
-def band_description(body: Body = MERCURY) -> str:
+def band_description(body: Body) -> str:
     """The elevation band's description: heights above the body's datum sphere, with its radius."""
     return f"elevation above the {body.name.title()} datum sphere of radius {body.datum_radius_m:.0f} m"
 
@@ -161,7 +160,7 @@ def write_raster(
 
 
 def write_dem_geotiff(elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating],
-                      path: str | Path, cog: bool = True, body: Body = MERCURY, *,
+                      path: str | Path, cog: bool = True, *, body: Body,
                       pixels_per_degree: float | None = None,
                       bounds: tuple[float, float, float, float] | None = None) -> Path:
     """The DEM as a (cloud-optimised) GeoTIFF in the geographic CRS of its datum sphere (degrees).
@@ -177,7 +176,7 @@ def write_dem_geotiff(elevation: NDArray[np.floating], lat: NDArray[np.floating]
 
 def write_pds_equirectangular(
     elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating], path: str | Path,
-    cut_lat: float = 65.0, cog: bool = True, body: Body = MERCURY, *,
+    cut_lat: float = 65.0, cog: bool = True, *, body: Body,
     pixels_per_degree: float | None = None, bounds: tuple[float, float, float, float] | None = None,
     raw: bool = False,
 ) -> dict[str, Any]:

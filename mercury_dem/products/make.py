@@ -35,7 +35,7 @@ import xarray as xr
 
 from mercury_dem.dem.accuracy import dem_accuracy
 from mercury_dem.exceptions import GridError, StoreError
-from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
 from mercury_dem.products import browse
 from mercury_dem.products.geotiff import (
@@ -80,10 +80,15 @@ def open_dem(path: str | Path) -> xr.Dataset:
 
 
 def dem_body(ds: xr.Dataset) -> Body:
-    """The body a DEM store was gridded for (root attribute ``body``; stores without one are Mercury's)."""
+    """The body a DEM store was gridded for (root attribute ``body``).
+
+    A store without one is not guessed to be Mercury's (that guess once made a Moon DEM's products
+    Mercury's): it raises :class:`StoreError`, whose message says to grid it again.
+    """
     raw = ds.attrs.get("body")
     if not raw:
-        return MERCURY
+        raise StoreError("the DEM store has no 'body' attribute (written by a version before bodies were "
+                         "recorded?): its heights' datum is unknown; grid it again (mercury-dem run ... --force dem)")
     try:
         return Body.from_dict(json.loads(raw) if isinstance(raw, str) else raw)
     except (ValueError, TypeError) as exc:

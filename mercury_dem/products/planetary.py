@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.exceptions import StoreError
-from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_write_text
 from mercury_dem.products.geotiff import crosses_zero_meridian, grid_geometry, pixel_transform, west_edge
 
@@ -58,7 +58,7 @@ def isis_target_name(body: Body) -> str:
 
 def write_isis_radius_cube(
     elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating], path: str | Path,
-    body: Body = MERCURY, *, pixels_per_degree: float | None = None,
+    body: Body, *, pixels_per_degree: float | None = None,
     bounds: tuple[float, float, float, float] | None = None,
 ) -> dict[str, Any]:
     """Write the DEM as an ISIS3 shape-model cube of planetocentric radii (m); return a description.

@@ -18,11 +18,11 @@ import numpy as np
 import pyproj
 from numpy.typing import NDArray
 
-from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.body import Body
 from mercury_dem.products.sampling import sample_bilinear
 
 
-def polar_grid(cut_lat: float, pixel_m: float, radius_m: float = MERCURY.radius_m) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def polar_grid(cut_lat: float, pixel_m: float, radius_m: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Pixel-centre x (W,) and y (H,, descending) of a square stereographic grid enclosing the cap
     (``radius_m``: the CRS sphere).
     """
@@ -39,7 +39,8 @@ def reproject_polar(
     north: bool,
     cut_lat: float = 65.0,
     pixel_m: float | None = None,
-    body: Body = MERCURY,
+    *,
+    body: Body,
 ) -> dict[str, Any]:
     """Reproject one polar cap of an equirectangular DEM.
 

@@ -35,7 +35,7 @@ def parse_profile(text: str) -> tuple[float, float, float, float]:
 
 def elevation_profile(
     elevation: NDArray[np.floating], lat: NDArray[np.floating], lon: NDArray[np.floating],
-    ends: tuple[float, float, float, float], n: int = 1000, radius_m: float = DATUM_RADIUS_M,
+    ends: tuple[float, float, float, float], n: int = 1000, *, radius_m: float,
 ) -> dict[str, NDArray[np.float64]]:
     """Sample the DEM along the great circle between two points.
 

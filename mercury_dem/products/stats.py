@@ -27,7 +27,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.dem.accuracy import weighted_percentiles
-from mercury_dem.geometry.body import DATUM_RADIUS_M
 
 
 def block_mean(a: NDArray[np.floating], f: int, rows_per_strip: int = 4096) -> NDArray[np.float32]:
@@ -64,7 +63,7 @@ def block_centres(centres: NDArray[np.floating], f: int) -> NDArray[np.float64]:
 
 def slope_deg(
     height: NDArray[np.floating], lat_deg: NDArray[np.floating], dlat_deg: float, dlon_deg: float,
-    wrap_lon: bool, radius_m: float = DATUM_RADIUS_M
+    wrap_lon: bool, radius_m: float
 ) -> NDArray[np.float64]:
     """Slope (degrees) by Horn's 3x3 method on an equirectangular grid (rows north to south).
 
@@ -126,7 +125,7 @@ def dem_statistics(
     pixel_km: float = 2.0,
     polar_cut: float = 65.0,
     south_limit: float = 88.0,
-    radius_m: float = DATUM_RADIUS_M,
+    radius_m: float,
 ) -> dict[str, Any]:
     """Table 1 of the reference for a DEM on an equirectangular grid.
 

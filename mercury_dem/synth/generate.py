@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.exceptions import ConfigError, StoreError
-from mercury_dem.geometry.body import MERCURY, Body
+from mercury_dem.geometry.body import Body, body_by_name
 from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.mission.store import MissionWriter
 from mercury_dem.mission.truth import dem_axes, write_truth_dem, write_truth_tables
@@ -96,7 +96,10 @@ def generate_mission(
     t0 = time.perf_counter()
     design = design or get_preset(config.preset)
     params = replace(design.surface, seed=config.seed)
-    body = MERCURY
+    body = body_by_name(config.body)
+    if params.shape_harmonics and body.name != "MERCURY":
+        raise ConfigError(f"the preset {design.name!r} takes its long wavelengths from Mercury's shape "
+                          f"({params.shape_harmonics}); choose the tiny or large preset for the {body.name.title()}")
     radius = body.datum_radius_m
     plan = plan_mission(design, config.seed, radius)
     c_true, r_true = true_poses(plan)
@@ -170,15 +173,16 @@ def write_simulated_altimetry(writer: MissionWriter, root: Path, design: Mission
     would: flagged and off-body shots dropped and counted) into the mission's altimetry store and the injected
     per-profile orbit errors into ``truth/altimetry_profiles.parquet``. Returns counts and seconds.
     """
-    from mercury_dem.altimetry.simulate import screen_shots, simulate_altimetry
+    from mercury_dem.altimetry.simulate import ORBIT_CONSTANTS, screen_shots, simulate_altimetry
     from mercury_dem.altimetry.store import ShotSource, combine_shots
 
     assert design.altimetry is not None
     t0 = time.perf_counter()
     rng = np.random.default_rng([seed, 0xA171])  # its own stream: images and truth do not depend on it
     area = tuple(design.area_deg) if design.area_deg is not None else None
+    gm, rotation_s = ORBIT_CONSTANTS[body.name]
     sim = simulate_altimetry(design.altimetry, surface.height, rng, datum_radius_m=body.datum_radius_m,
-                             area_deg=area)  # type: ignore[arg-type]
+                             area_deg=area, gm=gm, rotation_period_s=rotation_s)  # type: ignore[arg-type]
     kept, dropped = screen_shots(sim.shots, body.datum_radius_m)
     n_tracks = int(kept["track_id"].nunique()) if len(kept) else 0
     source = ShotSource(f"simulated MLA (seed {seed})", len(sim.shots), len(kept), n_tracks, dropped)

@@ -17,8 +17,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.geometry.body import MERCURY
 from mercury_dem.geometry.camera import FramingCamera
 from mercury_dem.geometry.pose import image_to_ground, project
+
+#: The datum of the scenes :func:`standard_pairs` and :func:`convergent_views` build: Mercury's, as the MDIS
+#: cameras they fly (a scene of its own, not a default: the functions that measure errors take the datum).
+SCENE_DATUM_RADIUS_M = MERCURY.datum_radius_m
 
 HeightFunction = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
 
@@ -40,6 +45,8 @@ def true_errors(
     points_b: NDArray[np.float64],
     truth: Mapping[str, TruePose],
     height: HeightFunction,
+    *,
+    datum_radius_m: float,
 ) -> NDArray[np.float64]:
     """True error (M,) in match pixels of every match; NaN where the reference ray misses the surface.
 
@@ -50,6 +57,7 @@ def true_errors(
     points_a, points_b : ndarray (M, 2), 0-based (sample, line) in the original images
     truth : image id -> true camera and pose
     height : the true surface height (lat, lon) -> m above the datum
+    datum_radius_m : the body's datum sphere (m), which ``height`` is measured from
     """
     ia = np.asarray(image_a, np.int64)
     ib = np.asarray(image_b, np.int64)
@@ -60,7 +68,8 @@ def true_errors(
     for key in np.unique(keys):
         sel = np.flatnonzero(keys == key)
         ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
-        g, hit = image_to_ground(ta.camera, ta.position, ta.rotation, points_a[sel], height=height)
+        g, hit = image_to_ground(ta.camera, ta.position, ta.rotation, points_a[sel], height=height,
+                                 datum_radius_m=datum_radius_m)
         px, depth = project(tb.camera, tb.position, tb.rotation, np.where(hit[:, None], g, 0.0))
         err = np.linalg.norm(px - points_b[sel], axis=-1)
         out[sel] = np.where(hit & (depth > 0), err, np.nan)
@@ -76,6 +85,8 @@ def true_error_components(
     truth: Mapping[str, TruePose],
     height: HeightFunction,
     step_m: float = 100.0,
+    *,
+    datum_radius_m: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The true error of every match split along and across the epipolar line, in match pixels.
 
@@ -110,7 +121,8 @@ def true_error_components(
     for key in np.unique(keys):
         sel = np.flatnonzero(keys == key)
         ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
-        g, hit = image_to_ground(ta.camera, ta.position, ta.rotation, points_a[sel], height=height)
+        g, hit = image_to_ground(ta.camera, ta.position, ta.rotation, points_a[sel], height=height,
+                                 datum_radius_m=datum_radius_m)
         g = np.where(hit[:, None], g, 0.0)
         ray = g - ta.position
         ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
@@ -131,7 +143,8 @@ def true_error_components(
     return along, across
 
 
-def true_overlap(a: TruePose, b: TruePose, height: HeightFunction, grid: int = 16) -> float:
+def true_overlap(a: TruePose, b: TruePose, height: HeightFunction, grid: int = 16, *,
+                 datum_radius_m: float) -> float:
     """Overlap of two images as a fraction of the smaller one (0..1), on the true surface.
 
     The share of each image's grid whose ground point the other image sees; the
@@ -142,7 +155,7 @@ def true_overlap(a: TruePose, b: TruePose, height: HeightFunction, grid: int = 1
         t = (np.arange(grid) + 0.5) / grid
         ss, ll = np.meshgrid(t * p.camera.samples - 0.5, t * p.camera.lines - 0.5)
         px = np.stack([ss.ravel(), ll.ravel()], -1)
-        g, hit = image_to_ground(p.camera, p.position, p.rotation, px, height=height)
+        g, hit = image_to_ground(p.camera, p.position, p.rotation, px, height=height, datum_radius_m=datum_radius_m)
         if not hit.any():
             return 0.0
         proj, depth = project(q.camera, q.position, q.rotation, g[hit])
@@ -291,7 +304,7 @@ def standard_pairs(
     east = np.cross([0.0, 0.0, 1.0], up)
     east /= np.linalg.norm(east)
     north = np.cross(up, east)
-    centre = latlon_to_xyz(lat_deg, lon_deg)
+    centre = latlon_to_xyz(lat_deg, lon_deg, 0.0, SCENE_DATUM_RADIUS_M)
     k = alt / 2500e3
 
     def sun(inc: float, az: float) -> NDArray[np.float64]:
@@ -343,7 +356,7 @@ def convergent_views(
     east = np.cross([0.0, 0.0, 1.0], up)
     east /= np.linalg.norm(east)
     north = np.cross(up, east)
-    centre = latlon_to_xyz(lat_deg, lon_deg)
+    centre = latlon_to_xyz(lat_deg, lon_deg, 0.0, SCENE_DATUM_RADIUS_M)
     alt = 1.79e3 / cam.ifov_rad
     sun = centre + 5.8e10 * (np.cos(np.radians(45)) * up + np.sin(np.radians(45)) * east)
     images: dict[str, Any] = {}
@@ -355,7 +368,7 @@ def convergent_views(
         images[f"v{j}"] = (render_image(surface, cam, c, r, sun, rng) if render_settings is None
                            else render_image(surface, cam, c, r, sun, rng, render_settings))
         r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
-        geom[f"v{j}"] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, sun)
+        geom[f"v{j}"] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, sun, SCENE_DATUM_RADIUS_M)
         truth[f"v{j}"] = TruePose(cam, c, r)
     return images, geom, truth
 
@@ -368,6 +381,8 @@ def network_true_errors(
     pixels: NDArray[np.float64],
     truth: Mapping[str, TruePose],
     height: HeightFunction,
+    *,
+    datum_radius_m: float,
 ) -> NDArray[np.float64]:
     """True error (M,) in pixels of every measure of a control network against its point's anchor.
 
@@ -396,7 +411,8 @@ def network_true_errors(
     anchor = first[mp]
     others = np.flatnonzero(anchor != np.arange(m))
     out = np.zeros(m)
-    err = true_errors(image_ids, mi[anchor[others]], mi[others], pixels[anchor[others]], pixels[others], truth, height)
+    err = true_errors(image_ids, mi[anchor[others]], mi[others], pixels[anchor[others]], pixels[others], truth, height,
+                      datum_radius_m=datum_radius_m)
     out[others] = err
     return out
 

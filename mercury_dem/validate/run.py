@@ -51,7 +51,7 @@ def pointing_error_components_urad(rotations: NDArray[np.float64],
 
 def image_space_error_px(camera: Any, position: NDArray[np.float64], rotation: NDArray[np.float64],
                          true_position: NDArray[np.float64], true_rotation: NDArray[np.float64],
-                         height: Any, per_side: int = 9) -> float:
+                         height: Any, per_side: int = 9, *, datum_radius_m: float) -> float:
     """RMS displacement (pixels of this image) of where a pose projects the true ground.
 
     A grid of ``per_side`` x ``per_side`` pixels is cast from the true pose onto the
@@ -63,7 +63,8 @@ def image_space_error_px(camera: Any, position: NDArray[np.float64], rotation: N
     g = np.linspace(0.0, camera.samples - 1.0, per_side)
     h = np.linspace(0.0, camera.lines - 1.0, per_side)
     px = np.stack(np.meshgrid(g, h), axis=-1).reshape(-1, 2)
-    ground, hit = image_to_ground(camera, true_position, true_rotation, px, height=height)
+    ground, hit = image_to_ground(camera, true_position, true_rotation, px, height=height,
+                                  datum_radius_m=datum_radius_m)
     if not np.any(hit):
         return float("nan")
     proj, _ = project(camera, position, rotation, ground[hit])
@@ -87,7 +88,8 @@ def true_point_positions(network: Any, mission: Mission, points: NDArray[np.int6
         rows = np.flatnonzero(ok)[m_image[sel[ok]] == img]
         image_id = str(network.image_ids[img])
         c, r = mission.need_truth().true_pose(image_id)
-        xyz, _ = image_to_ground(mission.camera(image_id), c, r, px[sel[rows]], height=surface.height)
+        xyz, _ = image_to_ground(mission.camera(image_id), c, r, px[sel[rows]], height=surface.height,
+                                 datum_radius_m=mission.body.datum_radius_m)
         out[rows] = xyz
     return out
 
@@ -114,6 +116,7 @@ def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mis
     adj_bore, adj_twist = pointing_error_components_urad(rotations, true_r)
     apr_bore, apr_twist = pointing_error_components_urad(apri_r, true_r)
     surface = mission.need_truth().surface()
+    datum = mission.body.datum_radius_m
     catalog = getattr(mission, "catalog", None)
     if catalog is not None and {"image_id", "instrument"} <= set(catalog.columns):
         instrument_of = catalog.set_index("image_id")["instrument"]
@@ -128,9 +131,11 @@ def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mis
         "a_priori_boresight_urad": apr_bore, "adjusted_boresight_urad": adj_bore,
         "a_priori_twist_urad": apr_twist, "adjusted_twist_urad": adj_twist,
         "a_priori_px": np.array([image_space_error_px(c, apri_c[k], apri_r[k], true_c[k], true_r[k],
-                                                      surface.height) for k, c in enumerate(cams)]),
+                                                      surface.height, datum_radius_m=datum)
+                                 for k, c in enumerate(cams)]),
         "adjusted_px": np.array([image_space_error_px(c, pos[k], rotations[k], true_c[k], true_r[k],
-                                                      surface.height) for k, c in enumerate(cams)]),
+                                                      surface.height, datum_radius_m=datum)
+                                 for k, c in enumerate(cams)]),
         "ifov_urad": np.array([c.ifov_rad for c in cams]) * 1e6,
         "instrument": instruments,
     }

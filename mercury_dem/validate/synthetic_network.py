@@ -185,7 +185,8 @@ def make_synthetic_network(
     eps = rng.normal(0.0, pointing_error_rad, (n_img, 3))
     rot_ap = np.matmul(rotation_from_angles(eps), rot_true)
     pos_ap = positions + rng.normal(0.0, position_error_m, positions.shape) if position_error_m > 0 else positions.copy()
-    pts_ap = intersect_rays(cameras, image_camera, pos_ap, rot_ap, meas_img, meas_pt, measures, len(points))
+    pts_ap = intersect_rays(cameras, image_camera, pos_ap, rot_ap, meas_img, meas_pt, measures, len(points),
+                            DATUM_RADIUS_M)
     problem = AdjustmentProblem(
         cameras=cameras, image_camera=image_camera, positions=pos_ap, rotations=rot_ap, points=pts_ap,
         measure_image=meas_img, measure_point=meas_pt, measures=measures, measure_sigma=measure_sigma_px,
@@ -204,7 +205,7 @@ def intersect_rays(
     measure_point: NDArray[np.int64],
     measures: NDArray[np.float64],
     n_points: int,
-    datum_radius_m: float = DATUM_RADIUS_M,
+    datum_radius_m: float,
 ) -> NDArray[np.float64]:
     """Least-squares intersection (n_points, 3) of the rays of each point's measures.
 

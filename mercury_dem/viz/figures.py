@@ -166,12 +166,14 @@ def _dem(run: str | Path | RunStore) -> Any:
 def hillshade_figure(run: str | Path | RunStore, exaggeration: float | None = None) -> Figure:
     """The run's DEM as colour relief over a hillshade (gaps blank)."""
     from mercury_dem.products.browse import auto_exaggeration, hillshade
+    from mercury_dem.products.make import dem_body
 
     ds = _dem(run)
     h = ds["elevation"].values.astype(np.float64)
     lat, lon = ds["lat"].values, ds["lon"].values
-    ex = exaggeration or auto_exaggeration(h, lat, lon)
-    shade = hillshade(h, lat, lon, exaggeration=ex)
+    radius = dem_body(ds).datum_radius_m
+    ex = exaggeration or auto_exaggeration(h, lat, lon, radius_m=radius)
+    shade = hillshade(h, lat, lon, exaggeration=ex, radius_m=radius)
     extent = (lon.min(), lon.max(), lat.min(), lat.max())
     origin = "upper" if lat[0] > lat[-1] else "lower"
     fig = Figure(figsize=(8, 5), layout="constrained")

@@ -7,8 +7,14 @@ import dataclasses
 import numpy as np
 
 from mercury_dem.adjust import blocked
-from mercury_dem.adjust.blocked import BlockShard, SyncEngine, blocked_levenberg_marquardt, blocks_from_problem
-from mercury_dem.adjust.blocked import options_from_config, setup_from_config
+from mercury_dem.adjust.blocked import (
+    BlockShard,
+    SyncEngine,
+    blocked_levenberg_marquardt,
+    blocks_from_problem,
+    options_from_config,
+    setup_from_config,
+)
 from mercury_dem.adjust.kernels import schur_pairs_grouped, schur_pairs_table
 from mercury_dem.adjust.schur import SchurStructure
 from mercury_dem.config.adjust import AdjustConfig

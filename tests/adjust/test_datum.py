@@ -52,7 +52,7 @@ def test_recentred_radius_constraint_removes_the_pull_toward_the_datum(seed: int
     # Weak heights on purpose: 2-3 views within 5 degrees of nadir, 3 km of relief (waves of 75-750 km).
     net = make_synthetic_network(10_000, rng=np.random.default_rng(seed), relief_m=3000.0, max_emission_deg=5.0,
                                  min_views=2, max_views=3, outlier_fraction=0.0)
-    problem = dataclasses.replace(net.problem, points=on_datum(net.problem.points))
+    problem = dataclasses.replace(net.problem, points=on_datum(net.problem.points, datum_radius_m=DATUM_RADIUS_M))
     cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), radius_sigma_m=10_000.0)
     true_r = np.linalg.norm(net.true_points, axis=1)
     true_h = true_r - DATUM_RADIUS_M
@@ -64,7 +64,7 @@ def test_recentred_radius_constraint_removes_the_pull_toward_the_datum(seed: int
         return slope, float(np.sqrt(np.mean(e**2)))
 
     datum_slope, datum_rms = height_error(bundle_adjust(problem, cfg))
-    recentred, summary = recentre_on_block(problem, cfg)
+    recentred, summary = recentre_on_block(problem, cfg, datum_radius_m=DATUM_RADIUS_M)
     new_slope, new_rms = height_error(bundle_adjust(recentred, cfg))
     loose_slope, loose_rms = height_error(bundle_adjust(problem, dataclasses.replace(cfg, radius_sigma_m=1e5)))
     # Measured (seeds 3 / 11): slope -0.16 / -0.11 on the datum, -0.01 / 0.00 re-centred; RMS 566 / 671 m on
@@ -148,7 +148,7 @@ def test_centre_point_priors_moves_free_points_onto_the_datum_and_keeps_held_one
     held = np.zeros(problem.n_points, bool)
     held[:5] = True
     problem = dataclasses.replace(problem, points=pts, held_points=held)
-    assert centre_point_priors(problem, "triangulated") is problem
+    assert centre_point_priors(problem, "triangulated", datum_radius_m=DATUM_RADIUS_M) is problem
     out = centre_point_priors(problem, "datum", DATUM_RADIUS_M)
     r = np.linalg.norm(out.points, axis=1)
     np.testing.assert_allclose(r[~held], DATUM_RADIUS_M, rtol=1e-12)

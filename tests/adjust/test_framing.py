@@ -7,7 +7,7 @@ import pytest
 
 from mercury_dem.adjust.framing import FramingModel, FramingState, enu_frames, inverse_left_jacobian
 from mercury_dem.adjust.problem import AdjustmentProblem
-from mercury_dem.geometry.body import latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
 from mercury_dem.geometry.camera import mdis_nac, mdis_wac
 from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
 
@@ -17,8 +17,8 @@ def two_camera_problem():
     """A NAC (with MDIS distortion, points near the frame edge) and a WAC image of 8 points."""
     rng = np.random.default_rng(11)
     cams = (mdis_nac(512), mdis_wac(512))
-    pos = np.array([latlon_to_xyz(10.0, 20.0, 400e3), latlon_to_xyz(10.05, 20.02, 600e3)])
-    target = latlon_to_xyz(10.02, 20.01, 0.0)
+    pos = np.array([latlon_to_xyz(10.0, 20.0, 400e3, datum_radius_m=DATUM_RADIUS_M), latlon_to_xyz(10.05, 20.02, 600e3, datum_radius_m=DATUM_RADIUS_M)])
+    target = latlon_to_xyz(10.02, 20.01, 0.0, datum_radius_m=DATUM_RADIUS_M)
     rot = look_at_rotation(pos, np.broadcast_to(target, (2, 3)))
     pts = target + rng.normal(0.0, 3000.0, (8, 3))
     mi = np.repeat([0, 1], 8)
@@ -97,7 +97,7 @@ def test_inverse_left_jacobian_small_angle_limit():
 
 
 def test_enu_frames_orthonormal_with_up_radial():
-    p = np.array([latlon_to_xyz(30.0, 45.0, 0.0), latlon_to_xyz(-89.9999, 10.0, 0.0), latlon_to_xyz(0, 0, 0)])
+    p = np.array([latlon_to_xyz(30.0, 45.0, 0.0, datum_radius_m=DATUM_RADIUS_M), latlon_to_xyz(-89.9999, 10.0, 0.0, datum_radius_m=DATUM_RADIUS_M), latlon_to_xyz(0, 0, 0, datum_radius_m=DATUM_RADIUS_M)])
     f = enu_frames(p)
     np.testing.assert_allclose(np.einsum("nij,nik->njk", f, f), np.broadcast_to(np.eye(3), (3, 3, 3)), atol=1e-12)
     np.testing.assert_allclose(f[:, :, 2], p / np.linalg.norm(p, axis=1, keepdims=True))

@@ -17,7 +17,7 @@ from mercury_dem.validate.synthetic_network import make_synthetic_network
 def test_levelling_for_counts_the_points_near_shots() -> None:
     net = make_synthetic_network(800, rng=np.random.default_rng(31), relief_m=1000.0, min_views=2, max_views=3,
                                  outlier_fraction=0.0)
-    problem = dataclasses.replace(net.problem, points=on_datum(net.problem.points))
+    problem = dataclasses.replace(net.problem, points=on_datum(net.problem.points, datum_radius_m=DATUM_RADIUS_M))
     cfg = AdjustConfig()
     u = problem.points / np.linalg.norm(problem.points, axis=1, keepdims=True)
     lat, lon = np.degrees(np.arcsin(u[:, 2])), np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360.0

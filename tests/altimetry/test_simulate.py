@@ -7,9 +7,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mercury_dem.altimetry.simulate import AltimetryDesign, screen_shots, simulate_altimetry
+from mercury_dem.altimetry.simulate import (
+    MERCURY_GM,
+    MERCURY_ROTATION_S,
+    AltimetryDesign,
+    screen_shots,
+    simulate_altimetry,
+)
 from mercury_dem.exceptions import ConfigError
-from mercury_dem.geometry.body import latlon_to_unit
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit
 
 R = 2_439_400.0
 
@@ -23,7 +29,7 @@ def _relief(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
 def north() -> object:
     """A MESSENGER-like global design, few orbits (seed 2024, not tuned)."""
     d = AltimetryDesign(n_orbits=24, max_range_m=1_200e3, range_noise_m=1.0, bad_fraction=0.04)
-    return simulate_altimetry(d, _relief, np.random.default_rng(2024))
+    return simulate_altimetry(d, _relief, np.random.default_rng(2024), datum_radius_m=DATUM_RADIUS_M, gm=MERCURY_GM, rotation_period_s=MERCURY_ROTATION_S)
 
 
 def test_range_noise_and_bad_returns(north) -> None:
@@ -87,13 +93,13 @@ def test_geometry_dense_north_none_south_400m_spacing(north) -> None:
 
 def test_deterministic_and_regional(north) -> None:
     d = AltimetryDesign(n_orbits=24, max_range_m=1_200e3, range_noise_m=1.0, bad_fraction=0.04)
-    again = simulate_altimetry(d, _relief, np.random.default_rng(2024))
+    again = simulate_altimetry(d, _relief, np.random.default_rng(2024), datum_radius_m=DATUM_RADIUS_M, gm=MERCURY_GM, rotation_period_s=MERCURY_ROTATION_S)
     pd.testing.assert_frame_equal(again.shots, north.shots)
-    other = simulate_altimetry(d, _relief, np.random.default_rng(2025))
+    other = simulate_altimetry(d, _relief, np.random.default_rng(2025), datum_radius_m=DATUM_RADIUS_M, gm=MERCURY_GM, rotation_period_s=MERCURY_ROTATION_S)
     assert not np.allclose(other.profiles["along_m"], north.profiles["along_m"])
     area = (-10.0, 20.0, -15.0, 15.0)
     reg = simulate_altimetry(AltimetryDesign(n_orbits=12, lon_range_deg=(-16, 16), periapsis_lat_deg=20.0),
-                             _relief, np.random.default_rng(3), area_deg=area)
+                             _relief, np.random.default_rng(3), area_deg=area, datum_radius_m=DATUM_RADIUS_M, gm=MERCURY_GM, rotation_period_s=MERCURY_ROTATION_S)
     lat, lon = reg.shots["lat"], (reg.shots["lon"] + 180) % 360 - 180
     assert lat.between(-11.5, 21.5).all() and lon.between(-16.5, 16.5).all() and reg.profiles.shape[0] == 12
     with pytest.raises(ConfigError, match="periapsis_lat"):

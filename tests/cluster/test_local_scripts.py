@@ -11,8 +11,8 @@ from distributed import Client
 
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE
 from tests.cluster.conftest import (
-    REPO,
     LOCAL,
+    REPO,
     LocalDeployment,
     alive,
     listening_addresses,

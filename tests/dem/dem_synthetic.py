@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mercury_dem.geometry.body import latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
 
 NOISE_M = 20.0  # 1-sigma radial noise injected into the points
 
@@ -23,4 +23,4 @@ def sample_cloud(rng, n, lat_range=(-90.0, 90.0), lon_range=(0.0, 360.0), noise=
     h = truth_height(lat, lon) + rng.normal(0.0, noise, n)
     out = rng.random(n) < outlier_fraction
     h[out] += rng.choice([-3000.0, 3000.0], int(out.sum()))
-    return latlon_to_xyz(lat, lon, h)
+    return latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M)

@@ -28,7 +28,7 @@ def _cloud(kind: str, rng: np.random.Generator) -> np.ndarray:
     else:  # duplicated points: equal keys, the stable order keeps input order
         base = rng.uniform(0, 3, (500, 2))
         lat, lon = np.repeat(base[:, 0], 7), np.repeat(base[:, 1], 7)
-    return latlon_to_xyz(lat, lon, rng.normal(0, 2000, lat.size))
+    return latlon_to_xyz(lat, lon, rng.normal(0, 2000, lat.size), datum_radius_m=DATUM_RADIUS_M)
 
 
 @pytest.mark.parametrize("kind", ["regional", "seam", "global", "two_blobs", "duplicates"])

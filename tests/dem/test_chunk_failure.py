@@ -6,12 +6,13 @@ import json
 
 import numpy as np
 import pytest
+import zarr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-import zarr
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.exceptions import DiskFullError
+from mercury_dem.geometry.body import MERCURY
 from mercury_dem.pipeline import dem_stage
 from mercury_dem.pipeline.dem_stage import FAILED_CHUNKS_ATTR, failed_chunks_of, grid_dem, regrid_failed_chunks
 from mercury_dem.pipeline.executors import SyncClient
@@ -41,7 +42,7 @@ def _failing(bad, calls, exc=None):
 @pytest.fixture(scope="module")
 def normal(tmp_path_factory, global_cloud):
     path = tmp_path_factory.mktemp("normal") / "dem.zarr"
-    return path, grid_dem(global_cloud, CFG, path, coverage=False)
+    return path, grid_dem(global_cloud, CFG, path, coverage=False, body=MERCURY)
 
 
 @pytest.mark.parametrize("client", [None, SyncClient()], ids=["no-client", "sync-client"])
@@ -56,7 +57,7 @@ def test_a_failed_chunk_is_recorded_the_rest_written_and_a_resume_grids_only_it(
     calls: list[tuple[int, ...]] = []
     monkeypatch.setattr(dem_stage, "grid_chunk", _failing(bad, calls))
     path = tmp_path / "dem.zarr"
-    summary = grid_dem(global_cloud, CFG, path, client, coverage=False, record_failures=True)
+    summary = grid_dem(global_cloud, CFG, path, client, coverage=False, record_failures=True, body=MERCURY)
     assert len(calls) == ref_summary["n_chunks"]
     (f,) = summary["failed_chunks"]
     assert f["bounds"] == list(bad) and "RuntimeError: injected fault in this chunk" in f["error"]
@@ -75,7 +76,7 @@ def test_a_failed_chunk_is_recorded_the_rest_written_and_a_resume_grids_only_it(
     # the resume: only the failed chunk is gridded again, and the store is the normal one
     calls.clear()
     monkeypatch.setattr(dem_stage, "grid_chunk", _failing(None, calls))
-    out = regrid_failed_chunks(global_cloud, CFG, path, client)
+    out = regrid_failed_chunks(global_cloud, CFG, path, client, body=MERCURY)
     assert calls == [bad] and out["regridded"] == [list(bad)] and out["failed_chunks"] == []
     got = _layers(path)
     for name in ref:
@@ -89,9 +90,9 @@ def test_a_chunk_failing_again_stays_listed_with_its_new_error(global_cloud, tmp
     bad = (0, 48, 0, 48)
     monkeypatch.setattr(dem_stage, "grid_chunk", _failing(bad, [], ValueError("first")))
     path = tmp_path / "dem.zarr"
-    grid_dem(global_cloud, CFG, path, coverage=False, record_failures=True)
+    grid_dem(global_cloud, CFG, path, coverage=False, record_failures=True, body=MERCURY)
     monkeypatch.setattr(dem_stage, "grid_chunk", _failing(bad, [], ValueError("second")))
-    out = regrid_failed_chunks(global_cloud, CFG, path)
+    out = regrid_failed_chunks(global_cloud, CFG, path, body=MERCURY)
     (f,) = out["failed_chunks"]
     assert f["bounds"] == list(bad) and f["error"] == "ValueError: second"
     assert json.loads(zarr.open_group(str(path), mode="r").attrs[FAILED_CHUNKS_ATTR])[0]["error"] == "ValueError: second"
@@ -101,7 +102,7 @@ def test_a_full_disk_in_a_chunk_still_stops_the_stage(global_cloud, tmp_path, mo
     """A full disk is not the chunk's fault: the stage stops and leaves no store."""
     monkeypatch.setattr(dem_stage, "grid_chunk", _failing((0, 48, 0, 48), [], DiskFullError("disk full")))
     with pytest.raises(DiskFullError):
-        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", coverage=False, record_failures=True)
+        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", coverage=False, record_failures=True, body=MERCURY)
     assert not (tmp_path / "dem.zarr").exists()
 
 
@@ -114,10 +115,10 @@ def test_every_chunk_failing_is_an_error_and_leaves_no_store(global_cloud, tmp_p
 
     monkeypatch.setattr(dem_stage, "grid_chunk", fail)
     with pytest.raises(GridError, match="none of the 32 chunks.*RuntimeError: broken kernel"):
-        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", coverage=False, record_failures=True)
+        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", coverage=False, record_failures=True, body=MERCURY)
     # without record_failures (mercury-dem grid) the first error stops the call, as before
     with pytest.raises(RuntimeError, match="broken kernel"):
-        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", coverage=False)
+        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", coverage=False, body=MERCURY)
     assert not (tmp_path / "dem.zarr").exists()
 
 

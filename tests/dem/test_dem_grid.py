@@ -15,7 +15,7 @@ REGION = dict(pixels_per_degree=4.0, lat_min=-30.0, lat_max=30.0, lon_min=100.0,
 
 
 def _whole(index, cfg):
-    g = GridSpec.from_config(cfg)
+    g = GridSpec.from_config(cfg, datum_radius_m=DATUM_RADIUS_M)
     return g, grid_chunk(index, g, (0, g.shape[0], 0, g.shape[1]), cfg)
 
 
@@ -26,7 +26,7 @@ def _error(g, res):
 
 def test_median11_recovers_surface_despite_outliers(regional_cloud):
     cfg = DemConfig(method="median11", **REGION)
-    g, res = _whole(build_point_index(regional_cloud), cfg)
+    g, res = _whole(build_point_index(regional_cloud, datum_radius_m=DATUM_RADIUS_M), cfg)
     err = _error(g, res)
     assert np.isfinite(err).all()
     rmse = float(np.sqrt(np.mean(err**2)))
@@ -42,7 +42,7 @@ def test_median11_recovers_surface_despite_outliers(regional_cloud):
 def test_shepard_recovers_clean_surface():
     cloud = sample_cloud(np.random.default_rng(3), 150_000, (-35, 35), (95, 165))
     cfg = DemConfig(method="shepard", smoothing_passes=0, **REGION)
-    g, res = _whole(build_point_index(cloud), cfg)
+    g, res = _whole(build_point_index(cloud, datum_radius_m=DATUM_RADIUS_M), cfg)
     err = _error(g, res)
     assert np.isfinite(err).all()
     # IDW of ~6 points in the 1.41 px radius (or 5 fallback neighbours): below the point noise.
@@ -67,7 +67,7 @@ def test_vectorized_filter_equals_per_pixel_filter(k):
     lat = rng.uniform(-5, 5, n)
     lon = rng.uniform(0, 10, n)
     h = rng.normal(0, 100, n) + np.where(rng.random(n) < 0.2, 2000.0, 0.0)
-    index = build_point_index(latlon_to_xyz(lat, lon, h))
+    index = build_point_index(latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M), datum_radius_m=DATUM_RADIUS_M)
     cfg = DemConfig(method="median11", neighbours=k, pixels_per_degree=2, max_distance_m=1e9)
     qlat, qlon = rng.uniform(-4, 4, 300), rng.uniform(1, 9, 300)
     got = grid_pixels(index, qlat, qlon, cfg)["height"]
@@ -85,7 +85,7 @@ def test_shepard_weights_and_fallback_exact():
     lat = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     lon = np.array([0.0, 0.5, 10.0, 11.0, 12.0, 13.0])
     h = np.array([100.0, 200.0, 0.0, 10.0, 20.0, 30.0])
-    index = build_point_index(latlon_to_xyz(lat, lon, h))
+    index = build_point_index(latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M), datum_radius_m=DATUM_RADIUS_M)
     cfg = DemConfig(method="shepard", pixels_per_degree=1, smoothing_passes=0, max_distance_m=1e9)
     R = 1.4142 * deg
     # Pixel at lon 0.25: both near points inside R at 0.25 deg -> equal weights -> 150.
@@ -110,7 +110,7 @@ def test_region_without_points_is_nan_and_counted(method):
     # Points only west of lon 180: the eastern hemisphere is a gap beyond max_distance.
     cloud = sample_cloud(np.random.default_rng(2), 20_000, lon_range=(0.0, 180.0))
     cfg = DemConfig(method=method, pixels_per_degree=1, max_distance_m=100_000.0)
-    g, res = _whole(build_point_index(cloud), cfg)
+    g, res = _whole(build_point_index(cloud, datum_radius_m=DATUM_RADIUS_M), cfg)
     lon = g.lon_centres()
     far = (lon > 185.0) & (lon < 355.0)
     low = np.abs(g.lat_centres()) < 60.0  # 5 deg of longitude is > 100 km there
@@ -124,9 +124,9 @@ def test_region_without_points_is_nan_and_counted(method):
 
 @pytest.mark.parametrize("method", ["median11", "shepard"])
 def test_chunking_gives_identical_arrays(global_cloud, method):
-    index = build_point_index(global_cloud)
+    index = build_point_index(global_cloud, datum_radius_m=DATUM_RADIUS_M)
     cfg = DemConfig(method=method, pixels_per_degree=1, smoothing_passes=2, max_distance_m=400_000.0)
-    g = GridSpec.from_config(cfg)
+    g = GridSpec.from_config(cfg, datum_radius_m=DATUM_RADIUS_M)
     nr, nc = g.shape
 
     def mosaic(n_side):
@@ -149,19 +149,19 @@ def test_chunking_gives_identical_arrays(global_cloud, method):
 
 def test_bad_point_clouds():
     with pytest.raises(GridError, match="empty"):
-        build_point_index(np.zeros((0, 3)))
+        build_point_index(np.zeros((0, 3)), datum_radius_m=DATUM_RADIUS_M)
     with pytest.raises(GridError, match=r"\(N, 3\)"):
-        build_point_index(np.zeros((10, 2)))
+        build_point_index(np.zeros((10, 2)), datum_radius_m=DATUM_RADIUS_M)
     bad = np.ones((4, 3))
     bad[2, 1] = np.nan
     with pytest.raises(GridError, match="non-finite"):
-        build_point_index(bad)
+        build_point_index(bad, datum_radius_m=DATUM_RADIUS_M)
 
 
 def test_grid_spec_rejects_fractional_pixels():
     with pytest.raises(GridError, match="whole number of pixels"):
-        GridSpec(pixels_per_degree=0.77)
-    g = GridSpec(4.0, -10, 10, 350, 370)
+        GridSpec(pixels_per_degree=0.77, datum_radius_m=DATUM_RADIUS_M)
+    g = GridSpec(4.0, -10, 10, 350, 370, datum_radius_m=DATUM_RADIUS_M)
     assert g.shape == (80, 80)
     assert g.lat_centres()[0] == pytest.approx(10 - 0.125)
     assert g.lon_centres()[-1] == pytest.approx(370 - 0.125)
@@ -177,7 +177,7 @@ def test_grid_spec_rejects_fractional_pixels():
 def test_bucket_search_equals_kdtree(method, lat_range, lon_range):
     """The compiled bucket search finds the same neighbours as scipy's kd-tree (independent path)."""
     cloud = sample_cloud(np.random.default_rng(4), 30_000, lat_range, lon_range, outlier_fraction=0.02)
-    index = build_point_index(cloud)
+    index = build_point_index(cloud, datum_radius_m=DATUM_RADIUS_M)
     cfg = DemConfig(method=method, pixels_per_degree=2, max_distance_m=300_000.0)
     rng = np.random.default_rng(9)
     lat = rng.uniform(-90, 90, 4000)

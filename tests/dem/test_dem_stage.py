@@ -7,15 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pyproj
-import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 import pytest
+import rioxarray  # noqa: F401  (registers the .rio accessor the tests read the CRS with)
 from dem_synthetic import truth_height
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.coverage import point_coverage
 from mercury_dem.dem.grid import build_point_index
 from mercury_dem.exceptions import GridError, StoreError
-from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, latlon_to_xyz
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, MERCURY, latlon_to_xyz
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
 
 CFG = DemConfig(pixels_per_degree=1, chunk_size=48, max_distance_m=400_000.0, coverage_pixel_km=40.0)
@@ -24,7 +24,7 @@ CFG = DemConfig(pixels_per_degree=1, chunk_size=48, max_distance_m=400_000.0, co
 @pytest.fixture(scope="module")
 def serial_store(tmp_path_factory, global_cloud):
     path = tmp_path_factory.mktemp("serial") / "dem.zarr"
-    summary = grid_dem(global_cloud, CFG, path)
+    summary = grid_dem(global_cloud, CFG, path, body=MERCURY)
     return path, summary
 
 
@@ -66,7 +66,7 @@ def test_dask_equals_serial(serial_store, global_cloud, tmp_path):
     # survives the trip to a worker process (pickling) is checked below.
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
                                   processes=False) as cluster, distributed.Client(cluster) as client:
-        summary = grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
+        summary = grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False, body=MERCURY)
     a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
     for name in a.data_vars:
         np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
@@ -76,25 +76,36 @@ def test_dask_equals_serial(serial_store, global_cloud, tmp_path):
 def test_point_index_pickles_for_workers(global_cloud):
     import pickle
 
-    index = build_point_index(global_cloud)
+    index = build_point_index(global_cloud, datum_radius_m=DATUM_RADIUS_M)
     back = pickle.loads(pickle.dumps(index, protocol=5))
     q = global_cloud[:100] * 1.0001
     np.testing.assert_array_equal(back.tree.query(q, k=3)[1], index.tree.query(q, k=3)[1])
     np.testing.assert_array_equal(back.radius, index.radius)
 
 
+def test_point_index_keeps_its_body_datum_through_pickling(global_cloud):
+    """A worker's copy of a Moon index measures heights from the Moon's datum, not a default's."""
+    import pickle
+
+    from mercury_dem.geometry.body import MOON
+
+    moon = global_cloud / DATUM_RADIUS_M * MOON.datum_radius_m
+    back = pickle.loads(pickle.dumps(build_point_index(moon, MOON.datum_radius_m), protocol=5))
+    assert back.datum_radius_m == MOON.datum_radius_m == back.buckets.sphere_radius
+
+
 def test_existing_store_needs_overwrite(serial_store, global_cloud):
     path, _ = serial_store
     with pytest.raises(StoreError, match="overwrite"):
-        grid_dem(global_cloud, CFG, path)
+        grid_dem(global_cloud, CFG, path, body=MERCURY)
 
 
 def test_empty_cloud_and_memory_limit(tmp_path, global_cloud):
     with pytest.raises(GridError, match="empty"):
-        grid_dem(np.zeros((0, 3)), CFG, tmp_path / "a.zarr")
+        grid_dem(np.zeros((0, 3)), CFG, tmp_path / "a.zarr", body=MERCURY)
     big = DemConfig(pixels_per_degree=512, memory_limit_gb=8.0)
     with pytest.raises(GridError, match=r"needs about \d+\.\d GB.*memory_limit_gb"):
-        grid_dem(global_cloud, big, tmp_path / "b.zarr")
+        grid_dem(global_cloud, big, tmp_path / "b.zarr", body=MERCURY)
     assert not (tmp_path / "a.zarr").exists() and not (tmp_path / "b.zarr").exists()
 
 
@@ -102,7 +113,7 @@ def test_coverage_counts_and_distances():
     R = DATUM_RADIUS_M
     # Three clusters on the equator: 1, 2 and 3 points within one 100 km pixel each.
     lon = np.array([0.2, 20.2, 20.25, 40.2, 40.22, 40.24])
-    index = build_point_index(latlon_to_xyz(np.zeros(6) + 0.2, lon, 0.0))
+    index = build_point_index(latlon_to_xyz(np.zeros(6) + 0.2, lon, 0.0, datum_radius_m=DATUM_RADIUS_M), datum_radius_m=DATUM_RADIUS_M)
     cov = point_coverage(index, pixel_km=100.0)
     s = cov.summary()
     assert s["occupied_pixels"] == 3
@@ -124,7 +135,7 @@ def test_dask_worker_processes_equal_serial(serial_store, global_cloud, tmp_path
     path, _ = serial_store
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0",
                                   processes=True) as cluster, distributed.Client(cluster) as client:
-        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False)
+        grid_dem(global_cloud, CFG, tmp_path / "dem.zarr", client=client, coverage=False, body=MERCURY)
     a, b = open_dem(path), open_dem(tmp_path / "dem.zarr")
     for name in a.data_vars:
         np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
@@ -155,11 +166,11 @@ def test_direct_store_layout_equals_xarray_template(tmp_path, chunk_size):
     from mercury_dem.pipeline.dem_stage import create_store, dem_template
 
     cfg = DemConfig(pixels_per_degree=1, lat_min=-60, lat_max=60, chunk_size=chunk_size)
-    grid = GridSpec.from_config(cfg)
+    grid = GridSpec.from_config(cfg, datum_radius_m=DATUM_RADIUS_M)
     a, b = tmp_path / "a.zarr", tmp_path / "b.zarr"
-    dem_template(grid, cfg, {"source": "test"}).to_zarr(str(a), mode="w", compute=False, consolidated=False,
+    dem_template(grid, cfg, {"source": "test"}, body=MERCURY).to_zarr(str(a), mode="w", compute=False, consolidated=False,
                                                          zarr_format=3)
-    create_store(str(b), grid, cfg, {"source": "test"})
+    create_store(str(b), grid, cfg, {"source": "test"}, body=MERCURY)
     files_a = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
     files_b = sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
     assert files_a == files_b
@@ -176,7 +187,7 @@ def test_point_index_reports_its_size_to_dask(global_cloud):
 
     from dask.sizeof import sizeof
 
-    index = build_point_index(global_cloud)
+    index = build_point_index(global_cloud, datum_radius_m=DATUM_RADIUS_M)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         n = sizeof(index)
@@ -211,9 +222,11 @@ def test_spatial_ref_attributes_cached_on_disk(tmp_path, monkeypatch):
     dem_stage._spatial_ref_attrs.cache_clear()
     # a fresh process writing a store with the cache warm: no GDAL/PROJ stack imported
     code = ("import sys\nfrom mercury_dem.config.dem import DemConfig\nfrom mercury_dem.dem.grid import GridSpec\n"
+            "from mercury_dem.geometry.body import MERCURY\n"
             "from mercury_dem.pipeline.dem_stage import create_store\n"
             "cfg = DemConfig(pixels_per_degree=1, lat_min=-10, lat_max=10, lon_min=0, lon_max=20)\n"
-            f"create_store({str(tmp_path / 's.zarr')!r}, GridSpec.from_config(cfg), cfg)\n"
+            f"create_store({str(tmp_path / 's.zarr')!r}, GridSpec.from_config(cfg, MERCURY.datum_radius_m), cfg, "
+            "None, MERCURY)\n"
             "print(sorted(m for m in ('rioxarray', 'rasterio', 'pyproj', 'xarray') if m in sys.modules))")
     root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))

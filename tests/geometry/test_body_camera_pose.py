@@ -33,7 +33,7 @@ from mercury_dem.geometry.pose import (
     h=st.floats(-6000, 6000),
 )
 def test_latlon_xyz_round_trip(lat: float, lon: float, h: float) -> None:
-    lat2, lon2, h2 = xyz_to_latlon(latlon_to_xyz(lat, lon, h))
+    lat2, lon2, h2 = xyz_to_latlon(latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M), datum_radius_m=DATUM_RADIUS_M)
     assert abs(h2 - h) < 1e-6
     assert abs(lat2 - lat) < 1e-9
     if abs(lat) < 89.9999:
@@ -81,23 +81,23 @@ def test_distortion_is_mdis_sized() -> None:
 def test_ground_image_ground_round_trip(lat: float, lon: float, camera: FramingCamera) -> None:
     """Ground -> image -> ground below 1e-6 px and 1 mm, at the poles and across the seam."""
     rng = np.random.default_rng(2)
-    target = latlon_to_xyz(lat, lon)
-    position = latlon_to_xyz(lat + 0.3, lon + 0.2, 400e3)
+    target = latlon_to_xyz(lat, lon, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)
+    position = latlon_to_xyz(lat + 0.3, lon + 0.2, 400e3, datum_radius_m=DATUM_RADIUS_M)
     rotation = look_at_rotation(position, target)
     px = rng.uniform(0, camera.samples - 1, size=(300, 2))
 
     def height(la: np.ndarray, lo: np.ndarray) -> np.ndarray:
-        u = latlon_to_xyz(la, lo, 0.0) / DATUM_RADIUS_M
+        u = latlon_to_xyz(la, lo, 0.0, datum_radius_m=DATUM_RADIUS_M) / DATUM_RADIUS_M
         return 1500.0 * np.sin(40 * u[..., 0]) * np.cos(30 * u[..., 1]) + 800 * u[..., 2]
 
     for h in (None, height):
-        ground, hit = image_to_ground(camera, position, rotation, px, height=h)
+        ground, hit = image_to_ground(camera, position, rotation, px, height=h, datum_radius_m=DATUM_RADIUS_M)
         assert hit.all()
         back, depth = project(camera, position, rotation, ground)
         assert np.abs(back - px).max() < 1e-6
         assert (depth > 0).all()
         if h is not None:
-            la, lo, hh = xyz_to_latlon(ground)
+            la, lo, hh = xyz_to_latlon(ground, datum_radius_m=DATUM_RADIUS_M)
             # the point lies on the surface to 1 mm
             assert np.abs(hh - height(la, lo)).max() < 1e-3
 
@@ -114,8 +114,8 @@ def test_small_angle_rotation_log_exp() -> None:
 
 def test_pointing_angles_move_the_image_by_ifov() -> None:
     cam = mdis_nac(512)
-    position = latlon_to_xyz(10, 20, 500e3)
-    target = latlon_to_xyz(10.0, 20.0)
+    position = latlon_to_xyz(10, 20, 500e3, datum_radius_m=DATUM_RADIUS_M)
+    target = latlon_to_xyz(10.0, 20.0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)
     r0 = look_at_rotation(position, target)
     p0, _ = project(cam, position, r0, target[None])
     for axis, col in ((0, 1), (1, 0)):
@@ -126,9 +126,9 @@ def test_pointing_angles_move_the_image_by_ifov() -> None:
 
 
 def test_illumination_angles_simple() -> None:
-    g = latlon_to_xyz(0.0, 0.0)[None]
-    sc = latlon_to_xyz(0.0, 0.0, 1e6)[None]
-    sun = latlon_to_xyz(0.0, 60.0, 5e10)[None]
+    g = latlon_to_xyz(0.0, 0.0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)[None]
+    sc = latlon_to_xyz(0.0, 0.0, 1e6, datum_radius_m=DATUM_RADIUS_M)[None]
+    sun = latlon_to_xyz(0.0, 60.0, 5e10, datum_radius_m=DATUM_RADIUS_M)[None]
     inc, emi, pha = illumination_angles(g, sc, sun)
     assert emi[0] == pytest.approx(0.0, abs=1e-9)
     assert inc[0] == pytest.approx(60.0, abs=0.01)
@@ -136,11 +136,11 @@ def test_illumination_angles_simple() -> None:
 
 
 def test_validate_pose_names_image_and_field() -> None:
-    good = look_at_rotation(latlon_to_xyz(0, 0, 1e6), latlon_to_xyz(0, 0))
-    validate_pose("IMG1", latlon_to_xyz(0, 0, 1e6), good)
+    good = look_at_rotation(latlon_to_xyz(0, 0, 1e6, datum_radius_m=DATUM_RADIUS_M), latlon_to_xyz(0, 0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M))
+    validate_pose("IMG1", latlon_to_xyz(0, 0, 1e6, datum_radius_m=DATUM_RADIUS_M), good)
     with pytest.raises(GeometryError, match="IMG2.*'position'"):
         validate_pose("IMG2", [np.nan, 0, 0], good)
     with pytest.raises(GeometryError, match="IMG3.*'rotation'.*orthonormal"):
-        validate_pose("IMG3", latlon_to_xyz(0, 0, 1e6), good * 1.01)
+        validate_pose("IMG3", latlon_to_xyz(0, 0, 1e6, datum_radius_m=DATUM_RADIUS_M), good * 1.01)
     with pytest.raises(GeometryError, match="IMG4.*'rotation'"):
-        validate_pose("IMG4", latlon_to_xyz(0, 0, 1e6), -good)
+        validate_pose("IMG4", latlon_to_xyz(0, 0, 1e6, datum_radius_m=DATUM_RADIUS_M), -good)

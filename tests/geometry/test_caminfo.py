@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from mercury_dem.cli import main
-from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit, latlon_to_xyz
+from mercury_dem.geometry.camera import mdis_nac
 from mercury_dem.geometry.caminfo import (
     TOLERANCES,
     compare_with_label,
@@ -18,7 +19,6 @@ from mercury_dem.geometry.caminfo import (
     label_values,
     parse_pds3_label,
 )
-from mercury_dem.geometry.camera import mdis_nac
 from mercury_dem.geometry.isd import iau_body_rotation, read_isd
 from mercury_dem.geometry.pose import look_at_rotation
 
@@ -48,7 +48,7 @@ def test_nadir_view_matches_closed_form(lat: float, lon: float) -> None:
     slant = h, pixel scale = h * IFOV, emission 0, incidence = phase = Sun's zenith angle."""
     cam = mdis_nac(512, distortion=False)
     h, r = 200e3, 2439.4e3
-    c = latlon_to_xyz(lat, lon, h)
+    c = latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M)
     rot = look_at_rotation(c, np.zeros(3))
     # Sun 60 deg from the zenith, towards the pole-ward side when possible, 5e10 m away.
     zen = latlon_to_unit(lat, lon)
@@ -75,13 +75,13 @@ def test_nadir_view_matches_closed_form(lat: float, lon: float) -> None:
 
 def test_off_body_and_no_sun_give_nan_not_errors() -> None:
     cam = mdis_nac(512)
-    c = latlon_to_xyz(0.0, 0.0, 500e3)
+    c = latlon_to_xyz(0.0, 0.0, 500e3, datum_radius_m=DATUM_RADIUS_M)
     away = look_at_rotation(c, 2 * c)  # looking at the sky
-    info = compute_caminfo(cam, c, away, None)
+    info = compute_caminfo(cam, c, away, None, radius_m=DATUM_RADIUS_M)
     assert math.isnan(info.centre_lat) and math.isnan(info.slant_distance_m) and math.isnan(info.incidence_deg)
     assert info.as_dict()["centre_lat"] is None
     json.dumps(info.as_dict())  # JSON-ready
-    nadir = compute_caminfo(cam, c, look_at_rotation(c, np.zeros(3)), None)
+    nadir = compute_caminfo(cam, c, look_at_rotation(c, np.zeros(3)), None, radius_m=DATUM_RADIUS_M)
     assert nadir.emission_deg == pytest.approx(0.0, abs=1e-6) and math.isnan(nadir.phase_deg)
 
 
@@ -141,7 +141,7 @@ def test_real_mdis_matches_label(isd: Path, label: dict) -> None:
     scale +0.15 %, incidence +0.004, emission -0.005, phase -0.001 deg (docs/design/isd-check.md).
     """
     g = read_isd(isd)
-    info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, label["radius_m"], g.j2000_to_body)
+    info = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, radius_m=label["radius_m"], j2000_to_body=g.j2000_to_body)
     rows = {r.quantity: r for r in compare_with_label(info, label)}
     assert set(TOLERANCES) <= set(rows)
     for name in TOLERANCES:
@@ -152,7 +152,7 @@ def test_real_mdis_matches_label(isd: Path, label: dict) -> None:
         assert rows[f"corner_lat[{i}]"].difference == pytest.approx(rows["centre_lat"].difference, abs=1e-4)
         assert rows[f"corner_lon[{i}]"].difference == pytest.approx(rows["centre_lon"].difference, abs=1e-4)
     # On the ISD's own 2439.4 km sphere the camera is 0.6 km higher above the ground: slant +2.25 %.
-    own = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, g.radius_m)
+    own = compute_caminfo(g.camera, g.position, g.rotation, g.sun_position, radius_m=g.radius_m)
     assert own.slant_distance_m / info.slant_distance_m == pytest.approx(1.0225, abs=0.001)
 
 
@@ -168,7 +168,7 @@ def test_label_residuals_vanish_with_the_labels_inputs(label: dict) -> None:
     j2000_to_cam = g.rotation @ g.j2000_to_body
     sc = np.array(raw["SC_TARGET_POSITION_VECTOR"]) * 1e3  # Mercury -> spacecraft, J2000 m
     sun = sc - np.array(raw["SC_SUN_POSITION_VECTOR"]) * 1e3  # Mercury -> Sun
-    info = compute_caminfo(g.camera, old @ sc, j2000_to_cam @ old.T, old @ sun, label["radius_m"], old,
+    info = compute_caminfo(g.camera, old @ sc, j2000_to_cam @ old.T, old @ sun, radius_m=label["radius_m"], j2000_to_body=old,
                            centre_pixel=(255.0, 255.0))
     for r in compare_with_label(info, label):
         if r.kind == "rel":
@@ -186,7 +186,7 @@ def test_older_usgscsm_pair_is_sane() -> None:
     for path in PAIR:
         g = read_isd(path, require_sun=False)
         assert g.sun_position is None and len(g.warnings) == 2  # 4-number sun vector, no distortion key
-        info = compute_caminfo(g.camera, g.position, g.rotation, None, g.radius_m)
+        info = compute_caminfo(g.camera, g.position, g.rotation, None, radius_m=g.radius_m)
         assert 31.0 < info.centre_lat < 33.0 and 183.5 < info.centre_lon < 185.5
         assert 1.9e6 < info.spacecraft_altitude_m < 2.1e6 and 100 < info.pixel_scale_m < 130
         assert 30 < info.emission_deg < 50

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from mercury_dem.exceptions import IsdError
-from mercury_dem.geometry.body import latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
 from mercury_dem.geometry.camera import mdis_nac
 from mercury_dem.geometry.isd import (
     iau_body_rotation,
@@ -48,9 +48,9 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 RNG = np.random.default_rng(20261122)
 J2000_TO_BODY = rotation_from_angles(RNG.normal(size=3))
 CONSTANT = rotation_from_angles(RNG.normal(size=3))
-POSITION = latlon_to_xyz(30.0, 200.0, 500e3)
-ROTATION = look_at_rotation(POSITION, latlon_to_xyz(30.4, 200.3, 0.0))
-SUN = latlon_to_xyz(0.5, 150.0, 5.0e10 - 2439.4e3)
+POSITION = latlon_to_xyz(30.0, 200.0, 500e3, datum_radius_m=DATUM_RADIUS_M)
+ROTATION = look_at_rotation(POSITION, latlon_to_xyz(30.4, 200.3, 0.0, datum_radius_m=DATUM_RADIUS_M))
+SUN = latlon_to_xyz(0.5, 150.0, 5.0e10 - 2439.4e3, datum_radius_m=DATUM_RADIUS_M)
 
 
 def _camera_keys() -> dict:
@@ -121,7 +121,7 @@ def test_synthetic_isd_recovers_pose(make) -> None:
     assert g.camera == cam.__class__(**{**cam.__dict__, "pixel_pitch_mm": g.camera.pixel_pitch_mm})
     assert g.camera.pixel_pitch_mm == pytest.approx(0.014, rel=1e-9)
     # The camera looks where the pose says: the target projects to the image centre.
-    px, depth = project(g.camera, g.position, g.rotation, latlon_to_xyz(30.4, 200.3, 0.0)[None])
+    px, depth = project(g.camera, g.position, g.rotation, latlon_to_xyz(30.4, 200.3, 0.0, datum_radius_m=DATUM_RADIUS_M)[None])
     assert depth[0] > 0 and np.abs(px[0] - 255.5).max() < 1e-6
 
 

@@ -13,9 +13,13 @@ import pytest
 from mercury_dem.adjust.framing import FramingModel, FramingState
 from mercury_dem.adjust.problem import AdjustmentProblem
 from mercury_dem.exceptions import GeometryError
-from mercury_dem.geometry.body import latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
 from mercury_dem.geometry.camera import (
-    FramingCamera, camera_from_dict, camera_to_dict, mdis_nac, mdis_wac,
+    FramingCamera,
+    camera_from_dict,
+    camera_to_dict,
+    mdis_nac,
+    mdis_wac,
 )
 from mercury_dem.geometry.distortion import ApolloMetricDistortion
 from mercury_dem.geometry.naif_camera import AlphaCube, camera_from_naif
@@ -199,8 +203,8 @@ def test_adjustment_jacobians_with_a_general_camera():
     cam = camera_from_naif(keys, -915240, 500, 500, name="rotated", alpha=APOLLO_ALPHA)[0]
     assert len(cam.focal_plane_map) == 4 and cam.focal_plane_map[1] != 0
     rng = np.random.default_rng(11)
-    pos = np.array([latlon_to_xyz(10.0, 20.0, 100e3)])
-    target = latlon_to_xyz(10.02, 20.01, 0.0)
+    pos = np.array([latlon_to_xyz(10.0, 20.0, 100e3, datum_radius_m=DATUM_RADIUS_M)])
+    target = latlon_to_xyz(10.02, 20.01, 0.0, datum_radius_m=DATUM_RADIUS_M)
     rot = look_at_rotation(pos, target[None, :])
     pts = target + rng.normal(0.0, 20000.0, (8, 3))
     prob = AdjustmentProblem((cam,), np.array([0]), pos, rot, pts, np.zeros(8, np.int64), np.arange(8),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from mercury_dem.exceptions import ConfigError
-from mercury_dem.geometry.body import latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz
 from mercury_dem.geometry.camera import mdis_nac, mdis_wac
 from mercury_dem.geometry.footprints import (
     footprint_area_m2,
@@ -66,30 +66,30 @@ def test_bad_tile_size_names_key_and_allowed_values() -> None:
 
 
 def _pose(lat: float, lon: float, alt: float = 300e3, dlat: float = 0.0, dlon: float = 0.0):
-    c = latlon_to_xyz(lat + dlat, lon + dlon, alt)
-    return c, look_at_rotation(c, latlon_to_xyz(lat, lon))
+    c = latlon_to_xyz(lat + dlat, lon + dlon, alt, datum_radius_m=DATUM_RADIUS_M)
+    return c, look_at_rotation(c, latlon_to_xyz(lat, lon, height_m=0.0, datum_radius_m=DATUM_RADIUS_M))
 
 
 def test_footprint_contains_centre_and_is_counter_clockwise_sized() -> None:
     cam = mdis_wac(512)
     c, r = _pose(10.0, 20.0, 400e3)
-    f = image_footprint(cam, c, r, 8)
+    f = image_footprint(cam, c, r, 8, radius_m=DATUM_RADIUS_M)
     assert f.shape == (32, 3)
     lat, lon = footprint_latlon(f)
     # nadir WAC at 400 km: half-width = 400 km * tan(FOV/2), FOV = 512 * 2 * 14 um / 78.25 mm
     half_km = 400.0 * np.tan(512 * 0.028 / 78.25 / 2)
     half_deg = np.degrees(half_km / 2439.4)
     assert np.abs(lat - 10.0).max() == pytest.approx(half_deg, rel=0.02)
-    area = footprint_area_m2(f[None])[0]
+    area = footprint_area_m2(f[None], radius_m=DATUM_RADIUS_M)[0]
     assert area == pytest.approx((2 * half_km * 1e3) ** 2, rel=0.03)
-    batched = image_footprints(cam, c[None], r[None], 8)[0]
+    batched = image_footprints(cam, c[None], r[None], 8, radius_m=DATUM_RADIUS_M)[0]
     assert np.allclose(batched, f)
 
 
 def _graph(poses, cam):
     c = np.stack([p[0] for p in poses])
     r = np.stack([p[1] for p in poses])
-    return overlap_graph([cam], np.zeros(len(poses), int), c, r)
+    return overlap_graph([cam], np.zeros(len(poses), int), c, r, radius_m=DATUM_RADIUS_M)
 
 
 def test_overlap_across_the_seam() -> None:

@@ -8,8 +8,13 @@ import numpy as np
 import pytest
 
 from mercury_dem.exceptions import CorruptUnitError
-from mercury_dem.io.atomic import (COMPLETE_MARKER, atomic_directory, disk_full_cause, read_marker_manifest,
-                                   verify_complete)
+from mercury_dem.io.atomic import (
+    COMPLETE_MARKER,
+    atomic_directory,
+    disk_full_cause,
+    read_marker_manifest,
+    verify_complete,
+)
 from mercury_dem.io.run_store import RunStore
 
 

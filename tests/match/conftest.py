@@ -18,6 +18,7 @@ from typing import Any, Callable
 import numpy as np
 import pytest
 
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import rotation_from_angles
 from mercury_dem.match import ImageGeometry
@@ -83,7 +84,7 @@ def pair_world() -> PairWorld:
                 images[vid] = draw(v.camera, v.position, v.rotation, v.sun, rng)
                 c_ap = v.position + rng.normal(0.0, POSITION_SIGMA_M, 3)
                 r_ap = rotation_from_angles(rng.normal(0.0, POINTING_SIGMA_RAD, 3)) @ v.rotation
-                geometry[vid] = ImageGeometry.of(v.camera, c_ap, r_ap, v.sun)
+                geometry[vid] = ImageGeometry.of(v.camera, c_ap, r_ap, v.sun, datum_radius_m=DATUM_RADIUS_M)
                 truth[vid] = TruePose(v.camera, v.position, v.rotation)
             pair_ids.append(ids[id(v)])
         pairs.append((pair_ids[0], pair_ids[1]))

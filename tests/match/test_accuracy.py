@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.match import match_tile
 from mercury_dem.validate.matching import true_errors
 
@@ -29,7 +30,7 @@ def _run(world: Any, config: MatchConfig, names: list[str]) -> tuple[list[Any], 
     matches, reports = match_tile(world.images, world.geometry, pairs, config)
     pa = np.stack([matches.sample_a, matches.line_a], -1)
     pb = np.stack([matches.sample_b, matches.line_b], -1)
-    err = true_errors(matches.image_ids, matches.image_a, matches.image_b, pa, pb, world.truth, world.height)
+    err = true_errors(matches.image_ids, matches.image_a, matches.image_b, pa, pb, world.truth, world.height, datum_radius_m=DATUM_RADIUS_M)
     return reports, err, matches
 
 
@@ -171,7 +172,7 @@ def convergent_pair() -> dict[str, Any]:
 def _convergent_errors(w: dict[str, Any], config: MatchConfig) -> tuple[np.ndarray, Any]:
     m, reps = match_tile(w["images"], w["geom"], [("v0", "v1")], config)
     e = true_errors(m.image_ids, m.image_a, m.image_b, np.stack([m.sample_a, m.line_a], -1),
-                    np.stack([m.sample_b, m.line_b], -1), w["truth"], w["height"])
+                    np.stack([m.sample_b, m.line_b], -1), w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
     return e[np.isfinite(e)], reps[0]
 
 
@@ -209,8 +210,8 @@ def test_error_between_convergent_views_lies_mostly_along_the_epipolar_line(conv
     w = convergent_pair
     m, _ = match_tile(w["images"], w["geom"], [("v0", "v1")], MatchConfig(threads=1))
     pa, pb = np.stack([m.sample_a, m.line_a], -1), np.stack([m.sample_b, m.line_b], -1)
-    e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, w["truth"], w["height"])
-    along, across = true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, w["truth"], w["height"])
+    e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
+    along, across = true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
     ok = np.isfinite(e)
     assert ok.sum() >= 300
     np.testing.assert_allclose(np.hypot(along[ok], across[ok]), e[ok], atol=1e-9)
@@ -231,7 +232,7 @@ def test_true_error_components_split_a_height_from_a_pointing_error() -> None:
     east = np.cross([0.0, 0.0, 1.0], up)
     east /= np.linalg.norm(east)
     north = np.cross(up, east)
-    centre = latlon_to_xyz(5.0, 3.0)
+    centre = latlon_to_xyz(5.0, 3.0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)
     alt = 1.79e3 / cam.ifov_rad
     ca, cb = centre + alt * up, centre + alt * (np.cos(0.6) * up + np.sin(0.6) * north)
     ta = TruePose(cam, ca, look_at_rotation(ca, centre, east))
@@ -241,13 +242,13 @@ def test_true_error_components_split_a_height_from_a_pointing_error() -> None:
         return np.zeros_like(np.asarray(lat, float))
 
     pa = np.random.default_rng(3).uniform(60, 196, (50, 2))
-    g, _ = image_to_ground(cam, ca, ta.rotation, pa, height=lambda la, lo: flat(la, lo) + 2000.0)
+    g, _ = image_to_ground(cam, ca, ta.rotation, pa, height=lambda la, lo: flat(la, lo) + 2000.0, datum_radius_m=DATUM_RADIUS_M)
     pb_height, _ = project(cam, cb, tb.rotation, g)  # the same ray, 2 km higher than the truth
-    g0, _ = image_to_ground(cam, ca, ta.rotation, pa, height=flat)
+    g0, _ = image_to_ground(cam, ca, ta.rotation, pa, height=flat, datum_radius_m=DATUM_RADIUS_M)
     ids, ia, ib = ("a", "b"), np.zeros(50, np.int64), np.ones(50, np.int64)
     truth = {"a": ta, "b": tb}
-    e = true_errors(ids, ia, ib, pa, pb_height, truth, flat)
-    along, across = true_error_components(ids, ia, ib, pa, pb_height, truth, flat)
+    e = true_errors(ids, ia, ib, pa, pb_height, truth, flat, datum_radius_m=DATUM_RADIUS_M)
+    along, across = true_error_components(ids, ia, ib, pa, pb_height, truth, flat, datum_radius_m=DATUM_RADIUS_M)
     np.testing.assert_allclose(np.hypot(along, across), e, atol=1e-9)
     assert np.all(e > 0.3) and np.all(across < 0.01 * e), (e.min(), across.max())
     # camera b turned by 1.5 pixels about each axis across its boresight: one of the two turns moves the
@@ -257,8 +258,8 @@ def test_true_error_components_split_a_height_from_a_pointing_error() -> None:
         angles = np.zeros(3)
         angles[axis] = 1.5 * cam.ifov_rad
         pb_turned, _ = project(cam, cb, rotation_from_angles(angles) @ tb.rotation, g0)
-        e = true_errors(ids, ia, ib, pa, pb_turned, truth, flat)
-        along, across = true_error_components(ids, ia, ib, pa, pb_turned, truth, flat)
+        e = true_errors(ids, ia, ib, pa, pb_turned, truth, flat, datum_radius_m=DATUM_RADIUS_M)
+        along, across = true_error_components(ids, ia, ib, pa, pb_turned, truth, flat, datum_radius_m=DATUM_RADIUS_M)
         np.testing.assert_allclose(np.hypot(along, across), e, atol=1e-9)
         crossing.append(float(np.median(across)))
     assert max(crossing) > 1.2, crossing

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import image_to_ground, project
 from mercury_dem.match import ImageGeometry, match_tile
@@ -23,12 +24,12 @@ def _views(emission_deg: float) -> tuple[ImageGeometry, ImageGeometry]:
     east = np.cross([0.0, 0.0, 1.0], up)
     east /= np.linalg.norm(east)
     north = np.cross(up, east)
-    centre = latlon_to_xyz(5.0, 3.0)
+    centre = latlon_to_xyz(5.0, 3.0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)
     alt = 1.79e3 / cam.ifov_rad
     out = []
     for e in (0.0, emission_deg):
         c = centre + alt * (np.cos(np.radians(e)) * up + np.sin(np.radians(e)) * north)
-        out.append(ImageGeometry.of(cam, c, look_at_rotation(c, centre, east), centre * 50))
+        out.append(ImageGeometry.of(cam, c, look_at_rotation(c, centre, east), centre * 50, datum_radius_m=DATUM_RADIUS_M))
     return out[0], out[1]
 
 
@@ -47,7 +48,7 @@ def test_maps_are_the_ray_surface_projection_and_map_back_exactly() -> None:
     assert mx.shape == (128, 128) and np.isfinite(mx).all()
     rng = np.random.default_rng(5)
     px = rng.integers(0, 128, (40, 2)).astype(float)
-    g, hit = image_to_ground(base.camera, base.position, base.rotation, px, height=_bumps)
+    g, hit = image_to_ground(base.camera, base.position, base.rotation, px, height=_bumps, datum_radius_m=DATUM_RADIUS_M)
     q, _ = project(partner.camera, partner.position, partner.rotation, g)
     ii = px.astype(int)
     np.testing.assert_allclose(np.stack([mx[ii[:, 1], ii[:, 0]], my[ii[:, 1], ii[:, 0]]], -1), q, atol=2e-4)
@@ -105,13 +106,13 @@ def test_dem_pretransform_with_the_true_surface_removes_the_along_line_bias(lamb
     pair = ("v0", "v1")
     m, _ = match_tile(w["images"], w["geom"], [pair], cfg, tracks=False)
     pa, pb = np.stack([m.sample_a, m.line_a], -1), np.stack([m.sample_b, m.line_b], -1)
-    mg = {k: ImageGeometry.of(t.camera, t.position, t.rotation, w["geom"][k].sun_position) for k, t in w["truth"].items()}
+    mg = {k: ImageGeometry.of(t.camera, t.position, t.rotation, w["geom"][k].sun_position, datum_radius_m=DATUM_RADIUS_M) for k, t in w["truth"].items()}
     qa, qb = match_pair_on_surface(w["images"], w["geom"], mg, pair, w["height"], cfg)
     ids = list(pair)
 
     def comp(a: Any, b: Any) -> tuple[Any, Any]:
         z = np.zeros(len(a), np.int64)
-        al, ac = true_error_components(ids, z, z + 1, a, b, w["truth"], w["height"])
+        al, ac = true_error_components(ids, z, z + 1, a, b, w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
         ok = np.isfinite(al)
         return al[ok], np.hypot(al[ok], ac[ok])
 

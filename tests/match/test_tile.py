@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.pose import rotation_from_angles
 from mercury_dem.match import match_pair, match_tile
 
@@ -100,5 +101,5 @@ def test_tile_matches_feed_build_network(pair_world: Any) -> None:
     out = build.build_network(
         ids, m, [g[i].camera for i in ids], np.array([g[i].position for i in ids]),
         np.array([g[i].rotation for i in ids]),
-    )
+     datum_radius_m=DATUM_RADIUS_M)
     assert out.network.n_points > 50

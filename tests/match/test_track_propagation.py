@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-
 from typing import Any
 
 import numpy as np
 import pytest
 
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
 from mercury_dem.match import ImageGeometry, match_tile
@@ -83,7 +83,7 @@ def four_views() -> dict[str, Any]:
         vid = f"img{k}"
         images[vid] = render_image(surface, cam, c, r, ref.sun, rng)
         geom[vid] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r,
-                                     ref.sun)
+                                     ref.sun, datum_radius_m=DATUM_RADIUS_M)
         truth[vid] = TruePose(cam, c, r)
     ids = list(images)
     pairs = [(ids[i], ids[j]) for i in range(4) for j in range(i + 1, 4)]
@@ -97,7 +97,7 @@ def _network(w: dict[str, Any], tracks: bool) -> tuple[Any, Any, Any]:
     ids = list(m.image_ids)
     g = w["geom"]
     net = build_network(ids, m, [g[i].camera for i in ids], np.array([g[i].position for i in ids]),
-                        np.array([g[i].rotation for i in ids])).network
+                        np.array([g[i].rotation for i in ids]), datum_radius_m=DATUM_RADIUS_M).network
     return m, reps, net
 
 
@@ -117,13 +117,13 @@ def test_tracks_give_points_of_three_and_more_rays(four_views: dict[str, Any]) -
     # propagated matches are as true as the chain's (noise-limited: 0.1-0.3 px)
     pa = np.stack([m1.sample_a, m1.line_a], -1)
     pb = np.stack([m1.sample_b, m1.line_b], -1)
-    e = true_errors(m1.image_ids, m1.image_a, m1.image_b, pa, pb, w["truth"], w["height"])
+    e = true_errors(m1.image_ids, m1.image_a, m1.image_b, pa, pb, w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
     prop = (m1.propagated > 0) & np.isfinite(e)
     assert prop.sum() > 100
     assert np.median(e[prop]) <= 0.3 and np.mean(e[prop] > 2.0) <= 0.005, (np.median(e[prop]), np.mean(e[prop] > 2))
     # every measure of a point sees the same ground feature as its first measure
     en = network_true_errors(list(net1.image_ids), net1.measure_point, net1.measure_image,
-                             np.stack([net1.sample, net1.line], -1), w["truth"], w["height"])
+                             np.stack([net1.sample, net1.line], -1), w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
     en = en[np.isfinite(en) & (en > 0)]
     assert np.median(en) <= 0.3 and np.mean(en > 2.0) <= 0.005, (np.median(en), np.mean(en > 2))
 

@@ -8,9 +8,9 @@ import pytest
 from scipy.ndimage import gaussian_filter, shift
 
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_unit, latlon_to_xyz
 from mercury_dem.geometry.camera import mdis_nac
 from mercury_dem.geometry.pose import image_to_ground, look_at_rotation, project
-from mercury_dem.geometry.body import latlon_to_xyz, latlon_to_unit
 from mercury_dem.match.features import image_quality, spread_best
 from mercury_dem.match.outliers import KnnResult, homography_inliers, ratio_test, symmetric_pairs
 from mercury_dem.match.pretransform import ImageGeometry, apply_homography, pair_geometry, warp_to_reference
@@ -63,14 +63,14 @@ def test_image_quality_reasons() -> None:
 
 def _views() -> tuple[ImageGeometry, ImageGeometry]:
     cam = mdis_nac(256, distortion=False)
-    centre = latlon_to_xyz(20.0, 100.0)
+    centre = latlon_to_xyz(20.0, 100.0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)
     up = latlon_to_unit(20.0, 100.0)
     ca = centre + 300e3 * up
     cb = centre + 450e3 * up + np.array([30e3, -20e3, 0.0])
     sun = centre * 1e4
     ra = look_at_rotation(ca, centre, (0, 0, 1))
     rb = look_at_rotation(cb, centre + np.array([1e3, 0, 0]), (0.3, 0, 1))
-    return ImageGeometry.of(cam, ca, ra, sun), ImageGeometry.of(cam, cb, rb, sun)
+    return ImageGeometry.of(cam, ca, ra, sun, datum_radius_m=DATUM_RADIUS_M), ImageGeometry.of(cam, cb, rb, sun, datum_radius_m=DATUM_RADIUS_M)
 
 
 def test_pretransform_homography_maps_datum_points() -> None:
@@ -78,7 +78,7 @@ def test_pretransform_homography_maps_datum_points() -> None:
     pg = pair_geometry(a, b)
     assert not isinstance(pg, str)
     px = np.random.default_rng(3).uniform(20, 236, (50, 2))
-    g, hit = image_to_ground(a.camera, a.position, a.rotation, px)
+    g, hit = image_to_ground(a.camera, a.position, a.rotation, px, datum_radius_m=DATUM_RADIUS_M)
     truth, _ = project(b.camera, b.position, b.rotation, g)
     assert np.abs(apply_homography(pg.homography, px) - truth).max() < 0.05
     assert pg.scale_ratio == pytest.approx(1.5, rel=0.05)
@@ -87,7 +87,7 @@ def test_pretransform_homography_maps_datum_points() -> None:
 
 def test_pretransform_reports_no_overlap() -> None:
     a, b = _views()
-    far = ImageGeometry.of(b.camera, b.position, look_at_rotation(b.position, latlon_to_xyz(25.0, 106.0), (0, 0, 1)), b.sun_position)
+    far = ImageGeometry.of(b.camera, b.position, look_at_rotation(b.position, latlon_to_xyz(25.0, 106.0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M), (0, 0, 1)), b.sun_position, datum_radius_m=DATUM_RADIUS_M)
     assert "no a-priori overlap" in pair_geometry(a, far)
 
 

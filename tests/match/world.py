@@ -113,7 +113,7 @@ def sun_position(surface: ToySurface, incidence_deg: float, azimuth_deg: float) 
     e, n, u = surface.enu()
     i, a = np.radians(incidence_deg), np.radians(azimuth_deg)
     d = np.cos(i) * u + np.sin(i) * (np.sin(a) * e + np.cos(a) * n)
-    return latlon_to_xyz(surface.lat0, surface.lon0) + SUN_DISTANCE_M * d
+    return latlon_to_xyz(surface.lat0, surface.lon0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M) + SUN_DISTANCE_M * d
 
 
 def make_view(surface: ToySurface, camera: FramingCamera, altitude_m: float, offset_east_m: float = 0.0,
@@ -121,7 +121,7 @@ def make_view(surface: ToySurface, camera: FramingCamera, altitude_m: float, off
               azimuth_deg: float = 90.0, aim_east_m: float = 0.0, aim_north_m: float = 0.0) -> View:
     """A camera above the patch centre (offset), looking at the centre (offset by aim), twisted about the boresight."""
     e, n, u = surface.enu()
-    centre = latlon_to_xyz(surface.lat0, surface.lon0)
+    centre = latlon_to_xyz(surface.lat0, surface.lon0, height_m=0.0, datum_radius_m=DATUM_RADIUS_M)
     c = centre + altitude_m * u + offset_east_m * e + offset_north_m * n
     target = centre + aim_east_m * e + aim_north_m * n
     r = look_at_rotation(c, target, n)
@@ -138,9 +138,9 @@ def render(surface: ToySurface, view: View, rng: np.random.Generator, supersampl
     ss, ll = np.meshgrid(np.arange(cam.samples, dtype=np.float64), np.arange(cam.lines, dtype=np.float64))
     e, n, u = surface.enu()
     px = np.concatenate([np.stack([(ss + ox).ravel(), (ll + oy).ravel()], -1) for oy in off for ox in off])
-    g, hit = image_to_ground(cam, view.position, view.rotation, px, height=surface.height, tol_m=0.01, max_iter=12)
+    g, hit = image_to_ground(cam, view.position, view.rotation, px, height=surface.height, tol_m=0.01, max_iter=12, datum_radius_m=DATUM_RADIUS_M)
     g = np.where(hit[:, None], g, 0.0)
-    lat, lon, _ = xyz_to_latlon(g)
+    lat, lon, _ = xyz_to_latlon(g, datum_radius_m=DATUM_RADIUS_M)
     x, y = surface.xy(lat, lon)
     _, hx, hy = surface.height_xy(x, y)
     normal = -hx[:, None] * e - hy[:, None] * n + u

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.geometry.body import MERCURY
-from mercury_dem.mission.ingest import read_isd_image, read_image_list
+from mercury_dem.mission.ingest import read_image_list, read_isd_image
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real" / "mdis_stereo"
 ISD = REAL / "EN0213023991M.json"  # knoten/usgscsm layout, with its image

@@ -10,12 +10,12 @@ import pytest
 from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import MERCURY, MOON, Body, body_by_name
 from mercury_dem.geometry.camera import mdis_nac, mdis_wac
+from mercury_dem.geometry.pose import look_at_rotation
 from mercury_dem.io.atomic import atomic_directory
 from mercury_dem.mission import MissionWriter, open_mission
 from mercury_dem.mission.cameras import camera_from_dict, camera_to_dict
 from mercury_dem.mission.catalog import build_catalog, footprint_statistics
 from mercury_dem.mission.radiometry import DN12, Radiometry, float_radiometry
-from mercury_dem.geometry.pose import look_at_rotation
 
 
 def test_camera_round_trip_is_exact() -> None:

@@ -40,7 +40,7 @@ def make_world(lat0: float, lon0: float, n_points: int = 300, n_images: int = 6,
     """
     rng = np.random.default_rng(seed)
     cam = mdis_nac(512)
-    target = latlon_to_xyz(lat0, lon0, 0.0)
+    target = latlon_to_xyz(lat0, lon0, 0.0, datum_radius_m=DATUM_RADIUS_M)
     up = target / np.linalg.norm(target)
     east = np.cross([0.0, 0.0, 1.0], up)
     if np.linalg.norm(east) < 1e-6:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from network_world import all_pairs, make_matches, make_world, truth_of_measures
 
 from mercury_dem.exceptions import NetworkError
 from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.pose import pixel_rays
 from mercury_dem.network import PairMatches, build_network, triangulate_points, validate
-
-from network_world import all_pairs, make_matches, make_world, truth_of_measures
 
 
 def _point_truth(world, net):
@@ -30,7 +29,7 @@ def _point_truth(world, net):
 def test_tracks_and_apriori_recover_truth(world_name, known, request):
     w = request.getfixturevalue(world_name)
     m, _ = make_matches(w, all_pairs(6), known_features=known)
-    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations)
+    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     assert st.n_conflicts == 0 and st.n_matches_invalid == 0
     truth = _point_truth(w, net)
     seen = np.flatnonzero(w.visible.sum(0) >= 2)
@@ -49,12 +48,12 @@ def test_tracks_and_apriori_recover_truth(world_name, known, request):
 def test_point_ids_and_order(seam_world):
     w = seam_world
     m, _ = make_matches(w, all_pairs(6))
-    net, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, point_id_start=1000)
+    net, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, point_id_start=1000, datum_radius_m=DATUM_RADIUS_M)
     assert net.point_ids[0] == 1000 and np.all(np.diff(net.point_ids) == 1)
     key = net.measure_point * net.n_images + net.measure_image
     assert np.all(np.diff(key) > 0), "measures sorted by (point, image), no duplicates"
     # deterministic
-    net2, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, point_id_start=1000)
+    net2, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, point_id_start=1000, datum_radius_m=DATUM_RADIUS_M)
     assert net.equals(net2)
 
 
@@ -65,7 +64,7 @@ def test_conflicting_match_is_split_not_merged(seam_world):
     a, b = 10, 20
     bad = PairMatches([0], [1], [w.observed[0, a, 0]], [w.observed[0, a, 1]], [w.observed[1, b, 0]],
                       [w.observed[1, b, 1]], [a], [b])
-    net, st = build_network(w.image_ids, PairMatches.concatenate([m, bad]), w.camera, w.positions, w.rotations)
+    net, st = build_network(w.image_ids, PairMatches.concatenate([m, bad]), w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     # the wrong match has no triangle support inside the conflicting track: removed, both points intact
     assert st.n_links_pruned == 1 and st.n_conflicts == 0
     truth = _point_truth(w, net)  # purity: no point mixes a and b
@@ -87,7 +86,7 @@ def test_unsupported_ambiguity_is_cut(seam_world):
     w = seam_world
     a, b = 10, 20
     m = _rows(w.observed, [(0, a, 1, a), (0, a, 1, b), (2, a, 3, a)])
-    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations)
+    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     assert st.n_links_pruned == 2 and st.n_conflicts == 0 and st.n_short_tracks == 3
     assert net.n_points == 1 and set(net.image_ids[net.measure_image].tolist()) == {"IMG002", "IMG003"}
 
@@ -98,7 +97,7 @@ def test_supported_conflict_drops_the_ambiguous_image(seam_world):
     w = seam_world
     a, b = 10, 20
     m = _rows(w.observed, [(0, a, 1, a), (0, a, 1, b), (2, a, 1, a), (2, a, 1, b), (0, a, 2, a)])
-    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations)
+    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     assert st.n_links_pruned == 0 and st.n_conflicts == 1 and st.n_conflict_observations == 4
     assert net.n_points == 1 and set(net.image_ids[net.measure_image].tolist()) == {"IMG000", "IMG002"}
     assert np.all(truth_of_measures(w, net) == a)
@@ -107,31 +106,31 @@ def test_supported_conflict_drops_the_ambiguous_image(seam_world):
 def test_unknown_features_join_within_tolerance_only(seam_world):
     w = seam_world
     m, _ = make_matches(w, [(0, 1), (1, 2)], known_features=False)
-    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations)
+    net, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     # tracks run through image 1: 3 measures per point seen in 0, 1 and 2
     assert np.all(net.measures_per_point() <= 3) and np.any(net.measures_per_point() == 3)
     # shift image 1's pixels of pair (1, 2) by 1.5 px: beyond the tolerance, the tracks stop joining
     shifted = PairMatches(m.image_a, m.image_b, np.where(m.image_a == 1, m.sample_a + 1.5, m.sample_a), m.line_a,
                           m.sample_b, m.line_b)
-    net2, _ = build_network(w.image_ids, shifted, w.camera, w.positions, w.rotations)
+    net2, _ = build_network(w.image_ids, shifted, w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     assert np.all(net2.measures_per_point() == 2)
 
 
 def test_invalid_matches_are_counted_or_rejected(seam_world):
     w = seam_world
     m = PairMatches([0, 0, 1], [1, 0, 2], [1.0, 2.0, np.nan], [1.0, 2.0, 3.0], [5.0, 6.0, 7.0], [5.0, 6.0, 7.0])
-    _, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations)
+    _, st = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M)
     assert st.n_matches_invalid == 2  # a self-match and a NaN pixel
     with pytest.raises(NetworkError, match="image_b=9"):
         build_network(w.image_ids, PairMatches([0], [9], [1.0], [1.0], [1.0], [1.0]), w.camera, w.positions,
-                      w.rotations)
+                      w.rotations, datum_radius_m=DATUM_RADIUS_M)
 
 
 def test_single_ray_and_weak_geometry_land_on_datum(seam_world):
     w = seam_world
     px = w.observed[0, :5]
     mp = np.arange(5)
-    xyz, method = triangulate_points(mp, np.zeros(5, np.int64), px, w.camera, w.positions, w.rotations, 5)
+    xyz, method = triangulate_points(mp, np.zeros(5, np.int64), px, w.camera, w.positions, w.rotations, 5, datum_radius_m=DATUM_RADIUS_M)
     assert np.all(method == 1)
     np.testing.assert_allclose(np.linalg.norm(xyz, axis=1), DATUM_RADIUS_M, rtol=1e-12)
     o, d = pixel_rays(w.camera, w.positions[0], w.rotations[0], px)
@@ -141,7 +140,7 @@ def test_single_ray_and_weak_geometry_land_on_datum(seam_world):
     pos = np.stack([w.positions[0], w.positions[0] + [1.0, 0, 0]])
     rot = np.stack([w.rotations[0], w.rotations[0]])
     xyz2, method2 = triangulate_points(np.array([0, 0]), np.array([0, 1]), np.stack([px[0], px[0]]), w.camera, pos,
-                                       rot, 1)
+                                       rot, 1, datum_radius_m=DATUM_RADIUS_M)
     assert method2[0] == 1 and abs(np.linalg.norm(xyz2[0]) - DATUM_RADIUS_M) < 1e-6
 
 
@@ -151,7 +150,7 @@ def test_more_noise_more_error():
     for sigma in (0.1, 1.0):
         w = make_world(10.0, 200.0, n_points=200, sigma_px=sigma, seed=5)
         m, _ = make_matches(w, all_pairs(6))
-        net, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, tolerance_px=10 * sigma)
+        net, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, tolerance_px=10 * sigma, datum_radius_m=DATUM_RADIUS_M)
         t = truth_of_measures(w, net)
         first = np.flatnonzero(np.r_[True, np.diff(net.measure_point) > 0])
         errs.append(np.median(np.linalg.norm(net.apriori_xyz - w.truth[t[first]], axis=1)))

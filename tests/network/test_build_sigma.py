@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from network_world import make_world
 
 from mercury_dem.exceptions import NetworkError
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.network import PairMatches, build_network
 from mercury_dem.network.build import convergence_sigma_factor
-
-from network_world import make_world
 
 
 def test_factor_follows_tan_and_is_bounded():
@@ -41,8 +41,8 @@ def test_measured_side_gets_the_factor_and_merged_measures_the_rms():
     pairs = [(0, 1), (2, 1), (0, 3)]
     m, pair = _matches(w, pairs)
     factor = np.array([3.0, 1.0, 2.0])[pair]
-    net, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_px=0.5, sigma_factor=factor)
-    plain, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_px=0.5)
+    net, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_px=0.5, sigma_factor=factor, datum_radius_m=DATUM_RADIUS_M)
+    plain, _ = build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_px=0.5, datum_radius_m=DATUM_RADIUS_M)
     assert net.n_measures == plain.n_measures and np.array_equal(net.measure_image, plain.measure_image)
     assert np.allclose(plain.sigma, 0.5)
     s = net.sigma[:, 0]
@@ -61,6 +61,6 @@ def test_bad_factors_are_refused():
     w = make_world(0.0, 0.0, seed=1)
     m, pair = _matches(w, [(0, 1)])
     with pytest.raises(NetworkError, match="sigma_factor"):
-        build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_factor=np.ones(pair.size + 1))
+        build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_factor=np.ones(pair.size + 1), datum_radius_m=DATUM_RADIUS_M)
     with pytest.raises(NetworkError, match="sigma_factor"):
-        build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_factor=np.zeros(pair.size))
+        build_network(w.image_ids, m, w.camera, w.positions, w.rotations, sigma_factor=np.zeros(pair.size), datum_radius_m=DATUM_RADIUS_M)

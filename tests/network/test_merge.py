@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from network_world import all_pairs, make_matches, measure_sets, truth_of_measures
 
 from mercury_dem.exceptions import NetworkError
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.network import ControlNetwork, PointType, build_network, merge_networks, validate
-
-from network_world import all_pairs, make_matches, measure_sets, truth_of_measures
 
 
 def _tile_networks(w, tiles, id_starts=None):
@@ -17,7 +17,7 @@ def _tile_networks(w, tiles, id_starts=None):
         pairs = [(a, b) for a, b in all_pairs(len(w.image_ids)) if a in refs or b in refs]
         m, _ = make_matches(w, pairs)
         start = (id_starts or [t * 100000 for t in range(len(tiles))])[t]
-        nets.append(build_network(w.image_ids, m, w.camera, w.positions, w.rotations, point_id_start=start).network)
+        nets.append(build_network(w.image_ids, m, w.camera, w.positions, w.rotations, point_id_start=start, datum_radius_m=DATUM_RADIUS_M).network)
     return nets
 
 
@@ -27,7 +27,7 @@ def test_tiles_merge_into_the_whole(world_name, request):
     network built from all pairs at once."""
     w = request.getfixturevalue(world_name)
     nets = _tile_networks(w, [{0, 1, 2}, {3, 4, 5}])
-    whole = build_network(w.image_ids, make_matches(w, all_pairs(6))[0], w.camera, w.positions, w.rotations).network
+    whole = build_network(w.image_ids, make_matches(w, all_pairs(6))[0], w.camera, w.positions, w.rotations, datum_radius_m=DATUM_RADIUS_M).network
     merged, st = merge_networks(nets)
     assert measure_sets(merged) == measure_sets(whole)
     assert merged.n_points == whole.n_points and st.n_conflicts == 0 and not st.ids_renumbered

@@ -11,7 +11,6 @@ import pytest
 
 from mercury_dem.config import Config, load_config
 
-
 #: The configuration the pipeline tests use, as YAML would give it (tests that run the CLI write it out).
 TINY_OVERRIDES: dict[str, Any] = {
     "dem": {
@@ -42,3 +41,19 @@ def sync_run(tiny_mission_path: Path, tmp_path_factory: pytest.TempPathFactory) 
 
 def read_report(run: Path) -> dict[str, Any]:
     return json.loads((run / "report.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def moon_tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """The ``tiny`` preset on the Moon (``synth --body moon``, ~18 images) run in-process: (run, report).
+
+    The second body end to end: it fails when anything below the mission assumes Mercury.
+    """
+    from mercury_dem.config.synth import SynthConfig
+    from mercury_dem.pipeline.graph import run_pipeline
+    from mercury_dem.synth.generate import generate_mission
+
+    root = tmp_path_factory.mktemp("moon")
+    generate_mission(root / "mission", SynthConfig(preset="tiny", body="moon", seed=42))
+    report = run_pipeline(root / "mission", root / "run", tiny_config(), scheduler="sync", stream=None)
+    return root / "run", report

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.io.run_store import RunStore, read_solution
 from mercury_dem.pipeline.graph import run_pipeline
 from mercury_dem.pipeline.report import print_report
@@ -102,7 +103,7 @@ def _apart_px(mission_path: Path, run_a: Path, run_b: Path) -> dict[str, float]:
     b = read_solution(RunStore(run_b).solution_path("global", 0))
     at = {str(i): k for k, i in enumerate(a[0])}
     return {str(i): float(image_space_error_px(mission.camera(str(i)), b[2][k], b[1][k], a[2][at[str(i)]],
-                                               a[1][at[str(i)]], height))
+                                               a[1][at[str(i)]], height, datum_radius_m=DATUM_RADIUS_M))
             for k, i in enumerate(b[0]) if str(i) in at}
 
 

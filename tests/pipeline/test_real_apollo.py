@@ -105,3 +105,59 @@ def test_adjust_isis_of_the_exported_network_gives_the_runs_solution(apollo_run:
     bad[idx] = True
     rej = np.asarray(out.measure_rejected)
     assert (rej & bad).sum() >= 0.9 * bad.sum(), f"{(rej & bad).sum()} of {bad.sum()} outliers rejected"
+
+
+#: The Moon's datum (the IAU 2015 sphere, LOLA's) and its range of heights above it, metres
+#: (Smith et al. 2010: the far-side highlands' top near Korolev +10.8 km, the floor of Antoniadi -9.2 km).
+MOON_DATUM_M = 1_737_400.0
+MOON_HEIGHTS_M = (-9_200.0, 10_800.0)
+
+
+def _moon_heights_of_every_product(run: Path) -> dict[str, np.ndarray]:
+    """The run's heights from dem.zarr and each product, checked against the Moon's datum and range."""
+    import rasterio
+
+    from mercury_dem.pipeline.dem_stage import open_dem
+
+    ds = open_dem(run / "dem.zarr")
+    elev, radius = ds.elevation.values, ds.radius.values
+    valid = np.isfinite(elev)
+    assert valid.sum() > 1000 and ds.attrs["datum_radius_m"] == MOON_DATUM_M
+    # float32 radii near 1737 km step by 0.125 m
+    np.testing.assert_allclose(radius[valid] - MOON_DATUM_M, elev[valid], atol=0.25)
+    assert MOON_HEIGHTS_M[0] < np.nanmin(elev) and np.nanmax(elev) < MOON_HEIGHTS_M[1], (np.nanmin(elev),
+                                                                                           np.nanmax(elev))
+    out = {"elevation": elev, "radius": radius}
+    for name, path, offset in (("geotiff", "dem.tif", 0.0), ("pds", "pds/equirectangular.tif", 0.0),
+                               ("isis", "isis/dem_radius.cub", MOON_DATUM_M)):
+        with rasterio.open(run / "products" / path) as f:
+            a = f.read(1, masked=True).filled(np.nan).astype(np.float64)
+            assert f.crs is not None and "1737400" in f.crs.to_wkt().replace(".0", ""), (name, f.crs)
+            if offset == 0.0:
+                assert f.units == ("m",) and f.tags()["BODY"] == "MOON"
+                assert float(f.tags()["DATUM_RADIUS_M"]) == MOON_DATUM_M
+        assert a.shape == elev.shape, name
+        np.testing.assert_array_equal(np.isnan(a), ~valid, err_msg=name)
+        np.testing.assert_allclose(a[valid] - offset, elev[valid], atol=0.25, err_msg=name)
+        out[name] = a
+    stats = json.loads((run / "products" / "statistics.json").read_text())["global"]
+    assert MOON_HEIGHTS_M[0] < stats["min_m"] < stats["max_m"] < MOON_HEIGHTS_M[1]
+    return out
+
+
+def test_moon_heights_serial_and_distributed_agree(apollo_run: Path, tmp_path: Path) -> None:
+    """The DEM stage on a LocalCluster (worker processes) gives the Moon heights the in-process run gives.
+
+    The point index once lost its datum on the way to a worker (pickled without it, it fell back to
+    Mercury's 2439.4 km): dem.zarr said "Moon, 1737400 m" and held radius - 2439400 m.
+    """
+    import shutil
+
+    serial = _moon_heights_of_every_product(apollo_run)
+    run = tmp_path / "run"
+    shutil.copytree(apollo_run, run)
+    assert main(["run", str(apollo_run.parent / "mission"), "--out", str(run), "--scheduler", "local",
+                 "--workers", "2", "--threads-per-worker", "1", "--force", "dem", "--quiet"]) == 0
+    distributed = _moon_heights_of_every_product(run)
+    for name, a in serial.items():
+        np.testing.assert_array_equal(distributed[name], a, err_msg=name)

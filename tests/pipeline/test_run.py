@@ -12,6 +12,7 @@ import pytest
 import xarray as xr
 
 from mercury_dem.cli import main
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.io.network_store import read_network
 from mercury_dem.io.run_store import RunStore, read_solution
 from mercury_dem.pipeline.graph import run_pipeline
@@ -236,7 +237,7 @@ def test_global_solution_does_not_depend_on_the_tile_size(sync_run: tuple[Path, 
     height = mission.need_truth().surface().height
     at10 = {str(i): k for k, i in enumerate(ids10)}
     apart = np.array([
-        image_space_error_px(mission.camera(str(i)), pos15[k], rot15[k], pos10[at10[str(i)]], rot10[at10[str(i)]], height)
+        image_space_error_px(mission.camera(str(i)), pos15[k], rot15[k], pos10[at10[str(i)]], rot10[at10[str(i)]], height, datum_radius_m=DATUM_RADIUS_M)
         for k, i in enumerate(ids15)
     ])
     assert np.sqrt(np.mean(apart**2)) <= 0.2, apart

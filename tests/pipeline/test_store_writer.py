@@ -133,10 +133,10 @@ def test_the_writer_declines_where_it_does_not_apply(cloud: tuple[Path, Path], t
         "ev = threading.Event(); t = threading.Thread(target=ev.wait); t.start()\n"
         "assert W.start() is None\nev.set(); t.join()\n"
         "import numpy as np\nfrom mercury_dem.config import load_config\n"
-        "from mercury_dem.pipeline.dem_stage import grid_dem\n"
+        "from mercury_dem.geometry.body import MERCURY\nfrom mercury_dem.pipeline.dem_stage import grid_dem\n"
         "w = W.start()\nassert w is not None\n"
         f"summary = grid_dem(np.load({str(pts)!r}), load_config({str(cfg)!r}).dem, {str(tmp_path / 'dem.zarr')!r},"
-        " coverage=False, attrs={'t': (1, 2)}, writer=w)\n"
+        " coverage=False, attrs={'t': (1, 2)}, writer=w, body=MERCURY)\n"
         "try:\n    os.waitpid(w.pid, os.WNOHANG)\n    raise SystemExit('child not reaped')\nexcept ChildProcessError:\n"
         "    pass\n"
         "assert 'zarr' in sys.modules\n"  # this process wrote the store

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from products_synthetic import CFG, NOISE_M, truth_height  # noqa: F401
 
-from mercury_dem.geometry.body import latlon_to_xyz
+from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, latlon_to_xyz
 
 
 @pytest.fixture(scope="session")
@@ -20,9 +20,9 @@ def dem_dir(tmp_path_factory):
     lon = rng.uniform(0, 360, n)
     keep = ~((lat > 10) & (lat < 30) & (lon > 190) & (lon < 220))
     lat, lon = lat[keep], lon[keep]
-    pts = latlon_to_xyz(lat, lon, truth_height(lat, lon) + rng.normal(0, NOISE_M, lat.size))
+    pts = latlon_to_xyz(lat, lon, truth_height(lat, lon) + rng.normal(0, NOISE_M, lat.size), datum_radius_m=DATUM_RADIUS_M)
     d = tmp_path_factory.mktemp("run")
-    grid_dem(pts, CFG, d / "dem.zarr")
+    grid_dem(pts, CFG, d / "dem.zarr", body=MERCURY)
     return d
 
 

@@ -14,7 +14,7 @@ import rasterio
 from products_synthetic import CFG, NOISE_M, truth_height
 
 from mercury_dem.exceptions import GridError, StoreError
-from mercury_dem.geometry.body import CRS_GEOGRAPHIC, latlon_to_xyz
+from mercury_dem.geometry.body import CRS_GEOGRAPHIC, DATUM_RADIUS_M, MERCURY, latlon_to_xyz
 from mercury_dem.products.make import make_products, open_dem
 
 
@@ -198,7 +198,7 @@ def test_regional_map_names_the_caps_it_does_not_reach(tmp_path, dem_dir, produc
     rng = np.random.default_rng(5)
     lat, lon = rng.uniform(-20, 20, 20_000), rng.uniform(100, 140, 20_000)
     cfg = dataclasses.replace(CFG, lat_min=-20.0, lat_max=20.0, lon_min=100.0, lon_max=140.0)
-    grid_dem(latlon_to_xyz(lat, lon, truth_height(lat, lon)), cfg, tmp_path / "dem.zarr", coverage=False)
+    grid_dem(latlon_to_xyz(lat, lon, truth_height(lat, lon), datum_radius_m=DATUM_RADIUS_M), cfg, tmp_path / "dem.zarr", coverage=False, body=MERCURY)
     out = tmp_path / "products"
     (out / "pds").mkdir(parents=True)
     shutil.copy(dem_dir / "products/pds/north_polar.tif", out / "pds/north_polar.tif")

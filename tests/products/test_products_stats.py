@@ -23,7 +23,7 @@ def _global(ppd):
 def test_area_weighted_statistics_of_latitude_field():
     lat, lon = _global(2)
     h = np.repeat(lat[:, None], lon.size, axis=1).astype(np.float32) * 10.0  # 10 m per degree
-    s = dem_statistics(h, lat, lon, pixel_km=1.0)
+    s = dem_statistics(h, lat, lon, pixel_km=1.0, radius_m=DATUM_RADIUS_M)
     assert s["resample"]["factor"] == 1
     assert s["global"]["mean_m"] == pytest.approx(0.0, abs=1e-3)
     assert s["global"]["median_m"] == pytest.approx(0.0, abs=3.0)
@@ -44,7 +44,7 @@ def test_slope_of_east_west_ramp_uses_true_spacing():
     lat, lon = np.array([30.5, 30.0, 29.5]), np.arange(0.25, 10, 0.5)
     km_per_deg_lon = DATUM_RADIUS_M * math.radians(1.0) * np.cos(np.radians(30.0))
     h = np.tile(lon * 0.01 * km_per_deg_lon, (3, 1))  # 1 % grade along the parallel at 30 deg
-    s = slope_deg(h, lat, 0.5, 0.5, wrap_lon=False)
+    s = slope_deg(h, lat, 0.5, 0.5, wrap_lon=False, radius_m=DATUM_RADIUS_M)
     assert s[1, 5] == pytest.approx(math.degrees(math.atan(0.01)), rel=2e-3)
     assert np.isnan(s[0]).all() and np.isnan(s[:, 0]).all()
 

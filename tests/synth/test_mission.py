@@ -48,7 +48,7 @@ def test_catalog_round_trips(tiny_mission, tmp_path):
 
     c, r = tiny_mission.a_priori_pose(image_id)
     cam = tiny_mission.camera(image_id)
-    px, _ = project(cam, c, r, latlon_to_xyz(row["center_lat"], row["center_lon"])[None])
+    px, _ = project(cam, c, r, latlon_to_xyz(row["center_lat"], row["center_lon"], height_m=0.0, datum_radius_m=DATUM_RADIUS_M)[None])
     assert np.allclose(px[0], [(cam.samples - 1) / 2, (cam.lines - 1) / 2], atol=1e-6)
 
 

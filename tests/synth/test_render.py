@@ -75,8 +75,8 @@ def test_spot_appears_where_the_true_camera_projects_it(camera):
     ratio = np.where(plain > 0, with_spot / np.where(plain > 0, plain, 1) - 1.0, 0.0)
     surf = SpotOnHill(lat, lon, spot_lat, spot_lon)
     h = surf.height_unit(surf.spot)
-    expected, _ = project(camera, c, r, latlon_to_xyz(spot_lat, spot_lon, h)[None])
-    datum_only, _ = project(camera, c, r, latlon_to_xyz(spot_lat, spot_lon, 0.0)[None])
+    expected, _ = project(camera, c, r, latlon_to_xyz(spot_lat, spot_lon, h, datum_radius_m=DATUM_RADIUS_M)[None])
+    datum_only, _ = project(camera, c, r, latlon_to_xyz(spot_lat, spot_lon, 0.0, datum_radius_m=DATUM_RADIUS_M)[None])
     assert np.linalg.norm(expected - datum_only) > 3.0  # the test can tell heights apart
     # Centroid of the spot in a window around its expected place.
     s0, l0 = np.round(expected[0]).astype(int)
@@ -99,7 +99,7 @@ def test_shadow_falls_on_the_anti_sun_side():
     flat = render_reflectance(surf, cam, c, r, sun, RenderSettings(shadows=False))
 
     def at(dlon_km):
-        x = latlon_to_xyz(lat, lon + np.degrees(dlon_km * 1e3 / DATUM_RADIUS_M), 0.0)[None]
+        x = latlon_to_xyz(lat, lon + np.degrees(dlon_km * 1e3 / DATUM_RADIUS_M), 0.0, datum_radius_m=DATUM_RADIUS_M)[None]
         px, _ = project(cam, c, r, x)
         s, l = np.round(px[0]).astype(int)
         return img[l, s], flat[l, s]

@@ -9,6 +9,7 @@ from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.viz import (
     STATE_COLOURS,
     coverage_figure,
@@ -65,7 +66,7 @@ def test_dem_figures(tiny_run: Path, tiny_mission, tmp_path: Path) -> None:
     shade = fig.axes[0].images[0].get_array()
     ds = open_dem(Path(tiny_run) / "dem.zarr")
     h, lat, lon = ds["elevation"].values.astype(float), ds["lat"].values, ds["lon"].values
-    want = hillshade(h, lat, lon, exaggeration=auto_exaggeration(h, lat, lon))
+    want = hillshade(h, lat, lon, exaggeration=auto_exaggeration(h, lat, lon, radius_m=DATUM_RADIUS_M), radius_m=DATUM_RADIUS_M)
     np.testing.assert_allclose(np.ma.filled(shade, np.nan), want, equal_nan=True)
     _png(fig, tmp_path / "dem.png")
     err = dem_error(tiny_run, tiny_mission)["error"]

@@ -12,15 +12,22 @@ Usage::
 
     PYTHONPATH=$PWD .venv/bin/python workflows/benchmarks/ab_register_nuisance.py SHOTS SEED NTILES [WORKDIR]
 """
-import sys, tempfile, importlib.util
+import importlib.util
+import sys
+import tempfile
 from pathlib import Path
-import numpy as np, pandas as pd
+
+import numpy as np
+import pandas as pd
+
 spec = importlib.util.spec_from_file_location("br", str(Path(__file__).with_name("bench_register.py")))
 br = importlib.util.module_from_spec(spec); spec.loader.exec_module(br)
 from pathlib import Path
+
 from mercury_dem.altimetry.register import RegisterOptions, register_tile, tile_window
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.products.make import open_dem
+
 R = br.R
 n = float(sys.argv[1]); seed = int(sys.argv[2]); ntiles = int(sys.argv[3])
 rng = np.random.default_rng(seed)

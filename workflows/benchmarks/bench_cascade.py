@@ -34,15 +34,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
-
 from cascade_replay import (  # beside this script (workflows/benchmarks/cascade_replay.py)
     ADJUSTED_LEVELS,
     LEVELS,
     TargetSize,
     busy_fraction,
-    level_spans,
     cascade_graph,
     critical_path,
+    level_spans,
     list_schedule,
     n_workers_of,
     read_unit_timings,

@@ -34,7 +34,7 @@ def main() -> None:
     n, span = args.points, 20.0
     lat, lon = rng.uniform(-span / 2, span / 2, n), rng.uniform(0.0, span, n)
     pts = latlon_to_xyz(lat, lon, 1000.0 * np.sin(np.radians(lat) * 7) * np.cos(np.radians(lon) * 5)
-                        + rng.normal(0, 30.0, n))
+                        + rng.normal(0, 30.0, n), datum_radius_m=DATUM_RADIUS_M)
     ppd = args.size / span
     rows = span / 2 - (np.arange(args.size) + 0.5) / ppd
     cols = (np.arange(args.size) + 0.5) / ppd

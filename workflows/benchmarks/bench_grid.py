@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from mercury_dem.config.dem import DemConfig
-from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz, xyz_to_latlon
+from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, latlon_to_xyz, xyz_to_latlon
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
 
 
@@ -71,7 +71,7 @@ def make_points(n, lat_range, lon_range, seed=0, noise=20.0, outliers=0.005):
     h = truth_height(lat, lon) + rng.normal(0.0, noise, n)
     bad = rng.random(n) < outliers
     h[bad] += rng.choice([-3000.0, 3000.0], int(bad.sum()))
-    return latlon_to_xyz(lat, lon, h)
+    return latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M)
 
 
 def write_point_inputs(work: Path, n_points: int, span: float) -> tuple[np.ndarray, Path, Path, Path, Path]:
@@ -80,7 +80,7 @@ def write_point_inputs(work: Path, n_points: int, span: float) -> tuple[np.ndarr
     pts = make_points(n_points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
     npy = work / "points.npy"
     np.save(npy, pts)
-    lat, lon, h = xyz_to_latlon(pts)
+    lat, lon, h = xyz_to_latlon(pts, datum_radius_m=DATUM_RADIUS_M)
     lon = np.where(lon > 180, lon - 360, lon)
     csv = work / "points.csv"
     np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="", fmt="%.8f")
@@ -106,7 +106,7 @@ def run_ours(npy, method, cfg, work):
     out = work / f"{method}.zarr"
     t0 = time.perf_counter()
     pts = np.load(npy)
-    summary = grid_dem(pts, cfg, out, coverage=False)
+    summary = grid_dem(pts, cfg, out, coverage=False, body=MERCURY)
     dt = time.perf_counter() - t0
     ds = open_dem(out)
     return dt, ds.elevation.values, ds.lat.values, ds.lon.values, summary
@@ -118,9 +118,10 @@ def run_ours_cold(npy, method, cfg, work):
     code = (
         "import numpy as np\n"
         "from mercury_dem.config.dem import DemConfig\n"
+        "from mercury_dem.geometry.body import MERCURY\n"
         "from mercury_dem.pipeline.dem_stage import grid_dem\n"
         f"grid_dem(np.load({str(npy)!r}), DemConfig(**{_cfg_dict(cfg)!r}),"
-        f" {str(out)!r}, coverage=False)\n"
+        f" {str(out)!r}, coverage=False, body=MERCURY)\n"
     )
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], check=True)
@@ -157,7 +158,7 @@ def run_griddata(npy, size, extent):
     lon0, lon1, lat0, lat1 = extent
     t0 = time.perf_counter()
     pts = np.load(npy)
-    lat, lon, h = xyz_to_latlon(pts)
+    lat, lon, h = xyz_to_latlon(pts, datum_radius_m=DATUM_RADIUS_M)
     step = (lon1 - lon0) / size
     glat = lat1 - (np.arange(size) + 0.5) * step
     glon = lon0 + (np.arange(size) + 0.5) * step
@@ -298,7 +299,7 @@ def full_size(args):
         with local_cluster(2, 1, memory_limit="8GB") as cluster, Client(cluster) as client:
             t0 = time.perf_counter()
             pts = np.load(work / "points.npy")
-            summary = grid_dem(pts, cfg, work / "dem.zarr", client=client, coverage=False)
+            summary = grid_dem(pts, cfg, work / "dem.zarr", client=client, coverage=False, body=MERCURY)
             t_grid = time.perf_counter() - t0
             worker_rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
         own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

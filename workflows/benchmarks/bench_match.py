@@ -21,9 +21,9 @@ Run (heavy; take the lock):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import resource
-import dataclasses
 import time
 from typing import Any
 
@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from mercury_dem.config.match import MatchConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import rotation_from_angles
 from mercury_dem.match import ImageGeometry, match_tile
@@ -74,7 +75,7 @@ def _tile(n_px: int, n_images: int, rng: np.random.Generator) -> tuple[dict[str,
         vid = f"img{k}"
         images[vid] = render(surface, cam, c, r, base.ref.sun, rng)
         r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ r
-        geom[vid] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, base.ref.sun)
+        geom[vid] = ImageGeometry.of(cam, c + rng.normal(0, 100, 3), r_ap, base.ref.sun, datum_radius_m=DATUM_RADIUS_M)
     ids = list(images)
     pairs = [(ids[i], ids[j]) for i in range(len(ids)) for j in range(i + 1, len(ids))]
     return images, geom, pairs, surface
@@ -200,11 +201,11 @@ def accuracy() -> None:
                 ids[id(v)] = vid
                 images[vid] = render(surface, v.camera, v.position, v.rotation, v.sun, rng)
                 r_ap = rotation_from_angles(rng.normal(0, 450e-6, 3)) @ v.rotation
-                geom[vid] = ImageGeometry.of(v.camera, v.position + rng.normal(0, 100, 3), r_ap, v.sun)
+                geom[vid] = ImageGeometry.of(v.camera, v.position + rng.normal(0, 100, 3), r_ap, v.sun, datum_radius_m=DATUM_RADIUS_M)
                 truth[vid] = TruePose(v.camera, v.position, v.rotation)
             pid.append(ids[id(v)])
         pairs.append((pid[0], pid[1]))
-    overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
+    overlaps = [true_overlap(truth[a], truth[b], surface.height, datum_radius_m=DATUM_RADIUS_M) for a, b in pairs]
     base = MatchConfig(threads=2, max_sun_azimuth_difference_deg=180.0)
     variants = {
         "defaults (the 90 deg sun-azimuth pair skipped: the requirement check)": MatchConfig(threads=2),
@@ -223,7 +224,7 @@ def accuracy() -> None:
         m, reps = match_tile(images, geom, pairs, cfg, tracks=not title.startswith("track"))
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
-        err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
+        err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M)
         rows = [r.as_row() for r in reps]
         print(f"\n### {title}\n")
         print("| pair | status | route | matches | chain ratio>sym>F>H | ncc | kept>refined>local | flow moved/dropped | propagated | scale | d-inc | d-az | conv. deg | median px | p95 px | > 2 px |")
@@ -258,7 +259,7 @@ def a_priori_overlaps(ms: Any) -> tuple[list[str], list[Any], np.ndarray, np.nda
         cam_index.append(uniq.index(c))
     pos = np.array([ms.a_priori_pose(i)[0] for i in ids])
     rot = np.array([ms.a_priori_pose(i)[1] for i in ids])
-    g = overlap_graph(uniq, np.array(cam_index), pos, rot, min_fraction=0.02)
+    g = overlap_graph(uniq, np.array(cam_index), pos, rot, min_fraction=0.02, radius_m=DATUM_RADIUS_M)
     return ids, cams, pos, rot, [(ids[a], ids[b]) for a, b in zip(g.i, g.j)]
 
 
@@ -274,16 +275,16 @@ def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None =
         pairs = [pairs[k] for k in pick]
     used = sorted({x for p in pairs for x in p})
     images = {i: ms.read_image(i) for i in used}
-    geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, p, r in zip(ids, cams, pos, rot) if i in images}
+    geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i), datum_radius_m=DATUM_RADIUS_M) for i, c, p, r in zip(ids, cams, pos, rot) if i in images}
     truth = {i: TruePose(c, *ms.need_truth().true_pose(i)) for i, c in zip(ids, cams) if i in images}
     surface = ms.need_truth().surface()
-    overlaps = [true_overlap(truth[a], truth[b], surface.height) for a, b in pairs]
+    overlaps = [true_overlap(truth[a], truth[b], surface.height, datum_radius_m=DATUM_RADIUS_M) for a, b in pairs]
     t0 = time.perf_counter()
     m, reps = match_tile(images, geom, pairs, config or MatchConfig(threads=2))
     dt = time.perf_counter() - t0
     pa = np.stack([m.sample_a, m.line_a], -1)
     pb = np.stack([m.sample_b, m.line_b], -1)
-    err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
+    err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M)
     rows = [r.as_row() for r in reps]
     status: dict[str, int] = {}
     for r in reps:
@@ -338,7 +339,7 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
         for k in np.unique(which):
             s = np.flatnonzero(which == k)
             tp = truth[ids[k]]
-            g, hit = image_to_ground(tp.camera, tp.position, tp.rotation, points[s], height=surface.height)
+            g, hit = image_to_ground(tp.camera, tp.position, tp.rotation, points[s], height=surface.height, datum_radius_m=DATUM_RADIUS_M)
             out[s] = np.where(hit, fn(g, tp), np.nan)
         return out
 
@@ -348,7 +349,7 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
         return np.degrees(np.arccos(np.clip(np.sum(n * v, 1) / np.linalg.norm(v, axis=1), -1, 1)))
 
     def slope(g: np.ndarray, tp: TruePose) -> np.ndarray:
-        lat, lon, _ = xyz_to_latlon(g)
+        lat, lon, _ = xyz_to_latlon(g, datum_radius_m=DATUM_RADIUS_M)
         dd = 0.01
         h0 = surface.height(lat, lon)
         dy = np.radians(dd) * np.linalg.norm(g, axis=1)
@@ -362,7 +363,7 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
         for k in np.unique(which):
             s = np.flatnonzero(which == k)
             tp = truth[ids[k]]
-            g, hit = image_to_ground(tp.camera, tp.position, tp.rotation, points[s], height=surface.height)
+            g, hit = image_to_ground(tp.camera, tp.position, tp.rotation, points[s], height=surface.height, datum_radius_m=DATUM_RADIUS_M)
             va = tp.position - g
             vb = np.array([truth[ids[j]].position for j in other[s]]) - g
             cos = np.sum(va * vb, 1) / (np.linalg.norm(va, axis=1) * np.linalg.norm(vb, axis=1))
@@ -383,7 +384,7 @@ def tail_breakdown(ms: Any, m: Any, err: np.ndarray, rows: list[dict[str, Any]],
         def h_res(la: Any, lo: Any, res: float = res) -> Any:
             return surface.height(la, lo, res)
 
-        e_res[s] = true_errors(ids, ia[s], ib[s], pa[s], pb[s], truth, h_res)
+        e_res[s] = true_errors(ids, ia[s], ib[s], pa[s], pb[s], truth, h_res, datum_radius_m=DATUM_RADIUS_M)
     d = np.abs(e_res - e)
     print(f"\nsimilar illumination up to 4x: {sel.size} measures, median {np.median(e):.3f} px, p95 "
           f"{np.percentile(e, 95):.3f} px, > 0.5 px {100 * np.mean(e > 0.5):.1f} %; the true error on the surface "
@@ -470,7 +471,7 @@ def convergence_study() -> None:
             m, reps = match_tile(images, geom, [("v0", "v1")], MatchConfig(threads=2))
             pa = np.stack([m.sample_a, m.line_a], -1)
             pb = np.stack([m.sample_b, m.line_b], -1)
-            e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)
+            e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M)
             e = e[np.isfinite(e)]
             if e.size:
                 print(f"| {name} | {em} | {e.size} | {np.median(e):.3f} | {np.percentile(e, 95):.3f} | "
@@ -490,9 +491,9 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
     (:func:`mercury_dem.validate.matching.network_true_errors`).
     """
     from mercury_dem.config import Config
+    from mercury_dem.io.run_store import RunStore
     from mercury_dem.mission import open_mission
     from mercury_dem.network.build import build_network
-    from mercury_dem.io.run_store import RunStore
     from mercury_dem.pipeline.stages import tile_pairs
     from mercury_dem.validate.matching import network_true_errors, rays_histogram
 
@@ -522,7 +523,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         pix = {i: ms.read_image(i) for i in involved}
         cams = [ms.camera(i) for i in involved]
         poses = [ms.a_priori_pose(i) for i in involved]
-        geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i)) for i, c, (p, r) in zip(involved, cams, poses)}
+        geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i), datum_radius_m=DATUM_RADIUS_M) for i, c, (p, r) in zip(involved, cams, poses)}
         truth = {i: TruePose(c, *ms.need_truth().true_pose(i)) for i, c in zip(involved, cams)}
         t0 = time.perf_counter()
         m, reps = match_tile(pix, geom, pl, mcfg, tracks=tracks)
@@ -532,16 +533,16 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         n_match_rows += len(m)
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
-        pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height))
-        pair_across.append(true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height)[1])
+        pair_err.append(true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M))
+        pair_across.append(true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M)[1])
         pair_index.append(m.pair + len(all_rows))
         all_rows.extend(r.as_row() for r in reps)
-        overlaps.extend(true_overlap(truth[a], truth[b], surface.height) if a in truth and b in truth else 0.0
+        overlaps.extend(true_overlap(truth[a], truth[b], surface.height, datum_radius_m=DATUM_RADIUS_M) if a in truth and b in truth else 0.0
                         for a, b in pl)
         built = build_network(
             involved, m, cams, np.array([p for p, _ in poses]), np.array([r for _, r in poses]),
             tolerance_px=cfg.network.merge_tolerance_px, sigma_px=cfg.network.measure_sigma_px,
-        )
+         datum_radius_m=DATUM_RADIUS_M)
         net = built.network
         for key in ("n_conflicts", "n_conflict_observations", "n_links_pruned", "n_observations"):
             build_stats[key] = build_stats.get(key, 0) + getattr(built.stats, key)
@@ -549,7 +550,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
             continue
         rays_all.append(np.bincount(net.measure_point, minlength=net.n_points))
         errs.append(network_true_errors(involved, net.measure_point, net.measure_image,
-                                        np.stack([net.sample, net.line], -1), truth, surface.height))
+                                        np.stack([net.sample, net.line], -1), truth, surface.height, datum_radius_m=DATUM_RADIUS_M))
     rays = np.concatenate(rays_all) if rays_all else np.zeros(0, np.int64)
     hist = rays_histogram(np.repeat(np.arange(rays.size), rays))
     e = np.concatenate(errs) if errs else np.zeros(0)

@@ -38,7 +38,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.ndimage import gaussian_filter
 
 from mercury_dem.config.match import MatchConfig
-from mercury_dem.geometry.body import xyz_to_latlon
+from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
 from mercury_dem.geometry.pose import image_to_ground, rotation_from_angles
 from mercury_dem.match import ImageGeometry, match_tile
 from mercury_dem.match.ortho import match_pair_on_surface
@@ -95,8 +95,8 @@ def lowpass_height(height: Any, g: ImageGeometry, sigma_m: float, margin_px: flo
     """
     cam = g.camera
     ss, ll = np.meshgrid(np.linspace(-margin_px, cam.samples + margin_px, 9), np.linspace(-margin_px, cam.lines + margin_px, 9))
-    gr, hit = image_to_ground(cam, g.position, g.rotation, np.stack([ss.ravel(), ll.ravel()], -1))
-    lat, lon, _ = xyz_to_latlon(gr[hit])
+    gr, hit = image_to_ground(cam, g.position, g.rotation, np.stack([ss.ravel(), ll.ravel()], -1), datum_radius_m=DATUM_RADIUS_M)
+    lat, lon, _ = xyz_to_latlon(gr[hit], datum_radius_m=DATUM_RADIUS_M)
     lon = np.where(lon > 180, lon - 360, lon)
     spacing = min(sigma_m / 3.0, 600.0)
     dlat = spacing / (np.radians(1.0) * 2439.4e3)
@@ -118,7 +118,7 @@ def lowpass_height(height: Any, g: ImageGeometry, sigma_m: float, margin_px: flo
 def _errors(pair: tuple[str, str], pa: np.ndarray, pb: np.ndarray, truth: Any, height: Any) -> tuple[np.ndarray, np.ndarray]:
     ids = list(pair)
     ia, ib = np.zeros(len(pa), np.int64), np.ones(len(pa), np.int64)
-    return true_error_components(ids, ia, ib, pa, pb, truth, height)
+    return true_error_components(ids, ia, ib, pa, pb, truth, height, datum_radius_m=DATUM_RADIUS_M)
 
 
 def run_pairs(images: Any, geom: Any, truth: Any, pairs: Any, height_true: Any, variants: Any, tag: str) -> list[Any]:
@@ -144,14 +144,14 @@ def run_pairs(images: Any, geom: Any, truth: Any, pairs: Any, height_true: Any, 
                 h, r, s = lowpass_height(height_true, geom[a], hspec)
                 rmse[name] = (r, s)
             if poses == "true":
-                mg = {k: ImageGeometry.of(truth[k].camera, truth[k].position, truth[k].rotation, geom[k].sun_position) for k in (a, b)}
+                mg = {k: ImageGeometry.of(truth[k].camera, truth[k].position, truth[k].rotation, geom[k].sun_position, datum_radius_m=DATUM_RADIUS_M) for k in (a, b)}
             elif poses == "apriori":
                 mg = geom
             else:
                 rng = np.random.default_rng(sum(map(ord, a + b)))
                 mg = {k: ImageGeometry.of(truth[k].camera, truth[k].position,
                                           rotation_from_angles(rng.normal(0, poses * truth[k].camera.ifov_rad, 3)) @ truth[k].rotation,
-                                          geom[k].sun_position) for k in (a, b)}
+                                          geom[k].sun_position, datum_radius_m=DATUM_RADIUS_M) for k in (a, b)}
             qa, qb = match_pair_on_surface(images, geom, mg, (a, b), h, CFG, stride=STRIDE)
             res[name] = _errors((a, b), qa, qb, truth, height_true)
         line = f"{tag} {a}->{b} conv {rep.convergence_deg:5.1f} {cls:9s}"
@@ -222,7 +222,7 @@ def main() -> None:
     path, n_pairs = pos[1], int(pos[2])
     ms = open_mission(path)
     ids, cams, p, r, overlaps = a_priori_overlaps(ms)
-    geom = {i: ImageGeometry.of(c, pp, rr, ms.sun_position(i)) for i, c, pp, rr in zip(ids, cams, p, r)}
+    geom = {i: ImageGeometry.of(c, pp, rr, ms.sun_position(i), datum_radius_m=DATUM_RADIUS_M) for i, c, pp, rr in zip(ids, cams, p, r)}
     similar = []
     for a, b in overlaps:
         pg = pair_geometry(geom[a], geom[b])

@@ -51,7 +51,7 @@ def first_hit(camera: Any, position: Any, rotation: Any, pixels: np.ndarray, hei
     s1 = np.where(hit_top, s1, 1.0)
     k_steps = int(np.ceil(np.max(s1 - s0) / step_m)) + 1
     s = s0[:, None] + np.linspace(0.0, 1.0, k_steps)[None, :] * (s1 - s0)[:, None]
-    lat, lon, h = xyz_to_latlon((o[:, None, :] + s[..., None] * d[:, None, :]).reshape(-1, 3))
+    lat, lon, h = xyz_to_latlon((o[:, None, :] + s[..., None] * d[:, None, :]).reshape(-1, 3), datum_radius_m=DATUM_RADIUS_M)
     below = (h - height(lat, lon)).reshape(s.shape) <= 0
     k = np.argmax(below, axis=1)
     ok = hit_top & below.any(axis=1) & (k > 0)
@@ -59,7 +59,7 @@ def first_hit(camera: Any, position: Any, rotation: Any, pixels: np.ndarray, hei
     a, b = s[rows, np.maximum(k - 1, 0)], s[rows, k]
     for _ in range(30):  # bisection to 20 km / 2^30
         m = 0.5 * (a + b)
-        lat, lon, h = xyz_to_latlon(o + m[:, None] * d)
+        lat, lon, h = xyz_to_latlon(o + m[:, None] * d, datum_radius_m=DATUM_RADIUS_M)
         above = h - height(lat, lon) > 0
         a, b = np.where(above, m, a), np.where(above, b, m)
     out = o + (0.5 * (a + b))[:, None] * d
@@ -85,7 +85,7 @@ def main() -> None:
         for key in np.unique(keys):
             sel = np.flatnonzero(keys == key)
             ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
-            g_fp, _ = image_to_ground(ta.camera, ta.position, ta.rotation, pa[sel], height=height)
+            g_fp, _ = image_to_ground(ta.camera, ta.position, ta.rotation, pa[sel], height=height, datum_radius_m=DATUM_RADIUS_M)
             g = first_hit(ta.camera, ta.position, ta.rotation, pa[sel], height)
             ok = np.isfinite(g).all(axis=1)
             px, depth = project(tb.camera, tb.position, tb.rotation, np.where(ok[:, None], g, 0.0))

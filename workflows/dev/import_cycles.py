@@ -3,8 +3,10 @@
 Usage: ``python workflows/dev/import_cycles.py [REPO_ROOT]`` (default: this checkout). Prints every cycle
 (an SCC of more than one module) and their count; used for the before/after table in docs/design.md.
 """
-import ast, sys
+import ast
+import sys
 from pathlib import Path
+
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[2]
 mods = {}
 for p in (root / "mercury_dem").rglob("*.py"):

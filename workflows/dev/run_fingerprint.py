@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 #: Columns of a run's tables that hold wall-clock times, not results.
 TIME_COLUMNS = frozenset({"seconds", "started_at", "finished_at"})
 
