@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -150,8 +151,8 @@ def read_shape_cube(path: str | Path) -> xr.DataArray:
     if cube.pixel_type == "Real":
         raise _fail(path, "Real pixels: a LOLA LDEM stores SignedWord DN with Base/Multiplier (units unknown)")
     label = cube.label.get("IsisCube", {})
-    mapping = label.get("Mapping") if hasattr(label, "get") else None
-    if not hasattr(mapping, "get"):
+    mapping = label.get("Mapping") if isinstance(label, Mapping) else None
+    if not isinstance(mapping, Mapping):
         raise _fail(path, "no IsisCube/Mapping group: not a map-projected cube")
     proj = str(mapping.get("ProjectionName", "")).strip()
     if proj.lower() not in ("simplecylindrical", "equirectangular"):
