@@ -336,24 +336,3 @@ def shape_check(elevation: xr.DataArray, *, body_name: str, datum_radius_m: floa
         out["status"] = "ok"
     return out
 
-
-def shape_check_lines(check: dict[str, Any] | None) -> list[str]:
-    """The printed form of a run's shape check (report and verify); ``[]`` for a run without one."""
-    if not check:
-        return []
-    status = check.get("status")
-    if status == "not_compared":
-        return [f"DEM minus the body's shape: not compared ({check.get('reason')})"]
-    shape = check.get("shape") or {}
-    lines = [f"DEM minus the body's shape ({shape.get('name')}, {shape.get('resolution_km', float('nan')):.0f} km): "
-             f"bias {check['bias_m']:+.1f} m, RMSE {check['rmse_m']:.1f} m, std {check['std_m']:.1f} m "
-             f"({check['n']} pixels)"]
-    bands = [b for b in check.get("by_latitude") or [] if b.get("n")]
-    if bands:
-        lines.append("  by latitude band (bias / RMSE, m): " + "; ".join(
-            f"{b['lat_min']:+.0f}..{b['lat_max']:+.0f}: {b['bias_m']:+.0f} / {b['rmse_m']:.0f}" for b in bands))
-    if status == "gross_error":
-        lines.append(f"ERROR: the DEM's bias against {shape.get('name')} is {check['bias_m'] / 1000:+.1f} km, beyond "
-                     f"the gross-error bound of {shape.get('gross_bias_m', float('nan')) / 1000:.0f} km for "
-                     f"{str(check.get('body', '')).title()}: {check.get('cause')}")
-    return lines

@@ -21,8 +21,8 @@ from mercury_dem.reference.body_shape import (
     body_shape,
     read_shape_cube,
     shape_check,
-    shape_check_lines,
 )
+from mercury_dem.pipeline.reference_check import shape_check_lines
 
 ROOT = Path(__file__).resolve().parents[2]
 LDEM_SHA256 = "4d6e40bdf778c837a9f30a178b74e0db2c6111dc3a7a51a5a2e60ea6544d7b65"  # tests/data/real/SOURCE.md
