@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
-              "children", "altimetry", "point_prior", "levelling", "underdetermined_points", "weak_images",
+              "children", "altimetry", "point_prior", "point_prior_centre", "levelling", "underdetermined_points", "weak_images",
               "images_without_measures", "single_measure_points")
 
 
