@@ -47,12 +47,15 @@ def on_datum(xyz: NDArray[np.float64], datum_radius_m: float) -> NDArray[np.floa
     return np.where(r > 0, xyz * (datum_radius_m / np.where(r > 0, r, 1.0)), xyz)
 
 
-def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: float) -> Any:
+def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: float,
+                        shape: Any = None) -> Any:
     """The problem with its free points' a-priori coordinates (their radius constraints' centre) as configured.
 
-    ``point_prior_center == "datum"``: every point that is not held moves onto the datum sphere
-    (:func:`on_datum`); held points (ground control) keep theirs. Any other value (``"triangulated"``):
-    the problem unchanged.
+    ``point_prior_center == "shape"`` with a ``shape``: every point that is not held moves, along its
+    direction, onto the body's shape (:meth:`~mercury_dem.reference.body_shape.BodyShape.radius_at_xyz`),
+    as ISIS's ``spiceinit shape=`` places a-priori points on a DEM; without a shape, and with
+    ``"datum"``: onto the datum sphere (:func:`on_datum`). Held points (ground control) keep theirs.
+    Any other value (``"network"``): the problem unchanged.
 
     Parameters
     ----------
@@ -60,15 +63,25 @@ def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: f
     point_prior_center : str
         ``AdjustConfig.point_prior_center``.
     datum_radius_m : float
+    shape : BodyShape or None
+        The body's shape (a real mission's); None: the datum sphere.
 
     Returns
     -------
     AdjustmentProblem
     """
-    if point_prior_center != "datum":
+    if point_prior_center not in ("datum", "shape"):
         return problem
     held = np.asarray(problem.held_points, bool)[:, None]
-    return dataclasses.replace(problem, points=np.where(held, problem.points, on_datum(problem.points, datum_radius_m)))
+    pts = np.asarray(problem.points, np.float64)
+    if point_prior_center == "shape" and shape is not None:
+        r = np.linalg.norm(pts, axis=1, keepdims=True)
+        target = np.asarray(shape.radius_at_xyz(pts), np.float64)[:, None]
+        ok = (r > 0) & np.isfinite(target)
+        placed = np.where(ok, pts * (np.where(ok, target, 1.0) / np.where(r > 0, r, 1.0)), on_datum(pts, datum_radius_m))
+    else:
+        placed = on_datum(pts, datum_radius_m)
+    return dataclasses.replace(problem, points=np.where(held, pts, placed))
 
 
 def neighbour_radii(points_xyz: ArrayLike, usable: ArrayLike | None = None, k: int = 50) -> NDArray[np.float64]:

@@ -29,10 +29,18 @@ class AdjustConfig(ConfigSection):
         10000.0, "A-priori point radius constraint (1 sigma; null: none)", unit="m", lo=1e-6
     )
     point_prior_center: str = param(
-        "datum", "Where the point constraints are centred (and points start): 'datum' puts each a-priori point "
-        "on the datum sphere along its direction (as ISIS does with an ellipsoid shape model); 'network' uses the "
-        "network's a-priori coordinates (rays intersected with the a-priori pointing, biased by its errors)",
-        choices=("datum", "network"),
+        "shape", "Where the point constraints are centred (and points start): 'shape' puts each a-priori point "
+        "on the body's known shape along its direction (GTMES for Mercury, LOLA LDEM_4 for the Moon, as ISIS's "
+        "spiceinit shape= does), with the radius sigma point_prior_shape_sigma_m, so a block without altimetry "
+        "does not float; where the run has no shape (a synthetic mission, a body without one) it is 'datum'. "
+        "'datum' puts each point on the datum sphere (as ISIS does with an ellipsoid shape model); 'network' "
+        "uses the network's a-priori coordinates (rays intersected with the a-priori pointing, biased by its errors)",
+        choices=("shape", "datum", "network"),
+    )
+    point_prior_shape_sigma_m: float | None = param(
+        None, "Radius constraint (1 sigma) of points centred on the body's shape (point_prior_center: shape); "
+        "null: the shape's own (1000 m: the relief a 23-50 km shape model lacks). Replaces radius_sigma_m there; "
+        "altimetry-constrained points keep theirs", unit="m", lo=1e-6,
     )
     point_prior_recentre_levels: tuple[str, ...] = param(
         ("global",), "Levels whose point radius constraints may be re-centred on the block's own surface: a first "

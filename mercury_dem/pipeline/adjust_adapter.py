@@ -7,6 +7,7 @@ unit's summary (the ``levels`` rows of report.json).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,6 +45,7 @@ def adjust_network(
     recentre_point_priors: bool = False,
     level: str | None = None,
     engine_factory: Any = None,
+    prior_shape: Any = None,
 ) -> UnitAdjustment:
     """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
 
@@ -64,6 +66,13 @@ def adjust_network(
     datum sphere — when the block calls for it (:func:`~mercury_dem.altimetry.levelling.levelling_for`: wide
     enough to carry its own surface, not mostly held by the altimetry); the decision is the summary's
     ``levelling``.
+
+    ``prior_shape`` (:class:`~mercury_dem.reference.body_shape.BodyShape`, a real mission's body shape): with
+    ``config.point_prior_center == "shape"`` the free points start on it and their radius constraint is
+    ``config.point_prior_shape_sigma_m`` (else the shape's ``prior_sigma_m``) instead of ``radius_sigma_m``
+    (altimetry-constrained points keep the altimetry's); the block is not re-centred on its own surface (the
+    shape carries the long wavelengths re-centring is for). None: the datum sphere; the summary's
+    ``point_prior_centre`` says which.
 
     ``level``: the unit's level; a unit of ``config.blocked_levels`` with at least
     ``config.blocked_min_measures`` measures is adjusted over point blocks
@@ -90,13 +99,30 @@ def adjust_network(
 
         def solve(p: Any, c: AdjustConfig) -> Any:
             return blocked_bundle_adjust(p, c, block_points=cfg.blocked_block_points, engine_factory=engine_factory)
-    problem = centre_point_priors(problem, cfg.point_prior_center, datum_radius_m)
+    on_shape = cfg.point_prior_center == "shape" and prior_shape is not None
+    problem = centre_point_priors(problem, cfg.point_prior_center, datum_radius_m, shape=prior_shape)
+    if on_shape:
+        sigma = cfg.point_prior_shape_sigma_m or float(prior_shape.prior_sigma_m)
+        cfg = dataclasses.replace(cfg, radius_sigma_m=sigma)
+        centre: dict[str, Any] = {"centre": "shape", "shape": prior_shape.name, "radius_sigma_m": sigma}
+    elif cfg.point_prior_center in ("datum", "shape"):
+        centre = {"centre": "datum", "datum_radius_m": float(datum_radius_m), "radius_sigma_m": cfg.radius_sigma_m}
+        if cfg.point_prior_center == "shape":
+            centre["why"] = "no shape model for this run (a synthetic mission or a body without one)"
+    else:
+        centre = {"centre": "network", "radius_sigma_m": cfg.radius_sigma_m}
     prior_summary: dict[str, Any] | None = None
     decision = None
     if recentre_point_priors:
         from mercury_dem.altimetry.levelling import levelling_for, recentres
 
         decision = levelling_for(problem.points, cfg, altimetry)
+        if on_shape and decision.level_to_mean:  # (not held by the altimetry: that reason stands)
+            decision = dataclasses.replace(decision, recentre=False, reason=(
+                f"the block spans {decision.extent_deg:.1f} deg and the altimetry constrains "
+                f"{decision.altimetry_share:.0%} of its points; the others are centred on the body's shape "
+                f"({prior_shape.name}), which carries the long wavelengths re-centring is for: not re-centred "
+                "(levelled on the shots' mean if registered)"))
         if recentres(decision, cfg):
             problem, prior_summary = recentre_on_block(problem, cfg, datum_radius_m, adjust=solve)
     altimetry_summary: dict[str, Any] | None = None
@@ -141,6 +167,7 @@ def adjust_network(
         summary["blocked"] = result.extra.get("blocked")
     if altimetry_summary is not None:
         summary["altimetry"] = altimetry_summary
+    summary["point_prior_centre"] = centre
     if prior_summary is not None:
         summary["point_prior"] = prior_summary
     if decision is not None:

@@ -191,6 +191,12 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
         from mercury_dem.pipeline.reference_check import compare_with_references
 
         out["reference"] = compare_with_references(open_dem(store.dem_path), body, ref)
+    from mercury_dem.pipeline.reference_check import check_against_body_shape
+
+    out["shape_check"] = check_against_body_shape(open_dem(store.dem_path), mission, ref.max_point_distance_m)
+    if out["shape_check"].get("status") == "gross_error":
+        rep.message(f"ERROR: DEM minus the body's shape: bias {out['shape_check']['bias_m']:+.0f} m "
+                    f"({out['shape_check']['cause']})")
     registration = register_to_mission_altimetry(store, mission, config, client, rep)
     if registration is not None:
         out["registration"] = registration

@@ -17,6 +17,47 @@ if TYPE_CHECKING:  # annotations only: 'mercury-dem report' prints reference_tab
     import xarray as xr
 
     from mercury_dem.geometry.body import Body
+    from mercury_dem.reference.body_shape import BodyShape
+
+
+def mission_body_shape(mission: Any) -> tuple[BodyShape | None, str | None]:
+    """The shape a mission's DEM is checked against: (shape, None) or (None, why there is none).
+
+    A real mission: its body's packaged shape (:func:`mercury_dem.reference.body_shape.body_shape`:
+    GTMES for Mercury, LOLA LDEM_4 reduced for the Moon). A synthetic mission's body is its truth
+    surface, not the real body: it is checked against GTMES only when that surface is built on it
+    (the ``demo`` preset's long wavelengths); otherwise its truth is the check (``validation``).
+    """
+    from mercury_dem.reference.body_shape import body_shape
+    from mercury_dem.reference.sha import GTMES_PACKAGED
+
+    body = mission.body
+    if mission.truth is not None:
+        params = getattr(mission.truth.surface(), "params", None)
+        if body.name == "MERCURY" and getattr(params, "shape_harmonics", "") == GTMES_PACKAGED:
+            return body_shape(body.name), None
+        return None, ("a synthetic body whose surface is not built on a shape model: its truth is the check "
+                      "(validation, DEM minus truth)")
+    shape = body_shape(body.name)
+    return shape, None if shape is not None else f"no packaged shape model of {body.name.title()}"
+
+
+def check_against_body_shape(dem: xr.Dataset, mission: Any, max_point_distance_m: float) -> dict[str, Any]:
+    """Every run's DEM minus its body's shape (:func:`mercury_dem.reference.body_shape.shape_check`), on the
+    body's datum (not the DEM's stated one: a DEM gridded on the wrong datum is what this catches), over
+    the pixels within ``max_point_distance_m`` of a control point. A shape that cannot be read is said so.
+    """
+    from mercury_dem.exceptions import ReferenceDataError
+    from mercury_dem.reference.body_shape import shape_check
+
+    body = mission.body
+    try:
+        shape, why = mission_body_shape(mission)
+    except (ReferenceDataError, OSError) as exc:
+        return {"status": "not_compared", "body": body.name, "reason": f"the shape model cannot be read ({exc})"}
+    elev = dem["elevation"].where(dem["distance_to_nearest_point"] <= max_point_distance_m).load()
+    return shape_check(elev, body_name=body.name, datum_radius_m=body.datum_radius_m, shape=shape,
+                       reason_without=why)
 
 
 def compare_with_references(dem: xr.Dataset, body: Body, cfg: Any) -> dict[str, Any]:
@@ -100,3 +141,25 @@ def reference_by_map_table(by_map: dict[str, Any]) -> str:
         else:
             parts.append(reference_table(ref).replace("DEM minus reference", f"{key.capitalize()} DEM minus reference", 1))
     return "".join(parts)
+
+
+def shape_check_lines(check: dict[str, Any] | None) -> list[str]:
+    """The printed form of a run's shape check (``dem.shape_check``; report and verify); ``[]`` for a run without one."""
+    if not check:
+        return []
+    status = check.get("status")
+    if status == "not_compared":
+        return [f"DEM minus the body's shape: not compared ({check.get('reason')})"]
+    shape = check.get("shape") or {}
+    lines = [f"DEM minus the body's shape ({shape.get('name')}, {shape.get('resolution_km', float('nan')):.0f} km): "
+             f"bias {check['bias_m']:+.1f} m, RMSE {check['rmse_m']:.1f} m, std {check['std_m']:.1f} m "
+             f"({check['n']} pixels)"]
+    bands = [b for b in check.get("by_latitude") or [] if b.get("n")]
+    if bands:
+        lines.append("  by latitude band (bias / RMSE, m): " + "; ".join(
+            f"{b['lat_min']:+.0f}..{b['lat_max']:+.0f}: {b['bias_m']:+.0f} / {b['rmse_m']:.0f}" for b in bands))
+    if status == "gross_error":
+        lines.append(f"ERROR: the DEM's bias against {shape.get('name')} is {check['bias_m'] / 1000:+.1f} km, beyond "
+                     f"the gross-error bound of {shape.get('gross_bias_m', float('nan')) / 1000:.0f} km for "
+                     f"{str(check.get('body', '')).title()}: {check.get('cause')}")
+    return lines

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
-              "children", "altimetry", "point_prior", "levelling", "underdetermined_points", "weak_images",
+              "children", "altimetry", "point_prior", "point_prior_centre", "levelling", "underdetermined_points", "weak_images",
               "images_without_measures", "single_measure_points")
 
 
@@ -238,10 +238,13 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         d = v.get("dem")
         if d:
             w(dem_validation_table(d))
-    from mercury_dem.pipeline.reference_check import reference_by_map_table, reference_table
+    from mercury_dem.pipeline.reference_check import reference_by_map_table, reference_table, shape_check_lines
 
     w(reference_table((report.get("dem") or {}).get("reference") or {}))
     w(reference_by_map_table((report.get("dem") or {}).get("reference_by_map") or {}))
+    shape_lines = shape_check_lines((report.get("dem") or {}).get("shape_check"))
+    if shape_lines:
+        w("\n" + "\n".join(shape_lines) + "\n")
     for rel, why in ((report.get("dem") or {}).get("products_skipped") or {}).items():
         w(f"not written: products/{rel} ({why})\n")
     tm = report.get("timings", {})

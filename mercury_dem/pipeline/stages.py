@@ -335,7 +335,7 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
                          initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
                          altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
                          recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
-                         engine_factory=engine_factory)
+                         engine_factory=engine_factory, prior_shape=prior_shape_of(mission))
     adjustment = dict(adj.summary)
     adjustment["images_without_measures"] = sorted(set(singular["images_without_measures"])
                                                    | set(adj.summary.get("images_without_measures", [])))
@@ -344,6 +344,18 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
     solution = UnitSolution(np.array(ids), adj.rotations, adj.positions,
                             {"n_measures": adj.image_measures, "rms_px": adj.image_rms_px})
     return summary, UnitFiles(network=adj.network, solution=solution, bundleout=adj.text_report)
+
+
+def prior_shape_of(mission: Mission) -> Any:
+    """The shape a real mission's free tie points start on (its body's packaged shape), None for a synthetic
+    mission (its body is its truth surface, not the real one; its points stay on the datum as before) or a body
+    without a packaged shape.
+    """
+    if mission.truth is not None:
+        return None
+    from mercury_dem.reference.body_shape import body_shape
+
+    return body_shape(mission.body.name)
 
 
 def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) -> Any:

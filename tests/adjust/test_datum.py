@@ -155,3 +155,27 @@ def test_centre_point_priors_moves_free_points_onto_the_datum_and_keeps_held_one
     np.testing.assert_array_equal(out.points[held], pts[held])
     u_in, u_out = pts / np.linalg.norm(pts, axis=1)[:, None], out.points / r[:, None]
     np.testing.assert_allclose(u_out, u_in, atol=1e-12)  # directions kept
+
+
+def test_centre_point_priors_on_the_bodys_shape() -> None:
+    """'shape': free points move along their directions onto GTMES; held ones stay; no shape: the datum."""
+    import dataclasses
+
+    from mercury_dem.reference.body_shape import body_shape
+
+    rng = np.random.default_rng(12)
+    net = make_synthetic_network(200, rng=np.random.default_rng(6))
+    pts = net.problem.points * (1 + rng.uniform(-1e-3, 1e-3, (net.problem.n_points, 1)))
+    held = np.zeros(net.problem.n_points, bool)
+    held[:3] = True
+    problem = dataclasses.replace(net.problem, points=pts, held_points=held)
+    shape = body_shape("MERCURY")
+    assert shape is not None
+    out = centre_point_priors(problem, "shape", DATUM_RADIUS_M, shape=shape)
+    r = np.linalg.norm(out.points, axis=1)
+    np.testing.assert_allclose(r[~held], shape.radius_at_xyz(pts)[~held], rtol=1e-12)
+    assert np.ptp(r[~held]) > 10.0  # the shape's relief, not a sphere
+    np.testing.assert_array_equal(out.points[held], pts[held])
+    np.testing.assert_allclose(out.points / r[:, None], pts / np.linalg.norm(pts, axis=1)[:, None], atol=1e-12)
+    on_sphere = centre_point_priors(problem, "shape", DATUM_RADIUS_M, shape=None)
+    np.testing.assert_allclose(np.linalg.norm(on_sphere.points, axis=1)[~held], DATUM_RADIUS_M, rtol=1e-12)

@@ -67,6 +67,12 @@ def test_moon_dem_products_and_lola_comparison(apollo_run: Path) -> None:
     # LDEM_4 has 0.75-degree (23 km) pixels: it cannot resolve the crops' relief (DEM std ~1.4 km),
     # so only a loose agreement is expected; an uncontrolled block floats by a few hundred metres.
     assert ldem["n"] > 1000 and abs(ldem["bias_m"]) < 400 and ldem["std_m"] < 900
+    # Every run checks its DEM against the body's shape (the packaged LOLA LDEM_4 reduced), and the free points
+    # start on it (1 km sigma): -72 m against LDEM with the datum prior, +93 m with the shape (2026-12-02)
+    check = rep["dem"]["shape_check"]
+    assert check["status"] == "ok" and check["shape"]["body"] == "MOON" and abs(check["bias_m"]) < 150
+    assert abs(ldem["bias_m"]) < 150
+    assert rep["levels"]["global"]["point_prior_centre"]["centre"] == "shape"
     shots = next(v for k, v in ref.items() if k.startswith("altimetry:"))
     assert "no DEM pixel" in shots["error"]  # the 55 LOLA shots here lie elsewhere on the Moon: said so
 

@@ -30,3 +30,10 @@ def test_stereo_pair_runs_and_is_compared_with_mla(tmp_path: Path) -> None:
     # Degree 148 resolves ~52 km: the pair's 60-km overlap is one or two wavelengths, so the spread
     # holds the relief the shape model lacks; an uncontrolled pair floats by a few hundred metres.
     assert shape["n"] > 500 and abs(shape["bias_m"]) < 1000 and shape["std_m"] < 1000
+    # Without altimetry the points start on GTMES (1 km sigma) instead of the datum sphere: the pair no longer
+    # floats (-482 m, RMSE 651 m, with the datum prior; +23 m, RMSE 368 m with the shape, 2026-12-02).
+    assert g["point_prior_centre"]["centre"] == "shape"
+    check = rep["dem"]["shape_check"]
+    assert check["status"] == "ok" and abs(check["bias_m"]) < 150 and check["shape"]["name"].startswith("GTMES")
+    assert abs(shape["bias_m"]) < 150
+    assert main(["verify", str(tmp_path / "run")]) == 0
