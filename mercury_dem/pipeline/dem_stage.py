@@ -512,8 +512,8 @@ def grid_dem(
         raise StoreError(f"{out_path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
     pts = np.asarray(points_xyz, dtype=np.float64)
     n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
-    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's footprint (mercury_dem.dem.extent)
-        cfg = config_with_extent(cfg, pts, body.datum_radius_m)
+    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's box (mercury_dem.dem.extent)
+        cfg = config_with_extent(cfg, pts)
     grid = GridSpec.from_config(cfg, body.datum_radius_m)
     est = check_memory(grid, max(n_points, 0), cfg)
     if n_points == 0:
@@ -652,7 +652,7 @@ def regrid_failed_chunks(
     cfg = _dem_config(config)
     pts = np.asarray(points_xyz, dtype=np.float64)
     if pts.ndim == 2 and pts.shape[0] and cfg.extent_from_points:
-        cfg = config_with_extent(cfg, pts, body.datum_radius_m)
+        cfg = config_with_extent(cfg, pts)
     grid = GridSpec.from_config(cfg, body.datum_radius_m)
     failed = failed_chunks_of(path)
     group = zarr.open_group(str(path), mode="r+")
