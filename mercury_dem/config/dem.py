@@ -56,10 +56,18 @@ class DemConfig(ConfigSection):
         32, "shepard: at most this many nearest points inside the search radius are weighted", lo=1, hi=10000
     )
     max_distance_m: float = param(
-        50_000.0,
-        "A pixel whose nearest point is farther than this has no value (NaN, counted as a gap)",
+        0.0,
+        "A pixel whose nearest point is farther than this has no value (NaN, counted as a gap); "
+        "0 = from the points' spacing (no_value_spacing_factor)",
         unit="m",
         lo=0.0,
+    )
+    no_value_spacing_factor: float = param(
+        5.0,
+        "With max_distance_m = 0: no value beyond this many times the points' typical gap, the median "
+        "distance from a place in their bounding box to its nearest point (and never below one pixel; "
+        "mercury_dem.dem.spacing)",
+        lo=0.01, hi=1e6,
     )
     # --- smoothing after gridding -----------------------------------------------------------
     smoothing_passes: int = param(1, "Passes of the NaN-aware box (averaging) filter; 0 = none", lo=0, hi=100)
