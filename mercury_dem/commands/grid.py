@@ -4,6 +4,11 @@ A standalone use of the DEM stage, e.g. on a point cloud exported from elsewhere
 POINTS is a ``.npy`` array (N, 3) of body-fixed XYZ metres, or a ``.csv`` with either
 columns ``x,y,z`` (metres) or ``lat,lon,radius`` (degrees, degrees, metres), named in a
 header line (without a header the three columns are read as x, y, z).
+
+The map covers the points: their bounding box plus ``dem.canvas_margin_pixels``, snapped to the
+pixel grid (:mod:`mercury_dem.dem.extent`), unless ``--bounds W E S N`` (or the configuration's
+``dem.lat_min`` ... ``dem.lon_max``) fixes it. Pixels farther from every point than the no-value
+distance have no value; by default it follows the points' spacing (:mod:`mercury_dem.dem.spacing`).
 """
 
 from __future__ import annotations
@@ -32,6 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="DIR", required=True, help="output directory (dem.zarr and coverage.zarr go there)")
     p.add_argument("--method", choices=("median11", "shepard"), help="override dem.method")
     p.add_argument("--ppd", type=float, metavar="N", help="override dem.pixels_per_degree")
+    p.add_argument("--bounds", type=float, nargs=4, metavar=("W", "E", "S", "N"),
+                   help="the map's west, east, south and north edges in degrees (east-positive; whole pixels), "
+                        "overriding dem.lon_min/lon_max/lat_min/lat_max; default: the points' box plus a margin")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="Dask LocalCluster workers (0 = grid in this process; same result)")
     p.add_argument("--no-coverage", action="store_true", help="skip the point-cloud coverage analysis")
@@ -97,6 +105,12 @@ def run(args: argparse.Namespace, config: Any) -> int:
         changes["method"] = args.method
     if args.ppd is not None:
         changes["pixels_per_degree"] = args.ppd
+    if args.bounds is not None:
+        w, e, south, north = args.bounds
+        if not (w < e <= w + 360.0 and -90.0 <= south < north <= 90.0):
+            raise ConfigError(f"--bounds W E S N = {w:g} {e:g} {south:g} {north:g}: need W < E <= W + 360 and "
+                              f"-90 <= S < N <= 90 (degrees, east-positive longitudes)")
+        changes.update(lon_min=w, lon_max=e, lat_min=south, lat_max=north)
     try:
         dem = dataclasses.replace(dem, **changes)  # validated again on construction
     except ConfigError as exc:
@@ -116,10 +130,12 @@ def run(args: argparse.Namespace, config: Any) -> int:
     finally:
         if writer is not None:
             writer.abort()  # a no-op once the store is complete; else the child stops unmarked
+    lat0, lat1, lon0, lon1 = summary["grid_bounds_deg"]
     print(f"gridded {summary['n_points']} points into {summary['path']} "
           f"({summary['shape'][0]} x {summary['shape'][1]}, {summary['method']}, {summary['n_chunks']} chunks) "
           f"in {summary['seconds']:.1f} s; {summary['no_value_pixels']} pixels without value "
-          f"({100 * summary['no_value_fraction']:.2f} %)")
+          f"({100 * summary['no_value_fraction']:.2f} %, farther than {summary['no_value_distance_m']:.0f} m "
+          f"from every point); map lat {lat0:g}..{lat1:g}, lon {lon0:g}..{lon1:g}")
     if summary["coverage"]:
         print("coverage: " + json.dumps({k: summary["coverage"][k] for k in
                                          ("pixel_km", "occupied_fraction", "share_with_1", "share_with_2",

@@ -20,8 +20,8 @@ class DemConfig(ConfigSection):
 
     # --- the grid ---------------------------------------------------------------------------
     pixels_per_degree: float = param(64.0, "Output grid resolution", unit="pixel/deg", lo=0.01, hi=4096.0)
-    # Bounds left unset (None) are taken from the control points: their footprint plus
-    # max_distance_m, snapped outward to whole degrees (mercury_dem.dem.extent.config_with_extent,
+    # Bounds left unset (None) are taken from the control points: their bounding box plus
+    # canvas_margin_pixels, snapped outward to the pixel grid (mercury_dem.dem.extent.config_with_extent,
     # which imports this module: config never imports dem/); all four
     # unset on a global cloud give the globe. Set them to fix the map's extent.
     lat_min: float | None = param(None, "Southern edge of the grid; unset: from the points", unit="deg",
@@ -32,6 +32,10 @@ class DemConfig(ConfigSection):
                                   unit="deg", lo=-360.0, hi=360.0)
     lon_max: float | None = param(None, "Eastern edge of the grid (east-positive); unset: from the points",
                                   unit="deg", lo=-360.0, hi=720.0)
+    canvas_margin_pixels: int = param(
+        1, "Bounds taken from the points: their bounding box widened by this many pixels on each side, then "
+        "snapped outward to whole pixels", unit="pixel", lo=0, hi=100000,
+    )
     # --- the interpolator -------------------------------------------------------------------
     method: str = param("median11", "Gridding method", choices=("median11", "shepard"))
     neighbours: int = param(11, "Nearest points used per pixel by median11", lo=1, hi=1000)
@@ -52,10 +56,18 @@ class DemConfig(ConfigSection):
         32, "shepard: at most this many nearest points inside the search radius are weighted", lo=1, hi=10000
     )
     max_distance_m: float = param(
-        50_000.0,
-        "A pixel whose nearest point is farther than this has no value (NaN, counted as a gap)",
+        0.0,
+        "A pixel whose nearest point is farther than this has no value (NaN, counted as a gap); "
+        "0 = from the points' spacing (no_value_spacing_factor)",
         unit="m",
         lo=0.0,
+    )
+    no_value_spacing_factor: float = param(
+        5.0,
+        "With max_distance_m = 0: no value beyond this many times the points' typical gap, the median "
+        "distance from a place in their bounding box to its nearest point (and never below one pixel; "
+        "mercury_dem.dem.spacing)",
+        lo=0.01, hi=1e6,
     )
     # --- smoothing after gridding -----------------------------------------------------------
     smoothing_passes: int = param(1, "Passes of the NaN-aware box (averaging) filter; 0 = none", lo=0, hi=100)

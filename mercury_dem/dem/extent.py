@@ -1,18 +1,22 @@
-"""The map extent a point cloud needs: its footprint plus a margin, snapped to whole pixels.
+"""The map a point cloud needs: its bounding box plus a margin of a few pixels, snapped to the pixel grid.
 
 A DEM configured without bounds (``dem.lat_min`` ... ``dem.lon_max`` left unset) is
-gridded over this extent instead of the whole globe: a regional mission (the
-``tiny`` synthetic one, a single campaign) then gets a map of its own area at the
-full resolution, while a global cloud still gets the global map. Gridding the globe
-at 64 pixel/deg from a cloud that covers 2 % of it spends nearly all its time on
-pixels that end up without a value (each needs its exact distance to the nearest
-point, hundreds of kilometres away).
+gridded over this canvas instead of the whole globe: the grid of a block covers the
+block. The canvas is the points' latitude/longitude bounding box widened by
+``dem.canvas_margin_pixels`` pixels on each side and snapped outward to the global pixel
+grid (edges at ``-90 + i / ppd`` and ``j / ppd`` degrees), so two grids at the same
+resolution share their pixels wherever they overlap. Every pixel added beyond the data
+costs its search for the nearest points and ends up without a value: a user's 0.8 deg x
+0.75 deg block of LOLA shots once got a 6 deg x 5 deg canvas (the margin was the 50 km
+no-value distance, then whole degrees), 30 times the data's area, 48 % of it no value.
 
-Longitudes are handled on the circle: the extent is the complement of the largest
-empty longitude gap, so a cloud straddling the 0/360 seam gives e.g. -20..40 (the
-grid's columns may start west of 0, ``GridSpec`` handles any start); a cloud that
-reaches a pole within the margin, or leaves no gap wider than twice the margin, gets
-all longitudes.
+Longitudes are handled on the circle: the box is the complement of the largest empty
+longitude gap, so a block across 0/360 gives e.g. -0.4..0.5 (the grid's columns may
+start west of 0, ``GridSpec`` handles any start) and one across 180 gives 179.6..180.5.
+A canvas that would reach a pole, or span more than :data:`GLOBAL_LON_SPAN_DEG` (270)
+degrees, gets every longitude (a pole meets them all; a nearly global cloud gets a map
+that wraps); its latitudes stay the points' plus the margin, so a global cloud reaching
+the poles gets the globe and a cloud between 60 S and 60 N the band between them.
 """
 
 from __future__ import annotations
@@ -25,7 +29,14 @@ from numpy.typing import NDArray
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.exceptions import GridError
-from mercury_dem.geometry.body import xyz_to_latlon
+from mercury_dem.geometry.body import xyz_to_lat_lon
+
+#: A canvas wider than this (degrees of longitude) takes every longitude: at most a third more pixels, and
+#: the map then wraps at 0/360 without an edge (a global cloud, whose widest gap is small, keeps the globe).
+GLOBAL_LON_SPAN_DEG = 270.0
+
+#: Tolerance (in pixels) of the outward snapping: a box edge within it of a pixel edge stays on that edge.
+SNAP_TOLERANCE_PX = 1e-6
 
 
 def whole_pixel_step(pixels_per_degree: float, max_step: int = 360) -> int:
@@ -38,62 +49,99 @@ def whole_pixel_step(pixels_per_degree: float, max_step: int = 360) -> int:
                     f"{pixels_per_degree} pixel/deg; choose a resolution like 4, 8, 0.5 or 64")
 
 
-def points_extent(points_xyz: NDArray[np.floating], margin_m: float,
-                  pixels_per_degree: float, datum_radius_m: float) -> tuple[float, float, float, float]:
-    """(lat_min, lat_max, lon_min, lon_max) in degrees covering the points plus ``margin_m``.
-
-    Bounds are snapped outward to multiples of :func:`whole_pixel_step` degrees (whole
-    degrees for integral resolutions), so the grid spans whole pixels and two clouds
-    over the same area give the same grid. Non-finite points are ignored; an empty
-    cloud raises :class:`GridError` (there is nothing to size the map by).
-    """
+def _finite_directions(points_xyz: NDArray[np.floating]) -> NDArray[np.float64]:
     p = np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3)
     p = p[np.all(np.isfinite(p), axis=1) & (np.einsum("ij,ij->i", p, p) > 0)]
     if p.shape[0] == 0:
         raise GridError("the point cloud is empty: no extent to grid (did the adjustment keep any points?)")
-    d = whole_pixel_step(pixels_per_degree)
-    lat, lon = xyz_to_latlon(p, datum_radius_m)[:2]
-    margin_deg = math.degrees(margin_m / datum_radius_m)
-    lo = max(-90.0, float(lat.min()) - margin_deg)
-    hi = min(90.0, float(lat.max()) + margin_deg)
-    lat_min = max(-90.0, -90.0 + math.floor((lo + 90.0) / d + 1e-9) * d)
-    lat_max = min(90.0, -90.0 + math.ceil((hi + 90.0) / d - 1e-9) * d)
-    if lat_max <= lat_min:
-        lat_max = min(90.0, lat_min + d)
-    if lat_min <= -90.0 or lat_max >= 90.0:  # a pole inside the map: every longitude meets it
-        return lat_min, lat_max, 0.0, 360.0
-    # longitude margin at the map's highest |latitude| (where a degree of longitude is shortest)
-    coslat = math.cos(math.radians(max(abs(lat_min), abs(lat_max))))
-    lon_margin = margin_deg / max(coslat, 1e-6)
-    lons = np.sort(np.mod(lon, 360.0))
+    return p
+
+
+def lonlat_box(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating]) -> tuple[float, float, float, float]:
+    """(lat_min, lat_max, west, east) in degrees of points given by latitude and east longitude.
+
+    The longitudes are taken on the circle: ``[west, east]`` is the complement of the
+    largest empty longitude gap, ``west`` in [0, 360), ``east`` in [west, west + 360)
+    (above 360 for a box across the 0/360 seam). Non-empty input only.
+    """
+    lat = np.asarray(lat_deg, dtype=np.float64).ravel()
+    lons = np.sort(np.mod(np.asarray(lon_deg, dtype=np.float64).ravel(), 360.0))
     gaps = np.diff(np.concatenate([lons, lons[:1] + 360.0]))
     k = int(np.argmax(gaps))
-    if gaps[k] - 2.0 * lon_margin <= d:
-        return lat_min, lat_max, 0.0, 360.0
-    west = float(lons[(k + 1) % lons.size]) - lon_margin  # the gap ends where the cloud starts
-    east = float(lons[k]) + lon_margin
+    west = float(lons[(k + 1) % lons.size])  # the largest gap ends where the cloud starts
+    east = float(lons[k])
     if east < west:
         east += 360.0
-    lon_min = math.floor(west / d + 1e-9) * d
-    lon_max = math.ceil(east / d - 1e-9) * d
-    if lon_max - lon_min >= 360.0:
+    return float(lat.min()), float(lat.max()), west, east
+
+
+def points_box(points_xyz: NDArray[np.floating]) -> tuple[float, float, float, float]:
+    """:func:`lonlat_box` of a point cloud (N, 3) in body-fixed metres (non-finite and zero points ignored).
+
+    Only directions matter: no datum or body is needed. An empty cloud raises :class:`GridError`.
+    """
+    lat, lon = xyz_to_lat_lon(_finite_directions(points_xyz))
+    return lonlat_box(lat, lon)
+
+
+def box_area_ratio(outer: tuple[float, float, float, float], inner: tuple[float, float, float, float]) -> float:
+    """Area of the latitude/longitude box ``outer`` over that of ``inner`` (both (lat_min, lat_max, west, east),
+    degrees) on a sphere: ``(east - west) * (sin lat_max - sin lat_min)`` each.
+    """
+    def area(b: tuple[float, float, float, float]) -> float:
+        return (b[3] - b[2]) * (math.sin(math.radians(b[1])) - math.sin(math.radians(b[0])))
+
+    return area(outer) / area(inner)
+
+
+def points_extent(points_xyz: NDArray[np.floating], pixels_per_degree: float, *,
+                  margin_pixels: float) -> tuple[float, float, float, float]:
+    """(lat_min, lat_max, lon_min, lon_max) in degrees: the canvas of a point cloud (see the module docstring).
+
+    Parameters
+    ----------
+    points_xyz : ndarray of shape (N, 3), body-fixed metres (non-finite and zero points ignored)
+    pixels_per_degree : the grid's resolution; bounds are whole pixels of the global grid
+        (edges at ``-90 + i / ppd`` degrees of latitude, ``j / ppd`` of longitude)
+    margin_pixels : pixels added beyond the points' bounding box on each side, before snapping outward
+
+    Raises
+    ------
+    GridError : empty cloud (there is nothing to size the map by)
+    """
+    ppd = float(pixels_per_degree)
+    lat_lo, lat_hi, west, east = points_box(points_xyz)
+    m = float(margin_pixels)
+    eps = SNAP_TOLERANCE_PX
+    n_lat = math.floor(180.0 * ppd + eps)  # pixel rows of the globe
+    i0 = max(0, math.floor((lat_lo + 90.0) * ppd - m + eps))
+    i1 = min(n_lat, math.ceil((lat_hi + 90.0) * ppd + m - eps))
+    if i1 <= i0:
+        i1 = min(n_lat, i0 + 1)
+        i0 = i1 - 1
+    lat_min, lat_max = -90.0 + i0 / ppd, -90.0 + i1 / ppd
+    j0 = math.floor(west * ppd - m + eps)
+    j1 = math.ceil(east * ppd + m - eps)
+    if j1 <= j0:
+        j1 = j0 + 1
+    if i0 == 0 or i1 == n_lat or (j1 - j0) / ppd > GLOBAL_LON_SPAN_DEG:
+        # a pole on the canvas meets every longitude; a box wider than 3/4 of the circle is the circle
         return lat_min, lat_max, 0.0, 360.0
-    if lon_min >= 360.0 or lon_min < -180.0:
-        shift = 360.0 * math.floor(lon_min / 360.0)
-        lon_min, lon_max = lon_min - shift, lon_max - shift
+    lon_min, lon_max = j0 / ppd, j1 / ppd
+    if lon_max > 360.0:  # across the 0/360 seam: start west of 0 (e.g. -0.4..0.5, not 359.6..360.5)
+        lon_min, lon_max = lon_min - 360.0, lon_max - 360.0
     return float(lat_min), float(lat_max), float(lon_min), float(lon_max)
 
 
-def config_with_extent(cfg: DemConfig, points_xyz: NDArray[np.floating],
-                       datum_radius_m: float) -> DemConfig:
+def config_with_extent(cfg: DemConfig, points_xyz: NDArray[np.floating]) -> DemConfig:
     """``cfg`` with its unset bounds taken from a point cloud (:func:`points_extent` with the margin
-    ``cfg.max_distance_m``); set bounds are kept, and ``cfg`` itself is returned when all four are set.
+    ``cfg.canvas_margin_pixels``); set bounds are kept, and ``cfg`` itself is returned when all four are set.
 
     Here and not a method of :class:`~mercury_dem.config.dem.DemConfig`: ``dem/`` depends on
     ``config/``, never the reverse.
     """
     if not cfg.extent_from_points:
         return cfg
-    auto = points_extent(points_xyz, cfg.max_distance_m, cfg.pixels_per_degree, datum_radius_m)
+    auto = points_extent(points_xyz, cfg.pixels_per_degree, margin_pixels=cfg.canvas_margin_pixels)
     names = ("lat_min", "lat_max", "lon_min", "lon_max")
     return dataclasses.replace(cfg, **{n: a for n, a in zip(names, auto) if getattr(cfg, n) is None})

@@ -34,7 +34,8 @@ inverse-square-distance weights (the modified weight would give the farthest of
 them weight zero).
 
 Both honour ``max_distance_m``: a pixel whose nearest point is farther has no value
-(NaN). The smoothing (``dem.filters``) needs a halo of
+(NaN); 0 means "from the points' spacing" (:mod:`mercury_dem.dem.spacing`, resolved here
+when the caller has not: the stage resolves it once for all chunks). The smoothing (``dem.filters``) needs a halo of
 ``passes * (size // 2)`` pixels, which :func:`grid_chunk` computes itself, so a
 chunk's result is identical whatever the chunking.
 """
@@ -389,10 +390,22 @@ def grid_pixels(
     """
     lat = np.asarray(lat_deg, dtype=np.float64).ravel()
     lon = np.asarray(lon_deg, dtype=np.float64).ravel()
+    cfg = _with_no_value_distance(cfg, index)
     if use_kdtree:
         res = _kdtree_pixels(index, lat, lon, cfg, _search_radius(index, cfg))
         return _layers(res, cfg, index.datum_radius_m)
     return _bucket_pixels(index, lat, lon, cfg, grid=False)
+
+
+def _with_no_value_distance(cfg: DemConfig, index: PointIndex) -> DemConfig:
+    """``cfg`` with ``max_distance_m`` = 0 resolved from the points' spacing (deterministic: every chunk gets
+    the same distance), else ``cfg`` itself.
+    """
+    if cfg.max_distance_m > 0:
+        return cfg
+    from mercury_dem.dem.spacing import config_with_no_value_distance  # spacing imports this module
+
+    return config_with_no_value_distance(cfg, index)
 
 
 def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: DemConfig, *,
@@ -450,6 +463,7 @@ def grid_chunk(
     """
     r0, r1, c0, c1 = bounds
     nr, nc = grid.shape
+    cfg = _with_no_value_distance(cfg, index)
     if not (0 <= r0 < r1 <= nr and 0 <= c0 < c1 <= nc):
         raise GridError(f"chunk bounds {bounds} are outside the grid of shape {grid.shape}")
     h = cfg.smoothing_passes * (cfg.smoothing_size // 2)

@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
+from mercury_dem.dem.spacing import config_with_no_value_distance
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore
@@ -181,6 +182,7 @@ def grid_dem_on_bucket(
     if global_token is None:
         raise StoreError(f"{store.url}: the global network is not committed; resume the run")
     index = build_point_index(pts, datum)  # the coverage's (and the empty-cloud check)
+    cfg = config_with_no_value_distance(cfg, index)  # max_distance_m = 0: from the points' spacing, before the plan
     chunks = grid.chunks(cfg.chunk_size)
     plan = {"grid": dataclasses.asdict(grid), "dem": to_dict(cfg) if dataclasses.is_dataclass(cfg) else repr(cfg),
             "global_token": global_token, "body": body.name, "attrs": attrs or {}}
@@ -245,6 +247,7 @@ def grid_dem_on_bucket(
         "pixels_per_degree": grid.pixels_per_degree,
         "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
         "method": cfg.method,
+        "no_value_distance_m": cfg.max_distance_m,
         "n_points": index.n_points,
         "n_chunks": len(chunks),
         "chunks_reused": len(done),

@@ -143,7 +143,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any
     pts = point_cloud(net, adjusted=True)
     # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
     body = mission.body
-    dem_cfg = config_with_extent(config.dem, pts, body.datum_radius_m) if pts.shape[0] else config.dem
+    dem_cfg = config_with_extent(config.dem, pts) if pts.shape[0] else config.dem
     # an existing complete DEM is reused (resume); products are always rewritten
     remote = store.url is not None
     if remote:

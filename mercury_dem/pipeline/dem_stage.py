@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
+from mercury_dem.dem.spacing import config_with_no_value_distance
 from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
@@ -199,15 +200,20 @@ def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Bo
         "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
         "pixel_registration": "lat/lon are pixel centres; row 0 is the northernmost",
         "method": cfg.method,
-        "gridding": json.dumps(
-            {k: getattr(cfg, k) for k in ("method", "neighbours", "sigma_filter", "search_radius_factor",
-                                          "shepard_fallback_neighbours", "shepard_max_points",
-                                          "max_distance_m", "smoothing_passes", "smoothing_size")}
-        ),
+        "gridding": gridding_attr(cfg),
     }
     if attrs:
         out.update(attrs)
     return out
+
+
+def gridding_attr(cfg: Any) -> str:
+    """The store's ``gridding`` attribute: the settings a pixel's value depends on, as JSON
+    (``max_distance_m`` is the no-value distance used, once resolved from the points' spacing).
+    """
+    return json.dumps({k: getattr(cfg, k) for k in ("method", "neighbours", "sigma_filter", "search_radius_factor",
+                                                    "shepard_fallback_neighbours", "shepard_max_points",
+                                                    "max_distance_m", "smoothing_passes", "smoothing_size")})
 
 
 _COORD_ATTRS = {
@@ -512,8 +518,8 @@ def grid_dem(
         raise StoreError(f"{out_path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
     pts = np.asarray(points_xyz, dtype=np.float64)
     n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
-    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's footprint (mercury_dem.dem.extent)
-        cfg = config_with_extent(cfg, pts, body.datum_radius_m)
+    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's box (mercury_dem.dem.extent)
+        cfg = config_with_extent(cfg, pts)
     grid = GridSpec.from_config(cfg, body.datum_radius_m)
     est = check_memory(grid, max(n_points, 0), cfg)
     if n_points == 0:
@@ -540,6 +546,8 @@ def grid_dem(
         rep.message(f"{label}: indexing {n_points} points for a {grid.shape[0]} x {grid.shape[1]} grid "
                     f"({len(chunks)} chunks, {cfg.method})")
         index = index_job.result()
+        # max_distance_m = 0: the no-value distance from the points' spacing (mercury_dem.dem.spacing)
+        cfg = config_with_no_value_distance(cfg, index)
         with rep.task(f"{label} grid", len(chunks), "chunks") as task:
             if in_process:
                 # Two chunks in flight: one in the compiled kernel (all its threads, GIL released),
@@ -579,6 +587,7 @@ def grid_dem(
             "pixels_per_degree": grid.pixels_per_degree,
             "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
             "method": cfg.method,
+            "no_value_distance_m": cfg.max_distance_m,
             "n_points": index.n_points,
             "n_chunks": len(chunks),
             "no_value_pixels": int(no_value),
@@ -590,6 +599,7 @@ def grid_dem(
             "failed_chunks": failed,
         }
         final_attrs = {
+            "gridding": gridding_attr(cfg),  # the no-value distance resolved after the store was created
             "n_points": index.n_points,
             "no_value_pixels": int(no_value),
             "coverage": json.dumps(cov_summary) if cov_summary else "",
@@ -652,7 +662,7 @@ def regrid_failed_chunks(
     cfg = _dem_config(config)
     pts = np.asarray(points_xyz, dtype=np.float64)
     if pts.ndim == 2 and pts.shape[0] and cfg.extent_from_points:
-        cfg = config_with_extent(cfg, pts, body.datum_radius_m)
+        cfg = config_with_extent(cfg, pts)
     grid = GridSpec.from_config(cfg, body.datum_radius_m)
     failed = failed_chunks_of(path)
     group = zarr.open_group(str(path), mode="r+")
@@ -662,6 +672,7 @@ def regrid_failed_chunks(
     todo = [tuple(int(v) for v in f["bounds"]) for f in failed]
     rep.message(f"{label}: {len(todo)} chunk(s) that failed before, gridded again")
     index = build_point_index(pts, body.datum_radius_m)
+    cfg = config_with_no_value_distance(cfg, index)  # the same as at the first try: same points, same rule
     layer_arrays = {name: group[name] for name in LAYERS}
     if runs_in_process(client):
         results = [_grid_and_write_or_record(index, grid, b, cfg, layer_arrays) for b in todo]  # type: ignore[arg-type]

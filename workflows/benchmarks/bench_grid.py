@@ -78,9 +78,16 @@ def write_point_inputs(work: Path, n_points: int, span: float) -> tuple[np.ndarr
     """The benchmark cloud and the files each side reads: points.npy (ours), points.csv + .vrt and
     points.fgb (gdal_grid). Returns (points, npy, csv, vrt, fgb)."""
     pts = make_points(n_points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
+    return (pts, *write_cloud_files(work, pts, DATUM_RADIUS_M))
+
+
+def write_cloud_files(work: Path, pts: np.ndarray, datum_radius_m: float) -> tuple[Path, Path, Path, Path]:
+    """The files each side reads of a cloud (N, 3) body-fixed metres: points.npy (ours), and for gdal_grid
+    points.csv (lon in [-180, 180), lat, height above the datum ``datum_radius_m``) + its OGR VRT, and
+    points.fgb (FlatGeobuf). Returns (npy, csv, vrt, fgb)."""
     npy = work / "points.npy"
     np.save(npy, pts)
-    lat, lon, h = xyz_to_latlon(pts, datum_radius_m=DATUM_RADIUS_M)
+    lat, lon, h = xyz_to_latlon(pts, datum_radius_m)
     lon = np.where(lon > 180, lon - 360, lon)
     csv = work / "points.csv"
     np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="", fmt="%.8f")
@@ -93,7 +100,7 @@ def write_point_inputs(work: Path, n_points: int, span: float) -> tuple[np.ndarr
     fgb = work / "points.fgb"
     subprocess.run(["ogr2ogr", "-f", "FlatGeobuf", str(fgb), str(vrt), "-nln", "points", "-nlt", "POINT25D"],
                    check=True)
-    return pts, npy, csv, vrt, fgb
+    return npy, csv, vrt, fgb
 
 
 def rmse_vs_truth(elev, lat, lon):
@@ -135,10 +142,13 @@ def _cfg_dict(cfg):
 
 
 def run_gdal(src, algo, size, extent, work):
+    """gdal_grid over ``extent`` (lon0, lon1, lat0, lat1 in degrees) with ``size`` columns x rows (an int: square);
+    returns (seconds, the grid with NaN for no value, the command)."""
     out = work / f"gdal_{algo.split(':')[0]}.tif"
     lon0, lon1, lat0, lat1 = extent
+    nx, ny = (size, size) if isinstance(size, int) else size
     cmd = ["gdal_grid", "-q", "--config", "GDAL_NUM_THREADS", "2", "-a", algo, "-txe", str(lon0), str(lon1), "-tye", str(lat1), str(lat0),
-           "-outsize", str(size), str(size), "-ot", "Float32", "-of", "GTiff", "-l", "points", str(src), str(out)]
+           "-outsize", str(nx), str(ny), "-ot", "Float32", "-of", "GTiff", "-l", "points", str(src), str(out)]
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True)
     dt = time.perf_counter() - t0
