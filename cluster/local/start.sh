@@ -81,6 +81,7 @@ rm -f "$sched_file" "$state/env.sh"
 helper=""; started=0
 cleanup() {
   local rc=$?
+  set +e  # (a failing command here must not end the cleanup: errexit applies inside traps too)
   trap - EXIT INT TERM HUP
   if [ -n "$helper" ] && kill -0 "$helper" 2>/dev/null; then kill "$helper" 2>/dev/null; wait "$helper" 2>/dev/null; fi
   if [ "$started" = 0 ]; then "$here/stop.sh" --state-dir "$state" >&2 || true; fi
