@@ -10,6 +10,14 @@ from pathlib import Path
 
 import pytest
 
+# No test may leave a process running: a per-test check and a session-end sweep (see the module).
+from tests.process_guard import (  # noqa: F401 - pytest hooks, found by name in this conftest
+    pytest_configure,
+    pytest_runtest_setup,
+    pytest_runtest_teardown,
+    pytest_sessionfinish,
+)
+
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared"
 
 

@@ -10,8 +10,10 @@ when moto's server or s3fs is not installed (``pip install 'moto[server]' s3fs``
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -22,11 +24,27 @@ from pathlib import Path
 
 import pytest
 
+from tests.process_guard import env_for_session_process
+
 
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM the server's process group, SIGKILL after 10 s; reap it."""
+    for sig, wait in ((signal.SIGTERM, 10), (signal.SIGKILL, 10)):
+        with contextlib.suppress(OSError):
+            os.killpg(proc.pid, sig)
+        try:
+            proc.wait(timeout=wait)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    with contextlib.suppress(OSError):
+        os.killpg(proc.pid, signal.SIGKILL)  # anything the server itself started
 
 
 @pytest.fixture(scope="session")
@@ -41,7 +59,10 @@ def s3_endpoint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     port = _free_port()
     log = tmp_path_factory.mktemp("moto") / "moto.log"
     with open(log, "wb") as fh:
-        proc = subprocess.Popen([*cmd, "-H", "127.0.0.1", "-p", str(port)], stdout=fh, stderr=subprocess.STDOUT)
+        # its own process group, so the teardown ends anything it started; marked as a session fixture's
+        # process for tests/process_guard.py (checked at the session's end, not after the test that started it)
+        proc = subprocess.Popen([*cmd, "-H", "127.0.0.1", "-p", str(port)], stdout=fh, stderr=subprocess.STDOUT,
+                                env=env_for_session_process(), start_new_session=True)
     endpoint = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 30
     while True:
@@ -50,9 +71,12 @@ def s3_endpoint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             break
         except OSError:
             if proc.poll() is not None or time.monotonic() > deadline:
-                proc.kill()
+                _stop(proc)
                 raise RuntimeError(f"moto_server did not start on {endpoint}: {log.read_text()[-2000:]}") from None
             time.sleep(0.2)
+        except BaseException:  # interrupted (KeyboardInterrupt, a timeout): no server left behind
+            _stop(proc)
+            raise
     env = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
            "FSSPEC_S3_ENDPOINT_URL": endpoint, "MERCURY_DEM_CACHE": str(tmp_path_factory.mktemp("cache"))}
     saved_env = {k: os.environ.get(k) for k in env}
@@ -62,12 +86,7 @@ def s3_endpoint(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     try:
         yield endpoint
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _stop(proc)
         for k, v in saved_env.items():
             if v is None:
                 os.environ.pop(k, None)

@@ -15,14 +15,19 @@
 # --tls uses DIR/tls (made by make-certs.sh when absent); --tls-dir uses CERTDIR
 # (ca.pem, cert.pem, key.pem; made there when absent). With TLS every connection is
 # encrypted and a client without a certificate signed by the CA is refused.
-# --idle-timeout closes the scheduler after that many seconds with no task running (its workers
-# then exit after their 60 s death timeout): for throw-away deployments such as a test's, which
-# must not outlive a killed caller. Off by default.
+# --idle-timeout closes the scheduler after SECONDS with no task and no client connected, counted
+# from the first worker or client that joined (not from the scheduler's start: a first worker on a
+# cold machine can take longer than that to import); if nobody joins at all, it closes --timeout +
+# SECONDS after its start. Its workers then exit after their 60 s death timeout. For throw-away
+# deployments such as a test's, which must not outlive a killed caller. Off by default.
+# (mercury_dem/cluster/idle_timeout.py, a scheduler preload that needs only distributed.)
+# start.sh's own helpers end with it: if it fails or is interrupted (INT, TERM, HUP) before the
+# workers joined, it stops what it started; its wait for the workers is bounded by 2 x --timeout.
 # Stop everything with: cluster/local/stop.sh --state-dir DIR
 set -euo pipefail
 
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
-usage() { sed -n '2,20p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-2}"; }
+usage() { sed -n '2,26p' "$0" | sed 's/^# \{0,1\}//'; exit "${1:-2}"; }
 
 PYTHON="${PYTHON:-$(command -v python3 || command -v python)}"
 workers=2; threads=1; memory_limit=""; state="./dask-local"; host="127.0.0.1"; port=8786; dport=8787
@@ -47,9 +52,14 @@ done
 idle_args=()
 if [ -n "$idle_timeout" ]; then
   [[ "$idle_timeout" =~ ^[1-9][0-9]*$ ]] || { echo "start.sh: --idle-timeout must be a positive number of seconds, got $idle_timeout" >&2; exit 2; }
-  idle_args=(--idle-timeout "${idle_timeout}s")
 fi
 [[ "$workers" =~ ^[1-9][0-9]*$ ]] || { echo "start.sh: --workers must be a positive integer, got $workers" >&2; exit 2; }
+[[ "$timeout" =~ ^[1-9][0-9]*$ ]] || { echo "start.sh: --timeout must be a positive number of seconds, got $timeout" >&2; exit 2; }
+if [ -n "$idle_timeout" ]; then
+  # Dask's own --idle-timeout counts from the scheduler's start: this preload counts from the first join.
+  idle_args=(--preload "$here/../../mercury_dem/cluster/idle_timeout.py"
+             --idle-after-join "$idle_timeout" --join-bound "$(( timeout + idle_timeout ))")
+fi
 "$PYTHON" -c "import distributed" 2>/dev/null || {
   echo "start.sh: $PYTHON cannot import distributed; set PYTHON=/path/to/.venv/bin/python" >&2; exit 1; }
 
@@ -65,6 +75,22 @@ for f in "$state"/pids/*.pid; do
 done
 sched_file="$state/scheduler.json"
 rm -f "$sched_file" "$state/env.sh"
+
+# From here on the processes in $state/pids are this run's: if start.sh fails or is interrupted before
+# every worker has joined, it stops them, and it never leaves its own helper (the wait below) behind.
+helper=""; started=0
+cleanup() {
+  local rc=$?
+  set +e  # (a failing command here must not end the cleanup: errexit applies inside traps too)
+  trap - EXIT INT TERM HUP
+  if [ -n "$helper" ] && kill -0 "$helper" 2>/dev/null; then kill "$helper" 2>/dev/null; wait "$helper" 2>/dev/null; fi
+  if [ "$started" = 0 ]; then "$here/stop.sh" --state-dir "$state" >&2 || true; fi
+  exit "$rc"
+}
+trap cleanup EXIT
+trap 'exit 130' INT
+trap 'exit 143' TERM
+trap 'exit 129' HUP
 
 # Each worker gets an equal share of the machine's memory unless told otherwise.
 if [ -z "$memory_limit" ]; then
@@ -96,7 +122,7 @@ fi
 SETSID="$(command -v setsid || true)"
 $SETSID "$PYTHON" -m distributed.cli.dask_scheduler \
   --host "$host" --port "$port" --protocol "$protocol" --dashboard-address "$host:$dport" \
-  --scheduler-file "$sched_file" "${tls_args[@]}" "${idle_args[@]}" \
+  --scheduler-file "$sched_file" "${tls_args[@]}" ${idle_args[@]+"${idle_args[@]}"} \
   >"$state/logs/scheduler.log" 2>&1 < /dev/null &
 echo $! > "$state/pids/scheduler.pid"
 
@@ -114,19 +140,33 @@ for _ in $(seq 1 $(( timeout * 10 ))); do
   [ -s "$sched_file" ] && break
   if ! kill -0 "$(cat "$state/pids/scheduler.pid")" 2>/dev/null; then
     echo "start.sh: the scheduler exited; see $state/logs/scheduler.log:" >&2; tail -5 "$state/logs/scheduler.log" >&2
-    "$here/stop.sh" --state-dir "$state" >&2 || true; exit 1
+    exit 1  # cleanup stops the workers
   fi
   sleep 0.1
 done
-[ -s "$sched_file" ] || { echo "start.sh: no scheduler file after ${timeout}s; see $state/logs/scheduler.log" >&2
-  "$here/stop.sh" --state-dir "$state" >&2 || true; exit 1; }
+[ -s "$sched_file" ] || { echo "start.sh: no scheduler file after ${timeout}s; see $state/logs/scheduler.log" >&2; exit 1; }
 
-# Wait until every worker has joined (a client with the same certificates).
-if ! "$PYTHON" - "$sched_file" "$workers" "$timeout" "${tls_dir:-}" <<'PY'
+# Wait until every worker has joined (a client with the same certificates). In the background, so a
+# signal to start.sh is handled at once (bash defers traps while a foreground child runs); the helper
+# also ends itself after 2 x --timeout whatever happens (a connection retrying, a hung close).
+"$PYTHON" - "$sched_file" "$workers" "$timeout" "${tls_dir:-}" <<'PY' &
+import os
 import sys
-from distributed import Client
-from distributed.security import Security
+import threading
+import time
+
+
+def _deadline(limit: float) -> None:
+    time.sleep(limit)
+    print(f"start.sh: the wait for the workers did not end within {limit:.0f}s", file=sys.stderr, flush=True)
+    os._exit(3)
+
+
 sched_file, n, timeout, tls_dir = sys.argv[1], int(sys.argv[2]), float(sys.argv[3]), sys.argv[4]
+threading.Thread(target=_deadline, args=(2 * timeout,), daemon=True).start()
+from distributed import Client  # noqa: E402
+from distributed.security import Security  # noqa: E402
+
 sec = None
 if tls_dir:
     ca, cert, key = (f"{tls_dir}/{n_}" for n_ in ("ca.pem", "cert.pem", "key.pem"))
@@ -136,11 +176,13 @@ with Client(scheduler_file=sched_file, security=sec, timeout=timeout) as c:
     info = c.scheduler_info(n_workers=-1)
     print(f"scheduler {info['address']}  workers {len(info['workers'])}  dashboard {c.dashboard_link}")
 PY
-then
+helper=$!
+if ! wait "$helper"; then
+  helper=""
   echo "start.sh: the workers did not all join within ${timeout}s; see $state/logs/; stopping" >&2
-  "$here/stop.sh" --state-dir "$state" >&2 || true
-  exit 1
+  exit 1  # cleanup stops what was started
 fi
+helper=""; started=1
 echo "scheduler file: $sched_file"
 [ "$tls" = 1 ] && echo "TLS: source $state/env.sh before connecting (or pass --tls-ca-file/--tls-cert/--tls-key)"
 echo "stop with: $here/stop.sh --state-dir $state"

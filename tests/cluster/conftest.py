@@ -14,6 +14,8 @@ from pathlib import Path
 import psutil
 import pytest
 
+from tests.process_guard import run_in_own_group
+
 REPO = Path(__file__).resolve().parents[2]
 CLUSTER = REPO / "cluster"
 LOCAL = CLUSTER / "local"
@@ -51,8 +53,8 @@ class LocalDeployment:
         return json.loads(self.scheduler_file.read_text())["address"]
 
     def stop(self) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([str(LOCAL / "stop.sh"), "--state-dir", str(self.state), "--timeout", "20"],
-                              capture_output=True, text=True, timeout=120, env=script_env())
+        return run_in_own_group([str(LOCAL / "stop.sh"), "--state-dir", str(self.state), "--timeout", "20"],
+                                timeout=120, env=script_env())
 
 
 def start_local(state: Path, workers: int = 2, tls: bool = False, idle_timeout: int = 900) -> LocalDeployment:
@@ -62,7 +64,13 @@ def start_local(state: Path, workers: int = 2, tls: bool = False, idle_timeout: 
            "--idle-timeout", str(idle_timeout)]
     if tls:
         cmd.append("--tls")
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=script_env())
+    try:
+        # start.sh's own helpers die with it on a timeout (its scheduler and workers are setsid'd: stop.sh's)
+        res = run_in_own_group(cmd, timeout=180, env=script_env())
+    except BaseException:
+        if (state / "pids").is_dir():
+            LocalDeployment(state, {}, []).stop()
+        raise
     leaders = {p.stem: int(p.read_text()) for p in sorted((state / "pids").glob("*.pid"))}
     procs: list[psutil.Process] = []
     for pid in leaders.values():

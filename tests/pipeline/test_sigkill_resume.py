@@ -96,24 +96,29 @@ def test_sigkill_at_random_moments_then_resume_gives_the_uninterrupted_result(
         log = tmp_path / f"attempt{attempts}.err"
         with open(log, "wb") as err_fh:  # the child keeps its own descriptor
             proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_fh, start_new_session=True)
-        t0 = time.monotonic()
-        target = targets[0] if targets else None
-        # start-up kills within the first seconds; DEM/products kills a little into the stage
-        delay = float(rng.uniform(0.5, 3.0) if target and target[1] is None else rng.uniform(0.0, 1.0))
-        killed = False
-        while target is not None and proc.poll() is None:
-            if _due(run, target, counts0, time.monotonic() - t0, delay if target[1] is None else 3.0 + delay):
-                before = _stage(run)
+        try:
+            t0 = time.monotonic()
+            target = targets[0] if targets else None
+            # start-up kills within the first seconds; DEM/products kills a little into the stage
+            delay = float(rng.uniform(0.5, 3.0) if target and target[1] is None else rng.uniform(0.0, 1.0))
+            killed = False
+            while target is not None and proc.poll() is None:
+                if _due(run, target, counts0, time.monotonic() - t0, delay if target[1] is None else 3.0 + delay):
+                    before = _stage(run)
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                    kills.append({"target": target[0], "after_s": round(time.monotonic() - t0, 1), "stage": before})
+                    targets.pop(0)
+                    killed = True
+                    break
+                time.sleep(0.05)
+            if killed:
+                continue
+            proc.wait(timeout=1200)
+        finally:  # an assertion, a timeout or an interruption must not leave the run (and its children) behind
+            if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-                kills.append({"target": target[0], "after_s": round(time.monotonic() - t0, 1), "stage": before})
-                targets.pop(0)
-                killed = True
-                break
-            time.sleep(0.05)
-        if killed:
-            continue
-        proc.wait(timeout=1200)
         assert proc.returncode == 0, log.read_text(errors="replace")[-3000:]
         if not targets:
             break
