@@ -25,10 +25,11 @@ def mission_body_shape(mission: Any) -> tuple[BodyShape | None, str | None]:
 
     A real mission: its body's packaged shape (:func:`mercury_dem.reference.body_shape.body_shape`:
     GTMES for Mercury, LOLA LDEM_4 reduced for the Moon). A synthetic mission's body is its truth
-    surface, not the real body: it is checked against GTMES only when that surface is built on it
-    (the ``demo`` preset's long wavelengths); otherwise its truth is the check (``validation``).
+    surface, not the real body: it is checked against GTMES when that surface is built on it
+    (the ``demo`` preset's long wavelengths), otherwise against its stored truth DEM
+    (:func:`~mercury_dem.reference.body_shape.truth_shape`), so every run gets the gross-error check.
     """
-    from mercury_dem.reference.body_shape import body_shape
+    from mercury_dem.reference.body_shape import body_shape, truth_shape
     from mercury_dem.reference.sha import GTMES_PACKAGED
 
     body = mission.body
@@ -36,8 +37,8 @@ def mission_body_shape(mission: Any) -> tuple[BodyShape | None, str | None]:
         params = getattr(mission.truth.surface(), "params", None)
         if body.name == "MERCURY" and getattr(params, "shape_harmonics", "") == GTMES_PACKAGED:
             return body_shape(body.name), None
-        return None, ("a synthetic body whose surface is not built on a shape model: its truth is the check "
-                      "(validation, DEM minus truth)")
+        return truth_shape(mission.truth.dem(), body_name=body.name,
+                           source=str(mission.truth.path / "dem.zarr")), None
     shape = body_shape(body.name)
     return shape, None if shape is not None else f"no packaged shape model of {body.name.title()}"
 
@@ -47,13 +48,13 @@ def check_against_body_shape(dem: xr.Dataset, mission: Any, max_point_distance_m
     body's datum (not the DEM's stated one: a DEM gridded on the wrong datum is what this catches), over
     the pixels within ``max_point_distance_m`` of a control point. A shape that cannot be read is said so.
     """
-    from mercury_dem.exceptions import ReferenceDataError
+    from mercury_dem.exceptions import ReferenceDataError, StoreError
     from mercury_dem.reference.body_shape import shape_check
 
     body = mission.body
     try:
         shape, why = mission_body_shape(mission)
-    except (ReferenceDataError, OSError) as exc:
+    except (ReferenceDataError, StoreError, OSError, KeyError) as exc:
         return {"status": "not_compared", "body": body.name, "reason": f"the shape model cannot be read ({exc})"}
     elev = dem["elevation"].where(dem["distance_to_nearest_point"] <= max_point_distance_m).load()
     return shape_check(elev, body_name=body.name, datum_radius_m=body.datum_radius_m, shape=shape,

@@ -37,7 +37,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import CubeError, ReferenceDataError
 
-__all__ = ["BodyShape", "LUNAR_SHAPE_PACKAGED", "body_shape", "gross_error_cause", "read_shape_cube", "shape_check"]
+__all__ = ["BodyShape", "LUNAR_SHAPE_PACKAGED", "body_shape", "gross_error_cause", "read_shape_cube", "shape_check",
+           "truth_shape"]
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 #: LOLA LDEM_4 reduced to 0.75° (see data/README.md): the Moon's packaged shape.
@@ -245,6 +246,32 @@ def body_shape(body_name: str) -> BodyShape | None:
     """
     make = _SHAPES.get(str(body_name).strip().upper())
     return None if make is None else make()
+
+
+def truth_shape(truth_dem: xr.DataArray, *, body_name: str, source: str) -> BodyShape:
+    """A synthetic mission's shape: its stored truth DEM (regional or global), so a synthetic run is
+    checked for gross errors like a real one (a DEM on the wrong datum, in the wrong units).
+
+    Parameters
+    ----------
+    truth_dem : DataArray (lat, lon) of heights above ``attrs["datum_radius_m"]`` (as
+        :meth:`mercury_dem.mission.truth.SyntheticTruth.dem` returns it); any longitude range
+    body_name : the mission's body (stated, never defaulted)
+    source : where the grid was read (for the report)
+
+    The truth is exact, so the same 3 km bound as a real body's shape applies with room to spare:
+    a right DEM differs from it by its own error (hundreds of metres at most), a wrong datum by
+    hundreds of kilometres. ``prior_sigma_m`` is not used (synthetic points keep the datum prior).
+    """
+    ref = float(truth_dem.attrs["datum_radius_m"])
+    lat = np.asarray(truth_dem["lat"].values, np.float64)
+    step_deg = float(abs(np.median(np.diff(lat)))) if lat.size > 1 else 1.0
+    grid = truth_dem.transpose("lat", "lon").astype(np.float64)
+    return BodyShape(
+        body=str(body_name).upper(), name=f"the synthetic truth surface ({1 / step_deg:g} px/deg)", source=source,
+        citation="synthetic: the mission's own truth (mercury_dem.synth)", grid=grid, reference_radius_m=ref,
+        resolution_km=math.radians(step_deg) * ref / 1000.0, prior_sigma_m=1000.0, gross_bias_m=3000.0,
+    )
 
 
 def gross_error_cause(bias_m: float, body_name: str, datum_radius_m: float, dem_median_m: float,

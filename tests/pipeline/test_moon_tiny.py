@@ -87,3 +87,7 @@ def test_statistics_browse_coverage_and_report(moon_tiny_run: tuple[Path, dict[s
     box = r_km**2 * np.radians(lon1 - lon0) * (np.sin(np.radians(lat1)) - np.sin(np.radians(lat0)))
     assert cov["map_area_km2"] == pytest.approx(box, rel=0.02)
     assert report["body"]["name"] == "MOON" and report["body"]["datum_radius_m"] == MOON_DATUM_M
+    # every run is checked against its body's shape without configuration: a synthetic body's is its truth
+    check = report["dem"]["shape_check"]
+    assert check["status"] == "ok" and check["body"] == "MOON" and "synthetic truth" in check["shape"]["name"]
+    assert abs(check["bias_m"]) < 300.0 and check["n"] > 0

@@ -21,6 +21,7 @@ from mercury_dem.reference.body_shape import (
     body_shape,
     read_shape_cube,
     shape_check,
+    truth_shape,
 )
 from mercury_dem.pipeline.reference_check import shape_check_lines
 
@@ -99,6 +100,28 @@ def test_shape_check_passes_a_right_dem_and_names_a_wrong_datum() -> None:
     assert km["status"] == "gross_error" and "units" in km["cause"]
     none = shape_check(_moon_block(MOON.datum_radius_m), body_name="MARS", datum_radius_m=3_396_190.0, shape=None)
     assert none["status"] == "not_compared" and "no packaged shape model of Mars" in shape_check_lines(none)[0]
+
+
+def test_a_synthetic_missions_truth_is_its_shape() -> None:
+    """A synthetic body has no packaged shape: its truth DEM (regional, longitudes across 0) is the shape,
+    so a synthetic DEM on the wrong datum is a gross error too, and a right one (its truth plus noise) is not."""
+    rng = np.random.default_rng(3)
+    lat = np.arange(19.9375, -10.0, -0.125)
+    lon = np.arange(-14.9375, 15.0, 0.125)
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    truth = 1500.0 * np.sin(np.radians(la) * 30) * np.cos(np.radians(lo) * 20)
+    truth_da = xr.DataArray(truth, dims=("lat", "lon"), coords={"lat": lat, "lon": lon},
+                            attrs={"datum_radius_m": MOON.datum_radius_m})
+    shape = truth_shape(truth_da, body_name="moon", source="truth/dem.zarr")
+    assert shape.body == "MOON" and "8 px/deg" in shape.name
+    inner = (slice(8, -8), slice(8, -8))
+    dem = xr.DataArray((truth + rng.normal(0, 50.0, truth.shape))[inner], dims=("lat", "lon"),
+                       coords={"lat": lat[inner[0]], "lon": np.mod(lon[inner[1]], 360.0)})
+    good = shape_check(dem, body_name="MOON", datum_radius_m=MOON.datum_radius_m, shape=shape)
+    assert good["status"] == "ok" and abs(good["bias_m"]) < 5.0 and 40.0 < good["rmse_m"] < 60.0
+    wrong = dem + (MOON.datum_radius_m - MERCURY.datum_radius_m)  # radii minus Mercury's datum
+    bad = shape_check(wrong, body_name="MOON", datum_radius_m=MOON.datum_radius_m, shape=shape)
+    assert bad["status"] == "gross_error" and "Mercury's datum" in bad["cause"]
 
 
 @st.composite
