@@ -1,0 +1,318 @@
+"""Dense disparity of a rectified chip pair: OpenCV StereoSGBM, then a least-squares refinement on the images.
+
+1. **Integer disparity**: ``cv2.StereoSGBM`` on the two chips stretched to 8 bits, with its own
+   left--right check (``disp12MaxDiff``) and speckle filter. Its 1/16-pixel output is a parabola on the
+   aggregated costs, which pixel-locks (the anchors' note on ASP): only its integer part is trusted.
+2. **Sub-pixel refinement** on the float images, not on the costs: a dense 1-D Lucas--Kanade with a gain
+   and an offset per window. Each pixel's window (``refine_window`` squared) minimises
+   ``sum (I_l - a (I_r(u + d) ) - b)^2`` over ``d``, ``a``, ``b`` by Gauss--Newton; every window sum is a
+   box filter (``cv2.boxFilter``) and the right image is resampled once per iteration (``cv2.remap``,
+   bicubic), so the whole chip costs a few dozen image-sized passes. Written here because OpenCV has no
+   per-pixel least-squares disparity refinement (its optical flows -- DIS in ``match/flow.py``, Farneback
+   -- solve for 2-D flow with their own smoothness terms and give no per-pixel covariance).
+3. **Per-pixel score and precision**: the zero-mean normalised correlation of the final windows (score),
+   and the least-squares precision of ``d``: ``sigma_d^2 = s^2 / (a^2 sum g_c^2)``, with ``s^2`` the
+   residual variance (``n - 3`` degrees of freedom) and ``g_c`` the centred gradient of the resampled
+   right image. The residuals of neighbouring pixels are correlated (both images are blurred by a
+   point-spread function and resampled), so ``n`` pixels carry fewer independent observations:
+   ``sigma_d`` is multiplied by ``sqrt(noise_correlation_px2)``, the area over which the noise is
+   correlated (``4 pi sigma_psf^2`` for a Gaussian PSF of sigma ``sigma_psf``, at least 1).
+4. **Holes, never invented**: a pixel keeps NaN and a flag (bits of :data:`HOLE_FLAGS`) when it is outside
+   either image, in shadow in either image, without texture (``sigma_d`` above ``max_sigma_px``), without
+   an SGBM disparity or inconsistent left--right, or when the refinement leaves the SGBM pixel
+   (``|d - d_sgbm| > 1``) or scores below ``min_score``. Nothing is interpolated into a hole.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+#: Hole flags (bits of :attr:`DisparityMap.holes`; 0 means a valid disparity).
+HOLE_OUTSIDE = 1
+HOLE_SHADOW = 2
+HOLE_NO_TEXTURE = 4
+HOLE_NO_MATCH = 8
+HOLE_REFINEMENT = 16
+HOLE_FLAGS = {"outside": HOLE_OUTSIDE, "shadow": HOLE_SHADOW, "no_texture": HOLE_NO_TEXTURE,
+              "no_match": HOLE_NO_MATCH, "refinement": HOLE_REFINEMENT}
+
+_SGBM_MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
+               "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
+
+
+@dataclass(frozen=True)
+class MatcherSettings:
+    """Dense matching parameters.
+
+    Attributes
+    ----------
+    mode : StereoSGBM mode: ``sgbm`` (5 paths), ``sgbm_3way`` (faster, 5 paths), ``hh`` (8 paths), ``hh4``
+    block_size : SGBM matching block, pixels (odd)
+    p1, p2 : SGBM smoothness penalties per pixel of block (OpenCV's are ``p * block_size^2``)
+    uniqueness_ratio : SGBM uniqueness margin, percent
+    lr_max_diff : left--right check tolerance, integer pixels (``disp12MaxDiff``)
+    speckle_window, speckle_range : SGBM speckle filter (region size, pixels; disparity step, pixels)
+    refine_window : side of the refinement's least-squares window, pixels (odd)
+    refine_iterations : Gauss--Newton iterations
+    noise_correlation_px2 : area (pixels) over which the images' noise is correlated (see module docstring)
+    max_sigma_px : larger stated disparity precision is a no-texture hole
+    min_score : smaller zero-mean normalised correlation is a hole
+    shadow_fraction : a window whose mean DN (dark level removed) is below this fraction of the chip's
+        median is in shadow
+    dark_dn : dark level of the images, DN
+    """
+
+    mode: str = "sgbm_3way"
+    block_size: int = 5
+    p1: int = 8
+    p2: int = 32
+    uniqueness_ratio: int = 5
+    lr_max_diff: int = 1
+    speckle_window: int = 50
+    speckle_range: int = 2
+    refine_window: int = 9
+    refine_iterations: int = 4
+    noise_correlation_px2: float = 1.0
+    max_sigma_px: float = 0.5
+    min_score: float = 0.5
+    shadow_fraction: float = 0.15
+    dark_dn: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in _SGBM_MODES:
+            raise ValueError(f"matcher mode {self.mode!r}: choose one of {sorted(_SGBM_MODES)}")
+        if self.block_size % 2 == 0 or self.refine_window % 2 == 0 or self.refine_window < 3:
+            raise ValueError("block_size and refine_window must be odd (refine_window >= 3)")
+
+
+@dataclass(frozen=True)
+class DisparityMap:
+    """Per-pixel result on the rectified left chip.
+
+    Attributes
+    ----------
+    disparity : ndarray (H, W) float32, ``u_right - u_left`` rectified pixels, NaN in holes
+    sigma_px : ndarray (H, W) float32, stated 1-sigma precision of ``disparity``, NaN in holes
+    score : ndarray (H, W) float32, zero-mean normalised correlation of the final windows (-1..1)
+    holes : ndarray (H, W) uint8, bits of :data:`HOLE_FLAGS` (0 where valid)
+    """
+
+    disparity: NDArray[np.float32]
+    sigma_px: NDArray[np.float32]
+    score: NDArray[np.float32]
+    holes: NDArray[np.uint8]
+
+    def hole_counts(self) -> dict[str, int]:
+        """Pixels carrying each flag (a pixel may carry several)."""
+        return {k: int(np.count_nonzero(self.holes & v)) for k, v in HOLE_FLAGS.items()}
+
+
+def to_8bit(left: NDArray[np.float32], right: NDArray[np.float32], valid: NDArray[np.bool_],
+            percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """Both chips stretched by one shared linear map (the valid pixels' percentiles) to 0..255."""
+    v = np.concatenate([left[valid], right[valid]]) if valid.any() else np.array([0.0, 1.0])
+    lo, hi = np.percentile(v, percentiles)
+    scale = 255.0 / max(float(hi - lo), 1e-6)
+
+    def stretch(x: NDArray[np.float32]) -> NDArray[np.uint8]:
+        return np.asarray(np.clip((x - lo) * scale + 0.5, 0, 255), np.uint8)
+
+    return stretch(left), stretch(right)
+
+
+def sgbm_matcher(settings: MatcherSettings, min_disparity: int, num_disparities: int) -> cv2.StereoSGBM:
+    """The configured ``cv2.StereoSGBM`` (OpenCV's disparity ``xl - xr``; see :func:`sgbm_disparity`)."""
+    b = settings.block_size
+    return cv2.StereoSGBM.create(
+        minDisparity=int(min_disparity), numDisparities=int(num_disparities), blockSize=b,
+        P1=settings.p1 * b * b, P2=settings.p2 * b * b, disp12MaxDiff=settings.lr_max_diff,
+        uniquenessRatio=settings.uniqueness_ratio, speckleWindowSize=settings.speckle_window,
+        speckleRange=settings.speckle_range, mode=_SGBM_MODES[settings.mode],
+    )
+
+
+def sgbm_disparity(left8: NDArray[np.uint8], right8: NDArray[np.uint8], d_min: float, d_max: float,
+                   settings: MatcherSettings) -> NDArray[np.float32]:
+    """SGBM disparity ``u_right - u_left`` (float32 pixels, NaN where SGBM found none) searched in [d_min, d_max].
+
+    OpenCV matches a left pixel x with the right pixel ``x - d_cv``; ours is ``d = -d_cv``, so the search
+    is ``d_cv`` in ``[-d_max, -d_min]`` rounded out to a multiple of 16 disparities.
+    """
+    lo = int(np.floor(-d_max))
+    n = int(16 * np.ceil((int(np.ceil(-d_min)) - lo + 1) / 16))
+    raw = sgbm_matcher(settings, lo, n).compute(left8, right8)
+    d = -raw.astype(np.float32) / 16.0
+    d[raw < lo * 16] = np.nan  # OpenCV marks a pixel without disparity (or failing its checks) by (lo - 1) * 16
+    return d
+
+
+def _box(x: NDArray[np.float32], w: int) -> NDArray[np.float32]:
+    return np.asarray(cv2.boxFilter(x, cv2.CV_32F, (w, w), normalize=True, borderType=cv2.BORDER_REFLECT), np.float32)
+
+
+def _window_stats(left: NDArray[np.float32], right: NDArray[np.float32], gx: NDArray[np.float32],
+                  shift: float, rows: slice, cols: slice, w: int) -> dict[str, NDArray[np.float32]]:
+    """Centred window moments for the 1-D affine model, the right chip shifted by one constant ``shift``,
+    over the sub-region ``rows, cols`` (window means: box filters and a ramp-weighted box).
+
+    With ``l`` the left chip, ``r`` the shifted right chip, ``g`` its x-gradient and ``h = g x`` (``x`` the
+    column offset from the window's centre), returns the covariances ``ll, lr, rr`` and those of the
+    regressors ``g, h`` with ``l``, ``r`` and each other (``lg, rg, lh, rh, gg, gh, hh``).
+    """
+    l1 = left[rows, cols]
+    uu, vv = np.meshgrid(np.arange(cols.start, cols.stop, dtype=np.float32) + np.float32(shift),
+                         np.arange(rows.start, rows.stop, dtype=np.float32))
+    r2 = np.asarray(cv2.remap(right, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
+    g = np.asarray(cv2.remap(gx, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
+    ramp = np.arange(w, dtype=np.float32) - np.float32(w // 2)
+    ones = np.ones(w, np.float32) / w
+
+    def ramp_box(x: NDArray[np.float32], k: NDArray[np.float32]) -> NDArray[np.float32]:
+        return np.asarray(cv2.sepFilter2D(x, cv2.CV_32F, k / w, ones, borderType=cv2.BORDER_REFLECT), np.float32)
+
+    m = {"l": _box(l1, w), "r": _box(r2, w), "g": _box(g, w), "h": ramp_box(g, ramp)}
+    out = {"ll": _box(l1 * l1, w) - m["l"] ** 2, "lr": _box(l1 * r2, w) - m["l"] * m["r"],
+           "rr": _box(r2 * r2, w) - m["r"] ** 2}
+    for a_name, a in (("l", l1), ("r", r2)):
+        ag = np.asarray(a * g, np.float32)
+        out[a_name + "g"] = _box(ag, w) - m[a_name] * m["g"]
+        out[a_name + "h"] = ramp_box(ag, ramp) - m[a_name] * m["h"]
+    out["gg"] = _box(g * g, w) - m["g"] ** 2
+    out["gh"] = ramp_box(g * g, ramp) - m["g"] * m["h"]
+    out["hh"] = ramp_box(g * g, ramp * ramp) - m["h"] ** 2
+    return out
+
+
+#: Quantisation steps (pixels) of the window shift at each refinement pass after the first (integer) one.
+_PASS_STEPS = (1.0 / 8.0, 1.0 / 32.0)
+
+
+def refine_disparity(
+    left: NDArray[np.float32],
+    right: NDArray[np.float32],
+    initial: NDArray[np.float32],
+    settings: MatcherSettings,
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """Least-squares sub-pixel disparity with gain and offset per window (module docstring, steps 2--3).
+
+    Each pixel's window is shifted *as a whole* by the pixel's current disparity (a dense Lucas--Kanade
+    that resamples the right image once with a per-pixel disparity field feeds each window the
+    neighbours' disparities; on the rendered pairs that feedback amplified the noise at every
+    iteration). Pixels are grouped by their disparity quantised to a step (1 px on the first pass, then
+    :data:`_PASS_STEPS`); per group the right chip is resampled by that constant shift over the group's
+    bounding box and the Gauss--Newton step is taken from the group's shift. The last pass's steps are
+    at most half its quantum, so the linearisation's bias is negligible and no fraction is preferred.
+
+    Parameters
+    ----------
+    left, right : ndarray (H, W) float32, the rectified chips
+    initial : ndarray (H, W) float32, starting disparity ``u_right - u_left`` (NaN: not refined)
+    settings : :class:`MatcherSettings` (``refine_window``, ``noise_correlation_px2``)
+
+    Returns
+    -------
+    disparity, sigma_px, score : each ndarray (H, W) float32 (NaN where ``initial`` is NaN or the window
+    has no gradient)
+    """
+    w = settings.refine_window
+    n = float(w * w)
+    hh, ww = left.shape
+    half = w // 2 + 2
+    known = np.isfinite(initial)
+    d = np.where(known, initial, 0.0).astype(np.float64)
+    l1 = np.asarray(left, np.float32)
+    r1 = np.asarray(right, np.float32)
+    gx = np.asarray(cv2.Sobel(r1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5), np.float32)  # central difference
+    sigma = np.full(l1.shape, np.nan, np.float32)
+    score = np.full(l1.shape, np.nan, np.float32)
+    for step_px in (1.0, *_PASS_STEPS):
+        q = np.where(known & np.isfinite(d), np.rint(d / step_px), 0).astype(np.int64)
+        new = d.copy()
+        for k in np.unique(q[known]):
+            sel = known & (q == k)
+            ys, xs = np.nonzero(sel)
+            rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
+            cols = slice(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
+            m = _window_stats(l1, r1, gx, float(k * step_px), rows, cols, w)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                a = m["lr"] / m["rr"]
+                # I_l ~ a I_r(u + d + t + s x) + b, linearised in (t, s): a (g t + h s) = residual, solved
+                # over the window (a 2 x 2 system per pixel, Cramer's rule)
+                b1, b2 = (m["lg"] - a * m["rg"]) / a, (m["lh"] - a * m["rh"]) / a
+                det = m["gg"] * m["hh"] - m["gh"] ** 2
+                step = (m["hh"] * b1 - m["gh"] * b2) / det
+                slope = (m["gg"] * b2 - m["gh"] * b1) / det
+                # residual variance after the step (n - 4 degrees of freedom: t, s, a, b) and t's precision
+                rss = np.maximum(m["ll"] - a * m["lr"] - a * a * (step * b1 + slope * b2), 0.0) * n / (n - 4.0)
+                sig = np.sqrt(rss * m["hh"] / (a * a * det * n)) * np.sqrt(max(settings.noise_correlation_px2, 1.0))
+                zncc = m["lr"] / np.sqrt(m["ll"] * m["rr"])
+            sub = sel[rows, cols]
+            new[rows, cols][sub] = k * step_px + np.clip(step[sub], -1.0, 1.0)
+            sigma[rows, cols][sub] = sig[sub]
+            score[rows, cols][sub] = zncc[sub]
+        d = new
+    bad = ~known | ~np.isfinite(sigma) | ~np.isfinite(d)
+    return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
+            np.where(bad, np.nan, score).astype(np.float32))
+
+
+def dense_disparity(
+    left: NDArray[np.float32],
+    right: NDArray[np.float32],
+    left_valid: NDArray[np.bool_],
+    right_valid: NDArray[np.bool_],
+    d_min: float,
+    d_max: float,
+    settings: MatcherSettings = MatcherSettings(),
+) -> DisparityMap:
+    """SGBM, left--right check, least-squares refinement, score, precision and holes of a rectified chip pair.
+
+    Parameters
+    ----------
+    left, right : ndarray (H, W) float32 DN, rectified (the right one resampled into the left's frame)
+    left_valid, right_valid : ndarray (H, W) bool, where each chip's samples lie inside its image
+    d_min, d_max : search range of ``u_right - u_left``, pixels
+    settings : :class:`MatcherSettings`
+
+    Returns
+    -------
+    :class:`DisparityMap`
+    """
+    s = settings
+    both = left_valid & right_valid
+    l8, r8 = to_8bit(left, right, both)
+    d0 = sgbm_disparity(l8, r8, d_min, d_max, s)
+    # The SGBM disparity's integer part seeds the refinement; its parabola fraction would pixel-lock.
+    seed = np.round(d0)
+    d, sigma, score = refine_disparity(left, right, seed, s)
+    holes = np.zeros(left.shape, np.uint8)
+    hh, ww = left.shape
+    uu = np.arange(ww, dtype=np.float32)[None, :]
+    # outside: the left pixel, or the right pixel it matched, is not inside its image
+    target = np.where(np.isfinite(d), uu + d, uu + seed)
+    ti = np.clip(np.rint(np.nan_to_num(target, nan=-1.0)), -1, ww).astype(np.int64)
+    inside_r = (ti >= 0) & (ti < ww)
+    rv = np.zeros_like(right_valid)
+    rows = np.broadcast_to(np.arange(hh)[:, None], ti.shape)
+    rv[inside_r] = right_valid[rows[inside_r], ti[inside_r]]
+    holes[~left_valid | (np.isfinite(target) & ~rv)] |= HOLE_OUTSIDE
+    # shadow: the window is dark (dark level removed) in either image, at the matched place in the right
+    w = s.refine_window
+    lit_l = _box(np.maximum(left - s.dark_dn, 0.0).astype(np.float32), w)
+    lit_r = _box(np.maximum(right - s.dark_dn, 0.0).astype(np.float32), w)
+    ref_l = float(np.median(np.maximum(left[both] - s.dark_dn, 0.0))) if both.any() else 0.0
+    ref_r = float(np.median(np.maximum(right[both] - s.dark_dn, 0.0))) if both.any() else 0.0
+    ti_c = np.clip(ti, 0, ww - 1)
+    dark = (lit_l < s.shadow_fraction * ref_l) | (lit_r[rows, ti_c] < s.shadow_fraction * ref_r)
+    holes[dark] |= HOLE_SHADOW
+    holes[~np.isfinite(d0)] |= HOLE_NO_MATCH
+    holes[np.isfinite(d0) & ~(sigma <= s.max_sigma_px)] |= HOLE_NO_TEXTURE
+    holes[np.isfinite(d) & ((np.abs(d - seed) > 1.0) | ~(score >= s.min_score))] |= HOLE_REFINEMENT
+    keep = holes == 0
+    nan = np.float32(np.nan)
+    return DisparityMap(np.where(keep, d, nan).astype(np.float32), np.where(keep, sigma, nan).astype(np.float32),
+                        np.nan_to_num(score, nan=0.0).astype(np.float32), holes)
