@@ -57,7 +57,7 @@ class MatcherSettings:
     lr_max_diff : left--right check tolerance, integer pixels (``disp12MaxDiff``)
     speckle_window, speckle_range : SGBM speckle filter (region size, pixels; disparity step, pixels)
     refine_window : side of the refinement's least-squares window, pixels (odd)
-    refine_iterations : Gauss--Newton iterations
+    refine_quantum_px : second pass: window shifts quantised to this step (0: one dense step instead)
     noise_correlation_px2 : area (pixels) over which the images' noise is correlated (see module docstring)
     max_sigma_px : larger stated disparity precision is a no-texture hole
     min_score : smaller zero-mean normalised correlation is a hole
@@ -75,7 +75,7 @@ class MatcherSettings:
     speckle_window: int = 50
     speckle_range: int = 2
     refine_window: int = 9
-    refine_iterations: int = 4
+    refine_quantum_px: float = 0.25
     noise_correlation_px2: float = 1.0
     max_sigma_px: float = 0.5
     min_score: float = 0.5
@@ -154,41 +154,53 @@ def _box(x: NDArray[np.float32], w: int) -> NDArray[np.float32]:
     return np.asarray(cv2.boxFilter(x, cv2.CV_32F, (w, w), normalize=True, borderType=cv2.BORDER_REFLECT), np.float32)
 
 
-def _window_stats(left: NDArray[np.float32], right: NDArray[np.float32], gx: NDArray[np.float32],
-                  shift: float, rows: slice, cols: slice, w: int) -> dict[str, NDArray[np.float32]]:
-    """Centred window moments for the 1-D affine model, the right chip shifted by one constant ``shift``,
-    over the sub-region ``rows, cols`` (window means: box filters and a ramp-weighted box).
+def _window_stats(l1: NDArray[np.float32], r2: NDArray[np.float32], g: NDArray[np.float32],
+                  w: int) -> dict[str, NDArray[np.float32]]:
+    """Centred window moments for the 1-D affine model (window means: box filters and a ramp-weighted box).
 
-    With ``l`` the left chip, ``r`` the shifted right chip, ``g`` its x-gradient and ``h = g x`` (``x`` the
-    column offset from the window's centre), returns the covariances ``ll, lr, rr`` and those of the
-    regressors ``g, h`` with ``l``, ``r`` and each other (``lg, rg, lh, rh, gg, gh, hh``).
+    With ``l1`` the left chip, ``r2`` the right chip resampled at the current disparity, ``g`` its
+    x-gradient there and ``h = g x`` (``x`` the column offset from the window's centre), returns the
+    covariances ``ll, lr, rr`` and those of the regressors ``g, h`` with ``l``, ``r`` and each other
+    (``lg, rg, lh, rh, gg, gh, hh``).
     """
-    l1 = left[rows, cols]
-    uu, vv = np.meshgrid(np.arange(cols.start, cols.stop, dtype=np.float32) + np.float32(shift),
-                         np.arange(rows.start, rows.stop, dtype=np.float32))
-    r2 = np.asarray(cv2.remap(right, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
-    g = np.asarray(cv2.remap(gx, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
     ramp = np.arange(w, dtype=np.float32) - np.float32(w // 2)
     ones = np.ones(w, np.float32) / w
 
     def ramp_box(x: NDArray[np.float32], k: NDArray[np.float32]) -> NDArray[np.float32]:
         return np.asarray(cv2.sepFilter2D(x, cv2.CV_32F, k / w, ones, borderType=cv2.BORDER_REFLECT), np.float32)
 
+    gg = np.asarray(g * g, np.float32)
     m = {"l": _box(l1, w), "r": _box(r2, w), "g": _box(g, w), "h": ramp_box(g, ramp)}
-    out = {"ll": _box(l1 * l1, w) - m["l"] ** 2, "lr": _box(l1 * r2, w) - m["l"] * m["r"],
-           "rr": _box(r2 * r2, w) - m["r"] ** 2}
-    for a_name, a in (("l", l1), ("r", r2)):
-        ag = np.asarray(a * g, np.float32)
-        out[a_name + "g"] = _box(ag, w) - m[a_name] * m["g"]
-        out[a_name + "h"] = ramp_box(ag, ramp) - m[a_name] * m["h"]
-    out["gg"] = _box(g * g, w) - m["g"] ** 2
-    out["gh"] = ramp_box(g * g, ramp) - m["g"] * m["h"]
-    out["hh"] = ramp_box(g * g, ramp * ramp) - m["h"] ** 2
+    out = {"ll": _box(np.asarray(l1 * l1, np.float32), w) - m["l"] ** 2,
+           "lr": _box(np.asarray(l1 * r2, np.float32), w) - m["l"] * m["r"],
+           "rr": _box(np.asarray(r2 * r2, np.float32), w) - m["r"] ** 2,
+           "gg": _box(gg, w) - m["g"] ** 2, "gh": ramp_box(gg, ramp) - m["g"] * m["h"],
+           "hh": ramp_box(gg, ramp * ramp) - m["h"] ** 2}
+    for name, x in (("l", l1), ("r", r2)):
+        xg = np.asarray(x * g, np.float32)
+        out[name + "g"] = _box(xg, w) - m[name] * m["g"]
+        out[name + "h"] = ramp_box(xg, ramp) - m[name] * m["h"]
     return out
 
 
-#: Quantisation steps (pixels) of the window shift at each refinement pass after the first (integer) one.
-_PASS_STEPS = (1.0 / 8.0, 1.0 / 32.0)
+def _solve(m: dict[str, NDArray[np.float32]], n: float,
+           settings: MatcherSettings) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """Gauss--Newton step, its stated precision and the window's ZNCC from :func:`_window_stats`.
+
+    Model ``I_l ~ a I_r(u + d + t + s x) + b`` linearised in ``(t, s)``: ``a (g t + h s) = residual`` over
+    the window, a 2 x 2 system per pixel (Cramer's rule); ``a`` is the windows' regression gain.
+    """
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        a = m["lr"] / m["rr"]
+        b1, b2 = (m["lg"] - a * m["rg"]) / a, (m["lh"] - a * m["rh"]) / a
+        det = m["gg"] * m["hh"] - m["gh"] ** 2
+        step = (m["hh"] * b1 - m["gh"] * b2) / det
+        slope = (m["gg"] * b2 - m["gh"] * b1) / det
+        # residual variance after the step (n - 4 degrees of freedom: t, s, a, b) and t's precision
+        rss = np.maximum(m["ll"] - a * m["lr"] - a * a * (step * b1 + slope * b2), 0.0) * n / (n - 4.0)
+        sig = np.sqrt(rss * m["hh"] / (a * a * det * n)) * np.sqrt(max(settings.noise_correlation_px2, 1.0))
+        zncc = m["lr"] / np.sqrt(m["ll"] * m["rr"])
+    return (np.asarray(step, np.float32), np.asarray(sig, np.float32), np.asarray(zncc, np.float32))
 
 
 def refine_disparity(
@@ -199,18 +211,19 @@ def refine_disparity(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """Least-squares sub-pixel disparity with gain and offset per window (module docstring, steps 2--3).
 
-    Each pixel's window is shifted *as a whole* by the pixel's current disparity (a dense Lucas--Kanade
-    that resamples the right image once with a per-pixel disparity field feeds each window the
-    neighbours' disparities; on the rendered pairs that feedback amplified the noise at every
-    iteration). Pixels are grouped by their disparity quantised to a step (1 px on the first pass, then
-    :data:`_PASS_STEPS`); per group the right chip is resampled by that constant shift over the group's
-    bounding box and the Gauss--Newton step is taken from the group's shift. The last pass's steps are
-    at most half its quantum, so the linearisation's bias is negligible and no fraction is preferred.
+    Two passes. (1) Pixels are grouped by their integer disparity ``k``; per group the right chip is
+    shifted by exactly ``k`` columns over the group's bounding box (no resampling) and one Gauss--Newton
+    step is taken: each window moves as a whole, so a pixel's estimate does not depend on its
+    neighbours' disparities. (2) One dense step from that estimate: the right chip is resampled once
+    (bicubic) at each pixel's own disparity and the step solved again. Iterating (2) -- which feeds
+    every window its neighbours' disparities -- amplified the noise on the rendered pairs at every
+    iteration, and repeating (1) at finer quantisation steps (1/8 px groups) cost 20x SGBM for the same
+    error; one pass of each is the measured compromise (docs/design/dense.md).
 
     Parameters
     ----------
     left, right : ndarray (H, W) float32, the rectified chips
-    initial : ndarray (H, W) float32, starting disparity ``u_right - u_left`` (NaN: not refined)
+    initial : ndarray (H, W) float32, starting integer disparity ``u_right - u_left`` (NaN: not refined)
     settings : :class:`MatcherSettings` (``refine_window``, ``noise_correlation_px2``)
 
     Returns
@@ -221,41 +234,55 @@ def refine_disparity(
     w = settings.refine_window
     n = float(w * w)
     hh, ww = left.shape
-    half = w // 2 + 2
+    half = w // 2 + 1
     known = np.isfinite(initial)
-    d = np.where(known, initial, 0.0).astype(np.float64)
+    k0 = np.where(known, np.rint(initial), 0).astype(np.int64)
     l1 = np.asarray(left, np.float32)
     r1 = np.asarray(right, np.float32)
     gx = np.asarray(cv2.Sobel(r1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5), np.float32)  # central difference
+    d = np.full(l1.shape, np.nan, np.float64)
+    for k in np.unique(k0[known]):
+        sel = known & (k0 == k)
+        ys, xs = np.nonzero(sel)
+        rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
+        cols = np.arange(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
+        src = np.clip(cols + int(k), 0, ww - 1)
+        c = slice(int(cols[0]), int(cols[-1]) + 1)
+        m = _window_stats(l1[rows, c], r1[rows][:, src], gx[rows][:, src], w)
+        step, _, _ = _solve(m, n, settings)
+        sub = sel[rows, c]
+        d[rows, c][sub] = k + np.clip(step[sub], -1.0, 1.0)
+    ok = np.isfinite(d)
+    d = np.where(ok, d, k0)
     sigma = np.full(l1.shape, np.nan, np.float32)
     score = np.full(l1.shape, np.nan, np.float32)
-    for step_px in (1.0, *_PASS_STEPS):
-        q = np.where(known & np.isfinite(d), np.rint(d / step_px), 0).astype(np.int64)
+    if settings.refine_quantum_px <= 0:
+        uu, vv = np.meshgrid(np.arange(ww, dtype=np.float32), np.arange(hh, dtype=np.float32))
+        mx = (uu + d).astype(np.float32)
+        r2 = np.asarray(cv2.remap(r1, mx, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
+        g = np.asarray(cv2.remap(gx, mx, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
+        step, sigma, score = _solve(_window_stats(l1, r2, g, w), n, settings)
+        d = d + np.clip(step, -1.0, 1.0)
+    else:
+        qs = settings.refine_quantum_px
+        q = np.rint(d / qs).astype(np.int64)
         new = d.copy()
-        for k in np.unique(q[known]):
-            sel = known & (q == k)
+        for k in np.unique(q[known & ok]):
+            sel = known & ok & (q == k)
             ys, xs = np.nonzero(sel)
             rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
-            cols = slice(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
-            m = _window_stats(l1, r1, gx, float(k * step_px), rows, cols, w)
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                a = m["lr"] / m["rr"]
-                # I_l ~ a I_r(u + d + t + s x) + b, linearised in (t, s): a (g t + h s) = residual, solved
-                # over the window (a 2 x 2 system per pixel, Cramer's rule)
-                b1, b2 = (m["lg"] - a * m["rg"]) / a, (m["lh"] - a * m["rh"]) / a
-                det = m["gg"] * m["hh"] - m["gh"] ** 2
-                step = (m["hh"] * b1 - m["gh"] * b2) / det
-                slope = (m["gg"] * b2 - m["gh"] * b1) / det
-                # residual variance after the step (n - 4 degrees of freedom: t, s, a, b) and t's precision
-                rss = np.maximum(m["ll"] - a * m["lr"] - a * a * (step * b1 + slope * b2), 0.0) * n / (n - 4.0)
-                sig = np.sqrt(rss * m["hh"] / (a * a * det * n)) * np.sqrt(max(settings.noise_correlation_px2, 1.0))
-                zncc = m["lr"] / np.sqrt(m["ll"] * m["rr"])
-            sub = sel[rows, cols]
-            new[rows, cols][sub] = k * step_px + np.clip(step[sub], -1.0, 1.0)
-            sigma[rows, cols][sub] = sig[sub]
-            score[rows, cols][sub] = zncc[sub]
+            c = slice(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
+            uu, vv = np.meshgrid(np.arange(c.start, c.stop, dtype=np.float32) + np.float32(k * qs),
+                                 np.arange(rows.start, rows.stop, dtype=np.float32))
+            r2 = np.asarray(cv2.remap(r1, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
+            g = np.asarray(cv2.remap(gx, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
+            step, sig, zn = _solve(_window_stats(l1[rows, c], r2, g, w), n, settings)
+            sub = sel[rows, c]
+            new[rows, c][sub] = k * qs + np.clip(step[sub], -1.0, 1.0)
+            sigma[rows, c][sub] = sig[sub]
+            score[rows, c][sub] = zn[sub]
         d = new
-    bad = ~known | ~np.isfinite(sigma) | ~np.isfinite(d)
+    bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
     return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
             np.where(bad, np.nan, score).astype(np.float32))
 
