@@ -18,7 +18,7 @@
    ``sigma_d`` is multiplied by ``sqrt(noise_correlation_px2)``, the area over which the noise is
    correlated (``4 pi sigma_psf^2`` for a Gaussian PSF of sigma ``sigma_psf``, at least 1).
 4. **Holes, never invented**: a pixel keeps NaN and a flag (bits of :data:`HOLE_FLAGS`) when it is outside
-   either image, in shadow in either image, without texture (``sigma_d`` above ``max_sigma_px``), without
+   either image, dark (in shadow) in either image, without texture (``sigma_d`` above ``max_sigma_px``), without
    an SGBM disparity or inconsistent left--right, or when the refinement leaves the SGBM pixel
    (``|d - d_sgbm| > 1``) or scores below ``min_score``. Nothing is interpolated into a hole.
 """
@@ -61,8 +61,8 @@ class MatcherSettings:
     noise_correlation_px2 : area (pixels) over which the images' noise is correlated (see module docstring)
     max_sigma_px : larger stated disparity precision is a no-texture hole
     min_score : smaller zero-mean normalised correlation is a hole
-    shadow_fraction : a window whose mean DN (dark level removed) is below this fraction of the chip's
-        median is in shadow
+    shadow_fraction : a pixel whose 3 x 3 mean DN (dark level removed) is below this fraction of the
+        chip's median is in shadow
     dark_dn : dark level of the images, DN
     """
 
@@ -75,7 +75,7 @@ class MatcherSettings:
     speckle_window: int = 50
     speckle_range: int = 2
     refine_window: int = 9
-    refine_quantum_px: float = 0.25
+    refine_quantum_px: float = 0.125
     noise_correlation_px2: float = 1.0
     max_sigma_px: float = 0.5
     min_score: float = 0.5
@@ -99,12 +99,14 @@ class DisparityMap:
     sigma_px : ndarray (H, W) float32, stated 1-sigma precision of ``disparity``, NaN in holes
     score : ndarray (H, W) float32, zero-mean normalised correlation of the final windows (-1..1)
     holes : ndarray (H, W) uint8, bits of :data:`HOLE_FLAGS` (0 where valid)
+    slope : ndarray (H, W) float32, the window's fitted disparity gradient along x (px per px), NaN in holes
     """
 
     disparity: NDArray[np.float32]
     sigma_px: NDArray[np.float32]
     score: NDArray[np.float32]
     holes: NDArray[np.uint8]
+    slope: NDArray[np.float32]
 
     def hole_counts(self) -> dict[str, int]:
         """Pixels carrying each flag (a pixel may carry several)."""
@@ -184,8 +186,8 @@ def _window_stats(l1: NDArray[np.float32], r2: NDArray[np.float32], g: NDArray[n
 
 
 def _solve(m: dict[str, NDArray[np.float32]], n: float,
-           settings: MatcherSettings) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
-    """Gauss--Newton step, its stated precision and the window's ZNCC from :func:`_window_stats`.
+           settings: MatcherSettings) -> tuple[NDArray[np.float32], ...]:
+    """Gauss--Newton step, its stated precision, the window's ZNCC and disparity slope from :func:`_window_stats`.
 
     Model ``I_l ~ a I_r(u + d + t + s x) + b`` linearised in ``(t, s)``: ``a (g t + h s) = residual`` over
     the window, a 2 x 2 system per pixel (Cramer's rule); ``a`` is the windows' regression gain.
@@ -200,7 +202,8 @@ def _solve(m: dict[str, NDArray[np.float32]], n: float,
         rss = np.maximum(m["ll"] - a * m["lr"] - a * a * (step * b1 + slope * b2), 0.0) * n / (n - 4.0)
         sig = np.sqrt(rss * m["hh"] / (a * a * det * n)) * np.sqrt(max(settings.noise_correlation_px2, 1.0))
         zncc = m["lr"] / np.sqrt(m["ll"] * m["rr"])
-    return (np.asarray(step, np.float32), np.asarray(sig, np.float32), np.asarray(zncc, np.float32))
+    return (np.asarray(step, np.float32), np.asarray(sig, np.float32), np.asarray(zncc, np.float32),
+            np.asarray(slope, np.float32))
 
 
 def refine_disparity(
@@ -208,7 +211,7 @@ def refine_disparity(
     right: NDArray[np.float32],
     initial: NDArray[np.float32],
     settings: MatcherSettings,
-) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """Least-squares sub-pixel disparity with gain and offset per window (module docstring, steps 2--3).
 
     Two passes. (1) Pixels are grouped by their integer disparity ``k``; per group the right chip is
@@ -228,8 +231,8 @@ def refine_disparity(
 
     Returns
     -------
-    disparity, sigma_px, score : each ndarray (H, W) float32 (NaN where ``initial`` is NaN or the window
-    has no gradient)
+    disparity, sigma_px, score, slope : each ndarray (H, W) float32 (NaN where ``initial`` is NaN or the
+    window has no gradient); ``slope`` is the window's fitted disparity gradient along x (px per px)
     """
     w = settings.refine_window
     n = float(w * w)
@@ -249,19 +252,20 @@ def refine_disparity(
         src = np.clip(cols + int(k), 0, ww - 1)
         c = slice(int(cols[0]), int(cols[-1]) + 1)
         m = _window_stats(l1[rows, c], r1[rows][:, src], gx[rows][:, src], w)
-        step, _, _ = _solve(m, n, settings)
+        step = _solve(m, n, settings)[0]
         sub = sel[rows, c]
         d[rows, c][sub] = k + np.clip(step[sub], -1.0, 1.0)
     ok = np.isfinite(d)
     d = np.where(ok, d, k0)
     sigma = np.full(l1.shape, np.nan, np.float32)
     score = np.full(l1.shape, np.nan, np.float32)
+    slope = np.full(l1.shape, np.nan, np.float32)
     if settings.refine_quantum_px <= 0:
         uu, vv = np.meshgrid(np.arange(ww, dtype=np.float32), np.arange(hh, dtype=np.float32))
         mx = (uu + d).astype(np.float32)
-        r2 = np.asarray(cv2.remap(r1, mx, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
-        g = np.asarray(cv2.remap(gx, mx, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
-        step, sigma, score = _solve(_window_stats(l1, r2, g, w), n, settings)
+        r2 = np.asarray(cv2.remap(r1, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
+        g = np.asarray(cv2.remap(gx, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
+        step, sigma, score, slope = _solve(_window_stats(l1, r2, g, w), n, settings)
         d = d + np.clip(step, -1.0, 1.0)
     else:
         qs = settings.refine_quantum_px
@@ -274,17 +278,18 @@ def refine_disparity(
             c = slice(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
             uu, vv = np.meshgrid(np.arange(c.start, c.stop, dtype=np.float32) + np.float32(k * qs),
                                  np.arange(rows.start, rows.stop, dtype=np.float32))
-            r2 = np.asarray(cv2.remap(r1, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
-            g = np.asarray(cv2.remap(gx, uu, vv, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE), np.float32)
-            step, sig, zn = _solve(_window_stats(l1[rows, c], r2, g, w), n, settings)
+            r2 = np.asarray(cv2.remap(r1, uu, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
+            g = np.asarray(cv2.remap(gx, uu, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
+            step, sig, zn, sl = _solve(_window_stats(l1[rows, c], r2, g, w), n, settings)
             sub = sel[rows, c]
             new[rows, c][sub] = k * qs + np.clip(step[sub], -1.0, 1.0)
             sigma[rows, c][sub] = sig[sub]
             score[rows, c][sub] = zn[sub]
+            slope[rows, c][sub] = sl[sub]
         d = new
     bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
     return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
-            np.where(bad, np.nan, score).astype(np.float32))
+            np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))
 
 
 def dense_disparity(
@@ -315,7 +320,7 @@ def dense_disparity(
     d0 = sgbm_disparity(l8, r8, d_min, d_max, s)
     # The SGBM disparity's integer part seeds the refinement; its parabola fraction would pixel-lock.
     seed = np.round(d0)
-    d, sigma, score = refine_disparity(left, right, seed, s)
+    d, sigma, score, slope = refine_disparity(left, right, seed, s)
     holes = np.zeros(left.shape, np.uint8)
     hh, ww = left.shape
     uu = np.arange(ww, dtype=np.float32)[None, :]
@@ -327,10 +332,10 @@ def dense_disparity(
     rows = np.broadcast_to(np.arange(hh)[:, None], ti.shape)
     rv[inside_r] = right_valid[rows[inside_r], ti[inside_r]]
     holes[~left_valid | (np.isfinite(target) & ~rv)] |= HOLE_OUTSIDE
-    # shadow: the window is dark (dark level removed) in either image, at the matched place in the right
-    w = s.refine_window
-    lit_l = _box(np.maximum(left - s.dark_dn, 0.0).astype(np.float32), w)
-    lit_r = _box(np.maximum(right - s.dark_dn, 0.0).astype(np.float32), w)
+    # shadow: the pixel (its 3 x 3 mean, for the noise) is dark in the left chip, or at the matched place in
+    # the right one: a pixel in shadow gets no height even where its window reaches lit ground
+    lit_l = _box(np.maximum(left - s.dark_dn, 0.0).astype(np.float32), 3)
+    lit_r = _box(np.maximum(right - s.dark_dn, 0.0).astype(np.float32), 3)
     ref_l = float(np.median(np.maximum(left[both] - s.dark_dn, 0.0))) if both.any() else 0.0
     ref_r = float(np.median(np.maximum(right[both] - s.dark_dn, 0.0))) if both.any() else 0.0
     ti_c = np.clip(ti, 0, ww - 1)
@@ -342,4 +347,5 @@ def dense_disparity(
     keep = holes == 0
     nan = np.float32(np.nan)
     return DisparityMap(np.where(keep, d, nan).astype(np.float32), np.where(keep, sigma, nan).astype(np.float32),
-                        np.nan_to_num(score, nan=0.0).astype(np.float32), holes)
+                        np.nan_to_num(score, nan=0.0).astype(np.float32), holes,
+                        np.where(keep, slope, nan).astype(np.float32))
