@@ -20,7 +20,8 @@ surface predict:
 
 Both images are resampled into the rectified frame (the left one by the rotation only, the right one
 by ``S^-1`` and the rotation: :func:`mercury_dem.match.pretransform.warp_to_reference`, which also
-low-pass filters a finer right image). The maps back to each original image are kept exactly
+low-pass filters a finer right image; a coarser right image has the left chip low-pass filtered instead,
+so both show the ground at the coarser resolution). The maps back to each original image are kept exactly
 (``to_left``, ``to_right``), so triangulation uses the original cameras, not the rectification's
 approximation; what the approximation costs is only a residual vertical disparity
 (``vertical_rms_px``, measured on the grid over the search range: the rectification error, S2P's
@@ -86,6 +87,8 @@ class RectifiedChip:
     surface_fit_rms_px : RMS of the surface homography fit, right-image pixels
     interior : (v0, v1, u0, u1) slice bounds of the chip's interior in the rectified frame
     sgm_memory_bytes : upper bound of SGM's cost-volume memory for this chip (2 int16 volumes)
+    right_px_per_rect_px : linear scale of the right image in the rectified frame at the chip centre
+        (below 1: the right image is coarser, and both chips are at its resolution)
     """
 
     left: NDArray[np.float32]
@@ -101,6 +104,12 @@ class RectifiedChip:
     surface_fit_rms_px: float
     interior: tuple[int, int, int, int]
     sgm_memory_bytes: int
+    right_px_per_rect_px: float = 1.0
+
+    @property
+    def coarser_px(self) -> float:
+        """Rectified pixels per pixel of the coarser image (>= 1): the chips' common resolution."""
+        return float(max(1.0, 1.0 / self.right_px_per_rect_px))
 
     @property
     def disparity_count(self) -> int:
@@ -195,8 +204,14 @@ def rectify_chip(
     to_right /= to_right[2, 2]
 
     shape = (hh, ww)
-    lr, lv = warp_to_reference(np.asarray(left_image, np.float32), to_left, shape, 1.0, psf_sigma_px)
+    # right pixels per rectified (= left) pixel: above 1 the right image is finer and warp_to_reference blurs
+    # it to the left's resolution; below 1 it is coarser and the left chip is blurred to the right's instead
+    # (the same rule in the other direction), so both chips show the ground at one resolution
     scale = _linear_scale(to_right, u_c)
+    lr, lv = warp_to_reference(np.asarray(left_image, np.float32), to_left, shape, 1.0, psf_sigma_px)
+    if scale < 1.0 / 1.05:
+        lr = np.asarray(cv2.GaussianBlur(lr, (0, 0), sigmaX=psf_sigma_px * float(np.sqrt(1.0 / scale**2 - 1.0))),
+                        np.float32)
     rr, rv = warp_to_reference(np.asarray(right_image, np.float32), to_right, shape, scale, psf_sigma_px)
     span = abs(rate) * dh + margin_px
     dmin, dmax = -span, span
@@ -204,7 +219,7 @@ def rectify_chip(
     memory = 2 * 2 * hh * ww * n
     interior = (chip.collar, chip.collar + chip.height, chip.collar, chip.collar + chip.width)
     return RectifiedChip(lr, rr, lv, rv, to_left, to_right, dmin, dmax, rate, vertical_rms, fit_rms, interior,
-                         memory)
+                         memory, scale)
 
 
 def _linear_scale(h: NDArray[np.float64], p: NDArray[np.float64]) -> float:

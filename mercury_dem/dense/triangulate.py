@@ -116,7 +116,8 @@ def triangulate_chip(
     score : ndarray (H, W) or None
     sigma_floor_px : disparity error added in quadrature to ``sigma_px`` for what the matcher's
         precision does not see: the rectification's vertical residual and the cameras' adjusted
-        error (a stated floor; the bundle adjustment's sigma0 in pixels is the natural value)
+        error (a stated floor; the bundle adjustment's sigma0 in pixels is the natural value), in pixels
+        of the coarser image (scaled by ``rect.coarser_px`` into rectified pixels)
     interior_only : keep only the chip's interior (the collar is context for the matcher)
 
     Returns
@@ -141,7 +142,7 @@ def triangulate_chip(
         lp, rp = rectified_to_images(rect, u, v, dd + step)
         hs.append(xyz_to_latlon(triangulate_pixels(left, right, lp, rp)[0], left.datum_radius_m)[2])
     dh_dd = np.abs(hs[1] - hs[0])
-    sig_d = np.hypot(sigma_px[ok].astype(np.float64), sigma_floor_px)
+    sig_d = np.hypot(sigma_px[ok].astype(np.float64), sigma_floor_px * rect.coarser_px)
     sc = np.full(u.shape, np.nan) if score is None else score[ok].astype(np.float64)
     return DensePoints(xyz, lat, lon, h, lpx, rpx, miss, angle, dh_dd * sig_d, sc)
 

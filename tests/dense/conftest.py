@@ -32,3 +32,14 @@ def low_sun_pair() -> RenderedPair:
     from mercury_dem.synth.render import RenderSettings
 
     return render_pair(RenderSettings(lambert_weight=1.0), incidence_deg=78.0)
+
+
+@pytest.fixture(scope="session")
+def coarse_east_pair() -> RenderedPair:
+    """Nadir at 200 m/px and a view tilted 30 deg west at 300 m/px: the epipolar lines run along the samples
+    (not the lines as in the other pairs) and the right image is 1.6x coarser in the rectified frame.
+    """
+    from mercury_dem.synth.render import RenderSettings
+
+    return render_pair(RenderSettings(lambert_weight=1.0), right_view={"gsd_m": 300.0, "tilt_east_deg": -30.0,
+                                                                        "tilt_north_deg": 0.0})

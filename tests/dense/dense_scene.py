@@ -83,14 +83,18 @@ def truth_surface() -> Any:
     return Surface(SurfaceParams(seed=42))
 
 
-def render_pair(settings: Any, incidence_deg: float = 45.0, seed: int = 3) -> RenderedPair:
-    """The nadir / 25-deg-north pair rendered with ``settings`` under a sun ``incidence_deg`` from the east."""
+def render_pair(settings: Any, incidence_deg: float = 45.0, seed: int = 3,
+                right_view: dict[str, float] | None = None) -> RenderedPair:
+    """The nadir / 25-deg-north pair rendered with ``settings`` under a sun ``incidence_deg`` from the east
+    (``right_view``: other keyword arguments of :func:`view` for the right image).
+    """
     pytest.importorskip("numba")
     from mercury_dem.synth.render import render_image
 
     surface = truth_surface()
     sun = sun_at(incidence_deg, 90.0)
-    left, right = view(0.0, sun), view(25.0, sun)
+    left = view(0.0, sun)
+    right = view(sun=sun, **right_view) if right_view else view(25.0, sun)
     rng = np.random.default_rng(seed)
     imgs = [render_image(surface, g.camera, g.position, g.rotation, g.sun_position, rng, settings).astype(np.float32)
             for g in (left, right)]

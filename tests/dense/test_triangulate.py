@@ -128,3 +128,25 @@ def test_filters_remove_points_for_their_stated_reasons(lambert_pair, lambert_po
     assert np.median(bad.miss_m) > 1000.0
     kept, removed = filter_points(bad, lambert_pair.left)
     assert removed["miss"] > 0.99 * len(bad)
+
+
+def test_a_coarser_right_image_across_the_other_axis(coarse_east_pair) -> None:
+    """Parallax along the samples and a right image 1.6x coarser: the rectification still leaves < 0.1 px
+    of vertical disparity; the left chip is blurred to the right's resolution and the floor counted in the
+    coarser image's pixels, so the precision still means what it says (measured: 134 m RMSE, true/stated
+    1.12, 1.0 % beyond 3 sigma; without the blur 170 m and 15 %)."""
+    from dense_scene import true_disparity
+
+    p = coarse_east_pair
+    rect = chip_of(p)
+    assert rect.coarser_px == pytest.approx(1.6, abs=0.1)
+    _, vertical = true_disparity(p, rect)
+    v0, v1, u0, u1 = rect.interior
+    assert np.sqrt(np.mean(vertical[v0:v1, u0:u1] ** 2)) < 0.1
+    pts, err = dense_points(p)
+    rms, ratio, beyond = calibration(pts, err)
+    m_per_px = 1.6 * GSD_M / 0.577  # rectified pixels of the coarser image over the parallax/height ratio
+    assert len(pts) > 0.7 * 224 * 224
+    assert rms < 0.33 * m_per_px, rms
+    assert 0.7 <= ratio <= 1.5, ratio
+    assert beyond <= 0.02, beyond
