@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from mercury_dem.dense.rectify import RectifiedChip, rectified_to_images
 from mercury_dem.geometry.body import xyz_to_latlon
 from mercury_dem.geometry.pose import pixel_rays
-from mercury_dem.match.pretransform import ImageGeometry
+from mercury_dem.match.pretransform import ImageGeometry, apply_homography
 
 
 @dataclass(frozen=True)
@@ -134,13 +134,19 @@ def triangulate_chip(
     u, v = uu.astype(np.float64), vv.astype(np.float64)
     dd = disparity[ok].astype(np.float64)
     lpx, rpx = rectified_to_images(rect, u, v, dd)
-    xyz, miss, angle = triangulate_pixels(left, right, lpx, rpx)
+    # the left ray is fixed by the left pixel: computed once, the right one at d and d +- 0.5 px
+    o1, d1 = pixel_rays(left.camera, left.position, left.rotation, lpx)
+    o1 = np.asarray(o1, np.float64)
+
+    def with_right(right_px: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        o2, d2 = pixel_rays(right.camera, right.position, right.rotation, right_px)
+        return intersect_rays(o1, d1, np.asarray(o2, np.float64), d2)
+
+    xyz, miss, angle = with_right(rpx)
     lat, lon, h = xyz_to_latlon(xyz, left.datum_radius_m)
     # dh/dd by a central difference of +-0.5 px through the same maps and rays
-    hs = []
-    for step in (-0.5, 0.5):
-        lp, rp = rectified_to_images(rect, u, v, dd + step)
-        hs.append(xyz_to_latlon(triangulate_pixels(left, right, lp, rp)[0], left.datum_radius_m)[2])
+    hs = [xyz_to_latlon(with_right(apply_homography(rect.to_right, np.stack([u + dd + step, v], axis=-1)))[0],
+                        left.datum_radius_m)[2] for step in (-0.5, 0.5)]
     dh_dd = np.abs(hs[1] - hs[0])
     sig_d = np.hypot(sigma_px[ok].astype(np.float64), sigma_floor_px * rect.coarser_px)
     sc = np.full(u.shape, np.nan) if score is None else score[ok].astype(np.float64)
