@@ -34,7 +34,7 @@ bounded and stated per chip (:attr:`RectifiedChip.sgm_memory_bytes`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -62,8 +62,16 @@ class Chip:
 
     @property
     def shape(self) -> tuple[int, int]:
-        """(lines, samples) of the rectified chip, collar included."""
+        """(lines, samples) of the chip with its collar in the left image.
+
+        The rectified frame (``RectifiedChip.left.shape``) is larger when the rectification rotates the chip.
+        """
         return self.height + 2 * self.collar, self.width + 2 * self.collar
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(s0, l0, s1, l1): the interior's outer pixel edges in the left image (end-exclusive)."""
+        return self.x0 - 0.5, self.y0 - 0.5, self.x0 + self.width - 0.5, self.y0 + self.height - 0.5
 
     @property
     def centre(self) -> NDArray[np.float64]:
@@ -85,7 +93,9 @@ class RectifiedChip:
     parallax_px_per_m : disparity per metre of height above the current surface at the chip centre
     vertical_rms_px : RMS vertical disparity the rectification leaves on the grid over the search range
     surface_fit_rms_px : RMS of the surface homography fit, right-image pixels
-    interior : (v0, v1, u0, u1) slice bounds of the chip's interior in the rectified frame
+    interior : (v0, v1, u0, u1) slice bounds of the rectified pixels whose left pixel is in the chip's interior
+        (its bounding box: the interior is a rotated rectangle in the rectified frame, :meth:`interior_mask`)
+    left_bounds : the chip interior's pixel edges in the left image (:attr:`Chip.bounds`)
     sgm_memory_bytes : upper bound of SGM's cost-volume memory for this chip (2 int16 volumes)
     right_px_per_rect_px : linear scale of the right image in the rectified frame at the chip centre
         (below 1: the right image is coarser, and both chips are at its resolution)
@@ -105,6 +115,20 @@ class RectifiedChip:
     interior: tuple[int, int, int, int]
     sgm_memory_bytes: int
     right_px_per_rect_px: float = 1.0
+    left_bounds: tuple[float, float, float, float] = (-np.inf, -np.inf, np.inf, np.inf)
+
+    def interior_mask(self) -> NDArray[np.bool_]:
+        """Rectified pixels whose left-image pixel lies in the chip's interior, shape of the chips.
+
+        Chips of :func:`mercury_dem.dense.chip.chip_grid` have disjoint interiors, so every left pixel is
+        kept by exactly one chip, whatever the rotation.
+        """
+        hh, ww = self.left.shape
+        vv, uu = np.mgrid[0:hh, 0:ww]
+        lp = apply_homography(self.to_left, np.stack([uu.ravel(), vv.ravel()], -1).astype(np.float64))
+        s0, l0, s1, l1 = self.left_bounds
+        inside = (lp[:, 0] >= s0) & (lp[:, 0] < s1) & (lp[:, 1] >= l0) & (lp[:, 1] < l1)
+        return np.asarray(inside.reshape(hh, ww), bool)
 
     @property
     def coarser_px(self) -> float:
@@ -157,9 +181,9 @@ def rectify_chip(
     GeometryError
         when the chip does not see the body or is not seen by the right image
     """
-    hh, ww = chip.shape
+    ch, cw = chip.shape
     t = np.linspace(0.0, 1.0, RECTIFY_GRID)
-    gs, gl = np.meshgrid(chip.x0 - chip.collar + t * (ww - 1), chip.y0 - chip.collar + t * (hh - 1))
+    gs, gl = np.meshgrid(chip.x0 - chip.collar + t * (cw - 1), chip.y0 - chip.collar + t * (ch - 1))
     px1 = np.stack([gs.ravel(), gl.ravel()], axis=-1)
     ground, hit = image_to_ground(left.camera, left.position, left.rotation, px1, height=surface_height,
                                   datum_radius_m=left.datum_radius_m)
@@ -196,6 +220,9 @@ def rectify_chip(
     k = int(np.argmin(np.sum((px1 - chip.centre) ** 2, axis=-1)))
     rate = float(per_m[k] @ rot[0])
 
+    # the rectified frame holds the rotated interior plus the collar on every side
+    ww = int(np.ceil(abs(c) * chip.width + abs(s) * chip.height - 1e-9)) + 2 * chip.collar
+    hh = int(np.ceil(abs(s) * chip.width + abs(c) * chip.height - 1e-9)) + 2 * chip.collar
     u_c = np.array([(ww - 1) / 2.0, (hh - 1) / 2.0])
     to_left = np.eye(3)
     to_left[:2, :2] = rot.T
@@ -217,9 +244,11 @@ def rectify_chip(
     dmin, dmax = -span, span
     n = int(16 * np.ceil((int(np.ceil(dmax) - np.floor(dmin)) + 1) / 16))
     memory = 2 * 2 * hh * ww * n
-    interior = (chip.collar, chip.collar + chip.height, chip.collar, chip.collar + chip.width)
-    return RectifiedChip(lr, rr, lv, rv, to_left, to_right, dmin, dmax, rate, vertical_rms, fit_rms, interior,
-                         memory, scale)
+    rect = RectifiedChip(lr, rr, lv, rv, to_left, to_right, dmin, dmax, rate, vertical_rms, fit_rms,
+                         (0, hh, 0, ww), memory, scale, chip.bounds)
+    rows, cols = np.nonzero(rect.interior_mask())
+    interior = (int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1)
+    return replace(rect, interior=interior)
 
 
 def _linear_scale(h: NDArray[np.float64], p: NDArray[np.float64]) -> float:

@@ -126,10 +126,7 @@ def triangulate_chip(
     """
     ok = np.isfinite(disparity) & np.isfinite(sigma_px)
     if interior_only:
-        v0, v1, u0, u1 = rect.interior
-        inner = np.zeros_like(ok)
-        inner[v0:v1, u0:u1] = True
-        ok &= inner
+        ok &= rect.interior_mask()
     vv, uu = np.nonzero(ok)
     u, v = uu.astype(np.float64), vv.astype(np.float64)
     dd = disparity[ok].astype(np.float64)
