@@ -135,3 +135,21 @@ def test_holes_where_the_rendered_image_is_in_shadow(low_sun_pair) -> None:
     lit = ~m & (dm.holes & HOLE_SHADOW == 0)
     lit[:v0], lit[v1:], lit[:, :u0], lit[:, u1:] = False, False, False, False
     assert np.isfinite(dm.disparity[lit]).mean() > 0.6
+
+
+def test_block_refinement_equals_the_whole_chip(lambert_pair) -> None:
+    """Refining block by block (the default, linear cost) gives every pixel the result of the whole chip."""
+    import dataclasses
+
+    from mercury_dem.dense.disparity import refine_disparity, refine_disparity_blocks, sgbm_disparity, to_8bit
+
+    rect = chip_of(lambert_pair)
+    s = MatcherSettings()
+    l8, r8 = to_8bit(rect.left, rect.right, rect.left_valid & rect.right_valid)
+    seed = np.round(sgbm_disparity(l8, r8, rect.disparity_min_px, rect.disparity_max_px, s))
+    whole = refine_disparity(rect.left, rect.right, seed, s)
+    blocks = refine_disparity_blocks(rect.left, rect.right, seed, dataclasses.replace(s, refine_block_px=48))
+    for a, b in zip(whole, blocks):
+        both = np.isfinite(a) & np.isfinite(b)
+        assert both.sum() > 0.99 * np.isfinite(a).sum()
+        np.testing.assert_allclose(a[both], b[both], atol=2e-3)
