@@ -153,3 +153,22 @@ def test_block_refinement_equals_the_whole_chip(lambert_pair) -> None:
         both = np.isfinite(a) & np.isfinite(b)
         assert both.sum() > 0.99 * np.isfinite(a).sum()
         np.testing.assert_allclose(a[both], b[both], atol=2e-3)
+
+
+def test_the_disparity_does_not_depend_on_opencvs_thread_count(lambert_pair) -> None:
+    """Serial == distributed needs it: SGBM_3WAY splits rows among threads; the result is bit-identical."""
+    import cv2
+
+    rect = chip_of(lambert_pair)
+    before = cv2.getNumThreads()
+    try:
+        out = []
+        for n in (1, 3):
+            cv2.setNumThreads(n)
+            out.append(dense_disparity(rect.left, rect.right, rect.left_valid, rect.right_valid,
+                                       rect.disparity_min_px, rect.disparity_max_px))
+    finally:
+        cv2.setNumThreads(before)
+    assert np.array_equal(out[0].holes, out[1].holes)
+    assert np.array_equal(out[0].disparity, out[1].disparity, equal_nan=True)
+    assert np.array_equal(out[0].sigma_px, out[1].sigma_px, equal_nan=True)
