@@ -73,6 +73,8 @@ class PairGeometry:
         combined pointing and position error of both images, plus ``guidance_margin_px``
     convergence_deg : angle between the two cameras' rays at the overlap centre (0 = the same view
         direction; the relief's parallax left by the datum pre-transform grows with it)
+    overlap_centre_m : ndarray (3,), the overlap centre on the datum, body-fixed metres (where the angles
+        above are computed; the stereo-pair selection measures the parallax/height ratio there), or None
     """
 
     homography: NDArray[np.float64]
@@ -85,6 +87,7 @@ class PairGeometry:
     sun_azimuth_difference_deg: float
     guidance_px: float
     convergence_deg: float = float("nan")
+    overlap_centre_m: NDArray[np.float64] | None = None
 
 
 def sun_azimuth_deg(ground: NDArray[np.float64], sun: NDArray[np.float64]) -> float:
@@ -182,6 +185,7 @@ def pair_geometry(
         sun_azimuth_difference_deg=daz,
         guidance_px=guidance,
         convergence_deg=convergence,
+        overlap_centre_m=g,
     )
 
 
