@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
+from mercury_dem.geometry.body import MERCURY, latlon_to_unit, latlon_to_xyz
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import look_at_rotation
 from mercury_dem.match.pretransform import ImageGeometry
@@ -35,7 +35,7 @@ def site_frame() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     up = latlon_to_unit(LAT, LON)
     east = np.cross([0.0, 0.0, 1.0], up)
     east /= np.linalg.norm(east)
-    return latlon_to_xyz(LAT, LON), east, np.cross(up, east), up
+    return latlon_to_xyz(LAT, LON, 0.0, MERCURY.datum_radius_m), east, np.cross(up, east), up
 
 
 def sun_at(incidence_deg: float, azimuth_deg: float) -> np.ndarray:
@@ -54,7 +54,7 @@ def view(tilt_north_deg: float, sun: np.ndarray, gsd_m: float = GSD_M, samples: 
     tn, te = np.radians(tilt_north_deg), np.radians(tilt_east_deg)
     d = np.cos(tn) * np.cos(te) * up + np.sin(tn) * north + np.sin(te) * np.cos(tn) * east
     c = centre + alt * d / np.linalg.norm(d)
-    return ImageGeometry.of(cam, c, look_at_rotation(c, centre, east), sun)
+    return ImageGeometry.of(cam, c, look_at_rotation(c, centre, east), sun, MERCURY.datum_radius_m)
 
 
 @dataclass
@@ -121,7 +121,8 @@ def true_disparity(pair: RenderedPair, rect: Any) -> tuple[np.ndarray, np.ndarra
     vv, uu = np.mgrid[0:hh, 0:ww]
     rp = np.stack([uu.ravel(), vv.ravel()], -1).astype(np.float64)
     g, _ = image_to_ground(pair.left.camera, pair.left.position, pair.left.rotation,
-                           apply_homography(rect.to_left, rp), height=pair.truth_height, tol_m=0.01)
+                           apply_homography(rect.to_left, rp), height=pair.truth_height, tol_m=0.01,
+                           datum_radius_m=pair.left.datum_radius_m)
     u2 = apply_homography(np.linalg.inv(rect.to_right), project(pair.right.camera, pair.right.position,
                                                                  pair.right.rotation, g)[0])
     return (u2[:, 0] - rp[:, 0]).reshape(hh, ww), (u2[:, 1] - rp[:, 1]).reshape(hh, ww)

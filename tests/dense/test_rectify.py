@@ -63,7 +63,8 @@ def test_a_chip_the_right_image_does_not_see_is_refused(lambert_pair) -> None:
 
 def test_a_rotated_chip_keeps_its_whole_interior_and_its_collar(lambert_pair) -> None:
     """A pair whose parallax runs diagonally in the left image (right view tilted north-east): the rectified
-    frame grows to hold the rotated interior and the collar, and the interior mask is the chip's pixels."""
+    frame grows to hold the rotated interior and the collar, and the interior mask is the chip's pixels.
+    """
     from dense_scene import sun_at, view
 
     p = lambert_pair

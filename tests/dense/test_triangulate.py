@@ -134,7 +134,8 @@ def test_a_coarser_right_image_across_the_other_axis(coarse_east_pair) -> None:
     """Parallax along the samples and a right image 1.6x coarser: the rectification still leaves < 0.1 px
     of vertical disparity; the left chip is blurred to the right's resolution and the floor counted in the
     coarser image's pixels, so the precision still means what it says (measured: 134 m RMSE, true/stated
-    1.12, 1.0 % beyond 3 sigma; without the blur 170 m and 15 %)."""
+    1.12, 1.0 % beyond 3 sigma; without the blur 170 m and 15 %).
+    """
     from dense_scene import true_disparity
 
     p = coarse_east_pair
