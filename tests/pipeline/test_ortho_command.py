@@ -16,7 +16,8 @@ def test_ortho_command_writes_images_and_mosaics_and_names_bad_images(
     sync_run: tuple[Path, dict[str, Any]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Two controlled images and one unknown id: the unknown one is named and skipped, the others get COGs in
-    the body's CRS, their tile a mosaic whose index layer names only them."""
+    the body's CRS, their tile a mosaic whose index layer names only them.
+    """
     import rasterio
 
     from mercury_dem.cli import main
