@@ -116,26 +116,36 @@ def write_raster(
     description: str = "elevation",
     units: str = "m",
     raw: bool = False,
+    dtype: str = "float32",
+    nodata: float = math.nan,
+    creation_options: dict[str, Any] | None = None,
 ) -> Path:
-    """Write a float32 single-band raster (NaN nodata) with an exact affine ``transform``.
+    """Write a single-band raster with an exact affine ``transform`` (default float32, NaN nodata).
 
     ``cog`` selects GDAL's COG driver (tiled, overviews, DEFLATE with the float
     predictor); otherwise a tiled DEFLATE GTiff. ``raw``: an uncompressed, striped GTiff
     whose pixels are one contiguous array (what a PDS4 label can describe in place;
     overrides ``cog``). The band gets ``units`` and
-    ``description``; ``tags`` go to the dataset metadata.
+    ``description``; ``tags`` go to the dataset metadata. ``dtype``/``nodata``: an integer
+    band (e.g. a source-image index, ``int32`` with ``nodata=-1``) gets the integer predictor.
+    ``creation_options``: further GDAL creation options (e.g. the COG driver's ``BLOCKSIZE``,
+    ``OVERVIEW_COUNT``). Written to a temporary sibling and renamed: a reader never sees a
+    half-written file.
     """
+    import uuid
+
     import rasterio
     from rasterio.crs import CRS
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    arr = np.asarray(values, dtype=np.float32)
+    arr = np.asarray(values, dtype=dtype)
     if arr.ndim != 2:
         raise ValueError(f"a raster is 2-D, got shape {arr.shape}")
-    profile: dict[str, Any] = {"width": arr.shape[1], "height": arr.shape[0], "count": 1, "dtype": "float32",
-                               "crs": CRS.from_user_input(crs), "transform": transform, "nodata": np.nan,
-                               "compress": "DEFLATE", "predictor": 3}
+    floating = np.issubdtype(arr.dtype, np.floating)
+    profile: dict[str, Any] = {"width": arr.shape[1], "height": arr.shape[0], "count": 1, "dtype": dtype,
+                               "crs": CRS.from_user_input(crs), "transform": transform, "nodata": nodata,
+                               "compress": "DEFLATE", "predictor": 3 if floating else 2}
     if raw:
         # GDAL defers all-nodata (or all-zero) strips of an uncompressed file to its end unless told
         # otherwise: the strips must be in order for the pixels to be one contiguous array.
@@ -149,13 +159,18 @@ def write_raster(
         if arr.shape[0] < 256 or arr.shape[1] < 256:  # GTiff tiles are multiples of 16
             profile.update(blockxsize=16 * max(1, min(16, -(-arr.shape[1] // 16))),
                            blockysize=16 * max(1, min(16, -(-arr.shape[0] // 16))))
-    tmp = path.with_name(f".{path.name}.tmp")
-    with rasterio.open(tmp, "w", **profile) as dst:
-        dst.write(arr, 1)
-        dst.set_band_unit(1, units)
-        dst.set_band_description(1, description)
-        dst.update_tags(**(tags or {}))
-    tmp.replace(path)
+    profile.update(creation_options or {})
+    # the temporary name io.atomic.sweep_temporaries recognises (.NAME.tmp-<12 hex>), unique per writer
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
+    try:
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(arr, 1)
+            dst.set_band_unit(1, units)
+            dst.set_band_description(1, description)
+            dst.update_tags(**(tags or {}))
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 
