@@ -257,7 +257,7 @@ def test_dem_chunks_run_on_dask_workers(s3_run: list[str], sync_run: tuple[Path,
     store = RunStore(RUN)
     r = store.remote
     pts = point_cloud(read_network(store.network_path("global", 0)))
-    cfg = config_with_extent(tiny_config().dem, pts, MERCURY.datum_radius_m)
+    cfg = config_with_extent(tiny_config().dem, pts)
     for n in _chunk_tokens(r):
         r.remove(f"dem_chunks/{n}")  # every chunk must be gridded again
     _worker_index.cache_clear()
