@@ -158,56 +158,6 @@ def _box(x: NDArray[np.float32], w: int) -> NDArray[np.float32]:
     return np.asarray(cv2.boxFilter(x, cv2.CV_32F, (w, w), normalize=True, borderType=cv2.BORDER_REFLECT), np.float32)
 
 
-def _window_stats(l1: NDArray[np.float32], r2: NDArray[np.float32], g: NDArray[np.float32],
-                  w: int) -> dict[str, NDArray[np.float32]]:
-    """Centred window moments for the 1-D affine model (window means: box filters and a ramp-weighted box).
-
-    With ``l1`` the left chip, ``r2`` the right chip resampled at the current disparity, ``g`` its
-    x-gradient there and ``h = g x`` (``x`` the column offset from the window's centre), returns the
-    covariances ``ll, lr, rr`` and those of the regressors ``g, h`` with ``l``, ``r`` and each other
-    (``lg, rg, lh, rh, gg, gh, hh``).
-    """
-    ramp = np.arange(w, dtype=np.float32) - np.float32(w // 2)
-    ones = np.ones(w, np.float32) / w
-
-    def ramp_box(x: NDArray[np.float32], k: NDArray[np.float32]) -> NDArray[np.float32]:
-        return np.asarray(cv2.sepFilter2D(x, cv2.CV_32F, k / w, ones, borderType=cv2.BORDER_REFLECT), np.float32)
-
-    gg = np.asarray(g * g, np.float32)
-    m = {"l": _box(l1, w), "r": _box(r2, w), "g": _box(g, w), "h": ramp_box(g, ramp)}
-    out = {"ll": _box(np.asarray(l1 * l1, np.float32), w) - m["l"] ** 2,
-           "lr": _box(np.asarray(l1 * r2, np.float32), w) - m["l"] * m["r"],
-           "rr": _box(np.asarray(r2 * r2, np.float32), w) - m["r"] ** 2,
-           "gg": _box(gg, w) - m["g"] ** 2, "gh": ramp_box(gg, ramp) - m["g"] * m["h"],
-           "hh": ramp_box(gg, ramp * ramp) - m["h"] ** 2}
-    for name, x in (("l", l1), ("r", r2)):
-        xg = np.asarray(x * g, np.float32)
-        out[name + "g"] = _box(xg, w) - m[name] * m["g"]
-        out[name + "h"] = ramp_box(xg, ramp) - m[name] * m["h"]
-    return out
-
-
-def _solve(m: dict[str, NDArray[np.float32]], n: float,
-           settings: MatcherSettings) -> tuple[NDArray[np.float32], ...]:
-    """Gauss--Newton step, its stated precision, the window's ZNCC and disparity slope from :func:`_window_stats`.
-
-    Model ``I_l ~ a I_r(u + d + t + s x) + b`` linearised in ``(t, s)``: ``a (g t + h s) = residual`` over
-    the window, a 2 x 2 system per pixel (Cramer's rule); ``a`` is the windows' regression gain.
-    """
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        a = m["lr"] / m["rr"]
-        b1, b2 = (m["lg"] - a * m["rg"]) / a, (m["lh"] - a * m["rh"]) / a
-        det = m["gg"] * m["hh"] - m["gh"] ** 2
-        step = (m["hh"] * b1 - m["gh"] * b2) / det
-        slope = (m["gg"] * b2 - m["gh"] * b1) / det
-        # residual variance after the step (n - 4 degrees of freedom: t, s, a, b) and t's precision
-        rss = np.maximum(m["ll"] - a * m["lr"] - a * a * (step * b1 + slope * b2), 0.0) * n / (n - 4.0)
-        sig = np.sqrt(rss * m["hh"] / (a * a * det * n)) * np.sqrt(max(settings.noise_correlation_px2, 1.0))
-        zncc = m["lr"] / np.sqrt(m["ll"] * m["rr"])
-    return (np.asarray(step, np.float32), np.asarray(sig, np.float32), np.asarray(zncc, np.float32),
-            np.asarray(slope, np.float32))
-
-
 def lanczos4_weights(fraction: float) -> NDArray[np.float32]:
     """The 8 Lanczos-4 weights (normalised to sum 1) that sample a row at ``x + fraction`` (0 <= fraction < 1)
     from the samples at ``x - 3 .. x + 4``.
@@ -217,27 +167,24 @@ def lanczos4_weights(fraction: float) -> NDArray[np.float32]:
     return np.asarray(w / w.sum(), np.float32)
 
 
-def _shift_columns(right: NDArray[np.float32], gx: NDArray[np.float32], rows: slice, cols: slice,
-                   shift: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """The right chip and its x-gradient sampled at ``(u + shift, v)`` for the rows and columns given.
+def _phase_planes(right: NDArray[np.float32], gx: NDArray[np.float32], fractions: NDArray[np.float64],
+                  pad: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The right chip and its x-gradient resampled at ``u + f`` for each fraction ``f`` (0 <= f < 1): (P, H, W + 2 pad).
 
-    A shift along the rows only: its integer part is a column offset, its fraction one 8-tap Lanczos-4
-    row filter (``cv2.sepFilter2D``), exact and 8x cheaper than ``cv2.remap``'s 8 x 8 Lanczos (which also
-    quantises the fraction to 1/32 px). Columns beyond the chip repeat its edge.
+    A shift along the rows only: one 8-tap Lanczos-4 row filter (``cv2.sepFilter2D``) per fraction, exact and
+    8x cheaper than ``cv2.remap``'s 8 x 8 Lanczos (which also quantises the fraction to 1/32 px). The chip is
+    first padded by ``pad`` columns repeating its edge, so plane column ``c + pad`` is chip column ``c``
+    shifted, with columns beyond the chip repeating its edge.
     """
-    k = int(np.floor(shift))
-    f = shift - k
-    width = right.shape[1]
-    src = np.clip(np.arange(cols.start + k - 4, cols.stop + k + 4), 0, width - 1)  # 4 taps of margin each side
-    kern = lanczos4_weights(f)
     one = np.ones(1, np.float32)
-    out = []
+    planes = []
     for img in (right, gx):
-        band = np.ascontiguousarray(img[rows][:, src])
-        # correlation: dst(x) = sum_i kern[i] band(x + i - 3); band column j is chip column cols.start + k - 4 + j
-        res = cv2.sepFilter2D(band, cv2.CV_32F, kern, one, anchor=(3, 0), borderType=cv2.BORDER_REPLICATE)
-        out.append(np.asarray(res[:, 4 : 4 + (cols.stop - cols.start)], np.float32))
-    return out[0], out[1]
+        band = cv2.copyMakeBorder(img, 0, 0, pad, pad, cv2.BORDER_REPLICATE)
+        # correlation: dst(x) = sum_i kern[i] band(x + i - 3)
+        planes.append(np.stack([np.asarray(cv2.sepFilter2D(band, cv2.CV_32F, lanczos4_weights(float(f)), one,
+                                                           anchor=(3, 0), borderType=cv2.BORDER_REPLICATE),
+                                           np.float32) for f in fractions]))
+    return planes[0], planes[1]
 
 
 def refine_disparity(
@@ -248,77 +195,64 @@ def refine_disparity(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """Least-squares sub-pixel disparity with gain and offset per window (module docstring, steps 2--3).
 
-    Two passes. (1) Pixels are grouped by their integer disparity ``k``; per group the right chip is
-    shifted by exactly ``k`` columns over the group's bounding box (no resampling) and one Gauss--Newton
-    step is taken: each window moves as a whole, so a pixel's estimate does not depend on its
-    neighbours' disparities. (2) One dense step from that estimate: the right chip is resampled once
-    (bicubic) at each pixel's own disparity and the step solved again. Iterating (2) -- which feeds
-    every window its neighbours' disparities -- amplified the noise on the rendered pairs at every
-    iteration, and repeating (1) at finer quantisation steps (1/8 px groups) cost 20x SGBM for the same
-    error; one pass of each is the measured compromise (docs/design/dense.md).
+    Two passes. (1) Each pixel's window is fitted against the right chip shifted by exactly its integer
+    disparity ``k`` columns (no resampling) with one Gauss--Newton step: each window moves as a whole, so a
+    pixel's estimate does not depend on its neighbours' disparities. (2) The same from that estimate
+    quantised to ``refine_quantum_px`` (the right chip resampled once per distinct fraction by a Lanczos-4
+    row filter), which gives the disparity, its precision, the score and the slope. With
+    ``refine_quantum_px = 0`` pass (2) is instead one dense step: the right chip is resampled (Lanczos-4)
+    at each pixel's own disparity and every window fitted on it -- which feeds each window its neighbours'
+    disparities; iterated, that amplified the noise on the rendered pairs (docs/design/dense.md).
+
+    Both passes run in the compiled kernel :func:`mercury_dem.dense.refine_kernel.window_fit` (per pixel,
+    its own shift; the numpy version grouped pixels by shift, same formulas in float32).
 
     Parameters
     ----------
     left, right : ndarray (H, W) float32, the rectified chips (``right`` may be wider, (H, W') with
         W' >= W: left column u is right column u + d)
     initial : ndarray (H, W) float32, starting integer disparity ``u_right - u_left`` (NaN: not refined)
-    settings : :class:`MatcherSettings` (``refine_window``, ``noise_correlation_px2``)
+    settings : :class:`MatcherSettings` (``refine_window``, ``refine_quantum_px``, ``noise_correlation_px2``)
 
     Returns
     -------
     disparity, sigma_px, score, slope : each ndarray (H, W) float32 (NaN where ``initial`` is NaN or the
     window has no gradient); ``slope`` is the window's fitted disparity gradient along x (px per px)
     """
+    from mercury_dem.dense.refine_kernel import fit_windows
+
     w = settings.refine_window
-    n = float(w * w)
     hh, ww = left.shape
-    half = w // 2 + 1
+    noise = float(np.sqrt(max(settings.noise_correlation_px2, 1.0)))
     known = np.isfinite(initial)
     k0 = np.where(known, np.rint(initial), 0).astype(np.int64)
-    l1 = np.asarray(left, np.float32)
-    r1 = np.asarray(right, np.float32)
+    l1 = np.ascontiguousarray(left, np.float32)
+    r1 = np.ascontiguousarray(right, np.float32)
     gx = np.asarray(cv2.Sobel(r1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5), np.float32)  # central difference
-    d = np.full(l1.shape, np.nan, np.float64)
-    for k in np.unique(k0[known]):
-        sel = known & (k0 == k)
-        ys, xs = np.nonzero(sel)
-        rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
-        cols = np.arange(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
-        src = np.clip(cols + int(k), 0, right.shape[1] - 1)
-        c = slice(int(cols[0]), int(cols[-1]) + 1)
-        m = _window_stats(l1[rows, c], r1[rows][:, src], gx[rows][:, src], w)
-        step = _solve(m, n, settings)[0]
-        sub = sel[rows, c]
-        d[rows, c][sub] = k + np.clip(step[sub], -1.0, 1.0)
-    ok = np.isfinite(d)
-    d = np.where(ok, d, k0)
-    sigma = np.full(l1.shape, np.nan, np.float32)
-    score = np.full(l1.shape, np.nan, np.float32)
-    slope = np.full(l1.shape, np.nan, np.float32)
+    step = fit_windows(l1, r1[None], gx[None], 0, k0, np.where(known, 0, -1), w, noise)[0]
+    dstep = np.clip(step, np.float32(-1.0), np.float32(1.0))
+    ok = known & np.isfinite(dstep)
+    d = np.where(ok, k0 + dstep.astype(np.float64), k0)
     if settings.refine_quantum_px <= 0:
         uu, vv = np.meshgrid(np.arange(ww, dtype=np.float32), np.arange(hh, dtype=np.float32))
         mx = (uu + d).astype(np.float32)
         r2 = np.asarray(cv2.remap(r1, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
         g = np.asarray(cv2.remap(gx, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
-        step, sigma, score, slope = _solve(_window_stats(l1, r2, g, w), n, settings)
-        d = d + np.clip(step, -1.0, 1.0)
+        step, sigma, score, slope = fit_windows(l1, r2[None], g[None], 0, np.zeros(l1.shape, np.int64),
+                                                np.where(ok, 0, -1), w, noise)
+        d = d + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
     else:
         qs = settings.refine_quantum_px
-        q = np.rint(d / qs).astype(np.int64)
-        new = d.copy()
-        for k in np.unique(q[known & ok]):
-            sel = known & ok & (q == k)
-            ys, xs = np.nonzero(sel)
-            rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
-            c = slice(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
-            r2, g = _shift_columns(r1, gx, rows, c, float(k * qs))
-            step, sig, zn, sl = _solve(_window_stats(l1[rows, c], r2, g, w), n, settings)
-            sub = sel[rows, c]
-            new[rows, c][sub] = k * qs + np.clip(step[sub], -1.0, 1.0)
-            sigma[rows, c][sub] = sig[sub]
-            score[rows, c][sub] = zn[sub]
-            slope[rows, c][sub] = sl[sub]
-        d = new
+        shift = np.rint(d / qs).astype(np.int64) * qs
+        kk = np.floor(shift).astype(np.int64)
+        frac = shift - kk
+        fractions, index = np.unique(frac[ok], return_inverse=True)
+        phase = np.full(l1.shape, -1, np.int64)
+        phase[ok] = index.ravel()
+        pad = int(np.abs(kk[ok]).max()) + 8 if ok.any() else 8
+        rp, gp = _phase_planes(r1, gx, fractions, pad)
+        step, sigma, score, slope = fit_windows(l1, rp, gp, pad, kk, phase, w, noise)
+        d = shift + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
     bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
     return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
             np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))

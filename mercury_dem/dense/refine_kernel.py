@@ -1,0 +1,212 @@
+"""Compiled kernel of the dense refinement's window fit (:func:`mercury_dem.dense.disparity.refine_disparity`).
+
+One Gauss--Newton step of the 1-D affine window model for every pixel, each with its own whole-window
+shift of the right chip: an integer column offset ``k`` plus a sub-pixel phase ``p`` (an index into
+planes of the right chip and of its x-gradient already resampled at that phase). The numpy version grouped
+the pixels by shift and box-filtered each group's bounding box (~13 box filters, 5 ramp filters and a 2 x 2
+solve per group, ~30-50 groups per 128-px block): the time went to Python and small-array overhead and to
+the overlap of the boxes (docs/benchmarks/dense.md). Here each pixel's window sums are built from
+*column sums* (the ``w`` rows of one column at one shift): along a row, a pixel whose shift equals its left
+neighbour's reuses that pixel's column sums (a ring buffer) and adds one new column. Every column sum is
+summed over the rows top to bottom and the window over its columns left to right, in float64, whatever run
+of equal shifts the pixel sits in: a pixel's result depends only on its own window and shift -- not on the
+blocking, the run it belongs to or the thread count.
+
+Borders as the numpy version's (OpenCV ``BORDER_REFLECT`` of the box filters at the array's edges, the
+right chip's columns clamped at its edges).
+
+Compiled with numba (``cache=True``, warmed by :mod:`mercury_dem.pipeline.warm`), serial and ``nogil`` so
+that Dask's threads run chips side by side.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+#: Column-sum channels: l, r, g, ll, lr, rr, gg, lg, rg.
+_NCH = 9
+
+
+@numba.njit(cache=True, inline="always")
+def _reflect(p: int, n: int) -> int:  # pragma: no cover - compiled
+    """OpenCV's BORDER_REFLECT index (``fedcba|abcdefgh|hgfedcb``)."""
+    if n == 1:
+        return 0
+    while p < 0 or p >= n:
+        if p < 0:
+            p = -p - 1
+        else:
+            p = 2 * n - p - 1
+    return p
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor,
+               step, sigma, zncc, slope):  # pragma: no cover - compiled
+    """Fit every pixel with ``phase >= 0``; write NaN elsewhere.
+
+    Parameters
+    ----------
+    left : (H, W) float32, the left chip
+    rplanes, gplanes : (P, H, W2) float32, the right chip and its x-gradient resampled at each phase; left
+        column ``c`` at integer shift ``k`` samples plane column ``c + k + col_offset`` (clamped to the plane)
+    col_offset : int, columns of padding on the planes' left
+    shift, phase : (H, W) int64, each pixel's integer shift and phase index (-1: not fitted)
+    w : odd window side
+    noise_factor : ``sqrt(max(noise_correlation_px2, 1))``
+    step, sigma, zncc, slope : (H, W) float32 outputs: the Gauss--Newton step of the shift, its stated
+        precision, the windows' zero-mean normalised correlation and the fitted disparity slope (px per px)
+
+    Model ``I_l ~ a I_r(u + d + t + s x) + b`` linearised in ``(t, s)``: ``a (g t + h s) = residual`` over the
+    window, a 2 x 2 system per pixel (Cramer's rule), ``a`` the windows' regression gain; the residual
+    variance has ``n - 4`` degrees of freedom (t, s, a, b) and ``sigma = sqrt(s^2 (N^-1)_11) noise_factor``.
+    """
+    hh, ww = left.shape
+    w2 = rplanes.shape[2]
+    half = w // 2
+    n = float(w * w)
+    cs = np.zeros((w, _NCH), np.float64)
+    rows = np.empty(w, np.int64)
+    for i in range(hh):
+        for t in range(w):
+            rows[t] = _reflect(i + t - half, hh)
+        prev_j = -10
+        prev_k = 0
+        prev_p = -1
+        for j in range(ww):
+            p = phase[i, j]
+            if p < 0:
+                step[i, j] = np.nan
+                sigma[i, j] = np.nan
+                zncc[i, j] = np.nan
+                slope[i, j] = np.nan
+                continue
+            k = shift[i, j]
+            if prev_j == j - 1 and prev_k == k and prev_p == p:
+                c_first = j + half  # one new column; the others are the neighbour's
+            else:
+                c_first = j - half
+            for c in range(c_first, j + half + 1):
+                cc = _reflect(c, ww)
+                rc = cc + k + col_offset
+                if rc < 0:
+                    rc = 0
+                elif rc > w2 - 1:
+                    rc = w2 - 1
+                sl = 0.0
+                sr = 0.0
+                sg = 0.0
+                sll = 0.0
+                slr = 0.0
+                srr = 0.0
+                sgg = 0.0
+                slg = 0.0
+                srg = 0.0
+                for t in range(w):
+                    y = rows[t]
+                    lv = float(left[y, cc])
+                    rv = float(rplanes[p, y, rc])
+                    gv = float(gplanes[p, y, rc])
+                    sl += lv
+                    sr += rv
+                    sg += gv
+                    sll += lv * lv
+                    slr += lv * rv
+                    srr += rv * rv
+                    sgg += gv * gv
+                    slg += lv * gv
+                    srg += rv * gv
+                slot = c % w
+                cs[slot, 0] = sl
+                cs[slot, 1] = sr
+                cs[slot, 2] = sg
+                cs[slot, 3] = sll
+                cs[slot, 4] = slr
+                cs[slot, 5] = srr
+                cs[slot, 6] = sgg
+                cs[slot, 7] = slg
+                cs[slot, 8] = srg
+            prev_j = j
+            prev_k = k
+            prev_p = p
+            # window sums, columns left to right; h = g x (x: column offset from the centre)
+            s_l = 0.0
+            s_r = 0.0
+            s_g = 0.0
+            s_ll = 0.0
+            s_lr = 0.0
+            s_rr = 0.0
+            s_gg = 0.0
+            s_lg = 0.0
+            s_rg = 0.0
+            s_h = 0.0
+            s_gh = 0.0
+            s_hh = 0.0
+            s_lh = 0.0
+            s_rh = 0.0
+            for t in range(w):
+                x = float(t - half)
+                slot = (j + t - half) % w
+                s_l += cs[slot, 0]
+                s_r += cs[slot, 1]
+                s_g += cs[slot, 2]
+                s_ll += cs[slot, 3]
+                s_lr += cs[slot, 4]
+                s_rr += cs[slot, 5]
+                s_gg += cs[slot, 6]
+                s_lg += cs[slot, 7]
+                s_rg += cs[slot, 8]
+                s_h += x * cs[slot, 2]
+                s_gh += x * cs[slot, 6]
+                s_hh += x * x * cs[slot, 6]
+                s_lh += x * cs[slot, 7]
+                s_rh += x * cs[slot, 8]
+            ml = s_l / n
+            mr = s_r / n
+            mg = s_g / n
+            mh = s_h / n
+            m_ll = s_ll / n - ml * ml
+            m_lr = s_lr / n - ml * mr
+            m_rr = s_rr / n - mr * mr
+            m_gg = s_gg / n - mg * mg
+            m_gh = s_gh / n - mg * mh
+            m_hh = s_hh / n - mh * mh
+            m_lg = s_lg / n - ml * mg
+            m_rg = s_rg / n - mr * mg
+            m_lh = s_lh / n - ml * mh
+            m_rh = s_rh / n - mr * mh
+            # the 2 x 2 Gauss--Newton system (the numpy version's formulas, in float64)
+            a = m_lr / m_rr
+            b1 = (m_lg - a * m_rg) / a
+            b2 = (m_lh - a * m_rh) / a
+            det = m_gg * m_hh - m_gh * m_gh
+            st = (m_hh * b1 - m_gh * b2) / det
+            sp = (m_gg * b2 - m_gh * b1) / det
+            rss = m_ll - a * m_lr - a * a * (st * b1 + sp * b2)
+            if rss < 0.0:
+                rss = 0.0
+            rss = rss * n / (n - 4.0)
+            step[i, j] = st
+            sigma[i, j] = np.sqrt(rss * m_hh / (a * a * det * n)) * noise_factor
+            zncc[i, j] = m_lr / np.sqrt(m_ll * m_rr)
+            slope[i, j] = sp
+
+
+def fit_windows(left: NDArray[np.float32], rplanes: NDArray[np.float32], gplanes: NDArray[np.float32],
+                col_offset: int, shift: NDArray[np.int64], phase: NDArray[np.int64], w: int,
+                noise_factor: float) -> tuple[NDArray[np.float32], ...]:
+    """:func:`window_fit` with its outputs allocated: ``(step, sigma, zncc, slope)``, each (H, W) float32."""
+    out = tuple(np.empty(left.shape, np.float32) for _ in range(4))
+    window_fit(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(rplanes, np.float32),
+               np.ascontiguousarray(gplanes, np.float32), int(col_offset),
+               np.ascontiguousarray(shift, np.int64), np.ascontiguousarray(phase, np.int64), int(w),
+               float(noise_factor), *out)
+    return out
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) the kernel for the types the refinement passes."""
+    z = np.zeros((1, 4, 4), np.float32)
+    fit_windows(z[0], z, z, 0, np.zeros((4, 4), np.int64), np.zeros((4, 4), np.int64), 3, 1.0)
