@@ -58,7 +58,8 @@ class MatcherSettings:
     speckle_window, speckle_range : SGBM speckle filter (region size, pixels; disparity step, pixels)
     refine_window : side of the refinement's least-squares window, pixels (odd)
     refine_quantum_px : second pass: window shifts quantised to this step (0: one dense step instead)
-    refine_block_px : the refinement runs block by block (side in pixels; 0: the whole chip at once)
+    refine_block_px : the refinement runs block by block (side in pixels; 0: the whole chip at once); bounds
+        the memory of the resampled right chip (2 x 8 float32 planes per pixel at 1/8 px) on large chips
     noise_correlation_px2 : area (pixels) over which the images' noise is correlated (see module docstring)
     max_sigma_px : larger stated disparity precision is a no-texture hole
     min_score : smaller zero-mean normalised correlation is a hole
@@ -77,7 +78,7 @@ class MatcherSettings:
     speckle_range: int = 2
     refine_window: int = 9
     refine_quantum_px: float = 0.125
-    refine_block_px: int = 128
+    refine_block_px: int = 512
     noise_correlation_px2: float = 1.0
     max_sigma_px: float = 0.5
     min_score: float = 0.5
@@ -171,20 +172,20 @@ def _phase_planes(right: NDArray[np.float32], gx: NDArray[np.float32], fractions
                   pad: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """The right chip and its x-gradient resampled at ``u + f`` for each fraction ``f`` (0 <= f < 1): (P, H, W + 2 pad).
 
-    A shift along the rows only: one 8-tap Lanczos-4 row filter (``cv2.sepFilter2D``) per fraction, exact and
-    8x cheaper than ``cv2.remap``'s 8 x 8 Lanczos (which also quantises the fraction to 1/32 px). The chip is
-    first padded by ``pad`` columns repeating its edge, so plane column ``c + pad`` is chip column ``c``
-    shifted, with columns beyond the chip repeating its edge.
+    A shift along the rows only: one 8-tap Lanczos-4 row filter (``cv2.filter2D``, a 1 x 8 kernel) per
+    fraction, exact and 8x cheaper than ``cv2.remap``'s 8 x 8 Lanczos (which also quantises the fraction to
+    1/32 px). The chip is first padded by ``pad`` columns repeating its edge, so plane column ``c + pad`` is
+    chip column ``c`` shifted, with columns beyond the chip repeating its edge.
     """
-    one = np.ones(1, np.float32)
-    planes = []
-    for img in (right, gx):
+    hh, ww = right.shape
+    out = np.empty((2, len(fractions), hh, ww + 2 * pad), np.float32)
+    for m, img in enumerate((right, gx)):
         band = cv2.copyMakeBorder(img, 0, 0, pad, pad, cv2.BORDER_REPLICATE)
-        # correlation: dst(x) = sum_i kern[i] band(x + i - 3)
-        planes.append(np.stack([np.asarray(cv2.sepFilter2D(band, cv2.CV_32F, lanczos4_weights(float(f)), one,
-                                                           anchor=(3, 0), borderType=cv2.BORDER_REPLICATE),
-                                           np.float32) for f in fractions]))
-    return planes[0], planes[1]
+        for q, f in enumerate(fractions):
+            # correlation: dst(x) = sum_i kern[i] band(x + i - 3)
+            cv2.filter2D(band, cv2.CV_32F, lanczos4_weights(float(f))[None, :], dst=out[m, q], anchor=(3, 0),
+                         borderType=cv2.BORDER_REPLICATE)
+    return out[0], out[1]
 
 
 def refine_disparity(
@@ -243,16 +244,24 @@ def refine_disparity(
         d = d + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
     else:
         qs = settings.refine_quantum_px
-        shift = np.rint(d / qs).astype(np.int64) * qs
-        kk = np.floor(shift).astype(np.int64)
-        frac = shift - kk
-        fractions, index = np.unique(frac[ok], return_inverse=True)
-        phase = np.full(l1.shape, -1, np.int64)
-        phase[ok] = index.ravel()
-        pad = int(np.abs(kk[ok]).max()) + 8 if ok.any() else 8
+        q = np.rint(d / qs).astype(np.int64)
+        q0 = int(q[ok].min()) if ok.any() else 0
+        # the few quanta present (a table over their range, not a sort of every pixel): integer part and phase
+        used = np.flatnonzero(np.bincount((q - q0)[ok])) + q0 if ok.any() else np.zeros(1, np.int64)
+        shifts = used * qs
+        whole = np.floor(shifts).astype(np.int64)
+        fractions, phase_of = np.unique(shifts - whole, return_inverse=True)
+        lut_k = np.zeros(int(used[-1]) - q0 + 1, np.int64)
+        lut_p = np.full(lut_k.size, -1, np.int64)
+        lut_k[used - q0] = whole
+        lut_p[used - q0] = phase_of.ravel()
+        qi = np.where(ok, q - q0, 0)
+        kk = lut_k[qi]
+        phase = np.where(ok, lut_p[qi], -1)
+        pad = int(np.abs(whole).max()) + 8
         rp, gp = _phase_planes(r1, gx, fractions, pad)
         step, sigma, score, slope = fit_windows(l1, rp, gp, pad, kk, phase, w, noise)
-        d = shift + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
+        d = q * qs + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
     bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
     return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
             np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))
@@ -265,11 +274,11 @@ def refine_disparity_blocks(
     settings: MatcherSettings,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """:func:`refine_disparity` block by block (``refine_block_px`` squared, each with the margins its windows
-    and its disparities reach): the same result for every pixel, at a cost linear in the chip's area.
+    and its disparities reach): the same result for every pixel (the disparity within one float32 rounding).
 
-    The grouped passes resample and box-filter each group's bounding box; over a whole chip a group of one
-    quantised shift spans most of it, so the cost grew with the chip's area times its disparity range
-    (7x for 4x the pixels from 256^2 to 512^2 chips). Within a block the disparities span little.
+    The compiled refinement costs the same per pixel on a whole chip; blocks only bound the memory of the
+    resampled right chip (one plane per 1/8-px phase) on large chips. (The numpy version grouped pixels by
+    shift and its cost grew with the chip's area times its disparity range, which 128-px blocks contained.)
     """
     b = settings.refine_block_px
     hh, ww = left.shape

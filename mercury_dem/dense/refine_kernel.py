@@ -7,7 +7,7 @@ the pixels by shift and box-filtered each group's bounding box (~13 box filters,
 solve per group, ~30-50 groups per 128-px block): the time went to Python and small-array overhead and to
 the overlap of the boxes (docs/benchmarks/dense.md). Here each pixel's window sums are built from
 *column sums* (the ``w`` rows of one column at one shift): along a row, a pixel whose shift equals its left
-neighbour's reuses that pixel's column sums (a ring buffer) and adds one new column. Every column sum is
+neighbour's reuses that pixel's column sums and adds one new column. Every column sum is
 summed over the rows top to bottom and the window over its columns left to right, in float64, whatever run
 of equal shifts the pixel sits in: a pixel's result depends only on its own window and shift -- not on the
 blocking, the run it belongs to or the thread count.
@@ -67,7 +67,9 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
     w2 = rplanes.shape[2]
     half = w // 2
     n = float(w * w)
-    cs = np.zeros((w, _NCH), np.float64)
+    inv_n = 1.0 / n
+    dof = n / (n - 4.0)
+    cs = np.zeros((ww + 2 * half, _NCH), np.float64)  # column c's sums at index c + half
     rows = np.empty(w, np.int64)
     for i in range(hh):
         for t in range(w):
@@ -118,7 +120,7 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
                     sgg += gv * gv
                     slg += lv * gv
                     srg += rv * gv
-                slot = c % w
+                slot = c + half
                 cs[slot, 0] = sl
                 cs[slot, 1] = sr
                 cs[slot, 2] = sg
@@ -148,7 +150,7 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
             s_rh = 0.0
             for t in range(w):
                 x = float(t - half)
-                slot = (j + t - half) % w
+                slot = j + t
                 s_l += cs[slot, 0]
                 s_r += cs[slot, 1]
                 s_g += cs[slot, 2]
@@ -163,20 +165,20 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
                 s_hh += x * x * cs[slot, 6]
                 s_lh += x * cs[slot, 7]
                 s_rh += x * cs[slot, 8]
-            ml = s_l / n
-            mr = s_r / n
-            mg = s_g / n
-            mh = s_h / n
-            m_ll = s_ll / n - ml * ml
-            m_lr = s_lr / n - ml * mr
-            m_rr = s_rr / n - mr * mr
-            m_gg = s_gg / n - mg * mg
-            m_gh = s_gh / n - mg * mh
-            m_hh = s_hh / n - mh * mh
-            m_lg = s_lg / n - ml * mg
-            m_rg = s_rg / n - mr * mg
-            m_lh = s_lh / n - ml * mh
-            m_rh = s_rh / n - mr * mh
+            ml = s_l * inv_n
+            mr = s_r * inv_n
+            mg = s_g * inv_n
+            mh = s_h * inv_n
+            m_ll = s_ll * inv_n - ml * ml
+            m_lr = s_lr * inv_n - ml * mr
+            m_rr = s_rr * inv_n - mr * mr
+            m_gg = s_gg * inv_n - mg * mg
+            m_gh = s_gh * inv_n - mg * mh
+            m_hh = s_hh * inv_n - mh * mh
+            m_lg = s_lg * inv_n - ml * mg
+            m_rg = s_rg * inv_n - mr * mg
+            m_lh = s_lh * inv_n - ml * mh
+            m_rh = s_rh * inv_n - mr * mh
             # the 2 x 2 Gauss--Newton system (the numpy version's formulas, in float64)
             a = m_lr / m_rr
             b1 = (m_lg - a * m_rg) / a
@@ -187,7 +189,7 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
             rss = m_ll - a * m_lr - a * a * (st * b1 + sp * b2)
             if rss < 0.0:
                 rss = 0.0
-            rss = rss * n / (n - 4.0)
+            rss = rss * dof
             step[i, j] = st
             sigma[i, j] = np.sqrt(rss * m_hh / (a * a * det * n)) * noise_factor
             zncc[i, j] = m_lr / np.sqrt(m_ll * m_rr)

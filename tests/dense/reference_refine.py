@@ -213,7 +213,7 @@ def refine_disparity_blocks(
 
 
 def reference_module(float64: bool = False) -> object:
-    """This module, or (``float64``) a copy computing every image and window moment in float64 instead of
+    """Return this module, or (``float64``) a copy computing every image and window moment in float64 instead of
     float32 (the same code with the dtypes replaced): it separates the float32 rounding of the old
     implementation (``box(l * l) - box(l)^2`` in float32 cancels ~5 digits on 1500-DN images) from any
     difference of method.
@@ -223,7 +223,9 @@ def reference_module(float64: bool = False) -> object:
 
     if not float64:
         return sys.modules[__name__]
-    src = open(__file__).read().replace("np.float32", "np.float64").replace("cv2.CV_32F", "cv2.CV_64F")
+    from pathlib import Path
+
+    src = Path(__file__).read_text().replace("np.float32", "np.float64").replace("cv2.CV_32F", "cv2.CV_64F")
     src = src.replace("kern = lanczos4_weights(f)", "kern = lanczos4_weights(f).astype(np.float64)")
     src = src.replace("(r1, mx, vv,", "(r1, mx.astype(np.float32), vv.astype(np.float32),")
     src = src.replace("(gx, mx, vv,", "(gx, mx.astype(np.float32), vv.astype(np.float32),")
