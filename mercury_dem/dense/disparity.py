@@ -284,7 +284,8 @@ def refine_disparity_blocks(
     hh, ww = left.shape
     if b <= 0 or (hh <= b and ww <= b):
         return refine_disparity(left, right, initial, settings)
-    m = settings.refine_window // 2 + 2
+    # the windows (w // 2) and, in the dense step of fast mode, the first-pass windows of their pixels
+    m = 2 * (settings.refine_window // 2) + 2
     out = [np.full(left.shape, np.nan, np.float32) for _ in range(4)]
     for r0 in range(0, hh, b):
         for c0 in range(0, ww, b):
