@@ -273,8 +273,8 @@ def refine_disparity_blocks(
     initial: NDArray[np.float32],
     settings: MatcherSettings,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
-    """:func:`refine_disparity` block by block (``refine_block_px`` squared, each with the margins its windows
-    and its disparities reach): the same result for every pixel (the disparity within one float32 rounding).
+    """:func:`refine_disparity` block by block (about ``refine_block_px`` squared, each with the margins its
+    windows and its disparities reach): the same result for every pixel (the disparity within one float32 rounding).
 
     The compiled refinement costs the same per pixel on a whole chip; blocks only bound the memory of the
     resampled right chip (one plane per 1/8-px phase) on large chips. (The numpy version grouped pixels by
@@ -282,14 +282,17 @@ def refine_disparity_blocks(
     """
     b = settings.refine_block_px
     hh, ww = left.shape
-    if b <= 0 or (hh <= b and ww <= b):
+    # about b each way, in equal parts (a chip a few pixels over b is not cut into slivers)
+    nr, nc = (max(round(hh / b), 1), max(round(ww / b), 1)) if b > 0 else (1, 1)
+    if nr * nc == 1:
         return refine_disparity(left, right, initial, settings)
+    br, bc = -(-hh // nr), -(-ww // nc)
     # the windows (w // 2) and, in the dense step of fast mode, the first-pass windows of their pixels
     m = 2 * (settings.refine_window // 2) + 2
     out = [np.full(left.shape, np.nan, np.float32) for _ in range(4)]
-    for r0 in range(0, hh, b):
-        for c0 in range(0, ww, b):
-            r1, c1 = min(r0 + b, hh), min(c0 + b, ww)
+    for r0 in range(0, hh, br):
+        for c0 in range(0, ww, bc):
+            r1, c1 = min(r0 + br, hh), min(c0 + bc, ww)
             rs = slice(max(r0 - m, 0), min(r1 + m, hh))
             cs = slice(max(c0 - m, 0), min(c1 + m, ww))
             init = initial[rs, cs]
