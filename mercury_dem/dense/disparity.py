@@ -3,16 +3,17 @@
 1. **Integer disparity**: ``cv2.StereoSGBM`` on the two chips stretched to 8 bits, with its own
    left--right check (``disp12MaxDiff``) and speckle filter. Its 1/16-pixel output is a parabola on the
    aggregated costs, which pixel-locks (the anchors' note on ASP): only its integer part is trusted.
-2. **Sub-pixel refinement** on the float images, not on the costs: a dense 1-D Lucas--Kanade with a gain
-   and an offset per window. Each pixel's window (``refine_window`` squared) minimises
-   ``sum (I_l - a (I_r(u + d) ) - b)^2`` over ``d``, ``a``, ``b`` by Gauss--Newton; every window sum is a
-   box filter (``cv2.boxFilter``) and the right image is resampled once per iteration (``cv2.remap``,
-   bicubic), so the whole chip costs a few dozen image-sized passes. Written here because OpenCV has no
-   per-pixel least-squares disparity refinement (its optical flows -- DIS in ``match/flow.py``, Farneback
-   -- solve for 2-D flow with their own smoothness terms and give no per-pixel covariance).
+2. **Sub-pixel refinement** on the float images, not on the costs: a 1-D Lucas--Kanade with a gain, an
+   offset and a disparity slope per window. Each pixel's window (``refine_window`` squared) minimises
+   ``sum (I_l - a I_r(u + d + s x) - b)^2`` by one Gauss--Newton step from the SGBM integer disparity (the
+   window shifted as a whole), then one more from that estimate quantised to ``refine_quantum_px`` (the
+   right chip resampled by a Lanczos-4 row filter once per quantum fraction). The window sums run in a
+   compiled kernel (:mod:`mercury_dem.dense.refine_kernel`). Written here because OpenCV has no per-pixel
+   least-squares disparity refinement (its optical flows -- DIS in ``match/flow.py``, Farneback -- solve
+   for 2-D flow with their own smoothness terms and give no per-pixel covariance).
 3. **Per-pixel score and precision**: the zero-mean normalised correlation of the final windows (score),
    and the least-squares precision of ``d``: ``sigma_d^2 = s^2 / (a^2 sum g_c^2)``, with ``s^2`` the
-   residual variance (``n - 3`` degrees of freedom) and ``g_c`` the centred gradient of the resampled
+   residual variance (``n - 4`` degrees of freedom: shift, slope, gain, offset) and ``g_c`` the centred gradient of the resampled
    right image. The residuals of neighbouring pixels are correlated (both images are blurred by a
    point-spread function and resampled), so ``n`` pixels carry fewer independent observations:
    ``sigma_d`` is multiplied by ``sqrt(noise_correlation_px2)``, the area over which the noise is
