@@ -221,7 +221,7 @@ def refine_disparity(
     disparity, sigma_px, score, slope : each ndarray (H, W) float32 (NaN where ``initial`` is NaN or the
     window has no gradient); ``slope`` is the window's fitted disparity gradient along x (px per px)
     """
-    from mercury_dem.dense.refine_kernel import fit_windows
+    from mercury_dem.dense import refine_kernel as rk
 
     w = settings.refine_window
     hh, ww = left.shape
@@ -231,41 +231,44 @@ def refine_disparity(
     l1 = np.ascontiguousarray(left, np.float32)
     r1 = np.ascontiguousarray(right, np.float32)
     gx = np.asarray(cv2.Sobel(r1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5), np.float32)  # central difference
-    step = fit_windows(l1, r1[None], gx[None], 0, k0, np.where(known, 0, -1), w, noise)[0]
-    dstep = np.clip(step, np.float32(-1.0), np.float32(1.0))
-    ok = known & np.isfinite(dstep)
-    d = np.where(ok, k0 + dstep.astype(np.float64), k0)
+    step = rk.fit_windows(l1, r1[None], gx[None], 0, k0, known.astype(np.int64) - 1, w, noise, full=False)[0]
     if settings.refine_quantum_px <= 0:
+        dstep = np.clip(step, np.float32(-1.0), np.float32(1.0))
+        ok = known & np.isfinite(dstep)
+        d = np.where(ok, k0 + dstep.astype(np.float64), k0)
         uu, vv = np.meshgrid(np.arange(ww, dtype=np.float32), np.arange(hh, dtype=np.float32))
         mx = (uu + d).astype(np.float32)
         r2 = np.asarray(cv2.remap(r1, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
         g = np.asarray(cv2.remap(gx, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
-        step, sigma, score, slope = fit_windows(l1, r2[None], g[None], 0, np.zeros(l1.shape, np.int64),
-                                                np.where(ok, 0, -1), w, noise)
+        step, sigma, score, slope = rk.fit_windows(l1, r2[None], g[None], 0, np.zeros(l1.shape, np.int64),
+                                                   np.where(ok, 0, -1), w, noise)
         d = d + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
-    else:
-        qs = settings.refine_quantum_px
-        q = np.rint(d / qs).astype(np.int64)
-        q0 = int(q[ok].min()) if ok.any() else 0
-        # the few quanta present (a table over their range, not a sort of every pixel): integer part and phase
-        used = np.flatnonzero(np.bincount((q - q0)[ok])) + q0 if ok.any() else np.zeros(1, np.int64)
-        shifts = used * qs
-        whole = np.floor(shifts).astype(np.int64)
-        fractions, phase_of = np.unique(shifts - whole, return_inverse=True)
-        lut_k = np.zeros(int(used[-1]) - q0 + 1, np.int64)
-        lut_p = np.full(lut_k.size, -1, np.int64)
-        lut_k[used - q0] = whole
-        lut_p[used - q0] = phase_of.ravel()
-        qi = np.where(ok, q - q0, 0)
-        kk = lut_k[qi]
-        phase = np.where(ok, lut_p[qi], -1)
-        pad = int(np.abs(whole).max()) + 8
-        rp, gp = _phase_planes(r1, gx, fractions, pad)
-        step, sigma, score, slope = fit_windows(l1, rp, gp, pad, kk, phase, w, noise)
-        d = q * qs + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
-    bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
-    return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
-            np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))
+        bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
+        return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
+                np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))
+    qs = float(settings.refine_quantum_px)
+    d = np.empty(l1.shape, np.float64)
+    ok = np.empty(l1.shape, np.bool_)
+    q = np.empty(l1.shape, np.int64)
+    q0, q1 = rk.after_first_pass(k0, known, step, qs, d, ok, q)
+    # the few quanta present (a table over their range, not a sort of every pixel): integer part and phase
+    used = (np.flatnonzero(rk.quanta_present(q, ok, q0, q1)) + q0 if q1 >= q0 else np.zeros(1, np.int64))
+    shifts = used * qs
+    whole = np.floor(shifts).astype(np.int64)
+    fractions, phase_of = np.unique(shifts - whole, return_inverse=True)
+    lut_k = np.zeros(int(used[-1]) - int(used[0]) + 1, np.int64)
+    lut_p = np.full(lut_k.size, -1, np.int64)
+    lut_k[used - used[0]] = whole
+    lut_p[used - used[0]] = phase_of.ravel()
+    kk = np.empty(l1.shape, np.int64)
+    phase = np.empty(l1.shape, np.int64)
+    rk.shift_and_phase(q, ok, np.int64(used[0]), lut_k, lut_p, kk, phase)
+    pad = int(np.abs(whole).max()) + 8
+    rp, gp = _phase_planes(r1, gx, fractions, pad)
+    step, sigma, score, slope = rk.fit_windows(l1, rp, gp, pad, kk, phase, w, noise)
+    out = tuple(np.empty(l1.shape, np.float32) for _ in range(4))
+    rk.finish_second_pass(q, qs, known, ok, step, sigma, score, slope, *out)
+    return out[0], out[1], out[2], out[3]
 
 
 def refine_disparity_blocks(

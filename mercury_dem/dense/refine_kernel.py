@@ -43,9 +43,9 @@ def _reflect(p: int, n: int) -> int:  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor,
+def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor, full,
                step, sigma, zncc, slope):  # pragma: no cover - compiled
-    """Fit every pixel with ``phase >= 0``; write NaN elsewhere.
+    """Fit every pixel with ``phase >= 0``; write NaN elsewhere (``full`` False: the step only).
 
     Parameters
     ----------
@@ -56,6 +56,7 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
     shift, phase : (H, W) int64, each pixel's integer shift and phase index (-1: not fitted)
     w : odd window side
     noise_factor : ``sqrt(max(noise_correlation_px2, 1))``
+    full : also write sigma, zncc and slope (False: only ``step``; the others are left as they are)
     step, sigma, zncc, slope : (H, W) float32 outputs: the Gauss--Newton step of the shift, its stated
         precision, the windows' zero-mean normalised correlation and the fitted disparity slope (px per px)
 
@@ -81,9 +82,10 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
             p = phase[i, j]
             if p < 0:
                 step[i, j] = np.nan
-                sigma[i, j] = np.nan
-                zncc[i, j] = np.nan
-                slope[i, j] = np.nan
+                if full:
+                    sigma[i, j] = np.nan
+                    zncc[i, j] = np.nan
+                    slope[i, j] = np.nan
                 continue
             k = shift[i, j]
             if prev_j == j - 1 and prev_k == k and prev_p == p:
@@ -185,30 +187,133 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
             b2 = (m_lh - a * m_rh) / a
             det = m_gg * m_hh - m_gh * m_gh
             st = (m_hh * b1 - m_gh * b2) / det
+            step[i, j] = st
+            if not full:
+                continue
             sp = (m_gg * b2 - m_gh * b1) / det
             rss = m_ll - a * m_lr - a * a * (st * b1 + sp * b2)
             if rss < 0.0:
                 rss = 0.0
             rss = rss * dof
-            step[i, j] = st
             sigma[i, j] = np.sqrt(rss * m_hh / (a * a * det * n)) * noise_factor
             zncc[i, j] = m_lr / np.sqrt(m_ll * m_rr)
             slope[i, j] = sp
 
 
+@numba.njit(cache=True, nogil=True)
+def after_first_pass(k0, known, step, quantum, d, ok, q):  # pragma: no cover - compiled
+    """Between the passes, per pixel: ``ok`` (a finite step), ``d = k0 + clip(step, -1, 1)`` (float32 clip,
+    float64 sum; ``k0`` where not ok) and ``q = rint(d / quantum)``; returns the smallest and largest ``q`` of
+    the ok pixels (``(0, -1)`` if none).
+    """
+    qmin = np.int64(0)
+    qmax = np.int64(-1)
+    first = True
+    hh, ww = k0.shape
+    for i in range(hh):
+        for j in range(ww):
+            s = step[i, j]
+            if s > np.float32(1.0):
+                s = np.float32(1.0)
+            elif s < np.float32(-1.0):
+                s = np.float32(-1.0)
+            good = known[i, j] and np.isfinite(s)
+            ok[i, j] = good
+            if good:
+                dv = float(k0[i, j]) + float(s)
+            else:
+                dv = float(k0[i, j])
+            d[i, j] = dv
+            qv = np.int64(np.rint(dv / quantum))
+            q[i, j] = qv
+            if good:
+                if first or qv < qmin:
+                    qmin = qv
+                if first or qv > qmax:
+                    qmax = qv
+                first = False
+    return qmin, qmax
+
+
+@numba.njit(cache=True, nogil=True)
+def quanta_present(q, ok, qmin, qmax):  # pragma: no cover - compiled
+    """Which quanta ``qmin .. qmax`` some ok pixel has (bool array)."""
+    present = np.zeros(qmax - qmin + 1, np.bool_)
+    hh, ww = q.shape
+    for i in range(hh):
+        for j in range(ww):
+            if ok[i, j]:
+                present[q[i, j] - qmin] = True
+    return present
+
+
+@numba.njit(cache=True, nogil=True)
+def shift_and_phase(q, ok, qmin, lut_k, lut_p, kk, phase):  # pragma: no cover - compiled
+    """Each ok pixel's integer shift and phase index from its quantum (tables over ``qmin ..``); -1 elsewhere."""
+    hh, ww = q.shape
+    for i in range(hh):
+        for j in range(ww):
+            if ok[i, j]:
+                kk[i, j] = lut_k[q[i, j] - qmin]
+                phase[i, j] = lut_p[q[i, j] - qmin]
+            else:
+                kk[i, j] = 0
+                phase[i, j] = -1
+
+
+@numba.njit(cache=True, nogil=True)
+def finish_second_pass(q, quantum, known, ok, step, sigma, score, slope,
+                       d_out, sigma_out, score_out, slope_out):  # pragma: no cover - compiled
+    """The outputs: ``d = q quantum + clip(step, -1, 1)`` (float64, then float32) and the pass's sigma, score,
+    slope; NaN where the seed was NaN, the first pass failed, or sigma or d is not finite.
+    """
+    nan = np.float32(np.nan)
+    hh, ww = q.shape
+    for i in range(hh):
+        for j in range(ww):
+            s = step[i, j]
+            if s > np.float32(1.0):
+                s = np.float32(1.0)
+            elif s < np.float32(-1.0):
+                s = np.float32(-1.0)
+            dv = float(q[i, j]) * quantum + float(s)
+            if not known[i, j] or not ok[i, j] or not np.isfinite(sigma[i, j]) or not np.isfinite(dv):
+                d_out[i, j] = nan
+                sigma_out[i, j] = nan
+                score_out[i, j] = nan
+                slope_out[i, j] = nan
+            else:
+                d_out[i, j] = np.float32(dv)
+                sigma_out[i, j] = sigma[i, j]
+                score_out[i, j] = score[i, j]
+                slope_out[i, j] = slope[i, j]
+
+
 def fit_windows(left: NDArray[np.float32], rplanes: NDArray[np.float32], gplanes: NDArray[np.float32],
                 col_offset: int, shift: NDArray[np.int64], phase: NDArray[np.int64], w: int,
-                noise_factor: float) -> tuple[NDArray[np.float32], ...]:
-    """:func:`window_fit` with its outputs allocated: ``(step, sigma, zncc, slope)``, each (H, W) float32."""
-    out = tuple(np.empty(left.shape, np.float32) for _ in range(4))
+                noise_factor: float, full: bool = True) -> tuple[NDArray[np.float32], ...]:
+    """:func:`window_fit` with its outputs allocated: ``(step, sigma, zncc, slope)``, each (H, W) float32
+    (``full`` False: only ``step`` is filled, the others are returned uninitialised).
+    """
+    out = tuple(np.empty(left.shape if k == 0 or full else (1, 1), np.float32) for k in range(4))
     window_fit(np.ascontiguousarray(left, np.float32), np.ascontiguousarray(rplanes, np.float32),
                np.ascontiguousarray(gplanes, np.float32), int(col_offset),
                np.ascontiguousarray(shift, np.int64), np.ascontiguousarray(phase, np.int64), int(w),
-               float(noise_factor), *out)
+               float(noise_factor), bool(full), *out)
     return out
 
 
 def warm() -> None:
     """Compile (or load from numba's cache) the kernel for the types the refinement passes."""
     z = np.zeros((1, 4, 4), np.float32)
-    fit_windows(z[0], z, z, 0, np.zeros((4, 4), np.int64), np.zeros((4, 4), np.int64), 3, 1.0)
+    i4 = np.zeros((4, 4), np.int64)
+    yes = np.ones((4, 4), np.bool_)
+    step = fit_windows(z[0], z, z, 0, i4, i4, 3, 1.0, full=False)[0]
+    fit_windows(z[0], z, z, 0, i4, i4, 3, 1.0)
+    d = np.empty((4, 4), np.float64)
+    ok = np.empty((4, 4), np.bool_)
+    q = np.empty((4, 4), np.int64)
+    after_first_pass(i4, yes, step, 0.125, d, ok, q)
+    quanta_present(q, ok, np.int64(0), np.int64(1))
+    shift_and_phase(q, ok, np.int64(0), i4[0], i4[0], i4.copy(), i4.copy())
+    finish_second_pass(q, 0.125, yes, ok, step, step, step, step, *(np.empty((4, 4), np.float32) for _ in range(4)))
