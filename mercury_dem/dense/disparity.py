@@ -343,31 +343,21 @@ def dense_disparity(
     # The SGBM disparity's integer part seeds the refinement; its parabola fraction would pixel-lock.
     seed = np.round(d0)
     d, sigma, score, slope = refine_disparity_blocks(left, right, seed, s)
-    holes = np.zeros(left.shape, np.uint8)
-    hh, ww = left.shape
-    uu = np.arange(ww, dtype=np.float32)[None, :]
-    # outside: the left pixel, or the right pixel it matched, is not inside its image
-    target = np.where(np.isfinite(d), uu + d, uu + seed)
-    ti = np.clip(np.rint(np.nan_to_num(target, nan=-1.0)), -1, ww).astype(np.int64)
-    inside_r = (ti >= 0) & (ti < ww)
-    rv = np.zeros_like(right_valid)
-    rows = np.broadcast_to(np.arange(hh)[:, None], ti.shape)
-    rv[inside_r] = right_valid[rows[inside_r], ti[inside_r]]
-    holes[~left_valid | (np.isfinite(target) & ~rv)] |= HOLE_OUTSIDE
+    # holes (flags in one compiled pass, refine_kernel.flag_holes):
+    # outside: the left pixel, or the right pixel it matched, is not inside its image;
     # shadow: the pixel (its 3 x 3 mean, for the noise) is dark in the left chip, or at the matched place in
     # the right one: a pixel in shadow gets no height even where its window reaches lit ground
+    from mercury_dem.dense.refine_kernel import flag_holes
+
     lit_l = _box(np.maximum(left - s.dark_dn, 0.0).astype(np.float32), 3)
     lit_r = _box(np.maximum(right - s.dark_dn, 0.0).astype(np.float32), 3)
     ref_l = float(np.median(np.maximum(left[both] - s.dark_dn, 0.0))) if both.any() else 0.0
     ref_r = float(np.median(np.maximum(right[both] - s.dark_dn, 0.0))) if both.any() else 0.0
-    ti_c = np.clip(ti, 0, ww - 1)
-    dark = (lit_l < s.shadow_fraction * ref_l) | (lit_r[rows, ti_c] < s.shadow_fraction * ref_r)
-    holes[dark] |= HOLE_SHADOW
-    holes[~np.isfinite(d0)] |= HOLE_NO_MATCH
-    holes[np.isfinite(d0) & ~(sigma <= s.max_sigma_px)] |= HOLE_NO_TEXTURE
-    holes[np.isfinite(d) & ((np.abs(d - seed) > 1.0) | ~(score >= s.min_score))] |= HOLE_REFINEMENT
-    keep = holes == 0
-    nan = np.float32(np.nan)
-    return DisparityMap(np.where(keep, d, nan).astype(np.float32), np.where(keep, sigma, nan).astype(np.float32),
-                        np.nan_to_num(score, nan=0.0).astype(np.float32), holes,
-                        np.where(keep, slope, nan).astype(np.float32))
+    holes = np.empty(left.shape, np.uint8)
+    out = [np.empty(left.shape, np.float32) for _ in range(4)]
+    f32 = np.float32
+    flag_holes(np.asarray(d0, f32), np.asarray(seed, f32), d, sigma, score, slope,
+               np.ascontiguousarray(left_valid, np.bool_), np.ascontiguousarray(right_valid, np.bool_), lit_l, lit_r,
+               f32(s.shadow_fraction * ref_l), f32(s.shadow_fraction * ref_r), f32(s.max_sigma_px), f32(s.min_score),
+               holes, *out)
+    return DisparityMap(out[0], out[1], out[2], holes, out[3])

@@ -289,6 +289,62 @@ def finish_second_pass(q, quantum, known, ok, step, sigma, score, slope,
                 slope_out[i, j] = slope[i, j]
 
 
+@numba.njit(cache=True, nogil=True)
+def flag_holes(d0, seed, d, sigma, score, slope, left_valid, right_valid, lit_l, lit_r, dark_l, dark_r,
+               max_sigma, min_score, holes, d_out, sigma_out, score_out, slope_out):  # pragma: no cover - compiled
+    """Hole flags and outputs of :func:`mercury_dem.dense.disparity.dense_disparity` in one pass (its numpy
+    expressions, element by element, float32 comparisons as numpy's with float32 thresholds).
+
+    Bits: 1 outside (the left pixel, or the right pixel it matched -- rounded -- is not inside its image),
+    2 shadow (``lit_l`` below ``dark_l`` or ``lit_r`` at the matched column below ``dark_r``), 4 no texture
+    (SGBM matched but sigma not <= ``max_sigma``), 8 no SGBM match, 16 refinement (left the SGBM pixel by
+    more than 1 or score not >= ``min_score``). Outputs NaN in holes; the score everywhere (NaN as 0).
+    """
+    hh, ww = d.shape
+    nan = np.float32(np.nan)
+    big = np.float32(3.4028234663852886e38)
+    for i in range(hh):
+        for j in range(ww):
+            h = np.uint8(0)
+            dv = d[i, j]
+            target = np.float32(j) + (dv if np.isfinite(dv) else seed[i, j])
+            t = np.float32(-1.0) if np.isnan(target) else np.rint(target)
+            if t < -1.0:
+                t = np.float32(-1.0)
+            elif t > ww:
+                t = np.float32(ww)
+            ti = np.int64(t)
+            rv = ti >= 0 and ti < ww and right_valid[i, ti]
+            if not left_valid[i, j] or (np.isfinite(target) and not rv):
+                h |= np.uint8(1)
+            tc = min(max(ti, 0), ww - 1)
+            if lit_l[i, j] < dark_l or lit_r[i, tc] < dark_r:
+                h |= np.uint8(2)
+            if not np.isfinite(d0[i, j]):
+                h |= np.uint8(8)
+            elif not sigma[i, j] <= max_sigma:
+                h |= np.uint8(4)
+            if np.isfinite(dv) and (abs(dv - seed[i, j]) > np.float32(1.0) or not score[i, j] >= min_score):
+                h |= np.uint8(16)
+            holes[i, j] = h
+            if h == 0:
+                d_out[i, j] = dv
+                sigma_out[i, j] = sigma[i, j]
+                slope_out[i, j] = slope[i, j]
+            else:
+                d_out[i, j] = nan
+                sigma_out[i, j] = nan
+                slope_out[i, j] = nan
+            sc = score[i, j]
+            if np.isnan(sc):
+                sc = np.float32(0.0)
+            elif sc > big:
+                sc = big
+            elif sc < -big:
+                sc = -big
+            score_out[i, j] = sc
+
+
 def fit_windows(left: NDArray[np.float32], rplanes: NDArray[np.float32], gplanes: NDArray[np.float32],
                 col_offset: int, shift: NDArray[np.int64], phase: NDArray[np.int64], w: int,
                 noise_factor: float, full: bool = True) -> tuple[NDArray[np.float32], ...]:
@@ -317,3 +373,6 @@ def warm() -> None:
     quanta_present(q, ok, np.int64(0), np.int64(1))
     shift_and_phase(q, ok, np.int64(0), i4[0], i4[0], i4.copy(), i4.copy())
     finish_second_pass(q, 0.125, yes, ok, step, step, step, step, *(np.empty((4, 4), np.float32) for _ in range(4)))
+    f4 = np.float32(0.5)
+    flag_holes(step, step, step, step, step, step, yes, yes, step, step, f4, f4, f4, f4, np.empty((4, 4), np.uint8),
+               *(np.empty((4, 4), np.float32) for _ in range(4)))
