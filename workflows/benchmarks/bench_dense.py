@@ -16,7 +16,7 @@ ratios to the floor; points per second of matching + triangulation. OpenCV's thr
 (``cv2.getNumThreads()``).
 
 Run (heavy; take the lock):
-    flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense.py [--reps 7]
+    flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense.py [--reps 7] [--threads 1]
 """
 
 from __future__ import annotations
@@ -75,7 +75,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--reps", type=int, default=7)
     ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
     ap.add_argument("--margin-m", type=float, default=800.0, help="height margin of the search range, metres")
+    ap.add_argument("--threads", type=int, default=0,
+                    help="OpenCV threads (cv2.setNumThreads; 0: OpenCV's default). On a loaded machine the floor's "
+                         "CPU time varies ~2x with how its threads are scheduled; 1 is the quieter control")
     args = ap.parse_args(argv)
+    if args.threads > 0:
+        cv2.setNumThreads(args.threads)
     print(f"# bench_dense: {platform.node()}, {platform.processor() or platform.machine()}, "
           f"OpenCV {cv2.__version__} threads {cv2.getNumThreads()}, numpy {np.__version__}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
