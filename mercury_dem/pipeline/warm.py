@@ -6,7 +6,7 @@ for each catalogued body into a temporary directory, so that
 - numba compiles the gridding kernels and writes them to its cache (``cache=True``: the package's
   ``__pycache__``); a first ``grid`` after installation otherwise spends seconds compiling,
 - numba compiles the dense refinement's window fit (:mod:`mercury_dem.dense.refine_kernel`) the same way
-  (~1.7 s instead of 0.6 s on the first chip of every fresh worker process, measured 2026-12-02), and
+  (~4 s instead of 0.8 s on the first chip of every fresh worker process, measured 2026-12-02), and
 - the CRS attributes of every body's ``spatial_ref`` are in the user's cache
   (``$MERCURY_DEM_CACHE/crs/``, :func:`mercury_dem.pipeline.dem_stage._spatial_ref_attrs`).
 

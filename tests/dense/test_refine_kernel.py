@@ -83,3 +83,21 @@ def test_kernel_result_does_not_depend_on_the_blocks(lambert_pair) -> None:
     np.testing.assert_allclose(whole[0], blocks[0], rtol=0, atol=4e-6)
     for a, b in zip(whole[1:], blocks[1:]):
         assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_warm_compiles_every_signature_the_refinement_uses(lambert_pair) -> None:
+    """``refine_kernel.warm`` (run by ``mercury_dem.pipeline.warm``) compiles the kernels for the very types
+    ``dense_disparity`` passes, so a first chip in a fresh worker loads them from numba's cache.
+    """
+    from mercury_dem.dense import refine_kernel as rk
+    from mercury_dem.dense.disparity import dense_disparity
+
+    kernels = [rk.window_fit, rk.after_first_pass, rk.quanta_present, rk.shift_and_phase, rk.finish_second_pass,
+               rk.flag_holes]
+    rk.warm()
+    warmed = [set(k.signatures) for k in kernels]
+    rect = chip_of(lambert_pair)
+    for quantum in (0.125, 0.0):
+        dense_disparity(rect.left, rect.right, rect.left_valid, rect.right_valid, rect.disparity_min_px,
+                        rect.disparity_max_px, MatcherSettings(refine_quantum_px=quantum))
+    assert [set(k.signatures) for k in kernels] == warmed
