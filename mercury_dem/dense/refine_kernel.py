@@ -6,8 +6,10 @@ planes of the right chip and of its x-gradient already resampled at that phase).
 the pixels by shift and box-filtered each group's bounding box (~13 box filters, 5 ramp filters and a 2 x 2
 solve per group, ~30-50 groups per 128-px block): the time went to Python and small-array overhead and to
 the overlap of the boxes (docs/benchmarks/dense.md). Here each pixel's window sums are built from
-*column sums* (the ``w`` rows of one column at one shift): along a row, a pixel whose shift equals its left
-neighbour's reuses that pixel's column sums and adds one new column. Every column sum is
+*column sums* (the ``w`` rows of one column at one shift), each computed once per row, column and shift
+where it can be: along a row, a pixel whose shift equals its left neighbour's adds one new column, and a
+shift seen a few pixels before finds its columns in a small direct-mapped table (the second pass's 1/8-px
+shifts change every ~2 pixels but a window sees only ~4 of them). Every column sum is
 summed over the rows top to bottom and the window over its columns left to right, in float64, whatever run
 of equal shifts the pixel sits in: a pixel's result depends only on its own window and shift -- not on the
 blocking, the run it belongs to or the thread count.
@@ -27,6 +29,8 @@ from numpy.typing import NDArray
 
 #: Column-sum channels: l, r, g, ll, lr, rr, gg, lg, rg.
 _NCH = 9
+#: Tables of column sums per row (a power of 2), indexed by the shift: neighbouring 1/8-px shifts never share one.
+_WAYS = 16
 
 
 @numba.njit(cache=True, inline="always")
@@ -70,7 +74,13 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
     n = float(w * w)
     inv_n = 1.0 / n
     dof = n / (n - 4.0)
-    cs = np.zeros((ww + 2 * half, _NCH), np.float64)  # column c's sums at index c + half
+    # column sums of the current row: column c at index c + half, in one of _WAYS tables chosen by the shift
+    # (direct-mapped; tags say which row and shift a table's column holds)
+    npl = rplanes.shape[0]
+    cs = np.zeros((_WAYS, ww + 2 * half, _NCH), np.float64)
+    tag_row = np.full((_WAYS, ww + 2 * half), -1, np.int64)
+    tag_k = np.zeros((_WAYS, ww + 2 * half), np.int64)
+    tag_p = np.zeros((_WAYS, ww + 2 * half), np.int64)
     rows = np.empty(w, np.int64)
     for i in range(hh):
         for t in range(w):
@@ -92,7 +102,14 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
                 c_first = j + half  # one new column; the others are the neighbour's
             else:
                 c_first = j - half
+            way = (k * npl + p) & (_WAYS - 1)
             for c in range(c_first, j + half + 1):
+                slot = c + half
+                if tag_row[way, slot] == i and tag_k[way, slot] == k and tag_p[way, slot] == p:
+                    continue  # summed already in this row for this shift
+                tag_row[way, slot] = i
+                tag_k[way, slot] = k
+                tag_p[way, slot] = p
                 cc = _reflect(c, ww)
                 rc = cc + k + col_offset
                 if rc < 0:
@@ -122,16 +139,15 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
                     sgg += gv * gv
                     slg += lv * gv
                     srg += rv * gv
-                slot = c + half
-                cs[slot, 0] = sl
-                cs[slot, 1] = sr
-                cs[slot, 2] = sg
-                cs[slot, 3] = sll
-                cs[slot, 4] = slr
-                cs[slot, 5] = srr
-                cs[slot, 6] = sgg
-                cs[slot, 7] = slg
-                cs[slot, 8] = srg
+                cs[way, slot, 0] = sl
+                cs[way, slot, 1] = sr
+                cs[way, slot, 2] = sg
+                cs[way, slot, 3] = sll
+                cs[way, slot, 4] = slr
+                cs[way, slot, 5] = srr
+                cs[way, slot, 6] = sgg
+                cs[way, slot, 7] = slg
+                cs[way, slot, 8] = srg
             prev_j = j
             prev_k = k
             prev_p = p
@@ -153,20 +169,20 @@ def window_fit(left, rplanes, gplanes, col_offset, shift, phase, w, noise_factor
             for t in range(w):
                 x = float(t - half)
                 slot = j + t
-                s_l += cs[slot, 0]
-                s_r += cs[slot, 1]
-                s_g += cs[slot, 2]
-                s_ll += cs[slot, 3]
-                s_lr += cs[slot, 4]
-                s_rr += cs[slot, 5]
-                s_gg += cs[slot, 6]
-                s_lg += cs[slot, 7]
-                s_rg += cs[slot, 8]
-                s_h += x * cs[slot, 2]
-                s_gh += x * cs[slot, 6]
-                s_hh += x * x * cs[slot, 6]
-                s_lh += x * cs[slot, 7]
-                s_rh += x * cs[slot, 8]
+                s_l += cs[way, slot, 0]
+                s_r += cs[way, slot, 1]
+                s_g += cs[way, slot, 2]
+                s_ll += cs[way, slot, 3]
+                s_lr += cs[way, slot, 4]
+                s_rr += cs[way, slot, 5]
+                s_gg += cs[way, slot, 6]
+                s_lg += cs[way, slot, 7]
+                s_rg += cs[way, slot, 8]
+                s_h += x * cs[way, slot, 2]
+                s_gh += x * cs[way, slot, 6]
+                s_hh += x * x * cs[way, slot, 6]
+                s_lh += x * cs[way, slot, 7]
+                s_rh += x * cs[way, slot, 8]
             ml = s_l * inv_n
             mr = s_r * inv_n
             mg = s_g * inv_n
