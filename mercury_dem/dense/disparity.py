@@ -3,16 +3,17 @@
 1. **Integer disparity**: ``cv2.StereoSGBM`` on the two chips stretched to 8 bits, with its own
    left--right check (``disp12MaxDiff``) and speckle filter. Its 1/16-pixel output is a parabola on the
    aggregated costs, which pixel-locks (the anchors' note on ASP): only its integer part is trusted.
-2. **Sub-pixel refinement** on the float images, not on the costs: a dense 1-D Lucas--Kanade with a gain
-   and an offset per window. Each pixel's window (``refine_window`` squared) minimises
-   ``sum (I_l - a (I_r(u + d) ) - b)^2`` over ``d``, ``a``, ``b`` by Gauss--Newton; every window sum is a
-   box filter (``cv2.boxFilter``) and the right image is resampled once per iteration (``cv2.remap``,
-   bicubic), so the whole chip costs a few dozen image-sized passes. Written here because OpenCV has no
-   per-pixel least-squares disparity refinement (its optical flows -- DIS in ``match/flow.py``, Farneback
-   -- solve for 2-D flow with their own smoothness terms and give no per-pixel covariance).
+2. **Sub-pixel refinement** on the float images, not on the costs: a 1-D Lucas--Kanade with a gain, an
+   offset and a disparity slope per window. Each pixel's window (``refine_window`` squared) minimises
+   ``sum (I_l - a I_r(u + d + s x) - b)^2`` by one Gauss--Newton step from the SGBM integer disparity (the
+   window shifted as a whole), then one more from that estimate quantised to ``refine_quantum_px`` (the
+   right chip resampled by a Lanczos-4 row filter once per quantum fraction). The window sums run in a
+   compiled kernel (:mod:`mercury_dem.dense.refine_kernel`). Written here because OpenCV has no per-pixel
+   least-squares disparity refinement (its optical flows -- DIS in ``match/flow.py``, Farneback -- solve
+   for 2-D flow with their own smoothness terms and give no per-pixel covariance).
 3. **Per-pixel score and precision**: the zero-mean normalised correlation of the final windows (score),
    and the least-squares precision of ``d``: ``sigma_d^2 = s^2 / (a^2 sum g_c^2)``, with ``s^2`` the
-   residual variance (``n - 3`` degrees of freedom) and ``g_c`` the centred gradient of the resampled
+   residual variance (``n - 4`` degrees of freedom: shift, slope, gain, offset) and ``g_c`` the centred gradient of the resampled
    right image. The residuals of neighbouring pixels are correlated (both images are blurred by a
    point-spread function and resampled), so ``n`` pixels carry fewer independent observations:
    ``sigma_d`` is multiplied by ``sqrt(noise_correlation_px2)``, the area over which the noise is
@@ -58,7 +59,8 @@ class MatcherSettings:
     speckle_window, speckle_range : SGBM speckle filter (region size, pixels; disparity step, pixels)
     refine_window : side of the refinement's least-squares window, pixels (odd)
     refine_quantum_px : second pass: window shifts quantised to this step (0: one dense step instead)
-    refine_block_px : the refinement runs block by block (side in pixels; 0: the whole chip at once)
+    refine_block_px : the refinement runs block by block (side in pixels; 0: the whole chip at once); bounds
+        the memory of the resampled right chip (2 x 8 float32 planes per pixel at 1/8 px) on large chips
     noise_correlation_px2 : area (pixels) over which the images' noise is correlated (see module docstring)
     max_sigma_px : larger stated disparity precision is a no-texture hole
     min_score : smaller zero-mean normalised correlation is a hole
@@ -77,7 +79,7 @@ class MatcherSettings:
     speckle_range: int = 2
     refine_window: int = 9
     refine_quantum_px: float = 0.125
-    refine_block_px: int = 128
+    refine_block_px: int = 512
     noise_correlation_px2: float = 1.0
     max_sigma_px: float = 0.5
     min_score: float = 0.5
@@ -158,56 +160,6 @@ def _box(x: NDArray[np.float32], w: int) -> NDArray[np.float32]:
     return np.asarray(cv2.boxFilter(x, cv2.CV_32F, (w, w), normalize=True, borderType=cv2.BORDER_REFLECT), np.float32)
 
 
-def _window_stats(l1: NDArray[np.float32], r2: NDArray[np.float32], g: NDArray[np.float32],
-                  w: int) -> dict[str, NDArray[np.float32]]:
-    """Centred window moments for the 1-D affine model (window means: box filters and a ramp-weighted box).
-
-    With ``l1`` the left chip, ``r2`` the right chip resampled at the current disparity, ``g`` its
-    x-gradient there and ``h = g x`` (``x`` the column offset from the window's centre), returns the
-    covariances ``ll, lr, rr`` and those of the regressors ``g, h`` with ``l``, ``r`` and each other
-    (``lg, rg, lh, rh, gg, gh, hh``).
-    """
-    ramp = np.arange(w, dtype=np.float32) - np.float32(w // 2)
-    ones = np.ones(w, np.float32) / w
-
-    def ramp_box(x: NDArray[np.float32], k: NDArray[np.float32]) -> NDArray[np.float32]:
-        return np.asarray(cv2.sepFilter2D(x, cv2.CV_32F, k / w, ones, borderType=cv2.BORDER_REFLECT), np.float32)
-
-    gg = np.asarray(g * g, np.float32)
-    m = {"l": _box(l1, w), "r": _box(r2, w), "g": _box(g, w), "h": ramp_box(g, ramp)}
-    out = {"ll": _box(np.asarray(l1 * l1, np.float32), w) - m["l"] ** 2,
-           "lr": _box(np.asarray(l1 * r2, np.float32), w) - m["l"] * m["r"],
-           "rr": _box(np.asarray(r2 * r2, np.float32), w) - m["r"] ** 2,
-           "gg": _box(gg, w) - m["g"] ** 2, "gh": ramp_box(gg, ramp) - m["g"] * m["h"],
-           "hh": ramp_box(gg, ramp * ramp) - m["h"] ** 2}
-    for name, x in (("l", l1), ("r", r2)):
-        xg = np.asarray(x * g, np.float32)
-        out[name + "g"] = _box(xg, w) - m[name] * m["g"]
-        out[name + "h"] = ramp_box(xg, ramp) - m[name] * m["h"]
-    return out
-
-
-def _solve(m: dict[str, NDArray[np.float32]], n: float,
-           settings: MatcherSettings) -> tuple[NDArray[np.float32], ...]:
-    """Gauss--Newton step, its stated precision, the window's ZNCC and disparity slope from :func:`_window_stats`.
-
-    Model ``I_l ~ a I_r(u + d + t + s x) + b`` linearised in ``(t, s)``: ``a (g t + h s) = residual`` over
-    the window, a 2 x 2 system per pixel (Cramer's rule); ``a`` is the windows' regression gain.
-    """
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        a = m["lr"] / m["rr"]
-        b1, b2 = (m["lg"] - a * m["rg"]) / a, (m["lh"] - a * m["rh"]) / a
-        det = m["gg"] * m["hh"] - m["gh"] ** 2
-        step = (m["hh"] * b1 - m["gh"] * b2) / det
-        slope = (m["gg"] * b2 - m["gh"] * b1) / det
-        # residual variance after the step (n - 4 degrees of freedom: t, s, a, b) and t's precision
-        rss = np.maximum(m["ll"] - a * m["lr"] - a * a * (step * b1 + slope * b2), 0.0) * n / (n - 4.0)
-        sig = np.sqrt(rss * m["hh"] / (a * a * det * n)) * np.sqrt(max(settings.noise_correlation_px2, 1.0))
-        zncc = m["lr"] / np.sqrt(m["ll"] * m["rr"])
-    return (np.asarray(step, np.float32), np.asarray(sig, np.float32), np.asarray(zncc, np.float32),
-            np.asarray(slope, np.float32))
-
-
 def lanczos4_weights(fraction: float) -> NDArray[np.float32]:
     """The 8 Lanczos-4 weights (normalised to sum 1) that sample a row at ``x + fraction`` (0 <= fraction < 1)
     from the samples at ``x - 3 .. x + 4``.
@@ -217,26 +169,23 @@ def lanczos4_weights(fraction: float) -> NDArray[np.float32]:
     return np.asarray(w / w.sum(), np.float32)
 
 
-def _shift_columns(right: NDArray[np.float32], gx: NDArray[np.float32], rows: slice, cols: slice,
-                   shift: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """The right chip and its x-gradient sampled at ``(u + shift, v)`` for the rows and columns given.
+def _phase_planes(right: NDArray[np.float32], gx: NDArray[np.float32], fractions: NDArray[np.float64],
+                  pad: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The right chip and its x-gradient resampled at ``u + f`` for each fraction ``f`` (0 <= f < 1): (P, H, W + 2 pad).
 
-    A shift along the rows only: its integer part is a column offset, its fraction one 8-tap Lanczos-4
-    row filter (``cv2.sepFilter2D``), exact and 8x cheaper than ``cv2.remap``'s 8 x 8 Lanczos (which also
-    quantises the fraction to 1/32 px). Columns beyond the chip repeat its edge.
+    A shift along the rows only: one 8-tap Lanczos-4 row filter (``cv2.filter2D``, a 1 x 8 kernel) per
+    fraction, exact and 8x cheaper than ``cv2.remap``'s 8 x 8 Lanczos (which also quantises the fraction to
+    1/32 px). The chip is first padded by ``pad`` columns repeating its edge, so plane column ``c + pad`` is
+    chip column ``c`` shifted, with columns beyond the chip repeating its edge.
     """
-    k = int(np.floor(shift))
-    f = shift - k
-    width = right.shape[1]
-    src = np.clip(np.arange(cols.start + k - 4, cols.stop + k + 4), 0, width - 1)  # 4 taps of margin each side
-    kern = lanczos4_weights(f)
-    one = np.ones(1, np.float32)
-    out = []
-    for img in (right, gx):
-        band = np.ascontiguousarray(img[rows][:, src])
-        # correlation: dst(x) = sum_i kern[i] band(x + i - 3); band column j is chip column cols.start + k - 4 + j
-        res = cv2.sepFilter2D(band, cv2.CV_32F, kern, one, anchor=(3, 0), borderType=cv2.BORDER_REPLICATE)
-        out.append(np.asarray(res[:, 4 : 4 + (cols.stop - cols.start)], np.float32))
+    hh, ww = right.shape
+    out = np.empty((2, len(fractions), hh, ww + 2 * pad), np.float32)
+    for m, img in enumerate((right, gx)):
+        band = cv2.copyMakeBorder(img, 0, 0, pad, pad, cv2.BORDER_REPLICATE)
+        for q, f in enumerate(fractions):
+            # correlation: dst(x) = sum_i kern[i] band(x + i - 3)
+            cv2.filter2D(band, cv2.CV_32F, lanczos4_weights(float(f))[None, :], dst=out[m, q], anchor=(3, 0),
+                         borderType=cv2.BORDER_REPLICATE)
     return out[0], out[1]
 
 
@@ -248,80 +197,78 @@ def refine_disparity(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """Least-squares sub-pixel disparity with gain and offset per window (module docstring, steps 2--3).
 
-    Two passes. (1) Pixels are grouped by their integer disparity ``k``; per group the right chip is
-    shifted by exactly ``k`` columns over the group's bounding box (no resampling) and one Gauss--Newton
-    step is taken: each window moves as a whole, so a pixel's estimate does not depend on its
-    neighbours' disparities. (2) One dense step from that estimate: the right chip is resampled once
-    (bicubic) at each pixel's own disparity and the step solved again. Iterating (2) -- which feeds
-    every window its neighbours' disparities -- amplified the noise on the rendered pairs at every
-    iteration, and repeating (1) at finer quantisation steps (1/8 px groups) cost 20x SGBM for the same
-    error; one pass of each is the measured compromise (docs/design/dense.md).
+    Two passes. (1) Each pixel's window is fitted against the right chip shifted by exactly its integer
+    disparity ``k`` columns (no resampling) with one Gauss--Newton step: each window moves as a whole, so a
+    pixel's estimate does not depend on its neighbours' disparities. (2) The same from that estimate
+    quantised to ``refine_quantum_px`` (the right chip resampled once per distinct fraction by a Lanczos-4
+    row filter), which gives the disparity, its precision, the score and the slope. With
+    ``refine_quantum_px = 0`` pass (2) is instead one dense step: the right chip is resampled (Lanczos-4)
+    at each pixel's own disparity and every window fitted on it -- which feeds each window its neighbours'
+    disparities; iterated, that amplified the noise on the rendered pairs (docs/design/dense.md).
+
+    Both passes run in the compiled kernel :func:`mercury_dem.dense.refine_kernel.window_fit` (per pixel,
+    its own shift; the numpy version grouped pixels by shift, same formulas in float32).
 
     Parameters
     ----------
     left, right : ndarray (H, W) float32, the rectified chips (``right`` may be wider, (H, W') with
         W' >= W: left column u is right column u + d)
     initial : ndarray (H, W) float32, starting integer disparity ``u_right - u_left`` (NaN: not refined)
-    settings : :class:`MatcherSettings` (``refine_window``, ``noise_correlation_px2``)
+    settings : :class:`MatcherSettings` (``refine_window``, ``refine_quantum_px``, ``noise_correlation_px2``)
 
     Returns
     -------
     disparity, sigma_px, score, slope : each ndarray (H, W) float32 (NaN where ``initial`` is NaN or the
     window has no gradient); ``slope`` is the window's fitted disparity gradient along x (px per px)
     """
+    from mercury_dem.dense import refine_kernel as rk
+
     w = settings.refine_window
-    n = float(w * w)
     hh, ww = left.shape
-    half = w // 2 + 1
+    noise = float(np.sqrt(max(settings.noise_correlation_px2, 1.0)))
     known = np.isfinite(initial)
     k0 = np.where(known, np.rint(initial), 0).astype(np.int64)
-    l1 = np.asarray(left, np.float32)
-    r1 = np.asarray(right, np.float32)
+    l1 = np.ascontiguousarray(left, np.float32)
+    r1 = np.ascontiguousarray(right, np.float32)
     gx = np.asarray(cv2.Sobel(r1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5), np.float32)  # central difference
-    d = np.full(l1.shape, np.nan, np.float64)
-    for k in np.unique(k0[known]):
-        sel = known & (k0 == k)
-        ys, xs = np.nonzero(sel)
-        rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
-        cols = np.arange(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
-        src = np.clip(cols + int(k), 0, right.shape[1] - 1)
-        c = slice(int(cols[0]), int(cols[-1]) + 1)
-        m = _window_stats(l1[rows, c], r1[rows][:, src], gx[rows][:, src], w)
-        step = _solve(m, n, settings)[0]
-        sub = sel[rows, c]
-        d[rows, c][sub] = k + np.clip(step[sub], -1.0, 1.0)
-    ok = np.isfinite(d)
-    d = np.where(ok, d, k0)
-    sigma = np.full(l1.shape, np.nan, np.float32)
-    score = np.full(l1.shape, np.nan, np.float32)
-    slope = np.full(l1.shape, np.nan, np.float32)
+    step = rk.fit_windows(l1, r1[None], gx[None], 0, k0, known.astype(np.int64) - 1, w, noise, full=False)[0]
     if settings.refine_quantum_px <= 0:
+        dstep = np.clip(step, np.float32(-1.0), np.float32(1.0))
+        ok = known & np.isfinite(dstep)
+        d = np.where(ok, k0 + dstep.astype(np.float64), k0)
         uu, vv = np.meshgrid(np.arange(ww, dtype=np.float32), np.arange(hh, dtype=np.float32))
         mx = (uu + d).astype(np.float32)
         r2 = np.asarray(cv2.remap(r1, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
         g = np.asarray(cv2.remap(gx, mx, vv, cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE), np.float32)
-        step, sigma, score, slope = _solve(_window_stats(l1, r2, g, w), n, settings)
-        d = d + np.clip(step, -1.0, 1.0)
-    else:
-        qs = settings.refine_quantum_px
-        q = np.rint(d / qs).astype(np.int64)
-        new = d.copy()
-        for k in np.unique(q[known & ok]):
-            sel = known & ok & (q == k)
-            ys, xs = np.nonzero(sel)
-            rows = slice(max(int(ys.min()) - half, 0), min(int(ys.max()) + half + 1, hh))
-            c = slice(max(int(xs.min()) - half, 0), min(int(xs.max()) + half + 1, ww))
-            r2, g = _shift_columns(r1, gx, rows, c, float(k * qs))
-            step, sig, zn, sl = _solve(_window_stats(l1[rows, c], r2, g, w), n, settings)
-            sub = sel[rows, c]
-            new[rows, c][sub] = k * qs + np.clip(step[sub], -1.0, 1.0)
-            sigma[rows, c][sub] = sig[sub]
-            score[rows, c][sub] = zn[sub]
-            slope[rows, c][sub] = sl[sub]
-        d = new
-    bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
-    return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
-            np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))
+        step, sigma, score, slope = rk.fit_windows(l1, r2[None], g[None], 0, np.zeros(l1.shape, np.int64),
+                                                   np.where(ok, 0, -1), w, noise)
+        d = d + np.clip(step, np.float32(-1.0), np.float32(1.0)).astype(np.float64)
+        bad = ~known | ~ok | ~np.isfinite(sigma) | ~np.isfinite(d)
+        return (np.where(bad, np.nan, d).astype(np.float32), np.where(bad, np.nan, sigma).astype(np.float32),
+                np.where(bad, np.nan, score).astype(np.float32), np.where(bad, np.nan, slope).astype(np.float32))
+    qs = float(settings.refine_quantum_px)
+    d = np.empty(l1.shape, np.float64)
+    ok = np.empty(l1.shape, np.bool_)
+    q = np.empty(l1.shape, np.int64)
+    q0, q1 = rk.after_first_pass(k0, known, step, qs, d, ok, q)
+    # the few quanta present (a table over their range, not a sort of every pixel): integer part and phase
+    used = (np.flatnonzero(rk.quanta_present(q, ok, q0, q1)) + q0 if q1 >= q0 else np.zeros(1, np.int64))
+    shifts = used * qs
+    whole = np.floor(shifts).astype(np.int64)
+    fractions, phase_of = np.unique(shifts - whole, return_inverse=True)
+    lut_k = np.zeros(int(used[-1]) - int(used[0]) + 1, np.int64)
+    lut_p = np.full(lut_k.size, -1, np.int64)
+    lut_k[used - used[0]] = whole
+    lut_p[used - used[0]] = phase_of.ravel()
+    kk = np.empty(l1.shape, np.int64)
+    phase = np.empty(l1.shape, np.int64)
+    rk.shift_and_phase(q, ok, np.int64(used[0]), lut_k, lut_p, kk, phase)
+    pad = int(np.abs(whole).max()) + 8
+    rp, gp = _phase_planes(r1, gx, fractions, pad)
+    step, sigma, score, slope = rk.fit_windows(l1, rp, gp, pad, kk, phase, w, noise)
+    out = tuple(np.empty(l1.shape, np.float32) for _ in range(4))
+    rk.finish_second_pass(q, qs, known, ok, step, sigma, score, slope, *out)
+    return out[0], out[1], out[2], out[3]
 
 
 def refine_disparity_blocks(
@@ -330,22 +277,26 @@ def refine_disparity_blocks(
     initial: NDArray[np.float32],
     settings: MatcherSettings,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
-    """:func:`refine_disparity` block by block (``refine_block_px`` squared, each with the margins its windows
-    and its disparities reach): the same result for every pixel, at a cost linear in the chip's area.
+    """:func:`refine_disparity` block by block (about ``refine_block_px`` squared, each with the margins its
+    windows and its disparities reach): the same result for every pixel (the disparity within one float32 rounding).
 
-    The grouped passes resample and box-filter each group's bounding box; over a whole chip a group of one
-    quantised shift spans most of it, so the cost grew with the chip's area times its disparity range
-    (7x for 4x the pixels from 256^2 to 512^2 chips). Within a block the disparities span little.
+    The compiled refinement costs the same per pixel on a whole chip; blocks only bound the memory of the
+    resampled right chip (one plane per 1/8-px phase) on large chips. (The numpy version grouped pixels by
+    shift and its cost grew with the chip's area times its disparity range, which 128-px blocks contained.)
     """
     b = settings.refine_block_px
     hh, ww = left.shape
-    if b <= 0 or (hh <= b and ww <= b):
+    # about b each way, in equal parts (a chip a few pixels over b is not cut into slivers)
+    nr, nc = (max(round(hh / b), 1), max(round(ww / b), 1)) if b > 0 else (1, 1)
+    if nr * nc == 1:
         return refine_disparity(left, right, initial, settings)
-    m = settings.refine_window // 2 + 2
+    br, bc = -(-hh // nr), -(-ww // nc)
+    # the windows (w // 2) and, in the dense step of fast mode, the first-pass windows of their pixels
+    m = 2 * (settings.refine_window // 2) + 2
     out = [np.full(left.shape, np.nan, np.float32) for _ in range(4)]
-    for r0 in range(0, hh, b):
-        for c0 in range(0, ww, b):
-            r1, c1 = min(r0 + b, hh), min(c0 + b, ww)
+    for r0 in range(0, hh, br):
+        for c0 in range(0, ww, bc):
+            r1, c1 = min(r0 + br, hh), min(c0 + bc, ww)
             rs = slice(max(r0 - m, 0), min(r1 + m, hh))
             cs = slice(max(c0 - m, 0), min(c1 + m, ww))
             init = initial[rs, cs]
@@ -392,31 +343,21 @@ def dense_disparity(
     # The SGBM disparity's integer part seeds the refinement; its parabola fraction would pixel-lock.
     seed = np.round(d0)
     d, sigma, score, slope = refine_disparity_blocks(left, right, seed, s)
-    holes = np.zeros(left.shape, np.uint8)
-    hh, ww = left.shape
-    uu = np.arange(ww, dtype=np.float32)[None, :]
-    # outside: the left pixel, or the right pixel it matched, is not inside its image
-    target = np.where(np.isfinite(d), uu + d, uu + seed)
-    ti = np.clip(np.rint(np.nan_to_num(target, nan=-1.0)), -1, ww).astype(np.int64)
-    inside_r = (ti >= 0) & (ti < ww)
-    rv = np.zeros_like(right_valid)
-    rows = np.broadcast_to(np.arange(hh)[:, None], ti.shape)
-    rv[inside_r] = right_valid[rows[inside_r], ti[inside_r]]
-    holes[~left_valid | (np.isfinite(target) & ~rv)] |= HOLE_OUTSIDE
+    # holes (flags in one compiled pass, refine_kernel.flag_holes):
+    # outside: the left pixel, or the right pixel it matched, is not inside its image;
     # shadow: the pixel (its 3 x 3 mean, for the noise) is dark in the left chip, or at the matched place in
     # the right one: a pixel in shadow gets no height even where its window reaches lit ground
+    from mercury_dem.dense.refine_kernel import flag_holes
+
     lit_l = _box(np.maximum(left - s.dark_dn, 0.0).astype(np.float32), 3)
     lit_r = _box(np.maximum(right - s.dark_dn, 0.0).astype(np.float32), 3)
     ref_l = float(np.median(np.maximum(left[both] - s.dark_dn, 0.0))) if both.any() else 0.0
     ref_r = float(np.median(np.maximum(right[both] - s.dark_dn, 0.0))) if both.any() else 0.0
-    ti_c = np.clip(ti, 0, ww - 1)
-    dark = (lit_l < s.shadow_fraction * ref_l) | (lit_r[rows, ti_c] < s.shadow_fraction * ref_r)
-    holes[dark] |= HOLE_SHADOW
-    holes[~np.isfinite(d0)] |= HOLE_NO_MATCH
-    holes[np.isfinite(d0) & ~(sigma <= s.max_sigma_px)] |= HOLE_NO_TEXTURE
-    holes[np.isfinite(d) & ((np.abs(d - seed) > 1.0) | ~(score >= s.min_score))] |= HOLE_REFINEMENT
-    keep = holes == 0
-    nan = np.float32(np.nan)
-    return DisparityMap(np.where(keep, d, nan).astype(np.float32), np.where(keep, sigma, nan).astype(np.float32),
-                        np.nan_to_num(score, nan=0.0).astype(np.float32), holes,
-                        np.where(keep, slope, nan).astype(np.float32))
+    holes = np.empty(left.shape, np.uint8)
+    out = [np.empty(left.shape, np.float32) for _ in range(4)]
+    f32 = np.float32
+    flag_holes(np.asarray(d0, f32), np.asarray(seed, f32), d, sigma, score, slope,
+               np.ascontiguousarray(left_valid, np.bool_), np.ascontiguousarray(right_valid, np.bool_), lit_l, lit_r,
+               f32(s.shadow_fraction * ref_l), f32(s.shadow_fraction * ref_r), f32(s.max_sigma_px), f32(s.min_score),
+               holes, *out)
+    return DisparityMap(out[0], out[1], out[2], holes, out[3])

@@ -16,7 +16,7 @@ ratios to the floor; points per second of matching + triangulation. OpenCV's thr
 (``cv2.getNumThreads()``).
 
 Run (heavy; take the lock):
-    flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense.py [--reps 7]
+    flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense.py [--reps 7] [--threads 1]
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 from mercury_dem.dense.disparity import MatcherSettings, dense_disparity, sgbm_disparity, to_8bit
 from mercury_dem.dense.rectify import Chip, rectify_chip
 from mercury_dem.dense.triangulate import triangulate_chip
-from mercury_dem.geometry.body import latlon_to_unit, latlon_to_xyz
+from mercury_dem.geometry.body import MERCURY, latlon_to_unit, latlon_to_xyz
 from mercury_dem.geometry.camera import mdis_wac
 from mercury_dem.geometry.pose import look_at_rotation
 from mercury_dem.match.pretransform import ImageGeometry
@@ -50,7 +50,7 @@ def rendered_pair(samples: int, gsd_m: float = 200.0) -> tuple[Any, list[np.ndar
     east = np.cross([0.0, 0.0, 1.0], up)
     east /= np.linalg.norm(east)
     north = np.cross(up, east)
-    centre = latlon_to_xyz(lat, lon)
+    centre = latlon_to_xyz(lat, lon, 0.0, MERCURY.datum_radius_m)
     sun = centre + 5.8e10 * (np.cos(np.radians(45)) * up + np.sin(np.radians(45)) * east)
     cam = mdis_wac(samples)
     alt = gsd_m / cam.ifov_rad
@@ -60,7 +60,7 @@ def rendered_pair(samples: int, gsd_m: float = 200.0) -> tuple[Any, list[np.ndar
         c = centre + alt * (np.cos(np.radians(tilt)) * up + np.sin(np.radians(tilt)) * north)
         r = look_at_rotation(c, centre, east)
         images.append(render_image(surface, cam, c, r, sun, rng, RenderSettings(lambert_weight=1.0)).astype(np.float32))
-        geom.append(ImageGeometry.of(cam, c, r, sun))
+        geom.append(ImageGeometry.of(cam, c, r, sun, MERCURY.datum_radius_m))
     return surface, images, geom
 
 
@@ -75,7 +75,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--reps", type=int, default=7)
     ap.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
     ap.add_argument("--margin-m", type=float, default=800.0, help="height margin of the search range, metres")
+    ap.add_argument("--threads", type=int, default=0,
+                    help="OpenCV threads (cv2.setNumThreads; 0: OpenCV's default). On a loaded machine the floor's "
+                         "CPU time varies ~2x with how its threads are scheduled; 1 is the quieter control")
     args = ap.parse_args(argv)
+    if args.threads > 0:
+        cv2.setNumThreads(args.threads)
     print(f"# bench_dense: {platform.node()}, {platform.processor() or platform.machine()}, "
           f"OpenCV {cv2.__version__} threads {cv2.getNumThreads()}, numpy {np.__version__}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
