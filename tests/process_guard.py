@@ -173,7 +173,14 @@ def _leftovers(before: set[int], *, include_session: bool, grace: float) -> list
     while found and time.monotonic() < deadline:
         time.sleep(0.1)
         found = _still_running(found)
-    return found
+    if not found:
+        return []
+    # Judge the survivors on a fresh read: one first read between its fork and its exec showed its parent's
+    # environment (no session marker) and an empty command line, which made a session fixture's process,
+    # started an instant before a fast test's teardown on a loaded machine, look like a leak (seen once in CI).
+    start = {p.pid: p.start for p in found}
+    again = _ours(set(start), include_session=include_session)
+    return [p for p in again if start.get(p.pid) == p.start]
 
 
 def pytest_configure(config: pytest.Config) -> None:
