@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, help="LocalCluster workers (default: one per core)")
     p.add_argument("--threads-per-worker", type=int, help="LocalCluster threads per worker")
     add_tls_arguments(p)
-    p.add_argument("--force", metavar="STAGE", help="recompute from STAGE on: plan, tile, region, hemisphere, global, dem")
+    p.add_argument("--force", metavar="STAGE", help="recompute from STAGE on: plan, tile, region, hemisphere, global, dem, dense")
     p.add_argument("--no-dem", action="store_true", help="stop after the global adjustment")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     g = p.add_argument_group("batch system (--cluster): the workers as SLURM/PBS jobs, as 'mercury-dem cluster'")

@@ -290,7 +290,9 @@ def dem_validation_table(d: dict[str, Any]) -> str:
             ("p95_m", "p95"))
     out = ["\nDEM minus truth (m)" + "".join(f"{label:>9}" for _, label in cols) + f"{'pixels':>11}\n"]
     for key, label in (("adjusted", "adjusted points"), ("a_priori", "a-priori points"),
-                       ("registered", "registered (alt.)"), ("merged", "merged with alt.")):
+                       ("registered", "registered (alt.)"), ("merged", "merged with alt."),
+                       ("dense", "dense+fallback"), ("sparse_on_dense_grid", "sparse@dense grid"),
+                       ("dense_on_dense_pixels", "dense, its pixels"), ("sparse_on_dense_pixels", "sparse, same px")):
         row = d.get(key)
         if not isinstance(row, dict):
             continue
