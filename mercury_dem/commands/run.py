@@ -69,6 +69,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     print()
     print_report(report, sys.stdout)
     print(f"\noutputs: {args.out}/report.json, {args.out}/global/0/ (adjusted network and pointing)"
-          + (f", {args.out}/dem.zarr, {args.out}/products/" if "dem" in report else ""))
+          + (f", {args.out}/dem.zarr, {args.out}/products/" if "dem" in report else "")
+          + (f", {args.out}/dense.zarr, {args.out}/dem_dense.zarr" if "dem" in report.get("dense", {}) else ""))
     glob = report["levels"]["global"]
     return 0 if glob and glob.get("ok") else 1
