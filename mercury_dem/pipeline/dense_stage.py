@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.config import Config
-from mercury_dem.exceptions import MercuryDemError
+from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemError
 from mercury_dem.io.run_store import DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE, DENSE_FILE, RunStore, read_solution
 
 #: Columns of a tile's cloud (name -> dtype); ``left_px``/``right_px`` are (N, 2).
@@ -470,6 +470,8 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
     for fut in as_completed(client, futures):
         try:
             s = fut.result()
+        except (DiskFullError, CorruptUnitError):
+            raise  # stops the run, as in the cascade
         except Exception as exc:  # noqa: BLE001 - a lost task after its retries: recorded, the rest goes on
             s = {"tile": None, "ok": False, "error": f"dense tile task {getattr(fut, 'key', '?')}: {exc}"}
         tiles.append(s)

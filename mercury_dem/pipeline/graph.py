@@ -270,6 +270,8 @@ def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, str
 
     try:
         out = run_dense_stage(store, mission, config, client, stream)
+    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+        raise
     except (MercuryDemError, OSError, ValueError) as exc:
         if disk_full_cause(exc) is not None:
             raise

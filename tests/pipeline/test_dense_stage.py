@@ -110,6 +110,10 @@ def test_the_report_has_the_dense_entries(dense_run: tuple[Path, dict[str, Any],
     for key in ("dense", "sparse_on_dense_grid", "dense_on_dense_pixels", "sparse_on_dense_pixels"):
         assert val[key]["rmse_m"] > 0 and val[key]["bias_m"] is not None, key
     assert on_disk["timings"]["dense"] > 0
+    from mercury_dem.pipeline.report import dense_lines
+
+    text = dense_lines(dense)
+    assert f"{pairs['selected']} of {pairs['candidates']} candidate pairs selected" in text and "dense DEM:" in text
     print(f"dense stage {on_disk['timings']['dense']:.1f} s, resumed run {seconds:.1f} s")
 
 
