@@ -506,7 +506,8 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
     ppd = dense_grid_ppd(scales, d.grid_pixel_factor, body.datum_radius_m)
     out["dem"] = grid_dense_dem(store, config, ppd, client, body, rep, median_pixel_scale_m=float(np.median(scales)))
     if mission.truth is not None:
-        out["validation"] = validate_dense_dem(store.root / DEM_DENSE_FILE, mission.truth.surface().height)
+        out["validation"] = validate_dense_dem(store.root / DEM_DENSE_FILE, mission.truth.surface().height, tie,
+                                               body.datum_radius_m)
         out["dem"]["rmse_ratio_dense_over_sparse"] = rmse_ratio(out["validation"])
     out["seconds"] = round(time.perf_counter() - t0, 2)
     rep.message(f"dense stage: {out['points']} points, {out['chips']} chips ({out['chips_failed']} failed), "
@@ -611,7 +612,22 @@ def pixel_precision(cloud: dict[str, NDArray[Any]], lat: NDArray[np.float64], lo
     return out.reshape(H, W)
 
 
-def validate_dense_dem(path: Path, truth: Callable[..., Any]) -> dict[str, Any]:
+def control_distance(control_xyz: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64],
+                     datum_radius_m: float) -> NDArray[np.float64]:
+    """(H, W) horizontal distance (m, chord on the datum sphere) from each pixel centre to its nearest control point."""
+    from scipy.spatial import cKDTree
+
+    from mercury_dem.geometry.body import latlon_to_unit
+
+    foot = control_xyz / np.linalg.norm(control_xyz, axis=1, keepdims=True) * datum_radius_m
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    q = latlon_to_unit(la.ravel(), lo.ravel()) * datum_radius_m
+    d, _ = cKDTree(foot).query(q)
+    return np.asarray(d, np.float64).reshape(la.shape)
+
+
+def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArray[np.float64] | None = None,
+                       datum_radius_m: float | None = None) -> dict[str, Any]:
     """``validation.dem`` entries: the dense DEM, the sparse DEM on the dense grid, and both over the pixels
     the dense points reach (``source`` = dense), where the issue's ratio is measured.
     """
@@ -628,11 +644,14 @@ def validate_dense_dem(path: Path, truth: Callable[..., Any]) -> dict[str, Any]:
     sparse_on_grid = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
     if sparse_on_grid is None:
         raise MercuryDemError(f"{path} has no sparse_on_grid layer")
+    # error against the distance to the nearest control point (issue 31 section 3), for every entry
+    dist = (control_distance(control_xyz, lat, lon, datum_radius_m)
+            if control_xyz is not None and control_xyz.shape[0] and datum_radius_m is not None else None)
     out = {
-        "dense": dem_accuracy(elev, lat, lon, truth),
-        "sparse_on_dense_grid": dem_accuracy(sparse_on_grid, lat, lon, truth),
-        "dense_on_dense_pixels": dem_accuracy(np.where(dense_px, elev, np.nan), lat, lon, truth),
-        "sparse_on_dense_pixels": dem_accuracy(np.where(dense_px, sparse_on_grid, np.nan), lat, lon, truth),
+        "dense": dem_accuracy(elev, lat, lon, truth, dist),
+        "sparse_on_dense_grid": dem_accuracy(sparse_on_grid, lat, lon, truth, dist),
+        "dense_on_dense_pixels": dem_accuracy(np.where(dense_px, elev, np.nan), lat, lon, truth, dist),
+        "sparse_on_dense_pixels": dem_accuracy(np.where(dense_px, sparse_on_grid, np.nan), lat, lon, truth, dist),
     }
     return out
 

@@ -109,6 +109,8 @@ def test_the_report_has_the_dense_entries(dense_run: tuple[Path, dict[str, Any],
     val = on_disk["validation"]["dem"]
     for key in ("dense", "sparse_on_dense_grid", "dense_on_dense_pixels", "sparse_on_dense_pixels"):
         assert val[key]["rmse_m"] > 0 and val[key]["bias_m"] is not None, key
+        # error against distance to the nearest control point (issue 31 section 3)
+        assert sum(r["n"] for r in val[key]["error_vs_distance"]) == val[key]["n_compared"], key
     assert on_disk["timings"]["dense"] > 0
     from mercury_dem.pipeline.report import dense_lines
 
