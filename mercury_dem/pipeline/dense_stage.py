@@ -629,7 +629,7 @@ def control_distance(control_xyz: NDArray[np.float64], lat: NDArray[np.float64],
 def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArray[np.float64] | None = None,
                        datum_radius_m: float | None = None) -> dict[str, Any]:
     """``validation.dem`` entries: the dense DEM, the sparse DEM on the dense grid, and both over the pixels
-    the dense points reach (``source`` = dense), where the issue's ratio is measured.
+    the dense points reach (``source`` = dense) where the sparse DEM has a value, where the issue's ratio is measured.
     """
     from mercury_dem.dem.accuracy import dem_accuracy
     from mercury_dem.pipeline.dem_stage import open_dem
@@ -638,7 +638,9 @@ def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArr
     lat, lon = ds["lat"].values, ds["lon"].values
     elev = ds["elevation"].transpose("lat", "lon").values
     source = ds["source"].transpose("lat", "lon").values
-    dense_px = source == SOURCE_DENSE
+    sparse_on_grid_ = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
+    # the issue's comparison: the pixels where the dense points reach and the sparse DEM has a value too
+    dense_px = (source == SOURCE_DENSE) & (np.isfinite(sparse_on_grid_) if sparse_on_grid_ is not None else True)
     # the sparse DEM on the dense grid: what the fallback holds where the dense DEM has no value, and the
     # sparse DEM resampled where it has (kept in the store as the fallback's source: re-sampled here)
     sparse_on_grid = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None

@@ -3,9 +3,10 @@
 The copy is resumed with ``dense.enabled`` and ``--force dense``: the cascade and the DEM are reused, the
 dense stage runs in-process. Measured 2026-12-02 on the 2-core session machine (shared, loaded), tiny seed 42:
 40 of 273 candidate pairs selected over 11 tiles, 40 chips (0 failed), 728,936 points; dense DEM at 5.5
-pixel/deg (3 x the pairs' median pixel scale of 2.7 km); on the pixels the dense points reach the dense DEM
-is 601 m RMSE against the truth, the sparse DEM resampled there 408 m: ratio 1.47, issue 31's <= 0.5 is
-**not** met on the tiny mission (docs/design/dense.md says why). The stage takes ~56 s, the resumed run ~73 s.
+pixel/deg (3 x the pairs' median pixel scale of 2.7 km); on the 25,209 pixels the dense points reach (and the
+sparse DEM covers) the dense DEM is 597 m RMSE against the truth, the sparse DEM resampled there 408 m: ratio
+1.46, issue 31's <= 0.5 is **not** met on the tiny mission (docs/design/dense.md says why; seed 7: 1.50). The
+stage takes 42-57 s, the resumed run 54-73 s (the machine's load).
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ import pytest
 from tests.pipeline.conftest import tiny_config
 
 #: What was measured on the tiny mission (module docstring); the regression guards allow 15 % on top.
-MEASURED_RATIO = 1.47
-MEASURED_DENSE_RMSE_M = 601.0
+MEASURED_RATIO = 1.46
+MEASURED_DENSE_RMSE_M = 597.0
 
 
 @pytest.fixture(scope="module")
@@ -130,13 +131,13 @@ def test_dense_dem_against_sparse_on_the_dense_grid(dense_run: tuple[Path, dict[
     assert ratio == pytest.approx(dense["rmse_m"] / sparse["rmse_m"])
     assert dense["rmse_m"] <= 1.15 * MEASURED_DENSE_RMSE_M
     assert ratio <= 1.15 * MEASURED_RATIO
-    assert abs(dense["bias_m"]) <= 100.0  # measured -55 m
+    assert abs(dense["bias_m"]) <= 100.0  # measured -58 m
     # the same pixels: the dense DEM's pixels that the sparse DEM also covers
-    assert abs(dense["n_compared"] - sparse["n_compared"]) <= 0.05 * dense["n_compared"]
+    assert dense["n_compared"] == sparse["n_compared"] > 10_000
 
 
 @pytest.mark.xfail(strict=True, reason="issue 31 goal: dense RMSE <= 0.5 x sparse on the dense grid; measured "
-                   "1.47 on the tiny mission (docs/design/dense.md)")
+                   "1.46 on the tiny mission (docs/design/dense.md)")
 def test_issue_31_goal_dense_at_most_half_the_sparse_rmse(dense_run: tuple[Path, dict[str, Any], float]) -> None:
     _, report, _ = dense_run
     assert report["dense"]["dem"]["rmse_ratio_dense_over_sparse"] <= 0.5
