@@ -452,7 +452,8 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
 
     dense_path = store.root / DENSE_FILE
     root = zarr.open_group(str(dense_path), mode="a", zarr_format=3)
-    records = json.loads(json.dumps(pair_records, default=float).replace("NaN", "null"))
+    records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
+               for r in json.loads(json.dumps(pair_records, default=float))]
     if root.attrs.get("pairs") != records:
         # another selection (config changed under --force): the tiles' pair indices would not match
         for p in dense_path.iterdir():
