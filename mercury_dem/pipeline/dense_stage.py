@@ -32,8 +32,6 @@ import math
 import shutil
 import sys
 import time
-from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -42,7 +40,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.config import Config
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemError
-from mercury_dem.io.run_store import DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE, DENSE_FILE, RunStore, read_solution
+from mercury_dem.io.run_store import DEM_DENSE_FILE, DENSE_FILE, RunStore, read_solution
 
 #: Columns of a tile's cloud (name -> dtype); ``left_px``/``right_px`` are (N, 2).
 CLOUD_COLUMNS: dict[str, Any] = {
@@ -50,11 +48,6 @@ CLOUD_COLUMNS: dict[str, Any] = {
     "angle_deg": np.float32, "score": np.float32, "pair": np.int32, "left_px": np.float32, "right_px": np.float32,
 }
 
-#: ``source`` layer of the dense DEM.
-SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE = 0, 1, 2
-
-#: Robust scatter: 1.4826 x median absolute deviation.
-MAD_TO_SIGMA = 1.4826
 
 
 def tile_group_name(tile_id: int) -> str:
@@ -62,7 +55,7 @@ def tile_group_name(tile_id: int) -> str:
     return f"tile_{int(tile_id):03d}"
 
 
-# --------------------------------------------------------------------------- inputs (pure helpers)
+# --------------------------------------------------------------------------- inputs
 def criteria_of(config: Config) -> Any:
     """The :class:`~mercury_dem.dense.pairs.StereoPairCriteria` of ``config.dense``."""
     from mercury_dem.dense.pairs import StereoPairCriteria
@@ -105,80 +98,12 @@ def adjusted_geometry(store: RunStore, mission: Any) -> dict[str, Any]:
     return out
 
 
-def cap_per_tile(rows: list[Any], tile_of: dict[str, int], max_per_tile: int,
-                 tiles: tuple[int, ...] = ()) -> tuple[list[Any], dict[int, list[int]]]:
-    """Apply the per-tile cap and the tile subset to selected pairs (best rank first).
-
-    Returns the rows (capped ones rejected with the reason) and tile id -> indices of its selected rows,
-    in rank order.
-    """
-    from mercury_dem.dense.pairs import REJECTED, SELECTED
-
-    out = list(rows)
-    per_tile: dict[int, list[int]] = {}
-    for i in sorted((i for i, r in enumerate(out) if r.status == SELECTED), key=lambda i: out[i].rank):
-        t = int(tile_of.get(out[i].left, -1))
-        if tiles and t not in tiles:
-            out[i] = replace(out[i], status=REJECTED, rank=0, reason=f"tile {t} not in dense.tiles")
-            continue
-        got = per_tile.setdefault(t, [])
-        if len(got) >= max_per_tile:
-            out[i] = replace(out[i], status=REJECTED, rank=0,
-                             reason=f"cap: tile {t} already has {max_per_tile} better-ranked pairs")
-            continue
-        got.append(i)
-    return out, {t: v for t, v in per_tile.items() if v}
 
 
-def dense_grid_ppd(pixel_scales_m: NDArray[np.float64], factor: float, datum_radius_m: float) -> float:
-    """Pixels per degree of the dense DEM: ``factor`` x the median pixel scale, rounded to a multiple of 0.5
-    (so 180 and 360 degrees are whole pixels), at least 0.5.
-    """
-    pixel_m = factor * float(np.median(pixel_scales_m))
-    raw = 2.0 * math.pi * datum_radius_m / 360.0 / pixel_m
-    return max(0.5, round(raw * 2.0) / 2.0)
 
 
-def snapped_bounds(bounds: tuple[float, float, float, float], ppd: float) -> tuple[float, float, float, float]:
-    """(lat_min, lat_max, lon_min, lon_max) snapped outward to whole pixels of ``ppd`` (latitudes within +-90)."""
-    a0, a1, o0, o1 = bounds
-    lat0 = max(-90.0, math.floor(a0 * ppd + 1e-9) / ppd)
-    lat1 = min(90.0, math.ceil(a1 * ppd - 1e-9) / ppd)
-    lon0 = math.floor(o0 * ppd + 1e-9) / ppd
-    lon1 = math.ceil(o1 * ppd - 1e-9) / ppd
-    if lon1 - lon0 > 360.0:
-        lon1 = lon0 + 360.0
-    return lat0, lat1, lon0, lon1
 
 
-def height_margins(points_xyz: NDArray[np.float64], surface: Callable[..., NDArray[np.float64]],
-                   datum_radius_m: float, tile_size_deg: float, factor: float, floor_m: float,
-                   min_points: int = 20) -> tuple[dict[int, float], float]:
-    """Per tile the height search margin: ``factor`` x the robust scatter of its tie points' heights about the
-    surface, at least ``floor_m``; the run's value (all points) for tiles with fewer than ``min_points``.
-
-    Returns (tile id -> margin in m, the run's margin).
-    """
-    from mercury_dem.geometry.body import xyz_to_latlon
-    from mercury_dem.geometry.tiling import TileGrid
-
-    if points_xyz.shape[0] == 0:
-        return {}, floor_m
-    lat, lon, h = xyz_to_latlon(points_xyz, datum_radius_m)
-    res = h - surface(lat, lon)
-    ok = np.isfinite(res)
-    tiles = TileGrid(tile_size_deg).tile_of(lat, lon)
-
-    def margin(r: NDArray[np.float64]) -> float:
-        s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)))) if r.size else 0.0
-        return max(floor_m, factor * s)
-
-    run = margin(res[ok])
-    out: dict[int, float] = {}
-    for t in np.unique(tiles[ok]):
-        r = res[ok & (tiles == t)]
-        out[int(t)] = margin(r) if r.size >= min_points else run
-    return out, run
 
 
 class SparseSurface:
@@ -414,8 +339,11 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
     import zarr
 
     from mercury_dem.dem.cloud import point_cloud
+    from mercury_dem.dem.dense_grid import dense_grid_ppd
     from mercury_dem.dense.pairs import SELECTED, select_stereo_pairs
+    from mercury_dem.dense.rules import cap_per_tile, height_margins
     from mercury_dem.io.network_store import read_network
+    from mercury_dem.pipeline.dense_dem import grid_dense_dem, rmse_ratio, validate_dense_dem
     from mercury_dem.pipeline.executors import as_completed
     from mercury_dem.progress import Reporter
 
@@ -429,7 +357,7 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
     candidates = [(str(a), str(b)) for a, b in zip(overlaps["image_i"], overlaps["image_j"])
                   if str(a) in geometry and str(b) in geometry]
     rows = select_stereo_pairs(geometry, criteria_of(config), candidates)
-    rows, per_tile = cap_per_tile(rows, tile_of, d.max_pairs_per_tile, d.tiles)
+    rows, per_tile = cap_per_tile(rows, tile_of, d.max_pairs_per_tile, d.tiles)  # dense.rules
     selected = [i for i, r in enumerate(rows) if r.status == SELECTED]
     pair_index = {i: k for k, i in enumerate(sorted(selected, key=lambda i: rows[i].rank))}
     pair_records = [{"index": pair_index[i], **rows[i].to_dict()} for i in sorted(selected, key=lambda i: pair_index[i])]
@@ -524,143 +452,11 @@ def _sum_dicts(ds: Any) -> dict[str, int]:
     return out
 
 
-def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, body: Any, rep: Any,
-                   median_pixel_scale_m: float) -> dict[str, Any]:
-    """Grid the cloud into ``dem_dense.zarr`` with the sparse DEM as fallback; returns the report's block."""
-    from mercury_dem.geometry.body import latlon_to_xyz
-    from mercury_dem.pipeline.dem_stage import atomic_store, grid_dem, open_dem
-
-    cloud = read_cloud(store.root / DENSE_FILE)
-    xyz = latlon_to_xyz(cloud["lat"], cloud["lon"], height_m=cloud["height"], datum_radius_m=body.datum_radius_m)
-    sparse = open_dem(store.dem_path)
-    sl, so = sparse["lat"].values, sparse["lon"].values
-    half = 0.5 / float(sparse.attrs.get("pixels_per_degree", 1.0 / abs(sl[1] - sl[0]) if sl.size > 1 else 1.0))
-    bounds = snapped_bounds((float(sl.min()) - half, float(sl.max()) + half, float(so.min()) - half,
-                             float(so.max()) + half), ppd)
-    cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
-                  lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours)
-    scratch = store.root / DEM_DENSE_SCRATCH_FILE
-    shutil.rmtree(scratch, ignore_errors=True)
-    try:
-        summary = grid_dem(xyz, cfg, scratch, client, coverage=False, body=body, record_failures=True,
-                           attrs={"source": "dense stereo points"}, progress=rep, label="dem (dense points)")
-        g = open_dem(scratch).load()
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-    lat, lon = g["lat"].values, g["lon"].values
-    elev = g["elevation"].transpose("lat", "lon").values.astype(np.float64)
-    lat2, lon2 = np.meshgrid(lat, lon, indexing="ij")
-    surf = open_sparse_surface(store.dem_path)
-    fallback = surf.sample(lat2, lon2)
-    has_dense = np.isfinite(elev)
-    source = np.where(has_dense, SOURCE_DENSE, np.where(np.isfinite(fallback), SOURCE_SPARSE, SOURCE_NONE))
-    final = np.where(has_dense, elev, fallback)
-    precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
-    precision = np.where(has_dense, precision, np.nan)
-    ds = g.copy()
-    dims = g["elevation"].dims
-    ds["elevation"] = (("lat", "lon"), final.astype(np.float32))
-    ds["elevation"] = ds["elevation"].transpose(*dims)
-    ds["elevation_dense"] = (("lat", "lon"), elev.astype(np.float32))
-    ds["sparse_on_grid"] = (("lat", "lon"), fallback.astype(np.float32))
-    ds["sparse_on_grid"].attrs["long_name"] = "the sparse DEM (dem.zarr) resampled bilinearly on this grid"
-    ds["precision_m"] = (("lat", "lon"), precision.astype(np.float32))
-    ds["source"] = (("lat", "lon"), source.astype(np.uint8))
-    ds["source"].attrs.update({"flag_values": [SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE],
-                               "flag_meanings": "none dense sparse_fallback"})
-    ds["precision_m"].attrs.update({"units": "m", "long_name": "stated 1-sigma precision of the dense elevation: "
-                                    "1.2533 x the median stated sigma_h of the pixel's points / sqrt(min(n, "
-                                    "dense.grid_neighbours)); NaN where the pixel holds no dense point"})
-    ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
-                     "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
-                                  f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
-                     "pixels_per_degree": ppd})
-    for v in ds.data_vars:
-        ds[v].encoding = {}
-    out_path = store.root / DEM_DENSE_FILE
-    with atomic_store(out_path, overwrite=True) as tmp:
-        ds.to_zarr(str(tmp), mode="w", zarr_format=3, consolidated=False)
-    n = source.size
-    return {"path": str(out_path), "pixels_per_degree": ppd, "median_pair_pixel_scale_m": median_pixel_scale_m,
-            "pixel_m": 2 * math.pi * body.datum_radius_m / 360.0 / ppd, "shape": list(source.shape),
-            "bounds": list(bounds), "points": int(xyz.shape[0]),
-            "source_fraction": {"dense": float((source == SOURCE_DENSE).sum() / n),
-                                "sparse_fallback": float((source == SOURCE_SPARSE).sum() / n),
-                                "none": float((source == SOURCE_NONE).sum() / n)},
-            "failed_chunks": summary.get("failed_chunks", []),
-            "precision_median_m": float(np.nanmedian(precision)) if np.isfinite(precision).any() else None}
 
 
-def pixel_precision(cloud: dict[str, NDArray[Any]], lat: NDArray[np.float64], lon: NDArray[np.float64],
-                    ppd: float, k: int) -> NDArray[np.float64]:
-    """Per pixel ``1.2533 x median(sigma_h) / sqrt(min(n, k))`` of the points inside it (NaN: none)."""
-    H, W = lat.size, lon.size
-    lat_max = float(lat[0]) + 0.5 / ppd
-    lon_min = float(lon[0]) - 0.5 / ppd
-    i = np.floor((lat_max - cloud["lat"]) * ppd).astype(np.int64)
-    j = np.floor(np.mod(cloud["lon"] - lon_min, 360.0) * ppd).astype(np.int64)
-    ok = (i >= 0) & (i < H) & (j >= 0) & (j < W) & np.isfinite(cloud["sigma_h_m"])
-    flat = i[ok] * W + j[ok]
-    sig = cloud["sigma_h_m"][ok].astype(np.float64)
-    out = np.full(H * W, np.nan)
-    if flat.size:
-        order = np.lexsort((sig, flat))
-        f, s = flat[order], sig[order]
-        starts = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])
-        counts = np.diff(np.r_[starts, f.size])
-        med = 0.5 * (s[starts + (counts - 1) // 2] + s[starts + counts // 2])
-        out[f[starts]] = 1.2533 * med / np.sqrt(np.minimum(counts, k))
-    return out.reshape(H, W)
 
 
-def control_distance(control_xyz: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64],
-                     datum_radius_m: float) -> NDArray[np.float64]:
-    """(H, W) horizontal distance (m, chord on the datum sphere) from each pixel centre to its nearest control point."""
-    from scipy.spatial import cKDTree
-
-    from mercury_dem.geometry.body import latlon_to_unit
-
-    foot = control_xyz / np.linalg.norm(control_xyz, axis=1, keepdims=True) * datum_radius_m
-    la, lo = np.meshgrid(lat, lon, indexing="ij")
-    q = latlon_to_unit(la.ravel(), lo.ravel()) * datum_radius_m
-    d, _ = cKDTree(foot).query(q)
-    return np.asarray(d, np.float64).reshape(la.shape)
 
 
-def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArray[np.float64] | None = None,
-                       datum_radius_m: float | None = None) -> dict[str, Any]:
-    """``validation.dem`` entries: the dense DEM, the sparse DEM on the dense grid, and both over the pixels
-    the dense points reach (``source`` = dense) where the sparse DEM has a value, where the issue's ratio is measured.
-    """
-    from mercury_dem.dem.accuracy import dem_accuracy
-    from mercury_dem.pipeline.dem_stage import open_dem
-
-    ds = open_dem(path).load()
-    lat, lon = ds["lat"].values, ds["lon"].values
-    elev = ds["elevation"].transpose("lat", "lon").values
-    source = ds["source"].transpose("lat", "lon").values
-    sparse_on_grid_ = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
-    # the issue's comparison: the pixels where the dense points reach and the sparse DEM has a value too
-    dense_px = (source == SOURCE_DENSE) & (np.isfinite(sparse_on_grid_) if sparse_on_grid_ is not None else True)
-    # the sparse DEM on the dense grid: what the fallback holds where the dense DEM has no value, and the
-    # sparse DEM resampled where it has (kept in the store as the fallback's source: re-sampled here)
-    sparse_on_grid = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
-    if sparse_on_grid is None:
-        raise MercuryDemError(f"{path} has no sparse_on_grid layer")
-    # error against the distance to the nearest control point (issue 31 section 3), for every entry
-    dist = (control_distance(control_xyz, lat, lon, datum_radius_m)
-            if control_xyz is not None and control_xyz.shape[0] and datum_radius_m is not None else None)
-    out = {
-        "dense": dem_accuracy(elev, lat, lon, truth, dist),
-        "sparse_on_dense_grid": dem_accuracy(sparse_on_grid, lat, lon, truth, dist),
-        "dense_on_dense_pixels": dem_accuracy(np.where(dense_px, elev, np.nan), lat, lon, truth, dist),
-        "sparse_on_dense_pixels": dem_accuracy(np.where(dense_px, sparse_on_grid, np.nan), lat, lon, truth, dist),
-    }
-    return out
 
 
-def rmse_ratio(validation: dict[str, Any]) -> float | None:
-    """The issue's figure: the dense DEM's RMSE over the sparse DEM's, both on the pixels the dense points reach."""
-    a = validation.get("dense_on_dense_pixels", {}).get("rmse_m")
-    b = validation.get("sparse_on_dense_pixels", {}).get("rmse_m")
-    return float(a / b) if a is not None and b else None

@@ -77,7 +77,7 @@ def test_the_dense_stage_writes_the_cloud_per_tile(dense_run: tuple[Path, dict[s
 
 def test_the_dense_dem_has_elevation_precision_and_source(dense_run: tuple[Path, dict[str, Any], float]) -> None:
     from mercury_dem.pipeline.dem_stage import open_dem
-    from mercury_dem.pipeline.dense_stage import SOURCE_DENSE, SOURCE_NONE, SOURCE_SPARSE
+    from mercury_dem.pipeline.dense_dem import SOURCE_DENSE, SOURCE_NONE, SOURCE_SPARSE
 
     run, report, _ = dense_run
     ds = open_dem(run / "dem_dense.zarr").load()

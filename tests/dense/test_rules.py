@@ -1,24 +1,15 @@
-"""The dense stage's small decisions on exact inputs (fast loop): caps per tile, the grid rule, the bounds,
-the precision layer, the height margins, and the configuration's checks."""
+"""The dense stage's rules on exact inputs: the per-tile cap of the pairs, the height margins, the config's checks."""
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 import pytest
 
 from mercury_dem.config import load_config
 from mercury_dem.dense.pairs import REJECTED, SELECTED, StereoCandidate
+from mercury_dem.dense.rules import cap_per_tile, height_margins
 from mercury_dem.exceptions import ConfigError
 from mercury_dem.geometry.body import MERCURY, latlon_to_xyz
-from mercury_dem.pipeline.dense_stage import (
-    cap_per_tile,
-    dense_grid_ppd,
-    height_margins,
-    pixel_precision,
-    snapped_bounds,
-)
 
 
 def _row(left: str, right: str, rank: int) -> StereoCandidate:
@@ -40,37 +31,6 @@ def test_the_per_tile_cap_keeps_the_best_ranked_and_names_the_tile() -> None:
     assert out[3].reason == "overlap 0.1 < 0.2"  # rejected rows untouched
     out, per_tile = cap_per_tile(rows, tile_of, max_per_tile=9, tiles=(6,))
     assert per_tile == {6: [4]} and out[0].reason == "tile 5 not in dense.tiles"
-
-
-def test_the_grid_rule_is_three_pixel_scales_in_half_pixels_per_degree() -> None:
-    r = MERCURY.datum_radius_m
-    deg_m = 2 * math.pi * r / 360
-    # median 2 km x 3 = 6 km -> 7.1 pixel/deg -> 7.0
-    assert dense_grid_ppd(np.array([1000.0, 2000.0, 9000.0]), 3.0, r) == round(deg_m / 6000 * 2) / 2 == 7.0
-    assert dense_grid_ppd(np.array([1e6]), 3.0, r) == 0.5  # never below half a pixel per degree
-
-
-def test_bounds_are_snapped_outward_to_whole_pixels() -> None:
-    assert snapped_bounds((-20.0, 30.0, -25.0, 25.0), 5.5) == pytest.approx(
-        (-20.0, 30.0, -25.0909090909, 25.0909090909))
-    a0, a1, o0, o1 = snapped_bounds((-90.0, 90.0, 0.0, 360.0), 7.5)
-    assert (a0, a1, o0, o1) == (-90.0, 90.0, 0.0, 360.0)
-    for lo, hi in ((a0, a1), (o0, o1)):
-        n = (hi - lo) * 7.5
-        assert abs(n - round(n)) < 1e-9
-
-
-def test_the_precision_layer_is_the_median_sigma_over_the_root_of_the_points() -> None:
-    ppd = 1.0
-    lat = np.array([0.5, -0.5])  # rows: pixel centres, north to south
-    lon = np.array([10.5, 11.5])
-    cloud = {"lat": np.array([0.2, 0.7, 0.9, 0.1, -0.4]), "lon": np.array([10.2, 10.8, 10.1, 10.6, 11.9]),
-             "sigma_h_m": np.array([100.0, 300.0, 200.0, 400.0, 50.0], np.float32)}
-    p = pixel_precision(cloud, lat, lon, ppd, k=64)
-    assert p[0, 0] == pytest.approx(1.2533 * 250.0 / 2.0)  # 4 points, median of 100, 200, 300, 400
-    assert p[1, 1] == pytest.approx(1.2533 * 50.0)
-    assert np.isnan(p[0, 1]) and np.isnan(p[1, 0])
-    assert pixel_precision(cloud, lat, lon, ppd, k=1)[0, 0] == pytest.approx(1.2533 * 250.0)
 
 
 def test_height_margins_from_the_tie_points_scatter_with_a_floor() -> None:
