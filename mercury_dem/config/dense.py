@@ -81,6 +81,10 @@ class DenseConfig(ConfigSection):
     grid_pixel_factor: float = param(
         3.0, "Dense DEM pixel = this times the selected pairs' median ground pixel scale (the coarser image of "
         "each pair), then rounded to a multiple of 0.5 pixel/deg", lo=0.5, hi=100.0)
+    max_gap_pixels: float = param(
+        1.0, "A dense DEM pixel farther than this many of its pixels from every dense point has no dense value "
+        "(the sparse DEM fills it): the dense cloud is patchy, so the DEM stage's spacing rule would carry dense "
+        "values far beyond the points", unit="pixel", lo=0.1, hi=1000.0)
     grid_neighbours: int = param(
         64, "The dense DEM's median11 takes the median of this many nearest points (the sparse DEM's "
         "dem.neighbours is 11): the pairs' points merged by a robust median over about a pixel", lo=1, hi=1000)

@@ -41,7 +41,8 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, bod
     bounds = snapped_bounds((float(sl.min()) - half, float(sl.max()) + half, float(so.min()) - half,
                              float(so.max()) + half), ppd)
     cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
-                  lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours)
+                  lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours,
+                  max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * body.datum_radius_m / 360.0 / ppd)
     scratch = store.root / DEM_DENSE_SCRATCH_FILE
     shutil.rmtree(scratch, ignore_errors=True)
     try:

@@ -5,7 +5,7 @@ dense stage runs in-process. Measured 2026-12-02 on the 2-core session machine (
 40 of 273 candidate pairs selected over 11 tiles, 40 chips (0 failed), 728,936 points; dense DEM at 5.5
 pixel/deg (3 x the pairs' median pixel scale of 2.7 km); on the 25,209 pixels the dense points reach (and the
 sparse DEM covers) the dense DEM is 597 m RMSE against the truth, the sparse DEM resampled there 408 m: ratio
-1.46, issue 31's <= 0.5 is **not** met on the tiny mission (docs/design/dense.md says why; seed 7: 1.50). The
+1.46, issue 31's <= 0.5 is **not** met on the tiny mission (docs/design/dense.md says why; seed 7: 1.38). The
 stage takes 42-57 s, the resumed run 54-73 s (the machine's load).
 """
 
