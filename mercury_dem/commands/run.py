@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, help="LocalCluster workers (default: one per core)")
     p.add_argument("--threads-per-worker", type=int, help="LocalCluster threads per worker")
     add_tls_arguments(p)
-    p.add_argument("--force", metavar="STAGE", help="recompute from STAGE on: plan, tile, region, hemisphere, global, dem")
+    p.add_argument("--force", metavar="STAGE", help="recompute from STAGE on: plan, tile, region, hemisphere, global, dem, dense")
     p.add_argument("--no-dem", action="store_true", help="stop after the global adjustment")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     g = p.add_argument_group("batch system (--cluster): the workers as SLURM/PBS jobs, as 'mercury-dem cluster'")
@@ -69,6 +69,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     print()
     print_report(report, sys.stdout)
     print(f"\noutputs: {args.out}/report.json, {args.out}/global/0/ (adjusted network and pointing)"
-          + (f", {args.out}/dem.zarr, {args.out}/products/" if "dem" in report else ""))
+          + (f", {args.out}/dem.zarr, {args.out}/products/" if "dem" in report else "")
+          + (f", {args.out}/dense.zarr, {args.out}/dem_dense.zarr" if "dem" in report.get("dense", {}) else ""))
     glob = report["levels"]["global"]
     return 0 if glob and glob.get("ok") else 1

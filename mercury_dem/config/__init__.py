@@ -18,6 +18,7 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.config.apriori import AprioriConfig, refuse_retired_keys
 from mercury_dem.config.base import ConfigSection, from_dict, section, template, to_dict
 from mercury_dem.config.dem import DemConfig
+from mercury_dem.config.dense import DenseConfig
 from mercury_dem.config.execution import ExecutionConfig
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.config.network import NetworkConfig
@@ -38,6 +39,8 @@ class Config(ConfigSection):
     network: NetworkConfig = section(NetworkConfig, "Control networks: tracks and merging")
     adjust: AdjustConfig = section(AdjustConfig, "Bundle adjustment at every level")
     dem: DemConfig = section(DemConfig, "DEM gridding")
+    dense: DenseConfig = section(DenseConfig, "Dense stereo: pairs, chips, matching, the dense cloud and DEM "
+                                 "(issue 31)")
     execution: ExecutionConfig = section(ExecutionConfig, "Execution on Dask")
     reference: ReferenceConfig = section(ReferenceConfig, "Reference heights the DEM is compared with (real missions)")
 

@@ -97,6 +97,11 @@ REGISTRATION_SUMMARY_FILE = SUMMARY_FILE
 REGISTRATION_SCRATCH_FILE = "transformed.zarr"
 #: What the DEM stage writes into ``RUN/`` (removed by ``--force dem`` or an earlier stage).
 DEM_OUTPUTS = (DEM_FILE, DEM_CHUNKS_DIR, COVERAGE_FILE, PRODUCTS_DIR)
+#: The dense stage (issue 31): the cloud (one Zarr group per tile), the dense DEM, and its scratch store.
+DENSE_FILE = "dense.zarr"
+DEM_DENSE_FILE = "dem_dense.zarr"
+DEM_DENSE_SCRATCH_FILE = "dem_dense_grid.zarr"
+DENSE_OUTPUTS = (DENSE_FILE, DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE)
 
 
 

@@ -22,7 +22,7 @@ from typing import Any, TextIO
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
-from mercury_dem.io.run_store import DEM_OUTPUTS, PLAN_DIR, RunStore
+from mercury_dem.io.run_store import DEM_OUTPUTS, DENSE_OUTPUTS, PLAN_DIR, RunStore
 from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.results import FailureSummary, Summary, summary_from_json
@@ -30,7 +30,7 @@ from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, 
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
-STAGES = ("plan", *LEVELS, "dem")
+STAGES = ("plan", *LEVELS, "dem", "dense")
 
 
 def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
@@ -132,6 +132,9 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             elif stage == "dem":
                 for name in DEM_OUTPUTS:
                     store.remove(name)
+            elif stage == "dense":
+                for name in DENSE_OUTPUTS:
+                    store.remove(name)
     store.write_run({
         "mission": mission_abs,
         "config": to_dict(config),
@@ -224,6 +227,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
             summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream, integrity)
             timings.update(level_seconds)
             dem_summary = None
+            dense_summary: dict[str, Any] | None = None
             glob = summaries["global"][0] if summaries["global"] else None
             if dem and glob is not None and glob.ok:
                 t = time.perf_counter()
@@ -232,6 +236,11 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                 stage[0] = "the DEM stage (dem.zarr, coverage.zarr, products)"
                 dem_summary = run_dem_stage(store, mission, config, client, stream)  # the cascade's client
                 timings["dem"] = time.perf_counter() - t
+                if config.dense.enabled:
+                    stage[0] = "the dense stage (dense.zarr, dem_dense.zarr)"
+                    t = time.perf_counter()
+                    dense_summary = _dense_stage(store, mission, config, client, stream, dem_summary)
+                    timings["dense"] = time.perf_counter() - t
     finally:
         if own:
             conn.close()
@@ -241,8 +250,35 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     stage[0] = "the report (RUN/report.json)"
     report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
     report["integrity"] = integrity
+    if dense_summary is not None:
+        report["dense"] = dense_summary
     write_report(store, report)
     return report
+
+
+def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, stream: TextIO | None,
+                 dem_summary: dict[str, Any]) -> dict[str, Any]:
+    """The dense stage (:mod:`mercury_dem.pipeline.dense_stage`) after the DEM stage; its validation entries
+    join the DEM's (``validation.dem``). A failure of the whole stage is recorded as a value: the run's other
+    products stand. Not on a bucket run yet (its tasks read ``dem.zarr`` and write ``dense.zarr`` locally).
+    """
+    from mercury_dem.exceptions import MercuryDemError
+
+    if store.url is not None:
+        return {"error": "the dense stage does not run on a bucket run yet (dense.enabled is ignored)"}
+    from mercury_dem.pipeline.dense_stage import run_dense_stage
+
+    try:
+        out = run_dense_stage(store, mission, config, client, stream)
+    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+        raise
+    except (MercuryDemError, OSError, ValueError) as exc:
+        if disk_full_cause(exc) is not None:
+            raise
+        return {"error": f"dense stage: {type(exc).__name__}: {exc}"}
+    if "validation" in out:
+        dem_summary.setdefault("validation", {}).update(out.pop("validation"))
+    return out
 
 
 @contextlib.contextmanager

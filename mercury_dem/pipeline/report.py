@@ -247,8 +247,35 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
         w("\n" + "\n".join(shape_lines) + "\n")
     for rel, why in ((report.get("dem") or {}).get("products_skipped") or {}).items():
         w(f"not written: products/{rel} ({why})\n")
+    w(dense_lines(report.get("dense")))
     tm = report.get("timings", {})
     w("\ntimings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()) + "\n")
+
+
+def dense_lines(dense: dict[str, Any] | None, limit: int = 5) -> str:
+    """The dense stage's block of ``report.json`` in a few lines (empty when the run has none)."""
+    if not dense:
+        return ""
+    if dense.get("error"):
+        return f"\ndense: {dense['error']}\n"
+    p = dense.get("pairs", {})
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted((p.get("rejected_by_reason") or {}).items(), key=lambda kv: -kv[1]))
+    out = [f"\ndense: {p.get('selected', 0)} of {p.get('candidates', 0)} candidate pairs selected (rejected: "
+           f"{reasons or 'none'}); {dense.get('chips', 0)} chips, {dense.get('chips_failed', 0)} failed; "
+           f"{dense.get('points', 0)} points\n"]
+    for t in (dense.get("tiles") or {}).get("failed", [])[:limit]:
+        out.append(f"  {t.get('error')}\n")
+    for f in (dense.get("failures") or [])[:limit]:
+        out.append(f"  {f.get('error')}\n")
+    dem = dense.get("dem") or {}
+    if dem.get("error"):
+        out.append(f"  dense DEM: {dem['error']}\n")
+    elif dem:
+        frac = dem.get("source_fraction", {})
+        out.append(f"  dense DEM: {dem.get('pixels_per_degree')} pixel/deg, dense {_f(frac.get('dense'), '.0%')}, "
+                   f"sparse fallback {_f(frac.get('sparse_fallback'), '.0%')}; RMSE dense / sparse on the dense "
+                   f"pixels {_f(dem.get('rmse_ratio_dense_over_sparse'), '.2f')}\n")
+    return "".join(out)
 
 
 def level_notes(row: dict[str, Any], limit: int = 5) -> list[str]:
@@ -290,7 +317,9 @@ def dem_validation_table(d: dict[str, Any]) -> str:
             ("p95_m", "p95"))
     out = ["\nDEM minus truth (m)" + "".join(f"{label:>9}" for _, label in cols) + f"{'pixels':>11}\n"]
     for key, label in (("adjusted", "adjusted points"), ("a_priori", "a-priori points"),
-                       ("registered", "registered (alt.)"), ("merged", "merged with alt.")):
+                       ("registered", "registered (alt.)"), ("merged", "merged with alt."),
+                       ("dense", "dense+fallback"), ("sparse_on_dense_grid", "sparse@dense grid"),
+                       ("dense_on_dense_pixels", "dense, its pixels"), ("sparse_on_dense_pixels", "sparse, same px")):
         row = d.get(key)
         if not isinstance(row, dict):
             continue

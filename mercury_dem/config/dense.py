@@ -1,0 +1,104 @@
+"""Configuration of the dense stereo stage (issue 31; docs/design/dense.md).
+
+The pair rule is :class:`mercury_dem.dense.pairs.StereoPairCriteria` (the literature's bands: parallax/height
+0.1--1, best 0.4--0.6, pixel-scale ratio <= 2.5, similar illumination); the matcher's and the point filters'
+keys are the main fields of :class:`mercury_dem.dense.disparity.MatcherSettings` and
+:class:`mercury_dem.dense.triangulate.PointFilter` (this package imports neither: the stage runner builds them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mercury_dem.config.base import ConfigSection, param
+
+
+@dataclass(frozen=True)
+class DenseConfig(ConfigSection):
+    """The ``dense`` section: stereo pairs, chips, matching, points and the dense DEM."""
+
+    enabled: bool = param(
+        False, "Run the dense stereo stage after the DEM stage (dense.zarr, dem_dense.zarr); off by default: "
+        "it costs minutes per tile on a 2-core machine (docs/design/dense.md)",
+    )
+    tiles: tuple[int, ...] = param(
+        (), "Only these tiles' pairs (tile of the pair's left image); empty: every tile (a stated subset, e.g. "
+        "for a demo)",
+    )
+    # --- stereo pairs (StereoPairCriteria) ----------------------------------------------------
+    min_parallax_height: float = param(0.1, "Smallest parallax/height ratio of a pair", lo=0.0, hi=10.0)
+    max_parallax_height: float = param(1.0, "Largest parallax/height ratio of a pair", lo=0.0, hi=10.0)
+    best_parallax_height: tuple[float, ...] = param(
+        (0.4, 0.6), "Preferred band (low, high) of the parallax/height ratio; the ranking prefers pairs in it",
+    )
+    max_scale_ratio: float = param(2.5, "Largest ground-pixel-scale ratio of a pair (coarser / finer)", lo=1.0)
+    max_incidence_difference_deg: float = param(
+        20.0, "Largest difference of the two images' solar incidence", unit="deg", lo=0.0, hi=180.0)
+    max_sun_azimuth_difference_deg: float = param(
+        30.0, "Largest difference of the two images' local sun azimuths", unit="deg", lo=0.0, hi=180.0)
+    max_incidence_deg: float = param(80.0, "Largest solar incidence of either image", unit="deg", lo=0.0, hi=90.0)
+    min_overlap: float = param(0.2, "Smallest share of the left image seen by the right one", lo=0.0, hi=1.0)
+    max_pairs_per_image: int = param(4, "Selected pairs an image takes part in, at most (best-ranked first)",
+                                     lo=1, hi=1000)
+    max_pairs_per_tile: int = param(
+        16, "Selected pairs matched per tile, at most (best-ranked first; the others are named in the report)",
+        lo=1, hi=100000)
+    # --- chips --------------------------------------------------------------------------------
+    chip_size: int = param(512, "Interior side of a chip (the unit of dense matching)", unit="pixel",
+                           lo=32, hi=4096)
+    chip_collar: int = param(32, "Context pixels around a chip's interior", unit="pixel", lo=0, hi=512)
+    max_chips_per_pair: int = param(
+        64, "Chips matched per pair, at most (row-major order; the others are counted as capped)", lo=1,
+        hi=1_000_000)
+    height_margin_factor: float = param(
+        3.0, "Height search margin about the sparse DEM: this many times the robust scatter (1.4826 MAD) of the "
+        "tie points' heights about it", lo=0.0, hi=100.0)
+    min_height_margin_m: float = param(
+        1000.0, "The height search margin, at least (the sparse DEM misses relief between its posts)",
+        unit="m", lo=1.0)
+    # --- matcher (MatcherSettings) --------------------------------------------------------------
+    matcher_mode: str = param("sgbm_3way", "OpenCV StereoSGBM mode",
+                              choices=("sgbm", "sgbm_3way", "hh", "hh4"))
+    block_size: int = param(5, "SGBM matching block (odd)", unit="pixel", lo=1, hi=31)
+    refine_window: int = param(9, "Least-squares refinement window side (odd, >= 3)", unit="pixel", lo=3, hi=63)
+    max_sigma_px: float = param(0.5, "A larger stated disparity precision is a no-texture hole", unit="pixel",
+                                lo=0.0)
+    min_score: float = param(0.5, "A smaller normalised correlation of the refined window is a hole",
+                             lo=-1.0, hi=1.0)
+    # --- points (PointFilter) -----------------------------------------------------------------
+    sigma_floor_px: float = param(
+        0.05, "Disparity error added in quadrature to the matcher's for the cameras and the rectification",
+        unit="pixel", lo=0.0)
+    max_miss_pixels: float = param(1.0, "Largest ray miss distance, in left-image pixels at the point's range",
+                                   unit="pixel", lo=0.0)
+    min_angle_deg: float = param(5.0, "Smallest triangulation angle of a point", unit="deg", lo=0.0, hi=180.0)
+    max_sigma_h_m: float | None = param(None, "Largest stated vertical precision of a point; null: no limit",
+                                        unit="m", lo=0.0)
+    max_height_offset_factor: float = param(
+        2.0, "A point farther from the sparse DEM than this times the tile's height margin is removed (count "
+        "'range'): on the tiny mission 15-26 % of the points, among them errors of tens of km", lo=0.0)
+    # --- the dense DEM --------------------------------------------------------------------------
+    grid_pixel_factor: float = param(
+        3.0, "Dense DEM pixel = this times the selected pairs' median ground pixel scale (the coarser image of "
+        "each pair), then rounded to a multiple of 0.5 pixel/deg", lo=0.5, hi=100.0)
+    max_gap_pixels: float = param(
+        1.0, "A dense DEM pixel farther than this many of its pixels from every dense point has no dense value "
+        "(the sparse DEM fills it): the dense cloud is patchy, so the DEM stage's spacing rule would carry dense "
+        "values far beyond the points", unit="pixel", lo=0.1, hi=1000.0)
+    grid_neighbours: int = param(
+        64, "The dense DEM's median11 takes the median of this many nearest points (the sparse DEM's "
+        "dem.neighbours is 11): the pairs' points merged by a robust median over about a pixel", lo=1, hi=1000)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from mercury_dem.exceptions import ConfigError
+
+        band = self.best_parallax_height
+        if len(band) != 2 or not (self.min_parallax_height <= band[0] <= band[1] <= self.max_parallax_height):
+            raise ConfigError(
+                "config key 'dense.best_parallax_height' must be [low, high] with min_parallax_height <= low <= "
+                f"high <= max_parallax_height; got {list(band)} in [{self.min_parallax_height}, "
+                f"{self.max_parallax_height}]")
+        if self.block_size % 2 != 1 or self.refine_window % 2 != 1:
+            raise ConfigError(f"config keys 'dense.block_size' ({self.block_size}) and 'dense.refine_window' "
+                              f"({self.refine_window}) must be odd")

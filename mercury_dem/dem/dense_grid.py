@@ -1,0 +1,69 @@
+"""The dense DEM's grid rules (pure): resolution from the pairs' pixel scale, bounds, precision, control distance.
+
+Used by :mod:`mercury_dem.pipeline.dense_dem` (docs/design/dense.md, "The stage", step 5).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+def dense_grid_ppd(pixel_scales_m: NDArray[np.float64], factor: float, datum_radius_m: float) -> float:
+    """Pixels per degree of the dense DEM: ``factor`` x the median pixel scale, rounded to a multiple of 0.5
+    (so 180 and 360 degrees are whole pixels), at least 0.5.
+    """
+    pixel_m = factor * float(np.median(pixel_scales_m))
+    raw = 2.0 * math.pi * datum_radius_m / 360.0 / pixel_m
+    return max(0.5, round(raw * 2.0) / 2.0)
+
+
+def snapped_bounds(bounds: tuple[float, float, float, float], ppd: float) -> tuple[float, float, float, float]:
+    """(lat_min, lat_max, lon_min, lon_max) snapped outward to whole pixels of ``ppd`` (latitudes within +-90)."""
+    a0, a1, o0, o1 = bounds
+    lat0 = max(-90.0, math.floor(a0 * ppd + 1e-9) / ppd)
+    lat1 = min(90.0, math.ceil(a1 * ppd - 1e-9) / ppd)
+    lon0 = math.floor(o0 * ppd + 1e-9) / ppd
+    lon1 = math.ceil(o1 * ppd - 1e-9) / ppd
+    if lon1 - lon0 > 360.0:
+        lon1 = lon0 + 360.0
+    return lat0, lat1, lon0, lon1
+
+
+def pixel_precision(cloud: dict[str, NDArray[Any]], lat: NDArray[np.float64], lon: NDArray[np.float64],
+                    ppd: float, k: int) -> NDArray[np.float64]:
+    """Per pixel ``1.2533 x median(sigma_h) / sqrt(min(n, k))`` of the points inside it (NaN: none)."""
+    H, W = lat.size, lon.size
+    lat_max = float(lat[0]) + 0.5 / ppd
+    lon_min = float(lon[0]) - 0.5 / ppd
+    i = np.floor((lat_max - cloud["lat"]) * ppd).astype(np.int64)
+    j = np.floor(np.mod(cloud["lon"] - lon_min, 360.0) * ppd).astype(np.int64)
+    ok = (i >= 0) & (i < H) & (j >= 0) & (j < W) & np.isfinite(cloud["sigma_h_m"])
+    flat = i[ok] * W + j[ok]
+    sig = cloud["sigma_h_m"][ok].astype(np.float64)
+    out = np.full(H * W, np.nan)
+    if flat.size:
+        order = np.lexsort((sig, flat))
+        f, s = flat[order], sig[order]
+        starts = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])
+        counts = np.diff(np.r_[starts, f.size])
+        med = 0.5 * (s[starts + (counts - 1) // 2] + s[starts + counts // 2])
+        out[f[starts]] = 1.2533 * med / np.sqrt(np.minimum(counts, k))
+    return out.reshape(H, W)
+
+
+def control_distance(control_xyz: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64],
+                     datum_radius_m: float) -> NDArray[np.float64]:
+    """(H, W) horizontal distance (m, chord on the datum sphere) from each pixel centre to its nearest control point."""
+    from scipy.spatial import cKDTree
+
+    from mercury_dem.geometry.body import latlon_to_unit
+
+    foot = control_xyz / np.linalg.norm(control_xyz, axis=1, keepdims=True) * datum_radius_m
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    q = latlon_to_unit(la.ravel(), lo.ravel()) * datum_radius_m
+    d, _ = cKDTree(foot).query(q)
+    return np.asarray(d, np.float64).reshape(la.shape)

@@ -1,0 +1,134 @@
+"""The dense DEM of a run (``dem_dense.zarr``) and its validation against the truth (issue 31; docs/design/dense.md).
+
+The cloud (``dense.zarr``, :mod:`mercury_dem.pipeline.dense_stage`) gridded by the DEM stage's own gridding at the
+dense rule's resolution (:mod:`mercury_dem.dem.dense_grid`), with the sparse DEM resampled as fallback, a precision
+and a source layer; written atomically.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mercury_dem.config import Config
+from mercury_dem.dem.dense_grid import control_distance, pixel_precision, snapped_bounds
+from mercury_dem.exceptions import MercuryDemError
+from mercury_dem.io.run_store import DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE, DENSE_FILE, RunStore
+
+#: ``source`` layer of the dense DEM.
+SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE = 0, 1, 2
+
+
+def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, body: Any, rep: Any,
+                   median_pixel_scale_m: float) -> dict[str, Any]:
+    """Grid the cloud into ``dem_dense.zarr`` with the sparse DEM as fallback; returns the report's block."""
+    from mercury_dem.geometry.body import latlon_to_xyz
+    from mercury_dem.pipeline.dem_stage import atomic_store, grid_dem, open_dem
+    from mercury_dem.pipeline.dense_stage import open_sparse_surface, read_cloud
+
+    cloud = read_cloud(store.root / DENSE_FILE)
+    xyz = latlon_to_xyz(cloud["lat"], cloud["lon"], height_m=cloud["height"], datum_radius_m=body.datum_radius_m)
+    sparse = open_dem(store.dem_path)
+    sl, so = sparse["lat"].values, sparse["lon"].values
+    half = 0.5 / float(sparse.attrs.get("pixels_per_degree", 1.0 / abs(sl[1] - sl[0]) if sl.size > 1 else 1.0))
+    bounds = snapped_bounds((float(sl.min()) - half, float(sl.max()) + half, float(so.min()) - half,
+                             float(so.max()) + half), ppd)
+    cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
+                  lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours,
+                  max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * body.datum_radius_m / 360.0 / ppd)
+    scratch = store.root / DEM_DENSE_SCRATCH_FILE
+    shutil.rmtree(scratch, ignore_errors=True)
+    try:
+        summary = grid_dem(xyz, cfg, scratch, client, coverage=False, body=body, record_failures=True,
+                           attrs={"source": "dense stereo points"}, progress=rep, label="dem (dense points)")
+        g = open_dem(scratch).load()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    lat, lon = g["lat"].values, g["lon"].values
+    elev = g["elevation"].transpose("lat", "lon").values.astype(np.float64)
+    lat2, lon2 = np.meshgrid(lat, lon, indexing="ij")
+    surf = open_sparse_surface(store.dem_path)
+    fallback = surf.sample(lat2, lon2)
+    has_dense = np.isfinite(elev)
+    source = np.where(has_dense, SOURCE_DENSE, np.where(np.isfinite(fallback), SOURCE_SPARSE, SOURCE_NONE))
+    final = np.where(has_dense, elev, fallback)
+    precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
+    precision = np.where(has_dense, precision, np.nan)
+    ds = g.copy()
+    dims = g["elevation"].dims
+    ds["elevation"] = (("lat", "lon"), final.astype(np.float32))
+    ds["elevation"] = ds["elevation"].transpose(*dims)
+    ds["elevation_dense"] = (("lat", "lon"), elev.astype(np.float32))
+    ds["sparse_on_grid"] = (("lat", "lon"), fallback.astype(np.float32))
+    ds["sparse_on_grid"].attrs["long_name"] = "the sparse DEM (dem.zarr) resampled bilinearly on this grid"
+    ds["precision_m"] = (("lat", "lon"), precision.astype(np.float32))
+    ds["source"] = (("lat", "lon"), source.astype(np.uint8))
+    ds["source"].attrs.update({"flag_values": [SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE],
+                               "flag_meanings": "none dense sparse_fallback"})
+    ds["precision_m"].attrs.update({"units": "m", "long_name": "stated 1-sigma precision of the dense elevation: "
+                                    "1.2533 x the median stated sigma_h of the pixel's points / sqrt(min(n, "
+                                    "dense.grid_neighbours)); NaN where the pixel holds no dense point"})
+    ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
+                     "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
+                                  f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
+                     "pixels_per_degree": ppd})
+    for v in ds.data_vars:
+        ds[v].encoding = {}
+    out_path = store.root / DEM_DENSE_FILE
+    with atomic_store(out_path, overwrite=True) as tmp:
+        ds.to_zarr(str(tmp), mode="w", zarr_format=3, consolidated=False)
+    n = source.size
+    return {"path": str(out_path), "pixels_per_degree": ppd, "median_pair_pixel_scale_m": median_pixel_scale_m,
+            "pixel_m": 2 * math.pi * body.datum_radius_m / 360.0 / ppd, "shape": list(source.shape),
+            "bounds": list(bounds), "points": int(xyz.shape[0]),
+            "source_fraction": {"dense": float((source == SOURCE_DENSE).sum() / n),
+                                "sparse_fallback": float((source == SOURCE_SPARSE).sum() / n),
+                                "none": float((source == SOURCE_NONE).sum() / n)},
+            "failed_chunks": summary.get("failed_chunks", []),
+            "precision_median_m": float(np.nanmedian(precision)) if np.isfinite(precision).any() else None}
+
+
+def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArray[np.float64] | None = None,
+                       datum_radius_m: float | None = None) -> dict[str, Any]:
+    """``validation.dem`` entries: the dense DEM, the sparse DEM on the dense grid, and both over the pixels
+    the dense points reach (``source`` = dense) where the sparse DEM has a value, where the issue's ratio is measured.
+    """
+    from mercury_dem.dem.accuracy import dem_accuracy
+    from mercury_dem.pipeline.dem_stage import open_dem
+
+    ds = open_dem(path).load()
+    lat, lon = ds["lat"].values, ds["lon"].values
+    elev = ds["elevation"].transpose("lat", "lon").values
+    source = ds["source"].transpose("lat", "lon").values
+    sparse_on_grid_ = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
+    # the issue's comparison: the pixels where the dense points reach and the sparse DEM has a value too
+    dense_px = (source == SOURCE_DENSE) & (np.isfinite(sparse_on_grid_) if sparse_on_grid_ is not None else True)
+    # the sparse DEM on the dense grid: what the fallback holds where the dense DEM has no value, and the
+    # sparse DEM resampled where it has (kept in the store as the fallback's source: re-sampled here)
+    sparse_on_grid = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
+    if sparse_on_grid is None:
+        raise MercuryDemError(f"{path} has no sparse_on_grid layer")
+    # error against the distance to the nearest control point (issue 31 section 3), for every entry
+    dist = (control_distance(control_xyz, lat, lon, datum_radius_m)
+            if control_xyz is not None and control_xyz.shape[0] and datum_radius_m is not None else None)
+    out = {
+        "dense": dem_accuracy(elev, lat, lon, truth, dist),
+        "sparse_on_dense_grid": dem_accuracy(sparse_on_grid, lat, lon, truth, dist),
+        "dense_on_dense_pixels": dem_accuracy(np.where(dense_px, elev, np.nan), lat, lon, truth, dist),
+        "sparse_on_dense_pixels": dem_accuracy(np.where(dense_px, sparse_on_grid, np.nan), lat, lon, truth, dist),
+    }
+    return out
+
+
+def rmse_ratio(validation: dict[str, Any]) -> float | None:
+    """The issue's figure: the dense DEM's RMSE over the sparse DEM's, both on the pixels the dense points reach."""
+    a = validation.get("dense_on_dense_pixels", {}).get("rmse_m")
+    b = validation.get("sparse_on_dense_pixels", {}).get("rmse_m")
+    return float(a / b) if a is not None and b else None

@@ -1,0 +1,53 @@
+"""The dense DEM's grid rules on exact inputs: resolution, bounds, the precision layer, the control distance."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mercury_dem.dem.dense_grid import control_distance, dense_grid_ppd, pixel_precision, snapped_bounds
+from mercury_dem.geometry.body import MERCURY, latlon_to_xyz
+
+
+def test_the_grid_rule_is_three_pixel_scales_in_half_pixels_per_degree() -> None:
+    r = MERCURY.datum_radius_m
+    deg_m = 2 * math.pi * r / 360
+    # median 2 km x 3 = 6 km -> 7.1 pixel/deg -> 7.0
+    assert dense_grid_ppd(np.array([1000.0, 2000.0, 9000.0]), 3.0, r) == round(deg_m / 6000 * 2) / 2 == 7.0
+    assert dense_grid_ppd(np.array([1e6]), 3.0, r) == 0.5  # never below half a pixel per degree
+
+
+def test_bounds_are_snapped_outward_to_whole_pixels() -> None:
+    assert snapped_bounds((-20.0, 30.0, -25.0, 25.0), 5.5) == pytest.approx(
+        (-20.0, 30.0, -25.0909090909, 25.0909090909))
+    a0, a1, o0, o1 = snapped_bounds((-90.0, 90.0, 0.0, 360.0), 7.5)
+    assert (a0, a1, o0, o1) == (-90.0, 90.0, 0.0, 360.0)
+    for lo, hi in ((a0, a1), (o0, o1)):
+        n = (hi - lo) * 7.5
+        assert abs(n - round(n)) < 1e-9
+
+
+def test_the_precision_layer_is_the_median_sigma_over_the_root_of_the_points() -> None:
+    ppd = 1.0
+    lat = np.array([0.5, -0.5])  # rows: pixel centres, north to south
+    lon = np.array([10.5, 11.5])
+    cloud = {"lat": np.array([0.2, 0.7, 0.9, 0.1, -0.4]), "lon": np.array([10.2, 10.8, 10.1, 10.6, 11.9]),
+             "sigma_h_m": np.array([100.0, 300.0, 200.0, 400.0, 50.0], np.float32)}
+    p = pixel_precision(cloud, lat, lon, ppd, k=64)
+    assert p[0, 0] == pytest.approx(1.2533 * 250.0 / 2.0)  # 4 points, median of 100, 200, 300, 400
+    assert p[1, 1] == pytest.approx(1.2533 * 50.0)
+    assert np.isnan(p[0, 1]) and np.isnan(p[1, 0])
+    assert pixel_precision(cloud, lat, lon, ppd, k=1)[0, 0] == pytest.approx(1.2533 * 250.0)
+
+
+def test_the_control_distance_is_the_chord_to_the_nearest_point() -> None:
+    r = MERCURY.datum_radius_m
+    pts = latlon_to_xyz(np.array([0.0, 10.0]), np.array([0.0, 0.0]), height_m=np.array([3000.0, -2000.0]),
+                        datum_radius_m=r)
+    d = control_distance(pts, np.array([0.0, 4.0, 10.0]), np.array([0.0, 1.0]), r)
+    deg = 2 * r * math.sin(math.radians(0.5))  # chord of one degree on the datum
+    assert d[0, 0] == pytest.approx(0.0, abs=1e-6) and d[2, 0] == pytest.approx(0.0, abs=1e-6)
+    assert d[0, 1] == pytest.approx(deg, rel=1e-9)
+    assert d[1, 0] == pytest.approx(2 * r * math.sin(math.radians(2.0)), rel=1e-9)
