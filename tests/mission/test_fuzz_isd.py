@@ -53,6 +53,21 @@ VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**15, 10**15), st.fl
                    st.lists(st.lists(st.floats(), max_size=4), max_size=3), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
 
 
+def _damaged(doc: dict, raw: str, how: str, data: st.DataObject) -> str:
+    """The ISD text ``raw`` (of ``doc``) truncated, or with one value replaced or deleted (``how``)."""
+    if how == "truncate":
+        return raw[: data.draw(st.integers(0, len(raw) - 1))]
+    path = data.draw(st.sampled_from(_paths(doc)))
+    node = doc
+    for k in path[:-1]:
+        node = node[k]
+    if how == "delete" and isinstance(node, dict):
+        del node[path[-1]]
+    else:
+        node[path[-1]] = data.draw(VALUES)
+    return json.dumps(doc)
+
+
 @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(which=st.sampled_from(("usgscsm", "ale")), how=st.sampled_from(("value", "delete", "truncate")),
        data=st.data())
@@ -64,18 +79,7 @@ def test_damaged_isd_gives_our_error(tmp_path_factory: pytest.TempPathFactory, w
     raw = src.read_text()
     doc = json.loads(raw)
     target = work / ("EN0213023991M.json" if which == "usgscsm" else "EN1072174528M.json")
-    if how == "truncate":
-        target.write_text(raw[: data.draw(st.integers(0, len(raw) - 1))])
-    else:
-        path = data.draw(st.sampled_from(_paths(doc)))
-        node = doc
-        for k in path[:-1]:
-            node = node[k]
-        if how == "delete" and isinstance(node, dict):
-            del node[path[-1]]
-        else:
-            node[path[-1]] = data.draw(VALUES)
-        target.write_text(json.dumps(doc))
+    target.write_text(_damaged(doc, raw, how, data))
     pixels = which == "usgscsm"
     try:
         im = read_isd_image(target, [work], pixels=pixels, body=None if pixels else MERCURY)
@@ -103,18 +107,7 @@ def test_damaged_usgscsm_model_isd_gives_our_error(tmp_path_factory: pytest.Temp
         doc["optical_distortion"] = {which: copy.deepcopy(MODELS[which])}
     target = tmp_path_factory.mktemp("isdm") / name
     raw = json.dumps(doc)
-    if how == "truncate":
-        target.write_text(raw[: data.draw(st.integers(0, len(raw) - 1))])
-    else:
-        path = data.draw(st.sampled_from(_paths(doc)))
-        node = doc
-        for k in path[:-1]:
-            node = node[k]
-        if how == "delete" and isinstance(node, dict):
-            del node[path[-1]]
-        else:
-            node[path[-1]] = data.draw(VALUES)
-        target.write_text(json.dumps(doc))
+    target.write_text(_damaged(doc, raw, how, data))
     try:
         im = read_isd_image(target, [], pixels=False, body=MOON)
     except MercuryDemError as exc:
