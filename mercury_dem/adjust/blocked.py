@@ -1,8 +1,9 @@
 """The bundle adjustment over point blocks: out of core in one process, or distributed (issue #17).
 
-The same Levenberg-Marquardt loop as :mod:`mercury_dem.adjust.solver` (same damping,
-gain ratio, robust reweighting, deletion-statistic rejection with its rounds,
-hysteresis and cycle rule), cut along the one seam the problem has: given the
+The in-memory adjuster's Levenberg-Marquardt loop (:func:`~mercury_dem.adjust.lm.run_levenberg_marquardt`:
+same damping, gain ratio, rejection rounds and cycle rule; the same robust reweighting and
+per-point rejection rules of :mod:`mercury_dem.adjust.solver`) over a :class:`BlockedEngine`,
+which cuts the problem along the one seam it has: given the
 cameras, points are independent. So everything per point or per measure lives in
 a :class:`PointBlockState` (its points, measures, Jacobians, the point blocks
 ``V``, the per-measure ``W = Jc^T Jp``, its share of the Schur pair structure,
@@ -25,8 +26,7 @@ One shard in the caller's process is the in-memory/out-of-core run
 (:class:`SyncEngine`); one shard per Dask worker, as a Dask *actor* that loads
 its blocks from the store itself and keeps them in worker memory across
 iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
-stays in the orchestration layer). The loop,
-:func:`blocked_levenberg_marquardt`, does not know which.
+stays in the orchestration layer). :func:`blocked_levenberg_marquardt` does not know which.
 
 Pointing corrections only (camera_dim 3, positions fixed); a-posteriori sigmas of the images only
 (:func:`blocked_posterior_sigmas`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).

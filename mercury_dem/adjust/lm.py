@@ -20,18 +20,43 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.adjust.robust import rejection_limit
 
-if TYPE_CHECKING:
-    from mercury_dem.adjust.solver import SolverOptions
-
 #: A trial step is taken when its gain ratio (actual over predicted decrease) exceeds this.
 MIN_GAIN = 1e-3
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Options of the loop and of its engines (``solver`` .. ``held_points``); the typed config maps onto these.
+
+    Importable from :mod:`mercury_dem.adjust.solver` too, where the adjusters take them.
+    """
+
+    max_iterations: int = 50
+    function_tolerance: float = 1e-6  # relative decrease of the cost (i.e. ~2x that of sigma0)
+    step_tolerance: float = 1e-10  # |step| relative to |parameters|
+    initial_lambda: float = 1e-4
+    loss: str = "none"
+    loss_scale: float = 1.0  # whitened units (measure sigmas)
+    reject_k: float | None = None  # k of the k x MAD rejection; None: no rejection
+    reject_floor: float = 1.0  # never reject below this whitened norm
+    reject_settled_fraction: float = 1e-4  # fewer rejection changes than this share of measures count as settled
+    reject_max_rounds: int = 8  # rejection rounds after which the rejected set is kept
+    reject_after: float = 0.05  # rejection starts once a step lowers the cost by less than this, relative
+    min_point_measures: int = 2
+    solver: str = "auto"  # auto | direct | pcg
+    direct_max_unknowns: int = 30_000
+    pcg_tolerance: float = 0.1
+    pcg_max_iterations: int = 500
+    max_rejected_steps: int = 12
+    held_cameras: NDArray[np.bool_] | None = None
+    held_points: NDArray[np.bool_] | None = None
 
 
 class Trial(NamedTuple):

@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs
-from mercury_dem.adjust.lm import Proposal, Trial, run_levenberg_marquardt
+from mercury_dem.adjust.lm import Proposal, SolverOptions, Trial, run_levenberg_marquardt
 from mercury_dem.adjust.robust import loss_rho
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 
@@ -76,31 +76,6 @@ class BlockModel(Protocol):
 
     def retract(self, state: Any, d_camera: NDArray[np.float64], d_point: NDArray[np.float64]) -> Any:
         """The state moved by camera steps (n_cam, c) and point steps (n_pt, 3)."""
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Options of :func:`levenberg_marquardt` (the typed config maps onto these)."""
-
-    max_iterations: int = 50
-    function_tolerance: float = 1e-6  # relative decrease of the cost (i.e. ~2x that of sigma0)
-    step_tolerance: float = 1e-10  # |step| relative to |parameters|
-    initial_lambda: float = 1e-4
-    loss: str = "none"
-    loss_scale: float = 1.0  # whitened units (measure sigmas)
-    reject_k: float | None = None  # k of the k x MAD rejection; None: no rejection
-    reject_floor: float = 1.0  # never reject below this whitened norm
-    reject_settled_fraction: float = 1e-4  # fewer rejection changes than this share of measures count as settled
-    reject_max_rounds: int = 8  # rejection rounds after which the rejected set is kept
-    reject_after: float = 0.05  # rejection starts once a step lowers the cost by less than this, relative
-    min_point_measures: int = 2
-    solver: str = "auto"  # auto | direct | pcg
-    direct_max_unknowns: int = 30_000
-    pcg_tolerance: float = 0.1
-    pcg_max_iterations: int = 500
-    max_rejected_steps: int = 12
-    held_cameras: NDArray[np.bool_] | None = None
-    held_points: NDArray[np.bool_] | None = None
 
 
 @dataclass
@@ -434,8 +409,10 @@ class InMemoryEngine:
         return {}
 
 
-def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = SolverOptions()) -> SolverResult:
-    """Minimise the (robust) cost of ``model`` from ``state`` (the loop: :func:`~mercury_dem.adjust.lm.run_levenberg_marquardt`).
+def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions | None = None) -> SolverResult:
+    """Minimise the (robust) cost of ``model`` from ``state`` (``opt`` None: the defaults of :class:`SolverOptions`).
+
+    The loop is :func:`~mercury_dem.adjust.lm.run_levenberg_marquardt` over an :class:`InMemoryEngine`.
 
     Returns the best state found with the reason the iteration stopped (``"converged: ..."``,
     ``"iteration limit"``, ``"no decrease possible ..."``). Never raises for a singular or indefinite
@@ -446,6 +423,7 @@ def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = Solv
     OpenBLAS threads only add overhead, and on a busy machine spinning threads
     made a 441-unknown Cholesky take 300 ms instead of 3 ms.
     """
+    opt = SolverOptions() if opt is None else opt
     with threadpool_limits(limits=1, user_api="blas"):
         t0 = time.perf_counter()
         engine = InMemoryEngine(model, state, opt)
