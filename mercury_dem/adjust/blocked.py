@@ -1,8 +1,9 @@
 """The bundle adjustment over point blocks: out of core in one process, or distributed (issue #17).
 
-The same Levenberg-Marquardt loop as :mod:`mercury_dem.adjust.solver` (same damping,
-gain ratio, robust reweighting, deletion-statistic rejection with its rounds,
-hysteresis and cycle rule), cut along the one seam the problem has: given the
+The in-memory adjuster's Levenberg-Marquardt loop (:func:`~mercury_dem.adjust.lm.run_levenberg_marquardt`:
+same damping, gain ratio, rejection rounds and cycle rule; the same robust reweighting and
+per-point rejection rules of :mod:`mercury_dem.adjust.solver`) over a :class:`BlockedEngine`,
+which cuts the problem along the one seam it has: given the
 cameras, points are independent. So everything per point or per measure lives in
 a :class:`PointBlockState` (its points, measures, Jacobians, the point blocks
 ``V``, the per-measure ``W = Jc^T Jp``, its share of the Schur pair structure,
@@ -25,8 +26,7 @@ One shard in the caller's process is the in-memory/out-of-core run
 (:class:`SyncEngine`); one shard per Dask worker, as a Dask *actor* that loads
 its blocks from the store itself and keeps them in worker memory across
 iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
-stays in the orchestration layer). The loop,
-:func:`blocked_levenberg_marquardt`, does not know which.
+stays in the orchestration layer). :func:`blocked_levenberg_marquardt` does not know which.
 
 Pointing corrections only (camera_dim 3, positions fixed); a-posteriori sigmas of the images only
 (:func:`blocked_posterior_sigmas`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
@@ -59,17 +59,11 @@ from mercury_dem.adjust.kernels import (
     schur_pairs_grouped,
     schur_pairs_table,
 )
+from mercury_dem.adjust.lm import Proposal, Trial, run_levenberg_marquardt
 from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
-from mercury_dem.adjust.robust import loss_rho, rejection_limit
-from mercury_dem.adjust.schur import HAVE_CHOLMOD, ReducedSolver, SchurStructure, _cholmod, choose_method, inv3
-from mercury_dem.adjust.solver import (
-    READMIT_FRACTION,
-    SolverOptions,
-    _all_but_one_per_point,
-    _ambiguous,
-    _convergence,
-    deletion_statistic,
-)
+from mercury_dem.adjust.robust import loss_rho
+from mercury_dem.adjust.schur import HAVE_CHOLMOD, ReducedSolver, SchurStructure, cholmod_factor, choose_method, inv3
+from mercury_dem.adjust.solver import SolverOptions, deletion_statistic, kept_in_either, proposed_accepted
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.camera import FramingCamera
@@ -376,26 +370,18 @@ class PointBlockState:
         return self._norms
 
     def propose(self, limit: float) -> tuple[int, int]:
-        """The new accepted set under ``limit`` (the rules of ``solver._levenberg_marquardt``); (changes, hash)."""
-        pt, norms, active, member = self.pt, self._norms, self.active, self._member
-        new = np.isfinite(norms) & (norms <= np.where(active, limit, READMIT_FRACTION * limit))
-        new |= _all_but_one_per_point(pt, norms, active & ~new)
-        new &= ~_all_but_one_per_point(pt, -norms, new & ~active & ~member)
-        new &= ~_ambiguous(pt, norms, self._ssr, member, limit)
-        lone = np.bincount(pt[new], minlength=self.n_pt) < self.opt.min_point_measures
-        new &= ~(lone[pt] & ~self.held_p[pt])
+        """The new accepted set under ``limit`` (``solver.proposed_accepted``); (changes, hash)."""
+        new = proposed_accepted(self.pt, self._norms, self._ssr, self.active, self._member, self.held_p, limit,
+                                self.opt.min_point_measures)
         self._proposal = new
-        return int(np.sum(new != active)), hash(np.packbits(new).tobytes())
+        return int(np.sum(new != self.active)), hash(np.packbits(new).tobytes())
 
     def settle(self, union: bool) -> int:
         """Finalize the proposal (``union``: keep every measure accepted before or now, the cycle rule); changes."""
-        new = self._proposal
         if union:
-            new = new | self.active
-            new &= ~(np.bincount(self.pt[new], minlength=self.n_pt) < self.opt.min_point_measures)[self.pt] | self.held_p[self.pt]
-            self._proposal = new
+            self._proposal = kept_in_either(self._proposal, self.active, self.pt, self.held_p, self.opt.min_point_measures)
         del self._norms, self._ssr, self._member  # until the next round
-        return int(np.sum(new != self.active))
+        return int(np.sum(self._proposal != self.active))
 
     def apply(self, omega: NDArray[np.float64]) -> float:
         """Adopt the settled set; the cost at the current state under it."""
@@ -713,164 +699,144 @@ class GlobalStructure:
         return sp.bsr_matrix((full, self._indices, self._indptr), shape=(n, n), blocksize=(C, C))
 
 
+class BlockedEngine:
+    """The :class:`~mercury_dem.adjust.lm.LMEngine` of the shards of ``engine``: cameras here, points in the shards.
+
+    Keeps the pointing corrections ``omega`` (n_img, 3) and the reduced camera system; each trial sums the
+    shards' Schur contributions into it, solves, and has the shards back-substitute their points and return
+    scalars (see the module docstring).
+    """
+
+    def __init__(self, engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_omega: NDArray[np.float64] | None):
+        self.engine, self.setup, self.opt = engine, setup, opt
+        self.n_cam = setup.n_images
+        self.held_c = setup.held
+        structs = engine.call("structure")
+        self.n_measures = int(sum(s[2] for s in structs))
+        self.n_points = int(sum(s[3] for s in structs))
+        self.glob = GlobalStructure(np.unique(np.concatenate([s[1] for s in structs])), self.n_cam)
+        del structs
+        self.method = choose_method(opt.solver, self.n_cam * C, opt.direct_max_unknowns)
+        self.lin_solver = ReducedSolver(self.method, C, opt.pcg_tolerance, opt.pcg_max_iterations)
+        self.sigma_c = setup.pointing_sigma_rad
+        self.pos_sq = float(np.sum(setup.positions**2))
+        self.omega = np.zeros((self.n_cam, 3)) if initial_omega is None else np.asarray(initial_omega, np.float64).copy()
+        self.n_cam_prior = self.n_pt_prior = 0
+        self.started = 0.0  # time.perf_counter() once the initial cost is known (the end of the setup)
+        self._times = {"reduce_seconds": 0.0, "solve_seconds": 0.0, "step_seconds": 0.0}
+
+    def _cam_prior_cost(self, om: NDArray[np.float64]) -> float:
+        return 0.5 * float(np.sum((om / self.sigma_c) ** 2))
+
+    def start(self) -> float:
+        cost = float(sum(self.engine.call("initial_cost", self.omega))) + self._cam_prior_cost(self.omega)
+        self.started = time.perf_counter()
+        return cost
+
+    def linearize(self) -> None:
+        n_cam, held_c, omega = self.n_cam, self.held_c, self.omega
+        u = np.zeros((n_cam, C, C))
+        g_c = np.zeros((n_cam, C))
+        self.n_pt_prior = 0
+        for part in self.engine.summed("linearize", omega):
+            (cams_u, us), (cams_g, gs) = part.terms
+            u[cams_u] += us
+            g_c[cams_g] += gs
+            self.n_pt_prior += part.counts[0]
+        # the camera prior, as FramingModel.camera_prior
+        self.n_cam_prior = int(np.sum(~held_c)) * C
+        prior_blocks(omega / self.sigma_c, inverse_left_jacobian(omega) / self.sigma_c, u, g_c)
+        u[held_c], g_c[held_c] = np.eye(C), 0.0
+        self.u, self.g_c = u, g_c
+        self.du = np.clip(np.diagonal(u, axis1=1, axis2=2), 1e-6, 1e32)
+        self._times = {"reduce_seconds": 0.0, "solve_seconds": 0.0, "step_seconds": 0.0}
+
+    def trial(self, lam: float) -> Trial:
+        glob, g_c, du = self.glob, self.g_c, self.du
+        ta = time.perf_counter()
+        blocks = np.zeros((len(glob.keys), C, C))
+        b = -g_c
+        for part in self.engine.summed("reduce", lam):
+            (keys, ss), (cams, rs) = part.terms
+            blocks[np.searchsorted(glob.keys, keys)] += ss
+            b[cams] += rs
+        ud = self.u.copy()
+        ud[:, range(C), range(C)] += lam * du
+        blocks[glob.diag_block] += ud
+        tb = time.perf_counter()
+        dc, info = self.lin_solver.solve(glob.to_bsr(blocks), blocks[glob.diag_block], b.ravel())
+        del blocks
+        tc = time.perf_counter()
+        self._times["reduce_seconds"] += tb - ta
+        self._times["solve_seconds"] += tc - tb
+        dc = dc.reshape(self.n_cam, C)
+        dc[self.held_c] = 0.0
+        new_cost, pred, step_norm = float("nan"), 0.0, float("nan")
+        if info.ok and np.all(np.isfinite(dc)):
+            new_omega = angles_from_rotation(np.matmul(rotation_from_angles(dc), rotation_from_angles(self.omega)))
+            parts = self.engine.call("step", lam, dc, new_omega)
+            pred_p = sum(p[0] for p in parts)
+            new_cost = sum(p[1] for p in parts) + self._cam_prior_cost(new_omega)
+            dp_sq = sum(p[2] for p in parts)
+            pts_sq = sum(p[3] for p in parts)
+            pred = 0.5 * (lam * float(np.sum(du * dc * dc)) + pred_p - float(np.sum(g_c * dc)))
+            step_norm = float(np.sqrt(np.sum(dc * dc) + dp_sq))
+            self._trial = (new_omega, pts_sq)
+        self._times["step_seconds"] += time.perf_counter() - tc
+        return Trial(pred, new_cost, step_norm, info.iterations)
+
+    def accept(self) -> float:
+        self.engine.call("accept")
+        new_omega, pts_sq = self._trial
+        del self._trial
+        x_norm = float(np.sqrt(pts_sq + np.sum(self.omega**2) + self.pos_sq))  # at the state before the step
+        self.omega = new_omega
+        return x_norm
+
+    def dof_counts(self) -> tuple[int, int]:
+        counts = self.engine.call("counts")
+        n_obs = 2 * sum(c[0] for c in counts) + self.n_cam_prior + self.n_pt_prior
+        n_unk = C * int(np.sum(~self.held_c)) + 3 * sum(c[1] for c in counts)
+        return n_obs, n_unk
+
+    def deletion_norms(self) -> NDArray[np.float64]:
+        return np.concatenate(self.engine.call("deletion"))
+
+    def propose(self, limit: float) -> Proposal:
+        props = self.engine.call("propose", limit)
+        return Proposal(sum(p[0] for p in props), hash(tuple(h for p in props for h in p[1])))
+
+    def settle(self, union: bool) -> int:
+        return int(sum(self.engine.call("settle", union)))
+
+    def apply_rejection(self) -> float:
+        return float(sum(self.engine.call("apply", self.omega))) + self._cam_prior_cost(self.omega)
+
+    def n_rejected(self) -> int:
+        return int(sum(self.engine.call("rejected")))
+
+    def timings(self) -> dict[str, float]:
+        return dict(self._times)
+
+
 def blocked_levenberg_marquardt(engine: Engine, setup: CameraSetup, opt: SolverOptions,
                                 initial_omega: NDArray[np.float64] | None = None) -> BlockedResult:
     """Minimise the (robust) cost over all blocks of ``engine`` (see the module docstring).
 
     The client keeps the cameras (pointing corrections ``omega`` (n_img, 3)) and the
-    reduced camera system; the shards keep the points. Step control, rejection and
-    convergence follow ``solver._levenberg_marquardt`` line by line.
+    reduced camera system; the shards keep the points. The loop (step control, rejection
+    and convergence) is the in-memory adjuster's: :func:`~mercury_dem.adjust.lm.run_levenberg_marquardt`
+    over a :class:`BlockedEngine`.
     """
     with threadpool_limits(limits=1, user_api="blas"):
-        return _blocked_lm(engine, setup, opt, initial_omega)
-
-
-def _blocked_lm(engine: Engine, setup: CameraSetup, opt: SolverOptions, initial_omega: NDArray[np.float64] | None) -> BlockedResult:
-    t0 = time.perf_counter()
-    n_cam = setup.n_images
-    held_c = setup.held
-    structs = engine.call("structure")
-    m = int(sum(s[2] for s in structs))
-    n_points = int(sum(s[3] for s in structs))
-    glob = GlobalStructure(np.unique(np.concatenate([s[1] for s in structs])), n_cam)
-    del structs
-    method = choose_method(opt.solver, n_cam * C, opt.direct_max_unknowns)
-    lin_solver = ReducedSolver(method, C, opt.pcg_tolerance, opt.pcg_max_iterations)
-    sigma_c = setup.pointing_sigma_rad
-    pos_sq = float(np.sum(setup.positions**2))
-    omega = np.zeros((n_cam, 3)) if initial_omega is None else np.asarray(initial_omega, np.float64).copy()
-
-    def cam_prior_cost(om: NDArray[np.float64]) -> float:
-        return 0.5 * float(np.sum((om / sigma_c) ** 2))
-
-    cost = float(sum(engine.call("initial_cost", omega))) + cam_prior_cost(omega)
-    initial_cost = cost
-    setup_s = time.perf_counter() - t0
-    lam, nu = opt.initial_lambda, 2.0
-    log: list[dict[str, Any]] = []
-    converged, reason = False, "iteration limit"
-    n_cam_prior = n_pt_prior = 0
-    rejecting, seen_sets, rounds, it = False, set(), 0, 0
-    rejected = 0
-    eye_c = np.eye(C)
-
-    def sigma0_of(cost_: float) -> tuple[float, int]:
-        counts = engine.call("counts")
-        n_obs = 2 * sum(c[0] for c in counts) + n_cam_prior + n_pt_prior
-        n_unk = C * int(np.sum(~held_c)) + 3 * sum(c[1] for c in counts)
-        dof = max(n_obs - n_unk, 1)
-        return float(np.sqrt(2.0 * cost_ / dof)), dof
-
-    for it in range(1, opt.max_iterations + 1):
-        t_it = time.perf_counter()
-        u = np.zeros((n_cam, C, C))
-        g_c = np.zeros((n_cam, C))
-        n_pt_prior = 0
-        for part in engine.summed("linearize", omega):
-            (cams_u, us), (cams_g, gs) = part.terms
-            u[cams_u] += us
-            g_c[cams_g] += gs
-            n_pt_prior += part.counts[0]
-        # the camera prior, as FramingModel.camera_prior
-        n_cam_prior = int(np.sum(~held_c)) * C
-        prior_blocks(omega / sigma_c, inverse_left_jacobian(omega) / sigma_c, u, g_c)
-        u[held_c], g_c[held_c] = eye_c, 0.0
-        du = np.clip(np.diagonal(u, axis1=1, axis2=2), 1e-6, 1e32)
-        t_lin = time.perf_counter() - t_it
-        accepted_step = False
-        lin_iters = 0
-        t_reduce = t_solve = t_step = 0.0
-        for _ in range(opt.max_rejected_steps):
-            ta = time.perf_counter()
-            blocks = np.zeros((len(glob.keys), C, C))
-            b = -g_c
-            for part in engine.summed("reduce", lam):
-                (keys, ss), (cams, rs) = part.terms
-                blocks[np.searchsorted(glob.keys, keys)] += ss
-                b[cams] += rs
-            ud = u.copy()
-            ud[:, range(C), range(C)] += lam * du
-            blocks[glob.diag_block] += ud
-            tb = time.perf_counter()
-            dc, info = lin_solver.solve(glob.to_bsr(blocks), blocks[glob.diag_block], b.ravel())
-            del blocks
-            tc = time.perf_counter()
-            t_reduce += tb - ta
-            t_solve += tc - tb
-            lin_iters += info.iterations
-            dc = dc.reshape(n_cam, C)
-            dc[held_c] = 0.0
-            new_cost, pred = float("nan"), 0.0
-            if info.ok and np.all(np.isfinite(dc)):
-                new_omega = angles_from_rotation(np.matmul(rotation_from_angles(dc), rotation_from_angles(omega)))
-                parts = engine.call("step", lam, dc, new_omega)
-                pred_p = sum(p[0] for p in parts)
-                new_cost = sum(p[1] for p in parts) + cam_prior_cost(new_omega)
-                dp_sq = sum(p[2] for p in parts)
-                pts_sq = sum(p[3] for p in parts)
-                pred = 0.5 * (lam * float(np.sum(du * dc * dc)) + pred_p - float(np.sum(g_c * dc)))
-            t_step += time.perf_counter() - tc
-            gain = (cost - new_cost) / pred if pred > 0 else -1.0
-            if np.isfinite(new_cost) and gain > 1e-3:
-                step_norm = float(np.sqrt(np.sum(dc * dc) + dp_sq))
-                engine.call("accept")
-                x_norm = float(np.sqrt(pts_sq + np.sum(omega**2) + pos_sq))  # at the state before the step, as the core
-                rel_decrease = (cost - new_cost) / max(cost, 1e-300)
-                omega, cost = new_omega, new_cost
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-                nu = 2.0
-                accepted_step = True
-                break
-            lam *= nu
-            nu *= 2.0
-        sigma0, dof = sigma0_of(cost)
-        entry: dict[str, Any] = {
-            "iteration": it, "cost": cost, "sigma0": sigma0, "lambda": lam, "step_accepted": accepted_step,
-            "rejected": rejected, "linearize_seconds": t_lin, "reduce_seconds": t_reduce, "solve_seconds": t_solve,
-            "step_seconds": t_step, "seconds": time.perf_counter() - t_it, "elapsed": time.perf_counter() - t0,
-            "linear_iterations": lin_iters,
-        }
-        log.append(entry)
-        if not accepted_step:
-            reason = f"no decrease possible (lambda reached {lam:.3g} after {opt.max_rejected_steps} refused steps)"
-            break
-        changed = False
-        if opt.reject_k is not None and not rejecting and rel_decrease < opt.reject_after:
-            rejecting = True
-        if rejecting and rounds >= opt.reject_max_rounds:
-            entry["rejection_frozen"] = True
-        elif rejecting:
-            rounds += 1
-            norms = np.concatenate(engine.call("deletion"))
-            limit = rejection_limit(norms, np.isfinite(norms), opt.reject_k, opt.reject_floor)  # type: ignore[arg-type]
-            del norms
-            props = engine.call("propose", limit)
-            n_changed = sum(p[0] for p in props)
-            key = hash(tuple(h for p in props for h in p[1]))
-            changed = n_changed > opt.reject_settled_fraction * m
-            entry["rejection_changes"] = n_changed
-            union = bool(changed and key in seen_sets)
-            n_changed = sum(engine.call("settle", union))
-            if union:
-                entry["rejection_cycle"] = True
-                rounds = opt.reject_max_rounds
-            seen_sets.add(key)
-            entry["rejection_limit"] = limit
-            if n_changed:
-                cost = float(sum(engine.call("apply", omega))) + cam_prior_cost(omega)
-                rejected = int(sum(engine.call("rejected")))
-                entry["rejected"] = rejected
-        entry["seconds"] = time.perf_counter() - t_it
-        if not changed:
-            why = _convergence(rel_decrease, step_norm, x_norm, opt)
-            if why:
-                converged, reason = True, why
-                break
-    sigma0, dof = sigma0_of(cost)
+        t0 = time.perf_counter()
+        lm = BlockedEngine(engine, setup, opt, initial_omega)
+        out = run_levenberg_marquardt(lm, opt, t0)
     return BlockedResult(
-        omega=omega, rotations=np.matmul(rotation_from_angles(omega), setup.rotations), initial_cost=initial_cost,
-        final_cost=cost, sigma0=sigma0, iterations=it, converged=converged, reason=reason, rejected=rejected, log=log,
-        seconds=time.perf_counter() - t0, setup_seconds=setup_s, linear_method=method, measures=m, points=n_points, dof=dof,
+        omega=lm.omega, rotations=np.matmul(rotation_from_angles(lm.omega), setup.rotations),
+        initial_cost=out.initial_cost, final_cost=out.final_cost, sigma0=out.sigma0, iterations=out.iterations,
+        converged=out.converged, reason=out.reason, rejected=out.rejected, log=out.log, seconds=out.seconds,
+        setup_seconds=lm.started - t0, linear_method=lm.method, measures=lm.n_measures, points=lm.n_points, dof=out.dof,
     )
 
 
@@ -900,7 +866,7 @@ def _inverse_diagonal_blocks(matrix: sp.bsr_matrix, n_cam: int, method: str, bat
         inv = np.linalg.inv(matrix.toarray())
         idx = np.arange(n_cam)[:, None] * C + np.arange(C)
         return inv[idx[:, :, None], idx[:, None, :]]
-    factor = _cholmod.cholesky(matrix.tocsc(), mode="supernodal")  # type: ignore[union-attr]
+    factor = cholmod_factor(matrix.tocsc())
     out = np.empty((n_cam, C, C))
     n = n_cam * C
     for i0 in range(0, n_cam, batch):

@@ -36,7 +36,7 @@ from mercury_dem.adjust.blocked import (
     blocked_posterior_sigmas,
     options_from_config,
 )
-from mercury_dem.adjust.bundle import _rms_by, check_projectable, held_image_mask
+from mercury_dem.adjust.bundle import check_projectable, held_image_mask, rms_by_group
 from mercury_dem.adjust.diagnose import check_solvable, diagnose
 from mercury_dem.adjust.problem import AdjustmentProblem
 from mercury_dem.adjust.result import AdjustmentResult
@@ -152,8 +152,8 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
     rejected = ~accepted
     keep = accepted & ~frozen[problem.measure_point]
     sq = np.sum(resid * resid, axis=1)
-    rms_img, n_img_acc = _rms_by(problem.measure_image, sq, keep, problem.n_images)
-    rms_pt, n_pt_acc = _rms_by(problem.measure_point, sq, keep, problem.n_points)
+    rms_img, n_img_acc = rms_by_group(problem.measure_image, sq, keep, problem.n_images)
+    rms_pt, n_pt_acc = rms_by_group(problem.measure_point, sq, keep, problem.n_points)
     rk = resid[keep]
     rms = float(np.sqrt(np.mean(rk * rk))) if rk.size else float("nan")
     return AdjustmentResult(

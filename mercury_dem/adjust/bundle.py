@@ -69,7 +69,13 @@ def solver_options(problem: AdjustmentProblem, config: AdjustConfig, held_images
     )
 
 
-def _rms_by(groups: NDArray[np.int64], sq: NDArray[np.float64], keep: NDArray[np.bool_], n: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def rms_by_group(groups: NDArray[np.int64], sq: NDArray[np.float64], keep: NDArray[np.bool_],
+                 n: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Per-coordinate RMS and count of the kept measures of each of ``n`` groups (images or points).
+
+    ``groups`` (M,) each measure's group, ``sq`` (M,) its squared residual norm (two coordinates), ``keep`` (M,)
+    the measures counted. Returns ``sqrt(sum sq / (2 count))`` (NaN for a group without kept measures) and count.
+    """
     count = np.bincount(groups[keep], minlength=n)
     total = np.bincount(groups[keep], weights=sq[keep], minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -112,8 +118,8 @@ def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None
     rejected = ~res.accepted
     keep = res.accepted & ~res.frozen_points[problem.measure_point]
     sq = np.sum(resid * resid, axis=1)
-    rms_img, n_img_acc = _rms_by(problem.measure_image, sq, keep, problem.n_images)
-    rms_pt, n_pt_acc = _rms_by(problem.measure_point, sq, keep, problem.n_points)
+    rms_img, n_img_acc = rms_by_group(problem.measure_image, sq, keep, problem.n_images)
+    rms_pt, n_pt_acc = rms_by_group(problem.measure_point, sq, keep, problem.n_points)
     rk = resid[keep]
     rms = float(np.sqrt(np.mean(rk * rk))) if rk.size else float("nan")
     image_sigmas = point_sigmas = None

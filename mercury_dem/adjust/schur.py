@@ -51,6 +51,18 @@ except Exception:  # pragma: no cover - depends on the machine
 HAVE_CHOLMOD = _cholmod is not None
 
 
+def cholmod_factor(matrix: sp.csc_matrix) -> Any:
+    """CHOLMOD's supernodal Cholesky factor of the symmetric positive definite ``matrix`` (CSC).
+
+    The factor is callable (``factor(rhs)`` solves) and can be refactorized in place
+    (``cholesky_inplace``). Only when :data:`HAVE_CHOLMOD`; raises CHOLMOD's
+    ``CholmodNotPositiveDefiniteError`` for a matrix that is not positive definite.
+    """
+    if _cholmod is None:
+        raise RuntimeError("CHOLMOD (scikit-sparse) is not importable here")
+    return _cholmod.cholesky(matrix, mode="supernodal")
+
+
 def inv3(a: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverses of stacked 3 x 3 matrices (..., 3, 3) by the adjugate (closed form).
 
@@ -228,7 +240,7 @@ class ReducedSolver:
         if self.method == "cholmod":
             try:
                 if self._factor is None:
-                    self._factor = _cholmod.cholesky(a, mode="supernodal")
+                    self._factor = cholmod_factor(a)
                 else:
                     self._factor.cholesky_inplace(a)
                 return self._factor(rhs), LinearSolveInfo("cholmod")

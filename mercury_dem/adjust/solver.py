@@ -4,11 +4,13 @@ The core knows nothing about cameras: a :class:`BlockModel` gives whitened
 residuals (M, 2) of its measures and their Jacobian blocks with respect to the
 measure's camera block (M, 2, c) and point (M, 2, 3), optional prior
 pseudo-observations on cameras and points, and a ``retract`` that applies a step
-(so rotations can be updated multiplicatively). The same loop therefore runs the
-BAL problems (:mod:`mercury_dem.adjust.bal`) and the planetary framing camera
-(:mod:`mercury_dem.adjust.framing`).
+(so rotations can be updated multiplicatively). :class:`InMemoryEngine` builds and
+solves its normal equations for the package's one loop
+(:func:`~mercury_dem.adjust.lm.run_levenberg_marquardt`, shared with the blocked
+adjuster), so the same code runs the BAL problems (:mod:`mercury_dem.adjust.bal`)
+and the planetary framing camera (:mod:`mercury_dem.adjust.framing`).
 
-The step control is the classical one (Nielsen; also Ceres'): damping
+The step control (in :mod:`~mercury_dem.adjust.lm`) is the classical one (Nielsen; also Ceres'): damping
 ``lambda * clip(diag(J^T J), 1e-6, 1e32)`` on both camera and point blocks,
 gain ratio of actual to predicted decrease, ``lambda *= max(1/3, 1 - (2 rho - 1)^3)``
 on success and ``lambda *= nu, nu *= 2`` on failure. Robust losses enter by
@@ -18,7 +20,8 @@ least-squares cost when the measure is left out and the point refitted); those
 beyond ``median + k MAD`` of the statistic's square roots are rejected (weight
 zero) and rejected ones that come back well within the limit are re-admitted, one
 measure per point and round either way, a point whose inconsistency two measures
-explain equally losing both (:func:`_ambiguous`). Rejection starts only once the
+explain equally losing both (:func:`proposed_accepted`, the rules every engine
+applies per point). Rejection starts only once the
 robust solve has settled (a step lowering the cost by less than ``reject_after``):
 at the a-priori state the residuals mostly show pointing errors.
 """
@@ -34,7 +37,8 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs
-from mercury_dem.adjust.robust import loss_rho, rejection_limit
+from mercury_dem.adjust.lm import Proposal, SolverOptions, Trial, run_levenberg_marquardt
+from mercury_dem.adjust.robust import loss_rho
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 
 Prior = tuple[NDArray[np.float64], NDArray[np.float64]]
@@ -72,31 +76,6 @@ class BlockModel(Protocol):
 
     def retract(self, state: Any, d_camera: NDArray[np.float64], d_point: NDArray[np.float64]) -> Any:
         """The state moved by camera steps (n_cam, c) and point steps (n_pt, 3)."""
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Options of :func:`levenberg_marquardt` (the typed config maps onto these)."""
-
-    max_iterations: int = 50
-    function_tolerance: float = 1e-6  # relative decrease of the cost (i.e. ~2x that of sigma0)
-    step_tolerance: float = 1e-10  # |step| relative to |parameters|
-    initial_lambda: float = 1e-4
-    loss: str = "none"
-    loss_scale: float = 1.0  # whitened units (measure sigmas)
-    reject_k: float | None = None  # k of the k x MAD rejection; None: no rejection
-    reject_floor: float = 1.0  # never reject below this whitened norm
-    reject_settled_fraction: float = 1e-4  # fewer rejection changes than this share of measures count as settled
-    reject_max_rounds: int = 8  # rejection rounds after which the rejected set is kept
-    reject_after: float = 0.05  # rejection starts once a step lowers the cost by less than this, relative
-    min_point_measures: int = 2
-    solver: str = "auto"  # auto | direct | pcg
-    direct_max_unknowns: int = 30_000
-    pcg_tolerance: float = 0.1
-    pcg_max_iterations: int = 500
-    max_rejected_steps: int = 12
-    held_cameras: NDArray[np.bool_] | None = None
-    held_points: NDArray[np.bool_] | None = None
 
 
 @dataclass
@@ -218,16 +197,7 @@ def deletion_statistic(
     return delta, ssr
 
 
-def _convergence(rel_decrease: float, step_norm: float, x_norm: float, opt: Any) -> str | None:
-    """The reason an LM iteration that changed no rejection has converged, or None (shared with adjust/blocked)."""
-    if rel_decrease < opt.function_tolerance:
-        return f"converged: relative cost decrease {rel_decrease:.2e} < {opt.function_tolerance:g}"
-    if step_norm < opt.step_tolerance * (x_norm + opt.step_tolerance):
-        return f"converged: step {step_norm:.2e} below tolerance"
-    return None
-
-
-def _all_but_one_per_point(pt: NDArray[np.int64], key: NDArray[np.float64], candidates: NDArray[np.bool_]) -> NDArray[np.bool_]:
+def all_but_one_per_point(pt: NDArray[np.int64], key: NDArray[np.float64], candidates: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Of the ``candidates`` (M,), all but the one of largest ``key`` in each point.
 
     Used to change at most one measure per point and round: of the measures
@@ -248,7 +218,7 @@ def _all_but_one_per_point(pt: NDArray[np.int64], key: NDArray[np.float64], cand
     return rest
 
 
-def _ambiguous(
+def ambiguous_measures(
     pt: NDArray[np.int64], norms: NDArray[np.float64], ssr: NDArray[np.float64], member: NDArray[np.bool_], limit: float
 ) -> NDArray[np.bool_]:
     """Measures (M,) of points whose inconsistency more than one measure explains; all of those are rejected.
@@ -266,195 +236,201 @@ def _ambiguous(
     return expl & (np.bincount(pt[expl], minlength=len(ssr)) >= 2)[pt]
 
 
-def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions = SolverOptions()) -> SolverResult:
-    """Minimise the (robust) cost of ``model`` from ``state``; see :func:`_levenberg_marquardt`.
+
+
+def proposed_accepted(
+    pt: NDArray[np.int64], norms: NDArray[np.float64], ssr: NDArray[np.float64], active: NDArray[np.bool_],
+    member: NDArray[np.bool_], held_points: NDArray[np.bool_], limit: float, min_point_measures: int,
+) -> NDArray[np.bool_]:
+    """The accepted set (M,) a rejection round proposes under ``limit``, from the measures' statistic ``norms``.
+
+    ``norms``: square roots of :func:`deletion_statistic` (whitened units), ``ssr`` its per-point sums,
+    ``active``: the measures accepted now, ``member``: those the statistic treated as members of their point.
+    The rules, per point: a rejected measure comes back only well inside the limit
+    (:data:`READMIT_FRACTION`: hysteresis); of the accepted measures newly beyond it only the worst goes, of
+    the rejected ones newly within it only the best comes back (:func:`all_but_one_per_point`; points without
+    accepted measures are tested on all theirs, as members, and come back together); measures of a point whose
+    inconsistency two of them explain equally all go (:func:`ambiguous_measures`); and a point left with fewer
+    than ``min_point_measures`` loses them all (a lone measure cannot show whether it is right: its point
+    followed it), unless the point is held.
+    """
+    new = np.isfinite(norms) & (norms <= np.where(active, limit, READMIT_FRACTION * limit))
+    new |= all_but_one_per_point(pt, norms, active & ~new)
+    new &= ~all_but_one_per_point(pt, -norms, new & ~active & ~member)
+    new &= ~ambiguous_measures(pt, norms, ssr, member, limit)
+    lone = np.bincount(pt[new], minlength=len(held_points)) < min_point_measures
+    new &= ~(lone[pt] & ~held_points[pt])
+    return new
+
+
+def kept_in_either(
+    proposed: NDArray[np.bool_], active: NDArray[np.bool_], pt: NDArray[np.int64], held_points: NDArray[np.bool_],
+    min_point_measures: int,
+) -> NDArray[np.bool_]:
+    """The cycle rule's accepted set: every measure accepted now or in ``proposed``, less those of points
+    (not held) left with fewer than ``min_point_measures`` of them.
+    """
+    new = proposed | active
+    new &= ~(np.bincount(pt[new], minlength=len(held_points)) < min_point_measures)[pt] | held_points[pt]
+    return new
+
+
+class InMemoryEngine:
+    """The :class:`~mercury_dem.adjust.lm.LMEngine` of a :class:`BlockModel` with all its measures here.
+
+    Each iteration's normal equations are reduced to the camera blocks with the Schur complement and solved by
+    a :class:`~mercury_dem.adjust.schur.ReducedSolver`; the points follow by back-substitution.
+    """
+
+    def __init__(self, model: BlockModel, state: Any, opt: SolverOptions):
+        self.model, self.state, self.opt = model, state, opt
+        c, n_cam, n_pt = model.camera_dim, model.n_cameras, model.n_points
+        self.c, self.n_cam, self.n_pt = c, n_cam, n_pt
+        self.cam, self.pt = model.camera_index, model.point_index
+        self.n_measures = len(self.cam)
+        self.held_c = np.zeros(n_cam, bool) if opt.held_cameras is None else np.asarray(opt.held_cameras, bool)
+        self.held_p = np.zeros(n_pt, bool) if opt.held_points is None else np.asarray(opt.held_points, bool)
+        self.struct = SchurStructure.build(self.cam, self.pt, n_cam, n_pt, c, eliminate=~self.held_p)
+        self.method = choose_method(opt.solver, n_cam * c, opt.direct_max_unknowns)
+        self.lin_solver = ReducedSolver(self.method, c, opt.pcg_tolerance, opt.pcg_max_iterations)
+        self.active = np.ones(self.n_measures, bool)
+        self.use, self.frozen = self._usable(self.active)
+        self.n_cam_prior = self.n_pt_prior = 0
+
+    def _usable(self, active: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+        counts = np.bincount(self.pt[active], minlength=self.n_pt)
+        frozen = (counts < self.opt.min_point_measures) & ~self.held_p
+        return active & ~frozen[self.pt], frozen
+
+    def start(self) -> float:
+        cost, self.r_now = _cost(self.model, self.state, self.use, self.opt)
+        return cost
+
+    def linearize(self) -> None:
+        model, opt, c, cam, pt = self.model, self.opt, self.c, self.cam, self.pt
+        held_c, fixed = self.held_c, self.held_p | self.frozen
+        r, jc, jp = model.linearize(self.state)
+        s = np.sum(r * r, axis=1)
+        _, w = loss_rho(np.where(self.use, s, 0.0), opt.loss, opt.loss_scale)
+        sw = np.sqrt(np.where(self.use, w, 0.0))
+        r = r * sw[:, None]
+        jc = jc * sw[:, None, None]
+        self.jp_raw = jp  # unweighted: the rejection test's (least-squares) point Jacobians
+        jp = jp * sw[:, None, None]
+        jc[held_c[cam]] = 0.0
+        jp[fixed[pt]] = 0.0
+        self.u, self.g_c = np.zeros((self.n_cam, c, c)), np.zeros((self.n_cam, c))
+        self.v, self.g_p = np.zeros((self.n_pt, 3, 3)), np.zeros((self.n_pt, 3))
+        self.wm = np.empty((self.n_measures, c, 3))
+        normal_blocks(r, jc, jp, cam, pt, self.u, self.g_c, self.v, self.g_p, self.wm)
+        cp = model.camera_prior(self.state)
+        if cp is not None:
+            self.n_cam_prior = int(np.sum(~held_c)) * cp[0].shape[1]
+            prior_blocks(cp[0], cp[1], self.u, self.g_c)
+        pp = model.point_prior(self.state)
+        if pp is not None:
+            self.n_pt_prior = int(np.sum(~fixed)) * pp[0].shape[1]
+            prior_blocks(pp[0], pp[1], self.v, self.g_p)
+        self.u[held_c], self.g_c[held_c] = np.eye(c), 0.0
+        self.v[fixed], self.g_p[fixed] = np.eye(3), 0.0
+        self.du = np.clip(np.diagonal(self.u, axis1=1, axis2=2), 1e-6, 1e32)
+        self.dv = np.clip(np.diagonal(self.v, axis1=1, axis2=2), 1e-6, 1e32)
+
+    def trial(self, lam: float) -> Trial:
+        c, cam, pt, u, v, g_c, g_p, du, dv = self.c, self.cam, self.pt, self.u, self.v, self.g_c, self.g_p, self.du, self.dv
+        ud = u.copy()
+        ud[:, range(c), range(c)] += lam * du
+        vd = v.copy()
+        vd[:, range(3), range(3)] += lam * dv
+        v_inv = inv3(vd)
+        blocks = self.struct.schur_blocks(self.wm, v_inv, ud)
+        t_p = np.matmul(v_inv, g_p[:, :, None])[:, :, 0]
+        b = -g_c
+        reduced_rhs(self.wm, t_p, cam, pt, b)
+        dc, info = self.lin_solver.solve(self.struct.to_bsr(blocks), blocks[self.struct.diag_block], b.ravel())
+        dc = dc.reshape(self.n_cam, c)
+        q = np.zeros((self.n_pt, 3))
+        if np.all(np.isfinite(dc)):
+            point_rhs(self.wm, dc, cam, pt, q)
+        dp = np.matmul(v_inv, (-g_p - q)[:, :, None])[:, :, 0]
+        dc[self.held_c] = 0.0
+        dp[self.held_p | self.frozen] = 0.0
+        pred = 0.5 * (lam * (np.sum(du * dc * dc) + np.sum(dv * dp * dp)) - np.sum(g_c * dc) - np.sum(g_p * dp))
+        new_state = self.model.retract(self.state, dc, dp) if info.ok and np.all(np.isfinite(dc)) else None
+        new_cost, r_new = float("nan"), None
+        if new_state is not None:
+            new_cost, r_new = _cost(self.model, new_state, self.use, self.opt)
+        self._trial = (new_state, r_new)
+        step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
+        return Trial(pred, new_cost, step_norm, info.iterations)
+
+    def accept(self) -> float:
+        x_norm = float(self.model.parameter_norm(self.state)) if hasattr(self.model, "parameter_norm") else 1.0
+        self.state, self.r_now = self._trial
+        del self._trial
+        return x_norm
+
+    def dof_counts(self) -> tuple[int, int]:
+        n_obs = 2 * int(np.sum(self.use)) + self.n_cam_prior + self.n_pt_prior
+        n_unk = self.c * int(np.sum(~self.held_c)) + 3 * int(np.sum(~self.held_p & ~self.frozen))
+        return n_obs, n_unk
+
+    def deletion_norms(self) -> NDArray[np.float64]:
+        # Points left without accepted measures are tested on all their measures, so a consistent
+        # subset can come back and an inconsistent pair stays out.
+        self._member = self.use | (self.frozen & ~self.held_p)[self.pt]
+        delta, self._ssr = deletion_statistic(self.r_now, self.jp_raw, self.pt, self._member, self.held_p)
+        self._norms = np.sqrt(np.maximum(delta, 0.0))
+        return self._norms
+
+    def propose(self, limit: float) -> Proposal:
+        new = proposed_accepted(self.pt, self._norms, self._ssr, self.active, self._member, self.held_p, limit,
+                                self.opt.min_point_measures)
+        self._proposal = new
+        return Proposal(int(np.sum(new != self.active)), hash(np.packbits(new).tobytes()))
+
+    def settle(self, union: bool) -> int:
+        if union:
+            self._proposal = kept_in_either(self._proposal, self.active, self.pt, self.held_p, self.opt.min_point_measures)
+        del self._norms, self._ssr, self._member  # until the next round
+        return int(np.sum(self._proposal != self.active))
+
+    def apply_rejection(self) -> float:
+        self.active = self._proposal
+        del self._proposal
+        self.use, self.frozen = self._usable(self.active)
+        cost, self.r_now = _cost(self.model, self.state, self.use, self.opt)
+        return cost
+
+    def n_rejected(self) -> int:
+        return int(np.sum(~self.active))
+
+    def timings(self) -> dict[str, float]:
+        return {}
+
+
+def levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions | None = None) -> SolverResult:
+    """Minimise the (robust) cost of ``model`` from ``state`` (``opt`` None: the defaults of :class:`SolverOptions`).
+
+    The loop is :func:`~mercury_dem.adjust.lm.run_levenberg_marquardt` over an :class:`InMemoryEngine`.
+
+    Returns the best state found with the reason the iteration stopped (``"converged: ..."``,
+    ``"iteration limit"``, ``"no decrease possible ..."``). Never raises for a singular or indefinite
+    system: such a step is refused like any other step that does not decrease the cost.
 
     BLAS is limited to one thread meanwhile: the loop makes many small BLAS calls
     (stacked 3x3 products, a dense Cholesky of a few hundred unknowns) for which
     OpenBLAS threads only add overhead, and on a busy machine spinning threads
     made a 441-unknown Cholesky take 300 ms instead of 3 ms.
     """
+    opt = SolverOptions() if opt is None else opt
     with threadpool_limits(limits=1, user_api="blas"):
-        return _levenberg_marquardt(model, state, opt)
-
-
-def _levenberg_marquardt(model: BlockModel, state: Any, opt: SolverOptions) -> SolverResult:
-    """The loop of :func:`levenberg_marquardt` (see the module docstring).
-
-    Returns the best state found with the reason the iteration stopped
-    (``"converged: ..."``, ``"iteration limit"``, ``"no decrease possible ..."``).
-    Never raises for a singular or indefinite system: such a step is refused
-    like any other step that does not decrease the cost.
-    """
-    t0 = time.perf_counter()
-    c, n_cam, n_pt = model.camera_dim, model.n_cameras, model.n_points
-    cam, pt = model.camera_index, model.point_index
-    m = len(cam)
-    held_c = np.zeros(n_cam, bool) if opt.held_cameras is None else np.asarray(opt.held_cameras, bool)
-    held_p = np.zeros(n_pt, bool) if opt.held_points is None else np.asarray(opt.held_points, bool)
-    struct = SchurStructure.build(cam, pt, n_cam, n_pt, c, eliminate=~held_p)
-    method = choose_method(opt.solver, n_cam * c, opt.direct_max_unknowns)
-    lin_solver = ReducedSolver(method, c, opt.pcg_tolerance, opt.pcg_max_iterations)
-    active = np.ones(m, bool)
-
-    def usable(active_: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-        counts_ = np.bincount(pt[active_], minlength=n_pt)
-        frozen_ = (counts_ < opt.min_point_measures) & ~held_p
-        return active_ & ~frozen_[pt], frozen_
-
-    use, frozen = usable(active)
-    cost, r_now = _cost(model, state, use, opt)
-    initial_cost = cost
-    lam, nu = opt.initial_lambda, 2.0
-    log: list[dict[str, Any]] = []
-    converged, reason = False, "iteration limit"
-    eye_c, eye3 = np.eye(c), np.eye(3)
-    n_cam_prior = n_pt_prior = 0
-    rejecting = False
-    seen_sets: set[int] = set()
-    rounds = 0
-    it = 0
-
-    def sigma0_of(cost_: float, use_: NDArray[np.bool_], frozen_: NDArray[np.bool_]) -> tuple[float, int]:
-        n_obs = 2 * int(np.sum(use_)) + n_cam_prior + n_pt_prior
-        n_unk = c * int(np.sum(~held_c)) + 3 * int(np.sum(~held_p & ~frozen_))
-        dof = max(n_obs - n_unk, 1)
-        return float(np.sqrt(2.0 * cost_ / dof)), dof
-
-    for it in range(1, opt.max_iterations + 1):
-        t_it = time.perf_counter()
-        # -- linearize ------------------------------------------------------
-        r, jc, jp = model.linearize(state)
-        s = np.sum(r * r, axis=1)
-        _, w = loss_rho(np.where(use, s, 0.0), opt.loss, opt.loss_scale)
-        sw = np.sqrt(np.where(use, w, 0.0))
-        r = r * sw[:, None]
-        jc = jc * sw[:, None, None]
-        jp_raw = jp
-        jp = jp * sw[:, None, None]
-        jc[held_c[cam]] = 0.0
-        jp[(held_p | frozen)[pt]] = 0.0
-        u = np.zeros((n_cam, c, c))
-        g_c = np.zeros((n_cam, c))
-        v = np.zeros((n_pt, 3, 3))
-        g_p = np.zeros((n_pt, 3))
-        wm = np.empty((m, c, 3))
-        normal_blocks(r, jc, jp, cam, pt, u, g_c, v, g_p, wm)
-        cp = model.camera_prior(state)
-        if cp is not None:
-            n_cam_prior = int(np.sum(~held_c)) * cp[0].shape[1]
-            prior_blocks(cp[0], cp[1], u, g_c)
-        pp = model.point_prior(state)
-        if pp is not None:
-            n_pt_prior = int(np.sum(~held_p & ~frozen)) * pp[0].shape[1]
-            prior_blocks(pp[0], pp[1], v, g_p)
-        u[held_c], g_c[held_c] = eye_c, 0.0
-        v[held_p | frozen], g_p[held_p | frozen] = eye3, 0.0
-        du = np.clip(np.diagonal(u, axis1=1, axis2=2), 1e-6, 1e32)
-        dv = np.clip(np.diagonal(v, axis1=1, axis2=2), 1e-6, 1e32)
-        t_lin = time.perf_counter() - t_it
-        # -- damped steps until one decreases the cost ------------------------
-        accepted_step = False
-        lin_iters = 0
-        for _ in range(opt.max_rejected_steps):
-            ud = u.copy()
-            ud[:, range(c), range(c)] += lam * du
-            vd = v.copy()
-            vd[:, range(3), range(3)] += lam * dv
-            v_inv = inv3(vd)
-            blocks = struct.schur_blocks(wm, v_inv, ud)
-            t_p = np.matmul(v_inv, g_p[:, :, None])[:, :, 0]
-            b = -g_c
-            reduced_rhs(wm, t_p, cam, pt, b)
-            dc, info = lin_solver.solve(struct.to_bsr(blocks), blocks[struct.diag_block], b.ravel())
-            lin_iters += info.iterations
-            dc = dc.reshape(n_cam, c)
-            q = np.zeros((n_pt, 3))
-            if np.all(np.isfinite(dc)):
-                point_rhs(wm, dc, cam, pt, q)
-            dp = np.matmul(v_inv, (-g_p - q)[:, :, None])[:, :, 0]
-            dc[held_c] = 0.0
-            dp[held_p | frozen] = 0.0
-            pred = 0.5 * (lam * (np.sum(du * dc * dc) + np.sum(dv * dp * dp)) - np.sum(g_c * dc) - np.sum(g_p * dp))
-            new_state = model.retract(state, dc, dp) if info.ok and np.all(np.isfinite(dc)) else None
-            new_cost = float("nan")
-            if new_state is not None:
-                new_cost, r_new = _cost(model, new_state, use, opt)
-            gain = (cost - new_cost) / pred if pred > 0 else -1.0
-            if np.isfinite(new_cost) and gain > 1e-3:
-                step_norm = float(np.sqrt(np.sum(dc * dc) + np.sum(dp * dp)))
-                x_norm = float(model.parameter_norm(state)) if hasattr(model, "parameter_norm") else 1.0
-                rel_decrease = (cost - new_cost) / max(cost, 1e-300)
-                state, cost, r_now = new_state, new_cost, r_new
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-                nu = 2.0
-                accepted_step = True
-                break
-            lam *= nu
-            nu *= 2.0
-        sigma0, dof = sigma0_of(cost, use, frozen)
-        entry: dict[str, Any] = {
-            "iteration": it, "cost": cost, "sigma0": sigma0, "lambda": lam,
-            "step_accepted": accepted_step, "rejected": int(np.sum(~active)),
-            "linearize_seconds": t_lin, "seconds": time.perf_counter() - t_it,
-            "elapsed": time.perf_counter() - t0, "linear_iterations": lin_iters,
-        }
-        log.append(entry)
-        if not accepted_step:
-            reason = f"no decrease possible (lambda reached {lam:.3g} after {opt.max_rejected_steps} refused steps)"
-            break
-        # -- rejection / re-admission between iterations ---------------------
-        changed = False
-        if opt.reject_k is not None and not rejecting and rel_decrease < opt.reject_after:
-            rejecting = True  # the robust solve has settled: residuals now reflect the measures
-        if rejecting and rounds >= opt.reject_max_rounds:
-            entry["rejection_frozen"] = True  # the rejected set is kept from here on
-        elif rejecting:
-            rounds += 1
-            # Points left without accepted measures are tested on all their measures, so
-            # a consistent subset can come back and an inconsistent pair stays out.
-            member = use | (frozen & ~held_p)[pt]
-            delta, ssr = deletion_statistic(r_now, jp_raw, pt, member, held_p)
-            norms = np.sqrt(np.maximum(delta, 0.0))
-            limit = rejection_limit(norms, np.isfinite(norms), opt.reject_k, opt.reject_floor)
-            # Hysteresis: a rejected measure comes back only well inside the limit.
-            new_active = np.isfinite(norms) & (norms <= np.where(active, limit, READMIT_FRACTION * limit))
-            new_active |= _all_but_one_per_point(pt, norms, active & ~new_active)
-            # Points with accepted measures take back one rejected measure per round (those of
-            # points without any are tested together, as members, and come back together).
-            new_active &= ~_all_but_one_per_point(pt, -norms, new_active & ~active & ~member)
-            new_active &= ~_ambiguous(pt, norms, ssr, member, limit)
-            # A point left with a single measure cannot show whether that one is right (its
-            # point followed it): reject it too, so a lone outlier never survives on its own.
-            lone = np.bincount(pt[new_active], minlength=n_pt) < opt.min_point_measures
-            new_active &= ~(lone[pt] & ~held_p[pt])
-            n_changed = int(np.sum(new_active != active))
-            changed = n_changed > opt.reject_settled_fraction * m
-            entry["rejection_changes"] = n_changed
-            key = hash(np.packbits(new_active).tobytes())
-            if changed and key in seen_sets:
-                # The rejected set cycles (measures flip as their points move): keep every
-                # measure accepted in either state, and stop rejecting.
-                new_active = new_active | active
-                new_active &= ~(np.bincount(pt[new_active], minlength=n_pt) < opt.min_point_measures)[pt] | held_p[pt]
-                n_changed = int(np.sum(new_active != active))
-                entry["rejection_cycle"] = True
-                rounds = opt.reject_max_rounds
-            seen_sets.add(key)
-            entry["rejection_limit"] = limit
-            if n_changed:
-                active = new_active
-                use, frozen = usable(active)
-                cost, r_now = _cost(model, state, use, opt)
-                entry["rejected"] = int(np.sum(~active))
-        if not changed:
-            why = _convergence(rel_decrease, step_norm, x_norm, opt)
-            if why:
-                converged, reason = True, why
-                break
-    sigma0, dof = sigma0_of(cost, use, frozen)
+        t0 = time.perf_counter()
+        engine = InMemoryEngine(model, state, opt)
+        out = run_levenberg_marquardt(engine, opt, t0)
     return SolverResult(
-        state=state, initial_cost=initial_cost, final_cost=cost, sigma0=sigma0, iterations=it,
-        converged=converged, reason=reason, accepted=active, frozen_points=frozen, residuals=r_now,
-        log=log, seconds=time.perf_counter() - t0, linear_method=method, dof=dof,
+        state=engine.state, initial_cost=out.initial_cost, final_cost=out.final_cost, sigma0=out.sigma0,
+        iterations=out.iterations, converged=out.converged, reason=out.reason, accepted=engine.active,
+        frozen_points=engine.frozen, residuals=engine.r_now, log=out.log, seconds=out.seconds,
+        linear_method=engine.method, dof=out.dof,
     )

@@ -69,9 +69,10 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
 
 def run(args: argparse.Namespace, config: Any) -> int:
     from mercury_dem.geometry.body import body_by_name
+    from mercury_dem.io.atomic import strict_json
     from mercury_dem.io.run_store import DEM_FILE, PRODUCTS_DIR, REGISTRATION_DIR
     from mercury_dem.pipeline.executors import connect
-    from mercury_dem.pipeline.register_stage import _jsonable, register_dem_store
+    from mercury_dem.pipeline.register_stage import register_dem_store
     from mercury_dem.products.make import dem_body, open_dem
 
     dem_path = Path(args.dir) / DEM_FILE
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace, config: Any) -> int:
                **{k: summary[k] for k in ("registered", "merged", "tables", "shots", "shots_dropped_invalid",
                                           "shots_off_dem", "tiles_registered", "profiles_fitted", "statistics")},
                "products": summary.get("products")}
-        print(json.dumps(_jsonable(out), indent=2))
+        print(json.dumps(strict_json(out), indent=2))
         return 0
     print(f"registered {summary['tiles_registered']} of {summary['tiles_with_shots']} tiles with shots "
           f"({summary['shots']} shots, {summary['shots_dropped_invalid']} invalid, {summary['shots_off_dem']} off the "

@@ -49,19 +49,19 @@ from mercury_dem.dem.index import (
     footprints,
     run_parallel,
 )
-from mercury_dem.dem.reduce import _median_filtered, _weighted
+from mercury_dem.dem.reduce import filtered_median, weighted_mean
 from mercury_dem.dem.search import (
     BUFFER,
     Centres,
-    _angle_up,
-    _centre,
-    _centres,
-    _collect,
-    _knn,
-    _knn_set,
-    _ranges,
-    _scan,
-    _topk,
+    angle_upper_bound,
+    cap_ranges,
+    collect_within,
+    fill_centres,
+    knn_exact,
+    knn_unordered,
+    pixel_centre,
+    scan_ranges,
+    top_k,
 )
 
 __all__ = ["CELL_ASPECT", "GROW", "NEEDS_FALLBACK", "OK", "POINTS_PER_CELL", "Centres", "Median11Params", "Outputs",
@@ -142,7 +142,7 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
         dprev = -1.0  # k-th distance at the previous pixel of the block (chord, m), -1 = none
         px = py = pz = 0.0
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            phi, u, qx, qy, qz, icp = _centre(p, cen)
+            phi, u, qx, qy, qz, icp = pixel_centre(p, cen)
             a_first = a0
             cap2_first = -1.0
             bound = -1.0
@@ -152,7 +152,7 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
                 # lie within dprev + |q - q_prev| of this one (triangle inequality): a cap that
                 # surely holds k points, the second try (its angle computed only if needed).
                 g = grow * dprev
-                a_first = _angle_up(g, rs)
+                a_first = angle_upper_bound(g, rs)
                 if a_first < a_min:
                     a_first = a_min
                 elif a_first >= ang_max:  # never beyond the last cap: the kd-tree decision is that cap's
@@ -160,7 +160,7 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
                 else:
                     cap2_first = g * g
                 bound = (dprev + math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)) * (1.0 + 1e-9)
-            done, cnt, d2near, d2k = _knn_set(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first,
+            done, cnt, d2near, d2k = knn_unordered(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first,
                                               cap2_first, -a0, bound, a_min, ang_max, rs, r2count, t2)
             if not done:
                 status[p] = NEEDS_FALLBACK
@@ -173,7 +173,7 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
             status[p] = OK
             for i in range(k):
                 rr[i] = radius[ik[i]]
-            v, sp = _median_filtered(rr, rs_scratch, k, sigma)
+            v, sp = filtered_median(rr, rs_scratch, k, sigma)
             out_r[p] = v
             out_spread[p] = sp
             out_count[p] = cnt
@@ -199,20 +199,20 @@ def _shepard_body(t, cen, prm, out):  # pragma: no cover
         d = np.empty(kb)
         w = np.empty(kb)
         for p in range(blk * BLOCK, min(P, (blk + 1) * BLOCK)):
-            q = _centre(p, cen)
+            q = pixel_centre(p, cen)
             phi, u, qx, qy, qz, icp = q
-            nr = _ranges(t, phi, icp, u, a_r, ranges)
-            m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, r2, r2, bd2, bi)
+            nr = cap_ranges(t, phi, icp, u, a_r, ranges)
+            m, cnt = collect_within(xyz, ranges, nr, qx, qy, qz, r2, r2, bd2, bi)
             if m > bd2.size:
-                m, cnt = _scan(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
+                m, cnt = scan_ranges(xyz, ranges, nr, qx, qy, qz, kmax, r2, r2, dk2, ik)
             else:
-                m = _topk(bd2, bi, m, kmax, dk2, ik)
+                m = top_k(bd2, bi, m, kmax, dk2, ik)
             if m > 0:
                 for i in range(m):
                     d[i] = math.sqrt(dk2[i])
                     w[i] = ((search_r - d[i]) / (search_r * d[i])) ** 2 if d[i] > 0 else 0.0
             else:
-                done, _ = _knn(t, q, sc, kfb, a0, a0, ang_max, rs, r2, np.inf)
+                done, _ = knn_exact(t, q, sc, kfb, a0, a0, ang_max, rs, r2, np.inf)
                 if not done:
                     status[p] = NEEDS_FALLBACK
                     continue
@@ -221,7 +221,7 @@ def _shepard_body(t, cen, prm, out):  # pragma: no cover
                     d[i] = math.sqrt(dk2[i])
                     w[i] = 1.0 / dk2[i] if dk2[i] > 0 else 0.0
             status[p] = OK
-            v, sp = _weighted(radius, ik, d, w, m)
+            v, sp = weighted_mean(radius, ik, d, w, m)
             out_r[p] = v
             out_spread[p] = sp
             out_count[p] = cnt
@@ -246,7 +246,7 @@ def _pixel_centres(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating],
     nr, nc = lat.size, lon.size
     cen = Centres(np.empty(nr), np.empty(nr), np.empty(nr), np.empty(nr), np.empty(nc), np.empty(nc), np.empty(nc),
                   not grid)
-    _centres(lat, lon, b.sphere_radius, b.lon0, cen)
+    fill_centres(lat, lon, b.sphere_radius, b.lon0, cen)
     return (lat.size * lon.size if grid else lat.size), cen
 
 

@@ -64,7 +64,7 @@ def _sort11(r):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _median_filtered(r, s, n, sigma):  # pragma: no cover
+def filtered_median(r, s, n, sigma):  # pragma: no cover
     """1-sigma filtered median of r[:n] (sorted in place; s: scratch of n) and the spread of the kept run."""
     if n == 11:
         _sort11(r)
@@ -127,7 +127,7 @@ def _median_filtered(r, s, n, sigma):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _weighted(radius, ik, d, w, n):  # pragma: no cover
+def weighted_mean(radius, ik, d, w, n):  # pragma: no cover
     """Weighted mean and weighted std of radius[ik[:n]] (weights w[:n]; a zero distance takes all)."""
     exact = False
     for i in range(n):

@@ -11,9 +11,9 @@ points, and doubles it until k lie within or the cap exceeds ``ang_max`` (the pi
 marked for the kd-tree). Distances are chords between footprints on the datum sphere, metres.
 
 The index comes as one :class:`~mercury_dem.dem.index.SearchTables`, a pixel's centre as
-the tuple :func:`_centre` returns (latitude, longitude from the cells' origin, x, y, z,
+the tuple :func:`pixel_centre` returns (latitude, longitude from the cells' origin, x, y, z,
 1 / cos latitude), the per-block buffers as one tuple (:data:`SCRATCH_FIELDS`): tuples numba
-passes as single arguments (a jitclass would compile much more slowly). Except in :func:`_knn_set`,
+passes as single arguments (a jitclass would compile much more slowly). Except in :func:`knn_unordered`,
 the median11 kernel's per-pixel hot path, whose scalars and buffers stay separate arguments: packed,
 that kernel measured 7-12 % slower.
 """
@@ -36,17 +36,17 @@ BUFFER = 2048
 SMALL_ANGLE = 0.01
 
 
-#: The per-block buffers of a kernel, passed to :func:`_knn` as one plain tuple ``sc = (ranges, dk2, ik, bd2, bi)``
-#: (numba's parallel transform cannot build a NamedTuple inside ``prange``; :func:`_knn_set`, the hot
+#: The per-block buffers of a kernel, passed to :func:`knn_exact` as one plain tuple ``sc = (ranges, dk2, ik, bd2, bi)``
+#: (numba's parallel transform cannot build a NamedTuple inside ``prange``; :func:`knn_unordered`, the hot
 #: path, takes them one by one): ``ranges`` (2 B + 2, 2)
-#: int64, the ``[start, end)`` runs of sorted points of a cap (:func:`_ranges`); ``dk2``/``ik``
+#: int64, the ``[start, end)`` runs of sorted points of a cap (:func:`cap_ranges`); ``dk2``/``ik``
 #: float64/int64, the k nearest found (squared chord, point; room for ``max(k, BUFFER)`` where
-#: :func:`_knn_set` is used); ``bd2``/``bi`` (BUFFER,) float64/int64, a cap's candidates before ranking.
+#: :func:`knn_unordered` is used); ``bd2``/``bi`` (BUFFER,) float64/int64, a cap's candidates before ranking.
 SCRATCH_FIELDS = ("ranges", "dk2", "ik", "bd2", "bi")
 
 
 class Centres(NamedTuple):
-    """Pixel centres as per-row and per-column tables (:func:`_centres`; read by :func:`_centre`).
+    """Pixel centres as per-row and per-column tables (:func:`fill_centres`; read by :func:`pixel_centre`).
 
     Attributes
     ----------
@@ -78,7 +78,7 @@ def _band_run(lo, hi, iw, last, lon_span, f, cell_start, out, n):  # pragma: no 
 
 
 @numba.njit(cache=True, inline="always")
-def _ranges(t, phi, icp, u, a, out):  # pragma: no cover
+def cap_ranges(t, phi, icp, u, a, out):  # pragma: no cover
     """Contiguous runs of sorted points of the index ``t`` that hold every point within angle a of (phi, u).
 
     ``u`` is the query's east longitude from the cells' origin, in [0, 2 pi) (per column:
@@ -165,7 +165,7 @@ def _insert(dk2, ik, m, k, d2, i):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _topk(bd2, bi, m, k, dk2, ik):  # pragma: no cover
+def top_k(bd2, bi, m, k, dk2, ik):  # pragma: no cover
     """The min(k, m) smallest (bd2[j], bi[j]) of j < m, ascending, into (dk2, ik); returns how many.
 
     Same result as inserting them one by one with :func:`_insert`. Up to ``RANK_MAX``
@@ -191,7 +191,7 @@ def _topk(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def _scan(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pragma: no cover
+def scan_ranges(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pragma: no cover
     """Keep the k smallest squared distances <= d2max (sorted, with indices); count those <= r2count.
 
     Returns (number kept, number within the count radius).
@@ -212,7 +212,7 @@ def _scan(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pragma: n
 
 
 @numba.njit(cache=True, inline="always")
-def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no cover
+def collect_within(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no cover
     """Squared distances <= cap2 into (bd2, bi); returns (how many there were, count <= r2count).
 
     More than ``bd2.size`` means the buffer overflowed (only its first entries are stored).
@@ -258,7 +258,7 @@ def _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no
 
 
 @numba.njit(cache=True, nogil=True)
-def _centres(lat_deg, lon_deg, rs, lon0, cen):  # pragma: no cover
+def fill_centres(lat_deg, lon_deg, rs, lon0, cen):  # pragma: no cover
     """Pixel centres on the sphere of radius rs (m) from latitudes and longitudes (degrees), into the
     tables of ``cen`` (:class:`Centres`).
 
@@ -285,7 +285,7 @@ def _centres(lat_deg, lon_deg, rs, lon0, cen):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _centre(p, cen):  # pragma: no cover
+def pixel_centre(p, cen):  # pragma: no cover
     """Pixel p's centre: (latitude, longitude from the cells' origin, x, y, z, 1 / cos(latitude)) from
     the per-row/column tables ``cen`` (:class:`Centres`);
     ``cen.paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid).
@@ -331,8 +331,8 @@ def _next_cap(a, a_second, ang_max):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # pragma: no cover
-    """Exact k nearest of the centre ``q`` (:func:`_centre`) in the index ``t`` (ascending in
+def knn_exact(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # pragma: no cover
+    """Exact k nearest of the centre ``q`` (:func:`pixel_centre`) in the index ``t`` (ascending in
     ``sc.dk2``/``sc.ik``): caps a_first, then a_second, then doubling.
 
     A cap of angle a is scanned whole (every point within a is a candidate), so as soon
@@ -346,19 +346,19 @@ def _knn(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # pragma: n
     ranges, dk2, ik, bd2, bi = sc
     a = a_first
     while True:
-        nr = _ranges(t, phi, icp, u, a, ranges)
+        nr = cap_ranges(t, phi, icp, u, a, ranges)
         cap2 = _cap_chord2(a, rs)
-        m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
+        m, cnt = collect_within(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
-            mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
+            mk, _ = scan_ranges(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
         else:
             mk = 0
             if t2 < cap2:
                 ms = _within_to_front(bd2, bi, m, t2)
                 if ms >= k:
-                    mk = _topk(bd2, bi, ms, k, dk2, ik)
+                    mk = top_k(bd2, bi, ms, k, dk2, ik)
             if mk < k:
-                mk = _topk(bd2, bi, m, k, dk2, ik)
+                mk = top_k(bd2, bi, m, k, dk2, ik)
         if mk >= k:
             return True, cnt
         if a >= ang_max:
@@ -370,13 +370,13 @@ def _knn(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # pragma: n
 def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
     """The k smallest (bd2[j], bi[j]) of j < m (k <= m) into (dk2[:k], ik[:k]) in any order.
 
-    Returns (smallest, k-th smallest) squared distance. The set is the one :func:`_topk`
+    Returns (smallest, k-th smallest) squared distance. The set is the one :func:`top_k`
     gives (ties by point index). When only a few are in excess, the largest are dropped
     one at a time (m - k passes over m values, without insertion's unpredictable
-    shifts); otherwise ranked with :func:`_topk`.
+    shifts); otherwise ranked with :func:`top_k`.
     """
     if m - k > 8:
-        _topk(bd2, bi, m, k, dk2, ik)
+        top_k(bd2, bi, m, k, dk2, ik)
         return dk2[0], dk2[k - 1]
     m0 = m
     for j in range(m):
@@ -429,12 +429,12 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _knn_set(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first, cap2_first, a_second, bound, a_min,
+def knn_unordered(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first, cap2_first, a_second, bound, a_min,
              ang_max, rs, r2count, t2):  # pragma: no cover
-    """:func:`_knn` when the order of the k nearest does not matter (median11 sorts their radii).
+    """:func:`knn_exact` when the order of the k nearest does not matter (median11 sorts their radii).
 
     Takes the centre (phi, icp, u, qx, qy, qz), the scratch buffers and the settings as separate
-    arguments, not as the tuples :func:`_knn` takes: this is the median11 kernel's per-pixel hot
+    arguments, not as the tuples :func:`knn_exact` takes: this is the median11 kernel's per-pixel hot
     path, and with tuples here the kernel measured 7-12 % slower (``bench_dem_kernels.py``, session
     12); with scalars it is within 1-2 % of the unpacked original. The first cap's squared chord is
     ``cap2_first`` when > 0 (a chord the caller knows, saving the angle's round trip), else that of
@@ -448,10 +448,10 @@ def _knn_set(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first, c
     a = a_first
     cap2 = cap2_first if cap2_first > 0.0 else _cap_chord2(a, rs)
     while True:
-        nr = _ranges(t, phi, icp, u, a, ranges)
-        m, cnt = _collect(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
+        nr = cap_ranges(t, phi, icp, u, a, ranges)
+        m, cnt = collect_within(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
         if m > bd2.size:
-            mk, _ = _scan(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
+            mk, _ = scan_ranges(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
             if mk >= k:
                 return True, cnt, dk2[0], dk2[k - 1]
         elif m >= k:
@@ -473,7 +473,7 @@ def _knn_set(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first, c
 
 
 @numba.njit(cache=True, inline="always")
-def _angle_up(chord, rs):  # pragma: no cover
+def angle_upper_bound(chord, rs):  # pragma: no cover
     """An upper bound of :func:`_angle` without the arcsine for small caps: with x = chord / 2 rs
     < SMALL_ANGLE, 2 asin(x) = 2 (x + x^3/6 + 3 x^5/40 + ...) <= 2 x (1 + x^2 / 5). A cap at
     least as wide as needed is exact all the same (only its cost differs).

@@ -74,7 +74,8 @@ REFUSED_DISTORTION = {
     "cahvore": "the CAHVORE fish-eye model has no usgscsm frame-sensor implementation",
 }
 
-_UNIT_TO_M = {"m": 1.0, "meters": 1.0, "metres": 1.0, "km": 1000.0, "kilometers": 1000.0}
+#: Metres per unit of the ISD's length units (its "unit" strings, lower-case).
+UNIT_TO_M = {"m": 1.0, "meters": 1.0, "metres": 1.0, "km": 1000.0, "kilometers": 1000.0}
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,7 +264,7 @@ class _Reader:
 
     def unit_scale(self, key: str, default: str) -> float:
         unit = self.get(key) if self.has(key) else default
-        scale = _UNIT_TO_M.get(str(unit).strip().lower())
+        scale = UNIT_TO_M.get(str(unit).strip().lower())
         if scale is None:
             raise self.error(key, f"unit {unit!r} is not understood; use 'm' or 'km'")
         return scale

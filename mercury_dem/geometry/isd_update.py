@@ -26,12 +26,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.exceptions import IsdError
 from mercury_dem.geometry.camera import FramingCamera
-from mercury_dem.geometry.isd import _UNIT_TO_M, isd_from_dict, matrix_to_quaternion, quaternion_to_matrix
+from mercury_dem.geometry.isd import UNIT_TO_M, isd_from_dict, matrix_to_quaternion, quaternion_to_matrix
 
 
 def _scale(isd: Mapping[str, Any], key: str, default: str) -> float:
     unit = (isd.get(key) or {}).get("unit", default) if isinstance(isd.get(key), Mapping) else default
-    s = _UNIT_TO_M.get(str(unit).strip().lower())
+    s = UNIT_TO_M.get(str(unit).strip().lower())
     if s is None:
         raise IsdError(f"ISD: {key}.unit {unit!r} is not understood")
     return s

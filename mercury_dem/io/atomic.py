@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
@@ -37,7 +38,8 @@ CHECKSUM_ALGORITHM = "sha256"
 _TMP_NAME = re.compile(r"^\..+\.tmp-[0-9a-f]{12}$")
 
 
-def _tmp_sibling(path: Path) -> Path:
+def tmp_sibling(path: Path) -> Path:
+    """A fresh temporary sibling of ``path`` (``.NAME.tmp-<12 hex>``, what :func:`sweep_temporaries` removes)."""
     return path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
 
 
@@ -69,7 +71,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (same-directory temp file, fsync, rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp_sibling(path)
+    tmp = tmp_sibling(path)
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
@@ -90,6 +92,25 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
 def atomic_write_json(path: str | Path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON to ``path`` atomically (numpy scalars and arrays as plain values); the path."""
     return atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
+
+
+def strict_json(obj: Any) -> Any:
+    """``obj`` with NaN and infinities turned into None and numpy scalars into Python ones, recursively
+    through dicts, lists and tuples (tuples become lists): what strict JSON (``allow_nan=False``) can hold.
+    """
+    import numpy as np  # here, as in _json_default: this module is imported by the CLI before numpy is needed
+
+    if isinstance(obj, dict):
+        return {k: strict_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict_json(v) for v in obj]
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return None if not math.isfinite(float(obj)) else float(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
 
 
 def _json_default(o: Any) -> Any:
@@ -220,7 +241,7 @@ def atomic_directory(
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp_sibling(path)
+    tmp = tmp_sibling(path)
     tmp.mkdir()
     try:
         yield tmp
@@ -231,7 +252,7 @@ def atomic_directory(
         if path.exists():
             if not overwrite:
                 raise FileExistsError(path)
-            old = _tmp_sibling(path)
+            old = tmp_sibling(path)
             os.replace(path, old)
             os.replace(tmp, path)
             shutil.rmtree(old, ignore_errors=True)

@@ -40,11 +40,11 @@ from typing import TYPE_CHECKING, Any
 
 from mercury_dem.exceptions import CorruptUnitError, StoreError
 from mercury_dem.io.atomic import (
-    _tmp_sibling,
     atomic_directory,
     atomic_write_bytes,
     atomic_write_json,
     is_complete,
+    tmp_sibling,
     verify_complete,
 )
 from mercury_dem.io.location import resolve_location
@@ -363,7 +363,7 @@ class RunStore:
             self.remote.remove(key)
             (d.parent / f".{d.name}.remote-token").unlink(missing_ok=True)
         if d.exists():
-            aside = _tmp_sibling(d)  # renamed first: a reader never sees a half-deleted unit
+            aside = tmp_sibling(d)  # renamed first: a reader never sees a half-deleted unit
             d.rename(aside)
             shutil.rmtree(aside, ignore_errors=True)
 

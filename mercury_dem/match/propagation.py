@@ -56,7 +56,7 @@ from mercury_dem.match.outliers import select_spread
 from mercury_dem.match.pair import PairState, pair_flow, read_flow
 from mercury_dem.match.prepare import refine_pattern
 from mercury_dem.match.pretransform import apply_homography, warp_to_reference
-from mercury_dem.match.refine import _box_count, integral_image, refine_matches
+from mercury_dem.match.refine import box_count, integral_image, refine_matches
 from mercury_dem.match.result import PairReport, PairResult
 
 #: Neighbours (pair matches) whose median displacement predicts a propagated anchor's position.
@@ -159,7 +159,7 @@ def _window_on(valid: NDArray[np.bool_], pts: NDArray[np.float64], half: int,
     lo = np.floor(f).astype(np.int64) - half - 1
     hi = np.ceil(f).astype(np.int64) + half + 1
     ok = (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] < w) & (hi[:, 1] < h)
-    ok &= _box_count(valid, lo, hi, integral) == (hi - lo + 1).prod(axis=1)
+    ok &= box_count(valid, lo, hi, integral) == (hi - lo + 1).prod(axis=1)
     return ok
 
 

@@ -124,11 +124,11 @@ def _normalize(p: NDArray[np.float32]) -> NDArray[np.float32]:
 
 
 def integral_image(mask: NDArray[np.bool_]) -> NDArray[np.int32]:
-    """The (lines + 1, samples + 1) integral image of a bool mask, for :func:`_box_count` (compute once, reuse)."""
+    """The (lines + 1, samples + 1) integral image of a bool mask, for :func:`box_count` (compute once, reuse)."""
     return cv2.integral(mask.view(np.uint8))
 
 
-def _box_count(mask: NDArray[np.bool_], lo: NDArray[np.int64], hi: NDArray[np.int64],
+def box_count(mask: NDArray[np.bool_], lo: NDArray[np.int64], hi: NDArray[np.int64],
                integral: NDArray[np.int32] | None = None) -> NDArray[np.int64]:
     """Number of True pixels in boxes [lo, hi] (inclusive, (N, 2) sample/line) via an integral image.
 
@@ -256,7 +256,7 @@ def refine_matches(
     lo = np.floor(f).astype(np.int64) - half
     hi = np.ceil(f).astype(np.int64) + half
     on_data = (lo[:, 0] >= 1) & (lo[:, 1] >= 1) & (hi[:, 0] < w - 1) & (hi[:, 1] < h - 1)
-    on_data &= _box_count(valid, lo, hi, valid_integral) == (hi - lo + 1).prod(axis=1)
+    on_data &= box_count(valid, lo, hi, valid_integral) == (hi - lo + 1).prod(axis=1)
     inside &= on_data
     ok = inside & interior & np.isfinite(final).all(axis=1) & (score >= min_score) & (moved <= max_shift_px)
     return Refined(final, score, ok, inside, np.full(n, window, np.int64))

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 import mercury_dem.network.protowire as pw
 from mercury_dem.exceptions import NetworkError
-from mercury_dem.network.model import ControlNetwork, PointType, _take_measure_columns, as_string_array
+from mercury_dem.network.model import ControlNetwork, PointType, as_string_array, take_measure_columns
 from mercury_dem.network.strings import encode_strings
 
 #: Where the protobuf header starts in files we write (as ISIS does).
@@ -399,7 +399,7 @@ def encode_isis_network(
     first = np.zeros(n + 1, np.int64)
     np.cumsum(np.bincount(net.measure_point, minlength=n), out=first[1:])
     if m and np.any(np.diff(net.measure_point) < 0):  # group measures by point (stable)
-        net = net.replace(**_take_measure_columns(net, np.argsort(net.measure_point, kind="stable")))
+        net = net.replace(**take_measure_columns(net, np.argsort(net.measure_point, kind="stable")))
     mimage, sample, line = net.measure_image, net.sample + 1.0, net.line + 1.0
     mtype = net.measure_type.astype(np.int64)
     res, mign, mrej, sigma = net.residuals, net.measure_ignored, net.measure_rejected, net.sigma

@@ -352,7 +352,7 @@ class ControlNetwork:
         if np.any(np.diff(idx) <= 0):  # points reordered: group measures in the new point order
             order = order[np.argsort(mpos[order], kind="stable")]
         cols = _take_points_columns(self, idx)
-        cols.update(_take_measure_columns(self, order))
+        cols.update(take_measure_columns(self, order))
         cols["measure_point"] = mpos[order]
         net = replace(self, **cols)
         return net if keep_images else net.drop_unused_images()
@@ -363,7 +363,7 @@ class ControlNetwork:
         Points left with fewer than ``min_measures`` measures are dropped.
         """
         idx = _as_index(mask, self.n_measures, "measures")
-        net = replace(self, **_take_measure_columns(self, idx))
+        net = replace(self, **take_measure_columns(self, idx))
         counts = np.bincount(net.measure_point, minlength=self.n_points)
         if min_measures > 0 or not keep_images:
             net = net.take_points(np.flatnonzero(counts >= min_measures), keep_images=keep_images)
@@ -385,7 +385,7 @@ class ControlNetwork:
         new_of_old[idx] = np.arange(idx.size)
         mi = new_of_old[self.measure_image]
         keep = mi >= 0
-        net = replace(self, image_ids=self.image_ids[idx], **_take_measure_columns(self, np.flatnonzero(keep)))
+        net = replace(self, image_ids=self.image_ids[idx], **take_measure_columns(self, np.flatnonzero(keep)))
         net = replace(net, measure_image=mi[keep])
         counts = np.bincount(net.measure_point, minlength=net.n_points)
         return net.take_points(np.flatnonzero(counts >= min_measures))
@@ -403,7 +403,7 @@ class ControlNetwork:
         order = np.lexsort((self.measure_image, self.measure_point))
         if np.array_equal(order, np.arange(order.size)):
             return self
-        return replace(self, **_take_measure_columns(self, order))
+        return replace(self, **take_measure_columns(self, order))
 
     def with_adjustment(
         self,
@@ -523,7 +523,8 @@ def _take_points_columns(net: ControlNetwork, idx: NDArray[np.int64]) -> dict[st
     return cols
 
 
-def _take_measure_columns(net: ControlNetwork, idx: NDArray[np.int64]) -> dict[str, Any]:
+def take_measure_columns(net: ControlNetwork, idx: NDArray[np.int64]) -> dict[str, Any]:
+    """Every measure column of ``net`` (``MEASURE_COLUMNS``) at the measures ``idx``, by column name."""
     return {name: getattr(net, name)[idx] for name in MEASURE_COLUMNS}
 
 

@@ -39,7 +39,7 @@ from mercury_dem.exceptions import NetworkError
 from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.camera import FramingCamera, mdis_nac, mdis_wac
 from mercury_dem.geometry.pose import look_at_rotation, rotation_from_angles
-from mercury_dem.validate.synthetic_network import _relief, footprint_area_m2, intersect_rays
+from mercury_dem.validate.synthetic_network import footprint_area_m2, intersect_rays, plane_wave_relief
 
 #: Candidate images examined per point (nearest image targets); enough for 15 views at coverage 10.
 CANDIDATES = 48
@@ -150,7 +150,7 @@ def make_images(spec: SyntheticSpec) -> ImageSet:
     cos_alpha = max(-1.0, 1.0 - cap_area / (2 * np.pi * DATUM_RADIUS_M**2))
     target_u = _cap_uniform(1.0 - rng.random(n) * (1.0 - cos_alpha), rng.uniform(0.0, 2 * np.pi, n))
     relief_seed = int(rng.integers(1 << 31))
-    target = target_u * (DATUM_RADIUS_M + _relief(target_u, spec.relief_m, relief_seed))[:, None]
+    target = target_u * (DATUM_RADIUS_M + plane_wave_relief(target_u, spec.relief_m, relief_seed))[:, None]
     emission = np.radians(rng.uniform(0.0, spec.max_emission_deg, n))
     tangent = np.cross(target_u, rng.normal(size=(n, 3)))
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
@@ -194,7 +194,7 @@ def point_block(spec: SyntheticSpec, images: ImageSet, block: int, tree: cKDTree
     x = x_lo + rng.random(n_pt) * (x_hi - x_lo)
     phi = phi_lo + rng.random(n_pt) * (phi_hi - phi_lo)
     pt_u = _cap_uniform(x, phi)
-    points = pt_u * (DATUM_RADIUS_M + _relief(pt_u, spec.relief_m, images.relief_seed))[:, None]
+    points = pt_u * (DATUM_RADIUS_M + plane_wave_relief(pt_u, spec.relief_m, images.relief_seed))[:, None]
     tree = tree or cKDTree(images.target_unit)
     k_cand = min(CANDIDATES, images.n_images)
     _, cand = tree.query(pt_u, k=k_cand)

@@ -67,6 +67,7 @@ from mercury_dem.exceptions import ReferenceDataError, StoreError
 from mercury_dem.geometry.body import Body, latlon_to_unit, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_write_bytes
+from mercury_dem.io.atomic import strict_json as _jsonable
 from mercury_dem.io.run_store import (
     MERGED_FILE,
     REGISTERED_FILE,
@@ -533,18 +534,3 @@ def make_registration_products(out_dir: str | Path, products_dir: str | Path, co
     atomic_write_bytes(fig_out, fig.read_bytes())
     summary["files"].append(str(fig_out))
     return summary
-
-
-def _jsonable(obj: Any) -> Any:
-    """NaN → None and numpy scalars → Python, recursively (strict JSON)."""
-    if isinstance(obj, dict):
-        return {k: _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return None if not math.isfinite(float(obj)) else float(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj

@@ -116,29 +116,30 @@ class IsisCube:
 
 # -- label access with errors that name the file -------------------------------------
 
-def _fault(path: Path, what: str, todo: str = "the file is damaged or not an ISIS3 cube; "
+def cube_fault(path: Path, what: str, todo: str = "the file is damaged or not an ISIS3 cube; "
            "re-export it with ISIS (e.g. cubeatt) or fetch it again") -> CubeError:
+    """The :class:`CubeError` of a damaged or unexpected cube: ``ISIS cube PATH: WHAT; TODO`` (what to do)."""
     return CubeError(f"ISIS cube {path}: {what}; {todo}")
 
 
 def _group(path: Path, node: Any, name: str, where: str) -> Mapping[str, Any]:
     value = node.get(name) if isinstance(node, Mapping) else None
     if not isinstance(value, Mapping):
-        raise _fault(path, f"label has no {where}{name}")
+        raise cube_fault(path, f"label has no {where}{name}")
     return value
 
 
-def _scalar(value: Any) -> Any:
+def pvl_scalar(value: Any) -> Any:
     """The value of a PVL quantity (``1 <MS>``) or the value itself."""
     return value.value if hasattr(value, "units") and hasattr(value, "value") else value
 
 
 def label_int(path: Path, node: Mapping[str, Any], key: str, where: str, minimum: int = 0) -> int:
     """An integer keyword >= ``minimum``; CubeError naming the file otherwise."""
-    value = _scalar(node.get(key)) if isinstance(node, Mapping) else None
+    value = pvl_scalar(node.get(key)) if isinstance(node, Mapping) else None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or value != int(value) or value < minimum:
-        raise _fault(path, f"{where}{key} must be an integer >= {minimum}, got {value!r}")
+        raise cube_fault(path, f"{where}{key} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
 
@@ -146,23 +147,23 @@ def label_float(path: Path, node: Mapping[str, Any], key: str, where: str, defau
     """A finite number keyword (``default`` when absent and a default is given)."""
     if default is not None and (not isinstance(node, Mapping) or key not in node):
         return default
-    value = _scalar(node.get(key)) if isinstance(node, Mapping) else None
+    value = pvl_scalar(node.get(key)) if isinstance(node, Mapping) else None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise _fault(path, f"{where}{key} must be a finite number, got {value!r}")
+        raise cube_fault(path, f"{where}{key} must be a finite number, got {value!r}")
     return float(value)
 
 
 def _opt_str(node: Any, key: str) -> str | None:
     if not isinstance(node, Mapping) or key not in node:
         return None
-    value = _scalar(node[key])
+    value = pvl_scalar(node[key])
     if isinstance(value, (list, tuple)):
         return ", ".join(str(v) for v in value)
     return None if value is None else str(value)
 
 
 def _opt_number(node: Any, key: str) -> float | None:
-    value = _scalar(node.get(key)) if isinstance(node, Mapping) else None
+    value = pvl_scalar(node.get(key)) if isinstance(node, Mapping) else None
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return None
     return float(value)
@@ -187,9 +188,9 @@ def read_label_text(path: Path, file_size: int) -> str:
     except OSError as exc:
         raise CubeError(f"ISIS cube {path}: cannot be read ({exc.strerror or exc}); check the path") from None
     if not head.startswith(b"Object") and b"IsisCube" not in head[:4096]:
-        raise _fault(path, "no PVL label at byte 0 (not an ISIS3 cube)", "give the path of a .cub file")
+        raise cube_fault(path, "no PVL label at byte 0 (not an ISIS3 cube)", "give the path of a .cub file")
     if m is None:
-        raise _fault(path, f"label has no 'End' line in its first {limit} bytes (truncated or not a cube)")
+        raise cube_fault(path, f"label has no 'End' line in its first {limit} bytes (truncated or not a cube)")
     raw = head[: m.end()]
     if b"\0" in raw:
         raw = raw.split(b"\0", 1)[0]
@@ -229,7 +230,7 @@ def check_label_structure(path: Path, text: str) -> None:
         if m:
             kind, name = m.group(1).capitalize(), m.group(2).strip('"')
             if not _NAME.fullmatch(name):
-                raise _fault(path, f"label line {number}: {kind} has no valid name ({m.group(2)!r})",
+                raise cube_fault(path, f"label line {number}: {kind} has no valid name ({m.group(2)!r})",
                              "the label is damaged; fetch or copy the cube again")
             stack.append((kind, name, number))
             continue
@@ -238,12 +239,12 @@ def check_label_structure(path: Path, text: str) -> None:
             kind = m.group(1).capitalize()
             if not stack or stack[-1][0] != kind:
                 opened = f"the open {stack[-1][0]} {stack[-1][1]} (line {stack[-1][2]})" if stack else "nothing open"
-                raise _fault(path, f"label line {number}: End_{kind} does not close {opened}",
+                raise cube_fault(path, f"label line {number}: End_{kind} does not close {opened}",
                              "the label is damaged; fetch or copy the cube again")
             stack.pop()
     if stack:
         kind, name, number = stack[-1]
-        raise _fault(path, f"label: {kind} {name} (line {number}) has no End_{kind}",
+        raise cube_fault(path, f"label: {kind} {name} (line {number}) has no End_{kind}",
                      "the label is damaged; fetch or copy the cube again")
 
 
@@ -255,7 +256,7 @@ def parse_label(path: Path, text: str) -> Mapping[str, Any]:
         return pvl.loads(text, grammar=grammar, decoder=_StringTimeDecoder(grammar=grammar))
     except Exception as exc:  # pvl raises many types (LexerError, ParseError, ValueError ...)
         first = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
-        raise _fault(path, f"label is not valid PVL ({first})") from None
+        raise cube_fault(path, f"label is not valid PVL ({first})") from None
 
 
 def _summing(inst: Mapping[str, Any] | None) -> int | None:
@@ -299,7 +300,7 @@ def open_cube(path: str | Path) -> IsisCube:
     cube = _group(p, label, "IsisCube", "")
     core = _group(p, cube, "Core", "IsisCube/")
     if "^Core" in core or "^Core" in cube:
-        raise _fault(p, "has a detached core (^Core)", "merge it into one file with ISIS cubeatt")
+        raise cube_fault(p, "has a detached core (^Core)", "merge it into one file with ISIS cubeatt")
     dims = _group(p, core, "Dimensions", "IsisCube/Core/")
     pix = _group(p, core, "Pixels", "IsisCube/Core/")
     where = "IsisCube/Core/Dimensions/"
@@ -308,17 +309,17 @@ def open_cube(path: str | Path) -> IsisCube:
     bands = label_int(p, dims, "Bands", where, 1)
     ptype = _opt_str(pix, "Type")
     if ptype not in PIXEL_BYTES:
-        raise _fault(p, f"pixel type {ptype!r} is not supported (only {', '.join(PIXEL_BYTES)})",
+        raise cube_fault(p, f"pixel type {ptype!r} is not supported (only {', '.join(PIXEL_BYTES)})",
                      "convert it with ISIS cubeatt (e.g. to real)")
     order = (_opt_str(pix, "ByteOrder") or "Lsb").capitalize()
     if order not in ("Lsb", "Msb"):
-        raise _fault(p, f"IsisCube/Core/Pixels/ByteOrder must be Lsb or Msb, got {order!r}")
+        raise cube_fault(p, f"IsisCube/Core/Pixels/ByteOrder must be Lsb or Msb, got {order!r}")
     base = label_float(p, pix, "Base", "IsisCube/Core/Pixels/", 0.0)
     mult = label_float(p, pix, "Multiplier", "IsisCube/Core/Pixels/", 1.0)
     if ptype != "Real":
         top = abs(base) + abs(mult) * {"SignedWord": 32767, "UnsignedWord": 65522, "UnsignedByte": 254}[ptype]
         if not top < float(np.finfo(np.float32).max):
-            raise _fault(p, f"Base {base} and Multiplier {mult} take {ptype} values beyond float32")
+            raise cube_fault(p, f"Base {base} and Multiplier {mult} take {ptype} values beyond float32")
     start = label_int(p, core, "StartByte", "IsisCube/Core/", 1)
     fmt = _opt_str(core, "Format")
     if fmt == "Tile":
@@ -327,13 +328,13 @@ def open_cube(path: str | Path) -> IsisCube:
     elif fmt == "BandSequential":
         ts, tl = samples, lines
     else:
-        raise _fault(p, f"core format {fmt!r} is not supported (Tile or BandSequential)")
+        raise cube_fault(p, f"core format {fmt!r} is not supported (Tile or BandSequential)")
     out = IsisCube(path=p, label=label, samples=samples, lines=lines, bands=bands, pixel_type=ptype,
                    byte_order=order, base=base, multiplier=mult, core_start_byte=start, core_format=fmt,
                    tile_samples=ts, tile_lines=tl, file_size=file_size)
     end = start - 1 + out.band_bytes * bands
     if end > file_size:
-        raise _fault(p, f"truncated: its {samples} x {lines} x {bands} {ptype} core ends at byte {end} "
+        raise cube_fault(p, f"truncated: its {samples} x {lines} x {bands} {ptype} core ends at byte {end} "
                         f"but the file has {file_size} bytes", "fetch or copy the file again")
     inst = cube.get("Instrument")
     exp = _opt_number(inst, "ExposureDuration")
@@ -351,7 +352,8 @@ def open_cube(path: str | Path) -> IsisCube:
     )
 
 
-def _read_bytes(cube: IsisCube, offset: int, count: int) -> bytes:
+def read_cube_bytes(cube: IsisCube, offset: int, count: int) -> bytes:
+    """``count`` bytes of ``cube``'s file from byte ``offset``; CubeError naming the file when unreadable or short."""
     try:
         with open(cube.path, "rb") as fh:
             fh.seek(offset)
@@ -359,6 +361,6 @@ def _read_bytes(cube: IsisCube, offset: int, count: int) -> bytes:
     except OSError as exc:
         raise CubeError(f"ISIS cube {cube.path}: cannot be read ({exc.strerror or exc}); check the path") from None
     if len(data) != count:
-        raise _fault(cube.path, f"truncated: {count} bytes wanted at byte {offset}, {len(data)} there",
+        raise cube_fault(cube.path, f"truncated: {count} bytes wanted at byte {offset}, {len(data)} there",
                      "fetch or copy the file again")
     return data

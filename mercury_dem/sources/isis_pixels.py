@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.exceptions import CubeError
-from mercury_dem.sources.isis_cube import IsisCube, _read_bytes
+from mercury_dem.sources.isis_cube import IsisCube, read_cube_bytes
 
 #: The ISIS special-pixel kinds in the order of their codes.
 SPECIAL_KINDS = ("Null", "Lrs", "Lis", "His", "Hrs")
@@ -39,7 +39,7 @@ def _stored_band(cube: IsisCube, band: int) -> NDArray[Any]:
         raise CubeError(f"ISIS cube {cube.path}: band {band!r} does not exist (it has bands 1..{cube.bands}); "
                         "ask for one of those")
     offset = cube.core_start_byte - 1 + (int(band) - 1) * cube.band_bytes
-    data = _read_bytes(cube, offset, cube.band_bytes)
+    data = read_cube_bytes(cube, offset, cube.band_bytes)
     dtype = np.dtype(("<" if cube.byte_order == "Lsb" else ">") + _DTYPE_CHAR[cube.pixel_type])
     ts, tl = cube.tile_samples, cube.tile_lines
     nts, ntl = -(-cube.samples // ts), -(-cube.lines // tl)

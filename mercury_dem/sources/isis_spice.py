@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.exceptions import CubeError
 from mercury_dem.geometry.isd import QUATERNION_NORM_TOL, ROTATION_ORTHO_TOL, quaternion_to_matrix
-from mercury_dem.sources.isis_cube import IsisCube, _fault
+from mercury_dem.sources.isis_cube import IsisCube, cube_fault
 from mercury_dem.sources.isis_tables import CubeTable, naif_keywords, read_table
 
 #: How far (s) the exposure time may lie outside the tables' time span.
@@ -138,18 +138,18 @@ def _spice_table(cube: IsisCube, name: str) -> CubeTable:
 def _columns(cube: IsisCube, table: CubeTable, names: tuple[str, ...]) -> NDArray[np.float64]:
     missing = [n for n in names if n not in table.columns or table.columns[n].ndim != 1]
     if missing:
-        raise _fault(cube.path, f"table {table.name} lacks the columns {missing} (a polynomial table "
+        raise cube_fault(cube.path, f"table {table.name} lacks the columns {missing} (a polynomial table "
                                 "written by jigsaw is not supported)", f"{_RUN_SPICEINIT} again, or use the ISD")
     out = np.stack([table.columns[n].astype(np.float64) for n in names], axis=-1)
     if out.shape[0] == 0 or not np.all(np.isfinite(out)):
-        raise _fault(cube.path, f"table {table.name} has no records or non-finite values", f"{_RUN_SPICEINIT} again")
+        raise cube_fault(cube.path, f"table {table.name} has no records or non-finite values", f"{_RUN_SPICEINIT} again")
     return out
 
 
 def _bounded(cube: IsisCube, table: CubeTable, values: NDArray[np.float64], bound: float, what: str) -> None:
     worst = float(np.abs(values).max())
     if worst > bound:
-        raise _fault(cube.path, f"table {table.name} holds {what} of magnitude {worst:.3g} (more than {bound:g}): "
+        raise cube_fault(cube.path, f"table {table.name} holds {what} of magnitude {worst:.3g} (more than {bound:g}): "
                                 "the table is damaged", f"{_RUN_SPICEINIT} again")
 
 
@@ -157,7 +157,7 @@ def _times(cube: IsisCube, table: CubeTable) -> NDArray[np.float64]:
     t = _columns(cube, table, ("ET",))[:, 0]
     _bounded(cube, table, t, MAX_ABS_ET_S, "ET values (s)")
     if np.any(np.diff(t) <= 0):
-        raise _fault(cube.path, f"table {table.name} ET values do not increase", f"{_RUN_SPICEINIT} again")
+        raise cube_fault(cube.path, f"table {table.name} ET values do not increase", f"{_RUN_SPICEINIT} again")
     return t
 
 
@@ -176,18 +176,18 @@ def _constant_rotation(cube: IsisCube, table: CubeTable) -> NDArray[np.float64]:
     except (TypeError, ValueError):
         m = np.zeros(0)
     if m.shape != (9,) or not np.all(np.isfinite(m)):
-        raise _fault(cube.path, f"table {table.name} ConstantRotation must be 9 numbers, got {value!r}")
+        raise cube_fault(cube.path, f"table {table.name} ConstantRotation must be 9 numbers, got {value!r}")
     m = m.reshape(3, 3)
     err = float(np.abs(m @ m.T - np.eye(3)).max())
     if err > ROTATION_ORTHO_TOL or np.linalg.det(m) < 0:
-        raise _fault(cube.path, f"table {table.name} ConstantRotation is not a rotation (|M M^T - I| = {err:.2e})")
+        raise cube_fault(cube.path, f"table {table.name} ConstantRotation is not a rotation (|M M^T - I| = {err:.2e})")
     return m
 
 
 def _bracket(cube: IsisCube, table: CubeTable, times: NDArray[np.float64], et: float) -> tuple[int, float]:
     """Index i and fraction f with et = times[i] + f (times[i+1] - times[i]); one record gives (0, 0)."""
     if not times[0] - TIME_TOLERANCE_S <= et <= times[-1] + TIME_TOLERANCE_S:
-        raise _fault(cube.path, f"table {table.name} covers ET {times[0]:.6f}..{times[-1]:.6f} s, not the "
+        raise cube_fault(cube.path, f"table {table.name} covers ET {times[0]:.6f}..{times[-1]:.6f} s, not the "
                                 f"exposure time {et:.6f} s", f"{_RUN_SPICEINIT} again")
     if times.size == 1:
         return 0, 0.0
@@ -202,7 +202,7 @@ def _rotation_at(cube: IsisCube, table: CubeTable, et: float) -> NDArray[np.floa
     norms = np.where(np.all(np.abs(q) <= 1.0 + QUATERNION_NORM_TOL, axis=1),
                      np.linalg.norm(np.clip(q, -2.0, 2.0), axis=1), np.inf)
     if np.any(np.abs(norms - 1.0) > QUATERNION_NORM_TOL):
-        raise _fault(cube.path, f"table {table.name} holds non-unit quaternions (norms {norms.min():.9f}.."
+        raise cube_fault(cube.path, f"table {table.name} holds non-unit quaternions (norms {norms.min():.9f}.."
                                 f"{norms.max():.9f})", f"{_RUN_SPICEINIT} again")
     i, f = _bracket(cube, table, _times(cube, table), et)
     q0 = q[i]
@@ -281,7 +281,7 @@ def _ik_code(cube: IsisCube, pointing: CubeTable) -> int:
             return v
     frames = _frames(pointing, "ConstantFrames") or _frames(pointing, "TimeDependentFrames")
     if not frames:
-        raise _fault(cube.path, "neither Kernels/NaifIkCode nor the pointing table's frames give the "
+        raise cube_fault(cube.path, "neither Kernels/NaifIkCode nor the pointing table's frames give the "
                                 "instrument code", f"{_RUN_SPICEINIT} again")
     return frames[0]
 

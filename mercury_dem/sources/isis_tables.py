@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.exceptions import CubeError
 from mercury_dem.geometry.naif_camera import AlphaCube
-from mercury_dem.sources.isis_cube import IsisCube, _fault, _read_bytes, _scalar, label_float, label_int
+from mercury_dem.sources.isis_cube import IsisCube, cube_fault, label_float, label_int, pvl_scalar, read_cube_bytes
 
 _FIELD_TYPES = {"Double": ("f8", 8), "Integer": ("i4", 4), "Real": ("f4", 4), "Text": ("S", 1)}
 #: Largest ``Size`` of one field (values per record) accepted.
@@ -56,7 +56,7 @@ class CubeTable:
 
 def _plain(value: Any) -> Any:
     """A PVL value as plain Python: quantities lose their unit, lists become tuples."""
-    value = _scalar(value)
+    value = pvl_scalar(value)
     if isinstance(value, (list, tuple, set)):
         return tuple(_plain(v) for v in value)
     return value
@@ -65,14 +65,14 @@ def _plain(value: Any) -> Any:
 def _find_table(cube: IsisCube, name: str) -> Mapping[str, Any] | None:
     items = cube.label.items() if isinstance(cube.label, Mapping) else ()
     for key, node in items:
-        if key == "Table" and isinstance(node, Mapping) and str(_scalar(node.get("Name"))) == name:
+        if key == "Table" and isinstance(node, Mapping) and str(pvl_scalar(node.get("Name"))) == name:
             return node
     return None
 
 
 def table_names(cube: IsisCube) -> tuple[str, ...]:
     """Names of the tables attached to a cube, in label order."""
-    return tuple(str(_scalar(n.get("Name"))) for k, n in cube.label.items()
+    return tuple(str(pvl_scalar(n.get("Name"))) for k, n in cube.label.items()
                  if k == "Table" and isinstance(n, Mapping))
 
 
@@ -99,37 +99,37 @@ def read_table(cube: IsisCube, name: str) -> CubeTable:
     records = label_int(cube.path, node, "Records", where, 0)
     start = label_int(cube.path, node, "StartByte", where, 1)
     nbytes = label_int(cube.path, node, "Bytes", where, 0)
-    order = str(_scalar(node.get("ByteOrder", "Lsb"))).capitalize()
+    order = str(pvl_scalar(node.get("ByteOrder", "Lsb"))).capitalize()
     if order not in ("Lsb", "Msb"):
-        raise _fault(cube.path, f"{where}ByteOrder must be Lsb or Msb, got {order!r}")
+        raise cube_fault(cube.path, f"{where}ByteOrder must be Lsb or Msb, got {order!r}")
     fields: list[tuple[str, str, int]] = []
     for key, group in node.items():
         if key != "Field" or not isinstance(group, Mapping):
             continue
-        fname = str(_scalar(group.get("Name")))
-        ftype = str(_scalar(group.get("Type")))
+        fname = str(pvl_scalar(group.get("Name")))
+        ftype = str(pvl_scalar(group.get("Type")))
         if ftype not in _FIELD_TYPES:
-            raise _fault(cube.path, f"{where}field {fname!r} has unknown type {ftype!r}")
+            raise cube_fault(cube.path, f"{where}field {fname!r} has unknown type {ftype!r}")
         size = label_int(cube.path, group, "Size", f"{where}field {fname!r} ", 1)
         if size > MAX_FIELD_SIZE:
-            raise _fault(cube.path, f"{where}field {fname!r} Size {size} is absurd")
+            raise cube_fault(cube.path, f"{where}field {fname!r} Size {size} is absurd")
         if any(f[0] == fname for f in fields):
-            raise _fault(cube.path, f"{where}field {fname!r} appears twice")
+            raise cube_fault(cube.path, f"{where}field {fname!r} appears twice")
         fields.append((fname, ftype, size))
     if not fields:
-        raise _fault(cube.path, f"{where}has no Field groups")
+        raise cube_fault(cube.path, f"{where}has no Field groups")
     record_bytes = sum(_FIELD_TYPES[t][1] * s for _, t, s in fields)
     if records * record_bytes != nbytes:
-        raise _fault(cube.path, f"{where}Bytes = {nbytes} but {records} records of {record_bytes} bytes "
+        raise cube_fault(cube.path, f"{where}Bytes = {nbytes} but {records} records of {record_bytes} bytes "
                                 f"make {records * record_bytes}")
     if start - 1 + nbytes > cube.file_size:
-        raise _fault(cube.path, f"truncated: table {name!r} ends at byte {start - 1 + nbytes}, the file has "
+        raise cube_fault(cube.path, f"truncated: table {name!r} ends at byte {start - 1 + nbytes}, the file has "
                                 f"{cube.file_size}", "fetch or copy the file again")
     endian = "<" if order == "Lsb" else ">"
     # numpy field names are positional (c0, c1, ...): the label's names may be anything.
     dtype = np.dtype([(f"c{k}", (f"S{s}" if t == "Text" else endian + _FIELD_TYPES[t][0],
                                  () if (s == 1 or t == "Text") else (s,))) for k, (_, t, s) in enumerate(fields)])
-    data = np.frombuffer(_read_bytes(cube, start - 1, nbytes), dtype=dtype, count=records)
+    data = np.frombuffer(read_cube_bytes(cube, start - 1, nbytes), dtype=dtype, count=records)
     columns: dict[str, NDArray[Any]] = {}
     for k, (f, t, _) in enumerate(fields):
         col = data[f"c{k}"]
@@ -163,7 +163,7 @@ def alpha_cube(cube: IsisCube) -> AlphaCube | None:
     if group is None:
         return None
     if not isinstance(group, Mapping):
-        raise _fault(cube.path, "IsisCube/AlphaCube is not a group")
+        raise cube_fault(cube.path, "IsisCube/AlphaCube is not a group")
     w = "IsisCube/AlphaCube/"
     p = cube.path
     a_s, a_l = label_int(p, group, "AlphaSamples", w, 1), label_int(p, group, "AlphaLines", w, 1)
@@ -171,9 +171,9 @@ def alpha_cube(cube: IsisCube) -> AlphaCube | None:
     l0, l1 = label_float(p, group, "AlphaStartingLine", w), label_float(p, group, "AlphaEndingLine", w)
     bs, bl = label_int(p, group, "BetaSamples", w, 1), label_int(p, group, "BetaLines", w, 1)
     if not (s1 > s0 and l1 > l0):
-        raise _fault(p, f"{w}ending sample/line must exceed the starting ones ({s0}..{s1}, {l0}..{l1})")
+        raise cube_fault(p, f"{w}ending sample/line must exceed the starting ones ({s0}..{s1}, {l0}..{l1})")
     if (bs, bl) != (cube.samples, cube.lines):
-        raise _fault(p, f"{w}BetaSamples x BetaLines = {bs} x {bl} is not the cube's "
+        raise cube_fault(p, f"{w}BetaSamples x BetaLines = {bs} x {bl} is not the cube's "
                         f"size {cube.samples} x {cube.lines}")
     # ISIS: alpha = slope (beta - 0.5) + AlphaStarting, 1-based; ours: start = AlphaStarting - 0.5
     return AlphaCube(a_s, a_l, s0 - 0.5, l0 - 0.5, (s1 - s0) / bs, (l1 - l0) / bl)

@@ -53,10 +53,10 @@ class SyntheticNetwork:
 
     def true_radius(self, unit: NDArray[np.float64]) -> NDArray[np.float64]:
         """The true surface's radius (m) along body-fixed unit vectors (N, 3): e.g. simulated altimetry."""
-        return DATUM_RADIUS_M + _relief(np.asarray(unit, np.float64).reshape(-1, 3), self.relief_m, self.relief_seed)
+        return DATUM_RADIUS_M + plane_wave_relief(np.asarray(unit, np.float64).reshape(-1, 3), self.relief_m, self.relief_seed)
 
 
-def _relief(unit: NDArray[np.float64], relief_m: float, seed: int) -> NDArray[np.float64]:
+def plane_wave_relief(unit: NDArray[np.float64], relief_m: float, seed: int) -> NDArray[np.float64]:
     """Smooth heights (N,) from unit vectors: a sum of six plane waves on the sphere."""
     g = np.random.default_rng(seed)
     dirs = g.normal(size=(6, 3))
@@ -122,7 +122,7 @@ def make_synthetic_network(
     # Image targets in the cap; spacecraft above a point displaced by up to max_emission.
     target_u = _cap_samples(n_img, cos_alpha, rng)
     seed = int(rng.integers(1 << 31))
-    target = target_u * (DATUM_RADIUS_M + _relief(target_u, relief_m, seed))[:, None]
+    target = target_u * (DATUM_RADIUS_M + plane_wave_relief(target_u, relief_m, seed))[:, None]
     emission = np.radians(rng.uniform(0.0, max_emission_deg, n_img))
     tangent = np.cross(target_u, rng.normal(size=(n_img, 3)))
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
@@ -135,7 +135,7 @@ def make_synthetic_network(
     mean_views = (min_views + max_views) / 2.0
     n_pt = max(4, int(n_measures / mean_views * 1.15))
     pt_u = _cap_samples(n_pt, cos_alpha, rng)
-    points = pt_u * (DATUM_RADIUS_M + _relief(pt_u, relief_m, seed))[:, None]
+    points = pt_u * (DATUM_RADIUS_M + plane_wave_relief(pt_u, relief_m, seed))[:, None]
     # Candidate images: the nearest image targets; visibility by projection.
     tree = cKDTree(target_u)
     k_cand = min(32, n_img)
