@@ -28,8 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_grid import run_gdal, write_point_inputs  # noqa: E402  (same cloud and gdal_grid call as bench_grid.py)
+from harness.scenarios import run_gdal, write_point_inputs  # the same cloud and gdal_grid call as bench_grid.py
 
 CPU: dict[str, list[float]] = {}
 

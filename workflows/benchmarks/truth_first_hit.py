@@ -21,19 +21,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
+import bench_match  # beside this script (its directory is first on sys.path)
+import bench_seeds
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import bench_match  # noqa: E402
-import bench_seeds  # noqa: E402
-
-from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon  # noqa: E402
-from mercury_dem.geometry.pose import image_to_ground, intersect_sphere, pixel_rays, project  # noqa: E402
+from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
+from mercury_dem.geometry.pose import image_to_ground, intersect_sphere, pixel_rays, project
 
 GROUPS = ["all", "similar", "incidence", "azimuth", "convergence 0-10", "convergence 10-20", "convergence 20-30",
           "convergence 30-45", "convergence 45-+", "similar WAC-WAC", "similar NAC-WAC", "similar NAC-NAC"]
