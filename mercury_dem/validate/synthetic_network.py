@@ -57,9 +57,11 @@ class SyntheticNetwork:
 
     def altimetry_shots(self, rng: np.random.Generator, per_point: int = 8, reach_m: float = 700.0,
                         noise_m: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Simulated altimetry on the true surface: ``per_point`` shots scattered within ``reach_m`` around each of
-        a random half of the true points, radius noise ``noise_m`` (1-sigma). Returns (lat deg, lon deg in
-        [0, 360), radius m)."""
+        """Simulated altimetry on the true surface, as (lat deg, lon deg in [0, 360), radius m).
+
+        ``per_point`` shots scattered within ``reach_m`` around each of a random half of the true points, radius
+        noise ``noise_m`` (1-sigma).
+        """
         pts = self.true_points[rng.random(len(self.true_points)) < 0.5]
         u = pts / np.linalg.norm(pts, axis=1, keepdims=True)
         u = np.repeat(u, per_point, axis=0)
