@@ -43,16 +43,15 @@ import argparse
 import json
 import math
 import os
-import resource
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from harness.scenarios import median_and_min, run_gdal, write_cloud_files  # gdal_grid's inputs and call, shared
+from harness import measure
+from harness.scenarios import gdal_grid, median_and_min, write_cloud_files  # gdal_grid's inputs and call, shared
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.extent import box_area_ratio, points_box, points_extent
@@ -94,18 +93,12 @@ def run_ours(npy, cfg, out):
 
 
 def run_cli(npy, ppd, out):
-    """``mercury-dem grid`` as the user runs it (coverage included), a fresh process timed from outside."""
+    """``mercury-dem grid`` as the user runs it (coverage included), a fresh process measured from outside
+    (``harness.measure``): (the measurement, the command, its output)."""
     exe = Path(sys.executable).with_name("mercury-dem")
     cmd = [str(exe), "grid", str(npy), "--out", str(out), "--body", "moon", "--ppd", f"{ppd:g}"]
-    t0 = time.perf_counter()
-    done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd="/tmp",
-                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
-    return time.perf_counter() - t0, " ".join(cmd[1:]), done.stdout.strip()
-
-
-def _children_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
+    m = measure(cmd, cwd="/tmp", env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    return m, " ".join(cmd[1:]), m.stdout.strip()
 
 
 def main():
@@ -148,18 +141,16 @@ def main():
                 quality["ours (in-process, warm)"] = rmse_filled(ds.elevation.values, ds.lat.values, ds.lon.values,
                                                                  surf)
             shutil.rmtree(work / f"ours{rep}.zarr")
-            c0 = _children_cpu()
-            dt, elev, gdal_cmd = run_gdal(fgb, algo, (nx, ny), extent, work)
-            cpu["gdal_grid invdistnn (fgb)"].append(_children_cpu() - c0)
-            times["gdal_grid invdistnn (fgb)"].append(dt)
+            m, elev, gdal_cmd = gdal_grid(fgb, algo, (nx, ny), extent, work)
+            cpu["gdal_grid invdistnn (fgb)"].append(m.cpu_s)
+            times["gdal_grid invdistnn (fgb)"].append(m.wall_s)
             if rep == 0:
                 glat = lat_max - (np.arange(ny) + 0.5) / PPD
                 glon = lon_min + (np.arange(nx) + 0.5) / PPD
                 quality["gdal_grid invdistnn (fgb)"] = rmse_filled(elev, glat, glon, surf)
-            c0 = _children_cpu()
-            dt, cli_cmd, cli_out = run_cli(npy, PPD, work / f"cli{rep}")
-            cpu["ours: mercury-dem grid (cold CLI)"].append(_children_cpu() - c0)
-            times["ours: mercury-dem grid (cold CLI)"].append(dt)
+            m, cli_cmd, cli_out = run_cli(npy, PPD, work / f"cli{rep}")
+            cpu["ours: mercury-dem grid (cold CLI)"].append(m.cpu_s)
+            times["ours: mercury-dem grid (cold CLI)"].append(m.wall_s)
             shutil.rmtree(work / f"cli{rep}")
         quality["ours: mercury-dem grid (cold CLI)"] = quality["ours (in-process, warm)"]
         before = None

@@ -25,15 +25,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from harness.measure import Measurement, measure
 from mercury_dem.geometry.body import DATUM_RADIUS_M, latlon_to_xyz, xyz_to_latlon
 
 
 def tiny_mission(directory: str | Path, seed: int = 7, preset: str = "tiny") -> Path:
     """A synthetic mission (``mercury-dem synth DIR --preset tiny --seed S``) under ``directory``, made once."""
     mission = Path(directory) / f"{preset}_s{seed}"
-    if not (mission / "catalog.parquet").exists() and not mission.exists():
+    if not (mission / "mission.json").exists():  # the generator writes mission.json last
         subprocess.run([sys.executable, "-m", "mercury_dem.cli", "synth", str(mission), "--preset", preset,
-                        "--seed", str(seed), "--progress", "none"], check=True, capture_output=True)
+                        "--seed", str(seed), "--progress", "none", "--overwrite"], check=True, capture_output=True)
     return mission
 
 
@@ -176,14 +177,19 @@ def write_cloud_files(work: Path, pts: np.ndarray, datum_radius_m: float) -> tup
 def run_gdal(src, algo, size, extent, work):
     """gdal_grid over ``extent`` (lon0, lon1, lat0, lat1 in degrees) with ``size`` columns x rows (an int: square);
     returns (seconds, the grid with NaN for no value, the command)."""
+    m, a, cmd = gdal_grid(src, algo, size, extent, work)
+    return m.wall_s, a, cmd
+
+
+def gdal_grid(src, algo, size, extent, work) -> tuple[Measurement, np.ndarray, str]:
+    """:func:`run_gdal` measured by the harness: (wall, CPU and peak of the gdal_grid process, the grid, the
+    command)."""
     out = work / f"gdal_{algo.split(':')[0]}.tif"
     lon0, lon1, lat0, lat1 = extent
     nx, ny = (size, size) if isinstance(size, int) else size
     cmd = ["gdal_grid", "-q", "--config", "GDAL_NUM_THREADS", "2", "-a", algo, "-txe", str(lon0), str(lon1), "-tye", str(lat1), str(lat0),
            "-outsize", str(nx), str(ny), "-ot", "Float32", "-of", "GTiff", "-l", "points", str(src), str(out)]
-    t0 = time.perf_counter()
-    subprocess.run(cmd, check=True)
-    dt = time.perf_counter() - t0
+    m = measure(cmd, label="gdal_grid")
     import rasterio
 
     with rasterio.open(out) as src:
@@ -191,7 +197,7 @@ def run_gdal(src, algo, size, extent, work):
         nod = src.nodata
     if nod is not None and not np.isnan(nod):
         a[a == nod] = np.nan
-    return dt, a, " ".join(cmd)
+    return m, a, " ".join(cmd)
 
 
 def median_and_min(ts):
