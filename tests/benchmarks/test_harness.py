@@ -133,3 +133,15 @@ def test_the_docs_headline_table_is_the_records() -> None:
     assert headline.BEGIN in page
     assert headline.render(page, harness.read_records(BENCHMARKS / "records")) == page, \
         "run `cd workflows/benchmarks && python -m harness headline` after recording a run"
+
+
+def test_what_a_measured_callable_prints_is_not_lost(tmp_path: Path) -> None:
+    """The child leaves with os._exit: its buffered output must be flushed first (stdout to a file: block-buffered)."""
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import harness, test_harness_child as c; "
+            "print('value', harness.measure(c._chatty).value)")
+    (tmp_path / "test_harness_child.py").write_text("def _chatty():\n    print('printed in the child')\n    return 7\n")
+    out = tmp_path / "out.txt"
+    m = harness.measure([sys.executable, "-c", code, str(BENCHMARKS)], log=out,
+                        env={"PYTHONPATH": f"{tmp_path}:{BENCHMARKS.parents[1]}", "PATH": "/usr/bin:/bin"})
+    assert m.returncode == 0, out.read_text()
+    assert out.read_text().splitlines() == ["printed in the child", "value 7"]

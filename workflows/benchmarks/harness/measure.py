@@ -18,6 +18,7 @@ import pickle
 import signal
 import statistics
 import subprocess
+import sys
 import tempfile
 import time
 import traceback
@@ -112,6 +113,11 @@ def _run_callable(fn: Callable[..., Any], args: tuple[Any, ...], kwargs: Mapping
         except BaseException:  # noqa: BLE001
             code = 1
         finally:
+            for stream in (sys.stdout, sys.stderr):  # os._exit skips the interpreter's flush of what it printed
+                try:
+                    stream.flush()
+                except Exception:  # noqa: BLE001
+                    pass
             os._exit(code)
     os.close(write_fd)
     with os.fdopen(read_fd, "rb") as fh:
