@@ -59,8 +59,8 @@ def run_reader(files: list[str], examples: int, timeout: float, seed: int | None
         cmd += ["--hypothesis-seed", str(seed)]
     log = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_fuzz_{os.getpid()}_{abs(hash(tuple(files)))}.log"
     # the child in a session of its own; past the timeout its process group (ours alone) is killed
-    m = measure(cmd, label=",".join(files), env=env, cwd=ROOT, check=False, timeout=timeout, log=log)
-    timed_out, seconds = bool(m.extra.get("timed_out")), m.wall_s
+    run = measure(cmd, label=",".join(files), env=env, cwd=ROOT, check=False, timeout=timeout, log=log)
+    timed_out, seconds = bool(run.extra.get("timed_out")), run.wall_s
     text = log.read_text(errors="replace")
     counts = [tuple(map(int, m)) for m in STATS.findall(text)]
     inputs = sum(sum(c) for c in counts)
@@ -75,10 +75,10 @@ def run_reader(files: list[str], examples: int, timeout: float, seed: int | None
         "timed_out": timed_out,
         "seconds": seconds,
         "per_input_ms": (1e3 * seconds / inputs) if inputs and not timed_out else None,
-        "peak_rss_mb": m.peak_rss_bytes / 1024.0**2,
-        "cpu_seconds": m.cpu_s,
+        "peak_rss_mb": run.peak_rss_bytes / 1024.0**2,
+        "cpu_seconds": run.cpu_s,
         "log": str(log),
-        "exit": m.returncode,
+        "exit": run.returncode,
     }
 
 

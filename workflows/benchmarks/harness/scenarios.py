@@ -4,6 +4,7 @@
   :func:`clean_store` (the same without gross outliers), :func:`problem_from_store` (a small store as one
   ``AdjustmentProblem``); :func:`least_squares_anchor` (scipy ``least_squares`` on ``bundle_adjust``'s cost);
 * a tiny mission: :func:`tiny_mission` (``mercury-dem synth --preset tiny``, made once);
+* a BAL problem: :func:`bal_file` (a path, or a name under ``../shared/data/bal``);
 * a gridding cloud and gdal_grid: :func:`make_points`, :func:`write_point_inputs`, :func:`write_cloud_files`,
   :func:`run_gdal`, :func:`median_and_min`;
 * a registration scene: :class:`Surface`, :func:`make_dem`, :func:`make_shots` (a global DEM and pole-to-pole
@@ -36,6 +37,19 @@ def tiny_mission(directory: str | Path, seed: int = 7, preset: str = "tiny") -> 
         subprocess.run([sys.executable, "-m", "mercury_dem.cli", "synth", str(mission), "--preset", preset,
                         "--seed", str(seed), "--progress", "none", "--overwrite"], check=True, capture_output=True)
     return mission
+
+
+#: The BAL problems of the development machine (``../shared/data/bal`` beside the checkout), as the tests find them.
+BAL_DIR = Path(__file__).resolve().parents[4] / "shared" / "data" / "bal"
+
+
+def bal_file(name: str | Path) -> Path:
+    """A BAL problem file: ``name`` as a path, else ``BAL_DIR / name`` (e.g. ``problem-49-7776-pre.txt``)."""
+    for path in (Path(name), BAL_DIR / str(name)):
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"no BAL file {name} (nor {BAL_DIR / str(name)}); the problems are at "
+                            "https://grail.cs.washington.edu/projects/bal/")
 
 
 def synthetic_network_store(directory: str | Path, measures: float, seed: int, *extra: str) -> Path:
