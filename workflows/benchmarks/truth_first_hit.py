@@ -73,15 +73,16 @@ def main() -> None:
     moved: list[np.ndarray] = []
     fixed_point = bench_match.true_errors
 
-    def both(image_ids: Any, ia: Any, ib: Any, pa: np.ndarray, pb: np.ndarray, truth: Any, height: Any) -> np.ndarray:
-        err = fixed_point(image_ids, ia, ib, pa, pb, truth, height)
+    def both(image_ids: Any, ia: Any, ib: Any, pa: np.ndarray, pb: np.ndarray, truth: Any, height: Any,
+             datum_radius_m: float = DATUM_RADIUS_M) -> np.ndarray:
+        err = fixed_point(image_ids, ia, ib, pa, pb, truth, height, datum_radius_m=datum_radius_m)
         alt = np.full(err.shape, np.nan)
         ia, ib = np.asarray(ia), np.asarray(ib)
         keys = ia * (len(image_ids) + 1) + ib
         for key in np.unique(keys):
             sel = np.flatnonzero(keys == key)
             ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
-            g_fp, _ = image_to_ground(ta.camera, ta.position, ta.rotation, pa[sel], height=height, datum_radius_m=DATUM_RADIUS_M)
+            g_fp, _ = image_to_ground(ta.camera, ta.position, ta.rotation, pa[sel], height=height, datum_radius_m=datum_radius_m)
             g = first_hit(ta.camera, ta.position, ta.rotation, pa[sel], height)
             ok = np.isfinite(g).all(axis=1)
             px, depth = project(tb.camera, tb.position, tb.rotation, np.where(ok[:, None], g, 0.0))
