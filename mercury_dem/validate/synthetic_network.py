@@ -55,6 +55,23 @@ class SyntheticNetwork:
         """The true surface's radius (m) along body-fixed unit vectors (N, 3): e.g. simulated altimetry."""
         return DATUM_RADIUS_M + plane_wave_relief(np.asarray(unit, np.float64).reshape(-1, 3), self.relief_m, self.relief_seed)
 
+    def altimetry_shots(self, rng: np.random.Generator, per_point: int = 8, reach_m: float = 700.0,
+                        noise_m: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Simulated altimetry on the true surface, as (lat deg, lon deg in [0, 360), radius m).
+
+        ``per_point`` shots scattered within ``reach_m`` around each of a random half of the true points, radius
+        noise ``noise_m`` (1-sigma).
+        """
+        pts = self.true_points[rng.random(len(self.true_points)) < 0.5]
+        u = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+        u = np.repeat(u, per_point, axis=0)
+        off = rng.normal(size=u.shape)
+        off -= (off * u).sum(1, keepdims=True) * u
+        off *= (rng.uniform(0, reach_m, len(u)) / DATUM_RADIUS_M / np.linalg.norm(off, axis=1))[:, None]
+        u = (u + off) / np.linalg.norm(u + off, axis=1, keepdims=True)
+        r = self.true_radius(u) + rng.normal(0, noise_m, len(u))
+        return np.degrees(np.arcsin(u[:, 2])), np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360, r
+
 
 def plane_wave_relief(unit: NDArray[np.float64], relief_m: float, seed: int) -> NDArray[np.float64]:
     """Smooth heights (N,) from unit vectors: a sum of six plane waves on the sphere."""

@@ -15,19 +15,9 @@ from mercury_dem.validate.synthetic_network import make_synthetic_network, point
 DATUM = 2_439_400.0
 
 
-def _shots_around(net, rng: np.random.Generator, per_point: int = 8, reach_m: float = 700.0,
-                  noise_m: float = 1.0) -> AltimetryShotsArrays:
-    """Simulated altimetry on the true surface: shots scattered around half of the true points."""
-    pts = net.true_points[rng.random(len(net.true_points)) < 0.5]
-    u = pts / np.linalg.norm(pts, axis=1, keepdims=True)
-    u = np.repeat(u, per_point, axis=0)
-    off = rng.normal(size=u.shape)
-    off -= (off * u).sum(1, keepdims=True) * u
-    off *= (rng.uniform(0, reach_m, len(u)) / DATUM / np.linalg.norm(off, axis=1))[:, None]
-    u = (u + off) / np.linalg.norm(u + off, axis=1, keepdims=True)
-    r = net.true_radius(u) + rng.normal(0, noise_m, len(u))
-    return AltimetryShotsArrays(np.degrees(np.arcsin(u[:, 2])), np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360, r,
-                                noise_m)
+def _shots_around(net, rng: np.random.Generator) -> AltimetryShotsArrays:
+    """Simulated altimetry on the true surface: 8 shots within 700 m around half of the true points, 1 m noise."""
+    return AltimetryShotsArrays(*net.altimetry_shots(rng, per_point=8, reach_m=700.0, noise_m=1.0), 1.0)
 
 
 @pytest.mark.parametrize("seed", [4, 29])

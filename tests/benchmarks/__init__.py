@@ -20,3 +20,16 @@ def load_benchmark(name: str) -> ModuleType:
     sys.modules[name] = module  # dataclasses look their module up here
     spec.loader.exec_module(module)
     return module
+
+
+def load_harness() -> ModuleType:
+    """Import the package ``workflows/benchmarks/harness`` (as the scripts there import it: ``import harness``)."""
+    if "harness" in sys.modules:
+        return sys.modules["harness"]
+    spec = importlib.util.spec_from_file_location("harness", BENCHMARKS / "harness" / "__init__.py",
+                                                  submodule_search_locations=[str(BENCHMARKS / "harness")])
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["harness"] = module
+    spec.loader.exec_module(module)
+    return module

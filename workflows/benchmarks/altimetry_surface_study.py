@@ -1,7 +1,7 @@
 """Plane or quadratic altimetry surfaces inside the adjustment, on the synthetic networks of the tests.
 
 For each seed: the network and shots of ``tests/altimetry/test_adjust_with_altimetry.py`` (12,000 points,
-3+ views, 1.5 km relief, 8 shots within 700 m around half of the points, 1 m noise), adjusted without
+3+ views, 1.5 km relief, 8 shots within 700 m around half of the points, 1 m noise: ``SyntheticNetwork.altimetry_shots``), adjusted without
 altimetry and with it, with plane and quadratic fits, with the default search radii (1, 3, 10 km) and
 with 10 km alone. Prints the constrained points' radius RMS against the truth, the RMS of error/sigma
 and the pointing of the determined images (>= 30 measures), px.
@@ -13,17 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "altimetry"))
-
-from test_adjust_with_altimetry import DATUM, _shots_around
-
 from mercury_dem.adjust.bundle import bundle_adjust
-from mercury_dem.altimetry.constraints import bundle_adjust_with_altimetry
+from mercury_dem.altimetry.constraints import AltimetryShotsArrays, bundle_adjust_with_altimetry
 from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.geometry.body import DATUM_RADIUS_M as DATUM
 from mercury_dem.validate.synthetic_network import make_synthetic_network, pointing_errors
 
 
@@ -35,7 +31,7 @@ def main(seeds: list[int]) -> None:
         pts = net.problem.points
         problem = dataclasses.replace(net.problem, points=pts / np.linalg.norm(pts, axis=1, keepdims=True) * DATUM)
         cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), radius_sigma_m=10_000.0)
-        shots = _shots_around(net, rng)
+        shots = AltimetryShotsArrays(*net.altimetry_shots(rng, per_point=8, reach_m=700.0, noise_m=1.0), 1.0)
         plain = bundle_adjust(problem, cfg)
         ifov = np.array([net.problem.cameras[k].ifov_rad for k in net.problem.image_camera])
         sel = plain.accepted_per_image >= 30

@@ -4,11 +4,11 @@ Usage::
 
     flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_adjust_size.py [--sizes 1e5 1e6 5e6] [--scipy]
 
-Each size runs in its own subprocess (so the peak resident memory, from
-``resource.getrusage``, is that size's alone): generate the network (timed apart),
+Each size runs in its own child process (``harness.measure``: the peak resident memory is that size's
+alone, VmHWM reset when the call starts): generate the network (timed apart),
 adjust it with the default configuration (450 urad pointing sigma), and print one
 JSON line: iterations, seconds per iteration, total, linear solver, peak RSS, RMS,
-outliers/good rejected. ``--scipy`` also runs ``scipy.optimize.least_squares``
+outliers/good rejected; each line is also appended to ``records/adjust_size.jsonl``. ``--scipy`` also runs ``scipy.optimize.least_squares``
 (trf, jac_sparsity, x_scale='jac') on the smallest size with the same cost function
 (no robust loss, no rejection, on a network without outliers) next to ours, for the ratio.
 """
@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
-import subprocess
-import sys
 import time
 
 import numpy as np
+from harness import append_record, measure
+from harness.scenarios import least_squares_anchor
 
 
 def run_one(n: int, seed: int) -> dict:
@@ -54,22 +53,16 @@ def run_one(n: int, seed: int) -> dict:
         "boresight_rms_ifov_ge30": round(float(np.sqrt(np.mean(bore[sel] ** 2))), 3),
         "boresight_rms_ifov_all": round(float(np.sqrt(np.mean(bore**2))), 3),
         "point_error_m_median_p90": [round(float(np.median(perr)), 1), round(float(np.percentile(perr, 90)), 1)],
-        "peak_rss_gb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2, 2),
     }
 
 
 def run_scipy(n: int, seed: int) -> dict:
     """Ours and scipy least_squares on the same clean network and cost (no robust loss, no rejection).
 
-    The scipy side is :func:`bench_blocked_anchor.least_squares_anchor` (the one anchor both benchmarks use)."""
-    from pathlib import Path
-
+    The scipy side is :func:`harness.scenarios.least_squares_anchor` (the one anchor both benchmarks use)."""
     from mercury_dem.adjust.bundle import bundle_adjust
     from mercury_dem.config.adjust import AdjustConfig
     from mercury_dem.validate.synthetic_network import make_synthetic_network
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_blocked_anchor import least_squares_anchor
 
     net = make_synthetic_network(n, rng=np.random.default_rng(seed), min_views=3, outlier_fraction=0.0)
     p = net.problem
@@ -88,21 +81,41 @@ def main() -> None:
     ap.add_argument("--sizes", nargs="+", type=float, default=[1e5, 1e6, 5e6])
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--scipy", action="store_true")
-    ap.add_argument("--one", type=float, help=argparse.SUPPRESS)
-    ap.add_argument("--one-scipy", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--headline", action="store_true",
+                    help="record the largest size as the headline row of docs/benchmarks.md (then run "
+                         "`python -m harness headline`)")
     args = ap.parse_args()
-    if args.one:
-        print(json.dumps(run_one(int(args.one), args.seed)))
-        return
-    if args.one_scipy:
-        print(json.dumps(run_scipy(int(args.one_scipy), args.seed)))
-        return
-    jobs = [["--one", str(s)] for s in args.sizes]
+    largest: dict | None = None
+    jobs = [(run_one, int(s)) for s in args.sizes]
     if args.scipy:
-        jobs.append(["--one-scipy", str(min(args.sizes))])
-    for job in jobs:
-        out = subprocess.run([sys.executable, __file__, *job, "--seed", str(args.seed)], capture_output=True, text=True)
-        print(out.stdout.strip() or out.stderr.strip()[-2000:], flush=True)
+        jobs.append((run_scipy, int(min(args.sizes))))
+    for fn, n in jobs:
+        try:
+            m = measure(fn, n, args.seed, label=f"{fn.__name__} {n}")
+        except RuntimeError as exc:  # the child's traceback, as the subprocess's stderr was printed before
+            print(str(exc)[-2000:], flush=True)
+            continue
+        out = {**m.value, "peak_rss_gb": round(m.peak_rss_bytes / 1024**3, 2), "cpu_seconds": round(m.cpu_s, 2)}
+        params = {"function": fn.__name__, "measures": n, "seed": args.seed}
+        if args.headline and fn is run_one and n == max(int(s) for s in args.sizes):
+            largest = out
+        else:
+            append_record("adjust_size", params, out)
+        print(json.dumps(out), flush=True)
+    if largest is not None:
+        append_record("adjust_size", {"function": "run_one", "measures": largest["measures"], "seed": args.seed},
+                      largest, headline=headline_row(largest, args.sizes))
+
+
+def headline_row(r: dict, sizes: list[float]) -> dict[str, str]:
+    """The headline of docs/benchmarks.md for this benchmark, from the largest size's figures."""
+    ok = r["adjust_seconds"] <= 600 and r["peak_rss_gb"] <= 8
+    return {"area": "bundle adjustment, size (issue 5)",
+            "command": f"`workflows/benchmarks/bench_adjust_size.py --sizes {' '.join(f'{s:g}' for s in sizes)} --headline`",
+            "text": (f"{r['measures']:,} measures adjusted in {r['adjust_seconds']:.0f} s ({r['iterations']} iterations, "
+                     f"median {r['seconds_per_iteration_median']} s each) at {r['peak_rss_gb']} GiB peak; "
+                     f"RMS {r['rms_px']} px, outliers rejected {100 * r['outliers_rejected']:.1f} %"),
+            "goal": "≤ 10 min, ≤ 8 GB", "status": "met" if ok else "missed"}
 
 
 if __name__ == "__main__":

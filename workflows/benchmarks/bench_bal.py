@@ -15,11 +15,12 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 
 import numpy as np
+from harness import measure
+from harness.scenarios import bal_file
 
 from mercury_dem.adjust.bal import BalProblem, adjust_bal
 from mercury_dem.adjust.solver import SolverOptions
@@ -38,11 +39,12 @@ def ours(problem: BalProblem, target: float, iterations: int) -> dict:
 
 def ours_fresh_process(path: str) -> dict:
     """The CLI in a fresh process (numba cache load included in solver seconds)."""
-    out = subprocess.run([sys.executable, "-m", "mercury_dem.cli", "adjust-bal", path, "--json", "--max-iterations", "5"],
-                         capture_output=True, text=True, check=True)
-    rec = json.loads(out.stdout)
+    m = measure([sys.executable, "-m", "mercury_dem.cli", "adjust-bal", path, "--json", "--max-iterations", "5"])
+    rec = json.loads(m.stdout)
     return {"solver": "ours, fresh process, 5 iterations (adjust-bal)", "final_cost": rec["final_cost"],
-            "solver_seconds": rec["solver_seconds"], "read_seconds": rec["read_seconds"]}
+            "solver_seconds": rec["solver_seconds"], "read_seconds": rec["read_seconds"],
+            "process_wall_seconds": round(m.wall_s, 3), "process_cpu_seconds": round(m.cpu_s, 3),
+            "process_peak_rss_bytes": m.peak_rss_bytes}
 
 
 def _residuals_numpy(x: np.ndarray, p: BalProblem) -> np.ndarray:
@@ -138,11 +140,12 @@ def ceres_pycolmap(problem: BalProblem, iterations: int, threads: int = 2) -> di
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("file")
+    ap.add_argument("file", help="a BAL file, or the name of one under ../shared/data/bal")
     ap.add_argument("--target", type=float, default=1.3409e04)
     ap.add_argument("--skip-scipy", action="store_true")
     args = ap.parse_args()
     t = time.perf_counter()
+    args.file = str(bal_file(args.file))
     problem = read_bal(args.file)
     print(f"# {args.file}: {problem.n_cameras} cameras, {problem.n_points} points, {problem.n_observations} obs; "
           f"read {time.perf_counter() - t:.2f} s; {platform.processor() or platform.machine()}, {os.cpu_count()} cpus")

@@ -18,17 +18,20 @@ import argparse
 import json
 import math
 import shutil
-import subprocess
 import sys
-import time
 from pathlib import Path
+
+from harness import append_record, measure
 
 
 def _run(cmd: list[str]) -> dict:
-    t = time.perf_counter()
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True)
-    rec = json.loads(out.stdout)
-    rec["wall_seconds"] = round(time.perf_counter() - t, 2)
+    """The command's JSON, with its wall and CPU seconds and the command process's own peak resident bytes
+    (``harness.measure``; a LocalCluster's workers are its children: their CPU counts once they were reaped)."""
+    m = measure(cmd)
+    rec = json.loads(m.stdout)
+    rec["wall_seconds"] = round(m.wall_s, 2)
+    rec["cpu_seconds"] = round(m.cpu_s, 2)
+    rec["process_peak_rss_bytes"] = m.peak_rss_bytes
     return rec
 
 
@@ -58,6 +61,8 @@ def main() -> None:
             rec.pop("log", None)
             print(json.dumps(rec), flush=True)
             rows.append((n, mode, rec))
+            append_record("blocked_adjust", {"measures": n, "mode": mode, "seed": args.seed, "config": args.config},
+                          rec)
         if not args.keep:
             shutil.rmtree(store, ignore_errors=True)
     for mode in args.modes:

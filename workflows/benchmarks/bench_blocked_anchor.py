@@ -23,87 +23,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
-import subprocess
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-
-def least_squares_anchor(p: Any, cfg: Any) -> dict[str, Any]:
-    """``scipy.optimize.least_squares`` on ``bundle_adjust``'s cost (no robust loss): seconds, cost, nfev, pointing."""
-    import scipy.sparse as sp
-    from scipy.optimize import least_squares
-
-    from mercury_dem.adjust.bundle import make_model
-    from mercury_dem.adjust.framing import FramingState
-
-    model = make_model(p, cfg)
-    ni, npt, m = p.n_images, p.n_points, p.n_measures
-    zeros = np.zeros((ni, 3))
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        st = FramingState(x[: 3 * ni].reshape(ni, 3), zeros, x[3 * ni:].reshape(npt, 3))
-        parts = [model.residuals(st).ravel(), model.camera_prior(st)[0].ravel()]
-        pp = model.point_prior(st)
-        if pp is not None:
-            parts.append(pp[0].ravel())
-        return np.concatenate(parts)
-
-    rows, cols = [], []
-    mi, mp = p.measure_image, p.measure_point
-    for k in range(2):
-        for s in range(3):
-            rows += [2 * np.arange(m) + k, 2 * np.arange(m) + k]
-            cols += [3 * mi + s, 3 * ni + 3 * mp + s]
-    for s in range(3):
-        for s2 in range(3):
-            rows.append(2 * m + 3 * np.arange(ni) + s)
-            cols.append(3 * np.arange(ni) + s2)
-    pp0 = model.point_prior(model.initial_state())
-    npp = 0 if pp0 is None else pp0[0].shape[1]
-    for s in range(npp):
-        for s2 in range(3):
-            rows.append(2 * m + 3 * ni + npp * np.arange(npt) + s)
-            cols.append(3 * ni + 3 * np.arange(npt) + s2)
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    nres = 2 * m + 3 * ni + npp * npt
-    sparsity = sp.coo_matrix((np.ones(len(r)), (r, c)), shape=(nres, 3 * ni + 3 * npt)).tocsr()
-    sparsity.data[:] = 1
-    x0 = np.concatenate([np.zeros(3 * ni), p.points.ravel()])
-    t = time.perf_counter()
-    ls = least_squares(fun, x0, jac_sparsity=sparsity, x_scale="jac", ftol=1e-4, method="trf")
-    return {"seconds": time.perf_counter() - t, "cost": float(ls.cost), "nfev": int(ls.nfev),
-            "omega": ls.x[: 3 * ni].reshape(ni, 3)}
-
-
-def clean_store(directory: str | Path, measures: float, seed: int) -> Path:
-    """A ``synth-network`` store without gross outliers under ``directory`` (made once, then reused)."""
-    store = Path(directory) / f"clean_{measures:.0e}_s{seed}"
-    if not store.exists():
-        subprocess.run([sys.executable, "-m", "mercury_dem.cli", "synth-network", str(store), "--measures",
-                        str(int(measures)), "--seed", str(seed), "--outlier-fraction", "0", "--progress",
-                        "none"], check=True, capture_output=True)
-    return store
-
-
-def problem_from_store(store: Path) -> Any:
-    """The whole stored network as one AdjustmentProblem (small stores only)."""
-    from mercury_dem.adjust.problem import AdjustmentProblem
-    from mercury_dem.io.synthetic_network_store import BlockedNetwork
-
-    net = BlockedNetwork(store)
-    im = net.images
-    blocks = [net.read_block(b) for b in range(net.n_blocks)]
-    cat = np.concatenate
-    return AdjustmentProblem(
-        cameras=tuple(im.cameras), image_camera=im.image_camera, positions=im.positions, rotations=im.rotations,
-        points=cat([b.apriori_points for b in blocks]), measure_image=cat([b.measure_image for b in blocks]),
-        measure_point=cat([b.measure_point + b.point_start for b in blocks]), measures=cat([b.measures for b in blocks]),
-        measure_sigma=cat([b.sigma for b in blocks]), held_points=cat([b.held_points for b in blocks]))
+from harness import peak_rss_bytes
+from harness.scenarios import clean_store, least_squares_anchor, problem_from_store
 
 
 def main() -> None:
@@ -136,7 +61,7 @@ def main() -> None:
                     "pointing_vs_ours_px_max": float(np.abs(sc["omega"] - blk.pointing_corrections).max() / ifov)}
     out["ratio_scipy_to_blocked"] = round(sc["seconds"] / out["blocked"]["seconds"], 1)
     out["ratio_scipy_to_in_memory"] = round(sc["seconds"] / out["in_memory"]["seconds"], 1)
-    out["peak_rss_gb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2, 2)
+    out["peak_rss_gb"] = round(peak_rss_bytes() / 1024**3, 2)
     print(json.dumps(out), flush=True)
 
 

@@ -28,12 +28,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).parent))
-
-from cascade_replay import (  # noqa: E402 - beside this script
+from cascade_replay import (  # beside this script (its directory is first on sys.path)
     BlockedCost,
     InMemoryCost,
     TargetSize,

@@ -34,15 +34,12 @@ import dataclasses
 import json
 import os
 import resource
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_blocked_anchor import clean_store, problem_from_store  # noqa: E402
+from harness import peak_rss_bytes
+from harness.scenarios import clean_store, problem_from_store
 
 
 def _cpu() -> float:
@@ -180,7 +177,7 @@ def main() -> None:
                     ratio_ceres_to_ours_wall=round(col["seconds"] / ours["seconds"], 2),
                     ratio_ceres_to_ours_cpu=round(col["cpu_seconds"] / max(ours["cpu_seconds"], 1e-9), 2))
     out.update(ours=[r for _, r in runs], ceres=ceres,
-               peak_rss_gb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2, 2))
+               peak_rss_gb=round(peak_rss_bytes() / 1024**3, 2))
     print(json.dumps(out), flush=True)
 
 

@@ -4,7 +4,8 @@ For each reader this runs its fuzz test file (the properties in the default suit
 fresh ``pytest`` process with ``MERCURY_DEM_FUZZ_EXAMPLES=N`` and ``--hypothesis-show-statistics``, and prints a
 table: inputs tried (hypothesis's passing + failing + invalid test cases, summed over the file's properties, the
 seed corpus included), faults (failed tests, with the first lines of each failure kept in ``--log``), wall time,
-time per input, and the child's peak RSS (``os.wait4``'s ``ru_maxrss``; the interpreter and imports included).
+time per input, and the child's peak RSS (``harness.measure``: ``os.wait4``'s ``ru_maxrss``; the interpreter and
+imports included). Each reader's figures are appended to ``records/fuzz.jsonl``.
 
 A reader that runs past ``--timeout`` seconds is stopped (its process group) and reported as such, with no input
 count (hypothesis prints its statistics at the end). ``CI=true`` in the environment makes the runs derandomized
@@ -24,11 +25,11 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
+
+from harness import append_record, measure
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -57,21 +58,9 @@ def run_reader(files: list[str], examples: int, timeout: float, seed: int | None
     if seed is not None:
         cmd += ["--hypothesis-seed", str(seed)]
     log = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_fuzz_{os.getpid()}_{abs(hash(tuple(files)))}.log"
-    t0 = time.perf_counter()
-    with open(log, "w") as out:
-        proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
-        timed_out = False
-        while True:
-            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.perf_counter() - t0 > timeout:
-                timed_out = True
-                os.killpg(proc.pid, signal.SIGKILL)  # our own child's process group only
-                pid, status, usage = os.wait4(proc.pid, 0)
-                break
-            time.sleep(0.2)
-    seconds = time.perf_counter() - t0
+    # the child in a session of its own; past the timeout its process group (ours alone) is killed
+    run = measure(cmd, label=",".join(files), env=env, cwd=ROOT, check=False, timeout=timeout, log=log)
+    timed_out, seconds = bool(run.extra.get("timed_out")), run.wall_s
     text = log.read_text(errors="replace")
     counts = [tuple(map(int, m)) for m in STATS.findall(text)]
     inputs = sum(sum(c) for c in counts)
@@ -86,9 +75,10 @@ def run_reader(files: list[str], examples: int, timeout: float, seed: int | None
         "timed_out": timed_out,
         "seconds": seconds,
         "per_input_ms": (1e3 * seconds / inputs) if inputs and not timed_out else None,
-        "peak_rss_mb": usage.ru_maxrss / 1024.0,
+        "peak_rss_mb": run.peak_rss_bytes / 1024.0**2,
+        "cpu_seconds": run.cpu_s,
         "log": str(log),
-        "exit": os.waitstatus_to_exitcode(status),
+        "exit": run.returncode,
     }
 
 
@@ -109,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
     total_faults = 0
     for name in names:
         r = run_reader(READERS[name], args.examples, args.timeout, args.seed)
+        append_record("fuzz", {"reader": name, "examples": args.examples, "timeout": args.timeout, "seed": args.seed,
+                               "ci": os.environ.get("CI", "")}, {k: v for k, v in r.items() if k != "log"})
         total_faults += int(r["faults"])  # type: ignore[call-overload]
         inputs = "timeout" if r["timed_out"] else str(r["inputs"])
         per = "-" if r["per_input_ms"] is None else f"{r['per_input_ms']:.1f}"

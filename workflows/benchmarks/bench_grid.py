@@ -33,7 +33,7 @@ Usage (heavy: run under the lock)::
     flock /tmp/mercury_bench.lock .venv/bin/python workflows/benchmarks/bench_grid.py --full [--points 10000000]
 
 ``--full`` grids the 64 pixel/deg global map (23040 x 11520) from 10^7 points on a
-Dask LocalCluster (2 workers x 1 thread) and reports time and peak memory (ru_maxrss
+Dask LocalCluster (2 workers x 1 thread) and reports time and peak memory (``harness.peak_rss_bytes``
 of this process and of the workers).
 """
 
@@ -42,7 +42,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import shutil
 import subprocess
 import sys
@@ -51,56 +50,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from harness import peak_rss_bytes
+from harness.scenarios import make_points, median_and_min, run_gdal, truth_height, write_point_inputs
 
 from mercury_dem.config.dem import DemConfig
-from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, latlon_to_xyz, xyz_to_latlon
+from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, xyz_to_latlon
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
-
-
-def truth_height(lat, lon):
-    la, lo = np.radians(lat), np.radians(lon)
-    return (1500.0 * np.sin(2 * la) * np.cos(3 * lo) + 800.0 * np.cos(la) * np.sin(2 * lo + 0.3)
-            + 300.0 * np.sin(7 * la) * np.sin(11 * lo))
-
-
-def make_points(n, lat_range, lon_range, seed=0, noise=20.0, outliers=0.005):
-    rng = np.random.default_rng(seed)
-    z = rng.uniform(np.sin(np.radians(lat_range[0])), np.sin(np.radians(lat_range[1])), n)
-    lat = np.degrees(np.arcsin(z))
-    lon = rng.uniform(lon_range[0], lon_range[1], n)
-    h = truth_height(lat, lon) + rng.normal(0.0, noise, n)
-    bad = rng.random(n) < outliers
-    h[bad] += rng.choice([-3000.0, 3000.0], int(bad.sum()))
-    return latlon_to_xyz(lat, lon, h, datum_radius_m=DATUM_RADIUS_M)
-
-
-def write_point_inputs(work: Path, n_points: int, span: float) -> tuple[np.ndarray, Path, Path, Path, Path]:
-    """The benchmark cloud and the files each side reads: points.npy (ours), points.csv + .vrt and
-    points.fgb (gdal_grid). Returns (points, npy, csv, vrt, fgb)."""
-    pts = make_points(n_points, (-span / 2 - 0.2, span / 2 + 0.2), (-0.2, span + 0.2))
-    return (pts, *write_cloud_files(work, pts, DATUM_RADIUS_M))
-
-
-def write_cloud_files(work: Path, pts: np.ndarray, datum_radius_m: float) -> tuple[Path, Path, Path, Path]:
-    """The files each side reads of a cloud (N, 3) body-fixed metres: points.npy (ours), and for gdal_grid
-    points.csv (lon in [-180, 180), lat, height above the datum ``datum_radius_m``) + its OGR VRT, and
-    points.fgb (FlatGeobuf). Returns (npy, csv, vrt, fgb)."""
-    npy = work / "points.npy"
-    np.save(npy, pts)
-    lat, lon, h = xyz_to_latlon(pts, datum_radius_m)
-    lon = np.where(lon > 180, lon - 360, lon)
-    csv = work / "points.csv"
-    np.savetxt(csv, np.column_stack([lon, lat, h]), delimiter=",", header="lon,lat,elev", comments="", fmt="%.8f")
-    vrt = work / "points.vrt"
-    vrt.write_text(
-        '<OGRVRTDataSource><OGRVRTLayer name="points"><SrcDataSource>' + str(csv) + "</SrcDataSource>"
-        '<GeometryType>wkbPoint</GeometryType><GeometryField encoding="PointFromColumns" x="lon" y="lat" '
-        'z="elev"/></OGRVRTLayer></OGRVRTDataSource>'
-    )
-    fgb = work / "points.fgb"
-    subprocess.run(["ogr2ogr", "-f", "FlatGeobuf", str(fgb), str(vrt), "-nln", "points", "-nlt", "POINT25D"],
-                   check=True)
-    return npy, csv, vrt, fgb
 
 
 def rmse_vs_truth(elev, lat, lon):
@@ -141,27 +96,6 @@ def _cfg_dict(cfg):
     return {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
 
 
-def run_gdal(src, algo, size, extent, work):
-    """gdal_grid over ``extent`` (lon0, lon1, lat0, lat1 in degrees) with ``size`` columns x rows (an int: square);
-    returns (seconds, the grid with NaN for no value, the command)."""
-    out = work / f"gdal_{algo.split(':')[0]}.tif"
-    lon0, lon1, lat0, lat1 = extent
-    nx, ny = (size, size) if isinstance(size, int) else size
-    cmd = ["gdal_grid", "-q", "--config", "GDAL_NUM_THREADS", "2", "-a", algo, "-txe", str(lon0), str(lon1), "-tye", str(lat1), str(lat0),
-           "-outsize", str(nx), str(ny), "-ot", "Float32", "-of", "GTiff", "-l", "points", str(src), str(out)]
-    t0 = time.perf_counter()
-    subprocess.run(cmd, check=True)
-    dt = time.perf_counter() - t0
-    import rasterio
-
-    with rasterio.open(out) as src:
-        a = src.read(1).astype(np.float64)
-        nod = src.nodata
-    if nod is not None and not np.isnan(nod):
-        a[a == nod] = np.nan
-    return dt, a, " ".join(cmd)
-
-
 def run_griddata(npy, size, extent):
     from scipy.interpolate import griddata
 
@@ -175,11 +109,6 @@ def run_griddata(npy, size, extent):
     gl, gn = np.meshgrid(glat, glon, indexing="ij")
     out = griddata(np.column_stack([lon, lat]), h, (gn, gl), method="linear")
     return time.perf_counter() - t0, out
-
-
-def _stats(ts):
-    ts = np.asarray(ts, dtype=float)
-    return float(np.median(ts)), float(ts.min())
 
 
 def comparison(args):
@@ -260,7 +189,7 @@ def comparison(args):
             notes["scipy griddata linear"] = "Delaunay on lon/lat"
         t_end = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
         load_end = Path("/proc/loadavg").read_text().split()[:3]
-        ref_med, ref_min = _stats(times["gdal_grid invdistnn (fgb)"])
+        ref_med, ref_min = median_and_min(times["gdal_grid invdistnn (fgb)"])
         print(f"\n{args.points} points -> {size} x {size} grid ({ppd:g} pixel/deg, "
               f"{2 * math.pi * DATUM_RADIUS_M / 360 / ppd:.0f} m), noise 20 m, 0.5 % outliers of +-3 km")
         print(f"run {t_start} .. {t_end}, load average {' '.join(load_start)} .. {' '.join(load_end)}, "
@@ -269,7 +198,7 @@ def comparison(args):
               f"{'min/min':>7s} {'RMSE m':>7s} {'filled':>7s}  all runs (s); notes")
         rows = []
         for name, ts in times.items():
-            med, mn = _stats(ts)
+            med, mn = median_and_min(ts)
             rmse, filled = quality[name]
             rows.append((name, med, mn, rmse, filled, notes[name]))
             print(f"{name:26s} {med:8.3f} {mn:6.3f} {npix / med / 1e6:7.3f} {ref_med / med:14.2f}x "
@@ -281,10 +210,10 @@ def comparison(args):
             print(f"{name} vs gdal_grid invdistnn (fgb), per-repetition ratios: "
                   f"{' '.join(f'{r:.2f}' for r in paired)} (median {np.median(paired):.2f}x, "
                   f"min {paired.min():.2f}x)")
-        ref_csv, _ = _stats(times["gdal_grid invdistnn (csv)"])
+        ref_csv, _ = median_and_min(times["gdal_grid invdistnn (csv)"])
         print(f"vs gdal_grid invdistnn reading CSV (medians): ours median11 "
-              f"{ref_csv / _stats(times['ours median11'])[0]:.2f}x, shepard {ref_csv / _stats(times['ours shepard'])[0]:.2f}x, "
-              f"median11 cold {ref_csv / _stats(times['ours median11 cold'])[0]:.2f}x")
+              f"{ref_csv / median_and_min(times['ours median11'])[0]:.2f}x, shepard {ref_csv / median_and_min(times['ours shepard'])[0]:.2f}x, "
+              f"median11 cold {ref_csv / median_and_min(times['ours median11 cold'])[0]:.2f}x")
         for name, cmd in cmds.items():
             print(f"  {name}: {cmd}")
         return rows
@@ -311,8 +240,8 @@ def full_size(args):
             pts = np.load(work / "points.npy")
             summary = grid_dem(pts, cfg, work / "dem.zarr", client=client, coverage=False, body=MERCURY)
             t_grid = time.perf_counter() - t0
-            worker_rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
-        own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            worker_rss = client.run(peak_rss_bytes)  # each worker's own peak, read as the harness reads it
+        own = peak_rss_bytes()
         ds = open_dem(work / "dem.zarr")
         la = ds.lat.values[::8]
         lo = ds.lon.values[::8]
@@ -322,7 +251,7 @@ def full_size(args):
             "points": args.points, "shape": summary["shape"], "method": args.method, "chunk": args.chunk,
             "n_chunks": summary["n_chunks"], "seconds_grid_stage": t_grid, "seconds_make_points": t_make,
             "pixels_per_second": summary["shape"][0] * summary["shape"][1] / t_grid,
-            "peak_rss_client_gb": own / 1e6, "peak_rss_workers_gb": {k: v / 1e6 for k, v in worker_rss.items()},
+            "peak_rss_client_gb": own / 1e9, "peak_rss_workers_gb": {k: v / 1e9 for k, v in worker_rss.items()},
             "rmse_vs_truth_m_subsampled": rmse, "filled_fraction": filled,
             "store_bytes": sum(f.stat().st_size for f in (work / "dem.zarr").rglob("*") if f.is_file()),
         }

@@ -19,42 +19,33 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_grid import run_gdal, write_point_inputs  # noqa: E402  (same cloud and gdal_grid call as bench_grid.py)
+from harness import append_record, measure
+from harness.scenarios import gdal_grid, write_point_inputs  # the same cloud and gdal_grid call as bench_grid.py
 
 CPU: dict[str, list[float]] = {}
 
 
-def _child_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
 def timed(cmd: list[str], env: dict[str, str] | None = None, cpu_key: str | None = None) -> float:
-    """Wall seconds of ``cmd``; its CPU seconds (user + system of the child) go to ``CPU[cpu_key]``."""
-    c0, t0 = _child_cpu(), time.perf_counter()
+    """Wall seconds of ``cmd`` (``harness.measure``); its CPU seconds (user + system of the child and its
+    children) go to ``CPU[cpu_key]``."""
     # cwd /tmp: 'python -m'/'-c' put the current directory first on sys.path, before PYTHONPATH's tree
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd="/tmp")
-    dt = time.perf_counter() - t0
+    m = measure(cmd, env=env, cwd="/tmp")
     if cpu_key is not None:
-        CPU.setdefault(cpu_key, []).append(_child_cpu() - c0)
-    return dt
+        CPU.setdefault(cpu_key, []).append(m.cpu_s)
+    return m.wall_s
 
 
 def gdal_timed(key: str, *a: object) -> float:
-    c0 = _child_cpu()
-    dt = run_gdal(*a)[0]
-    CPU.setdefault(key, []).append(_child_cpu() - c0)
-    return dt
+    m = gdal_grid(*a)[0]
+    CPU.setdefault(key, []).append(m.cpu_s)
+    return m.wall_s
 
 
 def main() -> None:
@@ -126,6 +117,8 @@ def main() -> None:
             record[name("per_repeat_gdal_fgb_over_ours", t)] = [
                 round(g / o, 2) for g, o in zip(times["gdal_grid invdistnn FlatGeobuf"],
                                                  times[name("mercury-dem grid (cold process)", t)])]
+        append_record("grid_cli_cold", {"points": args.points, "size": size, "repeats": args.repeats,
+                                         "trees": args.tree}, record)
         print(json.dumps(record, indent=2))
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -43,24 +43,21 @@ import argparse
 import json
 import math
 import os
-import resource
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from harness import measure
+from harness.scenarios import gdal_grid, median_and_min, write_cloud_files  # gdal_grid's inputs and call, shared
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_grid import _stats, run_gdal, write_cloud_files  # noqa: E402  (gdal_grid's inputs and call, shared)
-
-from mercury_dem.config.dem import DemConfig  # noqa: E402
-from mercury_dem.dem.extent import box_area_ratio, points_box, points_extent  # noqa: E402
-from mercury_dem.geometry.body import MOON  # noqa: E402
-from mercury_dem.pipeline.dem_stage import grid_dem, open_dem  # noqa: E402
-from mercury_dem.synth.tracks import BlockSurface, altimeter_block  # noqa: E402
+from mercury_dem.config.dem import DemConfig
+from mercury_dem.dem.extent import box_area_ratio, points_box, points_extent
+from mercury_dem.geometry.body import MOON
+from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+from mercury_dem.synth.tracks import BlockSurface, altimeter_block
 
 BODY = MOON
 LAT = (24.6, 25.35)
@@ -96,18 +93,12 @@ def run_ours(npy, cfg, out):
 
 
 def run_cli(npy, ppd, out):
-    """``mercury-dem grid`` as the user runs it (coverage included), a fresh process timed from outside."""
+    """``mercury-dem grid`` as the user runs it (coverage included), a fresh process measured from outside
+    (``harness.measure``): (the measurement, the command, its output)."""
     exe = Path(sys.executable).with_name("mercury-dem")
     cmd = [str(exe), "grid", str(npy), "--out", str(out), "--body", "moon", "--ppd", f"{ppd:g}"]
-    t0 = time.perf_counter()
-    done = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd="/tmp",
-                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
-    return time.perf_counter() - t0, " ".join(cmd[1:]), done.stdout.strip()
-
-
-def _children_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
+    m = measure(cmd, cwd="/tmp", env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    return m, " ".join(cmd[1:]), m.stdout.strip()
 
 
 def main():
@@ -150,18 +141,16 @@ def main():
                 quality["ours (in-process, warm)"] = rmse_filled(ds.elevation.values, ds.lat.values, ds.lon.values,
                                                                  surf)
             shutil.rmtree(work / f"ours{rep}.zarr")
-            c0 = _children_cpu()
-            dt, elev, gdal_cmd = run_gdal(fgb, algo, (nx, ny), extent, work)
-            cpu["gdal_grid invdistnn (fgb)"].append(_children_cpu() - c0)
-            times["gdal_grid invdistnn (fgb)"].append(dt)
+            m, elev, gdal_cmd = gdal_grid(fgb, algo, (nx, ny), extent, work)
+            cpu["gdal_grid invdistnn (fgb)"].append(m.cpu_s)
+            times["gdal_grid invdistnn (fgb)"].append(m.wall_s)
             if rep == 0:
                 glat = lat_max - (np.arange(ny) + 0.5) / PPD
                 glon = lon_min + (np.arange(nx) + 0.5) / PPD
                 quality["gdal_grid invdistnn (fgb)"] = rmse_filled(elev, glat, glon, surf)
-            c0 = _children_cpu()
-            dt, cli_cmd, cli_out = run_cli(npy, PPD, work / f"cli{rep}")
-            cpu["ours: mercury-dem grid (cold CLI)"].append(_children_cpu() - c0)
-            times["ours: mercury-dem grid (cold CLI)"].append(dt)
+            m, cli_cmd, cli_out = run_cli(npy, PPD, work / f"cli{rep}")
+            cpu["ours: mercury-dem grid (cold CLI)"].append(m.cpu_s)
+            times["ours: mercury-dem grid (cold CLI)"].append(m.wall_s)
             shutil.rmtree(work / f"cli{rep}")
         quality["ours: mercury-dem grid (cold CLI)"] = quality["ours (in-process, warm)"]
         before = None
@@ -173,7 +162,7 @@ def main():
         t_end = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
         load_end = Path("/proc/loadavg").read_text().split()[:3]
 
-        ref_med, ref_min = _stats(times["gdal_grid invdistnn (fgb)"])
+        ref_med, ref_min = median_and_min(times["gdal_grid invdistnn (fgb)"])
         print(f"\n{pts.shape[0]} shots, {N_TRACKS} tracks, lat {LAT[0]}..{LAT[1]}, lon {LON[0]}..{LON[1]} "
               f"(Moon, noise {NOISE_M:g} m); data box lat {box[0]:.4f}..{box[1]:.4f}, lon {box[2]:.4f}..{box[3]:.4f}")
         print(f"run {t_start} .. {t_end}, load average {' '.join(load_start)} .. {' '.join(load_end)}, "
@@ -186,7 +175,7 @@ def main():
         print(f"{'method':36s} {'median s':>8s} {'min s':>7s} {'gdal/ours med':>13s} {'min/min':>7s} "
               f"{'RMSE m':>7s} {'filled':>7s}  all runs (s)")
         for name, ts in times.items():
-            med, mn = _stats(ts)
+            med, mn = median_and_min(ts)
             rmse, filled = quality[name]
             print(f"{name:36s} {med:8.3f} {mn:7.3f} {ref_med / med:12.2f}x {ref_min / mn:6.2f}x {rmse:7.2f} "
                   f"{100 * filled:6.1f}%  {' '.join(f'{t:.3f}' for t in ts)}")
@@ -198,8 +187,8 @@ def main():
             print(f"before (old canvas 6 x 5 deg, 50 km, 64 px/deg, in-process): {before['seconds']:.1f} s, "
                   f"{before['shape'][0]} x {before['shape'][1]}, {before['area_vs_box']:.1f} x the box, "
                   f"{100 * before['no_value_fraction']:.1f} % no value")
-        cold_med = _stats(times["ours: mercury-dem grid (cold CLI)"])[0]
-        warm_med = _stats(times["ours (in-process, warm)"])[0]
+        cold_med = median_and_min(times["ours: mercury-dem grid (cold CLI)"])[0]
+        warm_med = median_and_min(times["ours (in-process, warm)"])[0]
         goals = {"canvas within 1.2x of the box (256 ppd)": canvases[PPD]["area_vs_box"] < 1.2,
                  "canvas within 1.2x of the box (64 ppd)": canvases[64.0]["area_vs_box"] < 1.2,
                  "256 ppd grid under 20 s (cold CLI, median)": cold_med < 20.0,

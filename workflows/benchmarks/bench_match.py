@@ -29,6 +29,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from harness.scenarios import a_priori_overlaps
 
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M
@@ -240,27 +241,6 @@ def accuracy() -> None:
                   f"{r.convergence_deg:.0f} | {med} | {p95} | {out} |")
         print()
         print(format_summary(summarize(err, m.pair, rows, overlaps)))
-
-
-def a_priori_overlaps(ms: Any) -> tuple[list[str], list[Any], np.ndarray, np.ndarray, list[tuple[str, str]]]:
-    """A mission's a-priori overlapping pairs (footprints overlapping by >= 2 %), as the plan finds them.
-
-    Returns the image ids, their cameras, a-priori positions (n, 3) and rotations (n, 3, 3), and the pairs.
-    """
-    from mercury_dem.geometry.footprints import overlap_graph
-
-    ids = ms.image_ids
-    cams = [ms.camera(i) for i in ids]
-    uniq: list[Any] = []
-    cam_index = []
-    for c in cams:
-        if c not in uniq:
-            uniq.append(c)
-        cam_index.append(uniq.index(c))
-    pos = np.array([ms.a_priori_pose(i)[0] for i in ids])
-    rot = np.array([ms.a_priori_pose(i)[1] for i in ids])
-    g = overlap_graph(uniq, np.array(cam_index), pos, rot, min_fraction=0.02, radius_m=DATUM_RADIUS_M)
-    return ids, cams, pos, rot, [(ids[a], ids[b]) for a, b in zip(g.i, g.j)]
 
 
 def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None = None, breakdown: bool = False) -> None:

@@ -8,7 +8,7 @@ must join them back. Measured, each in one process, one after the other:
 
 * ``merge_networks(tiles)`` and ``validate(merged)``: seconds and peak memory
   (resident high-water mark above the level before the call, from
-  /proc/self/status after resetting it via /proc/self/clear_refs);
+  /proc/self/status after resetting it via /proc/self/clear_refs: ``harness.peak_window``);
 * side by side, the straightforward references on the same data: a
   pandas ``duplicated``/``groupby`` validation of the same checks, and a
   per-measure Python dict union-find merge (the way ISIS tools loop per point)
@@ -27,33 +27,20 @@ import time
 from pathlib import Path
 
 import numpy as np
+from harness import peak_window
 
 from mercury_dem.io.isis_net import read_isis_network
 from mercury_dem.network import ControlNetwork, merge_networks, validate
 from mercury_dem.network.isis import encode_isis_network
 
 
-def _rss_kib(field: str) -> int:
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith(field):
-                return int(line.split()[1])
-    return 0
-
-
 def measure(fn, *args, **kw):
-    """(result, seconds, peak extra resident memory in MiB) of one call."""
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")  # reset VmHWM to the current RSS
-    except OSError:
-        pass
-    base = _rss_kib("VmRSS:")
-    t0 = time.perf_counter()
-    out = fn(*args, **kw)
-    sec = time.perf_counter() - t0
-    peak = _rss_kib("VmHWM:")
-    return out, sec, (peak - base) / 1024.0
+    """(result, seconds, peak extra resident memory in MiB) of one call, in this process (``harness.peak_window``)."""
+    with peak_window() as w:
+        t0 = time.perf_counter()
+        out = fn(*args, **kw)
+        sec = time.perf_counter() - t0
+    return out, sec, w.extra_bytes / 1024.0**2
 
 
 def synthetic_network(n_points: int, n_images: int, per_point: int = 5, seed: int = 0) -> ControlNetwork:
@@ -176,8 +163,8 @@ def main() -> None:
         rows.append(("decode ISIS .net v5", sec_dec, mem_dec))
         assert back.n_measures == merged.n_measures
     print()
-    print(f"| step | seconds | peak extra memory (MiB) |")
-    print(f"|---|---|---|")
+    print("| step | seconds | peak extra memory (MiB) |")
+    print("|---|---|---|")
     for name, s, mb in rows:
         print(f"| {name} | {s:.2f} | {'n/a' if np.isnan(mb) else f'{mb:.0f}'} |")
     print()

@@ -214,10 +214,9 @@ def main() -> None:
                     rows += run_pairs(images, geom, truth, [pair], base.height, variants, f"surface {sseed} emission {em}")
         summary(rows, ["sphere", *variants], bands=((0, 40), (40, 60), (60, 90)))
         return
-    from mercury_dem.mission import open_mission
+    from harness.scenarios import a_priori_overlaps
 
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from bench_match import a_priori_overlaps
+    from mercury_dem.mission import open_mission
 
     path, n_pairs = pos[1], int(pos[2])
     ms = open_mission(path)

@@ -27,73 +27,14 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import resource
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-
-R = 2_439_400.0
-
-
-class Surface:
-    """Sum of plane waves on the sphere (as the tests' synthetic truth)."""
-
-    def __init__(self, rng: np.random.Generator, n_waves: int = 12, min_wavelength_m: float = 25e3):
-        self.k = rng.normal(size=(n_waves, 3))
-        self.k /= np.linalg.norm(self.k, axis=1)[:, None]
-        lam = rng.uniform(min_wavelength_m, 6 * min_wavelength_m, n_waves)
-        self.freq = 2 * np.pi * R / lam
-        self.amp = 900.0 * (lam / lam.max()) / np.sqrt(n_waves / 4)
-        self.phase = rng.uniform(0, 2 * np.pi, n_waves)
-
-    def height(self, lat: np.ndarray, lon: np.ndarray, block: int = 1 << 20) -> np.ndarray:
-        from mercury_dem.geometry.body import latlon_to_unit
-
-        lat, lon = np.broadcast_arrays(lat, lon)
-        out = np.empty(lat.shape)
-        fl, fo, ff = lat.ravel(), lon.ravel(), out.reshape(-1)
-        for i in range(0, fl.size, block):
-            u = latlon_to_unit(fl[i:i + block], fo[i:i + block])
-            ff[i:i + block] = np.sin(self.freq * (u @ self.k.T) + self.phase) @ self.amp
-        return out
-
-
-def make_dem(surface: Surface, ppd: float, path: Path, shift: tuple[float, float, float]) -> None:
-    from mercury_dem.config.dem import DemConfig
-    from mercury_dem.dem.grid import GridSpec
-    from mercury_dem.geometry.body import MERCURY
-    from mercury_dem.pipeline.dem_stage import atomic_store, create_store
-
-    cfg = DemConfig(pixels_per_degree=ppd, chunk_size=512, lat_min=-90, lat_max=90, lon_min=0, lon_max=360)
-    grid = GridSpec.from_config(cfg, R)
-    lat, lon = grid.lat_centres(), grid.lon_centres()
-    h = surface.height(*np.meshgrid(lat - shift[0], lon - shift[1], indexing="ij")) - shift[2]
-    with atomic_store(path) as tmp:
-        _, layers = create_store(str(tmp), grid, cfg, {"source": "bench_register"}, MERCURY)
-        layers["elevation"][...] = h.astype(np.float32)
-
-
-def make_shots(surface: Surface, n: int, rng: np.random.Generator) -> pd.DataFrame:
-    """Pole-to-pole profiles, ~400 m apart along track, a random 3-D error per profile."""
-    step = 400.0 / R * 180 / np.pi
-    per_track = int(180 / step)
-    n_tracks = max(1, n // per_track)
-    lat = np.tile(np.linspace(-89.9, 89.9, per_track), n_tracks)
-    track = np.repeat(np.arange(n_tracks), per_track)
-    lon0 = rng.uniform(0, 360, n_tracks)
-    lon = (lon0[track] + 0.05 * lat) % 360  # slightly inclined
-    from mercury_dem.altimetry.register import enu_frame
-    from mercury_dem.geometry.body import latlon_to_unit, xyz_to_latlon
-
-    x = latlon_to_unit(lat, lon) * (R + surface.height(lat, lon))[:, None]
-    err = np.c_[rng.normal(0, 30, n_tracks), rng.normal(0, 30, n_tracks), rng.normal(0, 3, n_tracks)]
-    E = enu_frame(lat, lon)
-    x += np.einsum("nij,nj->ni", E, err[track])
-    la, lo, h = xyz_to_latlon(x, R)
-    return pd.DataFrame({"lat": la, "lon": lo, "radius_m": R + h + rng.normal(0, 1.0, la.size), "track_id": track})
+from harness import peak_rss_bytes
+from harness.scenarios import R, Surface, make_dem, make_shots
 
 
 def scipy_reference(win, shots: pd.DataFrame, centre: tuple[float, float], scale: float) -> tuple[float, np.ndarray]:
@@ -208,7 +149,7 @@ def main() -> None:
     t_scipy, tr_scipy = scipy_reference(win, sel, centre, scale)
     tr_ours = np.asarray(res.transform.translation_enu_m)
 
-    rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    rss_gb = peak_rss_bytes() / 1e9
     out = {
         "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()), "machine": platform.processor() or platform.machine(),
         "shots": len(shots), "profiles": int(shots["track_id"].nunique()), "dem_shape": list(ds["elevation"].shape),

@@ -1,11 +1,11 @@
 """Benchmark: peak memory of ``mercury-dem register`` on a global DEM (registered/merged maps block by block).
 
 1. Prepares (once, in this process) a misregistered global ``dem.zarr`` at ``--ppd`` and ``--shots``
-   MLA-like shots (``bench_register.make_dem`` / ``make_shots``) in ``--out``.
+   MLA-like shots (``harness.scenarios.make_dem`` / ``make_shots``, as ``bench_register.py``) in ``--out``.
 2. Runs ``mercury-dem register OUT --altimetry OUT/shots.parquet --overwrite`` (the CLI module) in a
    child process per ``--pythonpath`` (e.g. the old tree and the new one, side by side) and reports
-   its wall time and peak resident memory (the child's own ``getrusage(RUSAGE_SELF).ru_maxrss``,
-   printed by the child as it exits).
+   its wall time, CPU and peak resident memory (``harness.measure``: the child's ``ru_maxrss`` from
+   ``wait4``), appended to ``records/register_memory.jsonl``.
 
 Usage (heavy: run under the lock)::
 
@@ -22,12 +22,13 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from harness import append_record, measure
+from harness.scenarios import Surface, make_dem, make_shots
 
 
 def main() -> None:
@@ -42,9 +43,6 @@ def main() -> None:
     ap.add_argument("--extra", action="append", default=[],
                     help="extra arguments for register, one per --pythonpath (e.g. '--no-products' for a tree that has it)")
     args = ap.parse_args()
-    sys.path.insert(0, str(Path(__file__).parent))
-    from bench_register import Surface, make_dem, make_shots
-
     out = Path(args.out)
     if not (out / "shots.parquet").exists():
         out.mkdir(parents=True, exist_ok=True)
@@ -59,34 +57,31 @@ def main() -> None:
     for tree, extra, block in zip(trees, extras, blocks):
         argv = ["mercury-dem", "register", str(out), "--altimetry", str(out / "shots.parquet"), "--overwrite",
                 *extra.split()]
-        code = ("import resource, runpy, sys\n"
+        code = ("import runpy, sys\n"
                 f"sys.argv = {argv!r}\n"
-                "try:\n    runpy.run_module('mercury_dem.cli', run_name='__main__')\n"
-                "finally:\n    print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+                "runpy.run_module('mercury_dem.cli', run_name='__main__')\n")
         if block is not None:  # the stage alone, through its Python API
             kw = f", block_pixels={block!r}" if block else ""
-            code = ("import resource, sys, tracemalloc\nimport pandas as pd\n"
+            code = ("import sys, tracemalloc\nimport pandas as pd\n"
                     "from mercury_dem.pipeline.register_stage import register_dem_store\n"
                     f"shots = pd.read_parquet({str(out / 'shots.parquet')!r})\n"
                     "tracemalloc.start()\n"
                     f"s = register_dem_store({str(out / 'dem.zarr')!r}, shots, "
                     f"{str(out)!r}, overwrite=True{kw})\n"
                     "print('TRACED_PEAK_B', tracemalloc.get_traced_memory()[1], file=sys.stderr)\n"
-                    "print('registered', s['tiles_registered'], 'tiles; block_rows', s.get('block_rows'))\n"
-                    "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
-        t0 = time.perf_counter()
+                    "print('registered', s['tiles_registered'], 'tiles; block_rows', s.get('block_rows'))\n")
+        # the harness: wall, CPU and the child's peak resident memory (wait4), one child per tree
         # cwd /tmp: 'python -c' puts the current directory first on sys.path, before PYTHONPATH's tree
-        res = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": tree},
-                             capture_output=True, text=True, cwd="/tmp")
-        secs = time.perf_counter() - t0
-        peak = [ln.split()[1] for ln in res.stderr.splitlines() if ln.startswith("PEAK_RSS_KB")]
+        res = measure([sys.executable, "-c", code], label=tree, env={**os.environ, "PYTHONPATH": tree}, cwd="/tmp",
+                      check=False)
         traced = [ln.split()[1] for ln in res.stderr.splitlines() if ln.startswith("TRACED_PEAK_B")]
         rows.append({"tree": tree, "args": extra if block is None else f"API block_pixels={block or 'n/a'}",
-                     "rc": res.returncode, "seconds": round(secs, 1),
-                     "peak_rss_gb": round(int(peak[-1]) / 1e6, 3) if peak else None,
+                     "rc": res.returncode, "seconds": round(res.wall_s, 1), "cpu_seconds": round(res.cpu_s, 1),
+                     "peak_rss_gb": round(res.peak_rss_bytes / 1e9, 3),
                      # numpy/Python allocations during the stage alone (tracemalloc; API mode): no import baseline
                      "stage_traced_peak_gb": round(int(traced[-1]) / 1e9, 3) if traced else None,
                      "last_line": (res.stdout.strip().splitlines() or [res.stderr.strip()[-300:]])[-1]})
+    append_record("register_memory", {"ppd": args.ppd, "shots": int(args.shots), "out": args.out}, {"runs": rows})
     print(json.dumps({"date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
                       "machine": f"{platform.machine()}, {os.cpu_count()} cores", "ppd": args.ppd,
                       "shots": int(args.shots), "runs": rows}, indent=2))

@@ -32,8 +32,6 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 CONVERGENCE_BANDS = ((0, 10), (10, 20), (20, 30), (30, 45), (45, 180))
 TARGETS = {  # (group, figure): (goal, 'max' or 'min')
     ("similar", "p95_px"): (0.5, "max"),

@@ -4,12 +4,12 @@ Usage: blocked_posterior_cost.py STORE. All blocks in one process, the system at
 not depend on the state), sigma0 = 1; CHOLMOD column solves, then block-Jacobi. Do not ask for the dense inverse
 at 10^4 images: 32k unknowns are 8 GB a copy (it was OOM-killed here).
 """
-import resource
 import sys
 import time
 import types
 
 import numpy as np
+from harness import peak_rss_bytes
 
 from mercury_dem.adjust.blocked import (
     BlockShard,
@@ -33,4 +33,4 @@ res = types.SimpleNamespace(omega=np.zeros((setup.n_images, 3)), sigma0=1.0)
 for dense_max, exact_max in ((0, 10**9), (0, 0)):
     p = blocked_posterior_sigmas(eng, setup, res, dense_max_unknowns=dense_max, exact_max_unknowns=exact_max)
     print(setup.n_images, "images", p.method, round(p.seconds, 1), "s, median sigma urad", round(float(np.median(p.image_sigmas)) * 1e6, 3),
-          "peak GB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, flush=True)
+          "peak GB", peak_rss_bytes() / 1e9, flush=True)

@@ -8,9 +8,10 @@ In one process the client's share (the rejection limit over all measures' norms)
 
 import ctypes
 import dataclasses
-import resource
 import sys
 import time
+
+from harness import peak_rss_bytes
 
 from mercury_dem.adjust import blocked
 from mercury_dem.adjust.blocked import (
@@ -25,7 +26,8 @@ from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
 
 
 def rss() -> int:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    """This process's peak resident bytes so far (``harness.peak_rss_bytes``)."""
+    return peak_rss_bytes()
 
 
 class Mallinfo2(ctypes.Structure):

@@ -21,19 +21,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
+import bench_match  # beside this script (its directory is first on sys.path)
+import bench_seeds
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import bench_match  # noqa: E402
-import bench_seeds  # noqa: E402
-
-from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon  # noqa: E402
-from mercury_dem.geometry.pose import image_to_ground, intersect_sphere, pixel_rays, project  # noqa: E402
+from mercury_dem.geometry.body import DATUM_RADIUS_M, xyz_to_latlon
+from mercury_dem.geometry.pose import image_to_ground, intersect_sphere, pixel_rays, project
 
 GROUPS = ["all", "similar", "incidence", "azimuth", "convergence 0-10", "convergence 10-20", "convergence 20-30",
           "convergence 30-45", "convergence 45-+", "similar WAC-WAC", "similar NAC-WAC", "similar NAC-NAC"]
@@ -77,15 +73,16 @@ def main() -> None:
     moved: list[np.ndarray] = []
     fixed_point = bench_match.true_errors
 
-    def both(image_ids: Any, ia: Any, ib: Any, pa: np.ndarray, pb: np.ndarray, truth: Any, height: Any) -> np.ndarray:
-        err = fixed_point(image_ids, ia, ib, pa, pb, truth, height)
+    def both(image_ids: Any, ia: Any, ib: Any, pa: np.ndarray, pb: np.ndarray, truth: Any, height: Any,
+             datum_radius_m: float = DATUM_RADIUS_M) -> np.ndarray:
+        err = fixed_point(image_ids, ia, ib, pa, pb, truth, height, datum_radius_m=datum_radius_m)
         alt = np.full(err.shape, np.nan)
         ia, ib = np.asarray(ia), np.asarray(ib)
         keys = ia * (len(image_ids) + 1) + ib
         for key in np.unique(keys):
             sel = np.flatnonzero(keys == key)
             ta, tb = truth[image_ids[ia[sel[0]]]], truth[image_ids[ib[sel[0]]]]
-            g_fp, _ = image_to_ground(ta.camera, ta.position, ta.rotation, pa[sel], height=height, datum_radius_m=DATUM_RADIUS_M)
+            g_fp, _ = image_to_ground(ta.camera, ta.position, ta.rotation, pa[sel], height=height, datum_radius_m=datum_radius_m)
             g = first_hit(ta.camera, ta.position, ta.rotation, pa[sel], height)
             ok = np.isfinite(g).all(axis=1)
             px, depth = project(tb.camera, tb.position, tb.rotation, np.where(ok[:, None], g, 0.0))
