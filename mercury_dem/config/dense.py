@@ -50,6 +50,11 @@ class DenseConfig(ConfigSection):
     max_chips_per_pair: int = param(
         64, "Chips matched per pair, at most (row-major order; the others are counted as capped)", lo=1,
         hi=1_000_000)
+    max_vertical_px: float = param(
+        0.1, "A chip is split into quadrants (recursively) while its rectification leaves more vertical disparity "
+        "than this (RMS on its grid over the search range): one homography is exact for a plane only, and a whole "
+        "image of the tiny mission (500 km) left 0.4-1.8 px", unit="pixel", lo=0.0)
+    min_chip_px: int = param(32, "A chip is not split below this interior side", unit="pixel", lo=8, hi=4096)
     height_margin_factor: float = param(
         3.0, "Height search margin about the sparse DEM: this many times the robust scatter (1.4826 MAD) of the "
         "tie points' heights about it", lo=0.0, hi=100.0)

@@ -188,7 +188,7 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
     holes: dict[str, int] = {}
     removed: dict[str, int] = {}
     counts = {"pairs": len(pairs), "chips": 0, "chips_failed": 0, "chips_capped": 0, "interior_pixels": 0,
-              "matched": 0, "points": 0}
+              "matched": 0, "points": 0, "chip_parts": 0, "chip_parts_failed": 0}
     per_pair: list[dict[str, Any]] = []
     sgm_max = 0
 
@@ -216,7 +216,8 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
             where = f"pair {left}/{right} chip at ({chip.x0}, {chip.y0})"
             try:
                 res = dense_chip(li, ri, a, b, chip, surface, height_margin_m, settings, limits,
-                                 sigma_floor_px=d.sigma_floor_px)
+                                 sigma_floor_px=d.sigma_floor_px, max_vertical_px=d.max_vertical_px,
+                                 min_chip_px=d.min_chip_px)
             except (MercuryDemError, ValueError, np.linalg.LinAlgError) as exc:
                 counts["chips_failed"] += 1
                 failures.append({"pair": int(index), "left": left, "right": right,
@@ -236,6 +237,8 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
             sgm_max = max(sgm_max, res.sgm_memory_bytes)
             counts["interior_pixels"] += res.interior_pixels
             counts["matched"] += res.matched
+            counts["chip_parts"] += res.parts
+            counts["chip_parts_failed"] += res.parts_failed
             counts["points"] += n
             row["points"] += n
             for k, v in res.holes.items():
@@ -417,6 +420,8 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
         "chips": int(sum(s.get("chips", 0) for s in ok_tiles)),
         "chips_failed": int(sum(s.get("chips_failed", 0) for s in ok_tiles)),
         "chips_capped": int(sum(s.get("chips_capped", 0) for s in ok_tiles)),
+        "chip_parts": int(sum(s.get("chip_parts", 0) for s in ok_tiles)),
+        "chip_parts_failed": int(sum(s.get("chip_parts_failed", 0) for s in ok_tiles)),
         "points": int(sum(s.get("points", 0) for s in ok_tiles)),
         "interior_pixels": int(sum(s.get("interior_pixels", 0) for s in ok_tiles)),
         "holes": _sum_dicts(s.get("holes", {}) for s in ok_tiles),
