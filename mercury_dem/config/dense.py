@@ -72,8 +72,13 @@ class DenseConfig(ConfigSection):
                              lo=-1.0, hi=1.0)
     # --- points (PointFilter) -----------------------------------------------------------------
     sigma_floor_px: float = param(
-        0.05, "Disparity error added in quadrature to the matcher's for the cameras and the rectification",
-        unit="pixel", lo=0.0)
+        0.17, "Disparity error added in quadrature to the matcher's for what its window residuals do not show "
+        "(view-dependent shading, the rectification, the cameras), in pixels of the pair's coarser image; "
+        "calibrated with dense.sigma_scale on the tiny mission's cloud (seed 42: the points' RMS disparity error "
+        "against the truth per decile of the matcher's sigma; docs/design/dense.md)", unit="pixel", lo=0.0)
+    sigma_scale: float = param(
+        1.2, "Factor on the matcher's least-squares disparity sigma (which assumes the residuals are noise) "
+        "before the floor is added; calibrated with dense.sigma_floor_px", lo=0.0, hi=100.0)
     max_miss_pixels: float = param(1.0, "Largest ray miss distance, in left-image pixels at the point's range",
                                    unit="pixel", lo=0.0)
     min_angle_deg: float = param(5.0, "Smallest triangulation angle of a point", unit="deg", lo=0.0, hi=180.0)

@@ -107,7 +107,11 @@ def rectify_split(
 
 
 def _concat_points(parts: list[DensePoints]) -> DensePoints:
-    return DensePoints(*(np.concatenate([getattr(p, f) for p in parts]) for f in DensePoints.__dataclass_fields__))
+    def cat(f: str) -> NDArray[np.float64] | None:
+        arrays = [getattr(p, f) for p in parts]
+        return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    return DensePoints(*(cat(f) for f in DensePoints.__dataclass_fields__))
 
 
 @dataclass(frozen=True)
@@ -161,6 +165,7 @@ def dense_chip(
     psf_sigma_px: float = 0.6,
     max_vertical_px: float = 0.1,
     min_chip_px: int = 32,
+    sigma_scale: float = 1.0,
 ) -> ChipResult:
     """Rectify (split while not epipolar: :func:`rectify_split`), match, triangulate and filter one chip
     (each step's parameters as in its module).
@@ -182,7 +187,8 @@ def dense_chip(
         inner = dm.holes[rect.interior_mask()]
         for k, bit in HOLE_FLAGS.items():
             holes[k] += int(np.count_nonzero(inner & bit))
-        pts = triangulate_chip(rect, left, right, dm.disparity, dm.sigma_px, dm.score, sigma_floor_px)
+        pts = triangulate_chip(rect, left, right, dm.disparity, dm.sigma_px, dm.score, sigma_floor_px,
+                               sigma_scale=sigma_scale)
         kept, rem = filter_points(pts, left, limits)
         for k, v in rem.items():
             removed[k] = removed.get(k, 0) + v
