@@ -9,6 +9,7 @@ triangulation and the point filters on one chip and returns the points with what
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -111,7 +112,8 @@ def _concat_points(parts: list[DensePoints]) -> DensePoints:
         arrays = [getattr(p, f) for p in parts]
         return None if any(a is None for a in arrays) else np.concatenate(arrays)
 
-    return DensePoints(*(cat(f) for f in DensePoints.__dataclass_fields__))
+    values: dict[str, Any] = {f: cat(f) for f in DensePoints.__dataclass_fields__}
+    return DensePoints(**values)
 
 
 @dataclass(frozen=True)

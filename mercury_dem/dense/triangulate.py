@@ -23,6 +23,7 @@ Per point:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,8 +70,9 @@ class DensePoints:
 
     def subset(self, keep: NDArray[np.bool_]) -> DensePoints:
         """The points where ``keep`` (N,) is True."""
-        return DensePoints(*(None if getattr(self, f) is None else getattr(self, f)[keep]
-                             for f in self.__dataclass_fields__))
+        values: dict[str, Any] = {f: (None if getattr(self, f) is None else getattr(self, f)[keep])
+                                  for f in self.__dataclass_fields__}
+        return DensePoints(**values)
 
 
 def intersect_rays(
