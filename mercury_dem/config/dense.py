@@ -50,6 +50,11 @@ class DenseConfig(ConfigSection):
     max_chips_per_pair: int = param(
         64, "Chips matched per pair, at most (row-major order; the others are counted as capped)", lo=1,
         hi=1_000_000)
+    max_vertical_px: float = param(
+        0.1, "A chip is split into quadrants (recursively) while its rectification leaves more vertical disparity "
+        "than this (RMS on its grid over the search range): one homography is exact for a plane only, and a whole "
+        "image of the tiny mission (500 km) left 0.4-1.8 px", unit="pixel", lo=0.0)
+    min_chip_px: int = param(32, "A chip is not split below this interior side", unit="pixel", lo=8, hi=4096)
     height_margin_factor: float = param(
         3.0, "Height search margin about the sparse DEM: this many times the robust scatter (1.4826 MAD) of the "
         "tie points' heights about it", lo=0.0, hi=100.0)
@@ -67,8 +72,13 @@ class DenseConfig(ConfigSection):
                              lo=-1.0, hi=1.0)
     # --- points (PointFilter) -----------------------------------------------------------------
     sigma_floor_px: float = param(
-        0.05, "Disparity error added in quadrature to the matcher's for the cameras and the rectification",
-        unit="pixel", lo=0.0)
+        0.17, "Disparity error added in quadrature to the matcher's for what its window residuals do not show "
+        "(view-dependent shading, the rectification, the cameras), in pixels of the pair's coarser image; "
+        "calibrated with dense.sigma_scale on the tiny mission's cloud (seed 42: the points' RMS disparity error "
+        "against the truth per decile of the matcher's sigma; docs/design/dense.md)", unit="pixel", lo=0.0)
+    sigma_scale: float = param(
+        1.2, "Factor on the matcher's least-squares disparity sigma (which assumes the residuals are noise) "
+        "before the floor is added; calibrated with dense.sigma_floor_px", lo=0.0, hi=100.0)
     max_miss_pixels: float = param(1.0, "Largest ray miss distance, in left-image pixels at the point's range",
                                    unit="pixel", lo=0.0)
     min_angle_deg: float = param(5.0, "Smallest triangulation angle of a point", unit="deg", lo=0.0, hi=180.0)

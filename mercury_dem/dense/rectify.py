@@ -27,7 +27,8 @@ approximation; what the approximation costs is only a residual vertical disparit
 (``vertical_rms_px``, measured on the grid over the search range: the rectification error, S2P's
 "about 1/10 pixel").
 
-The search range is the height margin converted to disparity (plus a stated pixel margin), rounded
+The search range is the height margin converted to disparity, plus the largest epipolar residual of the
+surface homography on the grid (the surface is not a plane), plus a stated pixel margin, rounded
 to OpenCV's multiple of 16, so SGM's memory (``width x height x disparities`` 16-bit costs, twice) is
 bounded and stated per chip (:attr:`RectifiedChip.sgm_memory_bytes`).
 """
@@ -216,6 +217,11 @@ def rectify_chip(
     rot = np.array([[c, s], [-s, c]])  # left px offset -> rectified (the parallax direction to +x)
     vertical = np.concatenate([p @ rot[1] for p in par])
     vertical_rms = float(np.sqrt(np.mean(vertical**2)))
+    # the homography is exact for a plane only: on the current surface itself (curved over a chip of a
+    # coarse image, rough) it leaves a residual whose epipolar part is a disparity offset the search range
+    # must hold (on the tiny mission's whole-image chips 2-9 px, which the margin alone did not cover)
+    along = (apply_homography(s21, px2) - px1) @ rot[0]
+    offset_px = float(np.max(np.abs(along))) if along.size else 0.0
     # Parallax at the chip centre (nearest grid point to it).
     k = int(np.argmin(np.sum((px1 - chip.centre) ** 2, axis=-1)))
     rate = float(per_m[k] @ rot[0])
@@ -245,7 +251,7 @@ def rectify_chip(
         lr = np.asarray(cv2.GaussianBlur(lr, (0, 0), sigmaX=psf_sigma_px * float(np.sqrt(1.0 / scale**2 - 1.0))),
                         np.float32)
     rr, rv = warp_to_reference(np.asarray(right_image, np.float32), to_right, shape, scale, psf_sigma_px)
-    span = abs(rate) * dh + margin_px
+    span = abs(rate) * dh + offset_px + margin_px
     dmin, dmax = -span, span
     n = int(16 * np.ceil((int(np.ceil(dmax) - np.floor(dmin)) + 1) / 16))
     memory = 2 * 2 * hh * ww * n

@@ -13,8 +13,9 @@ Per point:
 * ``sigma_h_m``: the stated vertical precision, ``|dh/dd| * sigma_d``: the height change per pixel of
   disparity along the rectified epipolar direction (finite difference through the same triangulation,
   so the pair's geometry -- parallax/height ratio, pixel scale, obliquity -- is in it exactly), times the
-  matcher's stated disparity precision (:mod:`mercury_dem.dense.disparity`) combined with a floor for the
-  rectification and camera error (``sigma_floor_px``).
+  matcher's stated disparity precision (:mod:`mercury_dem.dense.disparity`, times ``sigma_scale``) combined
+  with a floor (``sigma_floor_px``) for what the window's residuals do not show: the rectification, the
+  cameras, and view-dependent shading.
 
 :func:`filter_points` applies the limits on each and says how many each removed.
 """
@@ -22,6 +23,7 @@ Per point:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +47,9 @@ class DensePoints:
     angle_deg : ndarray (N,), triangulation angle, degrees
     sigma_h_m : ndarray (N,), stated vertical precision (1 sigma), metres
     score : ndarray (N,), the matcher's score (zero-mean normalised correlation)
+    sigma_match_px : ndarray (N,) or None, the matcher's own disparity sigma (rectified pixels, before
+        ``sigma_scale`` and the floor): kept so the precision model can be recalibrated on the cloud
+    m_per_px : ndarray (N,) or None, ``|dh/dd|``, metres of height per rectified pixel of disparity
     """
 
     xyz: NDArray[np.float64]
@@ -57,13 +62,17 @@ class DensePoints:
     angle_deg: NDArray[np.float64]
     sigma_h_m: NDArray[np.float64]
     score: NDArray[np.float64]
+    sigma_match_px: NDArray[np.float64] | None = None
+    m_per_px: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return int(self.height.shape[0])
 
     def subset(self, keep: NDArray[np.bool_]) -> DensePoints:
         """The points where ``keep`` (N,) is True."""
-        return DensePoints(*(getattr(self, f)[keep] for f in self.__dataclass_fields__))
+        values: dict[str, Any] = {f: (None if getattr(self, f) is None else getattr(self, f)[keep])
+                                  for f in self.__dataclass_fields__}
+        return DensePoints(**values)
 
 
 def intersect_rays(
@@ -105,6 +114,7 @@ def triangulate_chip(
     score: NDArray[np.float32] | None = None,
     sigma_floor_px: float = 0.05,
     interior_only: bool = True,
+    sigma_scale: float = 1.0,
 ) -> DensePoints:
     """Dense points of a chip's valid disparities.
 
@@ -119,6 +129,11 @@ def triangulate_chip(
         error (a stated floor; the bundle adjustment's sigma0 in pixels is the natural value), in pixels
         of the coarser image (scaled by ``rect.coarser_px`` into rectified pixels)
     interior_only : keep only the chip's interior (the collar is context for the matcher)
+    sigma_scale : factor on the matcher's ``sigma_px`` before the floor is added: its least-squares precision
+        assumes the residuals are noise, while a shading difference between the views (the mission
+        renderer's Lommel-Seeliger term) shifts the match coherently over the window. The stated disparity
+        precision is ``hypot(sigma_scale * sigma_px, sigma_floor_px * coarser_px)``; the stage's values are
+        calibrated on dense residuals (``dense.sigma_scale``, ``dense.sigma_floor_px``)
 
     Returns
     -------
@@ -145,9 +160,10 @@ def triangulate_chip(
     hs = [xyz_to_latlon(with_right(apply_homography(rect.to_right, np.stack([u + dd + step, v], axis=-1)))[0],
                         left.datum_radius_m)[2] for step in (-0.5, 0.5)]
     dh_dd = np.abs(hs[1] - hs[0])
-    sig_d = np.hypot(sigma_px[ok].astype(np.float64), sigma_floor_px * rect.coarser_px)
+    sig_d = np.hypot(sigma_scale * sigma_px[ok].astype(np.float64), sigma_floor_px * rect.coarser_px)
     sc = np.full(u.shape, np.nan) if score is None else score[ok].astype(np.float64)
-    return DensePoints(xyz, lat, lon, h, lpx, rpx, miss, angle, dh_dd * sig_d, sc)
+    return DensePoints(xyz, lat, lon, h, lpx, rpx, miss, angle, dh_dd * sig_d, sc,
+                       sigma_px[ok].astype(np.float64), dh_dd)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,8 @@ After the DEM stage (the sparse ``dem.zarr`` and, where the mission has altimetr
    ``memory_bytes``).
 3. **The cloud**: ``dense.zarr/tile_XXX/`` (columnar: ``lat``, ``lon``, ``height``, ``sigma_h_m``, ``miss_m``,
    ``angle_deg``, ``score``, ``pair`` (index into ``dense.zarr``'s ``pairs`` attribute), ``left_px``,
-   ``right_px``), written atomically by its task, marked ``complete`` in its attributes with the tile's summary;
+   ``right_px``, ``sigma_match_px`` (the matcher's own disparity sigma) and ``m_per_px`` (height per pixel of
+   disparity), from which ``sigma_h_m`` is made), written atomically by its task, marked ``complete`` in its attributes with the tile's summary;
    a resumed run skips complete tiles.
 4. **The dense DEM** ``dem_dense.zarr``: the cloud gridded by the DEM stage's gridding (``dem.method``, ...)
    at ``dense.grid_pixel_factor`` x the pairs' median pixel scale; where no dense point reaches, the sparse DEM
@@ -46,6 +47,7 @@ from mercury_dem.io.run_store import DEM_DENSE_FILE, DENSE_FILE, RunStore, read_
 CLOUD_COLUMNS: dict[str, Any] = {
     "lat": np.float64, "lon": np.float64, "height": np.float64, "sigma_h_m": np.float32, "miss_m": np.float32,
     "angle_deg": np.float32, "score": np.float32, "pair": np.int32, "left_px": np.float32, "right_px": np.float32,
+    "sigma_match_px": np.float32, "m_per_px": np.float32,
 }
 
 
@@ -188,7 +190,7 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
     holes: dict[str, int] = {}
     removed: dict[str, int] = {}
     counts = {"pairs": len(pairs), "chips": 0, "chips_failed": 0, "chips_capped": 0, "interior_pixels": 0,
-              "matched": 0, "points": 0}
+              "matched": 0, "points": 0, "chip_parts": 0, "chip_parts_failed": 0}
     per_pair: list[dict[str, Any]] = []
     sgm_max = 0
 
@@ -216,7 +218,8 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
             where = f"pair {left}/{right} chip at ({chip.x0}, {chip.y0})"
             try:
                 res = dense_chip(li, ri, a, b, chip, surface, height_margin_m, settings, limits,
-                                 sigma_floor_px=d.sigma_floor_px)
+                                 sigma_floor_px=d.sigma_floor_px, max_vertical_px=d.max_vertical_px,
+                                 min_chip_px=d.min_chip_px, sigma_scale=d.sigma_scale)
             except (MercuryDemError, ValueError, np.linalg.LinAlgError) as exc:
                 counts["chips_failed"] += 1
                 failures.append({"pair": int(index), "left": left, "right": right,
@@ -236,6 +239,8 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
             sgm_max = max(sgm_max, res.sgm_memory_bytes)
             counts["interior_pixels"] += res.interior_pixels
             counts["matched"] += res.matched
+            counts["chip_parts"] += res.parts
+            counts["chip_parts_failed"] += res.parts_failed
             counts["points"] += n
             row["points"] += n
             for k, v in res.holes.items():
@@ -252,6 +257,8 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
             cols["pair"].append(np.full(n, index))
             cols["left_px"].append(p.left_px)
             cols["right_px"].append(p.right_px)
+            cols["sigma_match_px"].append(p.sigma_match_px if p.sigma_match_px is not None else np.full(n, np.nan))
+            cols["m_per_px"].append(p.m_per_px if p.m_per_px is not None else np.full(n, np.nan))
     image_bytes = sum(int(v.nbytes) for v in images.values())
     summary = {
         "tile": int(tile_id), "ok": True, **counts, "holes": holes, "removed": removed, "failures": failures,
@@ -417,6 +424,8 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
         "chips": int(sum(s.get("chips", 0) for s in ok_tiles)),
         "chips_failed": int(sum(s.get("chips_failed", 0) for s in ok_tiles)),
         "chips_capped": int(sum(s.get("chips_capped", 0) for s in ok_tiles)),
+        "chip_parts": int(sum(s.get("chip_parts", 0) for s in ok_tiles)),
+        "chip_parts_failed": int(sum(s.get("chip_parts_failed", 0) for s in ok_tiles)),
         "points": int(sum(s.get("points", 0) for s in ok_tiles)),
         "interior_pixels": int(sum(s.get("interior_pixels", 0) for s in ok_tiles)),
         "holes": _sum_dicts(s.get("holes", {}) for s in ok_tiles),

@@ -80,3 +80,58 @@ def test_a_rotated_chip_keeps_its_whole_interior_and_its_collar(lambert_pair) ->
     assert rows.min() >= 11 and cols.min() >= 11 and hh - rows.max() >= 12 and ww - cols.max() >= 12
     v0, v1, u0, u1 = rect.interior
     assert (v0, v1, u0, u1) == (rows.min(), rows.max() + 1, cols.min(), cols.max() + 1)
+
+
+@pytest.fixture(scope="module")
+def wide_pair():
+    """The test pair's geometry at 2 km/px (the tiny mission's scale): a 256^2 chip spans 500 km of a curved
+    body, over which one homography is not epipolar. Blank images: only the geometry is used.
+    """
+    from dense_scene import RenderedPair, sun_at, truth_surface, view
+
+    sun = sun_at(45.0, 90.0)
+    blank = np.zeros((256, 256), np.float32)
+    return RenderedPair(truth_surface(), blank, blank, view(0.0, sun, gsd_m=2000.0), view(25.0, sun, gsd_m=2000.0),
+                        None)
+
+
+def test_a_wide_chip_is_split_until_it_is_epipolar(wide_pair) -> None:
+    """Whole, the 500-km chip leaves over a pixel of the truth's vertical disparity (measured 0.4-1.8 px on the
+    tiny mission); split by its own vertical_rms_px (no truth), every part keeps the truth's vertical disparity
+    under 0.1 px and its true disparities inside the stated search range, and the parts tile the chip once.
+    """
+    from mercury_dem.dense.chip import rectify_split
+
+    p = wide_pair
+    chip = Chip(0, 0, 256, 256, 16)
+    surface = p.current_surface
+    whole = rectify_chip(p.left_image, p.right_image, p.left, p.right, chip, surface, 800.0)
+    _, vertical = true_disparity(p, whole)
+    assert whole.vertical_rms_px > 0.1 and np.sqrt(np.mean(vertical[whole.interior_mask()] ** 2)) > 0.1
+    parts, failed = rectify_split(p.left_image, p.right_image, p.left, p.right, chip, surface, 800.0,
+                                  max_vertical_px=0.1, min_chip_px=16)
+    assert failed == 0 and len(parts) > 1
+    assert sum(c.width * c.height for c, _ in parts) == 256 * 256
+    covered = np.zeros((256, 256), int)
+    for c, rect in parts:
+        covered[c.y0:c.y0 + c.height, c.x0:c.x0 + c.width] += 1
+        assert rect.vertical_rms_px <= 0.1 or min(c.width, c.height) < 32
+        d, vertical = true_disparity(p, rect)
+        inner = rect.interior_mask()
+        assert np.sqrt(np.mean(vertical[inner] ** 2)) < 0.1
+        assert rect.disparity_min_px <= d[inner].min() and d[inner].max() <= rect.disparity_max_px
+    assert (covered == 1).all()
+
+
+def test_the_search_range_holds_the_surface_homography_residual(wide_pair) -> None:
+    """On a curved surface the homography's residual along the epipolar lines is a disparity offset (pixels on a
+    500-km chip): the true disparities lie inside the stated range even for the whole chip.
+    """
+    p = wide_pair
+    rect = rectify_chip(p.left_image, p.right_image, p.left, p.right, Chip(0, 0, 256, 256, 16), p.current_surface,
+                        800.0)
+    d, _ = true_disparity(p, rect)
+    inner = rect.interior_mask() & np.isfinite(d)
+    margin = 800.0 * abs(rect.parallax_px_per_m) + 2.0
+    assert np.abs(d[inner]).max() > margin  # the margin alone would clip
+    assert rect.disparity_min_px <= d[inner].min() and d[inner].max() <= rect.disparity_max_px

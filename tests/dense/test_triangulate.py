@@ -151,3 +151,26 @@ def test_a_coarser_right_image_across_the_other_axis(coarse_east_pair) -> None:
     assert rms < 0.33 * m_per_px, rms
     assert 0.7 <= ratio <= 1.5, ratio
     assert beyond <= 0.02, beyond
+
+
+def test_the_stated_precision_is_rebuilt_from_its_stored_parts(lambert_pair, lambert_points) -> None:
+    """``sigma_h_m = m_per_px * hypot(sigma_scale * sigma_match_px, floor * coarser_px)``: the cloud keeps the
+    matcher's own sigma and |dh/dd| so the precision model can be recalibrated on it (docs/design/dense.md);
+    ``sigma_scale`` multiplies the matcher's term only.
+    """
+    pts, _ = lambert_points
+    rect = chip_of(lambert_pair)
+    assert pts.sigma_match_px is not None and pts.m_per_px is not None
+    np.testing.assert_allclose(pts.sigma_h_m, pts.m_per_px * np.hypot(pts.sigma_match_px,
+                                                                      RENDER_FLOOR_PX * rect.coarser_px), rtol=1e-9)
+    # |dh/dd| is the pair's metres of height per pixel of disparity (pixel scale over parallax/height)
+    assert np.median(pts.m_per_px) == pytest.approx(M_PER_PX, rel=0.05)
+    dm = dense_disparity(rect.left, rect.right, rect.left_valid, rect.right_valid, rect.disparity_min_px,
+                         rect.disparity_max_px, SETTINGS)
+    twice = triangulate_chip(rect, lambert_pair.left, lambert_pair.right, dm.disparity, dm.sigma_px, dm.score,
+                             sigma_floor_px=0.0, sigma_scale=2.0)
+    once = triangulate_chip(rect, lambert_pair.left, lambert_pair.right, dm.disparity, dm.sigma_px, dm.score,
+                            sigma_floor_px=0.0)
+    np.testing.assert_allclose(twice.sigma_h_m, 2.0 * once.sigma_h_m, rtol=1e-12)
+    kept, _ = filter_points(twice, lambert_pair.left)
+    assert kept.sigma_match_px is not None and len(kept.sigma_match_px) == len(kept)

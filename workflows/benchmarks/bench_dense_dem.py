@@ -1,0 +1,71 @@
+"""Dense DEM against the sparse one on the tiny mission (issue 31, 'Done when' 1 and 2).
+
+For each seed: the ``tiny`` mission generated and run in-process with the pipeline tests' configuration
+(``tests/pipeline/conftest.py``; or an existing run given with ``--run``, copied first), then resumed with
+``dense.enabled`` and ``--force dense``. Prints per seed the issue's ratio (the dense DEM's RMSE over the sparse
+DEM's on the pixels the dense points reach), both biases, and the precision figures of the points against the
+truth: true RMS / stated RMS and the share beyond 3 stated sigma.
+
+Run (heavy: a whole tiny run per seed, ~5 min, plus the dense stage, 1-2 min; take the lock):
+    flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense_dem.py
+        --workdir /tmp/dense_dem --seeds 42 7 [--run 42=/path/to/run]   (one command line)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the seeds and print one table row each."""
+    from mercury_dem.config.synth import SynthConfig
+    from mercury_dem.mission import open_mission
+    from mercury_dem.pipeline.dense_stage import read_cloud
+    from mercury_dem.pipeline.graph import run_pipeline
+    from mercury_dem.synth.generate import generate_mission
+    from tests.pipeline.conftest import tiny_config
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workdir", type=Path, required=True)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[42, 7])
+    ap.add_argument("--run", action="append", default=[], help="SEED=RUN: an existing tiny run of that seed")
+    args = ap.parse_args(argv)
+    given = {int(k): Path(v) for k, v in (r.split("=", 1) for r in args.run)}
+    print(f"# bench_dense_dem {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    print("| seed | points | parts / chips | dense RMSE (bias) m | sparse RMSE (bias) m | ratio | true/stated | > 3 sigma "
+          "| stage s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        root = args.workdir / f"seed{seed}"
+        run = root / "dense_run"
+        shutil.rmtree(run, ignore_errors=True)
+        if seed in given:
+            shutil.copytree(given[seed], run)
+            mission = Path(json.loads((run / "run.json").read_text())["mission"])
+        else:
+            mission = root / "mission"
+            if not (mission / "catalog.parquet").exists():
+                generate_mission(mission, SynthConfig(preset="tiny", seed=seed))
+            run_pipeline(mission, run, tiny_config(), scheduler="sync", stream=None)
+        rep = run_pipeline(mission, run, tiny_config(dense={"enabled": True}), scheduler="sync", stream=None,
+                           force="dense")
+        d, v = rep["dense"], rep["validation"]["dem"]
+        a, b = v["dense_on_dense_pixels"], v["sparse_on_dense_pixels"]
+        cloud = read_cloud(run / "dense.zarr")
+        err = cloud["height"] - open_mission(mission).need_truth().surface().height(cloud["lat"], cloud["lon"])
+        sig = cloud["sigma_h_m"].astype(np.float64)
+        ratio = float(np.sqrt(np.mean(err**2) / np.mean(sig**2)))
+        beyond = float(np.mean(np.abs(err) > 3 * sig))
+        print(f"| {seed} | {d['points']} | {d.get('chip_parts')} / {d['chips']} | {a['rmse_m']:.0f} ({a['bias_m']:+.0f}) "
+              f"| {b['rmse_m']:.0f} ({b['bias_m']:+.0f}) | {d['dem']['rmse_ratio_dense_over_sparse']:.2f} | {ratio:.2f} "
+              f"| {100 * beyond:.2f} % | {rep['timings']['dense']:.0f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
