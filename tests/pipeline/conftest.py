@@ -8,17 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
 from mercury_dem.config import Config, load_config
 
-#: The configuration the pipeline tests use, as YAML would give it (tests that run the CLI write it out).
-TINY_OVERRIDES: dict[str, Any] = {
-    "dem": {
-        "pixels_per_degree": 4.0, "lat_min": -20.0, "lat_max": 30.0, "lon_min": -25.0, "lon_max": 25.0,
-        "chunk_size": 64, "browse_width": 256, "stats_pixel_km": 20.0, "coverage_pixel_km": 20.0,
-    },
-    "execution": {"retries": 2},
-}
+#: The configuration the pipeline tests use, as YAML gives it (tests that run the CLI write it out); the same
+#: file the tiny-mission benchmarks read.
+TINY_CONFIG_FILE = Path(__file__).resolve().parents[2] / "workflows" / "tiny.yaml"
+TINY_OVERRIDES: dict[str, Any] = yaml.safe_load(TINY_CONFIG_FILE.read_text())
 
 
 def tiny_config(**sections: dict[str, Any]) -> Config:

@@ -1,7 +1,7 @@
 """Dense DEM against the sparse one on the tiny mission (issue 31, 'Done when' 1 and 2).
 
 For each seed: the ``tiny`` mission generated and run in-process with the pipeline tests' configuration
-(``tests/pipeline/conftest.py``; or an existing run given with ``--run``, copied first), then resumed with
+(``workflows/tiny.yaml``; or an existing run given with ``--run``, copied first), then resumed with
 ``dense.enabled`` and ``--force dense``. Prints per seed the issue's ratio (the dense DEM's RMSE over the sparse
 DEM's on the pixels the dense points reach), both biases, and the precision figures of the points against the
 truth: true RMS / stated RMS and the share beyond 3 stated sigma.
@@ -22,6 +22,21 @@ from pathlib import Path
 import numpy as np
 
 
+TINY_CONFIG = Path(__file__).resolve().parents[1] / "tiny.yaml"
+
+
+def tiny_config(**sections: dict) -> object:
+    """The tests' tiny-mission configuration (``workflows/tiny.yaml``) with some sections updated."""
+    import yaml
+
+    from mercury_dem.config import load_config
+
+    base = yaml.safe_load(TINY_CONFIG.read_text())
+    for k, v in sections.items():
+        base.setdefault(k, {}).update(v)
+    return load_config(overrides=base)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Run the seeds and print one table row each."""
     from mercury_dem.config.synth import SynthConfig
@@ -29,7 +44,6 @@ def main(argv: list[str] | None = None) -> None:
     from mercury_dem.pipeline.dense_stage import read_cloud
     from mercury_dem.pipeline.graph import run_pipeline
     from mercury_dem.synth.generate import generate_mission
-    from tests.pipeline.conftest import tiny_config
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workdir", type=Path, required=True)
