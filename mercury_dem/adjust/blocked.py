@@ -59,7 +59,14 @@ from mercury_dem.adjust.kernels import (
     schur_pairs_grouped,
     schur_pairs_table,
 )
-from mercury_dem.adjust.posterior import image_covariances, selected_inverse, sigmas_of
+from mercury_dem.adjust.posterior import (
+    image_covariances,
+    inverse_pair_blocks,
+    keyed_pair_blocks,
+    point_covariances,
+    selected_inverse,
+    sigmas_of,
+)
 from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.robust import loss_rho, rejection_limit
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
@@ -331,6 +338,19 @@ class PointBlockState:
         vd = self.v.copy()
         vd[:, range(3), range(3)] += lam * self.dv
         return inv3(vd)
+
+    def point_sigmas(self, keys: NDArray[np.int64], blocks: NDArray[np.float64], n_images: int,
+                     sigma0: float) -> NDArray[np.float64]:
+        """A-posteriori XYZ sigmas (n_pt, 3) m of the block's points at the last linearization (undamped), from the
+        reduced system's inverse blocks ``blocks`` of the pair ``keys`` (:func:`posterior.point_covariances`;
+        held and frozen points 0).
+        """
+        fixed = self.held_p | self.frozen
+        get = keyed_pair_blocks(keys, blocks, self.cams, n_images)
+        cov = point_covariances(get, C, sigma0, self._w(), self._v_inv(0.0), self.cam, self.pt, ~fixed, self.held_c)
+        sig = sigmas_of(cov)
+        sig[fixed] = 0.0
+        return sig
 
     def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
@@ -630,6 +650,11 @@ class BlockShard:
             out.append((b.block, b.pixels(r)))
         return out
 
+    def point_sigmas(self, keys: NDArray[np.int64], blocks: NDArray[np.float64],
+                     sigma0: float) -> list[tuple[int, NDArray[np.float64]]]:
+        """(block, a-posteriori point sigmas (n_pt, 3)) of every block (see :meth:`PointBlockState.point_sigmas`)."""
+        return [(b.block, b.point_sigmas(keys, blocks, self.n_images, sigma0)) for b in self.blocks]
+
     def block_results(self) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
                                           NDArray[np.float64]]]:
         """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
@@ -891,10 +916,12 @@ class BlockedPosterior:
     factor_nnz: int = 0
     factor_seconds: float = 0.0
     recurrence_seconds: float = 0.0
+    #: with ``points``: (block, point sigmas (n_pt, 3) m) of every block, from the shards
+    point_sigmas: list[tuple[int, NDArray[np.float64]]] | None = None
 
 
 def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: BlockedResult,
-                             method: str = "auto") -> BlockedPosterior:
+                             method: str = "auto", points: bool = False) -> BlockedPosterior:
     """Per-image a-posteriori pointing covariances and sigmas at the solution of :func:`blocked_levenberg_marquardt`.
 
     The undamped reduced camera system ``S`` (the shards' ``linearize`` and ``reduce(0)`` at the final state,
@@ -902,7 +929,9 @@ def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: Blocked
     an iteration; the covariances are ``sigma0^2 (S^-1)_ii``, as the in-memory adjuster's
     (``bundle.posterior_sigmas``), from the selected inverse of ``S``'s sparse factor
     (:func:`mercury_dem.adjust.posterior.selected_inverse`: CHOLMOD, or SuperLU with ``method="splu"`` or without
-    scikit-sparse), exact at any size the factor fits in this process. Point sigmas are not computed here.
+    scikit-sparse), exact at any size the factor fits in this process. With ``points``, the inverse's blocks of
+    every image pair of ``S`` (72 bytes each) go to every shard, which returns its points' sigmas (24 bytes a
+    point): ``sigma0^2 (V^-1 + sum Y^T S^-1 Y)`` over the pairs of each point's measures.
 
     Leaves the shards' linearization at the final state (their points, accepted sets and residuals unchanged).
     """
@@ -927,7 +956,13 @@ def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: Blocked
         del u
         # the held images' rows and columns: identity (their W are zero, their pair blocks with others too)
         inverse = selected_inverse(glob.to_bsr(blocks), method)
+        nonzero = np.any(blocks != 0, axis=(1, 2))
         del blocks
         cov = image_covariances(inverse, n_cam, C, result.sigma0, held_c)
-    return BlockedPosterior(sigmas_of(cov), inverse.method, time.perf_counter() - t0, cov, inverse.nnz,
-                            inverse.factor_seconds, inverse.recurrence_seconds)
+        cost = (inverse.method, inverse.nnz, inverse.factor_seconds, inverse.recurrence_seconds)
+        pt_sig = None
+        if points:
+            pair = inverse_pair_blocks(inverse, glob.keys, n_cam, C, held_c, nonzero)
+            del inverse
+            pt_sig = [x for part in engine.call("point_sigmas", glob.keys, pair, result.sigma0) for x in part]
+    return BlockedPosterior(sigmas_of(cov), cost[0], time.perf_counter() - t0, cov, *cost[1:], point_sigmas=pt_sig)

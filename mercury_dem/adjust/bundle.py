@@ -210,7 +210,7 @@ def posterior_covariances(
     cov_c = image_covariances(inverse, n_cam, c, sigma0, held)
     if not points:
         return cov_c, None
-    cov_p = point_covariances(inverse, c, sigma0, wm, v_inv, cam, pt, free_pt, held)
+    cov_p = point_covariances(lambda i, k: inverse.blocks(i, k, c), c, sigma0, wm, v_inv, cam, pt, free_pt, held)
     cov_p[~free_pt] = 0.0
     return cov_c, cov_p
 

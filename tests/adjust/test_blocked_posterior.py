@@ -47,8 +47,8 @@ def _scaled(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def test_covariances_equal_the_in_memory_ones(problem, reference) -> None:
-    """Same solution, same weights and accepted set (outliers rejected): the same covariances, sums in another
-    order (bound 1e-9, correlation-scaled; sigmas measured within 1e-13 relative on seeds 43 and 47)."""
+    """Same solution, same weights and accepted set (outliers rejected): the same image covariances and point
+    sigmas, sums in another order (bound 1e-9, correlation-scaled; sigmas measured within 1e-13 relative)."""
     assert reference.n_rejected > 0
     res = blocked_bundle_adjust(problem, CFG, block_points=300)
     assert res.extra["blocked"]["blocks"] > 2
@@ -58,7 +58,11 @@ def test_covariances_equal_the_in_memory_ones(problem, reference) -> None:
     assert np.all(res.image_covariances[2] == 0.0)
     assert _rel(res.image_sigmas, reference.image_sigmas) < 1e-9
     assert _scaled(res.image_covariances, reference.image_covariances) < 1e-9
-    assert res.point_sigmas is None
+    # the points' sigmas, computed on the shards from the inverse's blocks of their image pairs
+    assert res.point_sigmas is not None and reference.point_sigmas is not None
+    live = reference.point_sigmas > 0
+    assert np.array_equal(res.point_sigmas > 0, live) and live.mean() > 0.9
+    assert _rel(res.point_sigmas, reference.point_sigmas) < 1e-9
 
 
 def test_float32_storage_moves_the_sigmas_little(problem, reference) -> None:
