@@ -20,8 +20,12 @@ inverse (``n^2`` values). Hence no size limit but the factor's own.
 Why our own: neither CHOLMOD through scikit-sparse (its ``Factor.inv`` forms the whole inverse) nor scipy
 offers a selected inverse; the factorization is still CHOLMOD's (supernodal, fill-reducing ordering) or,
 without scikit-sparse, SuperLU's with symmetric pivoting (``diag_pivot_thresh=0``, which on a symmetric
-positive definite matrix is ``L D L^T``). The recurrence is a compiled loop (numba, as
-:mod:`mercury_dem.adjust.kernels`), scalar over the factor's columns.
+positive definite matrix is ``L D L^T``). The recurrence is compiled (numba, as
+:mod:`mercury_dem.adjust.kernels`) and runs a supernode (a run of columns with one pattern) at a time: the
+``Z[R, R]`` entries it needs gathered once into a dense block, the products done by BLAS
+(:func:`_takahashi_supernodal`; 14x the column-by-column form, :func:`_takahashi`, kept as its check, on a
+3·10⁶-measure network's system). Cost and memory measured: docs/benchmarks/adjust.md ("A-posteriori covariances
+at size").
 
 Pure functions: sparse matrices and arrays in, arrays out.
 """
@@ -227,25 +231,23 @@ class SelectedInverse:
         return self.entries(i, k)
 
 
-def _ldl_cholmod(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix, NDArray[np.float64]]:
+def _chol_cholmod(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix]:
     try:
         factor = _cholmod.cholesky(a, mode="supernodal")  # type: ignore[union-attr]
     except _cholmod.CholmodNotPositiveDefiniteError as e:  # type: ignore[union-attr]
         raise AdjustmentError(f"a-posteriori covariance: the reduced camera system is not positive definite ({e}); "
                               "the network has a free gauge or an unconstrained image: hold an image or keep the "
                               "pointing prior (adjust.pointing_sigma_deg)") from e
-    lower = factor.L().tocsc()
+    lower = factor.L()
     perm = np.asarray(factor.P(), np.int64)  # A[perm][:, perm] = L L^T
     del factor
     lower.sort_indices()
-    diag = lower.diagonal()
-    lower.data /= np.repeat(diag, np.diff(lower.indptr))  # unit L: columns divided by their diagonal
     order = np.empty_like(perm)
     order[perm] = np.arange(len(perm))
-    return order, lower, 1.0 / (diag * diag)
+    return order, lower
 
 
-def _ldl_splu(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix, NDArray[np.float64]]:
+def _chol_splu(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix]:
     try:
         lu = spla.splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError as e:
@@ -258,9 +260,11 @@ def _ldl_splu(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix, NDArr
     if np.any(~(d > 0)):
         raise AdjustmentError("a-posteriori covariance: the reduced camera system is not positive definite; hold an "
                               "image or keep the pointing prior (adjust.pointing_sigma_deg)")
-    lower = lu.L.tocsc()
+    lower, order = lu.L.tocsc(), np.asarray(lu.perm_c, np.int64)
+    del lu
     lower.sort_indices()
-    return np.asarray(lu.perm_c, np.int64), lower, 1.0 / d
+    lower.data *= np.repeat(np.sqrt(d), np.diff(lower.indptr))  # unit L D^1/2: the Cholesky factor
+    return order, lower
 
 
 def selected_inverse(matrix: sp.spmatrix, method: str = "auto", supernodal: bool = True) -> SelectedInverse:
@@ -268,8 +272,9 @@ def selected_inverse(matrix: sp.spmatrix, method: str = "auto", supernodal: bool
 
     ``method``: ``"cholmod"`` (scikit-sparse), ``"splu"`` (scipy's SuperLU, symmetric pivoting), or ``"auto"``
     (CHOLMOD where importable). ``supernodal``: the recurrence a supernode at a time with dense products (the
-    default: several times faster on the reduced camera systems here), else column by column (scalar).
-    Raises :class:`AdjustmentError` for a matrix that is not positive definite.
+    default: 10-15x faster on the reduced camera systems here), else column by column (scalar). Memory beside the
+    matrix: the factor while it is made, then its lower triangle (12 bytes a non-zero) and the selected inverse
+    (8 bytes a non-zero). Raises :class:`AdjustmentError` for a matrix that is not positive definite.
     """
     if method == "auto":
         method = "cholmod" if HAVE_CHOLMOD else "splu"
@@ -279,18 +284,19 @@ def selected_inverse(matrix: sp.spmatrix, method: str = "auto", supernodal: bool
         raise AdjustmentError("a-posteriori covariance: CHOLMOD asked for but scikit-sparse is not importable")
     t0 = time.perf_counter()
     a = sp.csc_matrix(matrix)
-    order, lower, dinv = (_ldl_cholmod if method == "cholmod" else _ldl_splu)(a)
+    order, lower = (_chol_cholmod if method == "cholmod" else _chol_splu)(a)
     del a
     t1 = time.perf_counter()
     indptr = lower.indptr.astype(np.int64)
-    indices = lower.indices.astype(np.int64) if lower.indices.dtype != np.int32 else lower.indices
+    indices = lower.indices
     z = np.empty_like(lower.data)
     if supernodal:
-        lchol = lower.data * np.repeat(np.sqrt(1.0 / dinv), np.diff(indptr))  # L D^1/2: the Cholesky factor
-        bad = _takahashi_supernodal(indptr, indices, lchol, z)
-        del lchol
+        bad = _takahashi_supernodal(indptr, indices, lower.data, z)
     else:
-        bad = _takahashi(indptr, indices, lower.data, dinv, z)
+        diag = lower.data[indptr[:-1]]
+        unit = lower.data / np.repeat(diag, np.diff(indptr))
+        bad = _takahashi(indptr, indices, unit, 1.0 / (diag * diag), z)
+        del unit
     if bad >= 0:
         raise AdjustmentError(f"a-posteriori covariance: the {method} factor's pattern is not closed at column {bad} "
                               "(not a symbolic factorization); cannot select its inverse")
