@@ -33,8 +33,15 @@ import numpy as np
 C = 3
 
 
-def build_system(n_measures: float, path: Path, seed: int) -> dict[str, Any]:
-    """Stage 1: the reduced system's partial sums (U per image, S pair blocks) of the synthetic network, saved."""
+def part_path(path: Path, k: int, parts: int) -> Path:
+    """Where part k of parts of a system is saved (the system itself when parts == 1)."""
+    return path if parts == 1 else path.with_name(f"{path.stem}.part{k}of{parts}.npz")
+
+
+def build_system(n_measures: float, path: Path, seed: int, k: int = 0, parts: int = 1) -> dict[str, Any]:
+    """Stage 1: the reduced system's partial sums (U per image, S pair blocks) of the synthetic network, saved
+    (its ``k``-th of ``parts`` runs of blocks only, when ``parts`` > 1: see :func:`merge_parts`).
+    """
     from scipy.spatial import cKDTree
 
     from mercury_dem.adjust.blocked import BlockShard, merge_partials, options_from_config, setup_from_config
@@ -52,11 +59,11 @@ def build_system(n_measures: float, path: Path, seed: int) -> dict[str, Any]:
     omega = np.zeros((images.n_images, 3))
     lin = red = None
     m = n_pt = 0
-    for b in range(spec.n_blocks):
-        pb = point_block(spec, images, b, tree)
+    for b in np.array_split(np.arange(spec.n_blocks), parts)[k]:
+        pb = point_block(spec, images, int(b), tree)
         if pb.n_measures == 0:
             continue
-        data = BlockData(b, 0, pb.apriori_points, pb.measure_image, pb.measure_point, pb.measures,
+        data = BlockData(int(b), 0, pb.apriori_points, pb.measure_image, pb.measure_point, pb.measures,
                          np.ones(pb.n_measures), np.zeros(pb.n_points, bool), None, None)
         shard = BlockShard([data], setup, opt)
         del pb, data
@@ -69,11 +76,31 @@ def build_system(n_measures: float, path: Path, seed: int) -> dict[str, Any]:
     assert lin is not None and red is not None
     (cams, u), _ = lin.terms
     (keys, s), _ = red.terms
-    np.savez(path, n_images=images.n_images, cams=cams, u=u, keys=keys, s=s, measures=m, points=n_pt,
-             n_prior=lin.counts[0])
+    np.savez(part_path(path, k, parts), n_images=images.n_images, cams=cams, u=u, keys=keys, s=s, measures=m,
+             points=n_pt, n_prior=lin.counts[0])
     return {"images": int(images.n_images), "measures": int(m), "points": int(n_pt), "pair_blocks": int(len(keys)),
             "build_seconds": round(time.perf_counter() - t0, 1),
             "build_peak_rss_gb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 3)}
+
+
+def merge_parts(path: Path, parts: int) -> None:
+    """The system of all ``parts`` (each a run of blocks, built by its own ``--part k/K`` call) saved to ``path``."""
+    from mercury_dem.adjust.blocked import Partial, merge_partials
+
+    lin = red = None
+    tot: dict[str, int] = {"measures": 0, "points": 0, "n_prior": 0}
+    for k in range(parts):
+        z = np.load(part_path(path, k, parts))
+        n_images = int(z["n_images"])
+        pl = Partial(((z["cams"], z["u"]),), ())
+        pr = Partial(((z["keys"], z["s"]),), ())
+        lin = pl if lin is None else merge_partials(lin, pl)
+        red = pr if red is None else merge_partials(red, pr)
+        for key in tot:
+            tot[key] += int(z[key])
+    assert lin is not None and red is not None
+    np.savez(path, n_images=n_images, cams=lin.terms[0][0], u=lin.terms[0][1], keys=red.terms[0][0],
+             s=red.terms[0][1], **tot)
 
 
 class ReplayEngine:
@@ -111,6 +138,13 @@ def posterior(path: Path, dense_max: int, n_check: int, seed: int) -> dict[str, 
     setup = CameraSetup((), np.zeros(n_img, np.int64), np.zeros((n_img, 3)), np.zeros((n_img, 3, 3)),
                         np.zeros(n_img, bool), 450e-6, (None, None, None))
     res: Any = types.SimpleNamespace(omega=np.zeros((n_img, 3)), sigma0=1.0)
+    # compile (or load from numba's cache) the kernels first: their first call is not the posterior's cost
+    import scipy.sparse as sp
+
+    from mercury_dem.adjust.posterior import selected_inverse
+
+    selected_inverse(sp.random(30, 30, density=0.2, random_state=0) @ sp.random(30, 30, density=0.2, random_state=0).T
+                     + sp.eye(30), supernodal=True).blocks(np.arange(10), np.arange(10), 3)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     t = time.perf_counter()
     post = blocked_posterior_sigmas(eng, setup, res)
@@ -165,6 +199,8 @@ def main() -> None:
     ap.add_argument("--dense-max", type=int, default=6000, help="dense-inverse check up to this many unknowns")
     ap.add_argument("--check", type=int, default=64, help="images checked by column solves at every size")
     ap.add_argument("--json", action="store_true", help="JSON lines (the default output too)")
+    ap.add_argument("--part", help="K/N: only build the K-th of N runs of blocks of the (one) size and save them; "
+                    "a later call without --part merges the N parts (each part its own short hold of the lock)")
     ap.add_argument("--stage", choices=["build", "posterior"], help=argparse.SUPPRESS)
     ap.add_argument("--path", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -176,10 +212,20 @@ def main() -> None:
         return
     root = Path(args.dir)
     root.mkdir(parents=True, exist_ok=True)
+    if args.part:
+        k, parts = (int(x) for x in args.part.split("/"))
+        print(json.dumps(build_system(args.measures[0], root / f"system_{args.measures[0]:.0e}.npz", args.seed, k,
+                                      parts)))
+        return
     rows = []
     for n in args.measures:
         path = root / f"system_{n:.0e}.npz"
         rec: dict[str, Any] = {}
+        parts = sorted(root.glob(f"system_{n:.0e}.part*of*.npz"))
+        if parts and not path.exists():
+            count = int(parts[0].stem.split("of")[-1])
+            if len(parts) == count:
+                merge_parts(path, count)
         if not (args.keep and path.exists()):
             t = time.perf_counter()
             out = subprocess.run([sys.executable, __file__, "--stage", "build", "--measures", str(n), "--path", str(path),
