@@ -143,8 +143,7 @@ def posterior(path: Path, dense_max: int, n_check: int, seed: int) -> dict[str, 
 
     from mercury_dem.adjust.posterior import selected_inverse
 
-    selected_inverse(sp.random(30, 30, density=0.2, random_state=0) @ sp.random(30, 30, density=0.2, random_state=0).T
-                     + sp.eye(30), supernodal=True).blocks(np.arange(10), np.arange(10), 3)
+    selected_inverse(sp.csc_matrix(np.eye(30) + 0.1), supernodal=True).blocks(np.arange(10), np.arange(10), 3)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     t = time.perf_counter()
     post = blocked_posterior_sigmas(eng, setup, res)
@@ -214,14 +213,14 @@ def main() -> None:
     root.mkdir(parents=True, exist_ok=True)
     if args.part:
         k, parts = (int(x) for x in args.part.split("/"))
-        print(json.dumps(build_system(args.measures[0], root / f"system_{args.measures[0]:.0e}.npz", args.seed, k,
+        print(json.dumps(build_system(args.measures[0], root / f"system_{args.measures[0]:.3g}.npz", args.seed, k,
                                       parts)))
         return
     rows = []
     for n in args.measures:
-        path = root / f"system_{n:.0e}.npz"
+        path = root / f"system_{n:.3g}.npz"
         rec: dict[str, Any] = {}
-        parts = sorted(root.glob(f"system_{n:.0e}.part*of*.npz"))
+        parts = sorted(root.glob(f"system_{n:.3g}.part*of*.npz"))
         if parts and not path.exists():
             count = int(parts[0].stem.split("of")[-1])
             if len(parts) == count:
