@@ -28,7 +28,7 @@ iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
 stays in the orchestration layer). The loop,
 :func:`blocked_levenberg_marquardt`, does not know which.
 
-Pointing corrections only (camera_dim 3, positions fixed); a-posteriori covariances of the images only
+Pointing corrections only (camera_dim 3, positions fixed); a-posteriori covariances of the images and sigmas of the points
 (:func:`blocked_posterior_sigmas`, exact at any size: :mod:`~mercury_dem.adjust.posterior`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
 Why our own: no library offers a distributed Schur-complement bundle adjustment
 (Ceres and scipy are single-process; the Dask engine underneath is distributed's
