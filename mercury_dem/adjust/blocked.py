@@ -28,8 +28,8 @@ its blocks from the store itself and keeps them in worker memory across
 iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
 stays in the orchestration layer). :func:`blocked_levenberg_marquardt` does not know which.
 
-Pointing corrections only (camera_dim 3, positions fixed); a-posteriori sigmas of the images only
-(:func:`blocked_posterior_sigmas`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
+Pointing corrections only (camera_dim 3, positions fixed); a-posteriori covariances of the images and sigmas of the points
+(:func:`blocked_posterior_sigmas`, exact at any size: :mod:`~mercury_dem.adjust.posterior`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).
 Why our own: no library offers a distributed Schur-complement bundle adjustment
 (Ceres and scipy are single-process; the Dask engine underneath is distributed's
 actors and futures).
@@ -60,9 +60,17 @@ from mercury_dem.adjust.kernels import (
     schur_pairs_table,
 )
 from mercury_dem.adjust.lm import Proposal, Trial, run_levenberg_marquardt
+from mercury_dem.adjust.posterior import (
+    image_covariances,
+    inverse_pair_blocks,
+    keyed_pair_blocks,
+    point_covariances,
+    selected_inverse,
+    sigmas_of,
+)
 from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.robust import loss_rho
-from mercury_dem.adjust.schur import HAVE_CHOLMOD, ReducedSolver, SchurStructure, cholmod_factor, choose_method, inv3
+from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 from mercury_dem.adjust.solver import SolverOptions, deletion_statistic, kept_in_either, proposed_accepted
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import AdjustmentError
@@ -324,6 +332,19 @@ class PointBlockState:
         vd = self.v.copy()
         vd[:, range(3), range(3)] += lam * self.dv
         return inv3(vd)
+
+    def point_sigmas(self, keys: NDArray[np.int64], blocks: NDArray[np.float64], n_images: int,
+                     sigma0: float) -> NDArray[np.float64]:
+        """A-posteriori XYZ sigmas (n_pt, 3) m of the block's points at the last linearization (undamped), from the
+        reduced system's inverse blocks ``blocks`` of the pair ``keys`` (:func:`posterior.point_covariances`;
+        held and frozen points 0).
+        """
+        fixed = self.held_p | self.frozen
+        get = keyed_pair_blocks(keys, blocks, self.cams, n_images)
+        cov = point_covariances(get, C, sigma0, self._w(), self._v_inv(0.0), self.cam, self.pt, ~fixed, self.held_c)
+        sig = sigmas_of(cov)
+        sig[fixed] = 0.0
+        return sig
 
     def reduce(self, lam: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Damped point blocks; returns the Schur pair blocks ``-sum W V^-1 W^T`` and ``sum W V^-1 g_p`` (per camera)."""
@@ -615,6 +636,11 @@ class BlockShard:
             out.append((b.block, b.pixels(r)))
         return out
 
+    def point_sigmas(self, keys: NDArray[np.int64], blocks: NDArray[np.float64],
+                     sigma0: float) -> list[tuple[int, NDArray[np.float64]]]:
+        """(block, a-posteriori point sigmas (n_pt, 3)) of every block (see :meth:`PointBlockState.point_sigmas`)."""
+        return [(b.block, b.point_sigmas(keys, blocks, self.n_images, sigma0)) for b in self.blocks]
+
     def block_results(self) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_],
                                           NDArray[np.float64]]]:
         """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
@@ -842,55 +868,36 @@ def blocked_levenberg_marquardt(engine: Engine, setup: CameraSetup, opt: SolverO
 
 @dataclass(frozen=True)
 class BlockedPosterior:
-    """A-posteriori pointing sigmas of the blocked adjustment (see :func:`blocked_posterior_sigmas`).
+    """A-posteriori pointing covariances of the blocked adjustment (see :func:`blocked_posterior_sigmas`).
 
-    ``image_sigmas`` (n_img, 3) rad, 0 for held images; ``method``: ``"dense"`` or ``"cholmod"`` (exact: the
-    diagonal blocks of ``sigma0^2 S^-1``), or ``"block-jacobi"`` (``sigma0^2 S_ii^-1``: each image's sigma with
-    every other image held, a *lower bound* of the exact one, labelled so wherever it is reported).
+    ``image_covariances`` (n_img, 3, 3) rad^2 and ``image_sigmas`` (n_img, 3) rad, 0 for held images: exact, the
+    diagonal blocks of ``sigma0^2 S^-1`` (:mod:`~mercury_dem.adjust.posterior`); ``method``: the factorization
+    (``"cholmod"`` or ``"splu"``); ``factor_nnz``: the factor's non-zeros (the memory: ~2 x 8 bytes each).
     """
 
     image_sigmas: NDArray[np.float64]
     method: str
     seconds: float
+    image_covariances: NDArray[np.float64] | None = None
+    factor_nnz: int = 0
+    factor_seconds: float = 0.0
+    recurrence_seconds: float = 0.0
+    #: with ``points``: (block, point sigmas (n_pt, 3) m) of every block, from the shards
+    point_sigmas: list[tuple[int, NDArray[np.float64]]] | None = None
 
 
-def _inverse_diagonal_blocks(matrix: sp.bsr_matrix, n_cam: int, method: str, batch: int = 256) -> NDArray[np.float64]:
-    """The (n_cam, C, C) diagonal blocks of ``matrix^-1`` (symmetric positive definite), exactly.
-
-    ``"dense"``: LAPACK inverse of the dense matrix (O(n^3), n^2 floats). ``"cholmod"``: one sparse Cholesky
-    factorization, then the unit columns solved ``batch`` images at a time and only their diagonal blocks kept
-    (O(n_cam nnz(L)) time, n x 3 batch floats beside the factor). Why not a selected inverse (Takahashi): no
-    library here offers one (scikit-sparse's ``inv`` forms the whole inverse); the column solves reuse CHOLMOD.
-    """
-    if method == "dense":
-        inv = np.linalg.inv(matrix.toarray())
-        idx = np.arange(n_cam)[:, None] * C + np.arange(C)
-        return inv[idx[:, :, None], idx[:, None, :]]
-    factor = cholmod_factor(matrix.tocsc())
-    out = np.empty((n_cam, C, C))
-    n = n_cam * C
-    for i0 in range(0, n_cam, batch):
-        i1 = min(n_cam, i0 + batch)
-        k = (i1 - i0) * C
-        rhs = np.zeros((n, k))
-        rhs[i0 * C + np.arange(k), np.arange(k)] = 1.0
-        x = factor(rhs)[i0 * C:i1 * C]  # (k, k): rows and columns of these images
-        out[i0:i1] = x.reshape(i1 - i0, C, i1 - i0, C)[np.arange(i1 - i0), :, np.arange(i1 - i0), :]
-    return out
-
-
-def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: BlockedResult, dense_max_unknowns: int = 6000,
-                             exact_max_unknowns: int = 60_000) -> BlockedPosterior:
-    """Per-image a-posteriori pointing sigmas at the solution of :func:`blocked_levenberg_marquardt`.
+def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: BlockedResult,
+                             method: str = "auto", points: bool = False) -> BlockedPosterior:
+    """Per-image a-posteriori pointing covariances and sigmas at the solution of :func:`blocked_levenberg_marquardt`.
 
     The undamped reduced camera system ``S`` (the shards' ``linearize`` and ``reduce(0)`` at the final state,
     the same robust weights and accepted set as the last iteration, plus the pointing prior) is assembled as in
-    an iteration; the sigmas are ``sigma0 sqrt(diag((S^-1)_ii))``, as the in-memory adjuster's
-    (``bundle.posterior_sigmas``). Up to ``dense_max_unknowns`` camera unknowns the inverse is dense; up to
-    ``exact_max_unknowns`` (CHOLMOD importable) its diagonal blocks come from column solves with one sparse
-    factor; above, or without CHOLMOD, each block is inverted alone (``"block-jacobi"``: the sigma of an image
-    with all the others held, a lower bound; what a PCG-sized system affords). Point sigmas are not computed
-    (they need the off-diagonal blocks of ``S^-1`` of every pair of images sharing a point).
+    an iteration; the covariances are ``sigma0^2 (S^-1)_ii``, as the in-memory adjuster's
+    (``bundle.posterior_sigmas``), from the selected inverse of ``S``'s sparse factor
+    (:func:`mercury_dem.adjust.posterior.selected_inverse`: CHOLMOD, or SuperLU with ``method="splu"`` or without
+    scikit-sparse), exact at any size the factor fits in this process. With ``points``, the inverse's blocks of
+    every image pair of ``S`` (72 bytes each) go to every shard, which returns its points' sigmas (24 bytes a
+    point): ``sigma0^2 (V^-1 + sum Y^T S^-1 Y)`` over the pairs of each point's measures.
 
     Leaves the shards' linearization at the final state (their points, accepted sets and residuals unchanged).
     """
@@ -912,18 +919,16 @@ def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: Blocked
             keys, ss = part.terms[0]
             blocks[np.searchsorted(glob.keys, keys)] += ss
         blocks[glob.diag_block] += u
+        del u
         # the held images' rows and columns: identity (their W are zero, their pair blocks with others too)
-        n = n_cam * C
-        if n <= dense_max_unknowns:
-            method = "dense"
-        elif n <= exact_max_unknowns and HAVE_CHOLMOD:
-            method = "cholmod"
-        else:
-            method = "block-jacobi"
-        if method == "block-jacobi":
-            cov = np.linalg.inv(blocks[glob.diag_block])
-        else:
-            cov = _inverse_diagonal_blocks(glob.to_bsr(blocks), n_cam, method)
-    sig = result.sigma0 * np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2), 0.0))
-    sig[held_c] = 0.0
-    return BlockedPosterior(sig, method, time.perf_counter() - t0)
+        inverse = selected_inverse(glob.to_bsr(blocks), method)
+        nonzero = np.any(blocks != 0, axis=(1, 2))
+        del blocks
+        cov = image_covariances(inverse, n_cam, C, result.sigma0, held_c)
+        cost = (inverse.method, inverse.nnz, inverse.factor_seconds, inverse.recurrence_seconds)
+        pt_sig = None
+        if points:
+            pair = inverse_pair_blocks(inverse, glob.keys, n_cam, C, held_c, nonzero)
+            del inverse
+            pt_sig = [x for part in engine.call("point_sigmas", glob.keys, pair, result.sigma0) for x in part]
+    return BlockedPosterior(sigmas_of(cov), cost[0], time.perf_counter() - t0, cov, *cost[1:], point_sigmas=pt_sig)

@@ -11,9 +11,9 @@ and the re-centred point priors work on it unchanged. Same loop, same rules: the
 equals ``bundle_adjust``'s to solver tolerance (``tests/adjust/test_blocked_bundle.py``).
 
 Limits (those of the blocked loop): pointing only (``adjust.solve_positions`` is an
-error); a-posteriori sigmas (``adjust.posterior_sigmas``) of the images only, exact up to
-``blocked.blocked_posterior_sigmas``' size limits and block-Jacobi lower bounds above (the
-method is named in ``result.extra``), no point sigmas. The diagnosis (islands, images without measures) still runs on the
+error); a-posteriori covariances (``adjust.posterior_sigmas``) of the images and sigmas of the
+points, exact at any size (``blocked.blocked_posterior_sigmas``: the selected inverse of the reduced
+system's sparse factor, :mod:`~mercury_dem.adjust.posterior`; the points' on the shards). The diagnosis (islands, images without measures) still runs on the
 whole image-point graph, which the pipeline has in memory anyway.
 """
 
@@ -87,8 +87,8 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
 
     Returns
     -------
-    AdjustmentResult in ``problem``'s measure and point order; ``image_sigmas`` when ``config.posterior_sigmas``
-    (pointing, rad), ``point_sigmas`` None.
+    AdjustmentResult in ``problem``'s measure and point order; ``image_sigmas``, ``image_covariances`` (pointing,
+    rad) and ``point_sigmas`` (XYZ, m) when ``config.posterior_sigmas``.
 
     Raises
     ------
@@ -122,6 +122,7 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
         context = engine_factory(blocks, setup, opt)
     del blocks
     points = np.array(problem.points, np.float64, copy=True)
+    point_sigmas = None
     frozen = np.zeros(problem.n_points, bool)
     accepted = np.ones(problem.n_measures, bool)
     resid = np.zeros((problem.n_measures, 2))
@@ -139,7 +140,11 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
         res = blocked_levenberg_marquardt(engine, setup, opt, initial_omega=omega0)
         post = None
         if config.posterior_sigmas:
-            post = blocked_posterior_sigmas(engine, setup, res, dense_max_unknowns=config.posterior_max_unknowns)
+            post = blocked_posterior_sigmas(engine, setup, res, points=True)
+        if post is not None and post.point_sigmas is not None:
+            point_sigmas = np.zeros((problem.n_points, 3))
+            for blk, sig in post.point_sigmas:
+                point_sigmas[point_start[blk]:point_start[blk] + len(sig)] = sig
         for part in engine.call("block_results"):
             n_blocks += len(part)
             for blk, pts, frz, act, r in part:
@@ -170,7 +175,8 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
         solve_seconds=res.seconds, linear_method=res.linear_method, dof=res.dof, diagnosis=diag,
         extra={"blocked": {"blocks": n_blocks, "block_points": int(block_points), "engine": where,
                            "posterior_sigmas": "not asked (adjust.posterior_sigmas)" if post is None else
-                           f"images only ({post.method}{': lower bounds, each image with the others held' if post.method == 'block-jacobi' else ''}); no point sigmas"}},
+                           f"images and points (exact: selected inverse of the {post.method} factor)"}},
         image_sigmas=None if post is None else post.image_sigmas,
+        image_covariances=None if post is None else post.image_covariances, point_sigmas=point_sigmas,
         posterior_seconds=0.0 if post is None else post.seconds,
     )

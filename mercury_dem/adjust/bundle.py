@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from mercury_dem.adjust.diagnose import check_solvable, diagnose
 from mercury_dem.adjust.framing import FramingModel
 from mercury_dem.adjust.kernels import normal_blocks, prior_blocks
+from mercury_dem.adjust.posterior import image_covariances, point_covariances, selected_inverse, sigmas_of
 from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
 from mercury_dem.adjust.result import AdjustmentResult
 from mercury_dem.adjust.robust import loss_rho
@@ -122,12 +123,14 @@ def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None
     rms_pt, n_pt_acc = rms_by_group(problem.measure_point, sq, keep, problem.n_points)
     rk = resid[keep]
     rms = float(np.sqrt(np.mean(rk * rk))) if rk.size else float("nan")
-    image_sigmas = point_sigmas = None
+    image_sigmas = point_sigmas = image_cov = None
     post_s = 0.0
     if config.posterior_sigmas and problem.n_images * model.camera_dim <= config.posterior_max_unknowns:
         tp = time.perf_counter()
-        image_sigmas, point_sigmas = posterior_sigmas(model, state, res.accepted & ~res.frozen_points[problem.measure_point],
-                                                      opt, res.sigma0, held)
+        image_cov, point_cov = posterior_covariances(model, state, res.accepted & ~res.frozen_points[problem.measure_point],
+                                                     opt, res.sigma0, held)
+        image_sigmas = sigmas_of(image_cov)
+        point_sigmas = None if point_cov is None else sigmas_of(point_cov)
         post_s = time.perf_counter() - tp
     return AdjustmentResult(
         image_ids=problem.image_ids,
@@ -164,23 +167,27 @@ def bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | None = None
         image_sigmas=image_sigmas,
         point_sigmas=point_sigmas,
         posterior_seconds=post_s,
+        image_covariances=image_cov,
     )
 
 
-def posterior_sigmas(
+def posterior_covariances(
     model: FramingModel,
     state: object,
     use: NDArray[np.bool_],
     opt: SolverOptions,
     sigma0: float,
     held: NDArray[np.bool_],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """A-posteriori sigmas of image parameters (n_img, c) and point XYZ (n_pt, 3).
+    points: bool = True,
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """A-posteriori covariances of image parameters (n_img, c, c) and of points' XYZ (n_pt, 3, 3) or None.
 
-    Inverts the undamped reduced camera matrix densely (O((c n_img)^3) time,
-    O((c n_img)^2) memory: ~1 s and 300 MB at 6000 unknowns), then propagates to
-    each point ``C_p = s0^2 (V^-1 + sum_{m1, m2} Y_m1^T C_c[i1, i2] Y_m2)`` over
-    all pairs of its measures. Held images and unadjusted points get 0.
+    The undamped reduced camera matrix at ``state`` (measures in ``use``, their robust weights, the priors) is
+    factored once and its inverse selected on the factor's pattern (:mod:`~mercury_dem.adjust.posterior`): the
+    images' diagonal blocks, and with ``points`` each point's
+    ``C_p = s0^2 (V^-1 + sum_{m1, m2} Y_m1^T C_c[i1, i2] Y_m2)`` over all pairs of its measures (image pairs of
+    the reduced matrix's blocks). Time and memory those of one sparse factorization. Held images and
+    unadjusted points get 0.
     """
     c, n_cam, n_pt = model.camera_dim, model.n_cameras, model.n_points
     cam, pt = model.camera_index, model.point_index
@@ -205,24 +212,24 @@ def posterior_sigmas(
     u[held] = np.eye(c)
     v_inv = inv3(v)
     struct = SchurStructure.build(cam, pt, n_cam, n_pt, c, eliminate=free_pt)
-    cov_c = np.linalg.inv(struct.to_bsr(struct.schur_blocks(wm, v_inv, u)).toarray())
-    img_sig = sigma0 * np.sqrt(np.maximum(np.diagonal(cov_c).reshape(n_cam, c), 0.0))
-    img_sig[held] = 0.0
-    # All ordered pairs of measures of each point.
-    order = np.argsort(pt, kind="stable")
-    counts = np.bincount(pt, minlength=n_pt)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    n_of = counts[pt[order]]
-    total = int(n_of.sum())
-    first = order[np.repeat(np.arange(len(order)), n_of)]
-    run = np.repeat(np.cumsum(n_of) - n_of, n_of)
-    second = order[np.repeat(starts[pt[order]], n_of) + (np.arange(total) - run)]
-    y = np.matmul(wm, v_inv[pt])  # (M, c, 3)
-    c4 = cov_c.reshape(n_cam, c, n_cam, c)
-    blk = c4[cam[first], :, cam[second], :]  # (P, c, c)
-    contrib = np.matmul(np.matmul(y[first].transpose(0, 2, 1), blk), y[second])
-    cov_p = v_inv.copy()
-    np.add.at(cov_p, pt[first], contrib)  # small networks only
-    pt_sig = sigma0 * np.sqrt(np.maximum(np.diagonal(cov_p, axis1=1, axis2=2), 0.0))
-    pt_sig[~free_pt] = 0.0
-    return img_sig, pt_sig
+    inverse = selected_inverse(struct.to_bsr(struct.schur_blocks(wm, v_inv, u)))
+    cov_c = image_covariances(inverse, n_cam, c, sigma0, held)
+    if not points:
+        return cov_c, None
+    cov_p = point_covariances(lambda i, k: inverse.blocks(i, k, c), c, sigma0, wm, v_inv, cam, pt, free_pt, held)
+    cov_p[~free_pt] = 0.0
+    return cov_c, cov_p
+
+
+def posterior_sigmas(
+    model: FramingModel,
+    state: object,
+    use: NDArray[np.bool_],
+    opt: SolverOptions,
+    sigma0: float,
+    held: NDArray[np.bool_],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A-posteriori sigmas of image parameters (n_img, c) and point XYZ (n_pt, 3) (:func:`posterior_covariances`)."""
+    cov_c, cov_p = posterior_covariances(model, state, use, opt, sigma0, held)
+    assert cov_p is not None
+    return sigmas_of(cov_c), sigmas_of(cov_p)

@@ -42,6 +42,8 @@ class AdjustmentResult:
     seconds : total wall time; solve_seconds : time in the LM loop
     linear_method : "dense", "cholmod", "splu" or "pcg"
     image_sigmas : (n_img, c) a-posteriori sigmas (rad for pointing, m for position) or None
+    image_covariances : (n_img, c, c) a-posteriori covariances of the image parameters (their diagonals are
+        ``image_sigmas`` squared; 0 for held images) or None
     point_sigmas : (n_pt, 3) a-posteriori XYZ sigmas, m, or None
     posterior_seconds : cost of the a-posteriori sigmas
     diagnosis : the pre-solve :class:`Diagnosis`
@@ -81,6 +83,7 @@ class AdjustmentResult:
     image_sigmas: NDArray[np.float64] | None = None
     point_sigmas: NDArray[np.float64] | None = None
     posterior_seconds: float = 0.0
+    image_covariances: NDArray[np.float64] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property

@@ -13,6 +13,7 @@ from mercury_dem.adjust.blocked import (
     Partial,
     SyncEngine,
     blocked_levenberg_marquardt,
+    blocked_posterior_sigmas,
     blocks_from_problem,
     merge_partials,
     options_from_config,
@@ -104,10 +105,17 @@ def test_localcluster_equals_sync(store: Path) -> None:
         assert len(engine.actors) == 2
         dist = blocked_levenberg_marquardt(engine, setup, opt)
         got = {b: (x, a) for part in engine.call("solution") for b, _, x, a, _ in part}
+        post = blocked_posterior_sigmas(engine, setup, dist, points=True)  # the points' sigmas on the workers
     assert dist.iterations == sync.iterations and dist.rejected == sync.rejected
     assert np.abs(dist.omega - sync.omega).max() < 1e-12
     for b, _, x, a, _ in shard.solution():
         assert np.abs(got[b][0] - x).max() < 1e-6 and np.array_equal(got[b][1], a)
+    ref = blocked_posterior_sigmas(SyncEngine([shard]), setup, sync, points=True)
+    assert np.abs(post.image_covariances - ref.image_covariances).max() < 1e-6 * ref.image_covariances.max()
+    pts, pts_ref = dict(post.point_sigmas), dict(ref.point_sigmas)
+    assert pts.keys() == pts_ref.keys()
+    for b, sig in pts_ref.items():
+        assert np.all(sig >= 0) and np.allclose(pts[b], sig, rtol=1e-6, atol=0)
 
 
 @pytest.mark.integration
