@@ -42,7 +42,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-from mercury_dem.adjust.schur import HAVE_CHOLMOD, _cholmod
+from mercury_dem.adjust.schur import HAVE_CHOLMOD, CholmodNotPositiveDefinite, cholmod_factor
 from mercury_dem.exceptions import AdjustmentError
 
 
@@ -233,8 +233,8 @@ class SelectedInverse:
 
 def _chol_cholmod(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix]:
     try:
-        factor = _cholmod.cholesky(a, mode="supernodal")  # type: ignore[union-attr]
-    except _cholmod.CholmodNotPositiveDefiniteError as e:  # type: ignore[union-attr]
+        factor = cholmod_factor(a)
+    except CholmodNotPositiveDefinite as e:
         raise AdjustmentError(f"a-posteriori covariance: the reduced camera system is not positive definite ({e}); "
                               "the network has a free gauge or an unconstrained image: hold an image or keep the "
                               "pointing prior (adjust.pointing_sigma_deg)") from e

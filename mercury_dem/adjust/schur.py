@@ -51,6 +51,15 @@ except Exception:  # pragma: no cover - depends on the machine
 HAVE_CHOLMOD = _cholmod is not None
 
 
+class _NeverRaised(Exception):
+    """Stands for CHOLMOD's not-positive-definite error where CHOLMOD is absent (nothing raises it)."""
+
+
+#: The exception CHOLMOD raises for a matrix that is not positive definite (catchable without CHOLMOD installed).
+CholmodNotPositiveDefinite: type[Exception] = (
+    _cholmod.CholmodNotPositiveDefiniteError if _cholmod is not None else _NeverRaised)
+
+
 def cholmod_factor(matrix: sp.csc_matrix) -> Any:
     """CHOLMOD's supernodal Cholesky factor of the symmetric positive definite ``matrix`` (CSC).
 
