@@ -19,14 +19,24 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
 
+from mercury_dem.compute import (
+    ADJUST_RESOURCE,
+    RUN_STOPPING,
+    Connection,
+    as_completed,
+    connect,
+    lost_to_the_cluster,
+    performance_report,
+    raise_if_run_stopping,
+)
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
+from mercury_dem.exceptions import DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
 from mercury_dem.io.run_store import DEM_OUTPUTS, DENSE_OUTPUTS, PLAN_DIR, RunStore
-from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.results import FailureSummary, Summary, summary_from_json
-from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile, unit_name
+from mercury_dem.pipeline.shard_engine import shard_engine_factory
+from mercury_dem.pipeline.stages import failure_summary, plan_run, run_adjust_unit, run_tile, unit_name
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
@@ -36,17 +46,13 @@ STAGES = ("plan", *LEVELS, "dem", "dense")
 def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
     """Run a stage runner; an unexpected exception becomes a failure summary.
 
-    Except a full disk or a corrupt input unit (:func:`~mercury_dem.pipeline.stages.fatal_error`):
+    Except a full disk or a corrupt input unit (:func:`~mercury_dem.compute.failures.run_stopping_error`):
     those are raised (as :class:`DiskFullError` / :class:`CorruptUnitError`) and stop the run.
     """
     try:
         return fn(*args)
     except Exception as exc:  # noqa: BLE001 - recorded as a value, see module docstring
-        fatal = fatal_error(exc, level, unit_id, args[0] if args else "the run")
-        if fatal is exc:
-            raise
-        if fatal is not None:
-            raise fatal from exc
+        raise_if_run_stopping(exc, unit_name(level, unit_id), args[0] if args else "the run")
         return failure_summary(level, unit_id, exc)
 
 
@@ -56,7 +62,7 @@ def _tile_task(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
 
 def _unit_task(run_root: str, level: str, unit_id: int, config: Config, children: list[dict[str, Any]]) -> dict[str, Any]:
     # a blocked adjustment (adjust.blocked_min_measures) of a unit running on a Dask worker spreads its point
-    # blocks over the run's workers (executors.worker_shard_engine); in a sync run it stays in this process
+    # blocks over the run's workers (shard_engine.worker_shard_engine); in a sync run it stays in this process
     factory = shard_engine_factory(config.adjust.blocked_tree_min_workers) if config.adjust.blocked_on_workers else None
     return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children, factory)
 
@@ -180,7 +186,7 @@ def run_pipeline(
     try:
         return _run_pipeline(mission_path, out, config, scheduler, scheduler_file, workers, threads_per_worker, force,
                              security, stream, connection, dem, t_start, timings, stage, integrity)
-    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+    except RUN_STOPPING:
         raise
     except Exception as exc:  # noqa: BLE001 - only a full disk is converted, anything else re-raised as is
         cause = disk_full_cause(exc)
@@ -215,11 +221,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     store.write_run(info)  # the run dashboard links to the Dask dashboard from here
     if stream is not None:
         print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
-    perf: Any = contextlib.nullcontext()
-    if conn.mode != "sync":
-        from distributed import performance_report
-
-        perf = performance_report(filename=str(store.performance_html))
+    perf = performance_report(conn, str(store.performance_html))
     summaries: dict[str, list[Summary]] = {k: [] for k in LEVELS}
     try:
         with _scheduler_loss(conn, out), perf:
@@ -270,7 +272,7 @@ def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, str
 
     try:
         out = run_dense_stage(store, mission, config, client, stream)
-    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+    except RUN_STOPPING:
         raise
     except (MercuryDemError, OSError, ValueError) as exc:
         if disk_full_cause(exc) is not None:
@@ -291,7 +293,7 @@ def _scheduler_loss(conn: Connection, out: str | Path) -> Iterator[None]:
     try:
         yield
     except (Exception, asyncio.CancelledError) as exc:
-        if isinstance(exc, (DiskFullError, CorruptUnitError)) or conn.mode == "sync":
+        if isinstance(exc, RUN_STOPPING) or conn.mode == "sync":
             raise
         if getattr(conn.client, "status", "running") == "running":
             raise
@@ -333,12 +335,10 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     def record(level: str, uid: int, fut: Any) -> None:
         try:
             s = summary_from_json(fut.result())
-        except (DiskFullError, CorruptUnitError):
-            raise  # stops the run (see safe_call)
         except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
-            fatal = fatal_error(exc, level, uid, store.location)
-            if fatal is not None:
-                raise fatal from exc
+            raise_if_run_stopping(exc, unit_name(level, uid), store.location)  # stops the run (see safe_call)
+            if lost_to_the_cluster(exc):
+                raise  # cancelled by the cluster (no worker, the scheduler gone): the run's failure, not the unit's
             s = FailureSummary.of(level, uid, exc)
         out[level].append(s)
         progress.update(s)
@@ -398,7 +398,7 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
                   if uid not in done[lvl] and f.key not in recorded]
         for fut in as_completed(client, all_f):  # Dask's own completion events drive the counts
             record(*level_of[fut.key], fut)
-    except (DiskFullError, CorruptUnitError):
+    except RUN_STOPPING:
         if not sync:
             client.cancel(all_f)  # the run stops: nothing more is started (running units finish atomically)
         raise
