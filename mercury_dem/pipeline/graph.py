@@ -29,6 +29,7 @@ from mercury_dem.compute import (
     performance_report,
     raise_if_run_stopping,
 )
+from mercury_dem.compute.watchdog import NoWorkerWatchdog, watch_workers
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
@@ -178,6 +179,9 @@ def run_pipeline(
     CorruptUnitError : a unit's files changed during this run, after it was verified (it is withdrawn:
         the next resume recomputes it).
     SchedulerLostError : the Dask scheduler went away and the client could not reconnect.
+    NoWorkerError : the Dask cluster had no worker for ``execution.no_worker_timeout_s`` seconds.
+    Both are recorded in ``run.json`` (``infrastructure_failure``), never as a unit's failure; the same
+    command resumes the run.
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -222,9 +226,10 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     if stream is not None:
         print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
     perf = performance_report(conn, str(store.performance_html))
+    watchdog = watch_workers(client, config.execution.no_worker_timeout_s, conn.scheduler_address)
     summaries: dict[str, list[Summary]] = {k: [] for k in LEVELS}
     try:
-        with _scheduler_loss(conn, out), perf:
+        with _cluster_loss(conn, out, watchdog, store), perf, watchdog or contextlib.nullcontext():
             stage[0] = "the adjustment cascade"
             summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream, integrity)
             timings.update(level_seconds)
@@ -243,6 +248,8 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                     t = time.perf_counter()
                     dense_summary = _dense_stage(store, mission, config, client, stream, dem_summary)
                     timings["dense"] = time.perf_counter() - t
+            if watchdog is not None and watchdog.error is not None:  # a stage that took its cancelled tasks
+                raise watchdog.error                                   # for failures of its own must not finish
     finally:
         if own:
             conn.close()
@@ -284,23 +291,56 @@ def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, str
 
 
 @contextlib.contextmanager
-def _scheduler_loss(conn: Connection, out: str | Path) -> Iterator[None]:
-    """Turn what the Dask client raises when its scheduler is gone (a connect timeout, cancelled futures)
-    into :class:`SchedulerLostError` saying how to resume; other errors pass unchanged.
+def _cluster_loss(conn: Connection, out: str | Path, watchdog: NoWorkerWatchdog | None,
+                  store: RunStore) -> Iterator[None]:
+    """Turn what the Dask client raises when its cluster is gone into the run-stopping error saying how to resume.
+
+    No worker for ``execution.no_worker_timeout_s`` (the watchdog cancelled the futures): :class:`NoWorkerError`;
+    the scheduler gone (a connect timeout, cancelled futures, the client not running): :class:`SchedulerLostError`.
+    Either is recorded in ``run.json`` as the run's infrastructure failure (:func:`record_infrastructure_failure`).
+    Other errors pass unchanged.
     """
     import asyncio
 
     try:
         yield
     except (Exception, asyncio.CancelledError) as exc:
-        if isinstance(exc, RUN_STOPPING) or conn.mode == "sync":
+        error: Exception | None = None
+        if watchdog is not None and watchdog.error is not None:
+            error = watchdog.error
+        elif isinstance(exc, RUN_STOPPING) or conn.mode == "sync" or getattr(conn.client, "status", "running") == "running":
             raise
-        if getattr(conn.client, "status", "running") == "running":
+        else:
+            error = SchedulerLostError(
+                f"lost the Dask scheduler ({conn.description}) during the run ({type(exc).__name__}: {exc}); the "
+                f"units finished so far are committed in {out}: start a scheduler and workers again (or use the "
+                "default LocalCluster) and run the same command to resume")
+        record_infrastructure_failure(store, error, conn, watchdog)
+        if error is exc:
             raise
-        raise SchedulerLostError(
-            f"lost the Dask scheduler ({conn.description}) during the run ({type(exc).__name__}: {exc}); the "
-            f"units finished so far are committed in {out}: start a scheduler and workers again (or use the "
-            "default LocalCluster) and run the same command to resume") from exc
+        raise error from exc
+
+
+def record_infrastructure_failure(store: RunStore, error: Exception, conn: Connection,
+                                  watchdog: NoWorkerWatchdog | None) -> None:
+    """Write the run-stopping infrastructure failure into ``run.json`` (``infrastructure_failure``).
+
+    Never a unit's failure: no unit is written for it, and the next run of the same command (which
+    rewrites ``run.json``) resumes from the committed units. A failure to write it is not allowed to
+    hide the error itself.
+    """
+    entry: dict[str, Any] = {"kind": "infrastructure", "error": type(error).__name__, "message": str(error),
+                             "scheduler": conn.scheduler_address,
+                             "at": datetime.now(UTC).isoformat(timespec="seconds")}
+    if watchdog is not None and watchdog.no_worker_since_utc is not None:
+        entry["no_worker_since"] = watchdog.no_worker_since_utc.isoformat(timespec="seconds")
+        entry["no_worker_timeout_s"] = watchdog.timeout_s
+    try:
+        info = store.read_run()
+        info["infrastructure_failure"] = entry
+        store.write_run(info)
+    except (OSError, ValueError, StoreError):
+        pass
 
 
 def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | None) -> bool:
