@@ -79,6 +79,10 @@ def test_a_scheduler_without_any_worker_ends_the_run_with_the_named_error(tiny_m
         failure = json.loads((out / "run.json").read_text())["infrastructure_failure"]
         assert failure["error"] == "NoWorkerError"
     assert not (out / "report.json").exists()  # not a finished run
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["report", str(out)]) == 2
+    assert "it stopped: NoWorkerError" in err.getvalue(), err.getvalue()
     assert not any((out / "tile").glob("*/summary.json")) if (out / "tile").exists() else True
     assert elapsed < 120, elapsed  # the plan, then the timeout: never a hang
 
