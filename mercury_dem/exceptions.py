@@ -76,3 +76,12 @@ class SchedulerLostError(MercuryDemError):
     The units finished so far are committed; the message says to start a scheduler and workers
     again and resume with the same command.
     """
+
+
+class NoWorkerError(MercuryDemError):
+    """The run's Dask cluster has had no worker for longer than ``execution.no_worker_timeout_s``.
+
+    A fact about the infrastructure, never about the unit that was waiting: the units finished so
+    far are committed; the message names the scheduler and since when it has had no worker, and
+    says to start workers (or fix what kills them) and run the same command to resume.
+    """

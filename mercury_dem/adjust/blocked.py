@@ -25,8 +25,9 @@ leaves it (the first level of the reduction tree; the client sums the shards').
 One shard in the caller's process is the in-memory/out-of-core run
 (:class:`SyncEngine`); one shard per Dask worker, as a Dask *actor* that loads
 its blocks from the store itself and keeps them in worker memory across
-iterations, is the distributed run (``pipeline.executors.DaskShardEngine``: Dask
-stays in the orchestration layer). :func:`blocked_levenberg_marquardt` does not know which.
+iterations, is the distributed run (``pipeline.shard_engine.DaskShardEngine``: Dask
+stays in the orchestration layer). The loop,
+:func:`blocked_levenberg_marquardt`, does not know which.
 
 Pointing corrections only (camera_dim 3, positions fixed); a-posteriori covariances of the images and sigmas of the points
 (:func:`blocked_posterior_sigmas`, exact at any size: :mod:`~mercury_dem.adjust.posterior`); no island diagnosis (the in-memory adjuster's :mod:`~mercury_dem.adjust.diagnose`).

@@ -82,7 +82,7 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
     engine_factory : ``engine_factory(blocks, setup, options)`` gives a context manager whose value is an
         :class:`~mercury_dem.adjust.blocked.Engine` holding ``blocks`` (e.g. one
         :class:`~mercury_dem.adjust.blocked.BlockShard` per Dask worker:
-        ``mercury_dem.pipeline.executors.worker_shard_engine``); leaving the context releases them.
+        ``mercury_dem.pipeline.shard_engine.worker_shard_engine``); leaving the context releases them.
         None: one shard in this process.
 
     Returns

@@ -151,7 +151,7 @@ def build_cluster(args: argparse.Namespace, dask_dir: Path):  # -> dask_jobqueue
 
     security = None
     if not args.no_tls:
-        from mercury_dem.pipeline.security import TlsFiles, tls_security
+        from mercury_dem.compute.security import TlsFiles, tls_security
 
         tls_dir = Path(args.tls_dir) if args.tls_dir else dask_dir / "tls"
         hosts = sorted({host, "127.0.0.1", "localhost", socket.gethostname()})
@@ -201,7 +201,7 @@ def launch(args: argparse.Namespace) -> int:
             print(f"submitted {args.jobs} jobs", flush=True)
         env = dict(os.environ, MERCURY_DEM_SCHEDULER_FILE=str(dask_dir / "scheduler.json"))
         if args.tls_files is not None:
-            from mercury_dem.pipeline.security import tls_environment
+            from mercury_dem.compute.security import tls_environment
 
             env.update(tls_environment(args.tls_files))
         if args.wait_workers:

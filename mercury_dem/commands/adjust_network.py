@@ -42,26 +42,15 @@ def run(args: argparse.Namespace, config: Config) -> int:
     if args.sync:
         record = adjust_network_store(args.store, cfg)
     else:
-        from distributed import Client
+        from mercury_dem.compute import open_client
 
-        from mercury_dem.pipeline.executors import local_cluster
-
-        if args.scheduler:
-            with Client(args.scheduler) as client:
-                record = adjust_network_store(args.store, cfg, client)
-        else:
-            import dask
-
-            n = args.workers or 2
-            # distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536, which also turns off glibc's dynamic mmap
-            # threshold: every temporary array > 128 kB is then mmapped, faulted in and unmapped again. The blocks'
-            # linearization and Schur sums are made of such temporaries and ran 1.4-1.8x slower on the workers
-            # than in process (measured on a 4e5-measure store, 2 workers, 4 alternating runs); without it, as fast.
-            env = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
-                   if k != "MALLOC_TRIM_THRESHOLD_"}
-            with dask.config.set({"distributed.nanny.pre-spawn-environ": env}), \
-                    local_cluster(n, 1, host=config.execution.host) as cluster, Client(cluster) as client:
-                record = adjust_network_store(args.store, cfg, client)
+        # distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536, which also turns off glibc's dynamic mmap
+        # threshold: every temporary array > 128 kB is then mmapped, faulted in and unmapped again. The blocks'
+        # linearization and Schur sums are made of such temporaries and ran 1.4-1.8x slower on the workers
+        # than in process (measured on a 4e5-measure store, 2 workers, 4 alternating runs); without it, as fast.
+        with open_client(args.workers or 2, args.scheduler, host=config.execution.host,
+                         nanny_environ={"MALLOC_TRIM_THRESHOLD_": None}) as client:
+            record = adjust_network_store(args.store, cfg, client)
     if args.json:
         print(json.dumps(record, indent=2, default=float))
         return 0

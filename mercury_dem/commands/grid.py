@@ -155,25 +155,14 @@ def _grid(args: argparse.Namespace, config: Any, dem: Any, out: Path, writer: An
     from mercury_dem.pipeline.dem_stage import grid_dem
     from mercury_dem.progress import Reporter
 
-    client = None
-    cluster = None
     if args.workers == 0:
         from mercury_dem.dem.numba_start import start_gridding_kernels
 
         start_gridding_kernels()  # numba's first call without scipy.linalg/cffi: ~0.1-0.15 s of a cold grid
-    else:
-        from distributed import Client
+    from mercury_dem.compute import open_client
 
-        from mercury_dem.pipeline.executors import local_cluster
-
-        # loopback unless the configuration widens it
-        cluster = local_cluster(args.workers, 1, host=config.execution.host)
-        client = Client(cluster)
-    try:
-        return grid_dem(points, dem, out / DEM_FILE, client=client, overwrite=args.overwrite,
-                        coverage=not args.no_coverage, attrs={"source": str(args.points)},
+    # --workers N: a LocalCluster on the loopback unless the configuration widens it; 0: this process
+    with open_client(args.workers, host=config.execution.host) as client:
+        return grid_dem(points, dem, out / DEM_FILE, client=client,
+                        overwrite=args.overwrite, coverage=not args.no_coverage, attrs={"source": str(args.points)},
                         progress=Reporter(sys.stderr), body=body, writer=writer)
-    finally:
-        if client is not None:
-            client.close()
-            cluster.close()

@@ -68,10 +68,10 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
 
 
 def run(args: argparse.Namespace, config: Any) -> int:
+    from mercury_dem.compute import connect
     from mercury_dem.geometry.body import body_by_name
     from mercury_dem.io.atomic import strict_json
     from mercury_dem.io.run_store import DEM_FILE, PRODUCTS_DIR, REGISTRATION_DIR
-    from mercury_dem.pipeline.executors import connect
     from mercury_dem.pipeline.register_stage import register_dem_store
     from mercury_dem.products.make import dem_body, open_dem
 

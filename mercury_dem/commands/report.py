@@ -24,7 +24,10 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
     store = RunStore.open(args.run_dir)
     if not store.report_json.is_file():
-        raise StoreError(f"{args.run_dir} has no report.json yet: the run has not finished; resume it with 'mercury-dem run'")
+        stopped = (store.read_run() if store.has_run() else {}).get("infrastructure_failure")
+        why = f" (it stopped: {stopped['error']}: {stopped['message']})" if stopped else ""
+        raise StoreError(f"{args.run_dir} has no report.json yet: the run has not finished{why}; resume it with "
+                         "'mercury-dem run'")
     report = json.loads(store.report_json.read_text())
     if args.json:
         print(json.dumps(report, indent=2))

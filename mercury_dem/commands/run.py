@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from mercury_dem.compute.security import add_tls_arguments, security_from_args
 from mercury_dem.config import Config
-from mercury_dem.pipeline.security import add_tls_arguments, security_from_args
 
 NAME = "run"
 HELP = "run (or resume) the whole pipeline on a mission: matching, hierarchical adjustment, DEM, products"

@@ -41,13 +41,13 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
+from mercury_dem.compute import runs_in_process
 from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
 from mercury_dem.dem.spacing import config_with_no_value_distance
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore
-from mercury_dem.pipeline.executors import runs_in_process
 
 __all__ = ["grid_chunk_to_bucket", "grid_dem_on_bucket"]
 
@@ -214,7 +214,7 @@ def grid_dem_on_bucket(
                 results.append(grid_chunk_to_bucket_or_record(store.url, global_token, grid, b, cfg, datum))
                 task.update()
         else:
-            from mercury_dem.pipeline.executors import as_completed
+            from mercury_dem.compute import as_completed
 
             futures = [client.submit(grid_chunk_to_bucket_or_record, store.url, global_token, grid, b, cfg, datum,
                                      pure=False) for b in todo]

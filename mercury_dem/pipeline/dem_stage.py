@@ -35,6 +35,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.compute import ThreadPoolClient, as_completed, client_or_sync, runs_in_process
+from mercury_dem.compute.failures import lost_to_the_cluster
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
@@ -43,7 +45,6 @@ from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
 from mercury_dem.io.run_store import COVERAGE_FILE
-from mercury_dem.pipeline.executors import runs_in_process
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -421,7 +422,7 @@ def result_or_record(grid: GridSpec, bounds: tuple[int, int, int, int], future: 
     try:
         return dict(future.result())
     except Exception as exc:
-        if "Cancelled" in type(exc).__name__:  # the scheduler went away: the run's error, not the chunk's
+        if lost_to_the_cluster(exc):  # the scheduler went away: the run's error, not the chunk's
             raise
         return chunk_failure(grid, bounds, exc)
 
@@ -549,26 +550,22 @@ def grid_dem(
         # max_distance_m = 0: the no-value distance from the points' spacing (mercury_dem.dem.spacing)
         cfg = config_with_no_value_distance(cfg, index)
         with rep.task(f"{label} grid", len(chunks), "chunks") as task:
-            if in_process:
-                # Two chunks in flight: one in the compiled kernel (all its threads, GIL released),
-                # the other being smoothed and written (numpy, compression): the cores stay busy.
-                # Each chunk's result is independent of the other: same arrays as a plain loop.
-                results = []
-                for r in pool.map(lambda b: chunk_task(index, grid, b, cfg, layer_arrays), chunks):
-                    results.append(r)
-                    task.update()
-            else:
-                from mercury_dem.pipeline.executors import as_completed
-
-                index_f = client.scatter(index, broadcast=True)
-                futures = [
-                    client.submit(chunk_task, index_f, grid, b, cfg, store, pure=False)
-                    for b in chunks
-                ]
-                for _ in as_completed(client, futures):  # Dask's completion order: counts as chunks land
+            # In this process, two chunks in flight: one in the compiled kernel (all its threads, GIL
+            # released), the other being smoothed and written (numpy, compression): the cores stay busy.
+            # Each chunk's result is independent of the other: same arrays as a plain loop. On Dask, the
+            # index is scattered once to every worker and each task opens the store by its path.
+            runner = ThreadPoolClient(2) if in_process else client
+            target: Any = layer_arrays if in_process else store
+            try:
+                index_f = runner.scatter(index, broadcast=True)
+                futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, pure=False) for b in chunks]
+                for _ in as_completed(runner, futures):  # completion order: counts as chunks land
                     task.update()
                 results = ([result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
-                           else client.gather(futures))
+                           else runner.gather(futures))
+            finally:
+                if in_process:
+                    runner.close()
         failed = judge_chunk_results(results, str(out_path), rep, label)
         cov_summary = None
         if coverage:
@@ -674,13 +671,11 @@ def regrid_failed_chunks(
     index = build_point_index(pts, body.datum_radius_m)
     cfg = config_with_no_value_distance(cfg, index)  # the same as at the first try: same points, same rule
     layer_arrays = {name: group[name] for name in LAYERS}
-    if runs_in_process(client):
-        results = [_grid_and_write_or_record(index, grid, b, cfg, layer_arrays) for b in todo]  # type: ignore[arg-type]
-    else:
-        index_f = client.scatter(index, broadcast=True)
-        futures = [client.submit(_grid_and_write_or_record, index_f, grid, b, cfg, str(path), pure=False)
-                   for b in todo]
-        results = [result_or_record(grid, b, f) for b, f in zip(todo, futures)]  # type: ignore[arg-type]
+    runner = client_or_sync(client)
+    index_f = runner.scatter(index, broadcast=True)
+    target: Any = layer_arrays if runs_in_process(client) else str(path)  # in this process: the open arrays
+    futures = [runner.submit(_grid_and_write_or_record, index_f, grid, b, cfg, target, pure=False) for b in todo]
+    results = [result_or_record(grid, b, f) for b, f in zip(todo, futures)]  # type: ignore[arg-type]
     # the DEM was committed before: chunks failing again keep their records, never a stage error
     kept = judge_chunk_results(results, str(path), rep, label, all_failed_is_error=False)
     recovered = sum((b[1] - b[0]) * (b[3] - b[2]) for b in todo) - sum(r["pixels"] for r in kept)

@@ -345,13 +345,13 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
 
     import zarr
 
+    from mercury_dem.compute import as_completed
     from mercury_dem.dem.cloud import point_cloud
     from mercury_dem.dem.dense_grid import dense_grid_ppd
     from mercury_dem.dense.pairs import SELECTED, select_stereo_pairs
     from mercury_dem.dense.rules import cap_per_tile, height_margins
     from mercury_dem.io.network_store import read_network
     from mercury_dem.pipeline.dense_dem import grid_dense_dem, rmse_ratio, validate_dense_dem
-    from mercury_dem.pipeline.executors import as_completed
     from mercury_dem.progress import Reporter
 
     rep = Reporter(stream)

@@ -19,14 +19,25 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
 
+from mercury_dem.compute import (
+    ADJUST_RESOURCE,
+    RUN_STOPPING,
+    Connection,
+    as_completed,
+    connect,
+    lost_to_the_cluster,
+    performance_report,
+    raise_if_run_stopping,
+)
+from mercury_dem.compute.watchdog import NoWorkerWatchdog, watch_workers
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import CorruptUnitError, DiskFullError, SchedulerLostError, StoreError
+from mercury_dem.exceptions import DiskFullError, SchedulerLostError, StoreError
 from mercury_dem.io.atomic import disk_full_cause, disk_full_message, sweep_temporaries, verify_complete
 from mercury_dem.io.run_store import DEM_OUTPUTS, DENSE_OUTPUTS, PLAN_DIR, RunStore
-from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection, as_completed, connect, shard_engine_factory
 from mercury_dem.pipeline.report import build_report, unit_message, versions, write_report
 from mercury_dem.pipeline.results import FailureSummary, Summary, summary_from_json
-from mercury_dem.pipeline.stages import failure_summary, fatal_error, plan_run, run_adjust_unit, run_tile, unit_name
+from mercury_dem.pipeline.shard_engine import shard_engine_factory
+from mercury_dem.pipeline.stages import failure_summary, plan_run, run_adjust_unit, run_tile, unit_name
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
@@ -36,17 +47,13 @@ STAGES = ("plan", *LEVELS, "dem", "dense")
 def safe_call(fn: Callable[..., dict[str, Any]], level: str, unit_id: int, *args: Any) -> dict[str, Any]:
     """Run a stage runner; an unexpected exception becomes a failure summary.
 
-    Except a full disk or a corrupt input unit (:func:`~mercury_dem.pipeline.stages.fatal_error`):
+    Except a full disk or a corrupt input unit (:func:`~mercury_dem.compute.failures.run_stopping_error`):
     those are raised (as :class:`DiskFullError` / :class:`CorruptUnitError`) and stop the run.
     """
     try:
         return fn(*args)
     except Exception as exc:  # noqa: BLE001 - recorded as a value, see module docstring
-        fatal = fatal_error(exc, level, unit_id, args[0] if args else "the run")
-        if fatal is exc:
-            raise
-        if fatal is not None:
-            raise fatal from exc
+        raise_if_run_stopping(exc, unit_name(level, unit_id), args[0] if args else "the run")
         return failure_summary(level, unit_id, exc)
 
 
@@ -56,7 +63,7 @@ def _tile_task(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
 
 def _unit_task(run_root: str, level: str, unit_id: int, config: Config, children: list[dict[str, Any]]) -> dict[str, Any]:
     # a blocked adjustment (adjust.blocked_min_measures) of a unit running on a Dask worker spreads its point
-    # blocks over the run's workers (executors.worker_shard_engine); in a sync run it stays in this process
+    # blocks over the run's workers (shard_engine.worker_shard_engine); in a sync run it stays in this process
     factory = shard_engine_factory(config.adjust.blocked_tree_min_workers) if config.adjust.blocked_on_workers else None
     return safe_call(run_adjust_unit, level, unit_id, run_root, level, unit_id, config, children, factory)
 
@@ -172,6 +179,9 @@ def run_pipeline(
     CorruptUnitError : a unit's files changed during this run, after it was verified (it is withdrawn:
         the next resume recomputes it).
     SchedulerLostError : the Dask scheduler went away and the client could not reconnect.
+    NoWorkerError : the Dask cluster had no worker for ``execution.no_worker_timeout_s`` seconds.
+    Both are recorded in ``run.json`` (``infrastructure_failure``), never as a unit's failure; the same
+    command resumes the run.
     """
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -180,7 +190,7 @@ def run_pipeline(
     try:
         return _run_pipeline(mission_path, out, config, scheduler, scheduler_file, workers, threads_per_worker, force,
                              security, stream, connection, dem, t_start, timings, stage, integrity)
-    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+    except RUN_STOPPING:
         raise
     except Exception as exc:  # noqa: BLE001 - only a full disk is converted, anything else re-raised as is
         cause = disk_full_cause(exc)
@@ -215,14 +225,11 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     store.write_run(info)  # the run dashboard links to the Dask dashboard from here
     if stream is not None:
         print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
-    perf: Any = contextlib.nullcontext()
-    if conn.mode != "sync":
-        from distributed import performance_report
-
-        perf = performance_report(filename=str(store.performance_html))
+    perf = performance_report(conn, str(store.performance_html))
+    watchdog = watch_workers(client, config.execution.no_worker_timeout_s, conn.scheduler_address)
     summaries: dict[str, list[Summary]] = {k: [] for k in LEVELS}
     try:
-        with _scheduler_loss(conn, out), perf:
+        with _cluster_loss(conn, out, watchdog, store), perf, watchdog or contextlib.nullcontext():
             stage[0] = "the adjustment cascade"
             summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream, integrity)
             timings.update(level_seconds)
@@ -241,6 +248,8 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
                     t = time.perf_counter()
                     dense_summary = _dense_stage(store, mission, config, client, stream, dem_summary)
                     timings["dense"] = time.perf_counter() - t
+            if watchdog is not None and watchdog.error is not None:  # a stage that took its cancelled tasks
+                raise watchdog.error                                   # for failures of its own must not finish
     finally:
         if own:
             conn.close()
@@ -270,7 +279,7 @@ def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, str
 
     try:
         out = run_dense_stage(store, mission, config, client, stream)
-    except (DiskFullError, CorruptUnitError, SchedulerLostError):
+    except RUN_STOPPING:
         raise
     except (MercuryDemError, OSError, ValueError) as exc:
         if disk_full_cause(exc) is not None:
@@ -282,23 +291,56 @@ def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, str
 
 
 @contextlib.contextmanager
-def _scheduler_loss(conn: Connection, out: str | Path) -> Iterator[None]:
-    """Turn what the Dask client raises when its scheduler is gone (a connect timeout, cancelled futures)
-    into :class:`SchedulerLostError` saying how to resume; other errors pass unchanged.
+def _cluster_loss(conn: Connection, out: str | Path, watchdog: NoWorkerWatchdog | None,
+                  store: RunStore) -> Iterator[None]:
+    """Turn what the Dask client raises when its cluster is gone into the run-stopping error saying how to resume.
+
+    No worker for ``execution.no_worker_timeout_s`` (the watchdog cancelled the futures): :class:`NoWorkerError`;
+    the scheduler gone (a connect timeout, cancelled futures, the client not running): :class:`SchedulerLostError`.
+    Either is recorded in ``run.json`` as the run's infrastructure failure (:func:`record_infrastructure_failure`).
+    Other errors pass unchanged.
     """
     import asyncio
 
     try:
         yield
     except (Exception, asyncio.CancelledError) as exc:
-        if isinstance(exc, (DiskFullError, CorruptUnitError)) or conn.mode == "sync":
+        error: Exception | None = None
+        if watchdog is not None and watchdog.error is not None:
+            error = watchdog.error
+        elif isinstance(exc, RUN_STOPPING) or conn.mode == "sync" or getattr(conn.client, "status", "running") == "running":
             raise
-        if getattr(conn.client, "status", "running") == "running":
+        else:
+            error = SchedulerLostError(
+                f"lost the Dask scheduler ({conn.description}) during the run ({type(exc).__name__}: {exc}); the "
+                f"units finished so far are committed in {out}: start a scheduler and workers again (or use the "
+                "default LocalCluster) and run the same command to resume")
+        record_infrastructure_failure(store, error, conn, watchdog)
+        if error is exc:
             raise
-        raise SchedulerLostError(
-            f"lost the Dask scheduler ({conn.description}) during the run ({type(exc).__name__}: {exc}); the "
-            f"units finished so far are committed in {out}: start a scheduler and workers again (or use the "
-            "default LocalCluster) and run the same command to resume") from exc
+        raise error from exc
+
+
+def record_infrastructure_failure(store: RunStore, error: Exception, conn: Connection,
+                                  watchdog: NoWorkerWatchdog | None) -> None:
+    """Write the run-stopping infrastructure failure into ``run.json`` (``infrastructure_failure``).
+
+    Never a unit's failure: no unit is written for it, and the next run of the same command (which
+    rewrites ``run.json``) resumes from the committed units. A failure to write it is not allowed to
+    hide the error itself.
+    """
+    entry: dict[str, Any] = {"kind": "infrastructure", "error": type(error).__name__, "message": str(error),
+                             "scheduler": conn.scheduler_address,
+                             "at": datetime.now(UTC).isoformat(timespec="seconds")}
+    if watchdog is not None and watchdog.no_worker_since_utc is not None:
+        entry["no_worker_since"] = watchdog.no_worker_since_utc.isoformat(timespec="seconds")
+        entry["no_worker_timeout_s"] = watchdog.timeout_s
+    try:
+        info = store.read_run()
+        info["infrastructure_failure"] = entry
+        store.write_run(info)
+    except (OSError, ValueError, StoreError):
+        pass
 
 
 def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | None) -> bool:
@@ -333,12 +375,10 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
     def record(level: str, uid: int, fut: Any) -> None:
         try:
             s = summary_from_json(fut.result())
-        except (DiskFullError, CorruptUnitError):
-            raise  # stops the run (see safe_call)
         except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
-            fatal = fatal_error(exc, level, uid, store.location)
-            if fatal is not None:
-                raise fatal from exc
+            raise_if_run_stopping(exc, unit_name(level, uid), store.location)  # stops the run (see safe_call)
+            if lost_to_the_cluster(exc):
+                raise  # cancelled by the cluster (no worker, the scheduler gone): the run's failure, not the unit's
             s = FailureSummary.of(level, uid, exc)
         out[level].append(s)
         progress.update(s)
@@ -398,7 +438,7 @@ def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config,
                   if uid not in done[lvl] and f.key not in recorded]
         for fut in as_completed(client, all_f):  # Dask's own completion events drive the counts
             record(*level_of[fut.key], fut)
-    except (DiskFullError, CorruptUnitError):
+    except RUN_STOPPING:
         if not sync:
             client.cancel(all_f)  # the run stops: nothing more is started (running units finish atomically)
         raise

@@ -44,11 +44,13 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     im = net.images
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config, float32=config.blocked_float32)
     opt = options_from_config(config)
-    if client is None:
+    from mercury_dem.compute import runs_in_process
+
+    if runs_in_process(client):
         engine: Any = SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)])
         where = "sync"
     else:
-        from mercury_dem.pipeline.executors import DaskShardEngine
+        from mercury_dem.pipeline.shard_engine import DaskShardEngine
 
         engine = DaskShardEngine(client, str(net.root), net.n_blocks, setup, opt, config.blocked_tree_min_workers)
         where = f"dask ({len(engine.actors)} workers)"

@@ -389,7 +389,7 @@ def register_dem_store(
     shots : DataFrame with :data:`SHOT_COLUMNS` (planetocentric degrees, east degrees, metres from
         the centre of mass, profile id); other columns are ignored
     out_dir : where to write (default: the DEM's directory)
-    client : a ``distributed.Client`` or :class:`~mercury_dem.pipeline.executors.SyncClient`
+    client : a ``distributed.Client`` or :class:`~mercury_dem.compute.SyncClient`
         (None: the synchronous client)
     body : the body the caller expects; a DEM of another body is refused
     options, merge_options, tiles, margin_deg : the registration's settings, tile grid, window margin
@@ -415,7 +415,7 @@ def register_dem_store(
     StoreError : no complete DEM, another body's DEM, or outputs exist without ``overwrite``
     ReferenceDataError : the shot table lacks a column or has no usable shot
     """
-    from mercury_dem.pipeline.executors import SyncClient
+    from mercury_dem.compute import client_or_sync
     from mercury_dem.products.make import dem_body, open_dem
 
     t0 = time.perf_counter()
@@ -430,7 +430,7 @@ def register_dem_store(
     datum = float(ds.attrs.get("datum_radius_m", dem_b.datum_radius_m))
     opt = options or RegisterOptions()
     tiles = tiles or TileGrid(10.0)
-    client = client or SyncClient()
+    client = client_or_sync(client)
     good, n_bad = check_shots(shots, source)
     if good.empty:
         raise ReferenceDataError(f"{source}: no usable shot ({n_bad} rows with missing or non-finite values)")

@@ -42,19 +42,18 @@ def _level_row(s: Summary) -> dict[str, Any]:
 def versions() -> dict[str, str]:
     """Versions of this package, Python and the libraries that shape a result (``run.json``, ``report.json``)."""
     import cv2
-    import dask
-    import distributed
     import numpy as np
     import scipy
     import xarray
     import zarr
 
     from mercury_dem import __version__
+    from mercury_dem.compute.clusters import versions as execution_versions
 
     return {
         "mercury_dem": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
-        "scipy": scipy.__version__, "opencv": cv2.__version__, "dask": dask.__version__,
-        "distributed": distributed.__version__, "zarr": zarr.__version__, "xarray": xarray.__version__,
+        "scipy": scipy.__version__, "opencv": cv2.__version__, **execution_versions(),
+        "zarr": zarr.__version__, "xarray": xarray.__version__,
     }
 
 

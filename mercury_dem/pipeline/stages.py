@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from mercury_dem.compute.failures import raise_if_run_stopping, run_stopping_error
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemError
+from mercury_dem.exceptions import CorruptUnitError, MercuryDemError
 from mercury_dem.geometry.footprints import overlap_graph
 from mercury_dem.geometry.pose import validate_pose
 from mercury_dem.geometry.tiling import TileGrid
-from mercury_dem.io.atomic import disk_full_cause, disk_full_message
 from mercury_dem.io.run_store import RunStore, read_solution, unit_name  # unit_name: re-exported
 from mercury_dem.mission import Mission, open_mission
 from mercury_dem.pipeline.results import (
@@ -436,27 +436,16 @@ def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids:
 
 
 def fatal_error(exc: BaseException, level: str, unit_id: int, where: Any) -> MercuryDemError | None:
-    """The run-stopping error ``exc`` is, or None for an error that is the unit's own failure.
+    """The run-stopping error ``exc`` is for unit (``level``, ``unit_id``), or None when it is the unit's own failure.
 
-    A full disk (:class:`DiskFullError`, an ENOSPC anywhere in the chain) and a corrupt input
-    unit (:class:`CorruptUnitError`) are not facts about the unit: recording them as its failure
-    would commit a unit without its data and silently drop it downstream. They stop the run.
+    The rule is :func:`mercury_dem.compute.failures.run_stopping_error` (this only names the unit).
     """
-    if isinstance(exc, (DiskFullError, CorruptUnitError)):
-        return exc
-    cause = disk_full_cause(exc)
-    if cause is not None:
-        return DiskFullError(disk_full_message(unit_name(level, unit_id), cause, where))
-    return None
+    return run_stopping_error(exc, unit_name(level, unit_id), where)
 
 
 def raise_if_fatal(exc: BaseException, level: str, unit_id: int, store: RunStore) -> None:
     """Re-raise ``exc`` as the run-stopping error it is (:func:`fatal_error`); return when it is not one."""
-    fatal = fatal_error(exc, level, unit_id, store.location)
-    if fatal is exc:
-        raise exc
-    if fatal is not None:
-        raise fatal from exc
+    raise_if_run_stopping(exc, unit_name(level, unit_id), store.location)
 
 
 def failure_summary(level: str, unit_id: int, exc: BaseException) -> dict[str, Any]:

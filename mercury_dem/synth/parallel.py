@@ -1,7 +1,7 @@
 """Rendering many images: a plain loop, or batches on Dask for the large preset.
 
-This is the only module of :mod:`mercury_dem.synth` that may import Dask (the
-generation of the ``large`` mission, ~10^4 images of 1024^2, needs a cluster).
+The ``large`` mission (~10^4 images of 1024^2) needs a cluster: its client comes from
+:mod:`mercury_dem.compute` (nothing in :mod:`mercury_dem.synth` imports Dask).
 Every worker rebuilds the truth surface once from its parameters (cached per
 process) and writes its images straight into the mission under construction,
 so only image ids and timings travel between processes. Each image has its own
@@ -105,18 +105,10 @@ def render_all(
     batches = [rows[i:i + batch_size] for i in range(0, len(rows), batch_size)]
     if client is not None:
         return _run_on(client, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
-    from distributed import Client
+    from mercury_dem.compute import open_client
 
-    if scheduler is not None:
-        from mercury_dem.pipeline.security import require_tls_settings
-
-        require_tls_settings(scheduler, None, "synth --scheduler")  # TLS only through Dask's config (env.sh)
-        with Client(scheduler) as c:
-            return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
-
-    from mercury_dem.pipeline.executors import local_cluster
-
-    with local_cluster(workers, 1, host="127.0.0.1") as cluster, Client(cluster) as c:
+    # a scheduler's address (TLS only through Dask's config: env.sh), or a LocalCluster on the loopback
+    with open_client(max(workers, 1), scheduler, host="127.0.0.1", source="synth --scheduler") as c:
         return _run_on(c, str(root), batches, params, radius_m, settings, seed, progress, len(rows))
 
 
@@ -124,11 +116,11 @@ def _run_on(
     client: Any, root: str, batches: list[list[dict[str, Any]]], params: dict[str, Any], radius_m: float,
     settings: RenderSettings, seed: int, progress: Callable[[int, int], None] | None, total: int,
 ) -> list[tuple[str, float]]:
-    from distributed import as_completed
+    from mercury_dem.compute import as_completed
 
     futures = [client.submit(render_batch, root, b, params, radius_m, settings, seed, pure=False) for b in batches]
     done: list[tuple[str, float]] = []
-    for fut in as_completed(futures):
+    for fut in as_completed(client, futures):
         done += fut.result()
         if progress:
             progress(len(done), total)

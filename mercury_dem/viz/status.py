@@ -185,4 +185,5 @@ def run_info(run: str | Path | RunStore) -> dict[str, Any]:
         "dashboard_link": link,
         "execution": (report or {}).get("execution"),
         "timings": (report or {}).get("timings", {}),
+        "infrastructure_failure": info.get("infrastructure_failure"),  # why the last run stopped (no worker, ...)
     }

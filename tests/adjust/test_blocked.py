@@ -91,7 +91,7 @@ def test_localcluster_equals_sync(store: Path) -> None:
     """Two Dask workers, each keeping its blocks as an actor: the same solution as in process."""
     from distributed import Client, LocalCluster
 
-    from mercury_dem.pipeline.executors import DaskShardEngine
+    from mercury_dem.pipeline.shard_engine import DaskShardEngine
 
     bn = BlockedNetwork(store)
     im = bn.images
@@ -123,7 +123,7 @@ def test_localcluster_tree_sum_equals_sync(store: Path) -> None:
     """Five Dask workers, the sums merged on the workers (a tree of 3 rounds): the in-process solution."""
     from distributed import Client, LocalCluster
 
-    from mercury_dem.pipeline.executors import DaskShardEngine
+    from mercury_dem.pipeline.shard_engine import DaskShardEngine
 
     bn = BlockedNetwork(store)
     im = bn.images

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from mercury_dem.cluster import jobqueue
-from mercury_dem.pipeline.executors import ADJUST_RESOURCE
+from mercury_dem.compute import ADJUST_RESOURCE
 from tests.cluster.conftest import CLUSTER, script_env
 
 pytest.importorskip("dask_jobqueue", reason="dask-jobqueue is not installed (pip install -e '.[test]')")

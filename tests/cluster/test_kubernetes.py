@@ -179,7 +179,7 @@ def test_workers_and_scheduler_arguments_parse_with_dask_cli(kind: str) -> None:
     from distributed.cli.dask_scheduler import main as scheduler_cli
     from distributed.cli.dask_worker import main as worker_cli
 
-    from mercury_dem.pipeline.executors import ADJUST_RESOURCE
+    from mercury_dem.compute import ADJUST_RESOURCE
 
     (doc,) = [d for n, d in _docs() if d["kind"] == kind]
     spec = doc["spec"] if kind == "DaskCluster" else doc["spec"]["cluster"]["spec"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from distributed import Client
 
-from mercury_dem.pipeline.executors import ADJUST_RESOURCE
+from mercury_dem.compute import ADJUST_RESOURCE
 from tests.cluster.conftest import (
     LOCAL,
     REPO,
@@ -103,7 +103,7 @@ def test_idle_timeout_ends_a_deployment_whose_caller_is_gone(tmp_path: Path) -> 
 def test_tls_deployment_refuses_plain_tcp_and_foreign_certificates(tmp_path: Path) -> None:
     from distributed.security import Security
 
-    from mercury_dem.pipeline.security import TlsFiles, tls_environment, tls_security
+    from mercury_dem.compute.security import TlsFiles, tls_environment, tls_security
     from tests.cluster.conftest import make_certs
 
     dep = start_local(tmp_path / "dask", workers=1, tls=True)
@@ -141,7 +141,7 @@ def test_tls_deployment_refuses_plain_tcp_and_foreign_certificates(tmp_path: Pat
 _CONNECT_FROM_CONFIG = """
 import sys
 from mercury_dem.config import load_config
-from mercury_dem.pipeline.executors import connect
+from mercury_dem.compute import connect
 conn = connect(load_config(sys.argv[1]).execution)
 try:
     print(conn.mode, conn.client.submit(sum, [20, 22]).result())
@@ -163,8 +163,8 @@ def test_project_client_joins_a_tls_deployment_through_its_configuration(tmp_pat
     import pytest
 
     from mercury_dem.config import ConfigError, load_config
-    from mercury_dem.pipeline.executors import connect
-    from mercury_dem.pipeline.security import add_tls_arguments, security_from_args
+    from mercury_dem.compute import connect
+    from mercury_dem.compute.security import add_tls_arguments, security_from_args
 
     dep = start_local(tmp_path / "dask", workers=1, tls=True)
     try:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from mercury_dem.config import ConfigError, load_config
-from mercury_dem.pipeline.security import (
+from mercury_dem.compute.security import (
     TlsFiles,
     add_tls_arguments,
     security_from_args,
@@ -29,7 +29,7 @@ def test_default_local_cluster_binds_to_loopback() -> None:
     """connect() with the default configuration: scheduler, workers and dashboards on 127.0.0.1 only."""
     import psutil
 
-    from mercury_dem.pipeline.executors import ADJUST_RESOURCE, connect
+    from mercury_dem.compute import ADJUST_RESOURCE, connect
 
     cfg = load_config()
     assert cfg.execution.host == "127.0.0.1"
@@ -63,7 +63,7 @@ def test_local_cluster_over_tls_refuses_plain_tcp(tmp_path: Path) -> None:
     """connect(security=tls_security(...)) runs a TLS LocalCluster that a plain-TCP client cannot join."""
     from distributed import Client
 
-    from mercury_dem.pipeline.executors import connect
+    from mercury_dem.compute import connect
 
     files = TlsFiles.in_directory(make_certs(tmp_path / "tls"))
     conn = connect(load_config().execution, scheduler="local", workers=1, threads_per_worker=1,

@@ -15,7 +15,7 @@ from mercury_dem.exceptions import DiskFullError
 from mercury_dem.geometry.body import MERCURY
 from mercury_dem.pipeline import dem_stage
 from mercury_dem.pipeline.dem_stage import FAILED_CHUNKS_ATTR, failed_chunks_of, grid_dem, regrid_failed_chunks
-from mercury_dem.pipeline.executors import SyncClient
+from mercury_dem.compute import SyncClient
 
 CFG = DemConfig(pixels_per_degree=1, chunk_size=48, max_distance_m=400_000.0, coverage_pixel_km=40.0)
 REAL_GRID_CHUNK = dem_stage.grid_chunk

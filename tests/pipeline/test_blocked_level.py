@@ -50,7 +50,7 @@ def test_global_unit_blocked_equals_in_memory(sync_run: tuple[Path, dict[str, An
 
 def _global_unit_on_worker(run: str, config: Any) -> Any:
     """What ``graph._unit_task`` does on a worker, without writing the unit (the fixture's store is shared)."""
-    from mercury_dem.pipeline.executors import shard_engine_factory
+    from mercury_dem.pipeline.shard_engine import shard_engine_factory
 
     factory = shard_engine_factory()
     assert factory is not None  # inside a Dask worker's task
@@ -62,7 +62,8 @@ def test_global_unit_blocks_on_the_runs_dask_workers(sync_run: tuple[Path, dict[
     (shard actors, the task seceded meanwhile) and gets the in-process blocked solution."""
     from distributed import Client
 
-    from mercury_dem.pipeline.executors import local_cluster, shard_engine_factory
+    from mercury_dem.compute import local_cluster
+    from mercury_dem.pipeline.shard_engine import shard_engine_factory
 
     assert shard_engine_factory() is None  # not in a worker: in process
     run, _ = sync_run

@@ -50,7 +50,7 @@ def test_serial_and_distributed_dense_stores_are_identical(sync_run: tuple[Path,
                                                            tmp_path: Path) -> None:
     from distributed import Client
 
-    from mercury_dem.pipeline.executors import SyncClient, local_cluster
+    from mercury_dem.compute import SyncClient, local_cluster
 
     run, _ = sync_run
     serial = _dense(run, tmp_path / "serial", SyncClient())

@@ -98,7 +98,7 @@ def test_a_worker_killed_mid_run_loses_nothing(sync_run: tuple[Path, dict[str, A
                                               tmp_path: Path) -> None:
     from distributed import Client, LocalCluster
 
-    from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection
+    from mercury_dem.compute import ADJUST_RESOURCE, Connection
 
     run, _ = sync_run
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=":0",

@@ -214,7 +214,7 @@ def test_ten_random_worker_kills_in_one_run_lose_nothing(
     import dask
     from distributed import Client, LocalCluster
 
-    from mercury_dem.pipeline.executors import ADJUST_RESOURCE, Connection
+    from mercury_dem.compute import ADJUST_RESOURCE, Connection
 
     ref, _ = sync_run
     # a unit may lose its worker several times: let the scheduler retry it (default 3 deaths per task)

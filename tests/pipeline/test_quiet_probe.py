@@ -7,15 +7,15 @@ import logging
 import pytest
 
 from mercury_dem.config.execution import ExecutionConfig
-from mercury_dem.pipeline.executors import _CommSizeProbeFilter, connect, quiet_comm_size_probe
+from mercury_dem.compute.clusters import CommSizeProbeFilter, connect, quiet_comm_size_probe
 
 
 def _filter_installed() -> bool:
-    return any(isinstance(f, _CommSizeProbeFilter) for f in logging.getLogger("distributed.sizeof").filters)
+    return any(isinstance(f, CommSizeProbeFilter) for f in logging.getLogger("distributed.sizeof").filters)
 
 
 def test_only_the_comm_probe_message_is_dropped() -> None:
-    f = _CommSizeProbeFilter()
+    f = CommSizeProbeFilter()
 
     def rec(msg: object) -> logging.LogRecord:
         return logging.LogRecord("distributed.sizeof", logging.WARNING, __file__, 1, msg, None, None)
@@ -26,7 +26,7 @@ def test_only_the_comm_probe_message_is_dropped() -> None:
     assert f.filter(rec("anything else"))
     quiet_comm_size_probe()
     quiet_comm_size_probe()
-    assert sum(isinstance(x, _CommSizeProbeFilter) for x in logging.getLogger("distributed.sizeof").filters) == 1
+    assert sum(isinstance(x, CommSizeProbeFilter) for x in logging.getLogger("distributed.sizeof").filters) == 1
 
 
 @pytest.mark.integration  # starts a LocalCluster

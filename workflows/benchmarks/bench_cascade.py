@@ -96,7 +96,7 @@ def overhead_part(n_workers: int, n_tasks: int) -> dict:
     """Per-task overhead on a LocalCluster shaped like the run's (processes, 1 thread each)."""
     from distributed import Client
 
-    from mercury_dem.pipeline.executors import local_cluster
+    from mercury_dem.compute import local_cluster
 
     with local_cluster(n_workers, 1) as cluster, Client(cluster) as client:
         return scheduler_overhead(client, n_tasks)

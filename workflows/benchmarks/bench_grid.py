@@ -224,7 +224,7 @@ def comparison(args):
 def full_size(args):
     from distributed import Client
 
-    from mercury_dem.pipeline.executors import local_cluster
+    from mercury_dem.compute import local_cluster
 
     work = Path(tempfile.mkdtemp(prefix="bench_grid_full_"))
     try:

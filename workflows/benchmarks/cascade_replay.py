@@ -475,7 +475,7 @@ def sleep_cluster(n_workers: int) -> Any:
     worker): with ``dashboard_address=None`` Dask bound the scheduler's to port 8787 and every one
     of them to all interfaces (0.0.0.0 and ::). Both addresses are therefore given as loopback.
     """
-    from mercury_dem.pipeline.executors import local_cluster
+    from mercury_dem.compute import local_cluster
 
     return local_cluster(n_workers, 1, host="127.0.0.1", processes=False, memory_limit=0)
 

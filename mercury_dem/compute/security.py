@@ -123,7 +123,7 @@ def security_from_args(args: argparse.Namespace) -> Any:
     Giving only some of the three is a :class:`ConfigError` (a silent plain-TCP
     fallback would defeat the point).
     """
-    given = {k: getattr(args, k, None) for k in ("tls_ca_file", "tls_cert", "tls_key")}
+    given: dict[str, str] = {k: getattr(args, k, None) or "" for k in ("tls_ca_file", "tls_cert", "tls_key")}
     if not any(given.values()):
         return None
     missing = [f"--{k.replace('_', '-')}" for k, v in given.items() if not v]
