@@ -93,6 +93,17 @@ class Progress:
         self.task.close()
 
 
+#: Configuration sections that say how a run executes, not what it computes (serial == distributed): a run may
+#: resume with other values (more workers, another no-worker timeout).
+EXECUTION_ONLY_SECTIONS = frozenset({"execution"})
+
+
+def changed_sections(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
+    """The configuration sections whose values differ and that change results (execution-only ones skipped)."""
+    keys = (set(before) | set(after)) - EXECUTION_ONLY_SECTIONS
+    return sorted(k for k in keys if before.get(k) != after.get(k))
+
+
 def prepare_store(mission_path: str | Path, out: str | Path, config: Config, force: str | None) -> RunStore:
     """Create or reopen ``RUN``; a run of another mission is refused; ``force`` clears stages.
 
@@ -112,10 +123,11 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             raise StoreError(
                 f"{out} holds a run of mission {prev.get('mission')}, not {mission_abs}; choose another --out"
             )
-        if prev.get("config") != to_dict(config) and force is None:
+        changed = changed_sections(prev.get("config") or {}, to_dict(config))
+        if changed and force is None:
             raise StoreError(
-                f"{out} was run with a different configuration; resume with the same one, "
-                "or recompute with --force plan (or a later stage)"
+                f"{out} was run with a different configuration (section{'s' if len(changed) > 1 else ''} "
+                f"{', '.join(changed)}); resume with the same one, or recompute with --force plan (or a later stage)"
             )
     elif not store.is_empty():
         raise StoreError(f"{out} exists and is not a mercury-dem run; choose an empty or new --out")
