@@ -173,6 +173,10 @@ class PointBlockState:
     noise, and the weights by 6e-8 relative (the bound the tests check on the pointing: 1e-3 px).
     """
 
+    #: this block's cameras and camera pairs in the engine's tables (set by :class:`BlockedEngine`)
+    cam_map: NDArray[np.intp]
+    pair_map: NDArray[np.intp]
+
     def __init__(self, data: BlockData, setup: CameraSetup, opt: SolverOptions):
         self.block, self.point_start = data.block, data.point_start
         cams, local = np.unique(data.measure_image, return_inverse=True)
@@ -249,6 +253,7 @@ class PointBlockState:
     @property
     def r_now(self) -> NDArray[np.float64]:
         """Whitened residuals (M, 2) at the current state (recomputed: 16 bytes a measure not kept)."""
+        assert self._omega_c is not None  # set by the first linearization
         return self.model.residuals(FramingState(self._omega_c, self.zero_pos, self.points))
 
     def cost(self, omega: NDArray[np.float64], points: NDArray[np.float64] | None = None) -> tuple[float, NDArray[np.float64]]:
@@ -865,7 +870,8 @@ def _inverse_diagonal_blocks(matrix: sp.bsr_matrix, n_cam: int, method: str, bat
     if method == "dense":
         inv = np.linalg.inv(matrix.toarray())
         idx = np.arange(n_cam)[:, None] * C + np.arange(C)
-        return inv[idx[:, :, None], idx[:, None, :]]
+        out: NDArray[np.float64] = inv[idx[:, :, None], idx[:, None, :]]
+        return out
     factor = cholmod_factor(matrix.tocsc())
     out = np.empty((n_cam, C, C))
     n = n_cam * C
