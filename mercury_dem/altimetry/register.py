@@ -88,6 +88,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import polar
 
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
+from mercury_dem.stats import NMAD_FACTOR
 
 __all__ = [
     "MODELS",
@@ -104,8 +105,6 @@ __all__ = [
 #: The transform models, most general first, with their number of parameters.
 MODELS: dict[str, int] = {"affine": 12, "similarity": 7, "translation": 3, "vertical": 1}
 
-#: 1.4826 · MAD is the standard deviation of a normal distribution.
-_NMAD = 1.4826
 #: After this many Gauss-Newton steps a model whose worst parameter σ is over twice
 #: ``max_param_sigma_m`` is abandoned (it would be rejected at convergence anyway).
 _EARLY_JUDGEMENT_ITERATION = 3
@@ -349,7 +348,7 @@ def _model_basis(model: str, L: NDArray[np.float64]) -> NDArray[np.float64]:
 def _nmad(r: NDArray[np.float64]) -> float:
     if r.size == 0:
         return float("nan")
-    return float(_NMAD * np.median(np.abs(r - np.median(r))))
+    return float(NMAD_FACTOR * np.median(np.abs(r - np.median(r))))
 
 
 def _huber_weights(r: NDArray[np.float64], scale: float, k: float) -> NDArray[np.float64]:
