@@ -182,6 +182,10 @@ class PointBlockState:
     noise, and the weights by 6e-8 relative (the bound the tests check on the pointing: 1e-3 px).
     """
 
+    #: this block's cameras and camera pairs in the engine's tables (set by :class:`BlockedEngine`)
+    cam_map: NDArray[np.intp]
+    pair_map: NDArray[np.intp]
+
     def __init__(self, data: BlockData, setup: CameraSetup, opt: SolverOptions):
         self.block, self.point_start = data.block, data.point_start
         cams, local = np.unique(data.measure_image, return_inverse=True)
@@ -258,6 +262,7 @@ class PointBlockState:
     @property
     def r_now(self) -> NDArray[np.float64]:
         """Whitened residuals (M, 2) at the current state (recomputed: 16 bytes a measure not kept)."""
+        assert self._omega_c is not None  # set by the first linearization
         return self.model.residuals(FramingState(self._omega_c, self.zero_pos, self.points))
 
     def cost(self, omega: NDArray[np.float64], points: NDArray[np.float64] | None = None) -> tuple[float, NDArray[np.float64]]:

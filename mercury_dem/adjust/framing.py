@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.adjust.problem import AdjustmentProblem
+from mercury_dem.adjust.problem import AdjustmentProblem, IndexArray
 from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles, skew
 
 #: Measures per vectorized chunk (bounds the temporaries: ~1 KB per measure).
@@ -90,11 +90,12 @@ class FramingModel:
         self.camera_dim = 3 if position_sigma_m is None else 6
         self.n_cameras = problem.n_images
         self.n_points = problem.n_points
-        self.camera_index = problem.measure_image
-        self.point_index = problem.measure_point
+        # int64, or int32 when the blocked adjuster narrows them (it replaces these and _groups)
+        self.camera_index: IndexArray = problem.measure_image
+        self.point_index: IndexArray = problem.measure_point
         self.pointing_sigma = float(pointing_sigma_rad)
         self.position_sigma = None if position_sigma_m is None else float(position_sigma_m)
-        self._groups = [
+        self._groups: list[tuple[int, IndexArray]] = [
             (k, np.flatnonzero(problem.image_camera[problem.measure_image] == k)) for k in range(len(problem.cameras))
         ]
         self._inv_sigma = 1.0 / problem.measure_sigma
@@ -125,12 +126,14 @@ class FramingModel:
 
     def rotations(self, state: FramingState) -> NDArray[np.float64]:
         """Corrected rotations (n_img, 3, 3)."""
-        return np.matmul(rotation_from_angles(state.omega), self.problem.rotations)
+        out: NDArray[np.float64] = np.matmul(rotation_from_angles(state.omega), self.problem.rotations)
+        return out
 
     def positions(self, state: FramingState) -> NDArray[np.float64]:
         return self.problem.positions + state.position_correction
 
-    def _evaluate(self, state: FramingState, jacobian: bool) -> tuple[NDArray[np.float64], ...]:
+    def _evaluate(self, state: FramingState, jacobian: bool
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None]:
         prob = self.problem
         m = prob.n_measures
         rot = self.rotations(state)
@@ -148,7 +151,7 @@ class FramingModel:
                 pix = cam.camera_to_pixel(v)
                 inv_s = self._inv_sigma[idx]
                 res[idx] = (pix - prob.measures[idx]) * inv_s[:, None]
-                if not jacobian:
+                if jc is None or jp is None:  # not jacobian
                     continue
                 f, p = cam.focal_length_mm, cam.pixel_size_mm
                 iz = 1.0 / v[:, 2]
@@ -163,11 +166,11 @@ class FramingModel:
                     dpix = np.matmul(np.matmul(cam.focal_to_pixel_matrix(), jd), dxy) * inv_s[:, None, None]
                 else:  # L = p I (kept in this form: the MDIS presets' numbers do not change)
                     dpix = np.matmul(jd, dxy) * (inv_s / p)[:, None, None]  # (n, 2, 3)
-                jc[idx, :, 0:3] = -np.matmul(dpix, skew(v))  # type: ignore[index]
+                jc[idx, :, 0:3] = -np.matmul(dpix, skew(v))
                 jpp = np.matmul(dpix, r_i)
-                jp[idx] = jpp  # type: ignore[index]
+                jp[idx] = jpp
                 if self.camera_dim == 6:
-                    jc[idx, :, 3:6] = -jpp  # type: ignore[index]
+                    jc[idx, :, 3:6] = -jpp
         return res, jc, jp
 
     def residuals(self, state: FramingState) -> NDArray[np.float64]:
@@ -175,7 +178,8 @@ class FramingModel:
 
     def linearize(self, state: FramingState) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         res, jc, jp = self._evaluate(state, True)
-        return res, jc, jp  # type: ignore[return-value]
+        assert jc is not None and jp is not None  # filled when asked for the Jacobians
+        return res, jc, jp
 
     def camera_prior(self, state: FramingState) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         n, c = self.n_cameras, self.camera_dim

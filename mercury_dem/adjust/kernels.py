@@ -15,14 +15,16 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.adjust.problem import IndexArray
+
 
 @numba.njit(cache=True, fastmath=True)
 def normal_blocks(
     r: NDArray[np.float64],
     jc: NDArray[np.float64],
     jp: NDArray[np.float64],
-    cam: NDArray[np.int64],
-    pt: NDArray[np.int64],
+    cam: IndexArray,
+    pt: IndexArray,
     u: NDArray[np.float64],
     g_c: NDArray[np.float64],
     v: NDArray[np.float64],
@@ -53,7 +55,7 @@ def normal_blocks(
 
 
 @numba.njit(cache=True, fastmath=True)
-def _w_vinv(w: NDArray[np.float64], v_inv: NDArray[np.float64], pt: NDArray[np.int64]) -> NDArray[np.float64]:
+def _w_vinv(w: NDArray[np.float64], v_inv: NDArray[np.float64], pt: IndexArray) -> NDArray[np.float64]:
     """Y[m] = W[m] V^-1[pt[m]] for every measure (M, c, 3): the left factor of each pair's Schur block."""
     m_count, c, _ = w.shape
     y = np.empty((m_count, c, 3))
@@ -82,7 +84,7 @@ def _add_pair(out: NDArray[np.float64], k: int, y: NDArray[np.float64], w: NDArr
 def schur_pairs(
     w: NDArray[np.float64],
     v_inv: NDArray[np.float64],
-    pt: NDArray[np.int64],
+    pt: IndexArray,
     first: NDArray[np.int64],
     second: NDArray[np.int64],
     block: NDArray[np.int64],
@@ -101,10 +103,10 @@ def schur_pairs(
 def schur_pairs_grouped(
     w: NDArray[np.float64],
     v_inv: NDArray[np.float64],
-    pt: NDArray[np.int64],
-    cam: NDArray[np.int64],
-    order: NDArray[np.int64],
-    ptr: NDArray[np.int64],
+    pt: IndexArray,
+    cam: IndexArray,
+    order: IndexArray,
+    ptr: IndexArray,
     block: NDArray[np.int64],
     out: NDArray[np.float64],
 ) -> None:
@@ -134,10 +136,10 @@ def schur_pairs_grouped(
 def schur_pairs_table(
     w: NDArray[np.float64],
     v_inv: NDArray[np.float64],
-    pt: NDArray[np.int64],
-    cam: NDArray[np.int64],
-    order: NDArray[np.int64],
-    ptr: NDArray[np.int64],
+    pt: IndexArray,
+    cam: IndexArray,
+    order: IndexArray,
+    ptr: IndexArray,
     table: NDArray[np.int32],
     out: NDArray[np.float64],
 ) -> None:
@@ -183,8 +185,8 @@ def bal_project(
     rot: NDArray[np.float64],
     par: NDArray[np.float64],
     points: NDArray[np.float64],
-    cam: NDArray[np.int64],
-    pt: NDArray[np.int64],
+    cam: IndexArray,
+    pt: IndexArray,
     obs: NDArray[np.float64],
     res: NDArray[np.float64],
     jc: NDArray[np.float64],
@@ -248,7 +250,7 @@ def bal_project(
 
 @numba.njit(cache=True, fastmath=True)
 def reduced_rhs(
-    w: NDArray[np.float64], t_p: NDArray[np.float64], cam: NDArray[np.int64], pt: NDArray[np.int64], b: NDArray[np.float64]
+    w: NDArray[np.float64], t_p: NDArray[np.float64], cam: IndexArray, pt: IndexArray, b: NDArray[np.float64]
 ) -> None:
     """b[cam] += W[m] t_p[pt] over measures (the W V^-1 g_p part of the reduced right-hand side)."""
     c = w.shape[1]
@@ -261,7 +263,7 @@ def reduced_rhs(
 
 @numba.njit(cache=True, fastmath=True)
 def point_rhs(
-    w: NDArray[np.float64], dc: NDArray[np.float64], cam: NDArray[np.int64], pt: NDArray[np.int64], q: NDArray[np.float64]
+    w: NDArray[np.float64], dc: NDArray[np.float64], cam: IndexArray, pt: IndexArray, q: NDArray[np.float64]
 ) -> None:
     """q[pt] += W[m]^T dc[cam] over measures (for the point back-substitution)."""
     c = w.shape[1]

@@ -42,6 +42,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
+from mercury_dem.adjust.problem import IndexArray
 from mercury_dem.adjust.schur import HAVE_CHOLMOD, CholmodNotPositiveDefinite, cholmod_factor
 from mercury_dem.exceptions import AdjustmentError
 
@@ -128,7 +129,7 @@ def _takahashi_supernodal(indptr: NDArray[np.int64], indices: NDArray[np.int64],
             p = indptr[j0 + t]
             for u in range(t, w):
                 if indices[p + u - t] != j0 + u:
-                    return j0 + t
+                    return int(j0 + t)
                 ljj[u, t] = lchol[p + u - t]
             base = p + w - t
             for a in range(r):
@@ -143,7 +144,7 @@ def _takahashi_supernodal(indptr: NDArray[np.int64], indices: NDArray[np.int64],
                 while q < qe and indices[q] < i:
                     q += 1
                 if q == qe or indices[q] != i:
-                    return j0
+                    return int(j0)
                 zrr[a, b] = z[q]
                 zrr[b, a] = z[q]
         linv = np.linalg.inv(ljj)
@@ -323,7 +324,7 @@ def sigmas_of(cov: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def point_covariances(pair_blocks: Callable[[NDArray[np.int64], NDArray[np.int64]], NDArray[np.float64]], c: int,
                       sigma0: float, wm: NDArray[np.float64],
-                      v_inv: NDArray[np.float64], cam: NDArray[np.int64], pt: NDArray[np.int64],
+                      v_inv: NDArray[np.float64], cam: IndexArray, pt: IndexArray,
                       eliminated: NDArray[np.bool_], held: NDArray[np.bool_] | None = None,
                       chunk: int = 1 << 20) -> NDArray[np.float64]:
     """A-posteriori covariance (n_pt, 3, 3) of each point: ``sigma0^2 (V^-1 + sum Y_m1^T C[i1, i2] Y_m2)``.

@@ -20,6 +20,10 @@ from numpy.typing import NDArray
 from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.camera import FramingCamera
 
+#: A measure's point or camera index array: int64, or int32 where the blocked adjuster keeps its
+#: indices small (numba compiles the kernels for either).
+IndexArray = NDArray[np.int32] | NDArray[np.int64]
+
 
 def _ids(name: str, values: NDArray[np.bool_], ids: tuple[str, ...] | NDArray[np.int64], limit: int = 10) -> str:
     idx = np.flatnonzero(values)

@@ -11,10 +11,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-LOSSES = ("none", "huber", "cauchy")
+from mercury_dem.stats import NMAD_FACTOR
 
-#: MAD -> standard deviation for a normal distribution.
-MAD_TO_SIGMA = 1.4826
+LOSSES = ("none", "huber", "cauchy")
 
 
 def loss_rho(s: NDArray[np.float64], loss: str, scale: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -52,4 +51,4 @@ def rejection_limit(norms: NDArray[np.float64], sample: NDArray[np.bool_], k: fl
         return float("inf")
     med = float(np.median(x))
     mad = float(np.median(np.abs(x - med)))
-    return max(med + k * MAD_TO_SIGMA * mad, floor)
+    return max(med + k * NMAD_FACTOR * mad, floor)

@@ -42,6 +42,7 @@ import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from mercury_dem.adjust.kernels import schur_pairs
+from mercury_dem.adjust.problem import IndexArray
 
 try:  # CHOLMOD through scikit-sparse; optional (needs Debian's libsuitesparse at run time)
     from sksparse import cholmod as _cholmod
@@ -107,8 +108,8 @@ class SchurStructure:
         (False for held points: they contribute to U and g_c only)
     """
 
-    camera_index: NDArray[np.int64]
-    point_index: NDArray[np.int64]
+    camera_index: IndexArray
+    point_index: IndexArray
     n_cameras: int
     n_points: int
     camera_dim: int
@@ -126,8 +127,8 @@ class SchurStructure:
     @classmethod
     def build(
         cls,
-        camera_index: NDArray[np.int64],
-        point_index: NDArray[np.int64],
+        camera_index: IndexArray,
+        point_index: IndexArray,
         n_cameras: int,
         n_points: int,
         camera_dim: int,
@@ -272,7 +273,8 @@ class ReducedSolver:
             return np.full_like(rhs, np.nan), LinearSolveInfo("pcg", ok=False)
 
         def precond(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            return np.matmul(pinv, x.reshape(n_cam, c, 1)).ravel()
+            out: NDArray[np.float64] = np.matmul(pinv, x.reshape(n_cam, c, 1)).ravel()
+            return out
 
         n = n_cam * c
         m_op = spla.LinearOperator((n, n), matvec=precond, dtype=np.float64)

@@ -37,7 +37,9 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from mercury_dem.adjust.kernels import normal_blocks, point_rhs, prior_blocks, reduced_rhs
-from mercury_dem.adjust.lm import Proposal, SolverOptions, Trial, run_levenberg_marquardt
+from mercury_dem.adjust.lm import Proposal, Trial, run_levenberg_marquardt
+from mercury_dem.adjust.lm import SolverOptions as SolverOptions  # re-exported: part of this module's API
+from mercury_dem.adjust.problem import IndexArray
 from mercury_dem.adjust.robust import loss_rho
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 
@@ -59,8 +61,14 @@ class BlockModel(Protocol):
     camera_dim: int
     n_cameras: int
     n_points: int
-    camera_index: NDArray[np.int64]
-    point_index: NDArray[np.int64]
+
+    @property
+    def camera_index(self) -> IndexArray:
+        """Camera of each measure (M,)."""
+
+    @property
+    def point_index(self) -> IndexArray:
+        """Point of each measure (M,)."""
 
     def residuals(self, state: Any) -> NDArray[np.float64]:
         """Whitened residuals (M, 2) (NaN where a point cannot be projected)."""
@@ -113,7 +121,7 @@ def _cost(model: BlockModel, state: Any, use: NDArray[np.bool_], opt: SolverOpti
     return c, r
 
 
-def _sum_by_point(x: NDArray[np.float64], pt: NDArray[np.int64], sel: NDArray[np.bool_], n_pt: int) -> NDArray[np.float64]:
+def _sum_by_point(x: NDArray[np.float64], pt: IndexArray, sel: NDArray[np.bool_], n_pt: int) -> NDArray[np.float64]:
     """Sums over each point's selected measures of ``x`` (M, ...) -> (n_pt, ...), by ``bincount`` per component."""
     flat = x.reshape(len(x), -1)
     out = np.empty((n_pt, flat.shape[1]))
@@ -125,7 +133,7 @@ def _sum_by_point(x: NDArray[np.float64], pt: NDArray[np.int64], sel: NDArray[np
 def deletion_statistic(
     r: NDArray[np.float64],
     jp: NDArray[np.float64],
-    pt: NDArray[np.int64],
+    pt: IndexArray,
     member: NDArray[np.bool_],
     fixed: NDArray[np.bool_],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -197,7 +205,7 @@ def deletion_statistic(
     return delta, ssr
 
 
-def all_but_one_per_point(pt: NDArray[np.int64], key: NDArray[np.float64], candidates: NDArray[np.bool_]) -> NDArray[np.bool_]:
+def all_but_one_per_point(pt: IndexArray, key: NDArray[np.float64], candidates: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Of the ``candidates`` (M,), all but the one of largest ``key`` in each point.
 
     Used to change at most one measure per point and round: of the measures
@@ -219,7 +227,7 @@ def all_but_one_per_point(pt: NDArray[np.int64], key: NDArray[np.float64], candi
 
 
 def ambiguous_measures(
-    pt: NDArray[np.int64], norms: NDArray[np.float64], ssr: NDArray[np.float64], member: NDArray[np.bool_], limit: float
+    pt: IndexArray, norms: NDArray[np.float64], ssr: NDArray[np.float64], member: NDArray[np.bool_], limit: float
 ) -> NDArray[np.bool_]:
     """Measures (M,) of points whose inconsistency more than one measure explains; all of those are rejected.
 
@@ -239,7 +247,7 @@ def ambiguous_measures(
 
 
 def proposed_accepted(
-    pt: NDArray[np.int64], norms: NDArray[np.float64], ssr: NDArray[np.float64], active: NDArray[np.bool_],
+    pt: IndexArray, norms: NDArray[np.float64], ssr: NDArray[np.float64], active: NDArray[np.bool_],
     member: NDArray[np.bool_], held_points: NDArray[np.bool_], limit: float, min_point_measures: int,
 ) -> NDArray[np.bool_]:
     """The accepted set (M,) a rejection round proposes under ``limit``, from the measures' statistic ``norms``.
@@ -264,7 +272,7 @@ def proposed_accepted(
 
 
 def kept_in_either(
-    proposed: NDArray[np.bool_], active: NDArray[np.bool_], pt: NDArray[np.int64], held_points: NDArray[np.bool_],
+    proposed: NDArray[np.bool_], active: NDArray[np.bool_], pt: IndexArray, held_points: NDArray[np.bool_],
     min_point_measures: int,
 ) -> NDArray[np.bool_]:
     """The cycle rule's accepted set: every measure accepted now or in ``proposed``, less those of points
@@ -366,7 +374,10 @@ class InMemoryEngine:
 
     def accept(self) -> float:
         x_norm = float(self.model.parameter_norm(self.state)) if hasattr(self.model, "parameter_norm") else 1.0
-        self.state, self.r_now = self._trial
+        state, r_new = self._trial
+        if r_new is None:
+            raise RuntimeError("accept() after a trial step that gave no state")
+        self.state, self.r_now = state, r_new
         del self._trial
         return x_norm
 

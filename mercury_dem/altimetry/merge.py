@@ -51,6 +51,7 @@ from mercury_dem.altimetry.register import TileTransform
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.reference.sampling import sample_grid
+from mercury_dem.stats import NMAD_FACTOR
 
 __all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "blended_scalar", "max_displacement_m",
            "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem", "transform_table"]
@@ -217,7 +218,7 @@ def mean_level_offsets(d: ArrayLike, shot_lat: ArrayLike, shot_lon: ArrayLike, t
             continue
         x = d[a:b]
         med = np.median(x)
-        nmad = 1.4826 * np.median(np.abs(x - med))
+        nmad = NMAD_FACTOR * np.median(np.abs(x - med))
         keep = np.abs(x - med) <= clip_nmad * max(nmad, 1e-9)
         if keep.sum() >= min_shots:
             offset[tid[a]] = float(x[keep].mean())

@@ -79,6 +79,7 @@ fewer than ``min_profile_shots`` usable shots (e.g. 2) are counted and left unco
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -88,6 +89,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import polar
 
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
+from mercury_dem.stats import NMAD_FACTOR
 
 __all__ = [
     "MODELS",
@@ -104,8 +106,6 @@ __all__ = [
 #: The transform models, most general first, with their number of parameters.
 MODELS: dict[str, int] = {"affine": 12, "similarity": 7, "translation": 3, "vertical": 1}
 
-#: 1.4826 · MAD is the standard deviation of a normal distribution.
-_NMAD = 1.4826
 #: After this many Gauss-Newton steps a model whose worst parameter σ is over twice
 #: ``max_param_sigma_m`` is abandoned (it would be rejected at convergence anyway).
 _EARLY_JUDGEMENT_ITERATION = 3
@@ -349,7 +349,7 @@ def _model_basis(model: str, L: NDArray[np.float64]) -> NDArray[np.float64]:
 def _nmad(r: NDArray[np.float64]) -> float:
     if r.size == 0:
         return float("nan")
-    return float(_NMAD * np.median(np.abs(r - np.median(r))))
+    return float(NMAD_FACTOR * np.median(np.abs(r - np.median(r))))
 
 
 def _huber_weights(r: NDArray[np.float64], scale: float, k: float) -> NDArray[np.float64]:
@@ -546,12 +546,54 @@ def _solve(N: NDArray[np.float64], rhs: NDArray[np.float64]) -> tuple[NDArray[np
     return inv @ rhs, inv
 
 
+@dataclass(frozen=True, eq=False)
+class _TransformFit:
+    """One model fitted to a tile's shots by :func:`_fit_transform`.
+
+    Attributes
+    ----------
+    theta : (12,) the transform's parameters (9 linear ones, as displacements a lever ``lever`` away, then the
+        translation), tile ENU frame, metres
+    keep : (N,) the shots used at the end (finite, within ``reject_k`` robust sigmas)
+    r : (N,) the shots' height residuals at ``theta`` (m; NaN off the DEM)
+    sigma, sigma_geom : (k,) posterior sigmas of the model's parameters (m): with the profile nuisance, and as the
+        shots alone determine them (the sigma the model is judged by)
+    iterations : Gauss-Newton iterations run
+    nuisance_constrained : parameter directions kept out of the profile nuisance
+    centre, enu, lever : the tile's frame (body-fixed centre (3,), ENU axes (3, 3)) and the levers (3,)
+    """
+
+    theta: NDArray[np.float64]
+    keep: NDArray[np.bool_]
+    r: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    sigma_geom: NDArray[np.float64]
+    iterations: int
+    nuisance_constrained: int
+    centre: NDArray[np.float64]
+    enu: NDArray[np.float64]
+    lever: NDArray[np.float64]
+
+    def apply(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Body-fixed points (N, 3) moved by the fitted transform (the arithmetic of the fit's own model)."""
+        c, E, th = self.centre, self.enu, self.theta
+        B = th[:9].reshape(3, 3) / self.lever[None, :]
+        return c + (((pts - c) @ E) @ (np.eye(3) + B).T + th[9:]) @ E.T
+
+
+@dataclass(frozen=True)
+class _FitFailure:
+    """Why a model was not fitted (:func:`_fit_transform`)."""
+
+    reason: str
+
+
 def _fit_transform(
     x: NDArray[np.float64], q: NDArray[np.float64], E: NDArray[np.float64], c: NDArray[np.float64],
     sampler: _Sampler, datum: float, model: str, L: NDArray[np.float64], opt: RegisterOptions,
     track_index: NDArray[np.intp] | None = None,
-) -> dict[str, Any]:
-    """Robust Gauss-Newton of one model; returns theta (12), weights, sigmas, residuals, or a failure.
+) -> _TransformFit | _FitFailure:
+    """Robust Gauss-Newton of one model: the fit (theta (12), weights, sigmas, residuals), or why it failed.
 
     With ``track_index`` (each shot's profile, 0..P-1) and ``opt.profile_nuisance``, one offset per
     profile (tile ENU frame) is estimated with it, its 3 × 3 blocks eliminated by a Schur
@@ -618,7 +660,7 @@ def _fit_transform(
             n_constrained = V.shape[1]
         sol = _solve(N, -bt)
         if sol is None:
-            return {"ok": False, "reason": f"{model}: singular (the shots do not determine it)"}
+            return _FitFailure(f"{model}: singular (the shots do not determine it)")
         delta, inv = sol
         inv_judge = inv_geom[1] if inv_geom is not None else inv
         mult = None
@@ -634,7 +676,7 @@ def _fit_transform(
             S_inv = np.linalg.pinv(S, rcond=1e-12, hermitian=True)
             solc = _solve(N + A.T @ S_inv @ A, -bt + A.T @ S_inv @ gvec)
             if solc is None:
-                return {"ok": False, "reason": f"{model}: singular (the shots do not determine it)"}
+                return _FitFailure(f"{model}: singular (the shots do not determine it)")
             delta = solc[0]
             mult = S_inv @ (gvec - A @ delta)
         if nuis:
@@ -671,8 +713,8 @@ def _fit_transform(
             s_now = math.sqrt(float(np.sum(w[ok] * r[ok] ** 2)) / max(int(ok.sum()) - P.shape[1], 1))
             worst = float(np.max(_judged_sigma(inv, inv_judge))) * s_now
             if worst > 2.0 * opt.max_param_sigma_m:
-                return {"ok": False, "reason": f"{model}: a parameter's sigma {worst:.3g} m > max_param_sigma_m "
-                                               f"(judged at iteration {it})"}
+                return _FitFailure(f"{model}: a parameter's sigma {worst:.3g} m > max_param_sigma_m "
+                                   f"(judged at iteration {it})")
     ok = np.isfinite(r)
     scale = max(_nmad(r[ok]), 1e-3)
     keep = ok & (np.abs(r - np.median(r[ok])) <= opt.reject_k * scale)
@@ -683,9 +725,8 @@ def _fit_transform(
     s0 = math.sqrt(float(np.sum(wk * r[keep] ** 2)) / max(n_used - k, 1))
     sig = np.sqrt(np.maximum(np.diag(inv), 0.0)) * s0 if inv is not None else np.full(k, np.inf)
     sig_geom = _judged_sigma(inv, inv_judge) * s0 if inv is not None else np.full(k, np.inf)
-    final = theta.copy()
-    return {"ok": True, "theta": theta, "keep": keep, "r": r, "sigma": sig, "sigma_geom": sig_geom, "iterations": it,
-            "apply": lambda pts: apply(final, (pts - c) @ E), "nuisance_constrained": int(n_constrained)}
+    return _TransformFit(theta=theta.copy(), keep=keep, r=r, sigma=sig, sigma_geom=sig_geom, iterations=it,
+                         nuisance_constrained=int(n_constrained), centre=c, enu=E, lever=L)
 
 
 def _between_profile_directions(N_plain: NDArray[np.float64], N_within: NDArray[np.float64],
@@ -745,8 +786,9 @@ def _decompose(theta: NDArray[np.float64], L: NDArray[np.float64]) -> dict[str, 
 
 
 def _fit_profiles(
-    x: NDArray[np.float64], track: NDArray[np.int64], keep: NDArray[np.bool_], apply: Any,
-    sampler: _Sampler, datum: float, scale0: float, opt: RegisterOptions, tile_id: int,
+    x: NDArray[np.float64], track: NDArray[np.int64], keep: NDArray[np.bool_],
+    apply: Callable[[NDArray[np.float64]], NDArray[np.float64]], sampler: _Sampler, datum: float, scale0: float,
+    opt: RegisterOptions, tile_id: int,
 ) -> tuple[ProfileOffsets, NDArray[np.float64], NDArray[np.float64]]:
     """One robust 3-D offset per profile; returns the offsets and the shots' residuals before/after."""
     tracks, inv_idx = np.unique(track, return_inverse=True)
@@ -888,10 +930,10 @@ def register_tile(
     fit = None
     for model in opt.models:
         f = _fit_transform(x, q, E, c, sampler, datum, model, L, opt, np.unique(track, return_inverse=True)[1])
-        if not f["ok"]:
-            notes.append(f["reason"])
+        if isinstance(f, _FitFailure):
+            notes.append(f.reason)
             continue
-        worst = float(np.max(f["sigma_geom"]))
+        worst = float(np.max(f.sigma_geom))
         if worst > opt.max_param_sigma_m:
             notes.append(f"{model}: a parameter's sigma {worst:.3g} m > max_param_sigma_m")
             continue
@@ -903,15 +945,15 @@ def register_tile(
         tt = TileTransform(**{**base.__dict__, "reason": "; ".join(notes)})
         return TileRegistration(tt, ProfileOffsets.empty(), counts, rms_before_m=_rms(r0))
     model, f = fit
-    keep = f["keep"]
+    keep = f.keep
     counts["used"] = int(keep.sum())
     counts["rejected"] = int(n - keep.sum())
-    dec = _decompose(f["theta"], L)
+    dec = _decompose(f.theta, L)
     tt = TileTransform(**{**base.__dict__, **dec, "model": model, "ok": True,
-                          "sigma_m": tuple(float(s) for s in f["sigma"]), "reason": "; ".join(notes)})
-    scale0 = max(_nmad(f["r"][keep]), 1e-3)
-    profiles, r_reg, r_after = _fit_profiles(x, track, keep, f["apply"], sampler, datum, scale0, opt, int(tile_id))
+                          "sigma_m": tuple(float(s) for s in f.sigma), "reason": "; ".join(notes)})
+    scale0 = max(_nmad(f.r[keep]), 1e-3)
+    profiles, r_reg, r_after = _fit_profiles(x, track, keep, f.apply, sampler, datum, scale0, opt, int(tile_id))
     counts["profiles_fitted"] = int(profiles.fitted.sum())
     counts["profiles_too_few_shots"] = int((~profiles.fitted).sum())
     return TileRegistration(tt, profiles, counts, rms_before_m=_rms(r0[keep]), rms_registered_m=_rms(r_reg[keep]),
-                            rms_after_m=_rms(r_after[keep]), iterations=int(f["iterations"]))
+                            rms_after_m=_rms(r_after[keep]), iterations=int(f.iterations))

@@ -122,7 +122,7 @@ class ShepardParams(NamedTuple):
     rs: float
 
 
-def _median11_body(t, cen, prm, out):  # pragma: no cover
+def _median11_body(t: SearchTables, cen: Centres, prm: Median11Params, out: Outputs) -> None:  # pragma: no cover
     k, sigma, a_min, a0, ang_max, rs, grow = prm.k, prm.sigma, prm.a_min, prm.a0, prm.ang_max, prm.rs, prm.grow
     radius = t.radius
     out_r, out_count, out_near, out_spread, status = out
@@ -180,7 +180,7 @@ def _median11_body(t, cen, prm, out):  # pragma: no cover
             out_near[p] = math.sqrt(d2near)
 
 
-def _shepard_body(t, cen, prm, out):  # pragma: no cover
+def _shepard_body(t: SearchTables, cen: Centres, prm: ShepardParams, out: Outputs) -> None:  # pragma: no cover
     kmax, kfb, search_r, a_r, a0, ang_max, rs = prm
     xyz, radius = t.xyz, t.radius
     out_r, out_count, out_near, out_spread, status = out

@@ -118,8 +118,8 @@ def sinusoidal_grid(pixel_km: float, radius_m: float) -> tuple[NDArray[np.float6
     rk = radius_m / 1000.0
     nx = int(math.ceil(2 * math.pi * rk / pixel_km))
     ny = int(math.ceil(math.pi * rk / pixel_km))
-    x = -math.pi * rk + (np.arange(nx) + 0.5) * pixel_km
-    y = math.pi * rk / 2 - (np.arange(ny) + 0.5) * pixel_km
+    x: NDArray[np.float64] = -math.pi * rk + (np.arange(nx, dtype=np.float64) + 0.5) * pixel_km
+    y: NDArray[np.float64] = math.pi * rk / 2 - (np.arange(ny, dtype=np.float64) + 0.5) * pixel_km
     return x, y
 
 

@@ -54,7 +54,8 @@ def _finite_directions(points_xyz: NDArray[np.floating]) -> NDArray[np.float64]:
     p = p[np.all(np.isfinite(p), axis=1) & (np.einsum("ij,ij->i", p, p) > 0)]
     if p.shape[0] == 0:
         raise GridError("the point cloud is empty: no extent to grid (did the adjustment keep any points?)")
-    return p
+    out: NDArray[np.float64] = p
+    return out
 
 
 def lonlat_box(lat_deg: NDArray[np.floating], lon_deg: NDArray[np.floating]) -> tuple[float, float, float, float]:
@@ -143,5 +144,11 @@ def config_with_extent(cfg: DemConfig, points_xyz: NDArray[np.floating]) -> DemC
     if not cfg.extent_from_points:
         return cfg
     auto = points_extent(points_xyz, cfg.pixels_per_degree, margin_pixels=cfg.canvas_margin_pixels)
-    names = ("lat_min", "lat_max", "lon_min", "lon_max")
-    return dataclasses.replace(cfg, **{n: a for n, a in zip(names, auto) if getattr(cfg, n) is None})
+    lat_min, lat_max, lon_min, lon_max = auto
+    return dataclasses.replace(
+        cfg,
+        lat_min=lat_min if cfg.lat_min is None else cfg.lat_min,
+        lat_max=lat_max if cfg.lat_max is None else cfg.lat_max,
+        lon_min=lon_min if cfg.lon_min is None else cfg.lon_min,
+        lon_max=lon_max if cfg.lon_max is None else cfg.lon_max,
+    )

@@ -44,7 +44,7 @@ def box_mean_nan(values: NDArray[np.floating], size: int) -> NDArray[np.float64]
 
 
 @numba.njit(cache=True, nogil=True)
-def _box_mean_pass(v, size, out):  # pragma: no cover - compiled
+def _box_mean_pass(v: NDArray[np.float64], size: int, out: NDArray[np.float64]) -> None:  # pragma: no cover - compiled
     """Compiled: each valid pixel's box summed in a fixed order (rows of the box top to
     bottom, each left to right), whatever the pixel's place in the array. One pass over
     the map instead of numpy's ~25 whole-array passes (shifted sums, masks, temporaries).

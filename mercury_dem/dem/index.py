@@ -123,7 +123,8 @@ class SphereBuckets:
 
 
 @numba.njit(cache=True, nogil=True)
-def _occupancy(lat, lon, c, nlat, nlon, nbin):  # pragma: no cover - compiled
+def _occupancy(lat: NDArray[np.float64], lon: NDArray[np.float64], c: float, nlat: int, nlon: int,  # pragma: no cover - compiled
+               nbin: int) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], float, float]:
     """One pass over the footprints: coarse lat/lon cells holding points (``nlat x nlon`` of
     edge c radians), the least and greatest longitude in each 2 pi / nbin longitude bin
     (+inf / -inf where empty), and the latitude range.
@@ -186,7 +187,8 @@ def _occupied_density(occ: NDArray[np.bool_], c: float, n: int) -> float:
     return n / max(area, 1e-30)
 
 
-def _prepare_body(p, r, sine, x_out, y_out, bad):  # pragma: no cover - compiled
+def _prepare_body(p: NDArray[np.float64], r: NDArray[np.float64], sine: NDArray[np.float64], x_out: NDArray[np.float64], y_out: NDArray[np.float64],  # pragma: no cover - compiled
+                  bad: NDArray[np.uint8]) -> None:
     for i in prange(p.shape[0]):
         x = p[i, 0]
         y = p[i, 1]
@@ -204,7 +206,7 @@ def _prepare_body(p, r, sine, x_out, y_out, bad):  # pragma: no cover - compiled
         sine[i] = min(1.0, max(-1.0, z / rr))  # its arcsine is taken by numpy
 
 
-def _wrap_lon_body(lon):  # pragma: no cover - compiled
+def _wrap_lon_body(lon: NDArray[np.float64]) -> None:  # pragma: no cover - compiled
     for i in prange(lon.size):
         t = lon[i]
         t = t + 2.0 * math.pi if t < 0.0 else t + 0.0  # Python's t % 2 pi for t in [-pi, pi], -0.0 -> 0.0 included
@@ -215,7 +217,8 @@ def _wrap_lon_body(lon):  # pragma: no cover - compiled
 SORT_CHUNK = 65536
 
 
-def _band_cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band, local, hist):  # pragma: no cover
+def _band_cell_body(lat: NDArray[np.float64], lon: NDArray[np.float64], lat0: float, band_h: float, lon0: float,  # pragma: no cover
+                    lon_span: float, band_ncell: NDArray[np.int64], band: NDArray[np.int32], local: NDArray[np.int32], hist: NDArray[np.int64]) -> None:
     """Pass 1 of bucketing: each point's band and cell within its band; points per band in each chunk."""
     nb = band_ncell.size
     n = lat.size
@@ -231,7 +234,8 @@ def _band_cell_body(lat, lon, lat0, band_h, lon0, lon_span, band_ncell, band, lo
             hist[ch, b] += 1
 
 
-def _band_scatter_body(pts, radius, rs, band, local, offset, xyz_out, r_out, order, local_out):  # pragma: no cover
+def _band_scatter_body(pts: NDArray[np.float64], radius: NDArray[np.float64], rs: float, band: NDArray[np.int32], local: NDArray[np.int32],  # pragma: no cover
+                       offset: NDArray[np.int64], xyz_out: NDArray[np.float64], r_out: NDArray[np.float64], order: NDArray[np.int64], local_out: NDArray[np.int32]) -> None:
     """Pass 2: points into band order (stable), each chunk from its own offsets; footprints made here."""
     n = band.size
     for ch in prange(offset.shape[0]):
@@ -250,7 +254,8 @@ def _band_scatter_body(pts, radius, rs, band, local, offset, xyz_out, r_out, ord
             local_out[d] = local[p]
 
 
-def _cell_sort_body(band_start, band_ncell, band_first, xyz, r, order, local, cell_start):  # pragma: no cover
+def _cell_sort_body(band_start: NDArray[np.int64], band_ncell: NDArray[np.int64], band_first: NDArray[np.int64], xyz: NDArray[np.float64], r: NDArray[np.float64],  # pragma: no cover
+                    order: NDArray[np.int64], local: NDArray[np.int32], cell_start: NDArray[np.int64]) -> None:
     """Pass 3: within each band (a contiguous run after pass 2), a stable counting sort by cell."""
     for b in prange(band_ncell.size):
         s = band_start[b]
@@ -286,7 +291,8 @@ _band_scatter = numba.njit(parallel=True, cache=True, nogil=True)(_band_scatter_
 _cell_sort = numba.njit(parallel=True, cache=True, nogil=True)(_cell_sort_body)
 
 
-def _bucket_order(pts, radius, lat, lon, rs, lat0, band_h, lon0, lon_span, ncell, band_first):
+def _bucket_order(pts: NDArray[np.float64], radius: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64], rs: float, lat0: float, band_h: float, lon0: float,
+                  lon_span: float, ncell: NDArray[np.int64], band_first: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """Points sorted by cell (stable): footprints, radii, input rows and the cells' starts.
 
     Why three passes and not one counting sort by cell: a single sort writes (or gathers)

@@ -14,13 +14,14 @@ import math
 
 import numba
 import numpy as np
+from numpy.typing import NDArray
 
 #: Up to this many values, top-k selection and sorting count ranks instead of inserting.
 RANK_MAX = 64
 
 
 @numba.njit(cache=True, inline="always")
-def _sort11(r):  # pragma: no cover
+def _sort11(r: NDArray[np.float64]) -> None:  # pragma: no cover
     """Sort r[:11] ascending in place with a 35-comparator sorting network (min/max pairs, no
     branches; checked on all 2**11 0/1 inputs in the tests). Same values as any sort.
     """
@@ -64,7 +65,7 @@ def _sort11(r):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def filtered_median(r, s, n, sigma):  # pragma: no cover
+def filtered_median(r: NDArray[np.float64], s: NDArray[np.float64], n: int, sigma: float) -> tuple[float, float]:  # pragma: no cover
     """1-sigma filtered median of r[:n] (sorted in place; s: scratch of n) and the spread of the kept run."""
     if n == 11:
         _sort11(r)
@@ -127,7 +128,7 @@ def filtered_median(r, s, n, sigma):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def weighted_mean(radius, ik, d, w, n):  # pragma: no cover
+def weighted_mean(radius: NDArray[np.float64], ik: NDArray[np.int64], d: NDArray[np.float64], w: NDArray[np.float64], n: int | np.int64) -> tuple[float, float]:  # pragma: no cover
     """Weighted mean and weighted std of radius[ik[:n]] (weights w[:n]; a zero distance takes all)."""
     exact = False
     for i in range(n):

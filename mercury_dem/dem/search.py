@@ -21,13 +21,16 @@ that kernel measured 7-12 % slower.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.dem.reduce import RANK_MAX
+
+if TYPE_CHECKING:
+    from mercury_dem.dem.index import SearchTables
 
 #: Candidates buffered per pixel before ranking (beyond: ranked while scanning).
 BUFFER = 2048
@@ -43,6 +46,13 @@ SMALL_ANGLE = 0.01
 #: float64/int64, the k nearest found (squared chord, point; room for ``max(k, BUFFER)`` where
 #: :func:`knn_unordered` is used); ``bd2``/``bi`` (BUFFER,) float64/int64, a cap's candidates before ranking.
 SCRATCH_FIELDS = ("ranges", "dk2", "ik", "bd2", "bi")
+#: A count as the kernels pass it: numba's int64 where a loop counts with unsigned indices (:func:`collect_within`).
+Count = int | np.int64
+#: The type of that tuple.
+Scratch = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]
+#: A pixel's centre as :func:`pixel_centre` returns it: (latitude, longitude from the cells' origin, x, y, z,
+#: 1 / cos latitude).
+Centre = tuple[float, float, float, float, float, float]
 
 
 class Centres(NamedTuple):
@@ -66,7 +76,8 @@ class Centres(NamedTuple):
 
 
 @numba.njit(cache=True, inline="always")
-def _band_run(lo, hi, iw, last, lon_span, f, cell_start, out, n):  # pragma: no cover
+def _band_run(lo: float, hi: float, iw: float, last: int, lon_span: float, f: int, cell_start: NDArray[np.int64], out: NDArray[np.int64],
+              n: int) -> int:  # pragma: no cover
     """Append to ``out`` the run of sorted points in the cells of the band starting at cell f
     (cells 0..last, iw cells per radian) that meet the longitudes [lo, hi]; return the count.
     """
@@ -78,7 +89,7 @@ def _band_run(lo, hi, iw, last, lon_span, f, cell_start, out, n):  # pragma: no 
 
 
 @numba.njit(cache=True, inline="always")
-def cap_ranges(t, phi, icp, u, a, out):  # pragma: no cover
+def cap_ranges(t: SearchTables, phi: float, icp: float, u: float, a: float, out: NDArray[np.int64]) -> int:  # pragma: no cover
     """Contiguous runs of sorted points of the index ``t`` that hold every point within angle a of (phi, u).
 
     ``u`` is the query's east longitude from the cells' origin, in [0, 2 pi) (per column:
@@ -146,7 +157,7 @@ def cap_ranges(t, phi, icp, u, a, out):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _insert(dk2, ik, m, k, d2, i):  # pragma: no cover
+def _insert(dk2: NDArray[np.float64], ik: NDArray[np.int64], m: int, k: int, d2: float, i: int) -> int:  # pragma: no cover
     """Insert (d2, i) into the ascending top-k list (ties broken by point index); return its new length."""
     if m < k:
         j = m - 1
@@ -165,7 +176,8 @@ def _insert(dk2, ik, m, k, d2, i):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def top_k(bd2, bi, m, k, dk2, ik):  # pragma: no cover
+def top_k(bd2: NDArray[np.float64], bi: NDArray[np.int64], m: Count, k: int, dk2: NDArray[np.float64],
+          ik: NDArray[np.int64]) -> Count:  # pragma: no cover
     """The min(k, m) smallest (bd2[j], bi[j]) of j < m, ascending, into (dk2, ik); returns how many.
 
     Same result as inserting them one by one with :func:`_insert`. Up to ``RANK_MAX``
@@ -191,7 +203,8 @@ def top_k(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True)
-def scan_ranges(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pragma: no cover
+def scan_ranges(xyz: NDArray[np.float64], ranges: NDArray[np.int64], nr: int, qx: float, qy: float, qz: float, k: int, d2max: float,
+                r2count: float, dk2: NDArray[np.float64], ik: NDArray[np.int64]) -> tuple[int, int]:  # pragma: no cover
     """Keep the k smallest squared distances <= d2max (sorted, with indices); count those <= r2count.
 
     Returns (number kept, number within the count radius).
@@ -212,7 +225,8 @@ def scan_ranges(xyz, ranges, nr, qx, qy, qz, k, d2max, r2count, dk2, ik):  # pra
 
 
 @numba.njit(cache=True, inline="always")
-def collect_within(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # pragma: no cover
+def collect_within(xyz: NDArray[np.float64], ranges: NDArray[np.int64], nr: int, qx: float, qy: float, qz: float, cap2: float, r2count: float,
+                   bd2: NDArray[np.float64], bi: NDArray[np.int64]) -> tuple[Count, int]:  # pragma: no cover
     """Squared distances <= cap2 into (bd2, bi); returns (how many there were, count <= r2count).
 
     More than ``bd2.size`` means the buffer overflowed (only its first entries are stored).
@@ -258,7 +272,7 @@ def collect_within(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi):  # prag
 
 
 @numba.njit(cache=True, nogil=True)
-def fill_centres(lat_deg, lon_deg, rs, lon0, cen):  # pragma: no cover
+def fill_centres(lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64], rs: float, lon0: float, cen: Centres) -> None:  # pragma: no cover
     """Pixel centres on the sphere of radius rs (m) from latitudes and longitudes (degrees), into the
     tables of ``cen`` (:class:`Centres`).
 
@@ -285,7 +299,7 @@ def fill_centres(lat_deg, lon_deg, rs, lon0, cen):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def pixel_centre(p, cen):  # pragma: no cover
+def pixel_centre(p: int, cen: Centres) -> Centre:  # pragma: no cover
     """Pixel p's centre: (latitude, longitude from the cells' origin, x, y, z, 1 / cos(latitude)) from
     the per-row/column tables ``cen`` (:class:`Centres`);
     ``cen.paired``: row p with column p (scattered pixels), else p = row * ncol + column (a grid).
@@ -301,7 +315,7 @@ def pixel_centre(p, cen):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _cap_chord2(a, rs):  # pragma: no cover
+def _cap_chord2(a: float, rs: float) -> float:  # pragma: no cover
     """Squared chord of a cap of angle ``a`` on the sphere of radius ``rs`` (inf for the whole sphere)."""
     if a >= math.pi:
         return np.inf
@@ -310,7 +324,7 @@ def _cap_chord2(a, rs):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _within_to_front(bd2, bi, m, t2):  # pragma: no cover
+def _within_to_front(bd2: NDArray[np.float64], bi: NDArray[np.int64], m: Count, t2: float) -> Count:  # pragma: no cover
     """Move the candidates j < m with bd2[j] <= t2 to the front (pairs swapped); return how many."""
     ms = 0
     for j in range(m):
@@ -323,7 +337,7 @@ def _within_to_front(bd2, bi, m, t2):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _next_cap(a, a_second, ang_max):  # pragma: no cover
+def _next_cap(a: float, a_second: float, ang_max: float) -> float:  # pragma: no cover
     """The cap after ``a`` in the k-NN search: ``a_second``, then doubling up to ``ang_max``."""
     if a < a_second:
         return a_second
@@ -331,7 +345,8 @@ def _next_cap(a, a_second, ang_max):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def knn_exact(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # pragma: no cover
+def knn_exact(t: SearchTables, q: Centre, sc: Scratch, k: int, a_first: float, a_second: float, ang_max: float,
+              rs: float, r2count: float, t2: float) -> tuple[bool, int]:  # pragma: no cover
     """Exact k nearest of the centre ``q`` (:func:`pixel_centre`) in the index ``t`` (ascending in
     ``sc.dk2``/``sc.ik``): caps a_first, then a_second, then doubling.
 
@@ -349,6 +364,7 @@ def knn_exact(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # prag
         nr = cap_ranges(t, phi, icp, u, a, ranges)
         cap2 = _cap_chord2(a, rs)
         m, cnt = collect_within(xyz, ranges, nr, qx, qy, qz, cap2, r2count, bd2, bi)
+        mk: Count
         if m > bd2.size:
             mk, _ = scan_ranges(xyz, ranges, nr, qx, qy, qz, k, cap2, r2count, dk2, ik)
         else:
@@ -367,7 +383,8 @@ def knn_exact(t, q, sc, k, a_first, a_second, ang_max, rs, r2count, t2):  # prag
 
 
 @numba.njit(cache=True, inline="always")
-def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
+def _smallest_set(bd2: NDArray[np.float64], bi: NDArray[np.int64], m: Count, k: int, dk2: NDArray[np.float64],
+                  ik: NDArray[np.int64]) -> tuple[float, float]:  # pragma: no cover
     """The k smallest (bd2[j], bi[j]) of j < m (k <= m) into (dk2[:k], ik[:k]) in any order.
 
     Returns (smallest, k-th smallest) squared distance. The set is the one :func:`top_k`
@@ -429,8 +446,10 @@ def _smallest_set(bd2, bi, m, k, dk2, ik):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def knn_unordered(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_first, cap2_first, a_second, bound, a_min,
-             ang_max, rs, r2count, t2):  # pragma: no cover
+def knn_unordered(t: SearchTables, phi: float, icp: float, u: float, qx: float, qy: float, qz: float, ranges: NDArray[np.int64],
+                  dk2: NDArray[np.float64], ik: NDArray[np.int64], bd2: NDArray[np.float64], bi: NDArray[np.int64], k: int, a_first: float, cap2_first: float,
+                  a_second: float, bound: float, a_min: float, ang_max: float, rs: float, r2count: float,
+                  t2: float) -> tuple[bool, int, float, float]:  # pragma: no cover
     """:func:`knn_exact` when the order of the k nearest does not matter (median11 sorts their radii).
 
     Takes the centre (phi, icp, u, qx, qy, qz), the scratch buffers and the settings as separate
@@ -473,7 +492,7 @@ def knn_unordered(t, phi, icp, u, qx, qy, qz, ranges, dk2, ik, bd2, bi, k, a_fir
 
 
 @numba.njit(cache=True, inline="always")
-def angle_upper_bound(chord, rs):  # pragma: no cover
+def angle_upper_bound(chord: float, rs: float) -> float:  # pragma: no cover
     """An upper bound of :func:`_angle` without the arcsine for small caps: with x = chord / 2 rs
     < SMALL_ANGLE, 2 asin(x) = 2 (x + x^3/6 + 3 x^5/40 + ...) <= 2 x (1 + x^2 / 5). A cap at
     least as wide as needed is exact all the same (only its cost differs).
@@ -485,7 +504,7 @@ def angle_upper_bound(chord, rs):  # pragma: no cover
 
 
 @numba.njit(cache=True, inline="always")
-def _angle(chord, rs):  # pragma: no cover
+def _angle(chord: float, rs: float) -> float:  # pragma: no cover
     """Angle (radians) of a chord on the sphere of radius rs; pi when longer than the diameter."""
     if chord >= 2.0 * rs:
         return math.pi

@@ -13,9 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.dense.pairs import REJECTED, SELECTED
-
-#: Robust scatter: 1.4826 x median absolute deviation.
-MAD_TO_SIGMA = 1.4826
+from mercury_dem.stats import NMAD_FACTOR
 
 
 def cap_per_tile(rows: list[Any], tile_of: dict[str, int], max_per_tile: int,
@@ -60,7 +58,7 @@ def height_margins(points_xyz: NDArray[np.float64], surface: Callable[..., NDArr
     tiles = TileGrid(tile_size_deg).tile_of(lat, lon)
 
     def margin(r: NDArray[np.float64]) -> float:
-        s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r)))) if r.size else 0.0
+        s = NMAD_FACTOR * float(np.median(np.abs(r - np.median(r)))) if r.size else 0.0
         return max(floor_m, factor * s)
 
     run = margin(res[ok])

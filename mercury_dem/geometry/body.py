@@ -113,14 +113,28 @@ class Body:
         if set(d) <= {"name"}:
             return body_by_name(name)
         try:
-            body = Body(name=name, naif_id=int(d["naif_id"]), radius_m=float(d["radius_m"]),  # type: ignore[arg-type]
-                        datum_radius_m=float(d["datum_radius_m"]), iau_code=int(d["iau_code"]),  # type: ignore[arg-type]
+            body = Body(name=name, naif_id=_json_int(d["naif_id"]), radius_m=_json_float(d["radius_m"]),
+                        datum_radius_m=_json_float(d["datum_radius_m"]), iau_code=_json_int(d["iau_code"]),
                         datum_crs=None if d.get("datum_crs") is None else str(d["datum_crs"]))
             if not (math.isfinite(body.radius_m) and math.isfinite(body.datum_radius_m)):
                 raise ValueError("radii must be finite")
             return body
         except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ValueError(f"body {name or '?'}: bad or missing field ({exc})") from None
+
+
+def _json_int(v: object) -> int:
+    """``int(v)`` of a value read from JSON/YAML; TypeError for a value ``int()`` does not take."""
+    if isinstance(v, int | float | str | bytes):
+        return int(v)
+    raise TypeError(f"expected a number, got {type(v).__name__}")
+
+
+def _json_float(v: object) -> float:
+    """``float(v)`` of a value read from JSON/YAML; TypeError for a value ``float()`` does not take."""
+    if isinstance(v, int | float | str | bytes):
+        return float(v)
+    raise TypeError(f"expected a number, got {type(v).__name__}")
 
 
 #: Mercury: the IAU 2015 sphere and the 2439.4 km datum of the MESSENGER global DEM.
@@ -219,4 +233,5 @@ def angular_distance_deg(
     b = latlon_to_unit(lat2, lon2)
     cross = np.linalg.norm(np.cross(a, b), axis=-1)
     dot = np.sum(a * b, axis=-1)
-    return np.degrees(np.arctan2(cross, dot))
+    out: NDArray[np.float64] = np.degrees(np.arctan2(cross, dot))
+    return out

@@ -319,7 +319,8 @@ class FramingCamera:
             yd = (px[..., 1] - self.boresight_line) * p
         x, y = self.undistort(xd, yd)
         v = np.stack([x, y, np.full_like(x, self.focal_length_mm)], axis=-1)
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+        out: NDArray[np.float64] = v / np.linalg.norm(v, axis=-1, keepdims=True)
+        return out
 
     def edge_pixels(self, per_side: int = 8) -> NDArray[np.float64]:
         """Pixels around the image border, counter-clockwise from the first pixel, shape (4*per_side, 2).

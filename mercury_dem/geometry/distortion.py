@@ -349,4 +349,5 @@ class CsmDistortion:
         else:
             jac = self._closed_jacobian(xi, yi)
         s = np.array(self.axes)
-        return jac * s[:, None] * s[None, :]  # S J S, S = diag(axes)
+        out: NDArray[np.float64] = jac * s[:, None] * s[None, :]  # S J S, S = diag(axes)
+        return out

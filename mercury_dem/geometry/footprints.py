@@ -40,7 +40,8 @@ def image_footprint(
         t = np.maximum(-np.sum(o * d, axis=-1), 0.0)
         closest = o + t[:, None] * d
         pts = np.where(hit[:, None], pts, closest)
-    return pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+    out: NDArray[np.float64] = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+    return out
 
 
 def image_footprints(
@@ -61,7 +62,8 @@ def image_footprints(
     if not np.all(hit):
         t = np.maximum(-np.sum(o * d, axis=-1), 0.0)
         pts = np.where(hit[..., None], pts, o + t[..., None] * d)
-    return pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+    out: NDArray[np.float64] = pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+    return out
 
 
 def footprint_latlon(footprint: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -132,7 +134,8 @@ def footprint_area_m2(footprints: ArrayLike, radius_m: float) -> NDArray[np.floa
     xy = gnomonic(f, c)
     x, y = xy[..., 0], xy[..., 1]
     a = 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
-    return a * radius_m**2
+    out: NDArray[np.float64] = a * radius_m**2
+    return out
 
 
 def _image_grid_ground(
@@ -171,7 +174,8 @@ def _seen_fraction(
                 inside[rows] = cam.in_image(px)
     ok = valid & facing & inside
     n_valid = np.maximum(valid.sum(axis=1), 1)
-    return ok.sum(axis=1) / n_valid
+    out: NDArray[np.float64] = ok.sum(axis=1) / n_valid
+    return out
 
 
 def overlap_graph(

@@ -122,9 +122,9 @@ def quaternion_to_matrix(q: ArrayLike) -> NDArray[np.float64]:
     The matrix is the active rotation ``v -> q v q*`` (SPICE ``q2m``); shape (..., 3, 3).
     The quaternion is normalised first (callers check the norm).
     """
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    qa = np.asarray(q, dtype=np.float64)
+    qa = qa / np.linalg.norm(qa, axis=-1, keepdims=True)
+    w, x, y, z = qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]
     return np.stack(
         [
             np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
@@ -277,7 +277,8 @@ def _at_time(r: _Reader, table: str, column: str, width: int, et: float) -> NDAr
         for q in rows:
             _unit_quaternion(r, f"{table}.{column}", q)
     if rows.shape[0] == 1:
-        return rows[0]
+        first: NDArray[np.float64] = rows[0]
+        return first
     if not math.isfinite(et):
         raise r.error(f"{table}.{column}", f"has {rows.shape[0]} rows but 'center_ephemeris_time' is missing: "
                                            "it is needed to pick the image's row")
@@ -292,7 +293,7 @@ def _at_time(r: _Reader, table: str, column: str, width: int, et: float) -> NDAr
     a, b = rows[i], rows[i + 1]
     if width == 4 and np.dot(a, b) < 0:  # q and -q are the same rotation
         b = -b
-    out = (1 - f) * a + f * b
+    out: NDArray[np.float64] = (1 - f) * a + f * b
     return out / np.linalg.norm(out) if width == 4 else out
 
 
@@ -532,7 +533,8 @@ def _single_row(r: _Reader, key: str, width: int) -> NDArray[np.float64]:
     rows = r.array(key, (-1, width))
     if rows.shape[0] != 1:
         raise r.error(key, f"has {rows.shape[0]} rows; a frame-camera ISD of this layout has exactly one")
-    return rows[0]
+    row: NDArray[np.float64] = rows[0]
+    return row
 
 
 def _csm_pose(r: _Reader, require_sun: bool, warnings: list[str]) -> tuple[Any, ...]:

@@ -47,7 +47,8 @@ def rotation_from_angles(omega: ArrayLike) -> NDArray[np.float64]:
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
     b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / (t * t))
     eye = np.broadcast_to(np.eye(3), k.shape)
-    return eye + a * k + b * k2
+    out: NDArray[np.float64] = eye + a * k + b * k2
+    return out
 
 
 def angles_from_rotation(rotation: ArrayLike) -> NDArray[np.float64]:
@@ -205,7 +206,8 @@ def illumination_angles(
     to_sun = to_sun / np.linalg.norm(to_sun, axis=-1, keepdims=True)
 
     def ang(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+        out: NDArray[np.float64] = np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+        return out
 
     return ang(n, to_sun), ang(n, to_sc), ang(to_sun, to_sc)
 

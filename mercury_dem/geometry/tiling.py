@@ -92,8 +92,8 @@ class TileGrid:
         t = self._check(tile_id)
         row, col = t // self.n_cols, t % self.n_cols
         s = self.tile_size_deg
-        lat0 = -90.0 + row * s
-        lon0 = col * s
+        lat0: NDArray[np.float64] = -90.0 + row.astype(np.float64) * s
+        lon0: NDArray[np.float64] = col.astype(np.float64) * s
         return lat0, lat0 + s, lon0, lon0 + s
 
     def centre(self, tile_id: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -120,7 +120,8 @@ class TileGrid:
 
     def tiles_of_region(self, region_id: int) -> NDArray[np.int64]:
         all_tiles = np.arange(self.n_tiles)
-        return all_tiles[self.region_of_tile(all_tiles) == region_id]
+        out: NDArray[np.int64] = all_tiles[self.region_of_tile(all_tiles) == region_id]
+        return out
 
     @staticmethod
     def regions_of_hemisphere(hemisphere: int) -> NDArray[np.int64]:

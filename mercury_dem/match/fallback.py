@@ -26,6 +26,7 @@ from mercury_dem.match.outliers import fundamental_inliers, homography_inliers, 
 from mercury_dem.match.prepare import ImageFeatures
 from mercury_dem.match.pretransform import PairGeometry
 from mercury_dem.match.result import Matches, PairReport
+from mercury_dem.stats import NMAD_FACTOR
 
 #: Shi-Tomasi corners added to the NCC fallback's candidates: quality level and spacing (pixels).
 _EXTRA_CORNER_QUALITY = 0.005
@@ -206,15 +207,13 @@ _NCC_PREDICT_MIN = 5
 _NCC_PREDICTED_BASE_PX = 3.0
 _NCC_PREDICTED_SIGMAS = 3.0
 _NCC_PREDICTED_MIN_SPREAD_PX = 0.5
-#: 1.4826 x MAD is the standard deviation of a normal distribution (NMAD).
-_NMAD = 1.4826
 
 
 def _ncc_predicted_radius(d: NDArray[np.float64], offset: NDArray[np.float64]) -> float:
     """Search half-width around a predicted position: 3 px plus 3 robust sigmas of the displacements (at
     least 0.5 px: the first pass's integer peaks can all agree while relief parallax still varies).
     """
-    spread = _NMAD * float(np.median(np.linalg.norm(d - offset, axis=1)))
+    spread = NMAD_FACTOR * float(np.median(np.linalg.norm(d - offset, axis=1)))
     return _NCC_PREDICTED_BASE_PX + _NCC_PREDICTED_SIGMAS * max(spread, _NCC_PREDICTED_MIN_SPREAD_PX)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.match.features import spread_best
+from mercury_dem.stats import NMAD_FACTOR
 
 
 @dataclass(frozen=True)
@@ -138,5 +139,5 @@ def local_consistency(
     med = np.median(nb, axis=1)
     # Where the neighbours themselves disagree (sparse matches over varying parallax) the
     # tolerance widens to 3 robust sigmas of their spread.
-    spread = 1.4826 * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
+    spread = NMAD_FACTOR * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
     return np.linalg.norm(d - med, axis=1) <= np.clip(3.0 * spread, tolerance_px, 2.0 * tolerance_px)

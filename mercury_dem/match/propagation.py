@@ -58,6 +58,7 @@ from mercury_dem.match.prepare import refine_pattern
 from mercury_dem.match.pretransform import apply_homography, warp_to_reference
 from mercury_dem.match.refine import box_count, integral_image, refine_matches
 from mercury_dem.match.result import PairReport, PairResult
+from mercury_dem.stats import NMAD_FACTOR
 
 #: Neighbours (pair matches) whose median displacement predicts a propagated anchor's position.
 PREDICT_NEIGHBOURS = 6
@@ -99,8 +100,6 @@ THIN_PRIORITY_WEIGHT = 2.0
 #: (image index, keypoint id) packed into one int64 key as ``index x stride + id`` (keypoint
 #: ids are below 2^32).
 _IMAGE_KEY_STRIDE = 1 << 32
-#: 1.4826 x MAD is the standard deviation of a normal distribution (NMAD).
-_NMAD = 1.4826
 #: Stands for a NaN position in the window test: far off every image, so it fails the bounds.
 _OFF_IMAGE = -1e9
 
@@ -140,7 +139,7 @@ def predict_displacement(
     idx = np.asarray(idx).reshape(query.shape[0], k)
     nb = displacement[idx]
     med = np.median(nb, axis=1)
-    spread = _NMAD * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
+    spread = NMAD_FACTOR * np.median(np.linalg.norm(nb - med[:, None, :], axis=-1), axis=1)
     return med, spread
 
 

@@ -79,8 +79,10 @@ def as_pair_matches(matches: Any) -> PairMatches:
     """A :class:`PairMatches` from one, from any object with its attributes, or from a mapping."""
     if isinstance(matches, PairMatches):
         return matches
-    get = (lambda k: matches.get(k)) if isinstance(matches, Mapping) else (lambda k: getattr(matches, k, None))
-    cols = {k: get(k) for k in _MATCH_FIELDS + ("feature_a", "feature_b")}
+    def get(k: str) -> Any:
+        return matches.get(k) if isinstance(matches, Mapping) else getattr(matches, k, None)
+
+    cols: dict[str, Any] = {k: get(k) for k in _MATCH_FIELDS + ("feature_a", "feature_b")}
     missing = [k for k in _MATCH_FIELDS if cols[k] is None]
     if missing:
         raise NetworkError(f"matches lack the column(s) {missing}; expected a PairMatches table")
@@ -168,7 +170,7 @@ def triangulate_points(
     bounds = np.searchsorted(measure_image[order], np.arange(k + 1))
     for img in np.flatnonzero(np.diff(bounds)):  # loop over images, vectorized within each
         sel = order[bounds[img] : bounds[img + 1]]
-        o, d = pixel_rays(cams[img], positions[img], rotations[img], pixels[sel])
+        o, d = pixel_rays(cams[int(img)], positions[img], rotations[img], pixels[sel])
         origins[sel], dirs[sel] = o, d
     n = n_points
     cnt = np.bincount(measure_point, minlength=n).astype(np.float64)
@@ -368,6 +370,7 @@ def build_network(
     image = np.concatenate([mt.image_a[sel], mt.image_b[sel]])
     sample = np.concatenate([mt.sample_a[sel], mt.sample_b[sel]])
     line = np.concatenate([mt.line_a[sel], mt.line_b[sel]])
+    assert mt.feature_a is not None and mt.feature_b is not None  # PairMatches.__post_init__ fills them with -1
     feature = np.concatenate([mt.feature_a[sel], mt.feature_b[sel]])
     n_obs = 2 * q
     obs = np.arange(n_obs, dtype=np.int64)

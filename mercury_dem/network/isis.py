@@ -78,7 +78,7 @@ def _parse_label(path: Path, data: bytes) -> dict[str, Any]:
     return label
 
 
-def _header_fields(path: Path, data: bytes, start: int, size: int) -> list[tuple[int, int, object, int]]:
+def _header_fields(path: Path, data: bytes, start: int, size: int) -> list[tuple[int, int, int | bytes, int]]:
     try:
         return pw.decode_message(data[start : start + size], base_offset=start)
     except ValueError as exc:
@@ -138,10 +138,10 @@ def decode_isis_network(
     header_serials: list[str] = []
     for f, wt, value, _ in header:
         if f in _HEADER_TEXT_FIELDS and wt == pw.WT_LEN:
-            meta[_HEADER_TEXT_FIELDS[f]] = bytes(value).decode("utf-8", "replace")  # type: ignore[arg-type]
+            meta[_HEADER_TEXT_FIELDS[f]] = bytes(value).decode("utf-8", "replace")
         elif version == 5 and f == 8 and wt == pw.WT_LEN:
             try:
-                header_serials.append(bytes(value).decode("utf-8"))  # type: ignore[arg-type]
+                header_serials.append(bytes(value).decode("utf-8"))
             except UnicodeDecodeError:
                 raise NetworkError(f"{path}: a serial number in the header is not UTF-8 text; the file is "
                                    "damaged") from None
@@ -283,7 +283,8 @@ def _strings_at(buf: NDArray[np.uint8], off: NDArray[np.int64], length: NDArray[
     width = max(int(length.max()), 1)
     raw = pw.gather_padded(buf, off, length, width).view(f"S{width}").ravel()
     try:
-        return raw.astype(f"U{width}")
+        out: NDArray[np.str_] = raw.astype(f"U{width}")
+        return out
     except UnicodeDecodeError:
         return np.char.decode(raw, "utf-8")
 

@@ -81,9 +81,11 @@ def _weighted_mean(
     w = np.where(ok, weights, 0.0)
     v = np.where(ok[:, None], values - b[target], 0.0)
     tot = np.bincount(target, w, minlength=n)
-    out = np.stack([np.bincount(target, w * v[:, j], minlength=n) for j in range(values.shape[1])], axis=1)
+    # bincount with weights is float64 (numpy's stubs say intp)
+    sums: NDArray[np.float64] = np.stack([np.bincount(target, w * v[:, j], minlength=n)
+                                          for j in range(values.shape[1])], axis=1).astype(np.float64, copy=False)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = b + out / tot[:, None]
+        out: NDArray[np.float64] = b + sums / tot[:, None]
     out[tot == 0] = np.nan
     return out
 

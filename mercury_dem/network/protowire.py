@@ -34,17 +34,23 @@ from numpy.typing import NDArray
 
 WT_VARINT, WT_I64, WT_LEN, WT_I32 = 0, 1, 2, 5
 
+# The kernels' column types (numba compiles them for exactly these dtypes).
+U8 = NDArray[np.uint8]
+I64 = NDArray[np.int64]
+F64 = NDArray[np.float64]
+B = NDArray[np.bool_]
+
 
 @njit(cache=True, inline="always")
 def _varint(buf: NDArray[np.uint8], i: int, end: int) -> tuple[int, int]:
-    result = 0
+    result = np.int64(0)
     shift = 0
     while i < end:
         b = np.int64(buf[i])
         i += 1
         result |= (b & 0x7F) << shift
         if b < 0x80:
-            return result, i
+            return int(result), i
         shift += 7
         if shift > 63:
             return 0, -1
@@ -70,7 +76,8 @@ def _skip(buf: NDArray[np.uint8], i: int, end: int, wt: int) -> int:
 
 @njit(cache=True, inline="always")
 def _f64(buf: NDArray[np.uint8], i: int) -> float:
-    return buf[i : i + 8].view(np.float64)[0]
+    out: float = buf[i : i + 8].view(np.float64)[0]
+    return out
 
 
 @njit(cache=True)
@@ -102,7 +109,7 @@ def split_length_prefixed(buf: NDArray[np.uint8], start: int, end: int, n_max: i
     while i < end:
         if i + 4 > end or n >= n_max:
             return starts[:n], ends[:n], i
-        size = np.int64(buf[i]) | (np.int64(buf[i + 1]) << 8) | (np.int64(buf[i + 2]) << 16) | (np.int64(buf[i + 3]) << 24)
+        size = int(np.int64(buf[i]) | (np.int64(buf[i + 1]) << 8) | (np.int64(buf[i + 2]) << 16) | (np.int64(buf[i + 3]) << 24))
         if i + 4 + size > end:
             return starts[:n], ends[:n], i
         starts[n] = i + 4
@@ -138,10 +145,12 @@ def count_measures(buf: NDArray[np.uint8], starts: NDArray[np.int64], ends: NDAr
 
 @njit(cache=True)
 def decode_points(
-    buf, starts, ends, first_measure,
-    pid_off, pid_len, ptype, pign, prej, apriori, adjusted, apcov, adcov, has_apcov, has_adcov,
-    m_ser_off, m_ser_len, mtype, sample, line, residuals, mign, mrej, appix, sigma,
-):  # pragma: no cover - compiled
+    buf: U8, starts: I64, ends: I64, first_measure: I64,
+    pid_off: I64, pid_len: I64, ptype: I64, pign: B, prej: B, apriori: F64, adjusted: F64, apcov: F64, adcov: F64,
+    has_apcov: B, has_adcov: B,
+    m_ser_off: I64, m_ser_len: I64, mtype: I64, sample: F64, line: F64, residuals: F64, mign: B, mrej: B,
+    appix: F64, sigma: F64,
+) -> tuple[int, int]:  # pragma: no cover - compiled
     """Decode point messages into preallocated columns (see module docstring)."""
     for p in range(starts.size):
         i = starts[p]
@@ -275,7 +284,7 @@ def _put_varint(out: NDArray[np.uint8], i: int, v: int) -> int:
 
 
 @njit(cache=True, inline="always")
-def _put_f64(out: NDArray[np.uint8], i: int, field: int, x: float, scratch_f, scratch_b) -> int:
+def _put_f64(out: NDArray[np.uint8], i: int, field: int, x: float, scratch_f: F64, scratch_b: U8) -> int:
     i = _put_varint(out, i, (field << 3) | WT_I64)
     scratch_f[0] = x
     for q in range(8):
@@ -289,7 +298,8 @@ def _f64_size(field: int, x: float) -> int:
 
 
 @njit(cache=True)
-def measure_sizes(ser_len, mimage, mtype, sample, line, residuals, mign, mrej, appix, sigma):  # pragma: no cover
+def measure_sizes(ser_len: I64, mimage: I64, mtype: I64, sample: F64, line: F64, residuals: F64,  # pragma: no cover
+                  mign: B, mrej: B, appix: F64, sigma: F64) -> I64:
     """Encoded size of each measure message (without its tag and length)."""
     out = np.empty(mimage.size, np.int64)
     for m in range(mimage.size):
@@ -305,7 +315,8 @@ def measure_sizes(ser_len, mimage, mtype, sample, line, residuals, mign, mrej, a
 
 
 @njit(cache=True)
-def point_sizes(pid_len, ptype, pign, prej, apriori, adjusted, apcov_ok, adcov_ok, first_measure, msize):  # pragma: no cover
+def point_sizes(pid_len: I64, ptype: I64, pign: B, prej: B, apriori: F64, adjusted: F64,  # pragma: no cover
+                apcov_ok: B, adcov_ok: B, first_measure: I64, msize: I64) -> I64:
     """Encoded size of each point message (without any length prefix)."""
     out = np.empty(pid_len.size, np.int64)
     for p in range(pid_len.size):
@@ -324,12 +335,14 @@ def point_sizes(pid_len, ptype, pign, prej, apriori, adjusted, apcov_ok, adcov_o
 
 @njit(cache=True)
 def encode_points(
-    out, starts, prefix_u32,
-    pid_data, pid_off, ptype, pign, prej, apriori, adjusted, apcov, adcov, apcov_ok, adcov_ok,
-    first_measure, psize, msize,
-    ser_data, ser_off, mimage, mtype, sample, line, residuals, mign, mrej, appix, sigma,
-    scratch_f, scratch_b,
-):  # pragma: no cover - compiled
+    out: U8, starts: I64, prefix_u32: bool,
+    pid_data: U8, pid_off: I64, ptype: I64, pign: B, prej: B, apriori: F64, adjusted: F64, apcov: F64, adcov: F64,
+    apcov_ok: B, adcov_ok: B,
+    first_measure: I64, psize: I64, msize: I64,
+    ser_data: U8, ser_off: I64, mimage: I64, mtype: I64, sample: F64, line: F64, residuals: F64, mign: B, mrej: B,
+    appix: F64, sigma: F64,
+    scratch_f: F64, scratch_b: U8,
+) -> int:  # pragma: no cover - compiled
     """Write every point message at ``starts[p]`` (after a uint32 length when ``prefix_u32``)."""
     for p in range(starts.size):
         i = starts[p]
@@ -434,14 +447,14 @@ def encode_field_varint(field: int, value: int) -> bytes:
     return encode_varint((field << 3) | WT_VARINT) + encode_varint(value)
 
 
-def decode_message(data: bytes, base_offset: int = 0) -> list[tuple[int, int, object, int]]:
+def decode_message(data: bytes, base_offset: int = 0) -> list[tuple[int, int, int | bytes, int]]:
     """Top-level fields of a small message as (field, wire type, value, offset).
 
     Values: int for varints, bytes for length-delimited fields, raw 8/4 bytes
     for fixed-width ones. Raises ValueError naming the byte offset on bad data.
     """
     buf = np.frombuffer(data, np.uint8)
-    out = []
+    out: list[tuple[int, int, int | bytes, int]] = []
     i, end = 0, len(data)
     while i < end:
         at = i
@@ -451,7 +464,7 @@ def decode_message(data: bytes, base_offset: int = 0) -> list[tuple[int, int, ob
         f, wt = key >> 3, key & 7
         if wt == WT_VARINT:
             val, j = _varint(buf, i, end)
-            value: object = val
+            value: int | bytes = val
         elif wt == WT_LEN:
             n, i = _varint(buf, i, end)
             j = i + n if i >= 0 and i + n <= end else -1
@@ -473,7 +486,7 @@ def decode_message(data: bytes, base_offset: int = 0) -> list[tuple[int, int, ob
 
 
 @njit(cache=True)
-def gather_padded(buf, off, length, width):  # pragma: no cover - compiled
+def gather_padded(buf: U8, off: I64, length: I64, width: int) -> U8:  # pragma: no cover - compiled
     """Rows (n, width) of the spans ``buf[off:off+length]``, zero-padded."""
     out = np.zeros((off.size, width), np.uint8)
     for i in range(off.size):
@@ -483,7 +496,7 @@ def gather_padded(buf, off, length, width):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def hash_spans(buf, off, length):  # pragma: no cover - compiled
+def hash_spans(buf: U8, off: I64, length: I64) -> NDArray[np.uint64]:  # pragma: no cover - compiled
     """64-bit FNV-1a hash of each span (the length mixed in)."""
     out = np.empty(off.size, np.uint64)
     prime = np.uint64(1099511628211)
@@ -496,7 +509,7 @@ def hash_spans(buf, off, length):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def spans_equal(buf, off_a, len_a, off_b, len_b):  # pragma: no cover - compiled
+def spans_equal(buf: U8, off_a: I64, len_a: I64, off_b: I64, len_b: I64) -> B:  # pragma: no cover - compiled
     """True where span a equals span b, byte for byte."""
     out = np.empty(off_a.size, np.bool_)
     for i in range(off_a.size):
@@ -510,7 +523,7 @@ def spans_equal(buf, off_a, len_a, off_b, len_b):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def parse_int_spans(buf, off, length):  # pragma: no cover - compiled
+def parse_int_spans(buf: U8, off: I64, length: I64) -> tuple[I64, bool]:  # pragma: no cover - compiled
     """Spans that are canonical decimal integers ("0", "17", "-5"; no '+', no leading zeros) as int64.
 
     Returns (values, all_canonical); values are meaningless when not all are canonical.
@@ -539,7 +552,7 @@ def parse_int_spans(buf, off, length):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def format_ints(values):  # pragma: no cover - compiled
+def format_ints(values: I64) -> tuple[U8, I64]:  # pragma: no cover - compiled
     """Decimal text of int64 values: (bytes back to back, offsets (n + 1,))."""
     n = values.size
     offsets = np.zeros(n + 1, np.int64)

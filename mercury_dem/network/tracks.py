@@ -87,10 +87,12 @@ def components(n_nodes: int, edges: NDArray[np.int64]) -> NDArray[np.int64]:
         return np.arange(n_nodes, dtype=np.int64)
     g = coo_matrix((np.ones(edges.shape[0], np.int8), (edges[:, 0], edges[:, 1])), shape=(n_nodes, n_nodes)).tocsr()
     _, labels = connected_components(g, directed=True, connection="weak")
-    return labels.astype(np.int64)
+    out: NDArray[np.int64] = labels.astype(np.int64)
+    return out
 
 
-def _groups(label: NDArray[np.int64], image: NDArray[np.int64], rank: NDArray[np.int64], obs: NDArray[np.int64]):
+def _groups(label: NDArray[np.int64], image: NDArray[np.int64], rank: NDArray[np.int64],
+            obs: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Sort observations ``obs`` by (label, image, rank, index); return order and group starts.
 
     One stable sort of the composite key ``label * K + image`` over the

@@ -22,9 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from mercury_dem.reference.sampling import sample_reference_dem
 from mercury_dem.reference.sha import ShapeHarmonics, evaluate_grid
-
-#: 1.4826 · MAD is the standard deviation of a normal distribution (NMAD, Höhle & Höhle 2009).
-NMAD_FACTOR = 1.4826
+from mercury_dem.stats import NMAD_FACTOR
 
 STAT_KEYS = ("n", "n_excluded", "bias_m", "median_m", "std_m", "rmse_m", "nmad_m", "p5_m", "p95_m",
              "min_m", "max_m", "datum_radius_m")
