@@ -39,8 +39,9 @@ from typing import Any, TextIO
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.compute.failures import lost_to_the_cluster, raise_if_run_stopping
 from mercury_dem.config import Config
-from mercury_dem.exceptions import CorruptUnitError, DiskFullError, MercuryDemError
+from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.run_store import DEM_DENSE_FILE, DENSE_FILE, RunStore, read_solution
 
 #: Columns of a tile's cloud (name -> dtype); ``left_px``/``right_px`` are (N, 2).
@@ -322,16 +323,10 @@ def read_cloud(dense_path: Path, tiles: list[int] | None = None) -> dict[str, ND
 def _tile_task(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]], config: Config,
                margin: float) -> dict[str, Any]:
     """:func:`run_dense_tile`; an unexpected exception becomes a failed tile's summary (nothing written)."""
-    from mercury_dem.pipeline.stages import fatal_error
-
     try:
         return run_dense_tile(run_root, tile_id, pairs, config, margin)
     except Exception as exc:  # noqa: BLE001 - recorded as a value; a full disk still stops the run
-        fatal = fatal_error(exc, "tile", tile_id, run_root)
-        if fatal is exc:
-            raise
-        if fatal is not None:
-            raise fatal from exc
+        raise_if_run_stopping(exc, f"dense tile {tile_id}", run_root)
         return {"tile": int(tile_id), "ok": False, "error": f"dense tile {tile_id}: {type(exc).__name__}: {exc}"}
 
 
@@ -406,9 +401,10 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
     for fut in as_completed(client, futures):
         try:
             s = fut.result()
-        except (DiskFullError, CorruptUnitError):
-            raise  # stops the run, as in the cascade
         except Exception as exc:  # noqa: BLE001 - a lost task after its retries: recorded, the rest goes on
+            raise_if_run_stopping(exc, f"dense tile task {getattr(fut, 'key', '?')}", store.location)
+            if lost_to_the_cluster(exc):
+                raise  # cancelled by the cluster (no worker, the scheduler gone): the run's failure, not the tile's
             s = {"tile": None, "ok": False, "error": f"dense tile task {getattr(fut, 'key', '?')}: {exc}"}
         tiles.append(s)
         rep.message(f"dense: tile {s.get('tile')}: " + (f"{s.get('points', 0)} points from {s.get('chips', 0)} "
