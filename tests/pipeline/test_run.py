@@ -232,6 +232,8 @@ def test_report_and_verify_start_without_heavy_libraries(sync_run: tuple[Path, d
     assert loaded_by_command(["verify", str(run)], (*NOT_FOR_SMALL_COMMANDS, "pyarrow")) == []
 
 
+# slow: a second whole run (15 deg tiles, ~45 s here) for an invariance of the tiling, not a stage; .ci/run runs it
+@pytest.mark.slow
 def test_global_solution_does_not_depend_on_the_tile_size(sync_run: tuple[Path, dict[str, Any]],
                                                          tiny_mission_path: Path, tmp_path: Path) -> None:
     """10 deg and 15 deg tiles (issue 6, section 1) give the same globally adjusted pointing.
