@@ -8,14 +8,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 
 from mercury_dem.config import Config, load_config
+from tests.viz.runs import TINY_CONFIG, shared_sync_run
 
-#: The configuration the pipeline tests use, as YAML gives it (tests that run the CLI write it out); the same
-#: file the tiny-mission benchmarks read.
-TINY_CONFIG_FILE = Path(__file__).resolve().parents[2] / "workflows" / "tiny.yaml"
-TINY_OVERRIDES: dict[str, Any] = yaml.safe_load(TINY_CONFIG_FILE.read_text())
+#: The configuration the pipeline tests use, as YAML would give it (tests that run the CLI write it out): the
+#: shared run's (tests/viz/runs.py), so a test comparing a run of its own with ``sync_run`` compares like with like.
+TINY_OVERRIDES: dict[str, Any] = TINY_CONFIG
 
 
 def tiny_config(**sections: dict[str, Any]) -> Config:
@@ -28,12 +27,19 @@ def tiny_config(**sections: dict[str, Any]) -> Config:
 
 @pytest.fixture(scope="session")
 def sync_run(tiny_mission_path: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
-    """The tiny mission run in-process (``--scheduler sync``): (run directory, report)."""
-    from mercury_dem.pipeline.graph import run_pipeline
+    """The tiny mission run in-process (``--scheduler sync``): (run directory, report).
 
-    out = tmp_path_factory.mktemp("runs") / "sync"
-    report = run_pipeline(tiny_mission_path, out, tiny_config(), scheduler="sync", stream=None)
-    return out, report
+    The session's one run of the tiny mission, shared with the viz, notebook and dashboard tests (``tiny_run``).
+    """
+    run, report, _ = shared_sync_run(tmp_path_factory, tiny_mission_path)
+    return run, report
+
+
+@pytest.fixture(scope="session")
+def sync_run_progress(sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path,
+                      tmp_path_factory: pytest.TempPathFactory) -> str:
+    """The progress lines ``sync_run`` wrote (to a string: not a terminal, the 'lines' display)."""
+    return shared_sync_run(tmp_path_factory, tiny_mission_path)[2]
 
 
 def read_report(run: Path) -> dict[str, Any]:

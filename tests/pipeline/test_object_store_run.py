@@ -191,6 +191,9 @@ def test_dem_chunks_are_committed_one_by_one_and_resumed(s3_run: list[str], sync
     np.testing.assert_array_equal(dem["elevation"].values, ref["elevation"].values)
 
 
+# slow: two more resumes on the bucket (~45 s here); a failed chunk recorded and regridded is tested on a local run
+# (test_dem_chunk_failure.py), a bucket chunk resumed alone just above; .ci/run runs it
+@pytest.mark.slow
 def test_a_failed_dem_chunk_on_the_bucket_is_recorded_and_resumed(s3_run: list[str], sync_run: tuple[Path, dict[str, Any]],
                                                                   tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A chunk failing on a bucket run is a value: report.json names it, the rest of dem.zarr is committed (the

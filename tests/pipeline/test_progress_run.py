@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import re
 from pathlib import Path
 from typing import Any
@@ -19,13 +18,9 @@ from .conftest import tiny_config
 CONTROL = re.compile(r"[\x00-\x09\x0b-\x1f\x7f]")
 
 
-@pytest.mark.integration
-def test_progress_lines_and_unchanged_results(sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path,
-                                              tmp_path: Path) -> None:
-    quiet_run, _ = sync_run  # the same run with stream=None (no progress at all)
-    out = io.StringIO()  # not a terminal: the 'lines' display
-    run_pipeline(tiny_mission_path, tmp_path / "run", tiny_config(), scheduler="sync", stream=out)
-    text = out.getvalue()
+def test_progress_lines(sync_run_progress: str) -> None:
+    """The session's tiny run wrote its progress to a string (not a terminal: the 'lines' display)."""
+    text = sync_run_progress
     assert not CONTROL.search(text), "progress lines must be plain text in logs"
     lines = text.splitlines()
     cascade = [ln for ln in lines if ln.startswith("adjustment cascade: ")]
@@ -37,13 +32,19 @@ def test_progress_lines_and_unchanged_results(sync_run: tuple[Path, dict[str, An
     assert re.match(rf"dem grid: {n}/{n} chunks \(100 %\) in \d+:\d\d$", grid[-1])
     assert any(ln.startswith("products: ") and "files in" in ln for ln in lines)
 
-    # presentation only: the adjusted pointing and the DEM are the quiet run's, bit for bit
-    for run in (quiet_run, tmp_path / "run"):
+
+@pytest.mark.slow  # a second whole run (~40 s here) to show that progress is presentation only; in CI's slow list
+def test_progress_does_not_change_the_results(sync_run: tuple[Path, dict[str, Any]], tiny_mission_path: Path,
+                                             tmp_path: Path) -> None:
+    shown_run, _ = sync_run  # run with its progress written to a string
+    run_pipeline(tiny_mission_path, tmp_path / "run", tiny_config(), scheduler="sync", stream=None)
+    # presentation only: the adjusted pointing and the DEM of a quiet run are the shown run's, bit for bit
+    for run in (shown_run, tmp_path / "run"):
         assert (run / "dem.zarr").exists()
-    ids_a, rot_a, _, _ = read_solution(RunStore(quiet_run).solution_path("global", 0))
+    ids_a, rot_a, _, _ = read_solution(RunStore(shown_run).solution_path("global", 0))
     ids_b, rot_b, _, _ = read_solution(RunStore(tmp_path / "run").solution_path("global", 0))
     np.testing.assert_array_equal(ids_a, ids_b)
     np.testing.assert_array_equal(rot_a, rot_b)
-    a = xr.open_zarr(quiet_run / "dem.zarr", consolidated=False)["elevation"].values
+    a = xr.open_zarr(shown_run / "dem.zarr", consolidated=False)["elevation"].values
     b = xr.open_zarr(tmp_path / "run" / "dem.zarr", consolidated=False)["elevation"].values
     np.testing.assert_array_equal(a, b)

@@ -1,4 +1,4 @@
-"""Typed unit summaries (pipeline.results): the JSON they write is the dicts the runners wrote before, key for key."""
+"""Typed unit summaries (pipeline.results): the JSON they write holds every key and value the readers use, and reads back."""
 
 from __future__ import annotations
 
@@ -38,44 +38,56 @@ ADJUSTMENT = {  # an adjustment summary as adjust_adapter builds it (order kept)
 }
 
 
-def _legacy_tile(ok: bool) -> dict[str, Any]:
-    """The dict the tile runner built before session 12 (summary, update, then the timing)."""
-    s: dict[str, Any] = {"level": "tile", "id": 7, "ok": False, "error": None}
-    s.update(COUNTS.to_json())
-    s["ok"] = ok
-    if not ok:
-        s["error"] = "tile 7: why"
-    s.update(seconds=TIMING.seconds, finished_at=TIMING.finished_at, started_at=TIMING.started_at)
-    return s
+#: A tile's summary.json as the readers (report.json, viz.status, the dashboard) read it: every key written out
+#: by hand, not built by the code under test, so a key dropped, renamed or filled wrongly fails. Key order is not
+#: part of the contract (JSON objects are unordered; the readers look keys up).
+TILE_JSON: dict[str, Any] = {
+    "level": "tile", "id": 7, "ok": True, "error": None,
+    "images": 3, "images_involved": 5, "pairs": 4, "pairs_matched": 3, "routes": {"features": 3},
+    "pair_failures": {"too few matches (N)": 1}, "image_errors": {"X": "image X: blank"}, "points": 120,
+    "measures": 300, "pairs_redundant": 0,
+    "seconds": 1.5, "finished_at": 1_800_000_001.5, "started_at": 1_800_000_000.0,
+}
 
 
-def test_tile_summary_writes_the_legacy_keys_in_order_and_round_trips() -> None:
+def test_tile_summary_writes_every_key_the_readers_use_and_round_trips() -> None:
     for ok in (True, False):
         typed = TileSummary(id=7, ok=ok, error=None if ok else "tile 7: why", counts=COUNTS, timing=TIMING)
         d = typed.to_json()
-        assert list(d) == list(_legacy_tile(ok)) and d == _legacy_tile(ok)
+        assert d == {**TILE_JSON, "ok": ok, "error": None if ok else "tile 7: why"}
         assert TileSummary.from_json(d) == typed and summary_from_json(json.loads(json.dumps(d))) == typed
+        assert (typed.images, typed.points, typed.measures, typed.seconds) == (3, 120, 300, 1.5)
     failed = TileSummary(id=7, error="tile 7: unreadable", timing=TIMING).to_json()
-    assert list(failed) == ["level", "id", "ok", "error", "seconds", "finished_at", "started_at"]
+    assert failed == {"level": "tile", "id": 7, "ok": False, "error": "tile 7: unreadable", "seconds": 1.5,
+                      "finished_at": 1_800_000_001.5, "started_at": 1_800_000_000.0}
     assert summary_from_json(failed).to_json() == failed
     assert TileSummary.from_json(failed).counts is None
 
 
-def test_unit_summary_writes_the_legacy_keys_in_order_and_round_trips() -> None:
-    singular = {"images_without_measures": ["Y"], "single_measure_points": {"count": 2, "ids": [5, 9]}}
-    legacy: dict[str, Any] = {"level": "region", "id": 3, "name": unit_name("region", 3), "ok": False, "error": None}
-    legacy.update({"children": [1, 2], **ADJUSTMENT, **singular, "images_without_measures": ["Y", "Z"]})
-    legacy["ok"] = True
-    legacy.update(TIMING.to_json())
+def test_unit_summary_writes_every_key_the_readers_use_and_round_trips() -> None:
+    singular = {"count": 2, "ids": [5, 9]}
     adjustment = {**ADJUSTMENT, "images_without_measures": ["Y", "Z"]}
     typed = UnitSummary("region", 3, ok=True, children=[1, 2], adjustment=adjustment,
-                        single_measure_points=singular["single_measure_points"], timing=TIMING)
+                        single_measure_points=singular, timing=TIMING)
     d = typed.to_json()
-    assert list(d) == list(legacy) and d == legacy
+    want = {
+        "level": "region", "id": 3, "name": unit_name("region", 3), "ok": True, "error": None, "children": [1, 2],
+        "images": 4, "points": 120, "measures": 300, "rms_px": 0.12, "initial_rms_px": 2.5, "sigma0": 0.2,
+        "rejected": 3, "underdetermined_points": 0, "weak_images": [], "iterations": 7, "converged": True,
+        "reason": "converged", "sigma0_history": [3.0, 0.2], "linear_method": "schur", "solve_seconds": 0.3,
+        "flagged_images": [{"image": "A", "rms_px": 2.5}], "islands": [], "images_without_measures": ["Y", "Z"],
+        "altimetry": {"shots": 10}, "levelling": {"recentre": False},
+        "single_measure_points": {"count": 2, "ids": [5, 9]},
+        "seconds": 1.5, "finished_at": 1_800_000_001.5, "started_at": 1_800_000_000.0,
+    }
+    assert d == want
     assert UnitSummary.from_json(d) == typed and summary_from_json(json.loads(json.dumps(d))) == typed
+    assert (typed.images, typed.rms_px, typed.sigma0, typed.iterations, typed.seconds) == (4, 0.12, 0.2, 7, 1.5)
+    assert typed.levelling == {"recentre": False} and typed.flagged_images == [{"image": "A", "rms_px": 2.5}]
     failed = UnitSummary("global", 0, error="global: no input", timing=TIMING).to_json()
-    assert list(failed) == ["level", "id", "name", "ok", "error", "seconds", "finished_at", "started_at"]
-    assert failed["name"] == "global" and summary_from_json(failed).to_json() == failed
+    assert failed == {"level": "global", "id": 0, "name": "global", "ok": False, "error": "global: no input",
+                      "seconds": 1.5, "finished_at": 1_800_000_001.5, "started_at": 1_800_000_000.0}
+    assert summary_from_json(failed).to_json() == failed
 
 
 def test_failure_summary() -> None:
@@ -84,7 +96,7 @@ def test_failure_summary() -> None:
     except RuntimeError as exc:
         f = FailureSummary.of("hemisphere", 1, exc)
     d = f.to_json()
-    assert list(d) == ["level", "id", "name", "ok", "error", "traceback"]
+    assert set(d) == {"level", "id", "name", "ok", "error", "traceback"}
     assert d["name"] == "hemisphere south" and d["ok"] is False
     assert d["error"] == "hemisphere south: unexpected RuntimeError: boom" and "boom" in d["traceback"]
     assert summary_from_json(d) == f
@@ -123,8 +135,7 @@ def test_every_summary_of_a_run_round_trips(sync_run: tuple[Path, dict[str, Any]
         d = json.loads(p.read_text())
         typed = summary_from_json(d)
         assert isinstance(typed, TileSummary if d["level"] == "tile" else UnitSummary)
-        back = typed.to_json()
-        assert list(back) == list(d) and back == d, p
+        assert typed.to_json() == d, p
 
 
 def _dict_level_row(s: dict[str, Any]) -> dict[str, Any]:
@@ -148,7 +159,7 @@ def test_report_rows_from_typed_summaries_are_the_dict_rows() -> None:
     for typed in (done, failed, crashed, UnitSummary("region", 4, error="region 4: x")):
         d = typed.to_json()
         row = _level_row(typed)
-        assert list(row) == list(_dict_level_row(d)) and row == _dict_level_row(d), typed
+        assert row == _dict_level_row(d), typed
     assert _level_row(done)["seconds"] == TIMING.seconds and _level_row(done)["children"] == [1, 2]
     assert "seconds" not in _level_row(crashed) and _level_row(crashed)["ok"] is False
 

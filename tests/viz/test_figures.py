@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from matplotlib.colors import to_hex
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
@@ -45,17 +46,60 @@ def test_tile_figure_colours_each_tile_by_state(tiny_run: Path, tmp_path: Path) 
 
 
 def test_run_figures(tiny_run: Path, tiny_mission, tmp_path: Path) -> None:
-    res = residuals_by_level(tiny_run)
-    fig = residual_histograms_figure(res)
-    assert len(fig.axes) == 3
-    _png(fig, tmp_path / "hist.png")
-    _png(sigma0_figure(sigma0_history(tiny_run)), tmp_path / "sigma0.png")
-    _png(pointing_figure(pointing_errors(tiny_run, tiny_mission)), tmp_path / "pointing.png")
+    """Each figure of a run draws its table: the bars count the measures, the lines are the sigma0 histories,
+    the dots are the images' errors and the points' residuals, the mesh is the coverage count."""
+    import json
+
     from mercury_dem.io.network_store import read_network
 
+    report = json.loads((Path(tiny_run) / "report.json").read_text())
+    res = residuals_by_level(tiny_run)
+    fig = residual_histograms_figure(res)
+    assert [ax.get_title().split("\n")[0] for ax in fig.axes] == ["region", "hemisphere", "global"]
+    for ax in fig.axes:  # one bar per bin; together they hold every active measure of the level (the last bin clipped)
+        level = ax.get_title().split("\n")[0]
+        r = res[(res["level"] == level) & res["active"]]["residual_px"].to_numpy(float)
+        assert sum(bar.get_height() for bar in ax.patches) == np.isfinite(r).sum() > 0, level
+    _png(fig, tmp_path / "hist.png")
+
+    hist = sigma0_history(tiny_run)
+    fig = sigma0_figure(hist)
+    lines = fig.axes[0].get_lines()
+    units = [g for _, g in hist.groupby(["level", "id"], sort=False)]
+    ok_units = [r for r in report["levels"]["region"] + report["levels"]["hemisphere"] + [report["levels"]["global"]]
+                if r["ok"]]
+    assert len(lines) == len(units) == len(ok_units)  # one line per adjusted unit
+    for line, g in zip(lines, units):
+        np.testing.assert_array_equal(line.get_ydata(), g["sigma0"].to_numpy())
+        assert line.get_label() == g["name"].iloc[0]
+    _png(fig, tmp_path / "sigma0.png")
+
+    err = pointing_errors(tiny_run, tiny_mission)
+    fig = pointing_figure(err)
+    dots = fig.axes[0].collections[0].get_offsets()
+    np.testing.assert_array_equal(np.asarray(dots), err[["a_priori_px", "adjusted_px"]].to_numpy(float))
+    assert 0 < len(err) <= report["levels"]["global"]["images"]
+    rms = float(np.sqrt(np.mean(err["adjusted_px"] ** 2)))  # the same errors as the report's validation
+    assert rms == pytest.approx(report["validation"]["image_space_error_px"]["adjusted_rms"], rel=0.05)
+    _png(fig, tmp_path / "pointing.png")
+
     net = read_network(Path(tiny_run) / "global" / "0" / "network.zarr")
-    _png(residual_map_figure(point_residuals(net), image_residuals(net, tiny_mission)), tmp_path / "map.png")
-    _png(coverage_figure(tiny_mission, step_deg=2.0), tmp_path / "coverage.png")
+    pts, ims = point_residuals(net), image_residuals(net, tiny_mission)
+    fig = residual_map_figure(pts, ims)
+    dots, squares = fig.axes[0].collections[:2]
+    used = pts[pts["n_active"] > 0]
+    assert len(used) > 0.5 * net.n_points
+    np.testing.assert_allclose(np.asarray(dots.get_offsets()), used[["lon", "lat"]].to_numpy(float))
+    np.testing.assert_allclose(dots.get_array(), used["rms_px"].to_numpy(float))
+    assert len(squares.get_offsets()) == int((ims["n_active"] > 0).sum())
+    _png(fig, tmp_path / "map.png")
+
+    fig = coverage_figure(tiny_mission, step_deg=2.0)
+    count = np.asarray(fig.axes[0].collections[0].get_array())
+    centres = fig.axes[0].get_lines()[0]
+    assert len(centres.get_xdata()) == len(tiny_mission.catalog)
+    assert count.max() >= 2 and count.min() >= 0  # overlapping images: some point seen twice or more
+    _png(fig, tmp_path / "coverage.png")
 
 
 def test_dem_figures(tiny_run: Path, tiny_mission, tmp_path: Path) -> None:
