@@ -6,16 +6,17 @@ it back (:func:`read_summary` from a run store). Every reader (the task graph's 
 ``report.json``, ``viz.status`` and so the dashboard, ``viz.tables``, the commands) takes the typed
 summary and reads attributes; :func:`summary_from_json` accepts the summaries of older runs that lack
 fields, as the readers did when they read dicts (``.get`` with a default). The JSON is the contract the readers rely on (``report.json``'s levels, ``mercury-dem
-report``, the dashboard, ``viz.status``, the notebooks): its keys, their order and their values are
-exactly those of the dicts the runners built before these types existed (session 12; a round trip
-is tested on a run's summaries in ``tests/pipeline/test_results.py``).
+report``, the dashboard, ``viz.status``, the notebooks): its keys and their values are exactly those
+of the dicts the runners built before these types existed; the key order is kept stable for people
+reading the files but no reader depends on it (``tests/pipeline/test_results.py`` compares with
+hand-written JSON and a round trip on a run's summaries, not the order).
 
 :class:`UnitFiles` replaces the ``"_files"`` key the runners once smuggled through the summary dict:
 a runner's computation returns its summary fields and the files to write side by side, and
 :meth:`mercury_dem.io.run_store.RunStore.write_unit` writes them (names from the run store).
 
 Why dataclasses of our own and not a schema library (pydantic, attrs): the package's configuration
-and results are frozen standard-library dataclasses already, and these only need a fixed key order
+and results are frozen standard-library dataclasses already, and these only need stable keys
 and a pass-through for the adjustment's open-ended summary.
 """
 
