@@ -351,8 +351,9 @@ def record_infrastructure_failure(store: RunStore, error: Exception, conn: Conne
         info = store.read_run()
         info["infrastructure_failure"] = entry
         store.write_run(info)
-    except (OSError, ValueError, StoreError):
-        pass
+    except (OSError, ValueError, StoreError) as exc:
+        # the run's own error is raised by the caller either way; say why run.json does not carry it
+        print(f"mercury-dem: could not record the infrastructure failure in {store.run_json}: {exc}", file=sys.stderr)
 
 
 def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | None) -> bool:

@@ -118,7 +118,7 @@ class IsisCube:
 
 def cube_fault(path: Path, what: str, todo: str = "the file is damaged or not an ISIS3 cube; "
            "re-export it with ISIS (e.g. cubeatt) or fetch it again") -> CubeError:
-    """The :class:`CubeError` of a damaged or unexpected cube: ``ISIS cube PATH: WHAT; TODO`` (what to do)."""
+    """The :class:`CubeError` of a damaged or unexpected cube: ``ISIS cube PATH: FAULT; ADVICE`` (the fault, then what the user can do)."""
     return CubeError(f"ISIS cube {path}: {what}; {todo}")
 
 
