@@ -104,7 +104,7 @@ def generate_mission(
     plan = plan_mission(design, config.seed, radius)
     c_true, r_true = true_poses(plan)
     rng = np.random.default_rng([config.seed, 0xA991])
-    c_apr, r_apr, omega = perturb_poses(c_true, r_true, config.pointing_sigma_urad * 1e-6, config.position_sigma_m, rng)
+    c_apr, r_apr, omega = perturb_poses(c_true, r_true, config.pointing_sigma_urad, config.position_sigma_m, rng)
     catalog = catalog_from_poses(plan, c_apr, r_apr, tile_size_deg, body)
     truth = plan.copy()
     for k, ax in enumerate("xyz"):
