@@ -33,8 +33,10 @@ def _peak_rss() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = None) -> dict[str, Any]:
+def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = None, *,
+                         pointing_sigma_urad: float) -> dict[str, Any]:
     """Adjust the network at ``store``; ``client`` None runs in this process, else on its Dask workers.
+    ``pointing_sigma_urad``: how wrong the stored a-priori rotations may be, per axis (1 sigma, µrad).
 
     Raises :class:`~mercury_dem.exceptions.StoreError` for a store that lacks the image
     geometry or point blocks, or is damaged.
@@ -42,7 +44,8 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     t0 = time.perf_counter()
     net = BlockedNetwork(store)
     im = net.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config, float32=config.blocked_float32)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config,
+                              pointing_sigma_urad=pointing_sigma_urad, float32=config.blocked_float32)
     opt = options_from_config(config)
     from mercury_dem.compute import runs_in_process
 
