@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 #: Worker resource that bounds memory-heavy adjustments to one at a time per worker.
 ADJUST_RESOURCE = "adjust_slots"
@@ -19,6 +19,12 @@ ADJUST_RESOURCE = "adjust_slots"
 #: Dask's scheduling options, accepted and ignored by the in-process client.
 _DASK_ONLY = ("retries", "resources", "pure", "priority", "workers", "allow_other_workers", "actor", "hash",
               "broadcast", "direct", "fifo_timeout", "batch_size")
+
+
+if TYPE_CHECKING:
+    #: Dask's own client, for annotating code that needs more than :class:`ComputeClient` (actors, the
+    #: scheduler's state); imported here so that such code outside compute/ names no Dask module.
+    from distributed import Client as DaskClient  # noqa: F401
 
 
 @runtime_checkable
