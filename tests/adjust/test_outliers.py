@@ -24,7 +24,6 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.validate.synthetic_network import make_synthetic_network, pointing_errors
 
 
-
 @dataclass(frozen=True)
 class SeedFigures:
     seed: int
