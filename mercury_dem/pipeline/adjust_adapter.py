@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,12 +17,15 @@ from numpy.typing import NDArray
 from mercury_dem.adjust.datum import recentre_on_block
 from mercury_dem.config.adjust import AdjustConfig
 
+if TYPE_CHECKING:
+    from mercury_dem.network.model import ControlNetwork
+
 
 @dataclass(frozen=True)
 class UnitAdjustment:
     """The result of adjusting one unit's network: the network, the poses, per-image counts, summary and report."""
 
-    network: Any  # ControlNetwork with adjusted points, residuals, rejections
+    network: ControlNetwork  # with adjusted points, residuals, rejections
     rotations: NDArray[np.float64]
     positions: NDArray[np.float64]
     image_measures: NDArray[np.int64]  # accepted measures per image
@@ -32,7 +35,7 @@ class UnitAdjustment:
 
 
 def adjust_network(
-    network: Any,
+    network: ControlNetwork,
     cameras: list[Any],
     positions: NDArray[np.float64],
     rotations: NDArray[np.float64],

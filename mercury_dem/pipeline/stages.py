@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -44,6 +44,11 @@ from mercury_dem.pipeline.results import (
 )
 from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
 from mercury_dem.plan.tree import child_ids as _tree_child_ids
+
+if TYPE_CHECKING:
+    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
+    from mercury_dem.config.adjust import AdjustConfig
+    from mercury_dem.network.model import ControlNetwork
 
 #: Point ids of tile t start at t * POINT_ID_STRIDE, so ids stay unique when tiles merge.
 POINT_ID_STRIDE = 10_000_000
@@ -360,7 +365,8 @@ def prior_shape_of(mission: Mission) -> Any:
     return body_shape(mission.body.name)
 
 
-def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) -> Any:
+def unit_altimetry(mission: Mission, network: ControlNetwork, level: str,
+                   adjust_cfg: AdjustConfig) -> AltimetryShotsArrays | None:
     """The mission's altimetry shots around a unit's tie points, when this level is constrained by them.
 
     None when the level is not in ``adjust.altimetry_levels`` or the mission has no altimetry. Only
