@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import re
 from pathlib import Path
 from types import SimpleNamespace
@@ -9,10 +11,21 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from mercury_dem.adjust.blocked_bundle import blocked_bundle_adjust
+from mercury_dem.adjust.bundle import bundle_adjust
+from mercury_dem.adjust.problem import pointing_sigma_radians
 from mercury_dem.config import Config, config_template, load_config, to_dict
-from mercury_dem.config.apriori import RETIRED_KEYS, adjust_config_with_sigma, resolve_pointing_sigma_urad
-from mercury_dem.exceptions import ConfigError
-from mercury_dem.pipeline.stages import adjust_config_for, match_config_for
+from mercury_dem.config.adjust import AdjustConfig
+from mercury_dem.config.apriori import (
+    MISSIONLESS_POINTING_SIGMA_URAD,
+    RETIRED_KEYS,
+    missionless_pointing_sigma_urad,
+    resolve_pointing_sigma_urad,
+)
+from mercury_dem.config.match import MatchConfig
+from mercury_dem.exceptions import AdjustmentError, ConfigError
+from mercury_dem.pipeline.stages import pointing_sigma_urad_for
+from mercury_dem.validate.synthetic_network import make_synthetic_network
 
 
 @pytest.mark.parametrize("key", sorted(RETIRED_KEYS))
@@ -54,17 +67,31 @@ def test_the_override_wins_then_the_mission_then_an_error_naming_the_mission() -
 
 
 def test_matching_and_adjustment_get_the_same_sigma_converted_as_before() -> None:
-    """The stage configurations equal what the three keys gave before (mission-declared sigma, bit for bit)."""
+    """One resolved value in µrad for both stages; the adjusters' radians are the pre-session-11 conversion
+    (through degrees) bit for bit; the library's match and adjust sections carry no copy of it.
+    """
     rng = np.random.default_rng(20)
     for sigma in [450.0, 5000.0, *rng.uniform(1.0, 1e4, 20)]:
         mission = SimpleNamespace(pointing_sigma_urad=float(sigma), path="m")
-        m = match_config_for(mission, load_config())  # type: ignore[arg-type]
-        a = adjust_config_for(mission, load_config())  # type: ignore[arg-type]
-        assert m.pointing_sigma_urad == float(sigma)
-        assert a.pointing_sigma_deg == float(np.degrees(float(sigma) * 1e-6))  # the pre-session-11 conversion
+        assert pointing_sigma_urad_for(mission, load_config()) == float(sigma)  # type: ignore[arg-type]
+        assert pointing_sigma_radians(float(sigma)) == float(np.radians(math.degrees(float(sigma) * 1e-6)))
         over = load_config(overrides={"apriori": {"pointing_sigma_urad": 123.0}})
-        assert match_config_for(mission, over).pointing_sigma_urad == 123.0  # type: ignore[arg-type]
-        assert adjust_config_for(mission, over).pointing_sigma_deg == float(np.degrees(123.0 * 1e-6))  # type: ignore[arg-type]
-    assert adjust_config_with_sigma(load_config().adjust, None).pointing_sigma_deg == 0.2  # no mission, no override
+        assert pointing_sigma_urad_for(mission, over) == 123.0  # type: ignore[arg-type]
+    # no mission, no override: 0.2 deg as before (to the last bit but one)
+    assert missionless_pointing_sigma_urad(None) == MISSIONLESS_POINTING_SIGMA_URAD
+    assert pointing_sigma_radians(MISSIONLESS_POINTING_SIGMA_URAD) == pytest.approx(float(np.radians(0.2)), rel=1e-15)
+    assert missionless_pointing_sigma_urad(700.0) == 700.0
     with pytest.raises(ConfigError, match="declares no"):
-        match_config_for(SimpleNamespace(pointing_sigma_urad=None, path="m"), load_config())  # type: ignore[arg-type]
+        pointing_sigma_urad_for(SimpleNamespace(pointing_sigma_urad=None, path="m"), load_config())  # type: ignore[arg-type]
+    assert not [f.name for c in (MatchConfig, AdjustConfig) for f in dataclasses.fields(c) if "pointing" in f.name]
+
+
+def test_an_adjustment_problem_without_a_pointing_sigma_is_refused() -> None:
+    """Both adjusters refuse a problem that states no a-priori pointing sigma, naming the key to set."""
+    net = make_synthetic_network(600, rng=np.random.default_rng(1), min_views=3, outlier_fraction=0.0)
+    bare = dataclasses.replace(net.problem, pointing_sigma_urad=None)
+    for solve in (bundle_adjust, blocked_bundle_adjust):
+        with pytest.raises(AdjustmentError, match="apriori.pointing_sigma_urad"):
+            solve(bare)
+    with pytest.raises(AdjustmentError, match="positive"):
+        dataclasses.replace(net.problem, pointing_sigma_urad=0.0)

@@ -69,7 +69,7 @@ from mercury_dem.adjust.posterior import (
     selected_inverse,
     sigmas_of,
 )
-from mercury_dem.adjust.problem import AdjustmentProblem, unprojectable, unprojectable_error
+from mercury_dem.adjust.problem import AdjustmentProblem, pointing_sigma_radians, unprojectable, unprojectable_error
 from mercury_dem.adjust.robust import loss_rho
 from mercury_dem.adjust.schur import ReducedSolver, SchurStructure, choose_method, inv3
 from mercury_dem.adjust.solver import SolverOptions, deletion_statistic, kept_in_either, proposed_accepted
@@ -112,7 +112,7 @@ class CameraSetup:
     positions: NDArray[np.float64]
     rotations: NDArray[np.float64]  # a-priori, the centre of the pointing constraint
     held: NDArray[np.bool_]
-    pointing_sigma_rad: float
+    pointing_sigma_urad: float  # the a-priori pointing sigma per axis (AdjustmentProblem.pointing_sigma_urad)
     point_sigma_m: tuple[float | None, float | None, float | None]
     #: float32 storage of what a block keeps that only shapes the step or rounds observations below their
     #: precision: W = Jc^T Jp, the measures and their sigmas (see :class:`PointBlockState`); False: all float64
@@ -140,13 +140,16 @@ def options_from_config(config: AdjustConfig, median_sigma_px: float = 1.0) -> S
 
 
 def setup_from_config(cameras: tuple[FramingCamera, ...], image_camera: NDArray[np.int64], positions: NDArray[np.float64],
-                      rotations: NDArray[np.float64], config: AdjustConfig, float32: bool = False) -> CameraSetup:
-    """The camera setup with the configured a-priori constraints (as ``bundle.make_model``)."""
+                      rotations: NDArray[np.float64], config: AdjustConfig, *, pointing_sigma_urad: float,
+                      float32: bool = False) -> CameraSetup:
+    """The camera setup with the configured a-priori constraints (as ``bundle.make_model``) and the a-priori
+    pointing sigma of ``rotations`` (µrad per axis, :attr:`AdjustmentProblem.pointing_sigma_urad`).
+    """
     if config.solve_positions:
         raise AdjustmentError("the blocked adjustment solves pointing only: set adjust.solve_positions: false")
     return CameraSetup(tuple(cameras), np.asarray(image_camera, np.int64), np.asarray(positions, np.float64),
                        np.asarray(rotations, np.float64), np.zeros(len(positions), bool),
-                       float(np.radians(config.pointing_sigma_deg)),
+                       float(pointing_sigma_urad),
                        (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m), float32,
                        config.blocked_recompute_w)
 
@@ -195,8 +198,9 @@ class PointBlockState:
             rotations=setup.rotations[cams], points=data.apriori_points, measure_image=local,
             measure_point=data.measure_point, measures=data.measures, measure_sigma=data.sigma,
             held_points=data.held_points, image_ids=("",) * len(cams), point_radius_sigma=data.point_radius_sigma,
+            pointing_sigma_urad=setup.pointing_sigma_urad,
         )
-        self.model = FramingModel(problem, setup.pointing_sigma_rad, None, setup.point_sigma_m)
+        self.model = FramingModel(problem, None, setup.point_sigma_m)
         # int32 measure indices (a block has < 2^31 measures and points): the same arrays serve the model, the
         # Schur structure and the kernels (numba specializes them), 16 bytes a measure instead of 32
         mi, mp = problem.measure_image.astype(np.int32), problem.measure_point.astype(np.int32)
@@ -750,7 +754,7 @@ class BlockedEngine:
         del structs
         self.method = choose_method(opt.solver, self.n_cam * C, opt.direct_max_unknowns)
         self.lin_solver = ReducedSolver(self.method, C, opt.pcg_tolerance, opt.pcg_max_iterations)
-        self.sigma_c = setup.pointing_sigma_rad
+        self.sigma_c = pointing_sigma_radians(setup.pointing_sigma_urad)
         self.pos_sq = float(np.sum(setup.positions**2))
         self.omega = np.zeros((self.n_cam, 3)) if initial_omega is None else np.asarray(initial_omega, np.float64).copy()
         self.n_cam_prior = self.n_pt_prior = 0
@@ -917,7 +921,7 @@ def blocked_posterior_sigmas(engine: Engine, setup: CameraSetup, result: Blocked
         for part in engine.summed("linearize", result.omega):
             cams, us = part.terms[0]
             u[cams] += us
-        sigma_c = setup.pointing_sigma_rad
+        sigma_c = pointing_sigma_radians(setup.pointing_sigma_urad)
         prior_blocks(result.omega / sigma_c, inverse_left_jacobian(result.omega) / sigma_c, u, np.zeros((n_cam, C)))
         u[held_c] = np.eye(C)
         blocks = np.zeros((len(glob.keys), C, C))

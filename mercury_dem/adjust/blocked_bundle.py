@@ -38,7 +38,7 @@ from mercury_dem.adjust.blocked import (
 )
 from mercury_dem.adjust.bundle import check_projectable, held_image_mask, rms_by_group
 from mercury_dem.adjust.diagnose import check_solvable, diagnose
-from mercury_dem.adjust.problem import AdjustmentProblem
+from mercury_dem.adjust.problem import AdjustmentProblem, stated_pointing_sigma_urad
 from mercury_dem.adjust.result import AdjustmentResult
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import AdjustmentError
@@ -105,7 +105,7 @@ def blocked_bundle_adjust(problem: AdjustmentProblem, config: AdjustConfig | Non
     check_solvable(problem, diag, held, config.allow_islands)
     setup = CameraSetup(tuple(problem.cameras), np.asarray(problem.image_camera, np.int64),
                         np.asarray(problem.positions, np.float64), np.asarray(problem.rotations, np.float64), held,
-                        float(np.radians(config.pointing_sigma_deg)),
+                        stated_pointing_sigma_urad(problem.pointing_sigma_urad),
                         (config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m),
                         config.blocked_float32, config.blocked_recompute_w)
     opt = options_from_config(config, float(np.median(problem.measure_sigma)))

@@ -43,7 +43,6 @@ def make_model(problem: AdjustmentProblem, config: AdjustConfig) -> FramingModel
     """The framing-camera model with the configured a-priori constraints."""
     return FramingModel(
         problem,
-        pointing_sigma_rad=float(np.radians(config.pointing_sigma_deg)),
         position_sigma_m=config.position_sigma_m if config.solve_positions else None,
         point_sigma_m=(config.point_longitude_sigma_m, config.point_latitude_sigma_m, config.radius_sigma_m),
     )

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,10 +27,13 @@ from numpy.typing import NDArray
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.plan.tree import ADJUSTED_LEVELS
 
+if TYPE_CHECKING:
+    from mercury_dem.network.model import ControlNetwork
+
 __all__ = ["ChildSolution", "adjusts_by_blocks", "rejudged_network", "unit_config", "warm_start"]
 
 
-def rejudged_network(network: Any, child_level: str) -> Any:
+def rejudged_network(network: ControlNetwork, child_level: str) -> ControlNetwork:
     """A child's network as the next level merges it: an adjusted child's rejections cleared.
 
     Every measure is judged again at this level (a measure rejected by a region's adjustment may fit

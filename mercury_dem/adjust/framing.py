@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.adjust.problem import AdjustmentProblem, IndexArray
+from mercury_dem.adjust.problem import AdjustmentProblem, IndexArray, pointing_sigma_radians
 from mercury_dem.geometry.pose import angles_from_rotation, rotation_from_angles, skew
 
 #: Measures per vectorized chunk (bounds the temporaries: ~1 KB per measure).
@@ -72,8 +72,7 @@ class FramingModel:
 
     Parameters
     ----------
-    problem : the arrays
-    pointing_sigma_rad : a-priori pointing sigma per axis, radians
+    problem : the arrays, with the a-priori pointing sigma (``problem.pointing_sigma_urad``, required)
     position_sigma_m : a-priori position sigma, metres, or None to keep positions fixed
         (camera_dim 3); a number makes positions unknowns (camera_dim 6)
     point_sigma_m : (east, north, radius) a-priori point sigmas in metres, None entries unconstrained
@@ -82,7 +81,6 @@ class FramingModel:
     def __init__(
         self,
         problem: AdjustmentProblem,
-        pointing_sigma_rad: float,
         position_sigma_m: float | None = None,
         point_sigma_m: tuple[float | None, float | None, float | None] = (None, None, None),
     ):
@@ -93,7 +91,7 @@ class FramingModel:
         # int64, or int32 when the blocked adjuster narrows them (it replaces these and _groups)
         self.camera_index: IndexArray = problem.measure_image
         self.point_index: IndexArray = problem.measure_point
-        self.pointing_sigma = float(pointing_sigma_rad)
+        self.pointing_sigma = pointing_sigma_radians(problem.pointing_sigma_urad)  # radians
         self.position_sigma = None if position_sigma_m is None else float(position_sigma_m)
         self._groups: list[tuple[int, IndexArray]] = [
             (k, np.flatnonzero(problem.image_camera[problem.measure_image] == k)) for k in range(len(problem.cameras))

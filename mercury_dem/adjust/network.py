@@ -23,6 +23,8 @@ def problem_from_network(
     config: AdjustConfig | None = None,
     default_sigma_px: float = 1.0,
     initial_rotations: ArrayLike | None = None,
+    *,
+    pointing_sigma_urad: float | None = None,
 ) -> tuple[AdjustmentProblem, NDArray[np.int64]]:
     """The adjustment problem of a network's active measures.
 
@@ -36,6 +38,8 @@ def problem_from_network(
     default_sigma_px : sigma of measures whose sigma is unknown (NaN)
     initial_rotations : (n_img, 3, 3) rotations to start from (a lower level's solution); the
         pointing constraint stays centred on ``rotations``
+    pointing_sigma_urad : how wrong ``rotations`` may be, per axis (1 sigma, µrad): the problem's
+        :attr:`~AdjustmentProblem.pointing_sigma_urad` (the adjusters refuse None)
 
     Returns
     -------
@@ -72,6 +76,7 @@ def problem_from_network(
         held_images=held_images,
         held_points=np.asarray(network.point_type == PointType.FIXED),
         initial_rotations=None if initial_rotations is None else np.asarray(initial_rotations, np.float64),
+        pointing_sigma_urad=pointing_sigma_urad,
     )
     return problem, measure_index
 

@@ -238,7 +238,7 @@ def _chol_cholmod(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix]:
     except CholmodNotPositiveDefinite as e:
         raise AdjustmentError(f"a-posteriori covariance: the reduced camera system is not positive definite ({e}); "
                               "the network has a free gauge or an unconstrained image: hold an image or keep the "
-                              "pointing prior (adjust.pointing_sigma_deg)") from e
+                              "pointing prior (apriori.pointing_sigma_urad)") from e
     lower = factor.L()
     perm = np.asarray(factor.P(), np.int64)  # A[perm][:, perm] = L L^T
     del factor
@@ -253,14 +253,14 @@ def _chol_splu(a: sp.csc_matrix) -> tuple[NDArray[np.int64], sp.csc_matrix]:
         lu = spla.splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError as e:
         raise AdjustmentError(f"a-posteriori covariance: the reduced camera system is singular ({e}); hold an image "
-                              "or keep the pointing prior (adjust.pointing_sigma_deg)") from e
+                              "or keep the pointing prior (apriori.pointing_sigma_urad)") from e
     if not np.array_equal(lu.perm_r, lu.perm_c):
         raise AdjustmentError("a-posteriori covariance: SuperLU pivoted off the diagonal (the reduced system is not "
                               "positive definite); install scikit-sparse (CHOLMOD) or check the network's gauge")
     d = lu.U.diagonal()
     if np.any(~(d > 0)):
         raise AdjustmentError("a-posteriori covariance: the reduced camera system is not positive definite; hold an "
-                              "image or keep the pointing prior (adjust.pointing_sigma_deg)")
+                              "image or keep the pointing prior (apriori.pointing_sigma_urad)")
     lower, order = lu.L.tocsc(), np.asarray(lu.perm_c, np.int64)
     del lu
     lower.sort_indices()

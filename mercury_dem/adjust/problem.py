@@ -11,6 +11,7 @@ first pixel at (0, 0); sigmas in pixels.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -70,6 +71,10 @@ class AdjustmentProblem:
         finite (NaN: the configured one). How ground truth from laser altimetry enters the
         adjustment: the a-priori point sits at the altimetry's radius with the altimetry's sigma
         (:func:`mercury_dem.altimetry.constraints.altimetry_radius_priors`).
+    pointing_sigma_urad : how wrong the a-priori ``rotations`` may be, per axis and image (1 sigma,
+        microradians): the weight of the pointing constraint. A fact of the a-priori data like
+        ``measure_sigma`` (a run takes it from the mission or ``apriori.pointing_sigma_urad``); None
+        (the default) is refused by the adjusters, which have no safe guess.
     """
 
     cameras: tuple[FramingCamera, ...]
@@ -89,6 +94,7 @@ class AdjustmentProblem:
     #: None starts at ``rotations``, which stay the centre of the pointing constraint either way.
     initial_rotations: NDArray[np.float64] | None = None
     point_radius_sigma: NDArray[np.float64] | None = None
+    pointing_sigma_urad: float | None = None
 
     def __post_init__(self) -> None:
         n_img, n_pt = len(self.positions), len(self.points)
@@ -120,6 +126,10 @@ class AdjustmentProblem:
                 raise AdjustmentError(f"point_radius_sigma must have shape ({n_pt},) with values > 0 or NaN "
                                       f"(no altimetry constraint), got shape {sig.shape}")
             set_(self, "point_radius_sigma", sig)
+        if self.pointing_sigma_urad is not None:
+            if not (np.isfinite(self.pointing_sigma_urad) and self.pointing_sigma_urad > 0):
+                raise AdjustmentError(f"pointing_sigma_urad must be a positive number, got {self.pointing_sigma_urad}")
+            set_(self, "pointing_sigma_urad", float(self.pointing_sigma_urad))
         self.validate()
 
     @property
@@ -188,3 +198,26 @@ class AdjustmentProblem:
         bad = ~np.all(np.isfinite(self.positions), axis=1) | ~np.all(np.isfinite(self.rotations), axis=(1, 2))
         if bad.any():
             raise AdjustmentError(f"a-priori pose is NaN/inf for {_ids('images', bad, self.image_ids)}")
+
+
+def pointing_sigma_radians(pointing_sigma_urad: float | None) -> float:
+    """The a-priori pointing sigma (µrad) in the radians the adjusters' constraint is written in.
+
+    The value goes through degrees and back (``radians(degrees(µrad · 1e-6))``) because that is the
+    conversion every run made while the adjusters were configured in degrees: 450 µrad becomes
+    4.5000000000000004e-4 rad, not 4.5e-4, and keeping the round trip keeps every adjustment bit for bit
+    what it was.
+
+    Raises
+    ------
+    AdjustmentError : ``pointing_sigma_urad`` is None (:func:`stated_pointing_sigma_urad`)
+    """
+    return float(np.radians(math.degrees(stated_pointing_sigma_urad(pointing_sigma_urad) * 1e-6)))
+
+
+def stated_pointing_sigma_urad(pointing_sigma_urad: float | None) -> float:
+    """``pointing_sigma_urad`` as a float; :class:`AdjustmentError` when the problem states none (None)."""
+    if pointing_sigma_urad is None:
+        raise AdjustmentError("the adjustment problem states no a-priori pointing sigma (pointing_sigma_urad; a run "
+                              "takes it from the mission's mission.json or apriori.pointing_sigma_urad)")
+    return float(pointing_sigma_urad)

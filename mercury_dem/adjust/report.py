@@ -67,9 +67,11 @@ def residuals_table(result: AdjustmentResult) -> pd.DataFrame:
     })
 
 
-def text_report(result: AdjustmentResult, config: AdjustConfig | None = None, title: str = "bundle adjustment") -> str:
+def text_report(result: AdjustmentResult, config: AdjustConfig | None = None, title: str = "bundle adjustment", *,
+                pointing_sigma_urad: float | None = None) -> str:
     """Human-readable summary: network, constraints, convergence, sigma0 per iteration, residual statistics,
-    flagged images and points, worst images.
+    flagged images and points, worst images. ``pointing_sigma_urad``: the problem's a-priori pointing sigma
+    (:attr:`~mercury_dem.adjust.problem.AdjustmentProblem.pointing_sigma_urad`), printed under CONSTRAINTS.
     """
     config = config or AdjustConfig()
     n_img, n_pt, m = len(result.image_ids), len(result.point_ids), result.n_measures
@@ -87,7 +89,7 @@ def text_report(result: AdjustmentResult, config: AdjustConfig | None = None, ti
         f"  islands                     {len(result.diagnosis.islands)}",
         "",
         "CONSTRAINTS (1 sigma)",
-        f"  pointing                    {config.pointing_sigma_deg:g} deg",
+        f"  pointing                    {'not stated' if pointing_sigma_urad is None else f'{pointing_sigma_urad:g} urad'}",
         f"  position                    {f'{config.position_sigma_m:g} m' if config.solve_positions else 'held (not solved)'}",
         f"  point lat/lon/radius        {config.point_latitude_sigma_m} / {config.point_longitude_sigma_m} / {config.radius_sigma_m} m",
         f"  robust loss                 {config.robust_loss} (scale {config.robust_scale:g} sigma)",

@@ -20,13 +20,18 @@ points are summed at once with ``np.bincount`` over the (point, shot) pairs the 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    from mercury_dem.adjust.problem import AdjustmentProblem
+    from mercury_dem.adjust.result import AdjustmentResult
+    from mercury_dem.config.adjust import AdjustConfig
 
 __all__ = ["AltimetryShotsArrays", "RadiusPriors", "altimetry_radius_priors", "bundle_adjust_with_altimetry",
            "constrain_to_altimetry", "radius_priors_within", "shot_tiles_for_points", "unit_vectors"]
@@ -370,8 +375,8 @@ class AltimetryShotsArrays:
 
 
 def bundle_adjust_with_altimetry(
-    problem: Any,
-    config: Any,
+    problem: AdjustmentProblem,
+    config: AdjustConfig,
     shots: AltimetryShotsArrays,
     *,
     search_radius_m: float | Sequence[float] = (1000.0, 3000.0, 10_000.0),
@@ -379,8 +384,8 @@ def bundle_adjust_with_altimetry(
     sigma_floor_m: float = 1.0,
     horizontal_sigma_m: float = 50.0,
     surface: str = "quadratic",
-    adjust: Any = None,
-) -> tuple[Any, RadiusPriors]:
+    adjust: Callable[[AdjustmentProblem, AdjustConfig], AdjustmentResult] | None = None,
+) -> tuple[AdjustmentResult, RadiusPriors]:
     """Bundle adjustment with the tie points' radii constrained by altimetry (two passes).
 
     Pass 1 adjusts as usual; the altimetry's radius and sigma are then found around each adjusted

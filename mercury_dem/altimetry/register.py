@@ -591,18 +591,18 @@ class _FitFailure:
 def _fit_transform(
     x: NDArray[np.float64], q: NDArray[np.float64], E: NDArray[np.float64], c: NDArray[np.float64],
     sampler: _Sampler, datum: float, model: str, L: NDArray[np.float64], opt: RegisterOptions,
-    track_index: NDArray[np.intp] | None = None,
+    profile_index: NDArray[np.intp] | None = None,
 ) -> _TransformFit | _FitFailure:
     """Robust Gauss-Newton of one model: the fit (theta (12), weights, sigmas, residuals), or why it failed.
 
-    With ``track_index`` (each shot's profile, 0..P-1) and ``opt.profile_nuisance``, one offset per
+    With ``profile_index`` (each shot's profile, 0..P-1) and ``opt.profile_nuisance``, one offset per
     profile (tile ENU frame) is estimated with it, its 3 × 3 blocks eliminated by a Schur
     complement each iteration, so the transform's covariance includes their uncertainty.
     """
     P = _model_basis(model, L)
     theta = np.zeros(12)
-    nuis = bool(opt.profile_nuisance) and track_index is not None
-    n_prof = int(track_index.max()) + 1 if nuis and track_index is not None and track_index.size else 0
+    nuis = bool(opt.profile_nuisance) and profile_index is not None
+    n_prof = int(profile_index.max()) + 1 if nuis and profile_index is not None and profile_index.size else 0
     d = np.zeros((n_prof, 3))
     lam = np.array([opt.nuisance_sigma_horizontal_m ** -2] * 2 + [opt.nuisance_sigma_vertical_m ** -2])
 
@@ -611,7 +611,7 @@ def _fit_transform(
         return c + (qq @ (np.eye(3) + B).T + th[9:]) @ E.T
 
     def shots(th: NDArray[np.float64], dd: NDArray[np.float64]) -> NDArray[np.float64]:
-        return apply(th, q + dd[track_index]) if nuis else apply(th)
+        return apply(th, q + dd[profile_index]) if nuis else apply(th)
 
     r, g = _residuals(apply(theta), sampler, datum)
     ok = np.isfinite(r)
@@ -645,11 +645,11 @@ def _fit_transform(
             Ntp = np.empty((n_prof, k, 3))
             bp = np.empty((n_prof, 3))
             for a_ in range(3):
-                bp[:, a_] = np.bincount(track_index, w * Jp[:, a_] * rz, n_prof) + scale ** 2 * lam[a_] * d[:, a_]
+                bp[:, a_] = np.bincount(profile_index, w * Jp[:, a_] * rz, n_prof) + scale ** 2 * lam[a_] * d[:, a_]
                 for b_ in range(3):
-                    Npp[:, a_, b_] = np.bincount(track_index, w * Jp[:, a_] * Jp[:, b_], n_prof)
+                    Npp[:, a_, b_] = np.bincount(profile_index, w * Jp[:, a_] * Jp[:, b_], n_prof)
                 for t_ in range(k):
-                    Ntp[:, t_, a_] = np.bincount(track_index, w * J[:, t_] * Jp[:, a_], n_prof)
+                    Ntp[:, t_, a_] = np.bincount(profile_index, w * J[:, t_] * Jp[:, a_], n_prof)
             Npp += np.eye(3) * (scale ** 2 * lam)
             Npp_inv = np.linalg.inv(Npp)
             X = Ntp @ Npp_inv

@@ -303,14 +303,14 @@ def _empty() -> SimulatedAltimetry:
     return SimulatedAltimetry(shots, truth, profiles)
 
 
-def screen_shots(shots: pd.DataFrame, body_radius_m: float,
+def screen_shots(shots: pd.DataFrame, datum_radius_m: float,
                  radius_tolerance_m: float = 25_000.0) -> tuple[pd.DataFrame, dict[str, int]]:
     """Drop what an RDR reader drops (:mod:`mercury_dem.reference.lola`): non-finite, off the body
-    (beyond ``body_radius_m`` ± tolerance), flagged; return the kept shots and the counts by reason.
+    (beyond ``datum_radius_m`` ± tolerance), flagged; return the kept shots and the counts by reason.
     """
     lat, lon, rad = (shots[c].to_numpy(np.float64) for c in ("lat", "lon", "radius_m"))
     finite = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(rad) & (np.abs(lat) <= 90)
-    in_range = np.abs(rad - body_radius_m) <= radius_tolerance_m
+    in_range = np.abs(rad - datum_radius_m) <= radius_tolerance_m
     unflagged = shots["flag"].to_numpy() == 0 if "flag" in shots else np.ones(len(shots), bool)
     dropped = {"malformed": 0, "bad_time": 0, "non_finite": int(np.sum(~finite)),
                "radius_out_of_range": int(np.sum(finite & ~in_range)),

@@ -157,7 +157,7 @@ def write_altimetry(
     table: pd.DataFrame,
     *,
     sources: Sequence[ShotSource],
-    body_radius_m: float,
+    datum_radius_m: float,
     tile_size_deg: float = 10.0,
     overwrite: bool = False,
     extra: dict[str, Any] | None = None,
@@ -173,7 +173,7 @@ def write_altimetry(
         (:func:`combine_shots` makes one); ``tile_id`` is computed here.
     sources : sequence of ShotSource
         What each ``source_id`` is (recorded in ``altimetry.json`` with its drop counts).
-    body_radius_m : float
+    datum_radius_m : float
         The body's reference radius the shots were screened against, metres.
     tile_size_deg : float
         Tile size of the grid the shots are partitioned by (one of the allowed sizes).
@@ -221,7 +221,8 @@ def write_altimetry(
                 writer.write_table(arrow)
         meta = {
             "format": FORMAT, "version": VERSION, "tile_size_deg": float(tile_size_deg),
-            "body_radius_m": float(body_radius_m), "n_shots": int(len(t)),
+            # stored key kept as it was written by earlier versions (the value is the datum radius)
+            "body_radius_m": float(datum_radius_m), "n_shots": int(len(t)),
             "n_tracks": int(t["track_id"].nunique()) if len(t) else 0,
             "time_kind": "datetime" if _is_datetime(t["time"]) else "numeric",
             "columns": cols, "dropped": dropped, "sources": [s.to_dict() for s in sources],
@@ -385,7 +386,7 @@ def open_altimetry(path: str | Path) -> AltimetryStore:
 
 
 def shots_from_files(
-    files: Sequence[str | Path], body_radius_m: float, sigma_m: float = DEFAULT_SIGMA_M, **reader: Any,
+    files: Sequence[str | Path], datum_radius_m: float, sigma_m: float = DEFAULT_SIGMA_M, **reader: Any,
 ) -> tuple[pd.DataFrame, list[ShotSource]]:
     """Read LOLA/MLA RDR CSV files (:func:`mercury_dem.reference.lola.read_altimetry_csv`) into one
     table for :func:`write_altimetry`, with each file's rows and drop counts as a :class:`ShotSource`.
@@ -397,7 +398,7 @@ def shots_from_files(
 
     tables, sources = [], []
     for f in files:
-        shots = read_altimetry_csv(f, body_radius_m, **reader)
+        shots = read_altimetry_csv(f, datum_radius_m, **reader)
         tables.append(shots.table)
         sources.append(ShotSource(str(f), shots.n_rows, len(shots.table), shots.n_tracks, dict(shots.dropped)))
     return combine_shots(tables, sources, sigma_m), sources

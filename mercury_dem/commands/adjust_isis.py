@@ -33,12 +33,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace, config: Config) -> int:
-    from mercury_dem.config.apriori import adjust_config_with_sigma
+    from mercury_dem.config.apriori import missionless_pointing_sigma_urad
     from mercury_dem.pipeline.adjust_isis import describe, run_adjust_isis
 
-    # no mission here: apriori.pointing_sigma_urad when set, else the adjusters' default (0.2 deg)
-    adjust = adjust_config_with_sigma(config.adjust, config.apriori.pointing_sigma_urad)
-    summary = run_adjust_isis(args.net, args.cameras, args.out, adjust, serials_csv=args.serials,
+    # no mission here: apriori.pointing_sigma_urad when set, else the mission-less default (0.2 deg)
+    summary = run_adjust_isis(args.net, args.cameras, args.out, config.adjust,
+                              pointing_sigma_urad=missionless_pointing_sigma_urad(config.apriori.pointing_sigma_urad),
+                              serials_csv=args.serials,
                               require_all=args.require_all, write_isds=not args.no_isds)
     if args.json:
         print(json.dumps(summary, indent=2))

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from mercury_dem.config import Config
 from mercury_dem.exceptions import ConfigError, GridError
 
 NAME = "grid"
@@ -96,7 +97,7 @@ def _is_number(s: str) -> bool:
     return True
 
 
-def run(args: argparse.Namespace, config: Any) -> int:
+def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.io.location import UPLOAD_HINT, refuse_remote
 
     dem = config.dem
@@ -143,7 +144,7 @@ def run(args: argparse.Namespace, config: Any) -> int:
     return 0
 
 
-def _grid(args: argparse.Namespace, config: Any, dem: Any, out: Path, writer: Any) -> dict[str, Any]:
+def _grid(args: argparse.Namespace, config: Config, dem: Any, out: Path, writer: Any) -> dict[str, Any]:
     from mercury_dem.geometry.body import body_by_name
 
     try:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+
+from mercury_dem.config import Config
 
 NAME = "ortho"
 HELP = "orthorectify a finished run's controlled images onto its DEM; mosaic them per tile"
@@ -20,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing files")
 
 
-def run(args: argparse.Namespace, config: Any) -> int:
+def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.pipeline.ortho_stage import make_orthoimages
 
     s = make_orthoimages(args.run_dir, out_dir=args.out, images=args.images, tiles=args.tile, dem_path=args.dem,

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from mercury_dem.config import Config
 from mercury_dem.exceptions import MercuryDemError
 
 NAME = "products"
@@ -46,7 +47,7 @@ def _run_truth(d: Path) -> Any:
     return mission.truth.surface().height if mission.truth is not None else None
 
 
-def run(args: argparse.Namespace, config: Any) -> int:
+def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.io.run_store import COVERAGE_FILE, DEM_FILE, PRODUCTS_DIR
     from mercury_dem.products.make import make_products
     from mercury_dem.products.profile import parse_profile

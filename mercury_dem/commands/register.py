@@ -17,6 +17,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from mercury_dem.config import Config
 from mercury_dem.exceptions import ConfigError, ReferenceDataError
 
 NAME = "register"
@@ -67,7 +68,7 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
-def run(args: argparse.Namespace, config: Any) -> int:
+def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.compute import connect
     from mercury_dem.geometry.body import body_by_name
     from mercury_dem.io.atomic import strict_json

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import concurrent.futures
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 #: Worker resource that bounds memory-heavy adjustments to one at a time per worker.
 ADJUST_RESOURCE = "adjust_slots"
@@ -21,19 +21,29 @@ _DASK_ONLY = ("retries", "resources", "pure", "priority", "workers", "allow_othe
               "broadcast", "direct", "fifo_timeout", "batch_size")
 
 
+if TYPE_CHECKING:
+    #: Dask's own client, for annotating code that needs more than :class:`ComputeClient` (actors, the
+    #: scheduler's state); imported here so that such code outside compute/ names no Dask module.
+    from distributed import Client as DaskClient  # noqa: F401
+
+
 @runtime_checkable
 class ComputeClient(Protocol):
     """What a stage may call on the run's client (``distributed.Client`` and :class:`SyncClient`)."""
 
-    def submit(self, fn: Callable[..., Any], *args: Any, key: str | None = None, **kwargs: Any) -> Any: ...
+    # The signatures name only what the stages pass, so that ``distributed.Client`` (whose methods take their
+    # own keywords, not ``**kwargs``) is one of these for the type checker too.
+    def submit(self, fn: Callable[..., Any], /, *args: Any, key: str | None = ..., pure: bool = ...,
+               retries: int | None = ..., resources: dict[str, Any] | None = ..., workers: Any = ...,
+               actor: bool = ..., allow_other_workers: bool = ...) -> Any: ...
 
-    def map(self, fn: Callable[..., Any], *iterables: Iterable[Any], **kwargs: Any) -> list[Any]: ...
+    def map(self, fn: Callable[..., Any], /, *iterables: Any, key: Any = ..., pure: bool = ...) -> Any: ...
 
-    def scatter(self, data: Any, **kwargs: Any) -> Any: ...
+    def scatter(self, data: Any, /, *, workers: Any = ..., broadcast: bool = ..., hash: bool = ...) -> Any: ...
 
-    def gather(self, futures: Any, **kwargs: Any) -> Any: ...
+    def gather(self, futures: Any, /) -> Any: ...
 
-    def cancel(self, futures: Any, **kwargs: Any) -> Any: ...
+    def cancel(self, futures: Any, /, *, force: bool = ..., reason: str | None = ..., msg: str | None = ...) -> Any: ...
 
     def close(self) -> Any: ...
 
@@ -104,12 +114,12 @@ class SyncClient:
         self._count += 1
         return key or f"{getattr(fn, '__name__', 'task')}-{self._count}"
 
-    def submit(self, fn: Callable[..., Any], *args: Any, key: str | None = None, **kwargs: Any) -> SyncFuture:
+    def submit(self, fn: Callable[..., Any], /, *args: Any, key: str | None = None, **kwargs: Any) -> SyncFuture:
         for k in _DASK_ONLY:
             kwargs.pop(k, None)
         return SyncFuture(self._key(fn, key), fn, args, kwargs)
 
-    def map(self, fn: Callable[..., Any], *iterables: Iterable[Any], key: str | list[str] | None = None,
+    def map(self, fn: Callable[..., Any], /, *iterables: Iterable[Any], key: str | list[str] | None = None,
             **kwargs: Any) -> list[SyncFuture]:
         """One future per element of the zipped ``iterables``, like ``distributed.Client.map``."""
         for k in _DASK_ONLY:
@@ -166,14 +176,14 @@ class ThreadPoolClient(SyncClient):
 
         self._pool = ThreadPoolExecutor(max_workers=max_workers)
 
-    def submit(self, fn: Callable[..., Any], *args: Any, key: str | None = None, **kwargs: Any) -> Any:
+    def submit(self, fn: Callable[..., Any], /, *args: Any, key: str | None = None, **kwargs: Any) -> Any:
         for k in _DASK_ONLY:
             kwargs.pop(k, None)
         fut = self._pool.submit(lambda: fn(*[_resolve(a) for a in args], **{k: _resolve(v) for k, v in kwargs.items()}))
         fut.key = self._key(fn, key)  # type: ignore[attr-defined]
         return fut
 
-    def map(self, fn: Callable[..., Any], *iterables: Iterable[Any], key: str | list[str] | None = None,
+    def map(self, fn: Callable[..., Any], /, *iterables: Iterable[Any], key: str | list[str] | None = None,
             **kwargs: Any) -> list[Any]:
         return [self.submit(fn, *args, key=key[i] if isinstance(key, list) else None, **kwargs)
                 for i, args in enumerate(zip(*iterables))]
@@ -192,17 +202,17 @@ class ThreadPoolClient(SyncClient):
         self._pool.shutdown(wait=True)
 
 
-def as_completed(client: Any, futures: list[Any]) -> Iterator[Any]:
+def as_completed(client: ComputeClient | None, futures: list[Any]) -> Iterator[Any]:
     """Futures in the order they finish (submission order for the synchronous client)."""
     if runs_in_process(client):
-        yield from (client.as_completed(futures) if client is not None else futures)
+        yield from (client.as_completed(futures) if isinstance(client, SyncClient) else futures)
         return
     from distributed import as_completed as _as_completed
 
     yield from _as_completed(futures)
 
 
-def runs_in_process(client: Any) -> bool:
+def runs_in_process(client: ComputeClient | None) -> bool:
     """True when tasks given to ``client`` run in this process: None or the in-process client.
 
     A stage takes the run's one client and asks this where its own loop of tasks runs, rather
@@ -211,6 +221,6 @@ def runs_in_process(client: Any) -> bool:
     return client is None or bool(getattr(client, "synchronous", False))
 
 
-def client_or_sync(client: Any) -> Any:
+def client_or_sync(client: ComputeClient | None) -> ComputeClient:
     """``client``, or a :class:`SyncClient` for None (a stage called without a client runs in this process)."""
     return SyncClient() if client is None else client

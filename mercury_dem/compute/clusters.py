@@ -12,18 +12,21 @@ import logging
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mercury_dem.compute.client import ADJUST_RESOURCE, SyncClient
+from mercury_dem.compute.client import ADJUST_RESOURCE, ComputeClient, SyncClient
 from mercury_dem.compute.security import require_tls_settings
 from mercury_dem.config.execution import ExecutionConfig
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 
 @dataclass
 class Connection:
     """A client and what must be closed with it."""
 
-    client: Any
+    client: ComputeClient
     mode: str
     cluster: Any = None
     description: str = ""
@@ -33,10 +36,9 @@ class Connection:
     @property
     def scheduler_address(self) -> str:
         """The scheduler's address (``tcp://...``), or the description when there is none (in-process)."""
-        try:
-            return str(self.client.scheduler.address)
-        except AttributeError:
-            return self.description
+        scheduler = getattr(self.client, "scheduler", None)  # distributed's; none in process
+        address = getattr(scheduler, "address", None)
+        return self.description if address is None else str(address)
 
     def close(self) -> None:
         try:
@@ -84,7 +86,7 @@ def quiet_comm_size_probe() -> bool:
     return True
 
 
-def _quiet_workers(client: Any) -> None:
+def _quiet_workers(client: Client) -> None:
     """The filter in this process and on every worker, present and future (a worker plugin)."""
     from distributed.diagnostics.plugin import WorkerPlugin
 

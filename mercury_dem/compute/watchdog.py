@@ -16,13 +16,16 @@ import threading
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
-from mercury_dem.compute.client import runs_in_process
+from mercury_dem.compute.client import ComputeClient, runs_in_process
 from mercury_dem.exceptions import NoWorkerError
 
+if TYPE_CHECKING:
+    from distributed import Client
 
-def count_workers(client: Any) -> int | None:
+
+def count_workers(client: Client) -> int | None:
     """Workers the client's scheduler has now, or None when it cannot be asked (scheduler gone, closing)."""
     if getattr(client, "status", "running") != "running":
         return None
@@ -32,7 +35,7 @@ def count_workers(client: Any) -> int | None:
         return None
 
 
-def cancel_all_futures(client: Any, message: str) -> int:
+def cancel_all_futures(client: Client, message: str) -> int:
     """Cancel every future the client holds (``message`` in their ``FutureCancelledError``); their number."""
     from distributed import Future
 
@@ -58,8 +61,8 @@ class NoWorkerWatchdog:
     Use as a context manager (a daemon thread polls while the block runs) or call :meth:`poll`.
     """
 
-    def __init__(self, client: Any, timeout_s: float, scheduler: str, resume_hint: str = "run the same command",
-                 poll_s: float | None = None, workers: Callable[[Any], int | None] = count_workers,
+    def __init__(self, client: Client, timeout_s: float, scheduler: str, resume_hint: str = "run the same command",
+                 poll_s: float | None = None, workers: Callable[[Client], int | None] = count_workers,
                  clock: Callable[[], float] = time.monotonic) -> None:
         if timeout_s <= 0:
             raise ValueError(f"timeout_s must be positive, got {timeout_s}")
@@ -121,9 +124,9 @@ class NoWorkerWatchdog:
             self._thread.join(timeout=min(5.0, self.poll_s + 1.0))  # a daemon: a look stuck on a dead scheduler is left
 
 
-def watch_workers(client: Any, timeout_s: float, scheduler: str,
+def watch_workers(client: ComputeClient | None, timeout_s: float, scheduler: str,
                   resume_hint: str = "run the same command") -> NoWorkerWatchdog | None:
     """A :class:`NoWorkerWatchdog` for ``client``, or None for the in-process client (nothing to watch)."""
     if runs_in_process(client) or timeout_s <= 0:
         return None
-    return NoWorkerWatchdog(client, timeout_s, scheduler, resume_hint)
+    return NoWorkerWatchdog(cast("Client", client), timeout_s, scheduler, resume_hint)  # not in process: distributed's

@@ -12,11 +12,8 @@ class AdjustConfig(ConfigSection):
     """The ``adjust`` section: a-priori constraints, robustness, solver and outputs of the bundle adjustment."""
 
     # -- a-priori constraints (weighted pseudo-observations) -------------------
-    pointing_sigma_deg: float = param(
-        0.2, "A-priori pointing constraint per axis (1 sigma) of the library's adjusters", unit="deg", lo=1e-9,
-        hi=180.0, internal="a run sets it from the mission's declared a-priori pointing uncertainty or "
-        "apriori.pointing_sigma_urad (mercury_dem.config.apriori)",
-    )
+    # (the pointing constraint's sigma is the problem's: AdjustmentProblem.pointing_sigma_urad, configured as
+    # apriori.pointing_sigma_urad or declared by the mission, mercury_dem.config.apriori)
     solve_positions: bool = param(False, "Also solve for spacecraft position corrections")
     position_sigma_m: float = param(100.0, "A-priori position constraint when solve_positions (1 sigma)", unit="m", lo=1e-6)
     point_latitude_sigma_m: float | None = param(

@@ -4,7 +4,10 @@ One concept, one key. The mission declares how wrong its a-priori (SPICE) pointi
 (``pointing_sigma_urad`` in ``mission.json``: the synthetic generator writes the sigma it injected,
 ``mercury-dem ingest --pointing-sigma-urad`` records the user's). The run configuration may override
 it with ``apriori.pointing_sigma_urad``; matching (the guidance window) and the bundle adjustment (the
-pointing constraint) both use the one resolved value (:func:`resolve_pointing_sigma_urad`).
+pointing constraint) both use the one resolved value (:func:`resolve_pointing_sigma_urad`), handed to
+them as an argument, always in microradians and always under this name: ``match_tile(...,
+pointing_sigma_urad=)`` and ``AdjustmentProblem.pointing_sigma_urad`` (the library's ``match`` and
+``adjust`` sections carry no copy of it, and nothing overwrites a section at run time).
 
 Until session 11 it was three keys with two defaults (``match.pointing_sigma_urad`` 450 µrad,
 ``adjust.pointing_sigma_deg`` 0.2°, each with a ``pointing_sigma_from_mission`` switch, and the
@@ -14,11 +17,9 @@ message naming this one (:data:`RETIRED_KEYS`): the old two values cannot be map
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
-from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.config.base import ConfigSection, param
 from mercury_dem.exceptions import ConfigError
 
@@ -96,21 +97,13 @@ def resolve_pointing_sigma_urad(configured: float | None, declared: float | None
     )
 
 
-def adjust_config_with_sigma(adjust: AdjustConfig, pointing_sigma_urad: float | None) -> AdjustConfig:
-    """The adjusters' parameters with the a-priori pointing sigma set (µrad in, their degrees out).
+#: The a-priori pointing sigma (µrad) of the commands that adjust a network without a mission (``adjust-isis``,
+#: ``adjust-network``) when ``apriori.pointing_sigma_urad`` is not set: 0.2 deg, their default since they exist.
+MISSIONLESS_POINTING_SIGMA_URAD = math.radians(0.2) * 1e6
 
-    Parameters
-    ----------
-    adjust : the run's ``adjust`` section
-    pointing_sigma_urad : the resolved sigma (:func:`resolve_pointing_sigma_urad`); None keeps the adjusters'
-        own default, for commands that adjust a network without a mission (``adjust-isis``, ``adjust-network``)
-        when ``apriori.pointing_sigma_urad`` is not set
 
-    Returns
-    -------
-    AdjustConfig : ``adjust`` with ``pointing_sigma_deg`` = degrees(sigma · 1e-6), the conversion the run made
-        before this key existed (so results are the same bit for bit)
+def missionless_pointing_sigma_urad(configured: float | None) -> float:
+    """The a-priori pointing sigma (µrad) of an adjustment without a mission: ``apriori.pointing_sigma_urad``,
+    else :data:`MISSIONLESS_POINTING_SIGMA_URAD` (a network file states no pointing uncertainty).
     """
-    if pointing_sigma_urad is None:
-        return adjust
-    return dataclasses.replace(adjust, pointing_sigma_deg=float(math.degrees(float(pointing_sigma_urad) * 1e-6)))
+    return MISSIONLESS_POINTING_SIGMA_URAD if configured is None else float(configured)

@@ -98,11 +98,8 @@ class MatchConfig(ConfigSection):
     guided: bool = param(
         True, "Restrict descriptor candidates to a window around the a-priori predicted position"
     )
-    pointing_sigma_urad: float = param(
-        450.0, "A-priori pointing uncertainty per axis and image (1 sigma) of the library's matcher", unit="urad",
-        lo=0.0, hi=1e5, internal="a run sets it from the mission's declared a-priori pointing uncertainty or "
-        "apriori.pointing_sigma_urad (mercury_dem.config.apriori)",
-    )
+    # (the a-priori pointing sigma is an argument of match_tile, pointing_sigma_urad: configured as
+    # apriori.pointing_sigma_urad or declared by the mission, mercury_dem.config.apriori)
     position_sigma_m: float = param(
         100.0, "A-priori spacecraft position uncertainty per axis (1 sigma), seen as an angle from the camera",
         unit="m", lo=0.0, hi=1e7,

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+if TYPE_CHECKING:
+    from mercury_dem.network.model import ControlNetwork
 
-def point_cloud(network: Any, adjusted: bool = True) -> NDArray[np.float64]:
+
+def point_cloud(network: ControlNetwork, adjusted: bool = True) -> NDArray[np.float64]:
     """Body-fixed points (N, 3) of a network: adjusted (not rejected, finite) or a-priori.
 
     Parameters

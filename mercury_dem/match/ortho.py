@@ -159,6 +159,8 @@ def match_pair_on_surface(
     height: HeightFunction | None,
     config: MatchConfig,
     stride: int = 1,
+    *,
+    pointing_sigma_urad: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Match one pair with the DEM pre-transform: measures in the pair's original images.
 
@@ -179,6 +181,7 @@ def match_pair_on_surface(
     height : the surface of the map, (lat, lon) degrees -> metres; None for the datum sphere
     config : matcher configuration
     stride : ray spacing of the map, base pixels (:func:`dem_maps`)
+    pointing_sigma_urad : the a-priori pointing sigma (µrad per axis) sizing the guidance window (:func:`match_tile`)
 
     Returns
     -------
@@ -204,7 +207,8 @@ def match_pair_on_surface(
     virtual = "\x00resampled"
     vg = dataclasses.replace(geometry[base], sun_position=geometry[partner].sun_position)
     m, _ = match_tile({base: images[base], virtual: warped}, {base: geometry[base], virtual: vg},
-                      [(base, virtual)], config, tracks=False)
+                      [(base, virtual)], config, tracks=False,
+                      pointing_sigma_urad=pointing_sigma_urad)
     pk = np.stack([m.sample_a, m.line_a], -1)
     pv = np.stack([m.sample_b, m.line_b], -1)
     if len(pv):

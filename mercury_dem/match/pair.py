@@ -125,6 +125,8 @@ def match_pair(
     match_features: ImageFeatures | None = None,
     ref_id: str = "ref",
     match_id: str = "match",
+    *,
+    pointing_sigma_urad: float,
 ) -> PairResult:
     """Match one pair (see the module docstring for the steps).
 
@@ -135,6 +137,8 @@ def match_pair(
     config : MatchConfig
     ref_features, match_features : :func:`prepare_image` results to reuse (computed when None)
     ref_id, match_id : names used in the report
+    pointing_sigma_urad : how wrong the a-priori pointing may be, per axis and image (1 sigma, µrad): it sizes
+        the guidance window (:func:`configured_pair_geometry`)
 
     Returns
     -------
@@ -143,7 +147,8 @@ def match_pair(
     t0 = time.perf_counter()
     rep = PairReport(ref_id=ref_id, match_id=match_id)
     try:
-        out = match_in_pair_frame(ref_image, match_image, ref_geom, match_geom, config, ref_features, match_features, rep)
+        out = match_in_pair_frame(ref_image, match_image, ref_geom, match_geom, config, ref_features, match_features, rep,
+                                  pointing_sigma_urad=pointing_sigma_urad)
         return out if isinstance(out, PairResult) else finish_pair(out, config, rep)
     finally:
         rep.seconds = time.perf_counter() - t0
@@ -159,8 +164,11 @@ def match_in_pair_frame(
     mf: ImageFeatures | None,
     rep: PairReport,
     keep_warped: bool = False,
+    *,
+    pointing_sigma_urad: float,
 ) -> PairResult | PairState:
     """The pair up to its matches in the pair frame (a :class:`PairState`), or a failed/skipped result.
+    ``pointing_sigma_urad``: as :func:`match_pair`.
 
     ``keep_warped``: the state keeps the warped partner and its valid mask (for propagation).
     """
@@ -175,7 +183,7 @@ def match_in_pair_frame(
     if not mf.quality.ok:
         return failed_result(rep, f"match image {rep.match_id}: {mf.quality.reason}")
 
-    pg = configured_pair_geometry(ref_geom, match_geom, config)
+    pg = configured_pair_geometry(ref_geom, match_geom, config, pointing_sigma_urad)
     if isinstance(pg, str):
         return failed_result(rep, pg)
     record_geometry(rep, pg)
@@ -192,7 +200,7 @@ def match_in_pair_frame(
     # The coarser image stays in its own geometry; the finer one is warped (low-passed) onto it.
     swap = config.warp_finer and pg.match_px_per_ref_px < 1.0 / config.swap_scale_ratio
     if swap:
-        pg2 = configured_pair_geometry(match_geom, ref_geom, config)
+        pg2 = configured_pair_geometry(match_geom, ref_geom, config, pointing_sigma_urad)
         if isinstance(pg2, str):
             return failed_result(rep, pg2)
         pg, base, other, base_geom, other_geom = pg2, mf, rf, match_geom, ref_geom
@@ -230,14 +238,13 @@ def finish_pair(st: PairState, config: MatchConfig, rep: PairReport) -> PairResu
     return PairResult(pa, pm, fa, fo, sc, rep, st.kind)
 
 
-#: The configuration's pointing sigma is in microradians, :func:`pair_geometry` takes radians.
-_RAD_PER_URAD = 1e-6
-
-
-def configured_pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig) -> PairGeometry | str:
-    """:func:`pair_geometry` with the configuration's grid, pointing and position sigmas and guidance."""
+def configured_pair_geometry(a: ImageGeometry, b: ImageGeometry, config: MatchConfig,
+                             pointing_sigma_urad: float) -> PairGeometry | str:
+    """:func:`pair_geometry` with the configuration's grid, position sigma and guidance and the a-priori
+    pointing sigma ``pointing_sigma_urad`` (µrad per axis).
+    """
     return pair_geometry(
-        a, b, config.pretransform_grid, config.pointing_sigma_urad * _RAD_PER_URAD,
+        a, b, config.pretransform_grid, pointing_sigma_urad,
         config.guidance_sigmas, config.guidance_margin_px, config.position_sigma_m,
     )
 

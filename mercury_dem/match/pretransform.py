@@ -120,7 +120,7 @@ def pair_geometry(
     ref: ImageGeometry,
     match: ImageGeometry,
     grid: int = 9,
-    pointing_sigma_rad: float = 0.0,
+    pointing_sigma_urad: float = 0.0,
     guidance_sigmas: float = 3.0,
     guidance_margin_px: float = 0.0,
     position_sigma_m: float = 0.0,
@@ -128,7 +128,8 @@ def pair_geometry(
     """The pre-transform homography, overlap, scale and illumination of a pair, or a failure reason.
 
     Returns a string (the reason) when the reference does not see the body or the
-    pair has no a-priori overlap.
+    pair has no a-priori overlap. ``pointing_sigma_urad`` (µrad per axis) and ``position_sigma_m``: how wrong
+    each image's a-priori pointing and position may be (1 sigma), for the guidance window.
     """
     cam_r, cam_m = ref.camera, match.camera
     t = (np.arange(grid) + 0.5) / grid
@@ -167,8 +168,8 @@ def pair_geometry(
     # IFOV pixels), the match image's converted to reference pixels, combined.
     range_r = float(np.linalg.norm(g - ref.position))
     range_m = float(np.linalg.norm(g - match.position))
-    ang_r = float(np.hypot(pointing_sigma_rad, position_sigma_m / range_r))
-    ang_m = float(np.hypot(pointing_sigma_rad, position_sigma_m / range_m))
+    ang_r = float(np.hypot(pointing_sigma_urad * 1e-6, position_sigma_m / range_r))
+    ang_m = float(np.hypot(pointing_sigma_urad * 1e-6, position_sigma_m / range_m))
     sig_r = ang_r / cam_r.ifov_rad
     sig_m = ang_m / cam_m.ifov_rad / max(scale, 1e-9)
     guidance = guidance_sigmas * float(np.hypot(sig_r, sig_m)) + guidance_margin_px

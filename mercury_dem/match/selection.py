@@ -39,20 +39,22 @@ REDUNDANT_REASON = "redundant:"
 _COVER_GRID = 17
 
 
-def pair_convergence(ref: ImageGeometry | None, match: ImageGeometry | None, config: MatchConfig) -> float:
+def pair_convergence(ref: ImageGeometry | None, match: ImageGeometry | None, config: MatchConfig,
+                     pointing_sigma_urad: float) -> float:
     """Convergence angle (deg) of a pair at its a-priori overlap centre, as the pair chain computes it
     (:func:`configured_pair_geometry`); NaN when an image has no geometry or the pair no overlap.
     """
     if ref is None or match is None:
         return float("nan")
-    pg = configured_pair_geometry(ref, match, config)
+    pg = configured_pair_geometry(ref, match, config, pointing_sigma_urad)
     return float("nan") if isinstance(pg, str) else float(pg.convergence_deg)
 
 
 def pair_convergences(pairs: Sequence[tuple[str, str]], geometry: Mapping[str, ImageGeometry],
-                      config: MatchConfig) -> NDArray[np.float64]:
+                      config: MatchConfig, pointing_sigma_urad: float) -> NDArray[np.float64]:
     """:func:`pair_convergence` of every pair (deg, NaN where none)."""
-    return np.array([pair_convergence(geometry.get(a), geometry.get(b), config) for a, b in pairs], np.float64)
+    return np.array([pair_convergence(geometry.get(a), geometry.get(b), config, pointing_sigma_urad)
+                     for a, b in pairs], np.float64)
 
 
 def _inside(ground: NDArray[np.float64], g: ImageGeometry) -> NDArray[np.bool_]:

@@ -82,6 +82,8 @@ def match_tile(
     config: MatchConfig,
     tracks: bool = True,
     radiometry: Mapping[str, tuple[float, float]] | None = None,
+    *,
+    pointing_sigma_urad: float,
 ) -> tuple[TileMatches, list[PairReport]]:
     """Match every pair of a tile.
 
@@ -96,6 +98,8 @@ def match_tile(
         (:mod:`mercury_dem.match.propagation`), so the network gets points of 3+ rays; needs
         ``config.refine``
     radiometry : image id -> (saturation, dn_scale) of its pixels (:func:`image_quality`); missing = 12-bit DN
+    pointing_sigma_urad : how wrong the a-priori pointing may be, per axis and image (1 sigma, µrad): sizes each
+        pair's guidance window (the run's ``apriori.pointing_sigma_urad`` or the mission's declared one)
 
     Returns
     -------
@@ -123,7 +127,7 @@ def match_tile(
             return rep, failed_result(rep, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
         t0 = time.perf_counter()
         out = match_in_pair_frame(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b],
-                                  rep, keep_warped=keep_warped)
+                                  rep, keep_warped=keep_warped, pointing_sigma_urad=pointing_sigma_urad)
         rep.seconds = time.perf_counter() - t0
         return rep, out
 
@@ -170,7 +174,7 @@ def match_tile(
         # the wide pairs go last: each is matched only if no narrower route of matched pairs joins its images
         conv = np.full(len(pairs), np.nan)
         if config.redundant_convergence_deg < 180.0:  # ~0.7 ms a pair, on the pool
-            conv[:] = list(pmap(lambda p: pair_convergence(geometry.get(p[0]), geometry.get(p[1]), config), pairs))
+            conv[:] = list(pmap(lambda p: pair_convergence(geometry.get(p[0]), geometry.get(p[1]), config, pointing_sigma_urad), pairs))
         wide = wide_pairs(conv, config)
         first = [k for k in range(len(pairs)) if not wide[k]]
         done = dict(zip(first, pmap(run, first)))
@@ -182,7 +186,7 @@ def match_tile(
                 if why is None:
                     return run(k)
                 rep = PairReport(ref_id=pairs[k][0], match_id=pairs[k][1])
-                pg = configured_pair_geometry(geometry[pairs[k][0]], geometry[pairs[k][1]], config)
+                pg = configured_pair_geometry(geometry[pairs[k][0]], geometry[pairs[k][1]], config, pointing_sigma_urad)
                 if not isinstance(pg, str):  # a wide pair has a geometry (its convergence came from it)
                     record_geometry(rep, pg)
                 return rep, failed_result(rep, why, "skipped")

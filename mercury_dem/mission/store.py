@@ -84,7 +84,7 @@ class MissionWriter:
         """Write the mission's altimetry store ``altimetry/`` (see :mod:`mercury_dem.altimetry.store`)."""
         from mercury_dem.altimetry.store import write_altimetry
 
-        return write_altimetry(self.root / "altimetry", table, sources=sources, body_radius_m=body.datum_radius_m,
+        return write_altimetry(self.root / "altimetry", table, sources=sources, datum_radius_m=body.datum_radius_m,
                                tile_size_deg=tile_size_deg, extra=extra)
 
     def finish(

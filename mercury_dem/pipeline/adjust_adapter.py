@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,12 +17,15 @@ from numpy.typing import NDArray
 from mercury_dem.adjust.datum import recentre_on_block
 from mercury_dem.config.adjust import AdjustConfig
 
+if TYPE_CHECKING:
+    from mercury_dem.network.model import ControlNetwork
+
 
 @dataclass(frozen=True)
 class UnitAdjustment:
     """The result of adjusting one unit's network: the network, the poses, per-image counts, summary and report."""
 
-    network: Any  # ControlNetwork with adjusted points, residuals, rejections
+    network: ControlNetwork  # with adjusted points, residuals, rejections
     rotations: NDArray[np.float64]
     positions: NDArray[np.float64]
     image_measures: NDArray[np.int64]  # accepted measures per image
@@ -32,12 +35,13 @@ class UnitAdjustment:
 
 
 def adjust_network(
-    network: Any,
+    network: ControlNetwork,
     cameras: list[Any],
     positions: NDArray[np.float64],
     rotations: NDArray[np.float64],
     config: AdjustConfig,
     *,
+    pointing_sigma_urad: float,
     initial_rotations: NDArray[np.float64] | None = None,
     rms_flag_px: float = 2.0,
     datum_radius_m: float,
@@ -47,7 +51,8 @@ def adjust_network(
     engine_factory: Any = None,
     prior_shape: Any = None,
 ) -> UnitAdjustment:
-    """Adjust a merged network whose a-priori pose is ``positions``/``rotations``.
+    """Adjust a merged network whose a-priori pose is ``positions``/``rotations``, the rotations wrong by
+    ``pointing_sigma_urad`` per axis (1 sigma, µrad: the run's a-priori pointing sigma).
 
     ``initial_rotations`` (a lower level's solution) is where the iteration
     starts; the pointing constraint stays centred on the a-priori ``rotations``.
@@ -90,7 +95,8 @@ def adjust_network(
     # islands allowed, images without measures held and named (adjust.cascade.unit_config)
     cfg, no_measures = unit_config(config, ids, network.measure_image)
     problem, measure_index = problem_from_network(
-        network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
+        network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations,
+        pointing_sigma_urad=pointing_sigma_urad,
     )
     solve = bundle_adjust
     blocked = adjusts_by_blocks(cfg, level, problem.n_measures)
@@ -179,5 +185,5 @@ def adjust_network(
         image_measures=np.asarray(result.accepted_per_image, dtype=np.int64),
         image_rms_px=rms_img,
         summary=summary,
-        text_report=text_report(result, cfg),
+        text_report=text_report(result, cfg, pointing_sigma_urad=pointing_sigma_urad),
     )

@@ -134,11 +134,13 @@ def run_adjust_isis(
     out_path: str | Path,
     config: AdjustConfig,
     *,
+    pointing_sigma_urad: float,
     serials_csv: str | Path | None = None,
     require_all: bool = False,
     write_isds: bool = True,
 ) -> dict[str, Any]:
     """Adjust an ISIS network with the given cameras; write the outputs; return the summary.
+    ``pointing_sigma_urad``: how wrong the cameras' pointing may be, per axis (1 sigma, µrad).
 
     Raises
     ------
@@ -199,7 +201,8 @@ def run_adjust_isis(
     unplaced = ~np.all(np.isfinite(apriori), axis=1)
     sub = sub.replace(apriori_xyz=np.where(unplaced[:, None], 0.0, apriori), point_ignored=unplaced)
     sub = sub.replace(image_ids=np.array([im.image_id for im in cams]))
-    adj = adjust_network(sub, cameras, positions, rotations, config, datum_radius_m=body.datum_radius_m)
+    adj = adjust_network(sub, cameras, positions, rotations, config, pointing_sigma_urad=pointing_sigma_urad,
+                         datum_radius_m=body.datum_radius_m)
     adjusted = adj.network.replace(apriori_xyz=np.where(unplaced[:, None], np.nan, adj.network.apriori_xyz))
     result = merge_adjustment(network, cut, adjusted, min_point_measures=2)
 

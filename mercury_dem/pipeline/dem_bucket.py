@@ -35,7 +35,7 @@ import shutil
 import time
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zarr
@@ -48,6 +48,11 @@ from mercury_dem.dem.spacing import config_with_no_value_distance
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore
+
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient
+    from mercury_dem.config import Config
+    from mercury_dem.config.dem import DemConfig
 
 __all__ = ["grid_chunk_to_bucket", "grid_dem_on_bucket"]
 
@@ -130,8 +135,8 @@ def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str,
 def grid_dem_on_bucket(
     store: RunStore,
     points_xyz: NDArray[np.floating],
-    config: Any,
-    client: Any = None,
+    config: Config | DemConfig,
+    client: ComputeClient | None = None,
     *,
     body: Body,
     attrs: dict[str, Any] | None = None,

@@ -6,7 +6,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from mercury_dem.config import Config
 from mercury_dem.dem.cloud import point_cloud
@@ -23,6 +23,9 @@ from mercury_dem.io.run_store import (
 )
 from mercury_dem.mission import Mission
 from mercury_dem.pipeline.results import UnitSummary, read_summary
+
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient
 
 
 def _open_map(path: str) -> Any:
@@ -72,7 +75,7 @@ def global_levelling(store: RunStore) -> dict[str, Any] | None:
     return level if level is not None and "level_to_mean" in level else None
 
 
-def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Config, client: Any,
+def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Config, client: ComputeClient | None,
                                   rep: Any) -> dict[str, Any] | None:
     """Register ``dem.zarr`` to the mission's altimetry and merge them (``dem.register_to_altimetry``).
 
@@ -112,7 +115,7 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     return summary
 
 
-def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Any, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
+def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: ComputeClient | None, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
     """Grid ``dem.zarr`` from the global network, then the products; returns the report's ``dem`` block.
 
     ``client`` is the run's client, the one the cascade used (the synchronous client grids in this

@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,6 +49,10 @@ from mercury_dem.io.run_store import COVERAGE_FILE
 if TYPE_CHECKING:
     import xarray as xr
     import zarr
+
+    from mercury_dem.compute.client import ComputeClient
+    from mercury_dem.config import Config
+    from mercury_dem.config.dem import DemConfig
 
 __all__ = ["grid_dem", "make_products", "open_dem",  # noqa: F822 (lazy re-exports: __getattr__)
            "estimate_memory_bytes", "check_memory", "dem_template", "create_store", "StoreWriter"]
@@ -109,9 +113,9 @@ ATTRS: dict[str, dict[str, str]] = {
 }
 
 
-def _dem_config(config: Any) -> Any:
+def _dem_config(config: Config | DemConfig) -> DemConfig:
     """Accept a full :class:`~mercury_dem.config.Config` or its ``dem`` section."""
-    return getattr(config, "dem", config)
+    return cast("DemConfig", getattr(config, "dem", config))
 
 
 def estimate_memory_bytes(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
@@ -454,9 +458,9 @@ def failed_chunk_lines(failed: list[dict[str, Any]], label: str = "dem") -> list
 
 def grid_dem(
     points_xyz: NDArray[np.floating],
-    config: Any,
+    config: Config | DemConfig,
     out_path: str | Path,
-    client: Any = None,
+    client: ComputeClient | None = None,
     *,
     overwrite: bool = False,
     attrs: dict[str, Any] | None = None,
@@ -635,7 +639,7 @@ def failed_chunks_of(path: str | Path) -> list[dict[str, Any]]:
 
 
 def regrid_failed_chunks(
-    points_xyz: NDArray[np.floating], config: Any, path: str | Path, client: Any = None, *,
+    points_xyz: NDArray[np.floating], config: DemConfig, path: str | Path, client: ComputeClient | None = None, *,
     body: Body, progress: Any = None, label: str = "dem",
 ) -> dict[str, Any]:
     """Grid again, in place, the chunks a ``dem.zarr`` records as failed (the resume of :func:`grid_dem`).

@@ -12,7 +12,7 @@ import shutil
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,11 +22,14 @@ from mercury_dem.dem.dense_grid import control_distance, pixel_precision, snappe
 from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.run_store import DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE, DENSE_FILE, RunStore
 
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient
+
 #: ``source`` layer of the dense DEM.
 SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE = 0, 1, 2
 
 
-def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, body: Any, rep: Any,
+def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeClient | None, body: Any, rep: Any,
                    median_pixel_scale_m: float) -> dict[str, Any]:
     """Grid the cloud into ``dem_dense.zarr`` with the sparse DEM as fallback; returns the report's block."""
     from mercury_dem.geometry.body import latlon_to_xyz

@@ -34,7 +34,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,6 +43,9 @@ from mercury_dem.compute.failures import lost_to_the_cluster, raise_if_run_stopp
 from mercury_dem.config import Config
 from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.run_store import DEM_DENSE_FILE, DENSE_FILE, RunStore, read_solution
+
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient
 
 #: Columns of a tile's cloud (name -> dtype); ``left_px``/``right_px`` are (N, 2).
 CLOUD_COLUMNS: dict[str, Any] = {
@@ -331,7 +334,7 @@ def _tile_task(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]], c
 
 
 # --------------------------------------------------------------------------- the driver
-def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Any,
+def run_dense_stage(store: RunStore, mission: Any, config: Config, client: ComputeClient,
                     stream: TextIO | None = sys.stdout) -> dict[str, Any]:
     """Select the pairs, run the tiles on ``client``, grid the dense DEM; returns the report's ``dense`` block
     (with ``validation``: the dense DEM and the sparse DEM on the dense grid against the truth, when known).

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from mercury_dem.compute import (
     ADJUST_RESOURCE,
@@ -39,6 +39,9 @@ from mercury_dem.pipeline.results import FailureSummary, Summary, summary_from_j
 from mercury_dem.pipeline.shard_engine import shard_engine_factory
 from mercury_dem.pipeline.stages import failure_summary, plan_run, run_adjust_unit, run_tile, unit_name
 from mercury_dem.plan.tree import CHILD_LEVEL, LEVELS, merge_tree
+
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient
 
 #: Stages in order; ``--force STAGE`` recomputes that stage and every later one.
 STAGES = ("plan", *LEVELS, "dem", "dense")
@@ -277,7 +280,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     return report
 
 
-def _dense_stage(store: RunStore, mission: Any, config: Config, client: Any, stream: TextIO | None,
+def _dense_stage(store: RunStore, mission: Any, config: Config, client: ComputeClient, stream: TextIO | None,
                  dem_summary: dict[str, Any]) -> dict[str, Any]:
     """The dense stage (:mod:`mercury_dem.pipeline.dense_stage`) after the DEM stage; its validation entries
     join the DEM's (``validation.dem``). A failure of the whole stage is recorded as a value: the run's other
@@ -368,7 +371,7 @@ def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | N
     return True
 
 
-def _run_cascade(client: Any, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
+def _run_cascade(client: ComputeClient, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
                  stream: TextIO | None, integrity: dict[str, Any] | None = None,
                  ) -> tuple[dict[str, list[Summary]], dict[str, float]]:
     root = store.location  # tasks open the run from it: the bucket URL of a bucket run

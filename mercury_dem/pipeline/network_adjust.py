@@ -13,7 +13,7 @@ from __future__ import annotations
 import resource
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -28,13 +28,18 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
 from mercury_dem.validate.synthetic_network import pointing_errors
 
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient, DaskClient
+
 
 def _peak_rss() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = None) -> dict[str, Any]:
+def adjust_network_store(store: str | Path, config: AdjustConfig, client: ComputeClient | None = None, *,
+                         pointing_sigma_urad: float) -> dict[str, Any]:
     """Adjust the network at ``store``; ``client`` None runs in this process, else on its Dask workers.
+    ``pointing_sigma_urad``: how wrong the stored a-priori rotations may be, per axis (1 sigma, µrad).
 
     Raises :class:`~mercury_dem.exceptions.StoreError` for a store that lacks the image
     geometry or point blocks, or is damaged.
@@ -42,7 +47,8 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     t0 = time.perf_counter()
     net = BlockedNetwork(store)
     im = net.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config, float32=config.blocked_float32)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config,
+                              pointing_sigma_urad=pointing_sigma_urad, float32=config.blocked_float32)
     opt = options_from_config(config)
     from mercury_dem.compute import runs_in_process
 
@@ -52,7 +58,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Any = 
     else:
         from mercury_dem.pipeline.shard_engine import DaskShardEngine
 
-        engine = DaskShardEngine(client, str(net.root), net.n_blocks, setup, opt, config.blocked_tree_min_workers)
+        engine = DaskShardEngine(cast("DaskClient", client), str(net.root), net.n_blocks, setup, opt, config.blocked_tree_min_workers)
         where = f"dask ({len(engine.actors)} workers)"
     load_s = time.perf_counter() - t0
     res = blocked_levenberg_marquardt(engine, setup, opt)

@@ -38,7 +38,7 @@ import traceback
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -80,6 +80,11 @@ from mercury_dem.io.run_store import (
 from mercury_dem.pipeline.dem_stage import atomic_store
 from mercury_dem.reference.compare import compare_heights
 from mercury_dem.reference.sampling import sample_grid
+
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import ComputeClient
+    from mercury_dem.config import Config
+    from mercury_dem.config.dem import DemConfig
 
 __all__ = ["REGISTRATION_PRODUCTS", "SHOT_COLUMNS", "check_shots", "make_registration_products", "register_dem_store"]
 
@@ -367,7 +372,7 @@ def register_dem_store(
     dem_path: str | Path,
     shots: pd.DataFrame,
     out_dir: str | Path | None = None,
-    client: Any = None,
+    client: ComputeClient | None = None,
     *,
     body: Body | None = None,
     options: RegisterOptions | None = None,
@@ -496,7 +501,7 @@ def register_dem_store(
     return summary
 
 
-def make_registration_products(out_dir: str | Path, products_dir: str | Path, config: Any, *,
+def make_registration_products(out_dir: str | Path, products_dir: str | Path, config: Config | DemConfig, *,
                                overwrite: bool = False) -> dict[str, Any]:
     """The products of ``registered.zarr`` and ``merged.zarr`` (written by :func:`register_dem_store`).
 

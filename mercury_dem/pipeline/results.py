@@ -44,6 +44,8 @@ if TYPE_CHECKING:  # numpy only in annotations: the readers of summaries ('mercu
     import numpy as np
     from numpy.typing import NDArray
 
+    from mercury_dem.network.model import ControlNetwork
+
 __all__ = ["FailureSummary", "Summary", "TileCounts", "TileSummary", "UnitFiles", "UnitSolution", "UnitSummary",
            "UnitTiming", "read_summary", "summary_from_json"]
 
@@ -333,7 +335,7 @@ class UnitSolution:
 class UnitFiles:
     """The data files of a unit, next to its summary; each None is not written."""
 
-    network: Any = None  # ControlNetwork -> network.zarr
+    network: ControlNetwork | None = None  # -> network.zarr
     pairs: Any = None  # pandas.DataFrame, one row per matched pair -> pairs.parquet (tiles)
     solution: UnitSolution | None = None  # -> solution.parquet (merged units)
     bundleout: str | None = None  # jigsaw-like report -> bundleout.txt (merged units)

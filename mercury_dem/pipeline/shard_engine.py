@@ -10,9 +10,12 @@ from __future__ import annotations
 import contextlib
 import functools
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mercury_dem.compute import in_dask_worker, worker_client
+
+if TYPE_CHECKING:
+    from mercury_dem.compute.client import DaskClient
 
 #: From this many shard actors on, the blocked adjustment's sums are merged on the workers (a tree)
 #: rather than at the client (``adjust.blocked_tree_min_workers``).
@@ -38,7 +41,7 @@ class DaskShardEngine:
     tree_min_workers : from this many actors on, the sums are merged on the workers (:meth:`summed`)
     """
 
-    def __init__(self, client: Any, store: str, n_blocks: int, setup: Any, opt: Any,
+    def __init__(self, client: DaskClient, store: str, n_blocks: int, setup: Any, opt: Any,
                  tree_min_workers: int = TREE_MIN_WORKERS):
         import numpy as np
 
@@ -54,14 +57,14 @@ class DaskShardEngine:
         futures = [client.submit(BlockShard, StoredBlocks(str(store), ids), setup, opt, actor=True, workers=[w],
                                  allow_other_workers=False, pure=False) for w, ids in pairs]
         self.workers = [w for w, _ in pairs]
-        self.actors = [f.result() for f in futures]
+        self.actors: list[Any] = [f.result() for f in futures]  # Actor proxies: their calls return futures
         self._futures = futures  # the actors live as long as these futures
         self.client = client
         self.tree_min_workers = tree_min_workers
         self.description = f"dask ({len(self.actors)} workers)"
 
     @classmethod
-    def from_blocks(cls, client: Any, blocks: list[Any], setup: Any, opt: Any,
+    def from_blocks(cls, client: DaskClient, blocks: list[Any], setup: Any, opt: Any,
                     tree_min_workers: int = TREE_MIN_WORKERS) -> DaskShardEngine:
         """The engine over ``blocks`` held by the caller (a run's unit): scattered to the workers, not read there.
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import re
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -44,6 +44,11 @@ from mercury_dem.pipeline.results import (
 )
 from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
 from mercury_dem.plan.tree import child_ids as _tree_child_ids
+
+if TYPE_CHECKING:
+    from mercury_dem.altimetry.constraints import AltimetryShotsArrays
+    from mercury_dem.config.adjust import AdjustConfig
+    from mercury_dem.network.model import ControlNetwork
 
 #: Point ids of tile t start at t * POINT_ID_STRIDE, so ids stay unique when tiles merge.
 POINT_ID_STRIDE = 10_000_000
@@ -204,9 +209,10 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts
             image_errors[image_id] = str(exc)
     geom, cameras, positions, rotations, ids = _geometry(mission, involved)
     radiometry = {i: (r.saturation, r.dn_scale) for i in involved for r in [mission.radiometry(i)]}
-    match_cfg = match_config_for(mission, config)
+    match_cfg = config.match
     image_errors.update(pixel_faults(pixels, radiometry, match_cfg))
-    matches, reports = match_tile(pixels, geom, pair_list, match_cfg, tracks=match_cfg.tracks, radiometry=radiometry)
+    matches, reports = match_tile(pixels, geom, pair_list, match_cfg, tracks=match_cfg.tracks, radiometry=radiometry,
+                                  pointing_sigma_urad=pointing_sigma_urad_for(mission, config))
     rows = pd.DataFrame(list(iter_rows(reports)))
     failures: dict[str, int] = {}
     redundant = 0
@@ -330,8 +336,9 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
     start_rot = None
     if child_level != "tile":
         start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
-    adjust_cfg = adjust_config_for(mission, config)
+    adjust_cfg = config.adjust
     adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
+                         pointing_sigma_urad=pointing_sigma_urad_for(mission, config),
                          initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
                          altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
                          recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
@@ -358,7 +365,8 @@ def prior_shape_of(mission: Mission) -> Any:
     return body_shape(mission.body.name)
 
 
-def unit_altimetry(mission: Mission, network: Any, level: str, adjust_cfg: Any) -> Any:
+def unit_altimetry(mission: Mission, network: ControlNetwork, level: str,
+                   adjust_cfg: AdjustConfig) -> AltimetryShotsArrays | None:
     """The mission's altimetry shots around a unit's tie points, when this level is constrained by them.
 
     None when the level is not in ``adjust.altimetry_levels`` or the mission has no altimetry. Only
@@ -388,30 +396,6 @@ def pointing_sigma_urad_for(mission: Mission, config: Config) -> float:
 
     return resolve_pointing_sigma_urad(config.apriori.pointing_sigma_urad, mission.pointing_sigma_urad,
                                        str(getattr(mission, "path", mission)))
-
-
-def match_config_for(mission: Mission, config: Config) -> Any:
-    """The matching configuration for a mission: the guidance window from the run's a-priori pointing sigma
-    (real SPICE pointing of another instrument can be 10x worse than MDIS's).
-    """
-    import dataclasses
-
-    return dataclasses.replace(config.match, pointing_sigma_urad=pointing_sigma_urad_for(mission, config))
-
-
-def adjust_config_for(mission: Mission, config: Config) -> Any:
-    """The adjustment configuration for a mission: its pointing constraint from the run's a-priori pointing sigma.
-
-    A mission (like SPICE with its CK quality) states how wrong its a-priori pointing is
-    (``pointing_sigma_urad`` in mission.json). Weighting the pointing constraint with the real
-    uncertainty keeps the weakly determined directions of a network without ground control (a
-    horizontal shift of the whole block traded against the pointing) near the a-priori instead of
-    drifting. The library's adjusters take it in degrees (``AdjustConfig.pointing_sigma_deg``),
-    converted exactly as before session 11 so results are unchanged bit for bit.
-    """
-    from mercury_dem.config.apriori import adjust_config_with_sigma
-
-    return adjust_config_with_sigma(config.adjust, pointing_sigma_urad_for(mission, config))
 
 
 class _NoInput(MercuryDemError):

@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from mercury_dem.config import Config
+from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.accuracy import dem_accuracy
 from mercury_dem.exceptions import GridError, StoreError
 from mercury_dem.geometry.body import Body
@@ -95,14 +97,14 @@ def dem_body(ds: xr.Dataset) -> Body:
         raise StoreError(f"the DEM store's body attribute is invalid ({exc})") from None
 
 
-def _dem_config(config: Any) -> Any:
-    return getattr(config, "dem", config)
+def _dem_config(config: Config | DemConfig) -> DemConfig:
+    return config.dem if isinstance(config, Config) else config
 
 
 def make_products(
     dem_path: str | Path,
     out_dir: str | Path,
-    config: Any,
+    config: Config | DemConfig,
     truth_height: Callable[[Any, Any], Any] | None = None,
     *,
     profiles: Sequence[tuple[float, float, float, float]] = (),

@@ -118,7 +118,7 @@ class AltimetryShots:
         Rows dropped per reason: ``malformed`` (wrong number of fields), ``bad_time``,
         ``non_finite`` (lat/lon/radius missing, not numbers, or |lat| > 90),
         ``radius_out_of_range`` (beyond body radius ± tolerance), ``flagged`` (flag ≠ 0).
-    body_radius_m, radius_tolerance_m, max_gap_s : float
+    datum_radius_m, radius_tolerance_m, max_gap_s : float
         The settings used.
     source : str
         The file.
@@ -127,7 +127,7 @@ class AltimetryShots:
     table: pd.DataFrame
     n_rows: int
     dropped: dict[str, int] = field(default_factory=dict)
-    body_radius_m: float = MOON_RADIUS_M
+    datum_radius_m: float = MOON_RADIUS_M
     radius_tolerance_m: float = 25_000.0
     max_gap_s: float = 10.0
     source: str = ""
@@ -230,7 +230,7 @@ def _repeated_shots(time_s: NDArray[np.float64], channel: NDArray[np.float64], k
 
 def parse_altimetry_csv(
     text: str,
-    body_radius_m: float,
+    datum_radius_m: float,
     *,
     source: str = "<text>",
     columns: Sequence[str] | None = None,
@@ -287,7 +287,7 @@ def parse_altimetry_csv(
     if "radius_from_altitude" in where:  # MLA RDR: altitude above the 2440 km sphere
         radius = radius + MLA_ALTITUDE_REFERENCE_M
     finite = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(radius) & (np.abs(lat) <= 90.0)
-    in_range = np.abs(radius - body_radius_m) <= radius_tolerance_m
+    in_range = np.abs(radius - datum_radius_m) <= radius_tolerance_m
     if "flag" in where:
         flag = _numeric(col("flag"))
         unflagged = flag == 0.0
@@ -334,12 +334,12 @@ def parse_altimetry_csv(
     order = np.argsort(time_s[keep], kind="stable")
     table = table.iloc[order].reset_index(drop=True)
     table["track_id"] = assign_tracks(time_s[keep][order], max_gap_s)
-    table.attrs.update(source=source, body_radius_m=float(body_radius_m), radius_reference="centre of mass")
+    table.attrs.update(source=source, body_radius_m=float(datum_radius_m), radius_reference="centre of mass")
     return AltimetryShots(
         table=table,
         n_rows=n_rows,
         dropped=dropped,
-        body_radius_m=float(body_radius_m),
+        datum_radius_m=float(datum_radius_m),
         radius_tolerance_m=float(radius_tolerance_m),
         max_gap_s=float(max_gap_s),
         source=source,
@@ -348,7 +348,7 @@ def parse_altimetry_csv(
 
 def read_altimetry_csv(
     path: str | Path,
-    body_radius_m: float = MOON_RADIUS_M,
+    datum_radius_m: float = MOON_RADIUS_M,
     *,
     columns: Sequence[str] | None = None,
     radius_unit: Literal["km", "m"] = "km",
@@ -362,7 +362,7 @@ def read_altimetry_csv(
     path : str or Path
         The CSV file (comma-separated, one shot per row; a header row is optional for the
         29-column LOLA RDR point-per-row layout).
-    body_radius_m : float
+    datum_radius_m : float
         Reference radius of the body, metres (1737.4 km for the Moon, 2439.4 km for
         Mercury); shots farther than ``radius_tolerance_m`` from it are dropped.
     columns : sequence of str, optional
@@ -370,7 +370,7 @@ def read_altimetry_csv(
     radius_unit : {"km", "m"}
         Unit of the radius and range columns (km in the PDS LOLA and MLA tables).
     radius_tolerance_m : float
-        Half-width of the accepted radius band around ``body_radius_m``, metres.
+        Half-width of the accepted radius band around ``datum_radius_m``, metres.
     max_gap_s : float
         A gap between consecutive shots longer than this (seconds) starts a new track.
 
@@ -395,7 +395,7 @@ def read_altimetry_csv(
         raise _fail(str(path), f"byte {exc.start} is not UTF-8 text; is this a binary RDR (.DAT)?") from None
     return parse_altimetry_csv(
         text,
-        body_radius_m,
+        datum_radius_m,
         source=str(path),
         columns=columns,
         radius_unit=radius_unit,

@@ -171,13 +171,13 @@ def _fill_index(
     return counts
 
 
-def build_index(table: NDArray[np.float64], reach_col_factor: NDArray[np.float64], body_radius_m: float, cell_deg: float) -> CraterIndex:
+def build_index(table: NDArray[np.float64], reach_col_factor: NDArray[np.float64], datum_radius_m: float, cell_deg: float) -> CraterIndex:
     """Bucket craters by the cells their influence cap (``reach_col_factor`` x rim radius) touches."""
     n_lat = int(np.ceil(180.0 / cell_deg))
     n_lon = int(np.ceil(360.0 / cell_deg))
     lat = np.degrees(np.arcsin(np.clip(table[:, C_Z], -1.0, 1.0)))
     lon = np.mod(np.degrees(np.arctan2(table[:, C_Y], table[:, C_X])), 360.0)
-    reach = np.minimum(reach_col_factor * table[:, C_RADIUS] / body_radius_m, np.pi)
+    reach = np.minimum(reach_col_factor * table[:, C_RADIUS] / datum_radius_m, np.pi)
     dummy = np.zeros(1, dtype=np.int64)
     counts = _fill_index(lat, lon, reach, cell_deg, n_lat, n_lon, np.zeros(n_lat * n_lon + 1, np.int64), dummy, True)
     starts = np.zeros(n_lat * n_lon + 1, dtype=np.int64)
@@ -262,9 +262,9 @@ def _order_by_cell(cells: NDArray[np.int64], n_cells: int) -> NDArray[np.int64]:
 
 
 @numba.njit(cache=True, inline="always")
-def _height_term(table: NDArray[np.float64], j: int, chord2: float, body_radius_m: float) -> float:
+def _height_term(table: NDArray[np.float64], j: int, chord2: float, datum_radius_m: float) -> float:
     """Relief (m) of crater ``j`` at a point at squared chord ``chord2`` (unit sphere) from its centre."""
-    dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
+    dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * datum_radius_m
     r = dist / table[j, C_RADIUS]
     if r < table[j, C_REACH]:
         return table[j, C_AMP] * crater_profile(table, j, r)
@@ -273,12 +273,12 @@ def _height_term(table: NDArray[np.float64], j: int, chord2: float, body_radius_
 
 @numba.njit(cache=True, inline="always")
 def _ray_term(
-    table: NDArray[np.float64], j: int, px: float, py: float, pz: float, chord2: float, body_radius_m: float
+    table: NDArray[np.float64], j: int, px: float, py: float, pz: float, chord2: float, datum_radius_m: float
 ) -> float:
     """Relative albedo boost of the halo and rays of crater ``j`` at unit vector (px, py, pz)."""
     row = table[j]
     length = row[C_RAYLEN]
-    dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * body_radius_m
+    dist = 2.0 * np.arcsin(min(1.0, 0.5 * np.sqrt(chord2))) * datum_radius_m
     r = dist / row[C_RADIUS]
     if r >= length:
         return 0.0
@@ -319,7 +319,7 @@ def crater_sum(
     starts: NDArray[np.int64],
     members: NDArray[np.int64],
     cand: NDArray[np.float64],
-    body_radius_m: float,
+    datum_radius_m: float,
     albedo: bool,
 ) -> NDArray[np.float64]:
     """Sum over the craters reaching each unit vector of their relief (``albedo=False``, m)
@@ -347,9 +347,9 @@ def crater_sum(
             if chord2 >= cand[m, 3]:
                 continue
             if albedo:
-                total += _ray_term(table, members[m], px, py, pz, chord2, body_radius_m)
+                total += _ray_term(table, members[m], px, py, pz, chord2, datum_radius_m)
             else:
-                total += _height_term(table, members[m], chord2, body_radius_m)
+                total += _height_term(table, members[m], chord2, datum_radius_m)
         out[i] = total
     return out
 
@@ -442,7 +442,7 @@ def _grid_box(
 @numba.njit(cache=True, nogil=True)
 def crater_heights_grid(
     units: NDArray[np.float64], table: NDArray[np.float64], ids: NDArray[np.int64], reach_rad: NDArray[np.float64],
-    frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, body_radius_m: float,
+    frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, datum_radius_m: float,
 ) -> NDArray[np.float64]:
     """Summed crater relief (m) at the nodes (ny, nx) of a local gnomonic grid, crater by crater.
 
@@ -468,14 +468,14 @@ def crater_heights_grid(
                 chord2 = dx * dx + dy * dy + dz * dz
                 if chord2 >= lim:
                     continue
-                out[j, i] += _height_term(table, k, chord2, body_radius_m)
+                out[j, i] += _height_term(table, k, chord2, datum_radius_m)
     return out
 
 
 @numba.njit(cache=True, nogil=True)
 def ray_albedo_grid(
     units: NDArray[np.float64], table: NDArray[np.float64], ids: NDArray[np.int64], reach_rad: NDArray[np.float64],
-    frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, body_radius_m: float,
+    frame: NDArray[np.float64], radius: float, x0: float, y0: float, g: float, datum_radius_m: float,
 ) -> NDArray[np.float64]:
     """Albedo boost of haloes and rays (as :func:`crater_sum` (``albedo=True``)) at the nodes of a local grid, crater by crater."""
     ny, nx = units.shape[0], units.shape[1]
@@ -495,5 +495,5 @@ def ray_albedo_grid(
                 chord2 = dx * dx + dy * dy + dz * dz
                 if chord2 >= lim:
                     continue
-                out[j, i] += _ray_term(table, k, px, py, pz, chord2, body_radius_m)
+                out[j, i] += _ray_term(table, k, px, py, pz, chord2, datum_radius_m)
     return out

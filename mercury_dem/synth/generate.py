@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.compute.client import ComputeClient
 from mercury_dem.config.synth import SynthConfig
 from mercury_dem.exceptions import ConfigError, StoreError
 from mercury_dem.geometry.body import Body, body_by_name
@@ -71,7 +72,7 @@ def generate_mission(
     tile_size_deg: float = 10.0,
     overwrite: bool = False,
     workers: int = 1,
-    client: Any = None,
+    client: ComputeClient | None = None,
     design: MissionDesign | None = None,
     progress: Callable[[int, int], None] | None = None,
     scheduler: str | None = None,
@@ -104,7 +105,7 @@ def generate_mission(
     plan = plan_mission(design, config.seed, radius)
     c_true, r_true = true_poses(plan)
     rng = np.random.default_rng([config.seed, 0xA991])
-    c_apr, r_apr, omega = perturb_poses(c_true, r_true, config.pointing_sigma_urad * 1e-6, config.position_sigma_m, rng)
+    c_apr, r_apr, omega = perturb_poses(c_true, r_true, config.pointing_sigma_urad, config.position_sigma_m, rng)
     catalog = catalog_from_poses(plan, c_apr, r_apr, tile_size_deg, body)
     truth = plan.copy()
     for k, ax in enumerate("xyz"):

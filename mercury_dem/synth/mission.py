@@ -9,7 +9,7 @@ view azimuth and image twist, which gives the stereo convergence and the
 matching difficulty of real data.
 
 :func:`perturb_poses` gives the a-priori ("SPICE") poses: the true rotation
-turned by a random small rotation of ``pointing_sigma`` per camera axis
+turned by a random small rotation of ``pointing_sigma_urad`` per camera axis
 (``R_apriori = rotation_from_angles(omega) @ R_true``, the adjustment's own
 parameterisation) and the true position moved by ``position_sigma`` per axis.
 
@@ -179,7 +179,7 @@ def true_poses(plan: pd.DataFrame) -> tuple[NDArray[np.float64], NDArray[np.floa
 def perturb_poses(
     positions: NDArray[np.float64],
     rotations: NDArray[np.float64],
-    pointing_sigma_rad: float,
+    pointing_sigma_urad: float,
     position_sigma_m: float,
     rng: np.random.Generator,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -189,7 +189,7 @@ def perturb_poses(
     ``C_apriori = C_true + N(0, position_sigma^2)`` per body axis.
     """
     n = positions.shape[0]
-    omega = rng.normal(0.0, pointing_sigma_rad, (n, 3))
+    omega = rng.normal(0.0, pointing_sigma_urad * 1e-6, (n, 3))
     dpos = rng.normal(0.0, position_sigma_m, (n, 3))
     return positions + dpos, rotation_from_angles(omega) @ rotations, omega
 

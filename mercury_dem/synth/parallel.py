@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from mercury_dem.compute.client import ComputeClient
 from mercury_dem.geometry.camera import camera_preset
 from mercury_dem.mission.store import write_image
 from mercury_dem.synth.render import RenderSettings, render_image
@@ -75,7 +76,7 @@ def render_all(
     settings: RenderSettings,
     seed: int,
     workers: int = 1,
-    client: Any = None,
+    client: ComputeClient | None = None,
     batch_size: int = 8,
     progress: Callable[[int, int], None] | None = None,
     scheduler: str | None = None,
@@ -113,7 +114,7 @@ def render_all(
 
 
 def _run_on(
-    client: Any, root: str, batches: list[list[dict[str, Any]]], params: dict[str, Any], radius_m: float,
+    client: ComputeClient, root: str, batches: list[list[dict[str, Any]]], params: dict[str, Any], radius_m: float,
     settings: RenderSettings, seed: int, progress: Callable[[int, int], None] | None, total: int,
 ) -> list[tuple[str, float]]:
     from mercury_dem.compute import as_completed

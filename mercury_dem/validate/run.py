@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mercury_dem.mission import Mission
+    from mercury_dem.network.model import ControlNetwork
 
 from typing import Any
 
@@ -71,7 +72,7 @@ def image_space_error_px(camera: Any, position: NDArray[np.float64], rotation: N
     return float(np.sqrt(np.mean(np.sum((proj - px[hit]) ** 2, axis=-1))))
 
 
-def true_point_positions(network: Any, mission: Mission, points: NDArray[np.int64]) -> NDArray[np.float64]:
+def true_point_positions(network: ControlNetwork, mission: Mission, points: NDArray[np.int64]) -> NDArray[np.float64]:
     """True body-fixed position of points: the first active measure's pixel through the true pose onto the true surface."""
     active = network.active_measures() if hasattr(network, "active_measures") else ~network.measure_rejected
     m_point, m_image = network.measure_point[active], network.measure_image[active]
@@ -141,7 +142,7 @@ def per_image_pointing(image_ids: list[str], rotations: NDArray[np.float64], mis
     }
 
 
-def validate_run(network: Any, image_ids: list[str], rotations: NDArray[np.float64], mission: Mission,
+def validate_run(network: ControlNetwork, image_ids: list[str], rotations: NDArray[np.float64], mission: Mission,
                  min_measures: NDArray[np.int64] | None = None,
                  positions: NDArray[np.float64] | None = None) -> dict[str, Any]:
     """The ``validation`` block of report.json: pointing (a-priori vs adjusted) and point errors.

@@ -7,7 +7,7 @@ footprints scattered over a spherical cap sized so each ground point is seen by
 about ``coverage`` images; points on the true surface, each measured in 2 to
 ``max_views`` of the images that see it. Measures are true projections plus
 Gaussian noise plus a fraction of gross outliers. The a-priori pointing is the
-truth rotated by ``N(0, pointing_error_rad)`` per camera axis; a-priori points
+truth rotated by ``N(0, pointing_sigma_urad)`` per camera axis (the problem states that sigma); a-priori points
 are the least-squares intersection of the a-priori rays of their measures
 (the datum intersection of one ray when the rays are too close to parallel).
 
@@ -104,7 +104,7 @@ def make_synthetic_network(
     noise_px: float = 0.25,
     outlier_fraction: float = 0.01,
     outlier_px: tuple[float, float] = (5.0, 50.0),
-    pointing_error_rad: float = 450e-6,
+    pointing_sigma_urad: float = 450.0,
     position_error_m: float = 0.0,
     altitude_km: tuple[float, float] = (200.0, 1500.0),
     wac_fraction: float = 0.1,
@@ -199,7 +199,7 @@ def make_synthetic_network(
     mag = rng.uniform(*outlier_px, int(outlier.sum()))
     measures[outlier] += np.stack([np.cos(ang), np.sin(ang)], axis=1) * mag[:, None]
     # A-priori pose and points.
-    eps = rng.normal(0.0, pointing_error_rad, (n_img, 3))
+    eps = rng.normal(0.0, pointing_sigma_urad * 1e-6, (n_img, 3))
     rot_ap = np.matmul(rotation_from_angles(eps), rot_true)
     pos_ap = positions + rng.normal(0.0, position_error_m, positions.shape) if position_error_m > 0 else positions.copy()
     pts_ap = intersect_rays(cameras, image_camera, pos_ap, rot_ap, meas_img, meas_pt, measures, len(points),
@@ -208,6 +208,7 @@ def make_synthetic_network(
         cameras=cameras, image_camera=image_camera, positions=pos_ap, rotations=rot_ap, points=pts_ap,
         measure_image=meas_img, measure_point=meas_pt, measures=measures, measure_sigma=measure_sigma_px,
         image_ids=tuple(f"SYN{i:07d}" for i in range(n_img)),
+        pointing_sigma_urad=pointing_sigma_urad if pointing_sigma_urad > 0 else None,
     )
     return SyntheticNetwork(problem, rot_true, positions, points, outlier, eps, relief_m=float(relief_m),
                             relief_seed=seed)

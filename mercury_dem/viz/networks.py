@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mercury_dem.mission import Mission
+    from mercury_dem.network.model import ControlNetwork
 
 from pathlib import Path
 from typing import Any
@@ -78,7 +79,7 @@ def _rms_by(index: np.ndarray, r2: np.ndarray, n: int) -> tuple[np.ndarray, np.n
         return np.sqrt(s / (2.0 * count)), count
 
 
-def point_residuals(network: Any) -> pd.DataFrame:
+def point_residuals(network: ControlNetwork) -> pd.DataFrame:
     """Per point of an adjusted network: point_id, lat, lon (deg, east -180..180), rms_px, n_active."""
     active = network.active_measures() & np.all(np.isfinite(network.residuals), axis=1)
     r2 = np.sum(network.residuals[active] ** 2, axis=1)
@@ -91,7 +92,7 @@ def point_residuals(network: Any) -> pd.DataFrame:
                          "rms_px": rms, "n_active": count})
 
 
-def image_residuals(network: Any, mission: Mission | None = None) -> pd.DataFrame:
+def image_residuals(network: ControlNetwork, mission: Mission | None = None) -> pd.DataFrame:
     """Per image of an adjusted network: image_id, rms_px, n_active, and (with the mission) the
     image centre lat, lon (deg, east -180..180) from the catalog.
     """

@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from mercury_dem.config import Config
     from mercury_dem.mission import Mission
 
 import sys
@@ -50,7 +51,7 @@ class BackgroundRun:
     Attributes ``report`` (the report once finished) and ``error`` (the exception if it failed).
     """
 
-    def __init__(self, mission: str | Path, out: str | Path, config: Any, **kwargs: Any) -> None:
+    def __init__(self, mission: str | Path, out: str | Path, config: Config, **kwargs: Any) -> None:
         from mercury_dem.pipeline.graph import run_pipeline
 
         self.out = Path(out)

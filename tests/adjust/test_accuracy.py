@@ -84,7 +84,7 @@ def test_noise_free_network_fits_exactly(small_network):
     docs/design/adjust.md discusses the datum.
     """
     net = small_network
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), radius_sigma_m=None, reject_outliers=False,
+    cfg = AdjustConfig(radius_sigma_m=None, reject_outliers=False,
                        robust_loss="none", sigma0_tolerance=1e-10)
     res = bundle_adjust(net.problem, cfg)
     raw, _, _ = pointing_errors(res.rotations, net.true_rotations)

@@ -26,7 +26,7 @@ from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks,
 from mercury_dem.network.synthetic import SyntheticSpec
 from mercury_dem.validate.synthetic_network import make_synthetic_network
 
-CFG = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
+CFG = AdjustConfig()
 
 
 def _assemble(shards: list[BlockShard], n_points: int, n_measures_per_block: list[int]) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -45,7 +45,7 @@ def test_blocked_equals_the_in_memory_adjuster(n_blocks: int, n_shards: int) -> 
     net = make_synthetic_network(10_000, rng=np.random.default_rng(31), min_views=3)
     p = net.problem
     ref = bundle_adjust(p, CFG)
-    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG)
+    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG, pointing_sigma_urad=450.0)
     opt = options_from_config(CFG, float(np.median(p.measure_sigma)))
     blocks = blocks_from_problem(p, n_blocks)
     shards = [BlockShard([blocks[i] for i in g], setup, opt) for g in np.array_split(np.arange(n_blocks), n_shards)]
@@ -95,7 +95,7 @@ def test_localcluster_equals_sync(store: Path) -> None:
 
     bn = BlockedNetwork(store)
     im = bn.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG, pointing_sigma_urad=450.0)
     opt = options_from_config(CFG)
     shard = BlockShard(StoredBlocks(str(store), tuple(range(bn.n_blocks))), setup, opt)
     sync = blocked_levenberg_marquardt(SyncEngine([shard]), setup, opt)
@@ -127,7 +127,7 @@ def test_localcluster_tree_sum_equals_sync(store: Path) -> None:
 
     bn = BlockedNetwork(store)
     im = bn.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG, pointing_sigma_urad=450.0)
     opt = options_from_config(CFG)
     sync = blocked_levenberg_marquardt(SyncEngine([BlockShard(StoredBlocks(str(store), tuple(range(bn.n_blocks))), setup, opt)]),
                                        setup, opt)
@@ -177,7 +177,7 @@ def test_shards_merged_as_a_tree_give_the_flat_sums() -> None:
     """The tree's merges (BlockShard.hold / absorb / take, as DaskShardEngine runs them on workers) in process."""
     net = make_synthetic_network(3_000, rng=np.random.default_rng(41), min_views=3)
     p = net.problem
-    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG)
+    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG, pointing_sigma_urad=450.0)
     opt = options_from_config(CFG, float(np.median(p.measure_sigma)))
     blocks = blocks_from_problem(p, 5)
     shards = [BlockShard([b], setup, opt) for b in blocks]
@@ -206,7 +206,7 @@ def test_unprojectable_measure_is_named() -> None:
 
     net = make_synthetic_network(3_000, rng=np.random.default_rng(8), min_views=3)
     p = net.problem
-    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG)
+    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, CFG, pointing_sigma_urad=450.0)
     opt = options_from_config(CFG)
     blocks = blocks_from_problem(p, 2)
     blocks[1].apriori_points[0] *= 3.0  # the first point of block 1 above (behind) its cameras

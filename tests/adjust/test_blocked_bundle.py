@@ -14,7 +14,7 @@ from mercury_dem.exceptions import AdjustmentError
 from mercury_dem.geometry.pose import rotation_from_angles
 from mercury_dem.validate.synthetic_network import make_synthetic_network
 
-CFG = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
+CFG = AdjustConfig()
 
 
 @pytest.fixture(scope="module")

@@ -49,8 +49,8 @@ def test_pair_table_gives_the_pair_index_sums_bit_for_bit() -> None:
 
 
 def _adjust(p, monkeypatch, table: bool, trim: str, recompute_w: bool = False):
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
-    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, cfg, float32=True)
+    cfg = AdjustConfig()
+    setup = setup_from_config(p.cameras, p.image_camera, p.positions, p.rotations, cfg, float32=True, pointing_sigma_urad=450.0)
     setup = dataclasses.replace(setup, recompute_w=recompute_w)
     opt = options_from_config(cfg, float(np.median(p.measure_sigma)))
     monkeypatch.setattr(blocked, "HEAP_TRIM", trim)

@@ -14,7 +14,7 @@ from mercury_dem.adjust.schur import HAVE_CHOLMOD
 from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.validate.synthetic_network import make_synthetic_network
 
-CFG = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), posterior_sigmas=True, blocked_float32=False)
+CFG = AdjustConfig(posterior_sigmas=True, blocked_float32=False)
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +83,7 @@ def test_without_cholmod_superlu_gives_the_same(problem, reference, monkeypatch)
 @pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse (CHOLMOD) not importable")
 def test_blocked_posterior_reports_its_cost(problem) -> None:
     """The result names the factor, its size and the time of its two parts (what docs/benchmarks.md records)."""
-    setup = blocked.setup_from_config(problem.cameras, problem.image_camera, problem.positions, problem.rotations, CFG)
+    setup = blocked.setup_from_config(problem.cameras, problem.image_camera, problem.positions, problem.rotations, CFG, pointing_sigma_urad=450.0)
     opt = blocked.options_from_config(CFG)
     eng = blocked.SyncEngine([blocked.BlockShard(blocked.blocks_from_problem(problem, 3), setup, opt)])
     res = blocked.blocked_levenberg_marquardt(eng, setup, opt)

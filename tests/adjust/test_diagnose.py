@@ -68,7 +68,8 @@ def test_islands_are_found_and_named(small_network):
         positions=np.concatenate([p.positions, p.positions]), rotations=np.concatenate([p.rotations, p.rotations]),
         points=np.concatenate([p.points, p.points]), measure_image=np.concatenate([p.measure_image, p.measure_image + n_img]),
         measure_point=np.concatenate([p.measure_point, p.measure_point + n_pt]),
-        measures=np.concatenate([p.measures, p.measures]), measure_sigma=1.0, image_ids=ids)
+        measures=np.concatenate([p.measures, p.measures]), measure_sigma=1.0, image_ids=ids,
+        pointing_sigma_urad=p.pointing_sigma_urad)
     d = diagnose(two)
     assert len(d.islands) == 2 and sorted(map(len, d.islands)) == [n_img, n_img]
     with pytest.raises(AdjustmentError, match="2 islands"):
@@ -83,7 +84,7 @@ def test_image_without_measures_is_an_error_naming_it(small_network):
         cameras=p.cameras, image_camera=np.append(p.image_camera, 0), positions=np.vstack([p.positions, p.positions[:1]]),
         rotations=np.concatenate([p.rotations, p.rotations[:1]]), points=p.points, measure_image=p.measure_image,
         measure_point=p.measure_point, measures=p.measures, measure_sigma=p.measure_sigma,
-        image_ids=p.image_ids + ("LONELY_IMAGE",))
+        image_ids=p.image_ids + ("LONELY_IMAGE",), pointing_sigma_urad=p.pointing_sigma_urad)
     with pytest.raises(AdjustmentError, match="LONELY_IMAGE"):
         bundle_adjust(extra)
     # held, it is fine (it is not adjusted)

@@ -23,7 +23,8 @@ def two_camera_problem():
     pts = target + rng.normal(0.0, 3000.0, (8, 3))
     mi = np.repeat([0, 1], 8)
     mp = np.tile(np.arange(8), 2)
-    return AdjustmentProblem(cams, np.array([0, 1]), pos, rot, pts, mi, mp, np.zeros((16, 2)), rng.uniform(0.3, 2.0, 16))
+    return AdjustmentProblem(cams, np.array([0, 1]), pos, rot, pts, mi, mp, np.zeros((16, 2)), rng.uniform(0.3, 2.0, 16),
+                             pointing_sigma_urad=1000.0)
 
 
 def assert_jacobians_match_differences(model: FramingModel, st: FramingState, jc: np.ndarray, jp: np.ndarray) -> None:
@@ -48,7 +49,7 @@ def assert_jacobians_match_differences(model: FramingModel, st: FramingState, jc
 def test_jacobians_match_finite_differences(two_camera_problem, position_sigma):
     prob = two_camera_problem
     rng = np.random.default_rng(12)
-    model = FramingModel(prob, 1e-3, position_sigma, (100.0, 200.0, 1e4))
+    model = FramingModel(prob, position_sigma, (100.0, 200.0, 1e4))
     c = model.camera_dim
     st = FramingState(rng.normal(0, 1e-3, (2, 3)), rng.normal(0, 30, (2, 3)), prob.points + rng.normal(0, 10, (8, 3)))
     r, jc, jp = model.linearize(st)
@@ -68,12 +69,12 @@ def test_jacobians_match_finite_differences(two_camera_problem, position_sigma):
 def test_distortion_matters_in_the_jacobian(two_camera_problem):
     """The NAC rows differ from those of the same camera without distortion (the chain rule is exercised)."""
     prob = two_camera_problem
-    model = FramingModel(prob, 1e-3)
+    model = FramingModel(prob)
     _, jc, _ = model.linearize(model.initial_state())
     plain = FramingModel(
         AdjustmentProblem((mdis_nac(512, distortion=False), prob.cameras[1]), prob.image_camera, prob.positions,
                           prob.rotations, prob.points, prob.measure_image, prob.measure_point, prob.measures,
-                          prob.measure_sigma), 1e-3)
+                          prob.measure_sigma, pointing_sigma_urad=1000.0))
     _, jc0, _ = plain.linearize(plain.initial_state())
     nac = prob.measure_image == 0
     assert np.abs(jc[nac] - jc0[nac]).max() > 1e-4 * np.abs(jc[nac]).max()
@@ -81,7 +82,7 @@ def test_distortion_matters_in_the_jacobian(two_camera_problem):
 
 
 def test_retract_composes_on_the_left(two_camera_problem):
-    model = FramingModel(two_camera_problem, 1e-3)
+    model = FramingModel(two_camera_problem)
     st = FramingState(np.array([[1e-3, -2e-3, 5e-4], [0, 0, 0]]), np.zeros((2, 3)), two_camera_problem.points)
     d = np.array([[2e-4, 1e-4, -3e-4], [1e-4, 0, 0]])
     new = model.retract(st, d, np.zeros((8, 3)))

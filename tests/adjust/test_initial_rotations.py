@@ -16,13 +16,13 @@ from mercury_dem.geometry.pose import angles_from_rotation
 
 def test_initial_state_is_the_rotation_from_the_a_priori(small_network) -> None:
     p = dataclasses.replace(small_network.problem, initial_rotations=small_network.true_rotations)
-    omega = FramingModel(p, pointing_sigma_rad=1e-3).initial_state().omega
+    omega = FramingModel(p).initial_state().omega
     expect = angles_from_rotation(small_network.true_rotations @ np.swapaxes(p.rotations, -1, -2))
     assert np.allclose(omega, expect, atol=1e-15)
 
 
 def test_same_optimum_from_the_a_priori_and_from_the_truth(small_network) -> None:
-    cfg = AdjustConfig(pointing_sigma_deg=0.0258, reject_outliers=False, robust_loss="none",
+    cfg = AdjustConfig(reject_outliers=False, robust_loss="none",
                        sigma0_tolerance=1e-12, max_iterations=100)
     from_apriori = bundle_adjust(small_network.problem, cfg)
     p = dataclasses.replace(small_network.problem, initial_rotations=small_network.true_rotations)

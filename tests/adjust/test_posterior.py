@@ -81,7 +81,7 @@ def _on_pattern(inv: posterior.SelectedInverse, i: int, k: int) -> bool:
 
 # -- the in-memory adjuster against the whole normal matrix's dense inverse -------------------------------------
 
-CFG = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), posterior_sigmas=True)
+CFG = AdjustConfig(posterior_sigmas=True)
 
 
 @pytest.fixture(scope="module")

@@ -43,7 +43,7 @@ def test_posterior_sigmas_match_actual_errors():
     """
     net = make_synthetic_network(6000, rng=np.random.default_rng(9), min_views=3, outlier_fraction=0.0,
                                  measure_sigma_px=0.25)
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), posterior_sigmas=True, reject_outliers=False,
+    cfg = AdjustConfig(posterior_sigmas=True, reject_outliers=False,
                        robust_loss="none")
     res = bundle_adjust(net.problem, cfg)
     assert res.point_sigmas is not None and res.image_sigmas is not None and res.posterior_seconds > 0
@@ -67,7 +67,7 @@ def test_problem_from_network_round_trip(small_network):
         np.array(p.image_ids), np.arange(p.n_points, dtype=np.int64) + 1000, p.measure_point, p.measure_image,
         p.measures[:, 0], p.measures[:, 1], apriori_xyz=p.points, sigma=sigma, measure_ignored=ignored, point_type=ptype)
     cams = [p.cameras[k] for k in p.image_camera]
-    prob, idx = problem_from_network(net, cams, p.positions, p.rotations)
+    prob, idx = problem_from_network(net, cams, p.positions, p.rotations, pointing_sigma_urad=450.0)
     assert prob.n_measures == m - 1 and 1 not in idx
     assert prob.measure_sigma[0] == 1.0 and np.all(prob.measure_sigma[1:] == 0.5)
     assert prob.held_points[2] and prob.held_points.sum() == 1

@@ -56,7 +56,7 @@ def clean_network():
 def test_linear_solvers_agree(clean_network):
     """dense LAPACK, CHOLMOD, SuperLU and PCG reach the same minimum."""
     prob = clean_network.problem
-    base = dict(pointing_sigma_deg=float(np.degrees(450e-6)), reject_outliers=False, robust_loss="none",
+    base = dict(reject_outliers=False, robust_loss="none",
                 sigma0_tolerance=1e-9)
     results = {}
     methods = ["dense", "splu", "pcg"] + (["cholmod"] if HAVE_CHOLMOD else [])
@@ -82,7 +82,7 @@ def test_linear_solvers_agree(clean_network):
 
 def test_held_images_and_points_do_not_move(clean_network):
     prob = clean_network.problem
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), held_images=(prob.image_ids[0], prob.image_ids[3]),
+    cfg = AdjustConfig(held_images=(prob.image_ids[0], prob.image_ids[3]),
                        solve_positions=True)
     held_pts = np.zeros(prob.n_points, bool)
     held_pts[:10] = True
@@ -99,7 +99,7 @@ def test_held_images_and_points_do_not_move(clean_network):
 def test_step_never_accepted_keeps_the_start_and_says_why(clean_network):
     """A model whose every trial step fails (NaN) stops with the best (initial) state and the reason."""
     prob = clean_network.problem
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
+    cfg = AdjustConfig()
     model = make_model(prob, cfg)
     start = model.initial_state()
     real = model.residuals

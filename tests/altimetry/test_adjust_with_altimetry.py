@@ -28,7 +28,7 @@ def test_altimetry_constraints_fix_the_heights(seed: int) -> None:
     # As the pipeline does: a-priori points on the datum, held by a loose radius constraint.
     pts = net.problem.points
     problem = dataclasses.replace(net.problem, points=pts / np.linalg.norm(pts, axis=1, keepdims=True) * DATUM)
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), radius_sigma_m=10_000.0)
+    cfg = AdjustConfig(radius_sigma_m=10_000.0)
     shots = _shots_around(net, rng)
 
     def height_error(points):

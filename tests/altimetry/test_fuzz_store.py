@@ -31,7 +31,7 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
                       "track_id": np.arange(n) // 30, "flag": np.zeros(n, np.int64)})
     src = [ShotSource("fuzz.csv", n, n, 10, {"flagged": 2})]
     root = tmp_path_factory.mktemp("alt_fuzz_base") / "alt"
-    write_altimetry(root, combine_shots([t], src), sources=src, body_radius_m=2_439_400.0)
+    write_altimetry(root, combine_shots([t], src), sources=src, datum_radius_m=2_439_400.0)
     return root
 
 

@@ -45,7 +45,7 @@ def test_round_trip_and_per_tile_reads(tmp_path: Path) -> None:
     src = [ShotSource("a.csv", 3010, 3000, 60, {"non_finite": 10}), ShotSource("b.csv", 500, 500, 10, {})]
     table = combine_shots([a, b], src, sigma_m=2.0)
     assert table["track_id"].nunique() == 70  # profiles of b do not reuse a's ids
-    meta = write_altimetry(tmp_path / "alt", table, sources=src, body_radius_m=MERCURY_M)
+    meta = write_altimetry(tmp_path / "alt", table, sources=src, datum_radius_m=MERCURY_M)
     store = open_altimetry(tmp_path / "alt")
     assert store.n_shots == 3500 and store.n_tracks == 70 and store.dropped["non_finite"] == 10
     assert [s["name"] for s in store.sources] == ["a.csv", "b.csv"] and meta["n_shots"] == 3500
@@ -76,7 +76,7 @@ def test_written_atomically_and_never_half(tmp_path: Path) -> None:
     bad.loc[7, "radius_m"] = np.nan
     with pytest.raises(StoreError, match="invalid lat/lon/radius_m"):
         write_altimetry(tmp_path / "alt", combine_shots([bad], [ShotSource("x", 100, 100, 2, {})]),
-                        sources=[ShotSource("x", 100, 100, 2, {})], body_radius_m=MERCURY_M)
+                        sources=[ShotSource("x", 100, 100, 2, {})], datum_radius_m=MERCURY_M)
     assert list(tmp_path.iterdir()) == []  # no half-written store, no temporary left
     with pytest.raises(StoreError, match="missing or incomplete"):
         open_altimetry(tmp_path / "alt")
@@ -87,7 +87,7 @@ def test_real_lola_files_with_their_drops(tmp_path: Path) -> None:
     assert [s.n_shots for s in sources] == [55, 51]
     # head: one profile, tail: two -> three distinct profiles in the store
     assert table["track_id"].nunique() == 3
-    write_altimetry(tmp_path / "alt", table, sources=sources, body_radius_m=1_737_400.0)
+    write_altimetry(tmp_path / "alt", table, sources=sources, datum_radius_m=1_737_400.0)
     first = open_altimetry(tmp_path / "alt").read().sort_values("time").iloc[0]
     assert first["lat"] == pytest.approx(60.0187875) and first["lon"] == pytest.approx(99.0636769)
     assert first["radius_m"] == pytest.approx(1_734_913.521)
@@ -151,7 +151,7 @@ def test_bad_shot_tables_are_counted_or_refused(tmp_path: Path) -> None:
     assert src.n_rows == 12 and src.n_shots == 10
     sizes = table.groupby("track_id").size().to_list()
     assert sizes == [8, 2]
-    write_altimetry(tmp_path / "alt", table, sources=[src], body_radius_m=MERCURY_M)
+    write_altimetry(tmp_path / "alt", table, sources=[src], datum_radius_m=MERCURY_M)
     assert open_altimetry(tmp_path / "alt").dropped == {"malformed": 0, "bad_time": 0, "non_finite": 1,
                                                         "radius_out_of_range": 1, "flagged": 0,
                                                         "same_shot": 0}
@@ -159,7 +159,7 @@ def test_bad_shot_tables_are_counted_or_refused(tmp_path: Path) -> None:
 
 def test_corrupt_store_is_refused_by_name(tmp_path: Path) -> None:
     table = combine_shots([_table(400, 4)], [ShotSource("x", 400, 400, 8, {})])
-    write_altimetry(tmp_path / "alt", table, sources=[ShotSource("x", 400, 400, 8, {})], body_radius_m=MERCURY_M)
+    write_altimetry(tmp_path / "alt", table, sources=[ShotSource("x", 400, 400, 8, {})], datum_radius_m=MERCURY_M)
     meta = json.loads((tmp_path / "alt" / "altimetry.json").read_text())
     meta["n_shots"] = 399
     (tmp_path / "alt" / "altimetry.json").write_text(json.dumps(meta))
@@ -174,7 +174,7 @@ def test_shot_tiles_for_points_and_read_tiles(tmp_path: Path) -> None:
     from mercury_dem.altimetry.constraints import shot_tiles_for_points
 
     table = combine_shots([_table(2000, 5)], [ShotSource("a.csv", 2000, 2000, 40, {})], sigma_m=2.0)
-    write_altimetry(tmp_path / "alt", table, sources=[ShotSource("a.csv", 2000, 2000, 40, {})], body_radius_m=MERCURY_M)
+    write_altimetry(tmp_path / "alt", table, sources=[ShotSource("a.csv", 2000, 2000, 40, {})], datum_radius_m=MERCURY_M)
     store = open_altimetry(tmp_path / "alt")
     grid = TileGrid(store.tile_size_deg)
     # three points inside three known shot tiles (at their centres), one NaN row, one point in a tile without shots

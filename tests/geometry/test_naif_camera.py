@@ -208,8 +208,8 @@ def test_adjustment_jacobians_with_a_general_camera():
     rot = look_at_rotation(pos, target[None, :])
     pts = target + rng.normal(0.0, 20000.0, (8, 3))
     prob = AdjustmentProblem((cam,), np.array([0]), pos, rot, pts, np.zeros(8, np.int64), np.arange(8),
-                             np.zeros((8, 2)), np.ones(8))
-    model = FramingModel(prob, 1e-3, 50.0)
+                             np.zeros((8, 2)), np.ones(8), pointing_sigma_urad=1000.0)
+    model = FramingModel(prob, 50.0)
     st = FramingState(rng.normal(0, 1e-3, (1, 3)), rng.normal(0, 30, (1, 3)), pts + rng.normal(0, 10, (8, 3)))
     _, jc, jp = model.linearize(st)
     assert model.camera_dim == 6

@@ -27,7 +27,7 @@ INCIDENCE = ["inc30_70", "inc30_70_scale2", "inc30_70_scale2_finer", "inc30_70_s
 def _run(world: Any, config: MatchConfig, names: list[str]) -> tuple[list[Any], np.ndarray, Any]:
     sel = [world.names.index(n) for n in names]
     pairs = [world.pairs[i] for i in sel]
-    matches, reports = match_tile(world.images, world.geometry, pairs, config)
+    matches, reports = match_tile(world.images, world.geometry, pairs, config, pointing_sigma_urad=450.0)
     pa = np.stack([matches.sample_a, matches.line_a], -1)
     pb = np.stack([matches.sample_b, matches.line_b], -1)
     err = true_errors(matches.image_ids, matches.image_a, matches.image_b, pa, pb, world.truth, world.height, datum_radius_m=DATUM_RADIUS_M)
@@ -170,7 +170,7 @@ def convergent_pair() -> dict[str, Any]:
 
 
 def _convergent_errors(w: dict[str, Any], config: MatchConfig) -> tuple[np.ndarray, Any]:
-    m, reps = match_tile(w["images"], w["geom"], [("v0", "v1")], config)
+    m, reps = match_tile(w["images"], w["geom"], [("v0", "v1")], config, pointing_sigma_urad=450.0)
     e = true_errors(m.image_ids, m.image_a, m.image_b, np.stack([m.sample_a, m.line_a], -1),
                     np.stack([m.sample_b, m.line_b], -1), w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
     return e[np.isfinite(e)], reps[0]
@@ -208,7 +208,7 @@ def test_error_between_convergent_views_lies_mostly_along_the_epipolar_line(conv
     from mercury_dem.validate.matching import true_error_components
 
     w = convergent_pair
-    m, _ = match_tile(w["images"], w["geom"], [("v0", "v1")], MatchConfig(threads=1))
+    m, _ = match_tile(w["images"], w["geom"], [("v0", "v1")], MatchConfig(threads=1), pointing_sigma_urad=450.0)
     pa, pb = np.stack([m.sample_a, m.line_a], -1), np.stack([m.sample_b, m.line_b], -1)
     e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)
     along, across = true_error_components(m.image_ids, m.image_a, m.image_b, pa, pb, w["truth"], w["height"], datum_radius_m=DATUM_RADIUS_M)

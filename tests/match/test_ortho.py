@@ -104,10 +104,10 @@ def test_dem_pretransform_with_the_true_surface_removes_the_along_line_bias(lamb
     w = lambert_pair
     cfg = MatchConfig(threads=1)
     pair = ("v0", "v1")
-    m, _ = match_tile(w["images"], w["geom"], [pair], cfg, tracks=False)
+    m, _ = match_tile(w["images"], w["geom"], [pair], cfg, tracks=False, pointing_sigma_urad=450.0)
     pa, pb = np.stack([m.sample_a, m.line_a], -1), np.stack([m.sample_b, m.line_b], -1)
     mg = {k: ImageGeometry.of(t.camera, t.position, t.rotation, w["geom"][k].sun_position, datum_radius_m=DATUM_RADIUS_M) for k, t in w["truth"].items()}
-    qa, qb = match_pair_on_surface(w["images"], w["geom"], mg, pair, w["height"], cfg)
+    qa, qb = match_pair_on_surface(w["images"], w["geom"], mg, pair, w["height"], cfg, pointing_sigma_urad=450.0)
     ids = list(pair)
 
     def comp(a: Any, b: Any) -> tuple[Any, Any]:

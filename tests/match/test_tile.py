@@ -36,7 +36,7 @@ def test_bad_images_fail_their_pairs_and_the_tile_goes_on(pair_world: Any) -> No
         geom[k] = geom[b]
         pairs.append((a, k))
     pairs.append((a, "not-in-tile"))
-    matches, reports = match_tile(img, geom, pairs, MatchConfig(threads=2))
+    matches, reports = match_tile(img, geom, pairs, MatchConfig(threads=2), pointing_sigma_urad=450.0)
     assert reports[0].status == "matched" and reports[0].n_matches >= 20
     for rep, key in zip(reports[1:6], bad):
         assert rep.status == "failed"
@@ -53,11 +53,11 @@ def test_wrong_a_priori_overlap_is_a_reason(pair_world: Any) -> None:
     g = pair_world.geometry[b]
     # A-priori pointing 30 deg off (the WAC field is ~10.5 deg): no overlap at all.
     away = dataclasses.replace(g, rotation=rotation_from_angles(np.array([0.0, np.radians(30.0), 0.0])) @ g.rotation)
-    r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], away, MatchConfig())
+    r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], away, MatchConfig(), pointing_sigma_urad=450.0)
     assert r.report.status == "failed" and "no a-priori overlap" in r.report.reason
     # A-priori overlap that is wrong by ~40 px (far beyond the guidance window): no false matches.
     off = dataclasses.replace(g, rotation=rotation_from_angles(np.array([0.03, 0.0, 0.0])) @ g.rotation)
-    r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], off, MatchConfig())
+    r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], off, MatchConfig(), pointing_sigma_urad=450.0)
     assert r.report.status == "failed" and "too few matches" in r.report.reason
     assert r.points_ref.shape == (0, 2)
 
@@ -65,7 +65,7 @@ def test_wrong_a_priori_overlap_is_a_reason(pair_world: Any) -> None:
 def test_illumination_limits_skip_with_reason(pair_world: Any) -> None:
     a, b = _ids(pair_world, "inc30_70")
     cfg = MatchConfig(max_incidence_difference_deg=20.0)
-    r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], pair_world.geometry[b], cfg)
+    r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], pair_world.geometry[b], cfg, pointing_sigma_urad=450.0)
     assert r.report.status == "skipped" and "max_incidence_difference_deg" in r.report.reason
     assert r.report.incidence_difference_deg == pytest.approx(40.0, abs=3.0)
 
@@ -73,8 +73,8 @@ def test_illumination_limits_skip_with_reason(pair_world: Any) -> None:
 def test_threads_do_not_change_results_and_feature_ids_are_stable(pair_world: Any) -> None:
     names = ["stereo", "scale2_finer_rot45", "azimuth45", "scale2_rot30"]
     pairs = [pair_world.pairs[pair_world.names.index(n)] for n in names]
-    m1, r1 = match_tile(pair_world.images, pair_world.geometry, pairs, MatchConfig(threads=1))
-    m2, r2 = match_tile(pair_world.images, pair_world.geometry, pairs, MatchConfig(threads=2))
+    m1, r1 = match_tile(pair_world.images, pair_world.geometry, pairs, MatchConfig(threads=1), pointing_sigma_urad=450.0)
+    m2, r2 = match_tile(pair_world.images, pair_world.geometry, pairs, MatchConfig(threads=2), pointing_sigma_urad=450.0)
     for k, v in m1.columns().items():
         np.testing.assert_array_equal(v, m2.columns()[k], err_msg=k)
     assert [r.n_matches for r in r1] == [r.n_matches for r in r2]
@@ -95,7 +95,7 @@ def test_threads_do_not_change_results_and_feature_ids_are_stable(pair_world: An
 def test_tile_matches_feed_build_network(pair_world: Any) -> None:
     build = pytest.importorskip("mercury_dem.network.build")
     pairs = [pair_world.pairs[pair_world.names.index(n)] for n in ("stereo", "scale2_rot30")]
-    m, _ = match_tile(pair_world.images, pair_world.geometry, pairs, MatchConfig(threads=2))
+    m, _ = match_tile(pair_world.images, pair_world.geometry, pairs, MatchConfig(threads=2), pointing_sigma_urad=450.0)
     ids = list(m.image_ids)
     g = pair_world.geometry
     out = build.build_network(

@@ -93,7 +93,7 @@ def four_views() -> dict[str, Any]:
 def _network(w: dict[str, Any], tracks: bool) -> tuple[Any, Any, Any]:
     from mercury_dem.network.build import build_network
 
-    m, reps = match_tile(w["images"], w["geom"], w["pairs"], MatchConfig(threads=2), tracks=tracks)
+    m, reps = match_tile(w["images"], w["geom"], w["pairs"], MatchConfig(threads=2), tracks=tracks, pointing_sigma_urad=450.0)
     ids = list(m.image_ids)
     g = w["geom"]
     net = build_network(ids, m, [g[i].camera for i in ids], np.array([g[i].position for i in ids]),
@@ -133,8 +133,8 @@ def test_full_pairs_receive_no_anchors_with_propagate_extra_zero(four_views: dic
     the default offers it an eighth of ``max_matches`` per direction."""
     w = four_views
     cfg = MatchConfig(threads=1, max_matches=60)  # every pair of these views has more than 60 after the chain
-    _, reps = match_tile(w["images"], w["geom"], w["pairs"], cfg)
-    _, reps0 = match_tile(w["images"], w["geom"], w["pairs"], dataclasses.replace(cfg, propagate_extra=0.0))
+    _, reps = match_tile(w["images"], w["geom"], w["pairs"], cfg, pointing_sigma_urad=450.0)
+    _, reps0 = match_tile(w["images"], w["geom"], w["pairs"], dataclasses.replace(cfg, propagate_extra=0.0), pointing_sigma_urad=450.0)
     full = [k for k, r in enumerate(reps0) if r.n_local >= 60]  # full after phase 1 (the others have room)
     assert len(full) >= 3, [r.n_local for r in reps0]
     assert sum(reps[k].n_propagated for k in full) > 0 and sum(reps0[k].n_propagated for k in full) == 0

@@ -149,21 +149,22 @@ def test_an_image_without_measures_is_held_not_fatal(degenerate_run: tuple[Path,
     from mercury_dem.io.network_store import read_network
     from mercury_dem.mission import open_mission
     from mercury_dem.pipeline.adjust_adapter import adjust_network
-    from mercury_dem.pipeline.stages import adjust_config_for
+    from mercury_dem.pipeline.stages import pointing_sigma_urad_for
 
     mission_path, run, _ = degenerate_run
     mission = open_mission(mission_path)
     net = read_network(RunStore(run).network_path("region", 8))  # S-000-060: 19 images
     net = net.replace(measure_rejected=np.zeros_like(net.measure_rejected),
                       point_rejected=np.zeros_like(net.point_rejected))
-    cfg = adjust_config_for(mission, load_config())
+    config = load_config()
+    cfg, sigma_urad = config.adjust, pointing_sigma_urad_for(mission, config)
 
     def solve(n: Any) -> Any:
         ids = [str(i) for i in n.image_ids]
         pos = np.array([mission.a_priori_pose(i)[0] for i in ids])
         rot = np.array([mission.a_priori_pose(i)[1] for i in ids])
         return adjust_network(n, [mission.camera(i) for i in ids], pos, rot, cfg,
-                              datum_radius_m=mission.body.datum_radius_m), pos, rot
+                              pointing_sigma_urad=sigma_urad, datum_radius_m=mission.body.datum_radius_m), pos, rot
 
     clean, _, _ = solve(net)
     extra = net.replace(image_ids=np.append(net.image_ids, d.NO_MEASURES))

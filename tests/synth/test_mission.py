@@ -107,7 +107,7 @@ def test_a_priori_errors_have_the_configured_statistics():
     c = np.repeat(c, 4, axis=0)
     r = np.repeat(r, 4, axis=0)  # ~1000 poses
     sigma = 450e-6
-    c_a, r_a, omega = perturb_poses(c, r, sigma, 100.0, np.random.default_rng(1))
+    c_a, r_a, omega = perturb_poses(c, r, 450.0, 100.0, np.random.default_rng(1))
     recovered = angles_from_rotation(r_a @ np.swapaxes(r, 1, 2))
     assert np.allclose(recovered, omega, atol=1e-12)
     n = omega.size

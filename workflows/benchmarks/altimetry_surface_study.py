@@ -30,7 +30,7 @@ def main(seeds: list[int]) -> None:
                                      relief_m=1500.0)
         pts = net.problem.points
         problem = dataclasses.replace(net.problem, points=pts / np.linalg.norm(pts, axis=1, keepdims=True) * DATUM)
-        cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), radius_sigma_m=10_000.0)
+        cfg = AdjustConfig(radius_sigma_m=10_000.0)
         shots = AltimetryShotsArrays(*net.altimetry_shots(rng, per_point=8, reach_m=700.0, noise_m=1.0), 1.0)
         plain = bundle_adjust(problem, cfg)
         ifov = np.array([net.problem.cameras[k].ifov_rad for k in net.problem.image_camera])

@@ -44,7 +44,7 @@ def main() -> None:
     from mercury_dem.config.adjust import AdjustConfig
 
     p = problem_from_store(clean_store(args.dir, args.measures, args.seed))
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), robust_loss="none", reject_outliers=False)
+    cfg = AdjustConfig(robust_loss="none", reject_outliers=False)
     ifov = min(c.pixel_size_mm / c.focal_length_mm for c in p.cameras)
     out: dict[str, Any] = {"measures": p.n_measures, "images": p.n_images, "points": p.n_points}
     t = time.perf_counter()

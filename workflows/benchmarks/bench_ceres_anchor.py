@@ -16,7 +16,7 @@ What is solved, by both, on the same measures:
 * pointing only: the camera centres are held (ours never moves them; COLMAP gets a position prior of
   ``--position-sigma-m`` = 1 mm on every image, so its centres move by < 1 mm), every rotation and every point free;
 * no robust loss, no rejection (``synth-network --outlier-fraction 0``), no point radius prior;
-* ours keeps a pointing prior, set to ``--pointing-sigma-deg`` = 10 deg per axis: 0.2 % of a 450 urad correction's
+* ours keeps a pointing prior, set to ``--pointing-sigma-urad`` = 174533 urad (10 deg) per axis: 0.2 % of a 450 urad correction's
   weight, so in effect none (COLMAP has no rotation prior);
 * COLMAP's cameras are PINHOLE: the MDIS-NAC's distortion is removed from the measures first (each measure mapped
   exactly through the camera's own ``undistort``); the measure weights then differ from ours by the distortion's
@@ -128,7 +128,7 @@ def main() -> None:
     ap.add_argument("--dir", default="/tmp/anchor")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2, help="threads for both (numba's and Ceres')")
-    ap.add_argument("--pointing-sigma-deg", type=float, default=10.0)
+    ap.add_argument("--pointing-sigma-urad", type=float, default=174_533.0, help="our pointing prior (10 deg)")
     ap.add_argument("--position-sigma-m", type=float, default=1e-3)
     ap.add_argument("--max-iterations", type=int, default=100)
     ap.add_argument("--function-tolerance", type=float, default=1e-6, help="Ceres' (its default 1e-6)")
@@ -144,7 +144,7 @@ def main() -> None:
     from mercury_dem.validate.synthetic_network import pointing_errors
 
     store = clean_store(args.dir, args.measures, args.seed)
-    p = problem_from_store(store)
+    p = problem_from_store(store, args.pointing_sigma_urad)
     truth = BlockedNetwork(store).truth_images()
     ifov = np.array([p.cameras[k].ifov_rad for k in p.image_camera])
 
@@ -152,7 +152,7 @@ def main() -> None:
         raw, _, _ = pointing_errors(rot, truth)
         return float(np.sqrt(np.mean((np.linalg.norm(raw[:, :2], axis=1) / ifov) ** 2)))
 
-    base = AdjustConfig(pointing_sigma_deg=args.pointing_sigma_deg, robust_loss="none", reject_outliers=False,
+    base = AdjustConfig(robust_loss="none", reject_outliers=False,
                         radius_sigma_m=None, max_iterations=args.max_iterations)
     tolerances = args.sigma0_tolerance or [base.sigma0_tolerance]
     out: dict[str, Any] = {"measures": p.n_measures, "images": p.n_images, "points": p.n_points,

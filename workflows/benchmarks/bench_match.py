@@ -148,11 +148,11 @@ def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ..
         for threads in (1, 2):
             cfg = MatchConfig(threads=threads)
             runs = {
-                "ours": lambda: match_tile(images, geom, pairs, cfg),
-                "tracks_off": lambda: match_tile(images, geom, pairs, cfg, tracks=False),
-                "extra0": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, propagate_extra=0.0)),
-                "flow": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, flow_min_convergence_deg=0.0)),
-                "all_pairs": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, redundant_convergence_deg=180.0)),
+                "ours": lambda: match_tile(images, geom, pairs, cfg, pointing_sigma_urad=450.0),
+                "tracks_off": lambda: match_tile(images, geom, pairs, cfg, tracks=False, pointing_sigma_urad=450.0),
+                "extra0": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, propagate_extra=0.0), pointing_sigma_urad=450.0),
+                "flow": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, flow_min_convergence_deg=0.0), pointing_sigma_urad=450.0),
+                "all_pairs": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, redundant_convergence_deg=180.0), pointing_sigma_urad=450.0),
             }
             wall: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
             cpu: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
@@ -222,7 +222,7 @@ def accuracy() -> None:
         "track propagation off": base,
     }
     for title, cfg in variants.items():
-        m, reps = match_tile(images, geom, pairs, cfg, tracks=not title.startswith("track"))
+        m, reps = match_tile(images, geom, pairs, cfg, tracks=not title.startswith("track"), pointing_sigma_urad=450.0)
         pa = np.stack([m.sample_a, m.line_a], -1)
         pb = np.stack([m.sample_b, m.line_b], -1)
         err = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M)
@@ -260,7 +260,7 @@ def mission_accuracy(path: str, max_pairs: int = 0, config: MatchConfig | None =
     surface = ms.need_truth().surface()
     overlaps = [true_overlap(truth[a], truth[b], surface.height, datum_radius_m=DATUM_RADIUS_M) for a, b in pairs]
     t0 = time.perf_counter()
-    m, reps = match_tile(images, geom, pairs, config or MatchConfig(threads=2))
+    m, reps = match_tile(images, geom, pairs, config or MatchConfig(threads=2), pointing_sigma_urad=450.0)
     dt = time.perf_counter() - t0
     pa = np.stack([m.sample_a, m.line_a], -1)
     pb = np.stack([m.sample_b, m.line_b], -1)
@@ -448,7 +448,7 @@ def convergence_study() -> None:
         rng = np.random.default_rng(7)
         for em in (0, 10, 20, 30, 38):
             images, geom, truth = convergent_views(surface, (0.0, float(em)), rng, rs)
-            m, reps = match_tile(images, geom, [("v0", "v1")], MatchConfig(threads=2))
+            m, reps = match_tile(images, geom, [("v0", "v1")], MatchConfig(threads=2), pointing_sigma_urad=450.0)
             pa = np.stack([m.sample_a, m.line_a], -1)
             pb = np.stack([m.sample_b, m.line_b], -1)
             e = true_errors(m.image_ids, m.image_a, m.image_b, pa, pb, truth, surface.height, datum_radius_m=DATUM_RADIUS_M)
@@ -506,7 +506,7 @@ def tracks_study(mission_path: str, run_dir: str, config: MatchConfig | None = N
         geom = {i: ImageGeometry.of(c, p, r, ms.sun_position(i), datum_radius_m=DATUM_RADIUS_M) for i, c, (p, r) in zip(involved, cams, poses)}
         truth = {i: TruePose(c, *ms.need_truth().true_pose(i)) for i, c in zip(involved, cams)}
         t0 = time.perf_counter()
-        m, reps = match_tile(pix, geom, pl, mcfg, tracks=tracks)
+        m, reps = match_tile(pix, geom, pl, mcfg, tracks=tracks, pointing_sigma_urad=450.0)
         t_match += time.perf_counter() - t0
         n_pairs += len(pl)
         n_matched += sum(r.status == "matched" for r in reps)

@@ -126,7 +126,7 @@ def run_pairs(images: Any, geom: Any, truth: Any, pairs: Any, height_true: Any, 
     rows = []
     for a, b in pairs:
         t0 = time.time()
-        m, reps = match_tile({a: images[a], b: images[b]}, geom, [(a, b)], CFG, tracks=False)
+        m, reps = match_tile({a: images[a], b: images[b]}, geom, [(a, b)], CFG, tracks=False, pointing_sigma_urad=450.0)
         rep = reps[0]
         pa, pb = np.stack([m.sample_a, m.line_a], -1), np.stack([m.sample_b, m.line_b], -1)
         cls = illumination_class(abs(rep.incidence_ref_deg - rep.incidence_match_deg), rep.sun_azimuth_difference_deg)
@@ -152,7 +152,7 @@ def run_pairs(images: Any, geom: Any, truth: Any, pairs: Any, height_true: Any, 
                 mg = {k: ImageGeometry.of(truth[k].camera, truth[k].position,
                                           rotation_from_angles(rng.normal(0, poses * truth[k].camera.ifov_rad, 3)) @ truth[k].rotation,
                                           geom[k].sun_position, datum_radius_m=DATUM_RADIUS_M) for k in (a, b)}
-            qa, qb = match_pair_on_surface(images, geom, mg, (a, b), h, CFG, stride=STRIDE)
+            qa, qb = match_pair_on_surface(images, geom, mg, (a, b), h, CFG, stride=STRIDE, pointing_sigma_urad=450.0)
             res[name] = _errors((a, b), qa, qb, truth, height_true)
         line = f"{tag} {a}->{b} conv {rep.convergence_deg:5.1f} {cls:9s}"
         for k, (al, ac) in res.items():

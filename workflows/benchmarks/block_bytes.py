@@ -59,10 +59,10 @@ def main() -> None:
     if not out.exists():
         write_synthetic_network(SyntheticSpec(200_000, seed=3, block_points=10_000), out)
     net = BlockedNetwork(out)
-    cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), blocked_float32=not args.float64,
+    cfg = AdjustConfig(blocked_float32=not args.float64,
                        blocked_recompute_w=args.recompute_w)
     im = net.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=cfg.blocked_float32)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=cfg.blocked_float32, pointing_sigma_urad=450.0)
     opt = options_from_config(cfg)
     shard = BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)
     res = blocked_levenberg_marquardt(SyncEngine([shard]), setup, opt)

@@ -22,8 +22,8 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
 
 net = BlockedNetwork(sys.argv[1]); im = net.images
-cfg = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)))
-setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True)
+cfg = AdjustConfig()
+setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True, pointing_sigma_urad=450.0)
 opt = options_from_config(cfg)
 t = time.perf_counter()
 eng = SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)])

@@ -109,7 +109,7 @@ def main(argv=None):
     from mercury_dem.mission.store import open_mission
     from mercury_dem.network.merge import merge_networks
     from mercury_dem.pipeline.adjust_adapter import adjust_network
-    from mercury_dem.pipeline.stages import adjust_config_for, reconcile_solutions, unit_altimetry
+    from mercury_dem.pipeline.stages import pointing_sigma_urad_for, reconcile_solutions, unit_altimetry
     from mercury_dem.validate.run import per_image_pointing, true_point_positions
 
     store = RunStore(args.run)
@@ -130,7 +130,8 @@ def main(argv=None):
     positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
     rotations = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
     start_rot, _ = reconcile_solutions(store, "hemisphere", kids, ids, rotations, positions)
-    base_cfg = adjust_config_for(mission, config)
+    base_cfg = config.adjust
+    sigma_urad = pointing_sigma_urad_for(mission, config)
     shots = unit_altimetry(mission, merged, "global", base_cfg)
     surface = mission.need_truth().surface()
     truth_dem = mission.need_truth().dem()
@@ -177,7 +178,7 @@ def main(argv=None):
             cfg = dataclasses.replace(cfg, max_iterations=100, sigma0_tolerance=1e-8)
         if "network" in parts:
             cfg = dataclasses.replace(cfg, point_prior_center="network")
-        adj = adjust_network(merged, cameras, pos, rotations, cfg, initial_rotations=start,
+        adj = adjust_network(merged, cameras, pos, rotations, cfg, pointing_sigma_urad=sigma_urad, initial_rotations=start,
                              datum_radius_m=mission.body.datum_radius_m, altimetry=alt,
                              recentre_point_priors="recentre" in parts)
         net = adj.network

@@ -53,8 +53,8 @@ def main() -> None:
     blocked.HEAP_TRIM = sys.argv[4] if len(sys.argv) > 4 else "block"
     net = BlockedNetwork(store)
     im = net.images
-    cfg = dataclasses.replace(AdjustConfig(), pointing_sigma_deg=0.025783100780887047, max_iterations=its)
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True)
+    cfg = dataclasses.replace(AdjustConfig(), max_iterations=its)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, cfg, float32=True, pointing_sigma_urad=450.0)
     setup = dataclasses.replace(setup, recompute_w="recompute_w" in sys.argv[5:])
     opt = options_from_config(cfg)
     r0, t = rss(), time.perf_counter()

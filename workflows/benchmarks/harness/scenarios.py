@@ -123,8 +123,12 @@ def clean_store(directory: str | Path, measures: float, seed: int) -> Path:
     return store
 
 
-def problem_from_store(store: Path) -> Any:
-    """The whole stored network as one AdjustmentProblem (small stores only)."""
+def problem_from_store(store: Path, pointing_sigma_urad: float = 450.0) -> Any:
+    """The whole stored network as one AdjustmentProblem (small stores only).
+
+    ``pointing_sigma_urad``: its a-priori pointing sigma (the stores' injected one,
+    ``SyntheticSpec.pointing_error_rad`` = 450 µrad).
+    """
     from mercury_dem.adjust.problem import AdjustmentProblem
     from mercury_dem.io.synthetic_network_store import BlockedNetwork
 
@@ -136,7 +140,8 @@ def problem_from_store(store: Path) -> Any:
         cameras=tuple(im.cameras), image_camera=im.image_camera, positions=im.positions, rotations=im.rotations,
         points=cat([b.apriori_points for b in blocks]), measure_image=cat([b.measure_image for b in blocks]),
         measure_point=cat([b.measure_point + b.point_start for b in blocks]), measures=cat([b.measures for b in blocks]),
-        measure_sigma=cat([b.sigma for b in blocks]), held_points=cat([b.held_points for b in blocks]))
+        measure_sigma=cat([b.sigma for b in blocks]), held_points=cat([b.held_points for b in blocks]),
+        pointing_sigma_urad=pointing_sigma_urad)
 
 
 # ---- from bench_grid.py ------------------------------------------------------------
