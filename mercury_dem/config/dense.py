@@ -72,13 +72,20 @@ class DenseConfig(ConfigSection):
                              lo=-1.0, hi=1.0)
     # --- points (PointFilter) -----------------------------------------------------------------
     sigma_floor_px: float = param(
-        0.17, "Disparity error added in quadrature to the matcher's for what its window residuals do not show "
+        0.15, "Disparity error added in quadrature to the matcher's for what its window residuals do not show "
         "(view-dependent shading, the rectification, the cameras), in pixels of the pair's coarser image; "
-        "calibrated with dense.sigma_scale on the tiny mission's cloud (seed 42: the points' RMS disparity error "
-        "against the truth per decile of the matcher's sigma; docs/design/dense.md)", unit="pixel", lo=0.0)
+        "calibrated with dense.sigma_scale and dense.sigma_height_floor_factor on the tiny mission's clouds "
+        "(seeds 42 and 7: the points' errors against the truth; docs/design/dense.md)", unit="pixel", lo=0.0)
     sigma_scale: float = param(
         1.2, "Factor on the matcher's least-squares disparity sigma (which assumes the residuals are noise) "
         "before the floor is added; calibrated with dense.sigma_floor_px", lo=0.0, hi=100.0)
+    sigma_height_floor_factor: float = param(
+        0.5, "Height floor of a point's stated precision, added in quadrature: this times the tile's height margin "
+        "(dense.height_margin_factor x the tie points' scatter about the sparse DEM, at least "
+        "dense.min_height_margin_m). It stands for the relief within the matching window, which a window matcher "
+        "does not resolve (the points' error in metres hardly depends on their pair's metres per pixel of "
+        "disparity); fitted on tiny seeds 42 and 7. The stated precision is also capped at the range filter's "
+        "uniform spread, dense.max_height_offset_factor x the margin / sqrt(3)", lo=0.0, hi=100.0)
     max_miss_pixels: float = param(1.0, "Largest ray miss distance, in left-image pixels at the point's range",
                                    unit="pixel", lo=0.0)
     min_angle_deg: float = param(5.0, "Smallest triangulation angle of a point", unit="deg", lo=0.0, hi=180.0)
