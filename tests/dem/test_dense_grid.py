@@ -42,6 +42,38 @@ def test_the_precision_layer_is_the_median_sigma_over_the_root_of_the_points() -
     assert pixel_precision(cloud, lat, lon, ppd, k=1)[0, 0] == pytest.approx(1.2533 * 250.0)
 
 
+def test_the_precision_layer_counts_pairs_not_points() -> None:
+    """Pixels whose points come from 1-4 pairs, each pair's points sharing one error (their common window) plus a
+    little of their own; the pixel's value is the median of its points. The layer states that error honestly; the
+    rule counting every point as independent states it 2.5x too small.
+    """
+    rng = np.random.default_rng(5)
+    n_pix, per_pair, sigma = 3000, 9, 400.0
+    ppd = 10.0  # 3000 pixels along 300 degrees of one row
+    lat = np.array([0.05])
+    lon = (np.arange(n_pix) + 0.5) / ppd
+    rows: dict[str, list[np.ndarray]] = {"lat": [], "lon": [], "sigma_h_m": [], "pair": [], "err": []}
+    values = np.empty(n_pix)
+    for px in range(n_pix):
+        m = int(rng.integers(1, 5))
+        errs = []
+        for pr in range(m):
+            e = rng.normal(0.0, sigma) + rng.normal(0.0, 0.1 * sigma, per_pair)
+            errs.append(e)
+            rows["lat"].append(np.full(per_pair, 0.03))
+            rows["lon"].append(np.full(per_pair, (px + 0.5) / ppd))
+            rows["sigma_h_m"].append(np.full(per_pair, sigma))
+            rows["pair"].append(np.full(per_pair, pr))
+        values[px] = np.median(np.concatenate(errs))
+    cloud = {k: np.concatenate(v) for k, v in rows.items() if k != "err"}
+    p = pixel_precision(cloud, lat, lon, ppd, k=64)[0]
+    ratio = np.sqrt(np.mean(values**2) / np.mean(p**2))
+    assert 0.85 <= ratio <= 1.25, ratio
+    assert np.mean(np.abs(values) > 3 * p) <= 0.01
+    without_pairs = pixel_precision({k: v for k, v in cloud.items() if k != "pair"}, lat, lon, ppd, k=64)[0]
+    assert np.sqrt(np.mean(values**2) / np.mean(without_pairs**2)) > 2.0
+
+
 def test_the_control_distance_is_the_chord_to_the_nearest_point() -> None:
     r = MERCURY.datum_radius_m
     pts = latlon_to_xyz(np.array([0.0, 10.0]), np.array([0.0, 0.0]), height_m=np.array([3000.0, -2000.0]),
