@@ -73,7 +73,7 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, bod
     ds["source"].attrs.update({"flag_values": [SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE],
                                "flag_meanings": "none dense sparse_fallback"})
     ds["precision_m"].attrs.update({"units": "m", "long_name": "stated 1-sigma precision of the dense elevation: "
-                                    "1.2533 x the median stated sigma_h of the pixel's points / sqrt(min(n, "
+                                    "the median stated sigma_h of the pixel's points / sqrt(min(distinct pairs, "
                                     "dense.grid_neighbours)); NaN where the pixel holds no dense point"})
     ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
                      "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
