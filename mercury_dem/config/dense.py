@@ -102,6 +102,15 @@ class DenseConfig(ConfigSection):
         1.0, "A dense DEM pixel farther than this many of its pixels from every dense point has no dense value "
         "(the sparse DEM fills it): the dense cloud is patchy, so the DEM stage's spacing rule would carry dense "
         "values far beyond the points", unit="pixel", lo=0.1, hi=1000.0)
+    sparse_sigma_m: float | None = param(
+        500.0, "Stated precision of the sparse DEM where the dense DEM's pixels are fused with it by inverse variance "
+        "(dem_dense.zarr elevation; elevation_dense keeps the dense value alone); null: no fusion. On the tiny "
+        "mission the sparse DEM's RMSE is 430-560 m and the dense cloud resolves little of what it misses (the "
+        "bounds in docs/design/dense.md): fused, the dense DEM is 0.97-0.99 x the sparse, alone 1.14-1.25 x", unit="m",
+        lo=0.0)
+    fusion_correlation: float = param(
+        0.66, "Correlation of the dense and sparse errors used for the fused pixels' stated precision (both miss the "
+        "relief neither resolves; measured 0.66 on tiny seed 42)", lo=-1.0, hi=1.0)
     grid_neighbours: int = param(
         64, "The dense DEM's median11 takes the median of this many nearest points (the sparse DEM's "
         "dem.neighbours is 11): the pairs' points merged by a robust median over about a pixel", lo=1, hi=1000)
