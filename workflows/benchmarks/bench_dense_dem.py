@@ -57,8 +57,8 @@ def main(argv: list[str] | None = None) -> None:
     given = {int(k): Path(v) for k, v in (r.split("=", 1) for r in args.run)}
     print(f"# bench_dense_dem {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} dense: {dense_keys}")
     print("| seed | points | parts / chips | dense RMSE (bias) m | sparse RMSE (bias) m | ratio | true/stated | > 3 sigma "
-          "| stage s |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| stage s | dense alone RMSE (ratio) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         root = args.workdir / f"seed{seed}"
         run = root / "dense_run"
@@ -80,9 +80,11 @@ def main(argv: list[str] | None = None) -> None:
         sig = cloud["sigma_h_m"].astype(np.float64)
         ratio = float(np.sqrt(np.mean(err**2) / np.mean(sig**2)))
         beyond = float(np.mean(np.abs(err) > 3 * sig))
+        c = v.get("dense_alone_on_dense_pixels")  # before the fusion with the sparse DEM (dense.sparse_sigma_m)
+        alone = f"{c['rmse_m']:.0f} ({c['rmse_m'] / b['rmse_m']:.2f})" if c else "-"
         print(f"| {seed} | {d['points']} | {d.get('chip_parts')} / {d['chips']} | {a['rmse_m']:.0f} ({a['bias_m']:+.0f}) "
               f"| {b['rmse_m']:.0f} ({b['bias_m']:+.0f}) | {d['dem']['rmse_ratio_dense_over_sparse']:.2f} | {ratio:.2f} "
-              f"| {100 * beyond:.2f} % | {rep['timings']['dense']:.0f} |", flush=True)
+              f"| {100 * beyond:.2f} % | {rep['timings']['dense']:.0f} | {alone} |", flush=True)
 
 
 if __name__ == "__main__":
