@@ -72,13 +72,20 @@ class DenseConfig(ConfigSection):
                              lo=-1.0, hi=1.0)
     # --- points (PointFilter) -----------------------------------------------------------------
     sigma_floor_px: float = param(
-        0.17, "Disparity error added in quadrature to the matcher's for what its window residuals do not show "
+        0.15, "Disparity error added in quadrature to the matcher's for what its window residuals do not show "
         "(view-dependent shading, the rectification, the cameras), in pixels of the pair's coarser image; "
-        "calibrated with dense.sigma_scale on the tiny mission's cloud (seed 42: the points' RMS disparity error "
-        "against the truth per decile of the matcher's sigma; docs/design/dense.md)", unit="pixel", lo=0.0)
+        "calibrated with dense.sigma_scale and dense.sigma_height_floor_factor on the tiny mission's clouds "
+        "(seeds 42 and 7: the points' errors against the truth; docs/design/dense.md)", unit="pixel", lo=0.0)
     sigma_scale: float = param(
         1.2, "Factor on the matcher's least-squares disparity sigma (which assumes the residuals are noise) "
         "before the floor is added; calibrated with dense.sigma_floor_px", lo=0.0, hi=100.0)
+    sigma_height_floor_factor: float = param(
+        0.5, "Height floor of a point's stated precision, added in quadrature: this times the tile's height margin "
+        "(dense.height_margin_factor x the tie points' scatter about the sparse DEM, at least "
+        "dense.min_height_margin_m). It stands for the relief within the matching window, which a window matcher "
+        "does not resolve (the points' error in metres hardly depends on their pair's metres per pixel of "
+        "disparity); fitted on tiny seeds 42 and 7. The stated precision is also capped at the range filter's "
+        "uniform spread, dense.max_height_offset_factor x the margin / sqrt(3)", lo=0.0, hi=100.0)
     max_miss_pixels: float = param(1.0, "Largest ray miss distance, in left-image pixels at the point's range",
                                    unit="pixel", lo=0.0)
     min_angle_deg: float = param(5.0, "Smallest triangulation angle of a point", unit="deg", lo=0.0, hi=180.0)
@@ -95,6 +102,15 @@ class DenseConfig(ConfigSection):
         1.0, "A dense DEM pixel farther than this many of its pixels from every dense point has no dense value "
         "(the sparse DEM fills it): the dense cloud is patchy, so the DEM stage's spacing rule would carry dense "
         "values far beyond the points", unit="pixel", lo=0.1, hi=1000.0)
+    sparse_sigma_m: float | None = param(
+        500.0, "Stated precision of the sparse DEM where the dense DEM's pixels are fused with it by inverse variance "
+        "(dem_dense.zarr elevation; elevation_dense keeps the dense value alone); null: no fusion. On the tiny "
+        "mission the sparse DEM's RMSE is 430-560 m and the dense cloud resolves little of what it misses (the "
+        "bounds in docs/design/dense.md): fused, the dense DEM is 0.97-0.99 x the sparse, alone 1.14-1.25 x", unit="m",
+        lo=0.0)
+    fusion_correlation: float = param(
+        0.66, "Correlation of the dense and sparse errors used for the fused pixels' stated precision (both miss the "
+        "relief neither resolves; measured 0.66 on tiny seed 42)", lo=-1.0, hi=1.0)
     grid_neighbours: int = param(
         64, "The dense DEM's median11 takes the median of this many nearest points (the sparse DEM's "
         "dem.neighbours is 11): the pairs' points merged by a robust median over about a pixel", lo=1, hi=1000)

@@ -35,7 +35,16 @@ def snapped_bounds(bounds: tuple[float, float, float, float], ppd: float) -> tup
 
 def pixel_precision(cloud: dict[str, NDArray[Any]], lat: NDArray[np.float64], lon: NDArray[np.float64],
                     ppd: float, k: int) -> NDArray[np.float64]:
-    """Per pixel ``1.2533 x median(sigma_h) / sqrt(min(n, k))`` of the points inside it (NaN: none)."""
+    """Per pixel the stated precision of the points inside it (NaN: none).
+
+    With the cloud's ``pair`` column: ``median(sigma_h) / sqrt(min(m, k))``, ``m`` the number of distinct pairs
+    among the pixel's points. A pair's points in one pixel share most of their matching window (a dense DEM pixel is
+    about three image pixels, the window nine), so their errors move together: a pair is one sample, not one per
+    point. Measured on the tiny mission (seeds 42 and 7, docs/design/dense.md): true / stated RMS 0.70 and 0.75,
+    0.46 % and 0.22 % of the pixels beyond 3 stated sigma, where counting every point as independent
+    (``1.2533 x median / sqrt(min(n, k))``) gave 1.40 and 1.16 with 12 % beyond. Without a ``pair`` column, that
+    older rule.
+    """
     H, W = lat.size, lon.size
     lat_max = float(lat[0]) + 0.5 / ppd
     lon_min = float(lon[0]) - 0.5 / ppd
@@ -44,6 +53,8 @@ def pixel_precision(cloud: dict[str, NDArray[Any]], lat: NDArray[np.float64], lo
     ok = (i >= 0) & (i < H) & (j >= 0) & (j < W) & np.isfinite(cloud["sigma_h_m"])
     flat = i[ok] * W + j[ok]
     sig = cloud["sigma_h_m"][ok].astype(np.float64)
+    pair = cloud.get("pair")
+    by_pair = pair is not None and len(pair) == len(cloud["sigma_h_m"])
     out = np.full(H * W, np.nan)
     if flat.size:
         order = np.lexsort((sig, flat))
@@ -51,8 +62,41 @@ def pixel_precision(cloud: dict[str, NDArray[Any]], lat: NDArray[np.float64], lo
         starts = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])
         counts = np.diff(np.r_[starts, f.size])
         med = 0.5 * (s[starts + (counts - 1) // 2] + s[starts + counts // 2])
-        out[f[starts]] = 1.2533 * med / np.sqrt(np.minimum(counts, k))
+        if by_pair:
+            assert pair is not None
+            p = np.asarray(pair)[ok].astype(np.int64)
+            distinct = np.unique(np.stack([flat, p], axis=1), axis=0)[:, 0]
+            m = np.bincount(distinct, minlength=H * W)[f[starts]]
+            out[f[starts]] = med / np.sqrt(np.minimum(m, k))
+        else:
+            out[f[starts]] = 1.2533 * med / np.sqrt(np.minimum(counts, k))
     return out.reshape(H, W)
+
+
+def fuse_with_prior(dense: NDArray[np.float64], dense_sigma: NDArray[np.float64], prior: NDArray[np.float64],
+                    prior_sigma: float, correlation: float = 0.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The dense elevation fused with a prior (the sparse DEM) by inverse variance, and the fused value's sigma.
+
+    ``w = prior_sigma^2 / (prior_sigma^2 + dense_sigma^2)``, value ``w * dense + (1 - w) * prior``; its sigma
+    ``sqrt(w^2 sd^2 + (1 - w)^2 sp^2 + 2 w (1 - w) rho sd sp)`` with ``rho = correlation``: the two errors are
+    not independent where both miss the same relief (measured 0.66 on the tiny mission, docs/design/dense.md).
+    Where ``dense`` is NaN: the prior and ``prior_sigma``; where only ``dense_sigma`` is NaN (a pixel given a value
+    by its neighbours' points): the median of the finite ``dense_sigma``. Where the prior is NaN: the dense value
+    and its sigma.
+    """
+    d = np.asarray(dense, np.float64)
+    sd = np.asarray(dense_sigma, np.float64)
+    sp = float(prior_sigma)
+    pr = np.asarray(prior, np.float64)
+    fill = float(np.nanmedian(sd)) if np.isfinite(sd).any() else sp
+    sd = np.where(np.isfinite(sd), sd, fill)
+    w = sp * sp / (sp * sp + sd * sd)
+    value = w * d + (1.0 - w) * pr
+    sigma = np.sqrt(w * w * sd * sd + (1.0 - w) ** 2 * sp * sp + 2.0 * w * (1.0 - w) * correlation * sd * sp)
+    has_d, has_p = np.isfinite(d), np.isfinite(pr)
+    value = np.where(has_d & has_p, value, np.where(has_d, d, pr))
+    sigma = np.where(has_d & has_p, sigma, np.where(has_d, sd, np.where(has_p, sp, np.nan)))
+    return value, sigma
 
 
 def control_distance(control_xyz: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64],

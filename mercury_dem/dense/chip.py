@@ -168,6 +168,8 @@ def dense_chip(
     max_vertical_px: float = 0.1,
     min_chip_px: int = 32,
     sigma_scale: float = 1.0,
+    sigma_height_floor_m: float = 0.0,
+    sigma_height_cap_m: float | None = None,
 ) -> ChipResult:
     """Rectify (split while not epipolar: :func:`rectify_split`), match, triangulate and filter one chip
     (each step's parameters as in its module).
@@ -190,7 +192,8 @@ def dense_chip(
         for k, bit in HOLE_FLAGS.items():
             holes[k] += int(np.count_nonzero(inner & bit))
         pts = triangulate_chip(rect, left, right, dm.disparity, dm.sigma_px, dm.score, sigma_floor_px,
-                               sigma_scale=sigma_scale)
+                               sigma_scale=sigma_scale, sigma_height_floor_m=sigma_height_floor_m,
+                               sigma_height_cap_m=sigma_height_cap_m)
         kept, rem = filter_points(pts, left, limits)
         for k, v in rem.items():
             removed[k] = removed.get(k, 0) + v

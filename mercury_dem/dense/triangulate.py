@@ -15,7 +15,10 @@ Per point:
   so the pair's geometry -- parallax/height ratio, pixel scale, obliquity -- is in it exactly), times the
   matcher's stated disparity precision (:mod:`mercury_dem.dense.disparity`, times ``sigma_scale``) combined
   with a floor (``sigma_floor_px``) for what the window's residuals do not show: the rectification, the
-  cameras, and view-dependent shading.
+  cameras, and view-dependent shading; then, in metres, a height floor (``sigma_height_floor_m``: relief
+  within the matching window, which a window matcher cannot resolve, and its pull toward the surface the
+  search is centred on) and a cap (``sigma_height_cap_m``: a point kept only within +-R of that surface has
+  a spread of at most R/sqrt(3) about it, the uniform distribution's, however weak its pair's geometry).
 
 :func:`filter_points` applies the limits on each and says how many each removed.
 """
@@ -105,6 +108,15 @@ def triangulate_pixels(
     return intersect_rays(np.asarray(o1, np.float64), d1, np.asarray(o2, np.float64), d2)
 
 
+def stated_height_sigma(sigma_m: NDArray[np.float64], floor_m: float = 0.0,
+                        cap_m: float | None = None) -> NDArray[np.float64]:
+    """``min(hypot(sigma_m, floor_m), cap_m)``: the height floor and the cap of the stated precision (module
+    docstring).
+    """
+    out = np.hypot(sigma_m, floor_m) if floor_m > 0 else np.asarray(sigma_m, np.float64)
+    return np.minimum(out, cap_m) if cap_m is not None else out
+
+
 def triangulate_chip(
     rect: RectifiedChip,
     left: ImageGeometry,
@@ -115,6 +127,8 @@ def triangulate_chip(
     sigma_floor_px: float = 0.05,
     interior_only: bool = True,
     sigma_scale: float = 1.0,
+    sigma_height_floor_m: float = 0.0,
+    sigma_height_cap_m: float | None = None,
 ) -> DensePoints:
     """Dense points of a chip's valid disparities.
 
@@ -134,6 +148,9 @@ def triangulate_chip(
         renderer's Lommel-Seeliger term) shifts the match coherently over the window. The stated disparity
         precision is ``hypot(sigma_scale * sigma_px, sigma_floor_px * coarser_px)``; the stage's values are
         calibrated on dense residuals (``dense.sigma_scale``, ``dense.sigma_floor_px``)
+    sigma_height_floor_m : metres added in quadrature to ``|dh/dd| * sigma_d`` (see the module docstring)
+    sigma_height_cap_m : the stated precision at most this (None: no cap); the stage passes R/sqrt(3) for its
+        range filter's R (``dense.max_height_offset_factor`` x the height margin)
 
     Returns
     -------
@@ -161,8 +178,9 @@ def triangulate_chip(
                         left.datum_radius_m)[2] for step in (-0.5, 0.5)]
     dh_dd = np.abs(hs[1] - hs[0])
     sig_d = np.hypot(sigma_scale * sigma_px[ok].astype(np.float64), sigma_floor_px * rect.coarser_px)
+    sig_h = stated_height_sigma(dh_dd * sig_d, sigma_height_floor_m, sigma_height_cap_m)
     sc = np.full(u.shape, np.nan) if score is None else score[ok].astype(np.float64)
-    return DensePoints(xyz, lat, lon, h, lpx, rpx, miss, angle, dh_dd * sig_d, sc,
+    return DensePoints(xyz, lat, lon, h, lpx, rpx, miss, angle, sig_h, sc,
                        sigma_px[ok].astype(np.float64), dh_dd)
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.config import Config
-from mercury_dem.dem.dense_grid import control_distance, pixel_precision, snapped_bounds
+from mercury_dem.dem.dense_grid import control_distance, fuse_with_prior, pixel_precision, snapped_bounds
 from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.run_store import DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE, DENSE_FILE, RunStore
 
@@ -64,6 +64,11 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
     final = np.where(has_dense, elev, fallback)
     precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
     precision = np.where(has_dense, precision, np.nan)
+    if config.dense.sparse_sigma_m is not None:  # the dense pixels fused with the sparse DEM by their precisions
+        fused, fused_sigma = fuse_with_prior(elev, precision, fallback, config.dense.sparse_sigma_m,
+                                             config.dense.fusion_correlation)
+        final = np.where(has_dense, fused, fallback)
+        precision = np.where(has_dense, fused_sigma, np.nan)
     ds = g.copy()
     dims = g["elevation"].dims
     ds["elevation"] = (("lat", "lon"), final.astype(np.float32))
@@ -76,8 +81,9 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
     ds["source"].attrs.update({"flag_values": [SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE],
                                "flag_meanings": "none dense sparse_fallback"})
     ds["precision_m"].attrs.update({"units": "m", "long_name": "stated 1-sigma precision of the dense elevation: "
-                                    "1.2533 x the median stated sigma_h of the pixel's points / sqrt(min(n, "
-                                    "dense.grid_neighbours)); NaN where the pixel holds no dense point"})
+                                    "the median stated sigma_h of the pixel's points / sqrt(min(distinct pairs, "
+                                    "dense.grid_neighbours)), fused with dense.sparse_sigma_m when set "
+                                    "(dem.dense_grid.fuse_with_prior); NaN where no dense value"})
     ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
                      "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
                                   f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
@@ -127,6 +133,9 @@ def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArr
         "dense_on_dense_pixels": dem_accuracy(np.where(dense_px, elev, np.nan), lat, lon, truth, dist),
         "sparse_on_dense_pixels": dem_accuracy(np.where(dense_px, sparse_on_grid, np.nan), lat, lon, truth, dist),
     }
+    if "elevation_dense" in ds:  # the dense value alone, before its fusion with the sparse DEM
+        alone = ds["elevation_dense"].transpose("lat", "lon").values
+        out["dense_alone_on_dense_pixels"] = dem_accuracy(np.where(dense_px, alone, np.nan), lat, lon, truth, dist)
     return out
 
 

@@ -223,7 +223,9 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
             try:
                 res = dense_chip(li, ri, a, b, chip, surface, height_margin_m, settings, limits,
                                  sigma_floor_px=d.sigma_floor_px, max_vertical_px=d.max_vertical_px,
-                                 min_chip_px=d.min_chip_px, sigma_scale=d.sigma_scale)
+                                 min_chip_px=d.min_chip_px, sigma_scale=d.sigma_scale,
+                                 sigma_height_floor_m=d.sigma_height_floor_factor * height_margin_m,
+                                 sigma_height_cap_m=d.max_height_offset_factor * height_margin_m / math.sqrt(3.0))
             except (MercuryDemError, ValueError, np.linalg.LinAlgError) as exc:
                 counts["chips_failed"] += 1
                 failures.append({"pair": int(index), "left": left, "right": right,

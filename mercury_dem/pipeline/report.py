@@ -318,7 +318,8 @@ def dem_validation_table(d: dict[str, Any]) -> str:
     for key, label in (("adjusted", "adjusted points"), ("a_priori", "a-priori points"),
                        ("registered", "registered (alt.)"), ("merged", "merged with alt."),
                        ("dense", "dense+fallback"), ("sparse_on_dense_grid", "sparse@dense grid"),
-                       ("dense_on_dense_pixels", "dense, its pixels"), ("sparse_on_dense_pixels", "sparse, same px")):
+                       ("dense_on_dense_pixels", "dense, its pixels"), ("dense_alone_on_dense_pixels", "dense alone, same"),
+                       ("sparse_on_dense_pixels", "sparse, same px")):
         row = d.get(key)
         if not isinstance(row, dict):
             continue

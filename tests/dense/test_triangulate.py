@@ -18,7 +18,13 @@ import pytest
 from dense_scene import GSD_M, chip_of
 
 from mercury_dem.dense.disparity import MatcherSettings, dense_disparity
-from mercury_dem.dense.triangulate import PointFilter, filter_points, intersect_rays, triangulate_chip
+from mercury_dem.dense.triangulate import (
+    PointFilter,
+    filter_points,
+    intersect_rays,
+    stated_height_sigma,
+    triangulate_chip,
+)
 
 RENDER_FLOOR_PX = 0.2
 PARALLAX_HEIGHT = float(np.tan(np.radians(25.0)))
@@ -172,5 +178,35 @@ def test_the_stated_precision_is_rebuilt_from_its_stored_parts(lambert_pair, lam
     once = triangulate_chip(rect, lambert_pair.left, lambert_pair.right, dm.disparity, dm.sigma_px, dm.score,
                             sigma_floor_px=0.0)
     np.testing.assert_allclose(twice.sigma_h_m, 2.0 * once.sigma_h_m, rtol=1e-12)
+    # the height floor and the cap act on the metres, after |dh/dd| * sigma_d
+    capped = triangulate_chip(rect, lambert_pair.left, lambert_pair.right, dm.disparity, dm.sigma_px, dm.score,
+                              sigma_floor_px=0.0, sigma_height_floor_m=40.0, sigma_height_cap_m=60.0)
+    np.testing.assert_allclose(capped.sigma_h_m, np.minimum(np.hypot(once.sigma_h_m, 40.0), 60.0), rtol=1e-12)
+    assert (capped.sigma_h_m == 60.0).any() and (capped.sigma_h_m < 60.0).any()
     kept, _ = filter_points(twice, lambert_pair.left)
     assert kept.sigma_match_px is not None and len(kept.sigma_match_px) == len(kept)
+
+
+def test_height_floor_and_cap_make_a_mixed_cloud_honest() -> None:
+    """A cloud as the tiny mission's (docs/design/dense.md): each point's height error is its matching error
+    (``m_per_px`` x 0.2 px) plus relief within the window that no window matcher resolves (300 m), and the stage's
+    range filter keeps only points within R = 2 km of the surface the search was centred on. Weak pairs
+    (10 km per pixel of disparity) are then uniform within +-R. ``stated_height_sigma`` with the relief as the
+    height floor and R/sqrt(3) as the cap states both kinds right; the disparity term alone does not.
+    """
+    rng = np.random.default_rng(3)
+    n, sigma_px, relief, r = 200_000, 0.2, 300.0, 2000.0
+    mpp = np.where(np.arange(n) < n // 2, 1000.0, 10_000.0)
+    err = mpp * sigma_px * rng.standard_normal(n) + relief * rng.standard_normal(n)
+    keep = np.abs(err) <= r
+    err, mpp = err[keep], mpp[keep]
+    stated = stated_height_sigma(mpp * sigma_px, relief, r / np.sqrt(3.0))
+    bare = mpp * sigma_px
+    for part in (mpp == 1000.0, mpp == 10_000.0):
+        ratio = np.sqrt(np.mean(err[part] ** 2) / np.mean(stated[part] ** 2))
+        assert 0.9 <= ratio <= 1.1, ratio
+        assert np.mean(np.abs(err[part]) > 3 * stated[part]) <= 0.01
+    # without the floor the good pair is overconfident, without the cap the weak pair is far too modest
+    good, weak = mpp == 1000.0, mpp == 10_000.0
+    assert np.sqrt(np.mean(err[good] ** 2) / np.mean(bare[good] ** 2)) > 1.5
+    assert np.sqrt(np.mean(err[weak] ** 2) / np.mean(bare[weak] ** 2)) < 0.7

@@ -8,7 +8,7 @@ truth: true RMS / stated RMS and the share beyond 3 stated sigma.
 
 Run (heavy: a whole tiny run per seed, ~5 min, plus the dense stage, 1-2 min; take the lock):
     flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense_dem.py
-        --workdir /tmp/dense_dem --seeds 42 7 [--run 42=/path/to/run]   (one command line)
+        --workdir /tmp/dense_dem --seeds 42 7 [--run 42=/path/to/run] [--dense refine_window=7]   (one command line)
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 
 TINY_CONFIG = Path(__file__).resolve().parents[1] / "tiny.yaml"
 
@@ -49,12 +48,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--workdir", type=Path, required=True)
     ap.add_argument("--seeds", type=int, nargs="+", default=[42, 7])
     ap.add_argument("--run", action="append", default=[], help="SEED=RUN: an existing tiny run of that seed")
+    ap.add_argument("--dense", action="append", default=[], metavar="KEY=VALUE",
+                    help="a dense.* key for the dense run (YAML value), e.g. refine_window=7; repeatable")
     args = ap.parse_args(argv)
+    import yaml
+
+    dense_keys = {k: yaml.safe_load(v) for k, v in (d.split("=", 1) for d in args.dense)}
     given = {int(k): Path(v) for k, v in (r.split("=", 1) for r in args.run)}
-    print(f"# bench_dense_dem {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    print(f"# bench_dense_dem {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} dense: {dense_keys}")
     print("| seed | points | parts / chips | dense RMSE (bias) m | sparse RMSE (bias) m | ratio | true/stated | > 3 sigma "
-          "| stage s |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| stage s | dense alone RMSE (ratio) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         root = args.workdir / f"seed{seed}"
         run = root / "dense_run"
@@ -67,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
             if not (mission / "catalog.parquet").exists():
                 generate_mission(mission, SynthConfig(preset="tiny", seed=seed))
             run_pipeline(mission, run, tiny_config(), scheduler="sync", stream=None)
-        rep = run_pipeline(mission, run, tiny_config(dense={"enabled": True}), scheduler="sync", stream=None,
+        rep = run_pipeline(mission, run, tiny_config(dense={"enabled": True, **dense_keys}), scheduler="sync", stream=None,
                            force="dense")
         d, v = rep["dense"], rep["validation"]["dem"]
         a, b = v["dense_on_dense_pixels"], v["sparse_on_dense_pixels"]
@@ -76,9 +80,11 @@ def main(argv: list[str] | None = None) -> None:
         sig = cloud["sigma_h_m"].astype(np.float64)
         ratio = float(np.sqrt(np.mean(err**2) / np.mean(sig**2)))
         beyond = float(np.mean(np.abs(err) > 3 * sig))
+        c = v.get("dense_alone_on_dense_pixels")  # before the fusion with the sparse DEM (dense.sparse_sigma_m)
+        alone = f"{c['rmse_m']:.0f} ({c['rmse_m'] / b['rmse_m']:.2f})" if c else "-"
         print(f"| {seed} | {d['points']} | {d.get('chip_parts')} / {d['chips']} | {a['rmse_m']:.0f} ({a['bias_m']:+.0f}) "
               f"| {b['rmse_m']:.0f} ({b['bias_m']:+.0f}) | {d['dem']['rmse_ratio_dense_over_sparse']:.2f} | {ratio:.2f} "
-              f"| {100 * beyond:.2f} % | {rep['timings']['dense']:.0f} |", flush=True)
+              f"| {100 * beyond:.2f} % | {rep['timings']['dense']:.0f} | {alone} |", flush=True)
 
 
 if __name__ == "__main__":
