@@ -120,7 +120,7 @@ def adjust_unit_network(
     from mercury_dem.adjust.report import text_report
 
     ids = np.asarray(network.image_ids).astype(str)
-    cfg, no_measures = unit_config(config, ids, network.measure_image)
+    cfg, no_measures = unit_config(config, ids.tolist(), network.measure_image)
     problem, measure_index = problem_from_network(
         network, cameras, positions, rotations, cfg, initial_rotations=initial_rotations
     )

@@ -98,8 +98,17 @@ class Progress:
 EXECUTION_ONLY_SECTIONS = frozenset({"execution"})
 
 
-def changed_sections(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
-    """The configuration sections whose values differ and that change results (execution-only ones skipped)."""
+def changed_sections(before: dict[str, Any], after: dict[str, Any],
+                     defaults: dict[str, Any] | None = None) -> list[str]:
+    """The configuration sections whose values differ and that change results (execution-only ones skipped).
+
+    ``defaults`` (the default configuration as a dict): a key missing from a section of ``before`` (a parameter
+    added since that run was made, e.g. ``adjust.rms_flag_px``) counts as its default value, so a run resumes
+    with a newer version as long as the new parameters keep their defaults.
+    """
+    defaults = defaults or {}
+    before = {k: ({**defaults[k], **v} if isinstance(v, dict) and isinstance(defaults.get(k), dict) else v)
+              for k, v in before.items()}
     keys = (set(before) | set(after)) - EXECUTION_ONLY_SECTIONS
     return sorted(k for k in keys if before.get(k) != after.get(k))
 
@@ -123,7 +132,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             raise StoreError(
                 f"{out} holds a run of mission {prev.get('mission')}, not {mission_abs}; choose another --out"
             )
-        changed = changed_sections(prev.get("config") or {}, to_dict(config))
+        changed = changed_sections(prev.get("config") or {}, to_dict(config), to_dict(Config()))
         if changed and force is None:
             raise StoreError(
                 f"{out} was run with a different configuration (section{'s' if len(changed) > 1 else ''} "
