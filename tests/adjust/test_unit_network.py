@@ -30,6 +30,7 @@ def _unit(seed: int) -> tuple[SyntheticNetwork, ControlNetwork, list[Any]]:
 
 @pytest.fixture(scope="module")
 def unit() -> tuple[SyntheticNetwork, ControlNetwork, list[Any]]:
+    """The synthetic unit of seed 3 (clean, 0.25 px noise), made once."""
     return _unit(3)
 
 
@@ -41,6 +42,7 @@ def _adjust(unit: tuple[SyntheticNetwork, ControlNetwork, list[Any]], cfg: Adjus
 
 @pytest.mark.parametrize("seed", [3, 29])  # 3 (and 11) looked at when writing the bounds; 29 not
 def test_residuals_come_down_to_the_injected_noise(seed: int) -> None:
+    """Residual RMS = noise x sqrt(redundancy); the relative pointing error falls 4x; nothing flagged."""
     unit = _unit(seed)
     adj = _adjust(unit)
     s = adj.summary
@@ -62,6 +64,7 @@ def test_residuals_come_down_to_the_injected_noise(seed: int) -> None:
 
 
 def test_rms_flag_px_is_the_configured_threshold(unit: tuple[SyntheticNetwork, ControlNetwork, list[Any]]) -> None:
+    """``adjust.rms_flag_px`` decides which images are flagged (default 2 px)."""
     base = _adjust(unit)
     threshold = float(np.median(base.image_rms_px))
     flagged = _adjust(unit, AdjustConfig(**{**CFG.__dict__, "rms_flag_px": threshold})).summary["flagged_images"]
@@ -72,6 +75,7 @@ def test_rms_flag_px_is_the_configured_threshold(unit: tuple[SyntheticNetwork, C
 
 
 def test_flagged_images_ignores_nan() -> None:
+    """An image without an RMS (NaN) is not flagged."""
     ids = np.array(["a", "b", "c"])
     assert flagged_images(ids, np.array([3.0, np.nan, 1.0]), 2.0) == [{"image": "a", "rms_px": 3.0}]
 
@@ -95,6 +99,7 @@ class _Heights:
 
 def test_the_levelling_decision_and_the_shots_are_the_height_terms(
         unit: tuple[SyntheticNetwork, ControlNetwork, list[Any]]) -> None:
+    """The levelling decision and the shots' adjustment come from the HeightTerms, in that order."""
     cfg = AdjustConfig(**{**CFG.__dict__, "point_prior_center": "datum", "max_iterations": 5})
     h = _Heights(recentre=True, shots=True)
     s = _adjust(unit, cfg, heights=h, recentre_point_priors=True).summary
@@ -120,6 +125,7 @@ class _Shape:
 
 def test_points_on_a_shape_take_its_sigma_and_are_not_recentred(
         unit: tuple[SyntheticNetwork, ControlNetwork, list[Any]]) -> None:
+    """On a body's shape: its sigma, no re-centring (the reason names the shape); without one, the datum."""
     cfg = AdjustConfig(**{**CFG.__dict__, "point_prior_center": "shape", "max_iterations": 5})
     h = _Heights(recentre=True, shots=False)
     s = _adjust(unit, cfg, heights=h, recentre_point_priors=True, prior_shape=_Shape()).summary

@@ -6,6 +6,7 @@ from mercury_dem.match.result import PairFailure, PairReport, failed_result, fai
 
 
 def test_a_failed_result_carries_its_kind_and_the_kinds_status() -> None:
+    """A failed result has its kind and the kind's status (skipped or failed)."""
     r = failed_result(PairReport("a", "b"), PairFailure.TOO_FEW_MATCHES, "too few matches: 3 < min_matches 20")
     assert (r.report.status, r.report.failure) == ("failed", "too_few_matches")
     assert r.points_ref.shape == (0, 2) and r.report.as_row()["failure"] == "too_few_matches"
@@ -17,6 +18,7 @@ def test_a_failed_result_carries_its_kind_and_the_kinds_status() -> None:
 
 
 def test_failures_are_counted_by_kind_whatever_their_text() -> None:
+    """Counts by kind, whatever the numbers in the text; redundant pairs apart."""
     reports = [PairReport(status="matched", n_matches=50)]
     for kind, text in ((PairFailure.TOO_FEW_MATCHES, "too few matches: 3 < min_matches 20 (chain 9->5)"),
                        (PairFailure.TOO_FEW_MATCHES, "too few matches: 12 < min_matches 20 (chain 40->12)"),

@@ -145,10 +145,10 @@ def test_an_image_without_measures_is_held_not_fatal(degenerate_run: tuple[Path,
     """``adjust_unit_network`` on a network (as imported or edited) holding an image with no measure: before, the
     whole solve was an AdjustmentError ("1 images have no measures"); now the image is held at its a-priori
     pose, named, and the others come out as without it."""
+    from mercury_dem.adjust.unit import adjust_unit_network
     from mercury_dem.config import load_config
     from mercury_dem.io.network_store import read_network
     from mercury_dem.mission import open_mission
-    from mercury_dem.adjust.unit import adjust_unit_network
     from mercury_dem.pipeline.stages import adjust_config_for
 
     mission_path, run, _ = degenerate_run

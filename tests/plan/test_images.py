@@ -19,6 +19,7 @@ def _nadir(lat: float, lon: float, alt_m: float = 500e3) -> tuple[np.ndarray, np
 
 
 def test_images_are_tiled_by_their_centres_and_overlapping_usable_ones_paired() -> None:
+    """Tiles and regions by centre; a missing centre excluded with its reason; only usable overlapping images paired."""
     lat = np.array([1.0, 1.05, 40.0, np.nan, 1.02])
     lon = np.array([2.0, 2.05, 100.0, 3.0, 2.01])
     ids = np.array(["a", "b", "c", "no_centre", "bad_pose"])

@@ -102,14 +102,14 @@ def main(argv=None):
     ap.add_argument("--json")
     args = ap.parse_args(argv)
 
+    from mercury_dem.adjust.unit import adjust_unit_network
+    from mercury_dem.altimetry.unit_terms import AltimetryTerms
     from mercury_dem.config import Config
     from mercury_dem.config.base import from_dict
     from mercury_dem.io.network_store import read_network
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.mission.store import open_mission
     from mercury_dem.network.merge import merge_networks
-    from mercury_dem.adjust.unit import adjust_unit_network
-    from mercury_dem.altimetry.unit_terms import AltimetryTerms
     from mercury_dem.pipeline.stages import adjust_config_for, reconcile_solutions, unit_altimetry
     from mercury_dem.validate.run import per_image_pointing, true_point_positions
 
