@@ -1,7 +1,7 @@
 """``blocked_bundle_adjust``: :func:`~mercury_dem.adjust.bundle.bundle_adjust`'s contract over point blocks.
 
 The pipeline's hemisphere and global units use it once they exceed
-``adjust.blocked_min_measures`` (:func:`mercury_dem.pipeline.adjust_adapter.adjust_network`):
+``adjust.blocked_min_measures`` (:func:`mercury_dem.adjust.unit.adjust_unit_network`):
 the problem is cut into blocks of consecutive points, run through the blocked
 Levenberg-Marquardt loop (:func:`~mercury_dem.adjust.blocked.blocked_levenberg_marquardt`,
 in this process: :class:`~mercury_dem.adjust.blocked.SyncEngine`) and the blocks' state

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-__all__ = ["LevellingDecision", "block_extent_deg", "centre_point_priors", "levelling_decision", "neighbour_radii",
+__all__ = ["LevellingDecision", "block_extent_deg", "centre_point_priors", "levelling_decision", "neighbour_radii", "recentres",
            "on_datum", "recentre_on_block"]
 
 
@@ -228,6 +228,15 @@ def levelling_decision(points_xyz: ArrayLike, altimetry_constrained: ArrayLike |
                   "re-centred on its own surface, levelled on the shots' mean if registered")
     return LevellingDecision(recentre=wide and not held, level_to_mean=not held,
                              extent_deg=extent, altimetry_share=share, reason=reason)
+
+
+def recentres(decision: LevellingDecision, cfg: Any) -> bool:
+    """Whether the radius constraints are re-centred on the block (one more adjustment before the solve).
+
+    When the decision says so and there is a radius constraint to centre (``cfg.radius_sigma_m`` set:
+    without one there is nothing to move).
+    """
+    return bool(decision.recentre and cfg.radius_sigma_m is not None)
 
 
 def recentre_on_block(problem: Any, cfg: Any, datum_radius_m: float,

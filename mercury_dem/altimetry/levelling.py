@@ -3,7 +3,7 @@
 The rule is :func:`mercury_dem.adjust.datum.levelling_decision` (a block wide enough to carry its own surface,
 not mostly held by the altimetry); what it needs from the altimetry — which tie points the shots would
 constrain — is counted here, which is why the decision lives in ``altimetry/`` (which imports ``adjust/``)
-and not in ``adjust/`` or the stage runner (:mod:`mercury_dem.pipeline.adjust_adapter` only calls it).
+and not in ``adjust/`` or the stage runner (:mod:`mercury_dem.altimetry.unit_terms` passes it to :func:`mercury_dem.adjust.unit.adjust_unit_network`).
 Pure: arrays and dataclasses in and out.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from mercury_dem.adjust.datum import LevellingDecision, levelling_decision
+from mercury_dem.adjust.datum import LevellingDecision, levelling_decision, recentres  # recentres: re-exported
 from mercury_dem.altimetry.constraints import AltimetryShotsArrays, radius_priors_within
 from mercury_dem.config.adjust import AdjustConfig
 
@@ -46,12 +46,3 @@ def levelling_for(points_xyz: ArrayLike, cfg: AdjustConfig,
         ).constrained
     return levelling_decision(pts, constrained, min_extent_deg=cfg.point_prior_recentre_min_extent_deg,
                               max_altimetry_share=cfg.point_prior_recentre_max_altimetry_share)
-
-
-def recentres(decision: LevellingDecision, cfg: AdjustConfig) -> bool:
-    """Whether the radius constraints are re-centred on the block (one more adjustment before the solve).
-
-    When the decision says so and there is a radius constraint to centre (``cfg.radius_sigma_m`` set:
-    without one there is nothing to move).
-    """
-    return bool(decision.recentre and cfg.radius_sigma_m is not None)

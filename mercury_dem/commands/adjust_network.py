@@ -33,7 +33,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     import numpy as np
 
     from mercury_dem.config.apriori import missionless_pointing_sigma_urad
-    from mercury_dem.pipeline.network_adjust import adjust_network_store
+    from mercury_dem.pipeline.network_adjust import adjust_blocked_store
 
     # no mission here: apriori.pointing_sigma_urad when set, else the mission-less default (0.2 deg)
     sigma_urad = missionless_pointing_sigma_urad(config.apriori.pointing_sigma_urad)
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     if args.max_iterations:
         cfg = dataclasses.replace(cfg, max_iterations=args.max_iterations)
     if args.sync:
-        record = adjust_network_store(args.store, cfg, pointing_sigma_urad=sigma_urad)
+        record = adjust_blocked_store(args.store, cfg, pointing_sigma_urad=sigma_urad)
     else:
         from mercury_dem.compute import open_client
 
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
         # than in process (measured on a 4e5-measure store, 2 workers, 4 alternating runs); without it, as fast.
         with open_client(args.workers or 2, args.scheduler, host=config.execution.host,
                          nanny_environ={"MALLOC_TRIM_THRESHOLD_": None}) as client:
-            record = adjust_network_store(args.store, cfg, client, pointing_sigma_urad=sigma_urad)
+            record = adjust_blocked_store(args.store, cfg, client, pointing_sigma_urad=sigma_urad)
     if args.json:
         print(json.dumps(record, indent=2, default=float))
         return 0

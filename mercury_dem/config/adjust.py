@@ -132,5 +132,7 @@ class AdjustConfig(ConfigSection):
         "evaluations a trial: docs/benchmarks/adjust.md)"
     )
     # -- outputs ----------------------------------------------------------------
+    rms_flag_px: float = param(2.0, "Images whose RMS residual exceeds this are flagged in the unit's summary "
+                               "(flagged_images in report.json); the solution is not changed", unit="px", lo=0.0)
     posterior_sigmas: bool = param(False, "Compute a-posteriori sigmas of images and points (small networks)")
     posterior_max_unknowns: int = param(6000, "Skip a-posteriori sigmas above this many camera unknowns", lo=1)

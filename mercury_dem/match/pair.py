@@ -57,7 +57,7 @@ from mercury_dem.match.pretransform import (
     warp_to_reference,
 )
 from mercury_dem.match.refine import refine_matches_adaptive
-from mercury_dem.match.result import Matches, PairReport, PairResult, failed_result
+from mercury_dem.match.result import Matches, PairFailure, PairReport, PairResult, failed_result
 
 
 @dataclass(frozen=True)
@@ -177,32 +177,32 @@ def match_in_pair_frame(
     if rf is None:
         rf = prepare_image(ref_image, (cam_r.lines, cam_r.samples), config, describe=False)
     if not rf.quality.ok:
-        return failed_result(rep, f"reference image {rep.ref_id}: {rf.quality.reason}")
+        return failed_result(rep, PairFailure.IMAGE_UNUSABLE, f"reference image {rep.ref_id}: {rf.quality.reason}")
     if mf is None:
         mf = prepare_image(match_image, (cam_m.lines, cam_m.samples), config, describe=False)
     if not mf.quality.ok:
-        return failed_result(rep, f"match image {rep.match_id}: {mf.quality.reason}")
+        return failed_result(rep, PairFailure.IMAGE_UNUSABLE, f"match image {rep.match_id}: {mf.quality.reason}")
 
     pg = configured_pair_geometry(ref_geom, match_geom, config, pointing_sigma_urad)
     if isinstance(pg, str):
-        return failed_result(rep, pg)
+        return failed_result(rep, PairFailure.NO_PRETRANSFORM, pg)
     record_geometry(rep, pg)
     if rep.incidence_difference_deg > config.max_incidence_difference_deg:
-        return failed_result(rep, f"incidence differs by {rep.incidence_difference_deg:.0f} deg "
-                     f"> max_incidence_difference_deg {config.max_incidence_difference_deg:g}", "skipped")
+        return failed_result(rep, PairFailure.INCIDENCE, f"incidence differs by {rep.incidence_difference_deg:.0f} deg "
+                     f"> max_incidence_difference_deg {config.max_incidence_difference_deg:g}")
     if pg.sun_azimuth_difference_deg > config.max_sun_azimuth_difference_deg:
-        return failed_result(rep, f"sun azimuth differs by {pg.sun_azimuth_difference_deg:.0f} deg "
-                     f"> max_sun_azimuth_difference_deg {config.max_sun_azimuth_difference_deg:g}", "skipped")
+        return failed_result(rep, PairFailure.SUN_AZIMUTH, f"sun azimuth differs by {pg.sun_azimuth_difference_deg:.0f} deg "
+                     f"> max_sun_azimuth_difference_deg {config.max_sun_azimuth_difference_deg:g}")
     if pg.convergence_deg > config.max_convergence_deg:
-        return failed_result(rep, f"views converge by {pg.convergence_deg:.0f} deg "
-                     f"> max_convergence_deg {config.max_convergence_deg:g}", "skipped")
+        return failed_result(rep, PairFailure.CONVERGENCE, f"views converge by {pg.convergence_deg:.0f} deg "
+                     f"> max_convergence_deg {config.max_convergence_deg:g}")
 
     # The coarser image stays in its own geometry; the finer one is warped (low-passed) onto it.
     swap = config.warp_finer and pg.match_px_per_ref_px < 1.0 / config.swap_scale_ratio
     if swap:
         pg2 = configured_pair_geometry(match_geom, ref_geom, config, pointing_sigma_urad)
         if isinstance(pg2, str):
-            return failed_result(rep, pg2)
+            return failed_result(rep, PairFailure.NO_PRETRANSFORM, pg2)
         pg, base, other, base_geom, other_geom = pg2, mf, rf, match_geom, ref_geom
         rep.own_geometry = "match"
     else:
@@ -228,7 +228,7 @@ def finish_pair(st: PairState, config: MatchConfig, rep: PairReport) -> PairResu
     pm = pm[inside]
     n = int(st.pa.shape[0])
     if n < config.min_matches:
-        return failed_result(rep, f"too few matches: {n} < min_matches {config.min_matches} "
+        return failed_result(rep, PairFailure.TOO_FEW_MATCHES, f"too few matches: {n} < min_matches {config.min_matches} "
                      f"(chain {rep.n_ratio}->{rep.n_symmetry}->{rep.n_fundamental}->{rep.n_homography}, "
                      f"ncc {rep.n_ncc}->{rep.n_ncc_homography})")
     rep.status, rep.n_matches = "matched", n

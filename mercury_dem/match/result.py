@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -19,6 +20,29 @@ ROUTES = ("guided", "descriptor", "ncc", "none")
 STATUSES = ("matched", "failed", "skipped")
 
 
+class PairFailure(StrEnum):
+    """Why a pair gave no matches (``PairReport.failure``), set where the failure is found; the run counts pairs
+    by it (a tile's ``pair_failures``) and nothing reads the human-readable ``reason`` to sort them.
+    """
+
+    IMAGE_MISSING = "image_missing"  # an image of the pair has no pixels or no geometry in the tile
+    IMAGE_UNUSABLE = "image_unusable"  # blank, saturated, textureless, wrong size (ImageQuality)
+    NO_PRETRANSFORM = "no_pretransform"  # the a-priori geometry gives no overlap or no homography
+    INCIDENCE = "incidence"  # skipped: incidence angles differ by more than max_incidence_difference_deg
+    SUN_AZIMUTH = "sun_azimuth"  # skipped: sun azimuths differ by more than max_sun_azimuth_difference_deg
+    CONVERGENCE = "convergence"  # skipped: views converge by more than max_convergence_deg
+    REDUNDANT = "redundant"  # skipped: a narrower route of matched pairs joins its images (match.selection)
+    TOO_FEW_MATCHES = "too_few_matches"  # the chain kept fewer than min_matches
+
+    @property
+    def status(self) -> str:
+        """The pair's ``status``: ``skipped`` (not tried, by a configured rule) or ``failed``."""
+        return "skipped" if self in _SKIPPED else "failed"
+
+
+_SKIPPED = frozenset({PairFailure.INCIDENCE, PairFailure.SUN_AZIMUTH, PairFailure.CONVERGENCE, PairFailure.REDUNDANT})
+
+
 @dataclass
 class PairReport:
     """One row of the tile's pair report (see ``docs/design/match.md`` for every field)."""
@@ -28,6 +52,7 @@ class PairReport:
     status: str = "failed"
     route: str = "none"
     reason: str = ""
+    failure: str = ""  # a PairFailure's value ("" when matched): what kind of failure ``reason`` describes
     own_geometry: str = ""
     overlap_apriori: float = float("nan")
     scale_ratio: float = float("nan")
@@ -150,9 +175,9 @@ class TileMatches:
         return {k: v for k, v in asdict(self).items() if k != "image_ids"}
 
 
-def failed_result(report: PairReport, reason: str, status: str = "failed") -> PairResult:
-    """A pair without matches: ``report`` gets the status (``failed`` or ``skipped``) and the reason."""
-    report.status, report.reason = status, reason
+def failed_result(report: PairReport, kind: PairFailure, reason: str) -> PairResult:
+    """A pair without matches: ``report`` gets the kind's status (``failed`` or ``skipped``), the kind and the reason."""
+    report.status, report.failure, report.reason = kind.status, kind.value, reason
     z = np.zeros((0, 2))
     return PairResult(z, z.copy(), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), report)
 
@@ -196,3 +221,19 @@ def iter_rows(reports: Sequence[PairReport]) -> Iterator[dict[str, Any]]:
     """Report rows as plain dicts (for a DataFrame or JSON)."""
     for r in reports:
         yield r.as_row()
+
+
+def failure_counts(reports: Sequence[PairReport]) -> tuple[dict[str, int], int]:
+    """How many pairs failed, by :class:`PairFailure` value (in order of first occurrence), and how many were
+    skipped as redundant (not tried: a narrower route joins their images; counted apart from the failures).
+    """
+    failures: dict[str, int] = {}
+    redundant = 0
+    for r in reports:
+        if r.status == "matched":
+            continue
+        if r.failure == PairFailure.REDUNDANT:
+            redundant += 1
+        else:
+            failures[r.failure] = failures.get(r.failure, 0) + 1
+    return failures, redundant

@@ -41,7 +41,7 @@ from mercury_dem.match.propagation import (
     propagate_into,
     thin,
 )
-from mercury_dem.match.result import PairReport, PairResult, TileMatches, failed_result, tile_matches
+from mercury_dem.match.result import PairFailure, PairReport, PairResult, TileMatches, failed_result, tile_matches
 from mercury_dem.match.selection import pair_convergence, redundant_reason, wide_pairs
 
 #: Memory the warped partners of a tile may take between phases 1 and 2 (bytes): within it every
@@ -124,7 +124,7 @@ def match_tile(
         rep = PairReport(ref_id=a, match_id=b)
         missing = [x for x in (a, b) if x not in index or x not in geometry]
         if missing:
-            return rep, failed_result(rep, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
+            return rep, failed_result(rep, PairFailure.IMAGE_MISSING, f"image {missing[0]} has no {'pixels' if missing[0] not in index else 'geometry'} in this tile")
         t0 = time.perf_counter()
         out = match_in_pair_frame(images[a], images[b], geometry[a], geometry[b], config, prepared[a], prepared[b],
                                   rep, keep_warped=keep_warped, pointing_sigma_urad=pointing_sigma_urad)
@@ -189,7 +189,7 @@ def match_tile(
                 pg = configured_pair_geometry(geometry[pairs[k][0]], geometry[pairs[k][1]], config, pointing_sigma_urad)
                 if not isinstance(pg, str):  # a wide pair has a geometry (its convergence came from it)
                     record_geometry(rep, pg)
-                return rep, failed_result(rep, why, "skipped")
+                return rep, failed_result(rep, PairFailure.REDUNDANT, why)
 
             later = [k for k in range(len(pairs)) if wide[k]]
             done.update(zip(later, pmap(run_wide, later)))

@@ -5,7 +5,7 @@ the adjusted network, a bundleout-style report and corrected ISDs out.
 pixels become ours there), reads the cameras' geometry only (cubes with SPICE attached,
 CSM ISDs; no pixel is read), matches serial numbers (:mod:`mercury_dem.network.jigsaw`),
 takes a-priori points from the network or triangulates them, runs the project's bundle
-adjustment (:func:`~mercury_dem.pipeline.adjust_adapter.adjust_network`, outlier
+adjustment (:func:`~mercury_dem.adjust.unit.adjust_unit_network`, outlier
 rejection as configured, datum radius of the cameras' body), and writes atomically:
 
 * ``OUT.net`` — ISIS v5: the input's points and measures, ids, types and a-priori values,
@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -149,15 +150,45 @@ def run_adjust_isis(
     attach=true"), a malformed serials CSV, a serial number without a camera when
     ``require_all``, or no measure left to adjust.
     """
-    from mercury_dem.io.isis_net import read_isis_network, write_isis_network
-    from mercury_dem.network.build import triangulate_points
-    from mercury_dem.network.jigsaw import camera_keys_with_serials, cut_adjustable, match_serials, merge_adjustment
-    from mercury_dem.pipeline.adjust_adapter import adjust_network
+    from mercury_dem.adjust.unit import adjust_unit_network
+    from mercury_dem.io.isis_net import write_isis_network
+    from mercury_dem.network.jigsaw import merge_adjustment
 
     t0 = time.perf_counter()
     net_path, out_path = Path(net_path), Path(out_path)
     if out_path.suffix.lower() != ".net":
         raise AdjustIsisError(f"output {out_path}: give a .net file name (the report and ISDs are named after it)")
+    network, images, match = _network_and_cameras(net_path, camera_files, serials_csv, require_all)
+    job = _adjustable(net_path, network, images, match)
+    body = images[0].body
+    adj = adjust_unit_network(job.network, job.cameras, job.positions, job.rotations, config,
+                              pointing_sigma_urad=pointing_sigma_urad, datum_radius_m=body.datum_radius_m)
+    adjusted = adj.network.replace(apriori_xyz=np.where(job.unplaced[:, None], np.nan, adj.network.apriori_xyz))
+    result = merge_adjustment(network, job.cut, adjusted, min_point_measures=2)
+
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    report_path = out_path.with_name(out_path.stem + "_bundleout.txt")
+    written: dict[str, str] = {}
+    skipped: dict[str, str] = {}
+    if write_isds:
+        written, skipped = _isd_outputs(images, adj.rotations, adj.positions, job.cut.camera_index,
+                                        out_path.with_name(out_path.stem + "_isds"))
+    summary = _summary(net_path, out_path, report_path, camera_files, network, job, match, adj, result)
+    summary.update(isds=written, isds_not_written=skipped)
+    summary = {k: summary[k] for k in _SUMMARY_KEYS if k in summary}  # the summary's key order
+    write_isis_network(result, out_path, version=5, target_name=body.name.capitalize(),
+                       description=f"adjusted by mercury-dem adjust-isis from {net_path.name}")
+    summary["seconds"] = time.perf_counter() - t0
+    atomic_write_text(report_path, _report_header(summary) + adj.text_report)
+    return summary
+
+
+def _network_and_cameras(net_path: Path, camera_files: Sequence[str | Path], serials_csv: str | Path | None,
+                         require_all: bool) -> tuple[Any, list[Any], Any]:
+    """The network, the cameras (one body) and the match of its serial numbers to them; each fault named."""
+    from mercury_dem.io.isis_net import read_isis_network
+    from mercury_dem.network.jigsaw import camera_keys_with_serials, match_serials
+
     network = read_isis_network(net_path)
     if network.n_points == 0 or network.n_measures == 0:
         raise NetworkError(f"{net_path}: the network is empty ({network.n_points} points, {network.n_measures} "
@@ -169,7 +200,6 @@ def run_adjust_isis(
     if len(bodies) > 1:
         raise AdjustIsisError(f"the cameras see different bodies ({', '.join(bodies)}): "
                               + "; ".join(f"{im.files[0]}: {im.body.name}" for im in images))
-    body = images[0].body
     given = load_serials(serials_csv, camera_files) if serials_csv is not None else {}
     keys = camera_keys_with_serials([im.image_id for im in images], [im.serial_number for im in images], given)
     match = match_serials(network, keys)
@@ -183,6 +213,29 @@ def run_adjust_isis(
         raise AdjustIsisError(
             f"{net_path}: none of its {network.n_images} serial numbers (e.g. {str(network.image_ids[0])!r}) matches a "
             f"camera ({known}); give the network's cubes or ISDs, or map files to serials with --serials")
+    return network, images, match
+
+
+@dataclass(frozen=True)
+class _Adjustable:
+    """The part of the network with cameras, ready to adjust: points placed a priori where they can be."""
+
+    cut: Any  # network.jigsaw cut: the sub-network and the camera of each of its images
+    network: Any  # the sub-network, image ids those of its cameras
+    images: list[Any]  # SourceImage of each of its images
+    cameras: list[Any]
+    positions: np.ndarray
+    rotations: np.ndarray
+    triangulated: int  # points without a-priori coordinates, triangulated
+    unplaced: np.ndarray  # (P,) bool, points with neither (ignored in the adjustment)
+    outside: dict[str, int]  # measures beyond their image's pixels, per image id
+
+
+def _adjustable(net_path: Path, network: Any, images: list[Any], match: Any) -> _Adjustable:
+    """Cut the network to the images with cameras; points without a-priori coordinates are triangulated."""
+    from mercury_dem.network.build import triangulate_points
+    from mercury_dem.network.jigsaw import cut_adjustable
+
     cut = cut_adjustable(network, match.camera_of_image, min_point_measures=2)
     sub = cut.network
     cams = [images[c] for c in cut.camera_index.tolist()]
@@ -195,50 +248,40 @@ def run_adjust_isis(
     triangulated = 0
     if missing.any():
         xyz, _ = triangulate_points(sub.measure_point, sub.measure_image, sub.pixels(), cameras, positions,
-                                    rotations, sub.n_points, datum_radius_m=body.datum_radius_m)
+                                    rotations, sub.n_points, datum_radius_m=images[0].body.datum_radius_m)
         apriori[missing] = xyz[missing]
         triangulated = int(np.sum(missing & np.all(np.isfinite(xyz), axis=1)))
     unplaced = ~np.all(np.isfinite(apriori), axis=1)
     sub = sub.replace(apriori_xyz=np.where(unplaced[:, None], 0.0, apriori), point_ignored=unplaced)
     sub = sub.replace(image_ids=np.array([im.image_id for im in cams]))
-    adj = adjust_network(sub, cameras, positions, rotations, config, pointing_sigma_urad=pointing_sigma_urad,
-                         datum_radius_m=body.datum_radius_m)
-    adjusted = adj.network.replace(apriori_xyz=np.where(unplaced[:, None], np.nan, adj.network.apriori_xyz))
-    result = merge_adjustment(network, cut, adjusted, min_point_measures=2)
+    return _Adjustable(cut, sub, cams, cameras, positions, rotations, triangulated, unplaced, outside)
 
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    report_path = out_path.with_name(out_path.stem + "_bundleout.txt")
-    isd_dir = out_path.with_name(out_path.stem + "_isds")
-    written: dict[str, str] = {}
-    skipped: dict[str, str] = {}
-    if write_isds:
-        written, skipped = _isd_outputs(images, adj.rotations, adj.positions, cut.camera_index, isd_dir)
+
+_SUMMARY_KEYS = ("network", "out", "body", "images", "points", "measures", "iterations", "converged", "sigma0",
+                 "rms_px", "initial_rms_px", "rejected", "rejected_points", "triangulated_points", "unplaced_points",
+                 "unmatched_serials", "measures_outside_image", "unused_cameras", "cameras", "image_rms_px",
+                 "bundleout", "isds", "isds_not_written", "flagged_images", "islands", "warning")
+
+
+def _summary(net_path: Path, out_path: Path, report_path: Path, camera_files: Sequence[str | Path], network: Any,
+             job: _Adjustable, match: Any, adj: Any, result: Any) -> dict[str, Any]:
+    """The summary of an adjust-isis run (the ISDs written are added by the caller)."""
     s = adj.summary
+    body = job.images[0].body
     summary: dict[str, Any] = {
-        "network": str(net_path),
-        "out": str(out_path),
-        "body": body.name,
-        "images": s["images"],
-        "points": s["points"],
-        "measures": s["measures"],
-        "iterations": s["iterations"],
-        "converged": s["converged"],
-        "sigma0": s["sigma0"],
-        "rms_px": s["rms_px"],
-        "initial_rms_px": s["initial_rms_px"],
-        "rejected": s["rejected"],
+        "network": str(net_path), "out": str(out_path), "body": body.name,
+        **{k: s[k] for k in ("images", "points", "measures", "iterations", "converged", "sigma0", "rms_px",
+                             "initial_rms_px", "rejected")},
         "rejected_points": int(result.point_rejected.sum()),
-        "triangulated_points": triangulated,
-        "unplaced_points": int(unplaced.sum()),
+        "triangulated_points": job.triangulated,
+        "unplaced_points": int(job.unplaced.sum()),
         "unmatched_serials": match.unmatched,
-        "measures_outside_image": outside,
+        "measures_outside_image": job.outside,
         "unused_cameras": [str(camera_files[c]) for c in match.unused_cameras],
         "cameras": {im.image_id: {"file": im.files[0], "serial_number": im.serial_number,
-                                  "distortion": im.camera.distortion_model} for im in cams},
-        "image_rms_px": {im.image_id: float(r) for im, r in zip(cams, adj.image_rms_px)},
+                                  "distortion": im.camera.distortion_model} for im in job.images},
+        "image_rms_px": {im.image_id: float(r) for im, r in zip(job.images, adj.image_rms_px)},
         "bundleout": str(report_path),
-        "isds": written,
-        "isds_not_written": skipped,
         "flagged_images": s["flagged_images"],
         "islands": s["islands"],
     }
@@ -246,10 +289,6 @@ def run_adjust_isis(
     if target and target.strip().upper() != body.name:
         summary["warning"] = (f"the network's TargetName is {target!r} but its cameras see {body.name}; "
                               f"{body.name} (datum radius {body.datum_radius_m:.0f} m) was used")
-    write_isis_network(result, out_path, version=5, target_name=body.name.capitalize(),
-                       description=f"adjusted by mercury-dem adjust-isis from {net_path.name}")
-    summary["seconds"] = time.perf_counter() - t0
-    atomic_write_text(report_path, _report_header(summary) + adj.text_report)
     return summary
 
 

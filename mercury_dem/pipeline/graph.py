@@ -101,8 +101,17 @@ class Progress:
 EXECUTION_ONLY_SECTIONS = frozenset({"execution"})
 
 
-def changed_sections(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
-    """The configuration sections whose values differ and that change results (execution-only ones skipped)."""
+def changed_sections(before: dict[str, Any], after: dict[str, Any],
+                     defaults: dict[str, Any] | None = None) -> list[str]:
+    """The configuration sections whose values differ and that change results (execution-only ones skipped).
+
+    ``defaults`` (the default configuration as a dict): a key missing from a section of ``before`` (a parameter
+    added since that run was made, e.g. ``adjust.rms_flag_px``) counts as its default value, so a run resumes
+    with a newer version as long as the new parameters keep their defaults.
+    """
+    defaults = defaults or {}
+    before = {k: ({**defaults[k], **v} if isinstance(v, dict) and isinstance(defaults.get(k), dict) else v)
+              for k, v in before.items()}
     keys = (set(before) | set(after)) - EXECUTION_ONLY_SECTIONS
     return sorted(k for k in keys if before.get(k) != after.get(k))
 
@@ -126,7 +135,7 @@ def prepare_store(mission_path: str | Path, out: str | Path, config: Config, for
             raise StoreError(
                 f"{out} holds a run of mission {prev.get('mission')}, not {mission_abs}; choose another --out"
             )
-        changed = changed_sections(prev.get("config") or {}, to_dict(config))
+        changed = changed_sections(prev.get("config") or {}, to_dict(config), to_dict(Config()))
         if changed and force is None:
             raise StoreError(
                 f"{out} was run with a different configuration (section{'s' if len(changed) > 1 else ''} "
@@ -232,37 +241,17 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
 
     own = connection is None
     conn = connection or connect(config.execution, scheduler, scheduler_file, workers, threads_per_worker, security)
-    client = conn.client
-    link = getattr(client, "dashboard_link", None)
-    info = store.read_run()
-    info["execution"] = {"mode": conn.mode, "description": conn.description}
-    info["dashboard_link"] = link
-    store.write_run(info)  # the run dashboard links to the Dask dashboard from here
-    if stream is not None:
-        print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
+    _announce(store, conn, stream)
     perf = performance_report(conn, str(store.performance_html))
-    watchdog = watch_workers(client, config.execution.no_worker_timeout_s, conn.scheduler_address)
-    summaries: dict[str, list[Summary]] = {k: [] for k in LEVELS}
+    watchdog = watch_workers(conn.client, config.execution.no_worker_timeout_s, conn.scheduler_address)
     try:
         with _cluster_loss(conn, out, watchdog, store), perf, watchdog or contextlib.nullcontext():
             stage[0] = "the adjustment cascade"
-            summaries, level_seconds = _run_cascade(client, conn, store, config, plan, stream, integrity)
+            summaries, level_seconds = _run_cascade(conn.client, conn, store, config, plan, stream, integrity)
             timings.update(level_seconds)
-            dem_summary = None
-            dense_summary: dict[str, Any] | None = None
             glob = summaries["global"][0] if summaries["global"] else None
-            if dem and glob is not None and glob.ok:
-                t = time.perf_counter()
-                from mercury_dem.pipeline.dem_run import run_dem_stage
-
-                stage[0] = "the DEM stage (dem.zarr, coverage.zarr, products)"
-                dem_summary = run_dem_stage(store, mission, config, client, stream)  # the cascade's client
-                timings["dem"] = time.perf_counter() - t
-                if config.dense.enabled:
-                    stage[0] = "the dense stage (dense.zarr, dem_dense.zarr)"
-                    t = time.perf_counter()
-                    dense_summary = _dense_stage(store, mission, config, client, stream, dem_summary)
-                    timings["dense"] = time.perf_counter() - t
+            products = _products(store, mission, config, conn.client, stream, timings, stage,
+                                 dem and glob is not None and glob.ok)
             if watchdog is not None and watchdog.error is not None:  # a stage that took its cancelled tasks
                 raise watchdog.error                                   # for failures of its own must not finish
     finally:
@@ -272,12 +261,49 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
             store.commit_performance_report()
     timings["total"] = time.perf_counter() - t_start
     stage[0] = "the report (RUN/report.json)"
+    dem_summary, dense_summary = products
     report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
     report["integrity"] = integrity
     if dense_summary is not None:
         report["dense"] = dense_summary
     write_report(store, report)
     return report
+
+
+def _announce(store: RunStore, conn: Connection, stream: TextIO | None) -> None:
+    """Record how the run executes in ``run.json`` (the run dashboard links to the Dask dashboard from there)
+    and say it on ``stream``.
+    """
+    link = getattr(conn.client, "dashboard_link", None)
+    info = store.read_run()
+    info["execution"] = {"mode": conn.mode, "description": conn.description}
+    info["dashboard_link"] = link
+    store.write_run(info)
+    if stream is not None:
+        print(f"mercury-dem run: {conn.description}" + (f"; dashboard {link}" if link else ""), file=stream, flush=True)
+
+
+def _products(store: RunStore, mission: Any, config: Config, client: ComputeClient, stream: TextIO | None,
+              timings: dict[str, float], stage: list[str], run_dem: bool,
+              ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """The DEM stage, then the dense stage when configured, on the cascade's client (when ``run_dem``: asked
+    for and the global adjustment succeeded); their summaries (None: not run).
+    """
+    if not run_dem:
+        return None, None
+    from mercury_dem.pipeline.dem_run import run_dem_stage
+
+    t = time.perf_counter()
+    stage[0] = "the DEM stage (dem.zarr, coverage.zarr, products)"
+    dem_summary = run_dem_stage(store, mission, config, client, stream)
+    timings["dem"] = time.perf_counter() - t
+    dense_summary: dict[str, Any] | None = None
+    if config.dense.enabled:
+        stage[0] = "the dense stage (dense.zarr, dem_dense.zarr)"
+        t = time.perf_counter()
+        dense_summary = _dense_stage(store, mission, config, client, stream, dem_summary)
+        timings["dense"] = time.perf_counter() - t
+    return dem_summary, dense_summary
 
 
 def _dense_stage(store: RunStore, mission: Any, config: Config, client: ComputeClient, stream: TextIO | None,
@@ -374,33 +400,93 @@ def _plan_corrupt(store: RunStore, integrity: dict[str, Any], stream: TextIO | N
 def _run_cascade(client: ComputeClient, conn: Connection, store: RunStore, config: Config, plan: dict[str, Any],
                  stream: TextIO | None, integrity: dict[str, Any] | None = None,
                  ) -> tuple[dict[str, list[Summary]], dict[str, float]]:
-    root = store.location  # tasks open the run from it: the bucket URL of a bucket run
-    retries = config.execution.retries
-    heavy = {"resources": {ADJUST_RESOURCE: 1}} if use_adjust_resource(conn, config, stream) else {}
-    tree = merge_tree(config.tiling.tile_size_deg, [int(t) for t in plan["non_empty_tiles"]])
-    done: dict[str, dict[int, Summary]] = {k: {} for k in LEVELS}
-    totals = tree.totals()
-    progress = Progress(totals, stream)
-    out: dict[str, list[Summary]] = {k: [] for k in totals}
-    recorded: set[str] = set()
-    sync = getattr(client, "synchronous", False)
-
+    """Submit the whole merge tree (units a previous run finished and that pass their checksums are read, not
+    resubmitted), record each unit's summary as it finishes, and return the summaries of each level in id
+    order with each level's seconds (:func:`level_seconds`).
+    """
     integrity = integrity if integrity is not None else {"verified_units": 0, "unverifiable_units": 0,
                                                          "corrupt": [], "verify_seconds": 0.0}
+    heavy = {"resources": {ADJUST_RESOURCE: 1}} if use_adjust_resource(conn, config, stream) else {}
+    tree = merge_tree(config.tiling.tile_size_deg, [int(t) for t in plan["non_empty_tiles"]])
+    cascade = _Cascade(client, store, Progress(tree.totals(), stream), integrity, stream)
+    try:
+        cascade.run(tree, config, heavy)
+    finally:
+        cascade.progress.close()
+    for lvl in cascade.out:
+        cascade.out[lvl].sort(key=lambda s: s.id)
+    return cascade.out, level_seconds(cascade.out, cascade.done, cascade.sync)
 
-    def record(level: str, uid: int, fut: Any) -> None:
+
+class _Cascade:
+    """The bookkeeping of one cascade: the units finished before (``done``), the summaries recorded (``out``),
+    the progress, and the checksums verified on resume (``integrity``).
+    """
+
+    def __init__(self, client: ComputeClient, store: RunStore, progress: Progress, integrity: dict[str, Any],
+                 stream: TextIO | None):
+        self.client, self.store, self.progress, self.integrity, self.stream = client, store, progress, integrity, stream
+        self.done: dict[str, dict[int, Summary]] = {k: {} for k in LEVELS}
+        self.out: dict[str, list[Summary]] = {k: [] for k in progress.totals}
+        self.recorded: set[str] = set()
+        self.sync = getattr(client, "synchronous", False)
+
+    def run(self, tree: Any, config: Config, heavy: dict[str, Any]) -> None:
+        """Submit the whole tree up front (a unit waits on its children's futures or their stored summaries) and
+        record the units as Dask reports them finished; a run-stopping error cancels what is not started.
+        """
+        root = self.store.location  # tasks open the run from it: the bucket URL of a bucket run
+        retries = config.execution.retries
+        all_f: list[Any] = []
+        try:
+            levels: dict[str, dict[int, Any]] = {"tile": {
+                t: self.submit(_tile_task, "tile", t, retries, root, t, config) for t in tree.units["tile"]}}
+            for lvl in LEVELS[1:]:
+                levels[lvl] = {}
+                for uid in tree.units[lvl]:
+                    deps = [levels[CHILD_LEVEL[lvl]][c] for c in tree.children[(lvl, uid)]]
+                    levels[lvl][uid] = self.submit(_unit_task, lvl, uid, retries, root, lvl, uid, config, deps, **heavy)
+            level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items()
+                        if uid not in self.done[lvl]}
+            all_f += [f for lvl, fs in levels.items() for uid, f in fs.items()
+                      if uid not in self.done[lvl] and f.key not in self.recorded]
+            for fut in as_completed(self.client, all_f):  # Dask's own completion events drive the counts
+                self.record(*level_of[fut.key], fut)
+        except RUN_STOPPING:
+            if not self.sync:
+                self.client.cancel(all_f)  # the run stops: nothing more is started (running units finish atomically)
+            raise
+
+    def submit(self, fn: Callable[..., dict[str, Any]], level: str, uid: int, retries: int, *args: Any,
+               **kw: Any) -> Any:
+        """A future, or the stored summary of a unit a previous run finished (not resubmitted)."""
+        if self.trusted(level, uid):
+            raw = self.store.read_summary(level, uid)
+            self.done[level][uid] = summary_from_json(raw)
+            self.out[level].append(self.done[level][uid])
+            self.progress.update(self.done[level][uid])
+            return raw  # a parent's argument, in the JSON form its task's results have (it only orders the work)
+        fut = self.client.submit(fn, *args, key=f"{level}-{uid}", retries=retries, pure=False, **kw)
+        if self.sync:  # the synchronous client ran it already: count it now, so progress is live
+            self.record(level, uid, fut)
+            self.recorded.add(fut.key)
+        return fut
+
+    def record(self, level: str, uid: int, fut: Any) -> None:
+        """The unit's summary from its future; a task that died (after the retries) is the unit's failure."""
         try:
             s = summary_from_json(fut.result())
         except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker after the retries
-            raise_if_run_stopping(exc, unit_name(level, uid), store.location)  # stops the run (see safe_call)
+            raise_if_run_stopping(exc, unit_name(level, uid), self.store.location)  # stops the run (see safe_call)
             if lost_to_the_cluster(exc):
                 raise  # cancelled by the cluster (no worker, the scheduler gone): the run's failure, not the unit's
             s = FailureSummary.of(level, uid, exc)
-        out[level].append(s)
-        progress.update(s)
+        self.out[level].append(s)
+        self.progress.update(s)
 
-    def trusted(level: str, uid: int) -> bool:
+    def trusted(self, level: str, uid: int) -> bool:
         """A finished unit whose files match its checksums; a corrupt one is named and withdrawn."""
+        store, integrity = self.store, self.integrity
         if not store.unit_complete(level, uid):
             return False
         if store.url is not None:
@@ -419,57 +505,24 @@ def _run_cascade(client: ComputeClient, conn: Connection, store: RunStore, confi
         name = unit_name(level, uid)
         integrity["corrupt"].append({"level": level, "id": int(uid), "name": name, "problems": problems,
                                      "action": "recomputed"})
-        if stream is not None:
+        if self.stream is not None:
             print(f"mercury-dem run: {name}: checksum verification failed ({'; '.join(problems[:3])}); "
-                  "recomputing it", file=stream, flush=True)
+                  "recomputing it", file=self.stream, flush=True)
         store.invalidate_unit(level, uid)
         return False
 
-    def submit(fn: Callable[..., dict[str, Any]], level: str, uid: int, *args: Any, **kw: Any) -> Any:
-        """A future, or the stored summary of a unit a previous run finished (not resubmitted)."""
-        if trusted(level, uid):
-            raw = store.read_summary(level, uid)
-            done[level][uid] = summary_from_json(raw)
-            out[level].append(done[level][uid])
-            progress.update(done[level][uid])
-            return raw  # a parent's argument, in the JSON form its task's results have (it only orders the work)
-        fut = client.submit(fn, *args, key=f"{level}-{uid}", retries=retries, pure=False, **kw)
-        if sync:  # the synchronous client ran it already: count it now, so progress is live
-            record(level, uid, fut)
-            recorded.add(fut.key)
-        return fut
 
-    all_f: list[Any] = []
-    try:
-        # the whole tree up front: a unit waits on its children's futures (or their stored summaries)
-        levels: dict[str, dict[int, Any]] = {"tile": {t: submit(_tile_task, "tile", t, root, t, config)
-                                                       for t in tree.units["tile"]}}
-        for lvl in LEVELS[1:]:
-            levels[lvl] = {}
-            for uid in tree.units[lvl]:
-                deps = [levels[CHILD_LEVEL[lvl]][c] for c in tree.children[(lvl, uid)]]
-                levels[lvl][uid] = submit(_unit_task, lvl, uid, root, lvl, uid, config, deps, **heavy)
-        level_of = {f.key: (lvl, uid) for lvl, fs in levels.items() for uid, f in fs.items() if uid not in done[lvl]}
-        all_f += [f for lvl, fs in levels.items() for uid, f in fs.items()
-                  if uid not in done[lvl] and f.key not in recorded]
-        for fut in as_completed(client, all_f):  # Dask's own completion events drive the counts
-            record(*level_of[fut.key], fut)
-    except RUN_STOPPING:
-        if not sync:
-            client.cancel(all_f)  # the run stops: nothing more is started (running units finish atomically)
-        raise
-    finally:
-        progress.close()
-    for lvl in out:
-        out[lvl].sort(key=lambda s: s.id)
+def level_seconds(out: dict[str, list[Summary]], done: dict[str, dict[int, Summary]],
+                  sync: bool) -> dict[str, float]:
+    """Each level's seconds: in-process (every unit ran at submission) the sum of its units'; distributed, its
+    span from its first unit's start to its last unit's end (units of this run only; wall clock written by the
+    workers), which overlaps the next level; 0 for a level every unit of which an earlier run finished.
+    """
     seconds: dict[str, float] = {}
-    if getattr(client, "synchronous", False):
-        # in-process, every unit ran at submission: a level's time is the sum of its units'
+    if sync:
         for lvl in LEVELS:
             seconds[lvl] = float(sum(s.seconds or 0.0 for s in out[lvl]))
-        return out, seconds
-    # distributed: a level's span, from its first unit's start to its last unit's end (units
-    # of this run only; wall clock written by the workers), which overlaps the next level
+        return seconds
     for lvl in LEVELS:
         spans = [(s.timing.started_at, s.timing.finished_at) for s in out[lvl] if s.id not in done[lvl]
                  and s.timing is not None and s.timing.started_at is not None and s.timing.finished_at is not None]
@@ -477,7 +530,7 @@ def _run_cascade(client: ComputeClient, conn: Connection, store: RunStore, confi
             seconds[lvl] = float(max(f for _, f in spans) - min(st for st, _ in spans))
         elif out[lvl]:
             seconds[lvl] = 0.0  # every unit was finished by an earlier run
-    return out, seconds
+    return seconds
 
 
 def use_adjust_resource(conn: Connection, config: Config, stream: TextIO | None = None) -> bool:

@@ -36,13 +36,15 @@ def _peak_rss() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
-def adjust_network_store(store: str | Path, config: AdjustConfig, client: ComputeClient | None = None, *,
+def adjust_blocked_store(store: str | Path, config: AdjustConfig, client: ComputeClient | None = None, *,
                          pointing_sigma_urad: float) -> dict[str, Any]:
-    """Adjust the network at ``store``; ``client`` None runs in this process, else on its Dask workers.
-    ``pointing_sigma_urad``: how wrong the stored a-priori rotations may be, per axis (1 sigma, µrad).
+    """Adjust the point-blocked network store at ``store`` (``mercury-dem synth-network``'s) by blocks and return
+    the run's record; ``client`` None runs in this process, else on its Dask workers. ``pointing_sigma_urad``: how
+    wrong the stored a-priori rotations may be, per axis (1 sigma, µrad).
 
-    Raises :class:`~mercury_dem.exceptions.StoreError` for a store that lacks the image
-    geometry or point blocks, or is damaged.
+    Not to be confused with :func:`mercury_dem.adjust.unit.adjust_unit_network`, which adjusts one merged unit's
+    in-memory network (the cascade, adjust-isis). Raises :class:`~mercury_dem.exceptions.StoreError` for a store
+    that lacks the image geometry or point blocks, or is damaged.
     """
     t0 = time.perf_counter()
     net = BlockedNetwork(store)
@@ -50,16 +52,7 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Comput
     setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, config,
                               pointing_sigma_urad=pointing_sigma_urad, float32=config.blocked_float32)
     opt = options_from_config(config)
-    from mercury_dem.compute import runs_in_process
-
-    if runs_in_process(client):
-        engine: Any = SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)])
-        where = "sync"
-    else:
-        from mercury_dem.pipeline.shard_engine import DaskShardEngine
-
-        engine = DaskShardEngine(cast("DaskClient", client), str(net.root), net.n_blocks, setup, opt, config.blocked_tree_min_workers)
-        where = f"dask ({len(engine.actors)} workers)"
+    engine, where = _engine(net, setup, opt, config, client)
     load_s = time.perf_counter() - t0
     res = blocked_levenberg_marquardt(engine, setup, opt)
     summaries = engine.call("summary")
@@ -88,23 +81,46 @@ def adjust_network_store(store: str | Path, config: AdjustConfig, client: Comput
     }
     true_rot = net.truth_images()
     if true_rot is not None:
-        raw, _, _ = pointing_errors(res.rotations, true_rot)
-        ifov = np.array([im.cameras[k].ifov_rad for k in im.image_camera])
-        bore = np.linalg.norm(raw[:, :2], axis=1) / ifov
-        sel = acc >= 30
-        raw0, _, _ = pointing_errors(im.rotations, true_rot)
-        n_out = sum(s["outliers"] for s in summaries)
-        n_good = sum(s["good"] for s in summaries)
-        perr = np.concatenate([s["point_error_m"] for s in summaries])
-        record["truth"] = {
-            "pointing_error_px_rms": float(np.sqrt(np.mean(bore**2))),
-            "pointing_error_px_rms_images_ge30": float(np.sqrt(np.mean(bore[sel] ** 2))) if sel.any() else float("nan"),
-            "apriori_pointing_error_px_rms": float(np.sqrt(np.mean((np.linalg.norm(raw0[:, :2], axis=1) / ifov) ** 2))),
-            "outliers": n_out,
-            "outliers_rejected_share": sum(s["outliers_rejected"] for s in summaries) / n_out if n_out else float("nan"),
-            "good_rejected_share": sum(s["good_rejected"] for s in summaries) / n_good if n_good else float("nan"),
-            "point_error_m_median": float(np.median(perr)) if perr.size else float("nan"),
-            "point_error_m_p90": float(np.percentile(perr, 90)) if perr.size else float("nan"),
-        }
+        record["truth"] = _truth_record(im, res.rotations, true_rot, acc, summaries)
     record["log"] = [{k: (round(v, 6) if isinstance(v, float) else v) for k, v in e.items()} for e in res.log]
     return record
+
+
+def _engine(net: BlockedNetwork, setup: Any, opt: Any, config: AdjustConfig,
+            client: ComputeClient | None) -> tuple[Any, str]:
+    """The blocks' engine: one in-process shard (``client`` None or in-process), else one actor per Dask worker
+    reading its own blocks; and how to name it in the record.
+    """
+    from mercury_dem.compute import runs_in_process
+
+    if runs_in_process(client):
+        return SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)]), "sync"
+    from mercury_dem.pipeline.shard_engine import DaskShardEngine
+
+    engine = DaskShardEngine(cast("DaskClient", client), str(net.root), net.n_blocks, setup, opt,
+                             config.blocked_tree_min_workers)
+    return engine, f"dask ({len(engine.actors)} workers)"
+
+
+def _truth_record(im: Any, rotations: Any, true_rot: Any, acc: Any, summaries: list[dict[str, Any]]) -> dict[str, Any]:
+    """The adjusted pointing against the store's truth in pixels (all images, images of 30 measures or more,
+    a priori), and the share of the gross outliers and of the good measures rejected.
+    """
+    raw, _, _ = pointing_errors(rotations, true_rot)
+    ifov = np.array([im.cameras[k].ifov_rad for k in im.image_camera])
+    bore = np.linalg.norm(raw[:, :2], axis=1) / ifov
+    sel = acc >= 30
+    raw0, _, _ = pointing_errors(im.rotations, true_rot)
+    n_out = sum(s["outliers"] for s in summaries)
+    n_good = sum(s["good"] for s in summaries)
+    perr = np.concatenate([s["point_error_m"] for s in summaries])
+    return {
+        "pointing_error_px_rms": float(np.sqrt(np.mean(bore**2))),
+        "pointing_error_px_rms_images_ge30": float(np.sqrt(np.mean(bore[sel] ** 2))) if sel.any() else float("nan"),
+        "apriori_pointing_error_px_rms": float(np.sqrt(np.mean((np.linalg.norm(raw0[:, :2], axis=1) / ifov) ** 2))),
+        "outliers": n_out,
+        "outliers_rejected_share": sum(s["outliers_rejected"] for s in summaries) / n_out if n_out else float("nan"),
+        "good_rejected_share": sum(s["good_rejected"] for s in summaries) / n_good if n_good else float("nan"),
+        "point_error_m_median": float(np.median(perr)) if perr.size else float("nan"),
+        "point_error_m_p90": float(np.percentile(perr, 90)) if perr.size else float("nan"),
+    }

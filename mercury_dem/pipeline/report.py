@@ -64,47 +64,29 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
 
     ``summaries``: the typed summaries of each level's units (:mod:`mercury_dem.pipeline.results`).
     """
-    tiles = summaries.get("tile", [])
     glob = summaries.get("global", [])
-    ids_all = [str(x) for x in mission.catalog["image_id"]]
-    controlled: list[str] = []
+    global_ok = bool(glob and glob[0].ok)
     report: dict[str, Any] = {
         "run": store.location,
         "mission": _mission_ref(store, mission),
         # the target, as the mission declares it: the datum its heights refer to and its CRS
         "body": mission.body.to_dict(),
-        "tiles": {
-            "total": int(plan["tiles_total"]),
-            "non_empty": len(plan["non_empty_tiles"]),
-            "succeeded": sum(1 for s in tiles if s.ok),
-            "failed": [{"tile": s.id, "error": s.error} for s in tiles if not s.ok],
-            "image_errors": {k: v for s in tiles if isinstance(s, TileSummary) for k, v in s.image_errors.items()},
-        },
+        "tiles": tiles_block(plan, summaries.get("tile", [])),
         "levels": {
             "region": [_level_row(s) for s in summaries.get("region", [])],
             "hemisphere": [_level_row(s) for s in summaries.get("hemisphere", [])],
             "global": _level_row(glob[0]) if glob else None,
         },
     }
-    validation = None
-    if glob and glob[0].ok:
-        sid, rot, pos, table = read_solution(store.solution_path("global", 0))
-        nmeas = table["n_measures"].to_numpy()
-        controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
-        if mission.truth is not None:
-            from mercury_dem.io.network_store import read_network
-            from mercury_dem.validate.run import validate_run
-
-            net = read_network(store.network_path("global", 0))
-            keep = nmeas > 0
-            validation = validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep], positions=pos[keep])
+    controlled, validation = _global_solution(store, mission) if global_ok else ([], None)
     cset = set(controlled)
+    ids_all = [str(x) for x in mission.catalog["image_id"]]
     uncontrolled = [i for i in ids_all if i not in cset]
     report["images"] = {
         "input": len(ids_all),
         "controlled": len(controlled),
         "uncontrolled": uncontrolled,
-        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, bool(glob and glob[0].ok),
+        "uncontrolled_reasons": uncontrolled_reasons(store, uncontrolled, plan, global_ok,
                                                      report["tiles"]["image_errors"]),
         "excluded": plan.get("excluded", {}),
     }
@@ -119,6 +101,34 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
             validation["dem"] = dem_summary.pop("validation")
         report["validation"] = validation
     return report
+
+
+def tiles_block(plan: dict[str, Any], tiles: list[Summary]) -> dict[str, Any]:
+    """``report.json``'s ``tiles``: counts, the failed tiles with their errors, the images whose pixels failed."""
+    return {
+        "total": int(plan["tiles_total"]),
+        "non_empty": len(plan["non_empty_tiles"]),
+        "succeeded": sum(1 for s in tiles if s.ok),
+        "failed": [{"tile": s.id, "error": s.error} for s in tiles if not s.ok],
+        "image_errors": {k: v for s in tiles if isinstance(s, TileSummary) for k, v in s.image_errors.items()},
+    }
+
+
+def _global_solution(store: RunStore, mission: Mission) -> tuple[list[str], dict[str, Any] | None]:
+    """The images the global solution controls (at least one measure), and its validation against the mission's
+    truth (None without one).
+    """
+    sid, rot, pos, table = read_solution(store.solution_path("global", 0))
+    nmeas = table["n_measures"].to_numpy()
+    controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
+    if mission.truth is None:
+        return controlled, None
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.validate.run import validate_run
+
+    net = read_network(store.network_path("global", 0))
+    keep = nmeas > 0
+    return controlled, validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep], positions=pos[keep])
 
 
 def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], global_ok: bool,
@@ -188,67 +198,83 @@ def _f(x: Any, fmt: str = ".3f") -> str:
 
 def print_report(report: dict[str, Any], stream: TextIO) -> None:
     """A readable summary of report.json."""
-    t = report["tiles"]
-    im = report["images"]
     w = stream.write
     w(f"run {report['run']}  (mission {report['mission']})\n")
-    w(f"tiles: {t['non_empty']} non-empty of {t['total']}; {t['succeeded']} succeeded, {len(t['failed'])} failed\n")
-    for f in t["failed"][:10]:
-        name = f"tile {f['tile']}"
-        w(f"  {name}: {unit_message(f['error'], name)}\n")
-    w(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n")
-    for c in (report.get("integrity") or {}).get("corrupt", []):  # units that failed their checksums on resume
-        w(f"  recomputed {c.get('name')}: {'; '.join(c.get('problems', [])[:3])}\n")
-    reasons = im.get("uncontrolled_reasons") or {}
-    for i in im["uncontrolled"][:10]:
-        if i in reasons:
-            w(f"  uncontrolled {i}: {reasons[i]}\n")
-    shown = set(im["uncontrolled"][:10])
-    for i, why in list((t.get("image_errors") or {}).items())[:10]:
-        if i not in shown:  # an image with bad pixels that is controlled all the same (another copy, ...)
-            w(f"  image {i}: {unit_message(why, f'image {i}')}\n")
-    w("\n")
-    w(f"{'level':<22}{'images':>7}{'points':>9}{'measures':>10}{'rms px':>8}{'sigma0':>8}{'rej':>7}{'iter':>5}{'s':>7}\n")
-    rows = [("region", r) for r in report["levels"]["region"]] + [("hemisphere", r) for r in report["levels"]["hemisphere"]]
-    if report["levels"]["global"]:
-        rows.append(("global", report["levels"]["global"]))
-    for _, r in rows:
-        name = r.get("name") or str(r.get("id"))
-        if not r.get("ok"):
-            w(f"{name:<22} FAILED: {unit_message(r.get('error'), name)}\n")
-            continue
-        w(f"{name:<22}{r.get('images', 0):>7}{r.get('points', 0):>9}{r.get('measures', 0):>10}"
-          f"{_f(r.get('rms_px')):>8}{_f(r.get('sigma0')):>8}{r.get('rejected', 0):>7}{r.get('iterations', 0):>5}"
-          f"{_f(r.get('seconds'), '.1f'):>7}\n")
-    for _, r in rows:
-        for line in level_notes(r):
-            w(f"  {r.get('name') or r.get('id')}: {line}\n")
+    w(_tiles_and_images_text(report))
+    w(_levels_text(report["levels"]))
     v = report.get("validation")
     if v:
-        p = v["pointing_error_urad"]
-        ims = v.get("image_space_error_px") or {}
-        w(f"\npointing error vs truth, in each image's pixels (IFOV) RMS: a-priori {_f(ims.get('a_priori_rms'), '.2f')}, "
-          f"adjusted {_f(v.get('adjusted_rms_in_ifov'), '.2f')}\n")
-        w(f"pointing error vs truth (urad RMS): a-priori {_f(p['a_priori_rms'], '.1f')}, adjusted "
-          f"{_f(p['adjusted_rms'], '.1f')} (boresight {_f(p.get('adjusted_boresight_rms'), '.1f')}, twist "
-          f"{_f(p.get('adjusted_twist_rms'), '.1f')}; mean IFOV {_f(v['ifov_urad'], '.1f')})\n")
-        pe = v["point_error_m"]
-        w(f"point error vs truth (m): median {_f(pe['median'], '.1f')}, p95 {_f(pe['p95'], '.1f')} ({pe['points']} points)\n")
-        d = v.get("dem")
-        if d:
-            w(dem_validation_table(d))
+        w(_validation_text(v))
     from mercury_dem.pipeline.reference_check import reference_by_map_table, reference_table, shape_check_lines
 
-    w(reference_table((report.get("dem") or {}).get("reference") or {}))
-    w(reference_by_map_table((report.get("dem") or {}).get("reference_by_map") or {}))
-    shape_lines = shape_check_lines((report.get("dem") or {}).get("shape_check"))
+    dem = report.get("dem") or {}
+    w(reference_table(dem.get("reference") or {}))
+    w(reference_by_map_table(dem.get("reference_by_map") or {}))
+    shape_lines = shape_check_lines(dem.get("shape_check"))
     if shape_lines:
         w("\n" + "\n".join(shape_lines) + "\n")
-    for rel, why in ((report.get("dem") or {}).get("products_skipped") or {}).items():
+    for rel, why in (dem.get("products_skipped") or {}).items():
         w(f"not written: products/{rel} ({why})\n")
     w(dense_lines(report.get("dense")))
     tm = report.get("timings", {})
     w("\ntimings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in tm.items()) + "\n")
+
+
+def _tiles_and_images_text(report: dict[str, Any]) -> str:
+    """The tiles and images lines: failed tiles, recomputed units, uncontrolled images and why, bad pixels."""
+    t, im = report["tiles"], report["images"]
+    out = [f"tiles: {t['non_empty']} non-empty of {t['total']}; {t['succeeded']} succeeded, {len(t['failed'])} failed\n"]
+    for f in t["failed"][:10]:
+        name = f"tile {f['tile']}"
+        out.append(f"  {name}: {unit_message(f['error'], name)}\n")
+    out.append(f"images: {im['input']} input, {im['controlled']} controlled, {len(im['uncontrolled'])} uncontrolled\n")
+    for c in (report.get("integrity") or {}).get("corrupt", []):  # units that failed their checksums on resume
+        out.append(f"  recomputed {c.get('name')}: {'; '.join(c.get('problems', [])[:3])}\n")
+    reasons = im.get("uncontrolled_reasons") or {}
+    for i in im["uncontrolled"][:10]:
+        if i in reasons:
+            out.append(f"  uncontrolled {i}: {reasons[i]}\n")
+    shown = set(im["uncontrolled"][:10])
+    for i, why in list((t.get("image_errors") or {}).items())[:10]:
+        if i not in shown:  # an image with bad pixels that is controlled all the same (another copy, ...)
+            out.append(f"  image {i}: {unit_message(why, f'image {i}')}\n")
+    return "".join(out)
+
+
+def _levels_text(levels: dict[str, Any]) -> str:
+    """The table of adjusted units (one row each, FAILED with its message) and each unit's notes."""
+    out = ["\n", f"{'level':<22}{'images':>7}{'points':>9}{'measures':>10}{'rms px':>8}{'sigma0':>8}{'rej':>7}"
+                  f"{'iter':>5}{'s':>7}\n"]
+    rows = list(levels["region"]) + list(levels["hemisphere"])
+    if levels["global"]:
+        rows.append(levels["global"])
+    for r in rows:
+        name = r.get("name") or str(r.get("id"))
+        if not r.get("ok"):
+            out.append(f"{name:<22} FAILED: {unit_message(r.get('error'), name)}\n")
+            continue
+        out.append(f"{name:<22}{r.get('images', 0):>7}{r.get('points', 0):>9}{r.get('measures', 0):>10}"
+                   f"{_f(r.get('rms_px')):>8}{_f(r.get('sigma0')):>8}{r.get('rejected', 0):>7}{r.get('iterations', 0):>5}"
+                   f"{_f(r.get('seconds'), '.1f'):>7}\n")
+    for r in rows:
+        for line in level_notes(r):
+            out.append(f"  {r.get('name') or r.get('id')}: {line}\n")
+    return "".join(out)
+
+
+def _validation_text(v: dict[str, Any]) -> str:
+    """The pointing, point and DEM errors against the truth."""
+    p = v["pointing_error_urad"]
+    ims = v.get("image_space_error_px") or {}
+    pe = v["point_error_m"]
+    out = (f"\npointing error vs truth, in each image's pixels (IFOV) RMS: a-priori {_f(ims.get('a_priori_rms'), '.2f')}, "
+           f"adjusted {_f(v.get('adjusted_rms_in_ifov'), '.2f')}\n"
+           f"pointing error vs truth (urad RMS): a-priori {_f(p['a_priori_rms'], '.1f')}, adjusted "
+           f"{_f(p['adjusted_rms'], '.1f')} (boresight {_f(p.get('adjusted_boresight_rms'), '.1f')}, twist "
+           f"{_f(p.get('adjusted_twist_rms'), '.1f')}; mean IFOV {_f(v['ifov_urad'], '.1f')})\n"
+           f"point error vs truth (m): median {_f(pe['median'], '.1f')}, p95 {_f(pe['p95'], '.1f')} ({pe['points']} points)\n")
+    d = v.get("dem")
+    return out + (dem_validation_table(d) if d else "")
 
 
 def dense_lines(dense: dict[str, Any] | None, limit: int = 5) -> str:

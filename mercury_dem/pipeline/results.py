@@ -173,7 +173,7 @@ class UnitSummary:
     Attributes
     ----------
     children : ids of the children merged; None when the unit failed before merging.
-    adjustment : the adjustment's summary (:attr:`mercury_dem.pipeline.adjust_adapter.UnitAdjustment.summary`:
+    adjustment : the adjustment's summary (:attr:`mercury_dem.adjust.unit.UnitAdjustment.summary`:
         images, points, rms_px, sigma0, ..., and the optional ``blocked``, ``altimetry``, ``levelling``,
         ``point_prior``), with ``images_without_measures`` covering the merge's too; open-ended, kept in order.
     single_measure_points : count and first ids (:func:`mercury_dem.network.check.singular_parts`).

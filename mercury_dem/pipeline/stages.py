@@ -17,7 +17,6 @@ summaries are typed (:mod:`mercury_dem.pipeline.results`, serialized there) and 
 from __future__ import annotations
 
 import dataclasses
-import re
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -27,9 +26,7 @@ import pandas as pd
 from mercury_dem.compute.failures import raise_if_run_stopping, run_stopping_error
 from mercury_dem.config import Config, to_dict
 from mercury_dem.exceptions import CorruptUnitError, MercuryDemError
-from mercury_dem.geometry.footprints import overlap_graph
 from mercury_dem.geometry.pose import validate_pose
-from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.run_store import RunStore, read_solution, unit_name  # unit_name: re-exported
 from mercury_dem.mission import Mission, open_mission
 from mercury_dem.pipeline.results import (
@@ -59,12 +56,44 @@ def plan_run(store: RunStore, mission: Mission, config: Config) -> dict[str, Any
     """Tile of every image and the a-priori overlap graph, written to ``RUN/plan``.
 
     Images whose geometry is unusable (NaN, non-orthonormal rotation) are kept in
-    the table with ``excluded_reason`` and take no further part.
+    the table with ``excluded_reason`` and take no further part
+    (:func:`~mercury_dem.plan.images.plan_images` is the plan).
     """
+    from mercury_dem.plan.images import plan_images
+
     t0 = time.perf_counter()
     cat = mission.catalog
     ids = cat["image_id"].to_numpy(dtype=str)
-    grid = TileGrid(config.tiling.tile_size_deg)
+    cameras, cam_idx, positions, rotations, excluded = apriori_geometry(mission, ids)
+    plan = plan_images(ids, cat["center_lat"].to_numpy(dtype=float), cat["center_lon"].to_numpy(dtype=float),
+                       cameras, cam_idx, positions, rotations, excluded, tile_size_deg=config.tiling.tile_size_deg,
+                       min_overlap_fraction=config.tiling.min_overlap_fraction,
+                       datum_radius_m=mission.body.datum_radius_m)
+    ok = plan.ok
+    images = pd.DataFrame({
+        "image_id": ids, "tile_id": plan.tile, "region_id": plan.region,
+        "excluded_reason": plan.excluded.astype(str),
+    })
+    pairs = pd.DataFrame({
+        "i": plan.i, "j": plan.j, "image_i": ids[plan.i], "image_j": ids[plan.j], "fraction": plan.fraction,
+    })
+    info = {
+        "tile_size_deg": plan.tile_size_deg,
+        "tiles_total": plan.tiles_total,
+        "non_empty_tiles": plan.non_empty_tiles(),
+        "images": int(ids.size),
+        "excluded": {str(a): str(b) for a, b in zip(ids[~ok], plan.excluded[~ok])},
+        "overlap_pairs": int(len(pairs)),
+        "seconds": time.perf_counter() - t0,
+    }
+    store.write_plan(images, pairs, info)
+    return info
+
+
+def apriori_geometry(mission: Mission, ids: np.ndarray) -> tuple[list[Any], np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each image's camera (distinct cameras and the index of each image's), a-priori position and rotation, and
+    why an image's geometry is unusable ("" when it is usable; its pose then stays zero / identity).
+    """
     cameras: list[Any] = []
     cam_idx = np.zeros(ids.size, dtype=np.int64)
     positions = np.zeros((ids.size, 3))
@@ -82,43 +111,7 @@ def plan_run(store: RunStore, mission: Mission, config: Config) -> dict[str, Any
             cameras.append(cam)
         cam_idx[k] = cameras.index(cam)
         positions[k], rotations[k] = c, r
-    ok = excluded == ""
-    lat = cat["center_lat"].to_numpy(dtype=float)
-    lon = cat["center_lon"].to_numpy(dtype=float)
-    bad_centre = ok & ~(np.isfinite(lat) & np.isfinite(lon))
-    excluded[bad_centre] = [f"image {i}: centre latitude/longitude missing; fix the catalog" for i in ids[bad_centre]]
-    ok &= ~bad_centre
-    tile = np.full(ids.size, -1, dtype=np.int64)
-    tile[ok] = grid.tile_of(lat[ok], lon[ok])
-    region = np.full(ids.size, -1, dtype=np.int64)
-    region[ok] = grid.region_of_tile(tile[ok])
-    good = np.flatnonzero(ok)
-    graph = overlap_graph(
-        cameras, cam_idx[good], positions[good], rotations[good],
-        min_fraction=config.tiling.min_overlap_fraction, radius_m=mission.body.datum_radius_m,
-    ) if cameras else None
-    i = good[graph.i] if graph is not None else np.zeros(0, np.int64)
-    j = good[graph.j] if graph is not None else np.zeros(0, np.int64)
-    images = pd.DataFrame({
-        "image_id": ids, "tile_id": tile, "region_id": region,
-        "excluded_reason": excluded.astype(str),
-    })
-    pairs = pd.DataFrame({
-        "i": i, "j": j, "image_i": ids[i], "image_j": ids[j],
-        "fraction": graph.fraction if graph is not None else np.zeros(0),
-    })
-    non_empty = sorted(set(tile[ok].tolist()))
-    info = {
-        "tile_size_deg": grid.tile_size_deg,
-        "tiles_total": grid.n_tiles,
-        "non_empty_tiles": non_empty,
-        "images": int(ids.size),
-        "excluded": {str(a): str(b) for a, b in zip(ids[~ok], excluded[~ok])},
-        "overlap_pairs": int(len(pairs)),
-        "seconds": time.perf_counter() - t0,
-    }
-    store.write_plan(images, pairs, info)
-    return info
+    return cameras, cam_idx, positions, rotations, excluded
 
 
 def tile_pairs(images: pd.DataFrame, pairs: pd.DataFrame, tile_id: int) -> list[tuple[str, str]]:
@@ -186,15 +179,55 @@ def _no_points_reason(tile_id: int, s: TileCounts) -> str:
     return f"tile {tile_id}: {s.pairs} pairs gave no control point; pair failures: {top or 'none'}"
 
 
-def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
-    from mercury_dem.match.prepare import pixel_faults
-    from mercury_dem.match.result import iter_rows
-    from mercury_dem.match.selection import REDUNDANT_REASON
-    from mercury_dem.match.tile import match_tile
-    from mercury_dem.network.build import build_network, convergence_sigma_factor
+@dataclasses.dataclass(frozen=True)
+class TileInputs:
+    """What a tile's matching reads: its pairs, the images' pixels and geometry, and the matching configuration."""
 
-    run = store.read_run()
-    mission = open_mission(run["mission"])
+    ref_ids: list[str]  # the tile's own usable images
+    pairs: list[tuple[str, str]]  # (reference, match), :func:`tile_pairs`
+    pixels: dict[str, Any]  # image id -> pixels, None where unreadable
+    image_errors: dict[str, str]  # image id -> why its pixels are unusable
+    geometry: dict[str, Any]  # image id -> ImageGeometry
+    cameras: list[Any]
+    positions: np.ndarray  # (n, 3) a priori, in ``ids`` order
+    rotations: np.ndarray  # (n, 3, 3)
+    ids: np.ndarray  # every image involved, sorted
+    radiometry: dict[str, tuple[Any, Any]]  # image id -> (saturation, dn_scale)
+    match_cfg: Any  # the run's MatchConfig
+
+
+def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts, UnitFiles]:
+    from mercury_dem.match.result import failure_counts, iter_rows
+    from mercury_dem.match.tile import match_tile
+
+    mission = open_mission(store.read_run()["mission"])
+    t = tile_inputs(store, mission, tile_id, config)
+    matches, reports = match_tile(t.pixels, t.geometry, t.pairs, t.match_cfg, tracks=t.match_cfg.tracks,
+                                  radiometry=t.radiometry, pointing_sigma_urad=pointing_sigma_urad_for(mission, config))
+    rows = pd.DataFrame(list(iter_rows(reports)))
+    net = _tile_network(t, matches, reports, tile_id, config, mission.body.datum_radius_m)
+    failures, redundant = failure_counts(reports)
+    counts = TileCounts(
+        images=len(t.ref_ids),
+        images_involved=len(t.ids),
+        pairs=len(t.pairs),
+        pairs_matched=int((rows["status"] == "matched").sum()) if len(rows) else 0,
+        routes=rows["route"].value_counts().to_dict() if len(rows) else {},
+        pair_failures=failures,
+        image_errors=t.image_errors,
+        points=int(net.n_points),
+        measures=int(net.n_measures),
+        pairs_redundant=redundant,
+    )
+    return counts, UnitFiles(network=net, pairs=rows)
+
+
+def tile_inputs(store: RunStore, mission: Mission, tile_id: int, config: Config) -> TileInputs:
+    """Read a tile's inputs: its pairs from the plan, every involved image's pixels (an unreadable or unusable
+    image is named in ``image_errors``, not raised), geometry and radiometry.
+    """
+    from mercury_dem.match.prepare import pixel_faults
+
     images, pairs, _ = store.read_plan()
     pair_list = tile_pairs(images, pairs, tile_id)
     ref_ids = images.loc[(images["tile_id"] == tile_id) & (images["excluded_reason"] == ""), "image_id"].tolist()
@@ -211,44 +244,29 @@ def _run_tile(store: RunStore, tile_id: int, config: Config) -> tuple[TileCounts
     radiometry = {i: (r.saturation, r.dn_scale) for i in involved for r in [mission.radiometry(i)]}
     match_cfg = config.match
     image_errors.update(pixel_faults(pixels, radiometry, match_cfg))
-    matches, reports = match_tile(pixels, geom, pair_list, match_cfg, tracks=match_cfg.tracks, radiometry=radiometry,
-                                  pointing_sigma_urad=pointing_sigma_urad_for(mission, config))
-    rows = pd.DataFrame(list(iter_rows(reports)))
-    failures: dict[str, int] = {}
-    redundant = 0
-    if len(rows):
-        for reason in rows.loc[rows["status"] != "matched", "reason"]:
-            if str(reason).startswith(REDUNDANT_REASON):  # not tried: a narrower route joins its images
-                redundant += 1
-                continue
-            key = re.sub(r"\d+(\.\d+)?", "N", str(reason))[:100]  # category: numbers folded
-            failures[key] = failures.get(key, 0) + 1
+    return TileInputs(ref_ids, pair_list, pixels, image_errors, geom, cameras, positions, rotations, ids,
+                      radiometry, match_cfg)
+
+
+def _tile_network(t: TileInputs, matches: Any, reports: list[Any], tile_id: int, config: Config,
+                  datum_radius_m: float) -> ControlNetwork:
+    """The tile's control network from its matches (:func:`~mercury_dem.network.build.build_network`); point ids
+    start at ``tile_id * POINT_ID_STRIDE``; measures of convergent pairs weighted by their convergence.
+    """
+    from mercury_dem.network.build import build_network, convergence_sigma_factor
+
     conv = np.array([r.convergence_deg for r in reports], np.float64)
     factor = convergence_sigma_factor(conv[matches.pair] if conv.size else np.zeros(0),
                                       config.network.convergent_sigma_from_deg, config.network.convergent_sigma_max_factor)
-    built = build_network(
-        ids, matches, cameras, positions, rotations,
+    return build_network(
+        t.ids, matches, t.cameras, t.positions, t.rotations,
         sigma_factor=factor,
         tolerance_px=config.network.merge_tolerance_px,
         point_id_start=int(tile_id) * POINT_ID_STRIDE,
         sigma_px=config.network.measure_sigma_px,
         metadata={"level": "tile", "tile_id": str(tile_id)},
-        datum_radius_m=mission.body.datum_radius_m,
-    )
-    net = built.network
-    counts = TileCounts(
-        images=len(ref_ids),
-        images_involved=len(involved),
-        pairs=len(pair_list),
-        pairs_matched=int((rows["status"] == "matched").sum()) if len(rows) else 0,
-        routes=rows["route"].value_counts().to_dict() if len(rows) else {},
-        pair_failures=failures,
-        image_errors=image_errors,
-        points=int(net.n_points),
-        measures=int(net.n_measures),
-        pairs_redundant=redundant,
-    )
-    return counts, UnitFiles(network=net, pairs=rows)
+        datum_radius_m=datum_radius_m,
+    ).network
 
 
 def _write_unit(store: RunStore, level: str, unit_id: int, summary: TileSummary | UnitSummary, t0: float,
@@ -271,7 +289,7 @@ def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
 
     ``children`` are the children's summaries (passed so a task graph orders the
     work; the data itself is read from the store). ``engine_factory``: where a blocked
-    adjustment's point blocks go (:func:`~mercury_dem.pipeline.adjust_adapter.adjust_network`).
+    adjustment's point blocks go (:func:`~mercury_dem.adjust.unit.adjust_unit_network`).
     """
     store = RunStore(run_root)
     if store.unit_complete(level, unit_id):
@@ -304,10 +322,11 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
                  engine_factory: Any = None) -> tuple[UnitSummary, UnitFiles]:
     from mercury_dem.adjust.cascade import rejudged_network
+    from mercury_dem.adjust.unit import adjust_unit_network
+    from mercury_dem.altimetry.unit_terms import AltimetryTerms
     from mercury_dem.io.network_store import read_network
     from mercury_dem.network.check import singular_parts
     from mercury_dem.network.merge import merge_networks
-    from mercury_dem.pipeline.adjust_adapter import adjust_network
 
     child_level = LEVEL_CHILD[level]
     kids = [c for c in child_ids(level, unit_id, config)
@@ -337,12 +356,12 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
     if child_level != "tile":
         start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
     adjust_cfg = config.adjust
-    adj = adjust_network(merged, cameras, positions, rotations, adjust_cfg,
-                         pointing_sigma_urad=pointing_sigma_urad_for(mission, config),
-                         initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
-                         altimetry=unit_altimetry(mission, merged, level, adjust_cfg),
-                         recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
-                         engine_factory=engine_factory, prior_shape=prior_shape_of(mission))
+    adj = adjust_unit_network(merged, cameras, positions, rotations, adjust_cfg,
+                              pointing_sigma_urad=pointing_sigma_urad_for(mission, config),
+                              initial_rotations=start_rot, datum_radius_m=mission.body.datum_radius_m,
+                              heights=AltimetryTerms(unit_altimetry(mission, merged, level, adjust_cfg)),
+                              recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
+                              engine_factory=engine_factory, prior_shape=prior_shape_of(mission))
     adjustment = dict(adj.summary)
     adjustment["images_without_measures"] = sorted(set(singular["images_without_measures"])
                                                    | set(adj.summary.get("images_without_measures", [])))

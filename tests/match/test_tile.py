@@ -12,6 +12,7 @@ from mercury_dem.config.match import MatchConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M
 from mercury_dem.geometry.pose import rotation_from_angles
 from mercury_dem.match import match_pair, match_tile
+from mercury_dem.match.result import PairFailure
 
 
 def _ids(world: Any, name: str) -> tuple[str, str]:
@@ -55,10 +56,12 @@ def test_wrong_a_priori_overlap_is_a_reason(pair_world: Any) -> None:
     away = dataclasses.replace(g, rotation=rotation_from_angles(np.array([0.0, np.radians(30.0), 0.0])) @ g.rotation)
     r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], away, MatchConfig(), pointing_sigma_urad=450.0)
     assert r.report.status == "failed" and "no a-priori overlap" in r.report.reason
+    assert r.report.failure == PairFailure.NO_PRETRANSFORM
     # A-priori overlap that is wrong by ~40 px (far beyond the guidance window): no false matches.
     off = dataclasses.replace(g, rotation=rotation_from_angles(np.array([0.03, 0.0, 0.0])) @ g.rotation)
     r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], off, MatchConfig(), pointing_sigma_urad=450.0)
     assert r.report.status == "failed" and "too few matches" in r.report.reason
+    assert r.report.failure == PairFailure.TOO_FEW_MATCHES
     assert r.points_ref.shape == (0, 2)
 
 
@@ -67,6 +70,7 @@ def test_illumination_limits_skip_with_reason(pair_world: Any) -> None:
     cfg = MatchConfig(max_incidence_difference_deg=20.0)
     r = match_pair(pair_world.images[a], pair_world.images[b], pair_world.geometry[a], pair_world.geometry[b], cfg, pointing_sigma_urad=450.0)
     assert r.report.status == "skipped" and "max_incidence_difference_deg" in r.report.reason
+    assert r.report.failure == PairFailure.INCIDENCE
     assert r.report.incidence_difference_deg == pytest.approx(40.0, abs=3.0)
 
 

@@ -142,13 +142,13 @@ def test_a_singular_part_is_named_and_the_adjustment_goes_on(
 
 
 def test_an_image_without_measures_is_held_not_fatal(degenerate_run: tuple[Path, Path, dict[str, Any]]) -> None:
-    """``adjust_network`` on a network (as imported or edited) holding an image with no measure: before, the
+    """``adjust_unit_network`` on a network (as imported or edited) holding an image with no measure: before, the
     whole solve was an AdjustmentError ("1 images have no measures"); now the image is held at its a-priori
     pose, named, and the others come out as without it."""
+    from mercury_dem.adjust.unit import adjust_unit_network
     from mercury_dem.config import load_config
     from mercury_dem.io.network_store import read_network
     from mercury_dem.mission import open_mission
-    from mercury_dem.pipeline.adjust_adapter import adjust_network
     from mercury_dem.pipeline.stages import pointing_sigma_urad_for
 
     mission_path, run, _ = degenerate_run
@@ -163,8 +163,8 @@ def test_an_image_without_measures_is_held_not_fatal(degenerate_run: tuple[Path,
         ids = [str(i) for i in n.image_ids]
         pos = np.array([mission.a_priori_pose(i)[0] for i in ids])
         rot = np.array([mission.a_priori_pose(i)[1] for i in ids])
-        return adjust_network(n, [mission.camera(i) for i in ids], pos, rot, cfg,
-                              pointing_sigma_urad=sigma_urad, datum_radius_m=mission.body.datum_radius_m), pos, rot
+        return adjust_unit_network(n, [mission.camera(i) for i in ids], pos, rot, cfg, pointing_sigma_urad=sigma_urad,
+                                   datum_radius_m=mission.body.datum_radius_m), pos, rot
 
     clean, _, _ = solve(net)
     extra = net.replace(image_ids=np.append(net.image_ids, d.NO_MEASURES))

@@ -29,7 +29,7 @@ TIMING = UnitTiming(seconds=1.5, finished_at=1_800_000_001.5, started_at=1_800_0
 COUNTS = TileCounts(images=3, images_involved=5, pairs=4, pairs_matched=3, routes={"features": 3},
                     pair_failures={"too few matches (N)": 1}, image_errors={"X": "image X: blank"}, points=120,
                     measures=300)
-ADJUSTMENT = {  # an adjustment summary as adjust_adapter builds it (order kept), with its optional keys
+ADJUSTMENT = {  # an adjustment summary as adjust.unit builds it (order kept), with its optional keys
     "images": 4, "points": 120, "measures": 300, "rms_px": 0.12, "initial_rms_px": 2.5, "sigma0": 0.2,
     "rejected": 3, "underdetermined_points": 0, "weak_images": [], "iterations": 7, "converged": True,
     "reason": "converged", "sigma0_history": [3.0, 0.2], "linear_method": "schur", "solve_seconds": 0.3,

@@ -20,6 +20,17 @@ def test_changed_sections_skips_execution_only() -> None:
     assert changed_sections(a, {k: v for k, v in a.items() if k != "match"}) == ["match"]
 
 
+def test_a_parameter_added_since_the_run_counts_as_its_default() -> None:
+    """A run made before ``adjust.rms_flag_px`` existed resumes when it keeps its default; another value is a change."""
+    old = {"adjust": {"reject_k_mad": 3.0}, "dem": {"pixels_per_degree": 4.0}}
+    defaults = {"adjust": {"reject_k_mad": 3.0, "rms_flag_px": 2.0}, "dem": {"pixels_per_degree": 8.0}}
+    new = {"adjust": {"reject_k_mad": 3.0, "rms_flag_px": 2.0}, "dem": {"pixels_per_degree": 4.0}}
+    assert changed_sections(old, new, defaults) == []
+    assert changed_sections(old, new) == ["adjust"]  # without the defaults: the new key is a difference
+    assert changed_sections(old, {**new, "adjust": {"reject_k_mad": 3.0, "rms_flag_px": 5.0}}, defaults) == ["adjust"]
+    assert changed_sections({**old, "adjust": {"reject_k_mad": 4.0}}, new, defaults) == ["adjust"]
+
+
 def _started_run(mission: Path, out: Path, config_overrides: dict) -> None:
     """A run store as a started run leaves it: run.json with the mission and the configuration."""
     store = RunStore(out)

@@ -102,13 +102,14 @@ def main(argv=None):
     ap.add_argument("--json")
     args = ap.parse_args(argv)
 
+    from mercury_dem.adjust.unit import adjust_unit_network
+    from mercury_dem.altimetry.unit_terms import AltimetryTerms
     from mercury_dem.config import Config
     from mercury_dem.config.base import from_dict
     from mercury_dem.io.network_store import read_network
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.mission.store import open_mission
     from mercury_dem.network.merge import merge_networks
-    from mercury_dem.pipeline.adjust_adapter import adjust_network
     from mercury_dem.pipeline.stages import pointing_sigma_urad_for, reconcile_solutions, unit_altimetry
     from mercury_dem.validate.run import per_image_pointing, true_point_positions
 
@@ -178,9 +179,9 @@ def main(argv=None):
             cfg = dataclasses.replace(cfg, max_iterations=100, sigma0_tolerance=1e-8)
         if "network" in parts:
             cfg = dataclasses.replace(cfg, point_prior_center="network")
-        adj = adjust_network(merged, cameras, pos, rotations, cfg, pointing_sigma_urad=sigma_urad, initial_rotations=start,
-                             datum_radius_m=mission.body.datum_radius_m, altimetry=alt,
-                             recentre_point_priors="recentre" in parts)
+        adj = adjust_unit_network(merged, cameras, pos, rotations, cfg, pointing_sigma_urad=sigma_urad,
+                                  initial_rotations=start, datum_radius_m=mission.body.datum_radius_m,
+                                  heights=AltimetryTerms(alt), recentre_point_priors="recentre" in parts)
         net = adj.network
         pts = np.flatnonzero(~net.point_rejected)
         truth = true_point_positions(net, mission, pts)
