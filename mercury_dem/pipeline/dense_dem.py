@@ -47,7 +47,7 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, bod
     shutil.rmtree(scratch, ignore_errors=True)
     try:
         summary = grid_dem(xyz, cfg, scratch, client, coverage=False, body=body, record_failures=True,
-                           attrs={"source": "dense stereo points"}, progress=rep, label="dem (dense points)")
+                           near_points_only=True, attrs={"source": "dense stereo points"}, progress=rep, label="dem (dense points)")
         g = open_dem(scratch).load()
     finally:
         shutil.rmtree(scratch, ignore_errors=True)

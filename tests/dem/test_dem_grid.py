@@ -232,3 +232,24 @@ def test_smallest_set_breaks_ties_by_point_index():
         assert sorted(zip(dk2[:k], ik[:k])) == want
         assert (lo, hi) == (want[0][0], want[-1][0])
     assert n_tie_cases > 100  # the tie path was exercised
+
+
+@pytest.mark.parametrize("method", ["median11", "shepard"])
+def test_near_points_only_grids_the_same_values_on_a_patchy_cloud(method):
+    """Two small patches on a wide grid (the dense stereo cloud's case): searching only the pixels within reach
+    of a point gives every layer as the full search does, and the far pixels are gaps with their distance.
+    """
+    rng = np.random.default_rng(11)
+    cloud = np.concatenate([sample_cloud(rng, 20_000, (-5, 0), (110, 116)),
+                            sample_cloud(rng, 8_000, (12, 15), (140, 143))])
+    cfg = DemConfig(method=method, neighbours=32, max_distance_m=10_000.0, **REGION)
+    index = build_point_index(cloud, datum_radius_m=DATUM_RADIUS_M)
+    g = GridSpec.from_config(cfg, datum_radius_m=DATUM_RADIUS_M)
+    for bounds in [(0, g.shape[0], 0, g.shape[1]), (100, 140, 30, 90)]:
+        full = grid_chunk(index, g, bounds, cfg)
+        near = grid_chunk(index, g, bounds, cfg, near_points_only=True)
+        for name, a in full.items():
+            np.testing.assert_array_equal(near[name], a, err_msg=f"{method} {bounds} {name}")
+    assert 0.02 < np.isfinite(full["elevation"]).mean() < 0.3  # patchy: most pixels are gaps
+    far = ~np.isfinite(near["elevation"])
+    assert (near["distance_to_nearest_point"][far] > 0).all() and (near["point_count"][far] == 0).any()
