@@ -207,6 +207,10 @@ def test_regional_map_names_the_caps_it_does_not_reach(tmp_path, dem_dir, produc
     assert set(summary["skipped"]) == {"pds/north_polar.tif", "pds/south_polar.tif"}
     assert "none north of 65 deg" in summary["skipped"]["pds/north_polar.tif"]
     assert "-19.75 to 19.75" in summary["skipped"]["pds/south_polar.tif"]
+    # the colour hillshade is titled with the map's name (it once read "south_polar", the caps loop's variable)
+    assert summary["browse_title"].startswith("Mercury DEM (")
+    named = make_products(tmp_path / "dem.zarr", tmp_path / "named", cfg, name="dense DEM")
+    assert named["browse_title"].startswith("Mercury dense DEM (") and "polar" not in named["browse_title"]
     assert not (out / "pds/north_polar.tif").exists()
     assert (out / "pds/equirectangular.tif").exists()
     assert products["skipped"] == {}  # the global map writes every product
