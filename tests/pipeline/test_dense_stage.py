@@ -154,6 +154,7 @@ def test_the_report_has_the_dense_entries(dense_run: tuple[Path, dict[str, Any],
 
     text = dense_lines(dense)
     assert f"{pairs['selected']} of {pairs['candidates']} candidate pairs selected" in text and "dense DEM:" in text
+    assert "dense products: " in text and "orthoimages on the dense DEM: " in text
     print(f"dense stage {on_disk['timings']['dense']:.1f} s, resumed run {seconds:.1f} s")
 
 
