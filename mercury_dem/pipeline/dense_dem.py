@@ -57,8 +57,22 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: Any, bod
             "bounds": list(bounds), "points": int(xyz.shape[0]),
             "source_fraction": {name: float((source == v).sum() / source.size) for name, v in
                                 (("dense", SOURCE_DENSE), ("sparse_fallback", SOURCE_SPARSE), ("none", SOURCE_NONE))},
+            # where neither DEM reaches is left out: the dense DEM's holes and the sparse DEM's on the same pixels
+            "hole_fraction": hole_fractions(ds),
             "failed_chunks": summary.get("failed_chunks", []), "gridding_seconds": round(summary["seconds"], 2),
             "precision_median_m": _nan_median(np.where(np.isfinite(elev), precision, np.nan))}
+
+
+def hole_fractions(ds: Any) -> dict[str, float | None]:
+    """Share of the pixels with a value in either DEM (the dense DEM's own values, the sparse DEM resampled on its
+    grid) that have none in each: ``dense`` (a hole of the stereo points: shadow, no texture, outside the pairs)
+    and ``sparse`` (beyond the sparse DEM's no-value distance of every tie point).
+    """
+    dense = np.isfinite(ds["elevation_dense"].values)
+    sparse = np.isfinite(ds["sparse_on_grid"].values)
+    n = int((dense | sparse).sum())
+    return {"dense": float((~dense).sum() - (~(dense | sparse)).sum()) / n if n else None,
+            "sparse": float((~sparse).sum() - (~(dense | sparse)).sum()) / n if n else None}
 
 
 def _nan_median(a: NDArray[Any]) -> float | None:

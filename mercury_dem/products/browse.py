@@ -264,7 +264,7 @@ def write_hillshade_pair_png(left: NDArray[np.floating], right: NDArray[np.float
     fig = plt.figure(figsize=(12.0, min(panel_w * aspect_hw, 12.0) + 1.2))
     cmap = plt.get_cmap("gray").with_extremes(bad=(0.55, 0.45, 0.45, 1.0))
     for k, (sh, title) in enumerate(zip((s_left, s_right), titles)):
-        ax = fig.add_axes((0.06 + 0.48 * k, 0.08, 0.43, 0.8))
+        ax = fig.add_axes((0.09 + 0.48 * k, 0.08, 0.41, 0.8))
         ax.imshow(np.ma.masked_invalid(sh), cmap=cmap, vmin=0.0, vmax=1.0, extent=extent, interpolation="nearest",
                   aspect="equal")
         ax.xaxis.set_major_formatter(ticker.FuncFormatter(east_longitude_label))
