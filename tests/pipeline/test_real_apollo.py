@@ -198,6 +198,7 @@ def test_the_strip_gives_a_dense_dem_compared_with_lola(apollo_run: Path) -> Non
 @pytest.mark.xfail(strict=True, reason="issue 31 section 5.5: the dense DEM's own values have more holes than the "
                    "sparse DEM (14 % vs 1 %) and a 2.6 % larger RMSE against LDEM_4 on the strip (measured, branch hF)")
 def test_issue_31_dense_no_worse_than_sparse_and_fewer_holes_on_the_strip(apollo_run: Path) -> None:
+    """The issue's goal on a real block: the dense DEM no farther from LOLA than the sparse one, with fewer holes."""
     rep = json.loads((apollo_run / "report.json").read_text())
     ref, holes = rep["dense"]["reference"], rep["dense"]["dem"]["hole_fraction"]
     key = next(k for k in ref["dense"] if k.startswith("dem:"))
