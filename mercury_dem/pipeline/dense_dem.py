@@ -137,7 +137,7 @@ def dense_layers(g: Any, elev: NDArray[np.float64], fallback: NDArray[np.float64
                                     "1.2533 x the median stated sigma_h of the pixel's points / sqrt(min(n, "
                                     "dense.grid_neighbours)); NaN where the pixel holds no dense point"})
     ds["distance_to_nearest_point"].attrs["note"] = (
-        "distance to the nearest dense point (kd-tree) where no dense point is within reach: those pixels "
+        "+inf where no dense point is within reach (dense.max_gap_pixels or the count's radius): those pixels "
         "are not searched (point_count 0)")
     for v in ds.data_vars:
         ds[v].encoding = {}
