@@ -101,6 +101,8 @@ DEM_OUTPUTS = (DEM_FILE, DEM_CHUNKS_DIR, COVERAGE_FILE, PRODUCTS_DIR)
 DENSE_FILE = "dense.zarr"
 DEM_DENSE_FILE = "dem_dense.zarr"
 DEM_DENSE_SCRATCH_FILE = "dem_dense_grid.zarr"
+#: The dense DEM's products (GeoTIFF/COG, PDS, ISIS, statistics, browse, orthoimages): RUN/products/dense/.
+DENSE_PRODUCTS_DIR = "dense"
 DENSE_OUTPUTS = (DENSE_FILE, DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE)
 
 

@@ -350,7 +350,7 @@ def create_store(
 
 def _grid_and_write(
     index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: Any,
-    store: str | Mapping[str, zarr.Array],
+    store: str | Mapping[str, zarr.Array], near_points_only: bool = False,
 ) -> dict[str, Any]:
     """Task body: grid one chunk and write its region into the store; return counts only.
 
@@ -358,7 +358,7 @@ def _grid_and_write(
     (:func:`create_store`'s, shared by the chunks of one process).
     """
     t0 = time.perf_counter()
-    layers = grid_chunk(index, grid, bounds, cfg)
+    layers = grid_chunk(index, grid, bounds, cfg, near_points_only=near_points_only)
     r0, r1, c0, c1 = bounds
     if isinstance(store, str):
         import zarr
@@ -412,11 +412,11 @@ def chunk_failure(grid: GridSpec, bounds: tuple[int, int, int, int], exc: BaseEx
 
 def _grid_and_write_or_record(
     index: PointIndex, grid: GridSpec, bounds: tuple[int, int, int, int], cfg: Any,
-    store: str | Mapping[str, zarr.Array],
+    store: str | Mapping[str, zarr.Array], near_points_only: bool = False,
 ) -> dict[str, Any]:
     """:func:`_grid_and_write`, with a failure returned as a value (:func:`chunk_failure`), not raised."""
     try:
-        return _grid_and_write(index, grid, bounds, cfg, store)
+        return _grid_and_write(index, grid, bounds, cfg, store, near_points_only)
     except Exception as exc:  # the chunk's own failure: recorded, the other chunks go on
         return chunk_failure(grid, bounds, exc)
 
@@ -470,6 +470,7 @@ def grid_dem(
     label: str = "dem",
     writer: StoreWriter | None = None,
     record_failures: bool = False,
+    near_points_only: bool = False,
 ) -> dict[str, Any]:
     """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
 
@@ -495,6 +496,9 @@ def grid_dem(
         The store is the same as without it. It is stopped (and waited for) if this call fails.
     record_failures : a chunk whose gridding raises is recorded and the others written (True: the
         run's DEM stage), or its error stops the call and nothing is written (False: ``mercury-dem grid``)
+    near_points_only : search only the pixels within reach of a point (the no-value distance or the count's
+        radius), the others are gaps without a search (:func:`mercury_dem.dem.grid.grid_chunk`); the same
+        elevations, for a patchy cloud on a large grid (the dense stereo cloud)
 
     Returns
     -------
@@ -562,7 +566,8 @@ def grid_dem(
             target: Any = layer_arrays if in_process else store
             try:
                 index_f = runner.scatter(index, broadcast=True)
-                futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, pure=False) for b in chunks]
+                futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, near_points_only, pure=False)
+                           for b in chunks]
                 for _ in as_completed(runner, futures):  # completion order: counts as chunks land
                     task.update()
                 results = ([result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures

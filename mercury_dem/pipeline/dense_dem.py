@@ -1,6 +1,6 @@
 """The dense DEM of a run (``dem_dense.zarr``) and its validation against the truth (issue 31; docs/design/dense.md).
 
-The cloud (``dense.zarr``, :mod:`mercury_dem.pipeline.dense_stage`) gridded by the DEM stage's own gridding at the
+The cloud (``dense.zarr``, :mod:`mercury_dem.io.dense_store`, written by :mod:`mercury_dem.pipeline.dense_tile`) gridded by the DEM stage's own gridding at the
 dense rule's resolution (:mod:`mercury_dem.dem.dense_grid`), with the sparse DEM resampled as fallback, a precision
 and a source layer; written atomically.
 """
@@ -20,7 +20,9 @@ from numpy.typing import NDArray
 from mercury_dem.config import Config
 from mercury_dem.dem.dense_grid import control_distance, fuse_with_prior, pixel_precision, snapped_bounds
 from mercury_dem.exceptions import MercuryDemError
+from mercury_dem.io.dense_store import read_cloud
 from mercury_dem.io.run_store import DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE, DENSE_FILE, RunStore
+from mercury_dem.pipeline.dense_inputs import open_sparse_surface
 
 if TYPE_CHECKING:
     from mercury_dem.compute.client import ComputeClient
@@ -33,40 +35,102 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
                    median_pixel_scale_m: float) -> dict[str, Any]:
     """Grid the cloud into ``dem_dense.zarr`` with the sparse DEM as fallback; returns the report's block."""
     from mercury_dem.geometry.body import latlon_to_xyz
-    from mercury_dem.pipeline.dem_stage import atomic_store, grid_dem, open_dem
-    from mercury_dem.pipeline.dense_stage import open_sparse_surface, read_cloud
+    from mercury_dem.pipeline.dem_stage import atomic_store
 
     cloud = read_cloud(store.root / DENSE_FILE)
     xyz = latlon_to_xyz(cloud["lat"], cloud["lon"], height_m=cloud["height"], datum_radius_m=body.datum_radius_m)
-    sparse = open_dem(store.dem_path)
+    cfg, bounds = dense_grid_config(config, store.dem_path, ppd, body.datum_radius_m)
+    summary, g = _grid_points(store, xyz, cfg, client, body, rep)
+    lat, lon = g["lat"].values, g["lon"].values
+    elev = g["elevation"].transpose("lat", "lon").values.astype(np.float64)
+    lat2, lon2 = np.meshgrid(lat, lon, indexing="ij")
+    fallback = open_sparse_surface(store.dem_path).sample(lat2, lon2)
+    precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
+    ds = dense_layers(g, elev, fallback, precision, config.dense.sparse_sigma_m, config.dense.fusion_correlation)
+    ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
+                     "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
+                                  f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
+                     "pixels_per_degree": ppd})
+    out_path = store.root / DEM_DENSE_FILE
+    with atomic_store(out_path, overwrite=True) as tmp:
+        ds.to_zarr(str(tmp), mode="w", zarr_format=3, consolidated=False)
+    source = ds["source"].values
+    return {"path": str(out_path), "pixels_per_degree": ppd, "median_pair_pixel_scale_m": median_pixel_scale_m,
+            "pixel_m": 2 * math.pi * body.datum_radius_m / 360.0 / ppd, "shape": list(source.shape),
+            "bounds": list(bounds), "points": int(xyz.shape[0]),
+            "source_fraction": {name: float((source == v).sum() / source.size) for name, v in
+                                (("dense", SOURCE_DENSE), ("sparse_fallback", SOURCE_SPARSE), ("none", SOURCE_NONE))},
+            # where neither DEM reaches is left out: the dense DEM's holes and the sparse DEM's on the same pixels
+            "hole_fraction": hole_fractions(ds),
+            "failed_chunks": summary.get("failed_chunks", []), "gridding_seconds": round(summary["seconds"], 2),
+            "precision_median_m": _nan_median(ds["precision_m"].values.astype(np.float64))}
+
+
+def hole_fractions(ds: Any) -> dict[str, float | None]:
+    """Share of the pixels with a value in either DEM (the dense DEM's own values, the sparse DEM resampled on its
+    grid) that have none in each: ``dense`` (a hole of the stereo points: shadow, no texture, outside the pairs)
+    and ``sparse`` (beyond the sparse DEM's no-value distance of every tie point).
+    """
+    dense = np.isfinite(ds["elevation_dense"].values)
+    sparse = np.isfinite(ds["sparse_on_grid"].values)
+    n = int((dense | sparse).sum())
+    return {"dense": float((~dense).sum() - (~(dense | sparse)).sum()) / n if n else None,
+            "sparse": float((~sparse).sum() - (~(dense | sparse)).sum()) / n if n else None}
+
+
+def _nan_median(a: NDArray[Any]) -> float | None:
+    return float(np.nanmedian(a)) if np.isfinite(a).any() else None
+
+
+def dense_grid_config(config: Config, sparse_dem_path: Path, ppd: float, datum_radius_m: float
+                      ) -> tuple[Any, tuple[float, float, float, float]]:
+    """The gridding's configuration of the dense DEM: the sparse DEM's extent snapped to ``ppd``, median of
+    ``dense.grid_neighbours`` points, no value beyond ``dense.max_gap_pixels`` from a dense point; and the bounds.
+    """
+    from mercury_dem.pipeline.dem_stage import open_dem
+
+    sparse = open_dem(sparse_dem_path)
     sl, so = sparse["lat"].values, sparse["lon"].values
     half = 0.5 / float(sparse.attrs.get("pixels_per_degree", 1.0 / abs(sl[1] - sl[0]) if sl.size > 1 else 1.0))
     bounds = snapped_bounds((float(sl.min()) - half, float(sl.max()) + half, float(so.min()) - half,
                              float(so.max()) + half), ppd)
     cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
                   lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours,
-                  max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * body.datum_radius_m / 360.0 / ppd)
+                  max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * datum_radius_m / 360.0 / ppd)
+    return cfg, bounds
+
+
+def _grid_points(store: RunStore, xyz: NDArray[np.float64], cfg: Any, client: ComputeClient | None, body: Any, rep: Any
+                 ) -> tuple[dict[str, Any], Any]:
+    """The DEM stage's gridding of the dense points into a scratch store, searching only the pixels within
+    reach of a point (the others are the sparse fallback's); (its summary, the grid loaded). The scratch goes.
+    """
+    from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+
     scratch = store.root / DEM_DENSE_SCRATCH_FILE
     shutil.rmtree(scratch, ignore_errors=True)
     try:
         summary = grid_dem(xyz, cfg, scratch, client, coverage=False, body=body, record_failures=True,
-                           attrs={"source": "dense stereo points"}, progress=rep, label="dem (dense points)")
-        g = open_dem(scratch).load()
+                           near_points_only=True, attrs={"source": "dense stereo points"}, progress=rep,
+                           label="dem (dense points)")
+        return summary, open_dem(scratch).load()
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    lat, lon = g["lat"].values, g["lon"].values
-    elev = g["elevation"].transpose("lat", "lon").values.astype(np.float64)
-    lat2, lon2 = np.meshgrid(lat, lon, indexing="ij")
-    surf = open_sparse_surface(store.dem_path)
-    fallback = surf.sample(lat2, lon2)
+
+
+def dense_layers(g: Any, elev: NDArray[np.float64], fallback: NDArray[np.float64], precision: NDArray[np.float64],
+                 sparse_sigma_m: float | None = None, fusion_correlation: float = 0.0) -> Any:
+    """The dense DEM's dataset: the gridding's layers ``g`` with ``elevation`` (dense, else the fallback; where
+    ``sparse_sigma_m`` is given the dense value fused with the fallback by their precisions,
+    :func:`~mercury_dem.dem.dense_grid.fuse_with_prior`), ``elevation_dense`` (the dense value alone),
+    ``sparse_on_grid``, ``precision_m`` (NaN without a dense value; the fused sigma when fused) and ``source``.
+    """
     has_dense = np.isfinite(elev)
     source = np.where(has_dense, SOURCE_DENSE, np.where(np.isfinite(fallback), SOURCE_SPARSE, SOURCE_NONE))
     final = np.where(has_dense, elev, fallback)
-    precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
     precision = np.where(has_dense, precision, np.nan)
-    if config.dense.sparse_sigma_m is not None:  # the dense pixels fused with the sparse DEM by their precisions
-        fused, fused_sigma = fuse_with_prior(elev, precision, fallback, config.dense.sparse_sigma_m,
-                                             config.dense.fusion_correlation)
+    if sparse_sigma_m is not None:  # the dense pixels fused with the sparse DEM by their precisions
+        fused, fused_sigma = fuse_with_prior(elev, precision, fallback, sparse_sigma_m, fusion_correlation)
         final = np.where(has_dense, fused, fallback)
         precision = np.where(has_dense, fused_sigma, np.nan)
     ds = g.copy()
@@ -84,24 +148,12 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
                                     "the median stated sigma_h of the pixel's points / sqrt(min(distinct pairs, "
                                     "dense.grid_neighbours)), fused with dense.sparse_sigma_m when set "
                                     "(dem.dense_grid.fuse_with_prior); NaN where no dense value"})
-    ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
-                     "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
-                                  f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
-                     "pixels_per_degree": ppd})
+    ds["distance_to_nearest_point"].attrs["note"] = (
+        "+inf where no dense point is within reach (dense.max_gap_pixels or the count's radius): those pixels "
+        "are not searched (point_count 0)")
     for v in ds.data_vars:
         ds[v].encoding = {}
-    out_path = store.root / DEM_DENSE_FILE
-    with atomic_store(out_path, overwrite=True) as tmp:
-        ds.to_zarr(str(tmp), mode="w", zarr_format=3, consolidated=False)
-    n = source.size
-    return {"path": str(out_path), "pixels_per_degree": ppd, "median_pair_pixel_scale_m": median_pixel_scale_m,
-            "pixel_m": 2 * math.pi * body.datum_radius_m / 360.0 / ppd, "shape": list(source.shape),
-            "bounds": list(bounds), "points": int(xyz.shape[0]),
-            "source_fraction": {"dense": float((source == SOURCE_DENSE).sum() / n),
-                                "sparse_fallback": float((source == SOURCE_SPARSE).sum() / n),
-                                "none": float((source == SOURCE_NONE).sum() / n)},
-            "failed_chunks": summary.get("failed_chunks", []),
-            "precision_median_m": float(np.nanmedian(precision)) if np.isfinite(precision).any() else None}
+    return ds
 
 
 def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArray[np.float64] | None = None,
@@ -116,14 +168,12 @@ def validate_dense_dem(path: Path, truth: Callable[..., Any], control_xyz: NDArr
     lat, lon = ds["lat"].values, ds["lon"].values
     elev = ds["elevation"].transpose("lat", "lon").values
     source = ds["source"].transpose("lat", "lon").values
-    sparse_on_grid_ = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
-    # the issue's comparison: the pixels where the dense points reach and the sparse DEM has a value too
-    dense_px = (source == SOURCE_DENSE) & (np.isfinite(sparse_on_grid_) if sparse_on_grid_ is not None else True)
-    # the sparse DEM on the dense grid: what the fallback holds where the dense DEM has no value, and the
-    # sparse DEM resampled where it has (kept in the store as the fallback's source: re-sampled here)
-    sparse_on_grid = ds["sparse_on_grid"].transpose("lat", "lon").values if "sparse_on_grid" in ds else None
-    if sparse_on_grid is None:
+    if "sparse_on_grid" not in ds:
         raise MercuryDemError(f"{path} has no sparse_on_grid layer")
+    # the sparse DEM on the dense grid (the fallback's source, kept in the store)
+    sparse_on_grid = ds["sparse_on_grid"].transpose("lat", "lon").values
+    # the issue's comparison: the pixels where the dense points reach and the sparse DEM has a value too
+    dense_px = (source == SOURCE_DENSE) & np.isfinite(sparse_on_grid)
     # error against the distance to the nearest control point (issue 31 section 3), for every entry
     dist = (control_distance(control_xyz, lat, lon, datum_radius_m)
             if control_xyz is not None and control_xyz.shape[0] and datum_radius_m is not None else None)

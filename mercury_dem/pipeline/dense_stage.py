@@ -7,7 +7,7 @@ After the DEM stage (the sparse ``dem.zarr`` and, where the mission has altimetr
    :func:`mercury_dem.dense.pairs.select_stereo_pairs`; each selected pair belongs to the tile of its left image
    (the plan's tile, as in matching), capped per tile (``dense.max_pairs_per_tile``); every candidate and the
    reason of each rejection go into the report.
-2. **One Dask task per tile** (:func:`run_dense_tile`): the tile's pairs in rank order, each left image cut into
+2. **One Dask task per tile** (:func:`mercury_dem.pipeline.dense_tile.run_dense_tile`): the tile's pairs in rank order, each left image cut into
    chips (:func:`mercury_dem.dense.chip.chip_grid`), each chip through
    :func:`mercury_dem.dense.chip.dense_chip` about the sparse DEM (``surface_height``), with the tile's height
    margin (``dense.height_margin_factor`` x the robust scatter of the tile's tie points about the sparse DEM,
@@ -22,386 +22,132 @@ After the DEM stage (the sparse ``dem.zarr`` and, where the mission has altimetr
 4. **The dense DEM** ``dem_dense.zarr``: the cloud gridded by the DEM stage's gridding (``dem.method``, ...)
    at ``dense.grid_pixel_factor`` x the pairs' median pixel scale; where no dense point reaches, the sparse DEM
    resampled (bilinear) as fallback; layers ``elevation``, ``precision_m``, ``source`` (0 none, 1 dense,
-   2 sparse fallback) and the gridding's own.
+   2 sparse fallback) and the gridding's own (:mod:`mercury_dem.pipeline.dense_dem`); its products
+   (:mod:`mercury_dem.pipeline.dense_products`) and, with a truth, its validation.
 
 Stages never call each other: this one reads what the earlier ones committed.
 """
 
 from __future__ import annotations
 
+import json
 import math
-import shutil
 import sys
 import time
-from pathlib import Path
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
-from numpy.typing import NDArray
 
 from mercury_dem.compute.failures import lost_to_the_cluster, raise_if_run_stopping
 from mercury_dem.config import Config
 from mercury_dem.exceptions import MercuryDemError
-from mercury_dem.io.run_store import DEM_DENSE_FILE, DENSE_FILE, RunStore, read_solution
+from mercury_dem.io.dense_store import CLOUD_COLUMNS, read_cloud, set_pair_records, tile_complete, tile_group_name
+from mercury_dem.io.run_store import DEM_DENSE_FILE, DENSE_FILE, RunStore
+from mercury_dem.pipeline.dense_inputs import (
+    SparseSurface,
+    adjusted_geometry,
+    criteria_of,
+    matcher_of,
+    open_sparse_surface,
+)
+from mercury_dem.pipeline.dense_tile import run_dense_tile, tile_task
 
 if TYPE_CHECKING:
     from mercury_dem.compute.client import ComputeClient
 
-#: Columns of a tile's cloud (name -> dtype); ``left_px``/``right_px`` are (N, 2).
-CLOUD_COLUMNS: dict[str, Any] = {
-    "lat": np.float64, "lon": np.float64, "height": np.float64, "sigma_h_m": np.float32, "miss_m": np.float32,
-    "angle_deg": np.float32, "score": np.float32, "pair": np.int32, "left_px": np.float32, "right_px": np.float32,
-    "sigma_match_px": np.float32, "m_per_px": np.float32,
-}
+__all__ = ["CLOUD_COLUMNS", "SparseSurface", "adjusted_geometry", "criteria_of", "matcher_of", "open_sparse_surface",
+           "read_cloud", "run_dense_stage", "run_dense_tile", "tile_complete", "tile_group_name"]
+
+#: A rejection reason's first word -> its key in ``dense.pairs.rejected_by_reason``.
+_REASON_KEYS = {"parallax/height": "parallax_height", "pixel-scale": "scale_ratio", "incidence": "incidence",
+                "sun-azimuth": "sun_azimuth", "overlap": "overlap", "tile": "tile_subset", "no": "no_geometry"}
+
+#: Per-tile counts summed into the stage's block.
+_TILE_COUNTS = ("chips", "chips_failed", "chips_capped", "chip_parts", "chip_parts_failed", "points",
+                "interior_pixels")
 
 
+@dataclass(frozen=True)
+class PairSelection:
+    """The stage's pairs: every candidate's row, the selected ones' indices by tile and their records."""
 
-def tile_group_name(tile_id: int) -> str:
-    """The group of a tile's cloud in ``dense.zarr`` (``tile_007``)."""
-    return f"tile_{int(tile_id):03d}"
+    rows: list[Any]
+    per_tile: dict[int, list[int]]
+    pair_index: dict[int, int]
+    records: list[dict[str, Any]]
 
+    def tile_pairs(self, tile: int) -> list[tuple[int, str, str]]:
+        """(pair index, left, right) of a tile's selected pairs, in rank order."""
+        return [(self.pair_index[i], self.rows[i].left, self.rows[i].right) for i in self.per_tile[tile]]
 
-# --------------------------------------------------------------------------- inputs
-def criteria_of(config: Config) -> Any:
-    """The :class:`~mercury_dem.dense.pairs.StereoPairCriteria` of ``config.dense``."""
-    from mercury_dem.dense.pairs import StereoPairCriteria
+    def block(self) -> dict[str, Any]:
+        """The report's ``dense.pairs``: counts, rejections by reason, every candidate's row."""
+        n = len(self.pair_index)
+        return {"candidates": len(self.rows), "selected": n, "rejected": len(self.rows) - n,
+                "rejected_by_reason": rejection_counts(self.rows), "table": [r.to_dict() for r in self.rows]}
 
-    d = config.dense
-    lo, hi = d.best_parallax_height
-    return StereoPairCriteria(
-        min_parallax_height=d.min_parallax_height, max_parallax_height=d.max_parallax_height,
-        best_parallax_height=(lo, hi), max_scale_ratio=d.max_scale_ratio,
-        max_incidence_difference_deg=d.max_incidence_difference_deg,
-        max_sun_azimuth_difference_deg=d.max_sun_azimuth_difference_deg, max_incidence_deg=d.max_incidence_deg,
-        min_overlap=d.min_overlap, max_pairs_per_image=d.max_pairs_per_image)
-
-
-def matcher_of(config: Config) -> tuple[Any, Any]:
-    """The ``MatcherSettings`` and ``PointFilter`` of ``config.dense`` (the other fields: their defaults)."""
-    from mercury_dem.dense.disparity import MatcherSettings
-    from mercury_dem.dense.triangulate import PointFilter
-
-    d = config.dense
-    return (MatcherSettings(mode=d.matcher_mode, block_size=d.block_size, refine_window=d.refine_window,
-                            max_sigma_px=d.max_sigma_px, min_score=d.min_score),
-            PointFilter(max_miss_pixels=d.max_miss_pixels, min_angle_deg=d.min_angle_deg,
-                        max_sigma_h_m=d.max_sigma_h_m))
+    def pixel_scales_m(self) -> Any:
+        """The coarser image's pixel scale of each selected pair (the dense grid's rule)."""
+        return np.array([max(self.rows[i].pixel_scale_left_m, self.rows[i].pixel_scale_right_m)
+                         for i in self.pair_index])
 
 
-def adjusted_geometry(store: RunStore, mission: Any) -> dict[str, Any]:
-    """Image id -> :class:`~mercury_dem.match.pretransform.ImageGeometry` with the global adjustment's pose,
-    for the images it controlled (at least one measure).
-    """
-    from mercury_dem.match.pretransform import ImageGeometry
+def rejection_counts(rows: list[Any]) -> dict[str, int]:
+    """Candidates rejected, by reason (a candidate may fail several tests: each counts)."""
+    from mercury_dem.dense.pairs import SELECTED
 
-    sid, rot, pos, table = read_solution(store.solution_path("global", 0))
-    nmeas = table["n_measures"].to_numpy() if "n_measures" in table else np.ones(len(sid))
-    out: dict[str, Any] = {}
-    for i, r, c, n in zip(sid, rot, pos, nmeas):
-        if n > 0 and np.all(np.isfinite(r)) and np.all(np.isfinite(c)):
-            out[str(i)] = ImageGeometry.of(mission.camera(str(i)), c, r, mission.sun_position(str(i)),
-                                           mission.body.datum_radius_m)
-    return out
-
-
-
-
-
-
-
-
-
-
-class SparseSurface:
-    """The sparse DEM as the chips' ``surface_height`` (bilinear; NaN filled with the DEM's median height).
-
-    Picklable (arrays only), so a task may build it once and pass it around.
-    """
-
-    def __init__(self, values: NDArray[np.float64], lat: NDArray[np.float64], lon: NDArray[np.float64]):
-        self.values = np.asarray(values, np.float64)
-        self.lat = np.asarray(lat, np.float64)
-        self.lon = np.asarray(lon, np.float64)
-        finite = self.values[np.isfinite(self.values)]
-        self.fill = float(np.median(finite)) if finite.size else 0.0
-
-    def sample(self, lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Bilinear values, NaN outside the grid or next to a NaN post."""
-        from mercury_dem.reference.sampling import sample_grid
-
-        return np.asarray(sample_grid(self.values, self.lat, self.lon, lat, lon), np.float64)
-
-    def __call__(self, lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
-        h = self.sample(lat, lon)
-        return np.where(np.isfinite(h), h, self.fill)
-
-
-def open_sparse_surface(dem_path: Path) -> SparseSurface:
-    """The sparse DEM store's elevation as a :class:`SparseSurface` (loaded)."""
-    from mercury_dem.pipeline.dem_stage import open_dem
-
-    ds = open_dem(dem_path)
-    e = ds["elevation"].transpose("lat", "lon")
-    return SparseSurface(e.values, e["lat"].values, e["lon"].values)
-
-
-# --------------------------------------------------------------------------- the tile task
-def tile_complete(path: Path) -> bool:
-    """A tile group committed by :func:`run_dense_tile` (its ``complete`` attribute)."""
-    import zarr
-
-    if not (path / "zarr.json").is_file():
-        return False
-    try:
-        return bool(zarr.open_group(str(path), mode="r").attrs.get("complete", False))
-    except Exception:  # noqa: BLE001 - an unreadable group is not complete (recomputed)
-        return False
-
-
-def read_tile_summary(path: Path) -> dict[str, Any]:
-    """The summary a tile task stored in its group's attributes."""
-    import zarr
-
-    summary: Any = zarr.open_group(str(path), mode="r").attrs["summary"]
-    return dict(summary)
-
-
-def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]], config: Config,
-                   height_margin_m: float) -> dict[str, Any]:
-    """Match one tile's pairs chip by chip and write its cloud ``dense.zarr/tile_XXX`` atomically.
-
-    ``pairs``: (pair index, left id, right id) in rank order. Returns the tile's summary (also stored in the
-    group's attributes): pairs, chips run / failed / capped, points, hole and filter counts, the failures
-    (``{"pair", "left", "right", "chip", "error"}``), seconds and the task's stated memory. An already
-    complete group is not recomputed (its stored summary is returned, ``reused``: True).
-    """
-    from mercury_dem.dense.chip import chip_grid, dense_chip
-    from mercury_dem.mission import open_mission
-
-    store = RunStore(Path(run_root))
-    path = store.root / DENSE_FILE / tile_group_name(tile_id)
-    if tile_complete(path):
-        return {**read_tile_summary(path), "reused": True}
-    t0 = time.perf_counter()
-    mission = open_mission(store.read_run()["mission"])
-    geometry = adjusted_geometry(store, mission)
-    surface = open_sparse_surface(store.dem_path)
-    settings, limits = matcher_of(config)
-    d = config.dense
-    images: dict[str, NDArray[np.float32]] = {}
-    cols: dict[str, list[NDArray[Any]]] = {k: [] for k in CLOUD_COLUMNS}
-    failures: list[dict[str, Any]] = []
-    holes: dict[str, int] = {}
-    removed: dict[str, int] = {}
-    counts = {"pairs": len(pairs), "chips": 0, "chips_failed": 0, "chips_capped": 0, "interior_pixels": 0,
-              "matched": 0, "points": 0, "chip_parts": 0, "chip_parts_failed": 0}
-    per_pair: list[dict[str, Any]] = []
-    sgm_max = 0
-
-    def image(i: str) -> NDArray[np.float32]:
-        if i not in images:
-            images[i] = np.asarray(mission.read_image(i), np.float32)
-        return images[i]
-
-    for index, left, right in pairs:
-        row: dict[str, Any] = {"pair": int(index), "left": left, "right": right, "chips": 0, "points": 0}
-        per_pair.append(row)
-        try:
-            a, b = geometry[left], geometry[right]
-            li, ri = image(left), image(right)
-        except (KeyError, MercuryDemError, OSError, ValueError) as exc:
-            why = f"no adjusted pose for {exc}" if isinstance(exc, KeyError) else str(exc)
-            failures.append({"pair": int(index), "left": left, "right": right, "chip": None,
-                             "error": f"pair {left}/{right}: {why}"})
+    reasons: dict[str, int] = {}
+    for r in rows:
+        if r.status == SELECTED:
             continue
-        chips = chip_grid(a.camera.samples, a.camera.lines, d.chip_size, d.chip_collar)
-        counts["chips_capped"] += max(0, len(chips) - d.max_chips_per_pair)
-        for chip in chips[:d.max_chips_per_pair]:
-            counts["chips"] += 1
-            row["chips"] += 1
-            where = f"pair {left}/{right} chip at ({chip.x0}, {chip.y0})"
-            try:
-                res = dense_chip(li, ri, a, b, chip, surface, height_margin_m, settings, limits,
-                                 sigma_floor_px=d.sigma_floor_px, max_vertical_px=d.max_vertical_px,
-                                 min_chip_px=d.min_chip_px, sigma_scale=d.sigma_scale,
-                                 sigma_height_floor_m=d.sigma_height_floor_factor * height_margin_m,
-                                 sigma_height_cap_m=d.max_height_offset_factor * height_margin_m / math.sqrt(3.0))
-            except (MercuryDemError, ValueError, np.linalg.LinAlgError) as exc:
-                counts["chips_failed"] += 1
-                failures.append({"pair": int(index), "left": left, "right": right,
-                                 "chip": [chip.x0, chip.y0, chip.width, chip.height], "error": f"{where}: {exc}"})
-                continue
-            except Exception as exc:  # noqa: BLE001 - OpenCV's cv2.error and the like: recorded, the rest goes on
-                counts["chips_failed"] += 1
-                failures.append({"pair": int(index), "left": left, "right": right,
-                                 "chip": [chip.x0, chip.y0, chip.width, chip.height],
-                                 "error": f"{where}: {type(exc).__name__}: {exc}"})
-                continue
-            p = res.points
-            far = ~(np.abs(p.height - surface(p.lat, p.lon)) <= d.max_height_offset_factor * height_margin_m)
-            removed["range"] = removed.get("range", 0) + int(far.sum())
-            p = p.subset(~far)
-            n = len(p)
-            sgm_max = max(sgm_max, res.sgm_memory_bytes)
-            counts["interior_pixels"] += res.interior_pixels
-            counts["matched"] += res.matched
-            counts["chip_parts"] += res.parts
-            counts["chip_parts_failed"] += res.parts_failed
-            counts["points"] += n
-            row["points"] += n
-            for k, v in res.holes.items():
-                holes[k] = holes.get(k, 0) + v
-            for k, v in res.removed.items():
-                removed[k] = removed.get(k, 0) + v
-            cols["lat"].append(p.lat)
-            cols["lon"].append(p.lon)
-            cols["height"].append(p.height)
-            cols["sigma_h_m"].append(p.sigma_h_m)
-            cols["miss_m"].append(p.miss_m)
-            cols["angle_deg"].append(p.angle_deg)
-            cols["score"].append(p.score)
-            cols["pair"].append(np.full(n, index))
-            cols["left_px"].append(p.left_px)
-            cols["right_px"].append(p.right_px)
-            cols["sigma_match_px"].append(p.sigma_match_px if p.sigma_match_px is not None else np.full(n, np.nan))
-            cols["m_per_px"].append(p.m_per_px if p.m_per_px is not None else np.full(n, np.nan))
-    image_bytes = sum(int(v.nbytes) for v in images.values())
-    summary = {
-        "tile": int(tile_id), "ok": True, **counts, "holes": holes, "removed": removed, "failures": failures,
-        "pairs_table": per_pair, "height_margin_m": float(height_margin_m),
-        "memory_bytes": {"images": image_bytes, "sgm_max": int(sgm_max), "total": image_bytes + int(sgm_max)},
-        "seconds": round(time.perf_counter() - t0, 3),
-    }
-    arrays = {}
-    for k, dt in CLOUD_COLUMNS.items():
-        width = 2 if k.endswith("_px") else 0
-        empty = np.zeros((0, 2) if width else 0, dt)
-        arrays[k] = np.concatenate(cols[k]).astype(dt) if cols[k] else empty
-    write_tile_group(path, arrays, summary)
-    return summary
+        for part in r.reason.split("; "):
+            key = "cap" if part.startswith("cap:") else _REASON_KEYS.get(part.split(" ")[0], part.split(" ")[0])
+            reasons[key] = reasons.get(key, 0) + 1
+    return reasons
 
 
-def write_tile_group(path: Path, arrays: dict[str, NDArray[Any]], summary: dict[str, Any]) -> None:
-    """Write one tile's cloud as a Zarr group, atomically (built under a temporary name, marked complete in its
-    attributes with the summary, then renamed); an existing group is replaced only once the new one is whole.
-    """
-    import json
-
-    import zarr
-
-    from mercury_dem.io.atomic import atomic_directory
-
-    def mark(tmp: Path) -> None:
-        g = zarr.open_group(str(tmp), mode="r+")
-        g.attrs["summary"] = json.loads(json.dumps(summary, default=float))
-        g.attrs["complete"] = True
-
-    with atomic_directory(path, overwrite=True, mark_complete=mark) as tmp:
-        g = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        for k, a in arrays.items():
-            chunks = (max(1, min(a.shape[0], 1 << 20)),) + a.shape[1:]
-            g.create_array(k, data=np.ascontiguousarray(a), chunks=chunks)
-        g.attrs["columns"] = {k: ("(N, 2) sample, line, 0-based" if k.endswith("_px") else "(N,)")
-                              for k in arrays}
-
-
-def read_cloud(dense_path: Path, tiles: list[int] | None = None) -> dict[str, NDArray[Any]]:
-    """The complete tiles' clouds concatenated (column -> array), in tile order."""
-    import zarr
-
-    names = sorted(p.name for p in dense_path.iterdir() if p.name.startswith("tile_")) if dense_path.is_dir() else []
-    if tiles is not None:
-        want = {tile_group_name(t) for t in tiles}
-        names = [n for n in names if n in want]
-    out: dict[str, list[NDArray[Any]]] = {k: [] for k in CLOUD_COLUMNS}
-    for n in names:
-        if not tile_complete(dense_path / n):
-            continue
-        g = zarr.open_group(str(dense_path / n), mode="r")
-        for k in CLOUD_COLUMNS:
-            arr: Any = g[k]
-            out[k].append(np.asarray(arr[...]))
-    return {k: (np.concatenate(v) if v else np.zeros((0, 2) if k.endswith("_px") else 0, CLOUD_COLUMNS[k]))
-            for k, v in out.items()}
-
-
-def _tile_task(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]], config: Config,
-               margin: float) -> dict[str, Any]:
-    """:func:`run_dense_tile`; an unexpected exception becomes a failed tile's summary (nothing written)."""
-    try:
-        return run_dense_tile(run_root, tile_id, pairs, config, margin)
-    except Exception as exc:  # noqa: BLE001 - recorded as a value; a full disk still stops the run
-        raise_if_run_stopping(exc, f"dense tile {tile_id}", run_root)
-        return {"tile": int(tile_id), "ok": False, "error": f"dense tile {tile_id}: {type(exc).__name__}: {exc}"}
-
-
-# --------------------------------------------------------------------------- the driver
-def run_dense_stage(store: RunStore, mission: Any, config: Config, client: ComputeClient,
-                    stream: TextIO | None = sys.stdout) -> dict[str, Any]:
-    """Select the pairs, run the tiles on ``client``, grid the dense DEM; returns the report's ``dense`` block
-    (with ``validation``: the dense DEM and the sparse DEM on the dense grid against the truth, when known).
-    """
-    import json
-
-    import zarr
-
-    from mercury_dem.compute import as_completed
-    from mercury_dem.dem.cloud import point_cloud
-    from mercury_dem.dem.dense_grid import dense_grid_ppd
+def select_pairs(store: RunStore, mission: Any, config: Config) -> PairSelection:
+    """The overlap graph's edges among the controlled images through the pair rule, capped per tile."""
     from mercury_dem.dense.pairs import SELECTED, select_stereo_pairs
-    from mercury_dem.dense.rules import cap_per_tile, height_margins
-    from mercury_dem.io.network_store import read_network
-    from mercury_dem.pipeline.dense_dem import grid_dense_dem, rmse_ratio, validate_dense_dem
-    from mercury_dem.progress import Reporter
+    from mercury_dem.dense.rules import cap_per_tile
 
-    rep = Reporter(stream)
-    t0 = time.perf_counter()
-    d = config.dense
-    body = mission.body
     geometry = adjusted_geometry(store, mission)
     images, overlaps, _ = store.read_plan()
     tile_of = dict(zip(images["image_id"].astype(str), images["tile_id"].astype(int)))
     candidates = [(str(a), str(b)) for a, b in zip(overlaps["image_i"], overlaps["image_j"])
                   if str(a) in geometry and str(b) in geometry]
     rows = select_stereo_pairs(geometry, criteria_of(config), candidates)
-    rows, per_tile = cap_per_tile(rows, tile_of, d.max_pairs_per_tile, d.tiles)  # dense.rules
-    selected = [i for i, r in enumerate(rows) if r.status == SELECTED]
-    pair_index = {i: k for k, i in enumerate(sorted(selected, key=lambda i: rows[i].rank))}
-    pair_records = [{"index": pair_index[i], **rows[i].to_dict()} for i in sorted(selected, key=lambda i: pair_index[i])]
-    reasons: dict[str, int] = {}
-    for r in rows:
-        if r.status != SELECTED:
-            for part in r.reason.split("; "):
-                key = part.split(" ")[0] if not part.startswith("cap:") else "cap"
-                key = {"parallax/height": "parallax_height", "pixel-scale": "scale_ratio",
-                       "incidence": "incidence", "sun-azimuth": "sun_azimuth", "overlap": "overlap",
-                       "tile": "tile_subset", "no": "no_geometry"}.get(key, key)
-                reasons[key] = reasons.get(key, 0) + 1
-    rep.message(f"dense: {len(candidates)} candidate pairs, {len(selected)} selected over {len(per_tile)} tiles")
-
-    surface = open_sparse_surface(store.dem_path)
-    net = read_network(store.network_path("global", 0))
-    tie = point_cloud(net, adjusted=True)
-    margins, run_margin = height_margins(tie, surface.sample, body.datum_radius_m, config.tiling.tile_size_deg,
-                                         d.height_margin_factor, d.min_height_margin_m)
-
-    dense_path = store.root / DENSE_FILE
-    root = zarr.open_group(str(dense_path), mode="a", zarr_format=3)
+    rows, per_tile = cap_per_tile(rows, tile_of, config.dense.max_pairs_per_tile, config.dense.tiles)
+    ranked = sorted((i for i, r in enumerate(rows) if r.status == SELECTED), key=lambda i: rows[i].rank)
+    pair_index = {i: k for k, i in enumerate(ranked)}
+    records = [{"index": pair_index[i], **rows[i].to_dict()} for i in ranked]
     records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
-               for r in json.loads(json.dumps(pair_records, default=float))]
-    if root.attrs.get("pairs") != records:
-        # another selection (config changed under --force): the tiles' pair indices would not match
-        for p in dense_path.iterdir():
-            if p.name.startswith("tile_"):
-                shutil.rmtree(p, ignore_errors=True)
-        root.attrs["pairs"] = records
-    root.attrs["columns"] = {k: str(np.dtype(v)) for k, v in CLOUD_COLUMNS.items()}
+               for r in json.loads(json.dumps(records, default=float))]
+    return PairSelection(rows, per_tile, pair_index, records)
 
-    futures = []
-    for t in sorted(per_tile):
-        plist = [(pair_index[i], rows[i].left, rows[i].right) for i in per_tile[t]]
-        futures.append(client.submit(_tile_task, store.location, t, plist, config, margins.get(t, run_margin),
-                                     key=f"dense-tile-{t}", pure=False, retries=config.execution.retries))
+
+def tile_margins(store: RunStore, config: Config, body: Any) -> tuple[dict[int, float], float]:
+    """Each tile's height margin and the run's (:func:`mercury_dem.dense.rules.height_margins`)."""
+    from mercury_dem.dem.cloud import point_cloud
+    from mercury_dem.dense.rules import height_margins
+    from mercury_dem.io.network_store import read_network
+
+    tie = point_cloud(read_network(store.network_path("global", 0)), adjusted=True)
+    d = config.dense
+    surface = open_sparse_surface(store.dem_path)
+    return height_margins(tie, surface.sample, body.datum_radius_m, config.tiling.tile_size_deg,
+                          d.height_margin_factor, d.min_height_margin_m)
+
+
+def run_tiles(store: RunStore, config: Config, client: ComputeClient, pairs: PairSelection, margins: dict[int, float],
+              run_margin: float, rep: Any) -> list[dict[str, Any]]:
+    """One task per tile on ``client``; their summaries (a lost task recorded as a failed tile), in tile order."""
+    from mercury_dem.compute import as_completed
+
+    futures = [client.submit(tile_task, store.location, t, pairs.tile_pairs(t), config, margins.get(t, run_margin),
+                             key=f"dense-tile-{t}", pure=False, retries=config.execution.retries)
+               for t in sorted(pairs.per_tile)]
     tiles: list[dict[str, Any]] = []
     for fut in as_completed(client, futures):
         try:
@@ -415,43 +161,112 @@ def run_dense_stage(store: RunStore, mission: Any, config: Config, client: Compu
         rep.message(f"dense: tile {s.get('tile')}: " + (f"{s.get('points', 0)} points from {s.get('chips', 0)} "
                     f"chips in {s.get('seconds', 0):.1f} s" if s.get("ok") else f"FAILED ({s.get('error')})"))
     tiles.sort(key=lambda s: (s.get("tile") is None, s.get("tile") or 0))
-    ok_tiles = [s for s in tiles if s.get("ok")]
-    failures = [f for s in ok_tiles for f in s.get("failures", [])]
-    out: dict[str, Any] = {
-        "path": str(dense_path),
-        "pairs": {"candidates": len(rows), "selected": len(selected), "rejected": len(rows) - len(selected),
-                  "rejected_by_reason": reasons, "table": [r.to_dict() for r in rows]},
+    return tiles
+
+
+def tiles_block(tiles: list[dict[str, Any]], margins: dict[int, float], run_margin: float) -> dict[str, Any]:
+    """The report's per-stage sums of the tiles' summaries."""
+    ok = [s for s in tiles if s.get("ok")]
+    return {
         "tiles": {"run": len(tiles), "failed": [s for s in tiles if not s.get("ok")]},
-        "chips": int(sum(s.get("chips", 0) for s in ok_tiles)),
-        "chips_failed": int(sum(s.get("chips_failed", 0) for s in ok_tiles)),
-        "chips_capped": int(sum(s.get("chips_capped", 0) for s in ok_tiles)),
-        "chip_parts": int(sum(s.get("chip_parts", 0) for s in ok_tiles)),
-        "chip_parts_failed": int(sum(s.get("chip_parts_failed", 0) for s in ok_tiles)),
-        "points": int(sum(s.get("points", 0) for s in ok_tiles)),
-        "interior_pixels": int(sum(s.get("interior_pixels", 0) for s in ok_tiles)),
-        "holes": _sum_dicts(s.get("holes", {}) for s in ok_tiles),
-        "removed": _sum_dicts(s.get("removed", {}) for s in ok_tiles),
-        "failures": failures,
+        **{k: int(sum(s.get(k, 0) for s in ok)) for k in _TILE_COUNTS},
+        "holes": _sum_dicts(s.get("holes", {}) for s in ok),
+        "removed": _sum_dicts(s.get("removed", {}) for s in ok),
+        "failures": [f for s in ok for f in s.get("failures", [])],
         "height_margin_m": {"run": run_margin, "per_tile": {str(k): v for k, v in sorted(margins.items())}},
-        "memory_bytes_max_task": max((s["memory_bytes"]["total"] for s in ok_tiles if "memory_bytes" in s),
-                                     default=0),
-        "tile_seconds": {str(s["tile"]): s.get("seconds") for s in ok_tiles},
+        "memory_bytes_max_task": max((s["memory_bytes"]["total"] for s in ok if "memory_bytes" in s), default=0),
+        "tile_seconds": {str(s["tile"]): s.get("seconds") for s in ok},
     }
-    scales = np.array([max(r.pixel_scale_left_m, r.pixel_scale_right_m) for r in rows if r.status == SELECTED])
+
+
+# --------------------------------------------------------------------------- the driver
+def run_dense_stage(store: RunStore, mission: Any, config: Config, client: ComputeClient,
+                    stream: TextIO | None = sys.stdout) -> dict[str, Any]:
+    """Select the pairs, run the tiles on ``client``, grid the dense DEM, make its products; returns the report's
+    ``dense`` block (with ``validation``: the dense DEM and the sparse DEM on the dense grid against the truth,
+    when known).
+    """
+    from mercury_dem.progress import Reporter
+
+    rep = Reporter(stream)
+    t0 = time.perf_counter()
+    pairs = select_pairs(store, mission, config)
+    rep.message(f"dense: {len(pairs.rows)} candidate pairs, {len(pairs.pair_index)} selected over "
+                f"{len(pairs.per_tile)} tiles")
+    margins, run_margin = tile_margins(store, config, mission.body)
+    dense_path = store.root / DENSE_FILE
+    set_pair_records(dense_path, pairs.records)
+    tiles = run_tiles(store, config, client, pairs, margins, run_margin, rep)
+    out: dict[str, Any] = {"path": str(dense_path), "pairs": pairs.block(), **tiles_block(tiles, margins, run_margin)}
+    scales = pairs.pixel_scales_m()
     if out["points"] == 0 or scales.size == 0:
         out["dem"] = {"error": "no dense point: no dense DEM (see dense.pairs and dense.failures)"}
-        out["seconds"] = round(time.perf_counter() - t0, 2)
-        return out
-    ppd = dense_grid_ppd(scales, d.grid_pixel_factor, body.datum_radius_m)
-    out["dem"] = grid_dense_dem(store, config, ppd, client, body, rep, median_pixel_scale_m=float(np.median(scales)))
-    if mission.truth is not None:
-        out["validation"] = validate_dense_dem(store.root / DEM_DENSE_FILE, mission.truth.surface().height, tie,
-                                               body.datum_radius_m)
-        out["dem"]["rmse_ratio_dense_over_sparse"] = rmse_ratio(out["validation"])
+    else:
+        out.update(dense_dem_and_products(store, mission, config, client, pairs, rep))
+        rep.message(f"dense stage: {out['points']} points, {out['chips']} chips ({out['chips_failed']} failed), "
+                    f"dense DEM at {out['dem']['pixels_per_degree']:g} pixel/deg")
     out["seconds"] = round(time.perf_counter() - t0, 2)
-    rep.message(f"dense stage: {out['points']} points, {out['chips']} chips ({out['chips_failed']} failed), "
-                f"dense DEM at {ppd:g} pixel/deg in {out['seconds']:.1f} s")
     return out
+
+
+def dense_dem_and_products(store: RunStore, mission: Any, config: Config, client: ComputeClient, pairs: PairSelection,
+                           rep: Any) -> dict[str, Any]:
+    """The dense DEM at the grid rule's resolution, its validation against the truth (when known), its products,
+    its comparison with the run's references and the orthoimages on it: the report's ``dem``, ``validation``,
+    ``products``, ``reference``, ``ortho``.
+    """
+    from mercury_dem.dem.cloud import point_cloud
+    from mercury_dem.dem.dense_grid import dense_grid_ppd
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.pipeline.dense_dem import grid_dense_dem, rmse_ratio, validate_dense_dem
+    from mercury_dem.pipeline.dense_products import reference_comparison, write_dense_products
+
+    body = mission.body
+    scales = pairs.pixel_scales_m()
+    ppd = dense_grid_ppd(scales, config.dense.grid_pixel_factor, body.datum_radius_m)
+    t = time.perf_counter()
+    out: dict[str, Any] = {"dem": grid_dense_dem(store, config, ppd, client, body, rep,
+                                                 median_pixel_scale_m=float(np.median(scales)))}
+    out["dem"]["seconds"] = round(time.perf_counter() - t, 2)
+    path = store.root / DEM_DENSE_FILE
+    truth = mission.truth.surface().height if mission.truth is not None else None
+    if truth is not None:
+        tie = point_cloud(read_network(store.network_path("global", 0)), adjusted=True)
+        out["validation"] = validate_dense_dem(path, truth, tie, body.datum_radius_m)
+        out["dem"]["rmse_ratio_dense_over_sparse"] = rmse_ratio(out["validation"])
+    try:
+        rep.message("dense: products of the dense DEM (GeoTIFF/COG, PDS, ISIS, statistics, browse)")
+        out["products"] = write_dense_products(store, config, truth)
+        out["reference"] = reference_comparison(path, config)
+        rep.message("dense: orthoimages of the pairs' images on the dense DEM, mosaics of the dense tiles")
+        out["ortho"] = dense_orthoimages(store, config, pairs, float(out["dem"]["pixel_m"]))
+    except (MercuryDemError, OSError, ValueError) as exc:  # the DEM stands without its products: said, not hidden
+        raise_if_run_stopping(exc, "dense products", store.location)
+        out["products"] = {"error": f"dense products: {type(exc).__name__}: {exc}"}
+    return out
+
+
+def dense_orthoimages(store: RunStore, config: Config, pairs: PairSelection, dtm_pixel_m: float) -> dict[str, Any]:
+    """The selected pairs' images orthorectified on the dense DEM at their native scale, and each dense tile's
+    mosaic at its images' native scale and at the DTM's (``RUN/products/dense/ortho/``,
+    :func:`mercury_dem.pipeline.ortho_stage.make_orthoimages`); the report's summary of them.
+    """
+    from mercury_dem.io.run_store import DENSE_PRODUCTS_DIR
+    from mercury_dem.pipeline.ortho_stage import ORTHO_DIR, make_orthoimages
+
+    images = sorted({x for i in pairs.pair_index for x in (pairs.rows[i].left, pairs.rows[i].right)})
+    s = make_orthoimages(store.root, out_dir=store.products_dir / DENSE_PRODUCTS_DIR / ORTHO_DIR, images=images,
+                         tiles=sorted(pairs.per_tile), dem_path=store.root / DEM_DENSE_FILE,
+                         tile_size_deg=config.tiling.tile_size_deg, polar_cut_lat=config.dem.polar_cut_lat,
+                         overwrite=True, dtm_pixel_m=dtm_pixel_m)
+    return {"dir": s["out"], "images": len(s["images"]), "skipped": s["skipped"],
+            "mosaics": {t: ({"skipped": m["skipped"]} if "skipped" in m else
+                            {"path": m["path"], "pixel_m": m["pixel_m"], "images": len(m["images"]),
+                             "valid_fraction": m["valid_fraction"],
+                             "dtm": {k: v for k, v in (m.get("dtm") or {}).items()
+                                     if k in ("path", "pixel_m", "valid_fraction", "skipped")}})
+                        for t, m in s["mosaics"].items()},
+            "seconds": s["seconds"]}
 
 
 def _sum_dicts(ds: Any) -> dict[str, int]:
@@ -460,13 +275,3 @@ def _sum_dicts(ds: Any) -> dict[str, int]:
         for k, v in dd.items():
             out[k] = out.get(k, 0) + int(v)
     return out
-
-
-
-
-
-
-
-
-
-

@@ -300,7 +300,30 @@ def dense_lines(dense: dict[str, Any] | None, limit: int = 5) -> str:
         out.append(f"  dense DEM: {dem.get('pixels_per_degree')} pixel/deg, dense {_f(frac.get('dense'), '.0%')}, "
                    f"sparse fallback {_f(frac.get('sparse_fallback'), '.0%')}; RMSE dense / sparse on the dense "
                    f"pixels {_f(dem.get('rmse_ratio_dense_over_sparse'), '.2f')}\n")
+    out += _dense_product_lines(dense)
     return "".join(out)
+
+
+def _dense_product_lines(dense: dict[str, Any]) -> list[str]:
+    """The dense DEM's products, orthoimages and reference comparison, a line each (when the stage made them)."""
+    out = []
+    prod = dense.get("products") or {}
+    if prod.get("error"):
+        out.append(f"  dense products: {prod['error']}\n")
+    elif prod:
+        out.append(f"  dense products: {len(prod.get('files', []))} files in {prod.get('dir')}\n")
+    ortho = dense.get("ortho") or {}
+    if ortho:
+        made = sum("path" in m for m in (ortho.get("mosaics") or {}).values())
+        out.append(f"  orthoimages on the dense DEM: {ortho.get('images', 0)} images, {made} tile mosaics\n")
+    ref = dense.get("reference") or {}
+    for name, stats in (ref.get("dense") or {}).items():
+        sparse = (ref.get("sparse") or {}).get(name) or {}
+        if "rmse_m" in stats:
+            out.append(f"  vs {name}: dense RMSE {_f(stats.get('rmse_m'), '.0f')} m (bias "
+                       f"{_f(stats.get('bias_m'), '+.0f')}), sparse on the same pixels "
+                       f"{_f(sparse.get('rmse_m'), '.0f')} m (bias {_f(sparse.get('bias_m'), '+.0f')})\n")
+    return out
 
 
 def level_notes(row: dict[str, Any], limit: int = 5) -> list[str]:

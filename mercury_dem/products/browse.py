@@ -245,6 +245,39 @@ def write_colour_png(h: NDArray[np.floating], shade: NDArray[np.floating], lat: 
     return _finish(fig, path)
 
 
+def write_hillshade_pair_png(left: NDArray[np.floating], right: NDArray[np.floating], lat: NDArray[np.float64],
+                            lon: NDArray[np.float64], path: str | Path, titles: tuple[str, str], suptitle: str,
+                            *, radius_m: float) -> dict[str, Any]:
+    """Two DEMs on the same grid as shaded relief side by side, cropped to where ``right`` has values, with the
+    same vertical exaggeration (from ``right``) and sun; grey where a map has no value. Returns the
+    exaggeration and the crop's extent (degrees: west, east, south, north).
+    """
+    ex = auto_exaggeration(right, lat, lon, radius_m=radius_m)
+    shades = [hillshade(h, lat, lon, exaggeration=ex, radius_m=radius_m) for h in (left, right)]
+    crops = [crop_to_data(right, sh, lat, lon) for sh in shades]
+    _, s_left, clat, clon = crops[0]
+    s_right = crops[1][1]
+    dlat, dlon, _ = _spacing(clat, clon)
+    extent = (clon[0] - dlon / 2, clon[-1] + dlon / 2, clat[-1] - dlat / 2, clat[0] + dlat / 2)
+    aspect_hw = (extent[3] - extent[2]) / max(extent[1] - extent[0], 1e-9)
+    panel_w = 5.6
+    fig = plt.figure(figsize=(12.0, min(panel_w * aspect_hw, 12.0) + 1.2))
+    cmap = plt.get_cmap("gray").with_extremes(bad=(0.55, 0.45, 0.45, 1.0))
+    for k, (sh, title) in enumerate(zip((s_left, s_right), titles)):
+        ax = fig.add_axes((0.09 + 0.48 * k, 0.08, 0.41, 0.8))
+        ax.imshow(np.ma.masked_invalid(sh), cmap=cmap, vmin=0.0, vmax=1.0, extent=extent, interpolation="nearest",
+                  aspect="equal")
+        ax.xaxis.set_major_formatter(ticker.FuncFormatter(east_longitude_label))
+        ax.set_xlabel("east longitude (deg)")
+        if k == 0:
+            ax.set_ylabel("planetocentric latitude (deg)")
+        ax.set_title(title, fontsize=10)
+    fig.suptitle(f"{suptitle}; shaded relief x{ex:.0f} vertical exaggeration, sun from NW 45°; "
+                 "reddish grey: no value", fontsize=10)
+    _finish(fig, path)
+    return {"path": str(path), "exaggeration": ex, "extent_deg": [float(e) for e in extent]}
+
+
 def write_error_png(error: NDArray[np.floating], lat: NDArray[np.float64], lon: NDArray[np.float64],
                     path: str | Path, title: str) -> Path:
     """DEM minus truth on the map (degrees, diverging colours symmetric about 0 at the 98th percentile

@@ -132,7 +132,8 @@ def make_products(
     ``coverage`` (dict or None), ``accuracy`` (dict or None), ``pds`` (descriptions, each
     with its PDS4 label under ``pds4``), ``isis`` (the radius cube's description),
     ``skipped`` (product file -> why it was not written: a PDS product whose latitudes the
-    map does not reach; its .xml label is not written either), ``profiles``, ``seconds``.
+    map does not reach; its .xml label is not written either), ``profiles``, ``browse_title`` (the colour
+    hillshade's title), ``seconds``.
 
     Raises
     ------
@@ -190,18 +191,20 @@ def make_products(
         files += [eq["path"], eq["pds4"]["path"]]
     else:
         skip("equirectangular", f"within +-{cut:g} deg")
-    for name, north in (("north_polar", True), ("south_polar", False)):
+    # (the loop's variable is not ``name``: it once replaced the map's name, and an equatorial block's colour
+    # hillshade was titled "south_polar")
+    for cap_name, north in (("north_polar", True), ("south_polar", False)):
         covers = lat.max() >= cut if north else lat.min() <= -cut
         if not covers:
-            skip(name, f"north of {cut:g} deg" if north else f"south of -{cut:g} deg")
+            skip(cap_name, f"north of {cut:g} deg" if north else f"south of -{cut:g} deg")
             continue
         cap = reproject_polar(elev, lat, lon, north, cut, body=body)
         half = cap["x"].size * cap["pixel_m"] / 2.0  # square grid centred on the pole
         p = write_raster(cap["values"], pixel_transform(-half, half, cap["pixel_m"]), cap["crs"],
-                         out / f"pds/{name}.tif", raw=True, description=band_description(body),
+                         out / f"pds/{cap_name}.tif", raw=True, description=band_description(body),
                          tags={**height_tags(body), "LATITUDE_LIMIT_DEG": str(cut)})
         label = write_pds4_label(p, body, (0.0, cut, 360.0, 90.0) if north else (0.0, -90.0, 360.0, -cut))
-        pds[name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
+        pds[cap_name] = {"path": str(p), "shape": list(cap["values"].shape), "crs": cap["crs"], "pixel_m": cap["pixel_m"],
                      "valid_fraction_in_cap": cap["valid_fraction"], "pds4": label}
         files += [str(p), label["path"]]
     summary["pds"] = pds
@@ -234,6 +237,7 @@ def make_products(
         ch, cs, clat, clon = browse.crop_to_data(h, shade, blat, blon)
         title += " (cropped to the data)"
     files.append(str(browse.write_colour_png(ch, cs, clat, clon, out / "browse/colour_hillshade.png", title, ex, radius_m=R)))
+    summary["browse_title"] = title
     files.append(str(browse.write_robinson_png(
         h, shade, blat, blon, out / "browse/robinson.png", min(cfg.browse_width, 1600), body=body)))
     summary["browse_exaggeration"] = ex

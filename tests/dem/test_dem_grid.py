@@ -232,3 +232,31 @@ def test_smallest_set_breaks_ties_by_point_index():
         assert sorted(zip(dk2[:k], ik[:k])) == want
         assert (lo, hi) == (want[0][0], want[-1][0])
     assert n_tie_cases > 100  # the tie path was exercised
+
+
+@pytest.mark.parametrize("method", ["median11", "shepard"])
+def test_near_points_only_grids_the_same_values_on_a_patchy_cloud(method):
+    """Two small patches on a wide grid (the dense stereo cloud's case): searching only the pixels within reach
+    of a point gives every layer as the full search does there, and the far pixels are gaps (no count, distance
+    +inf: beyond the reach, where the full search finds them too).
+    """
+    rng = np.random.default_rng(11)
+    cloud = np.concatenate([sample_cloud(rng, 20_000, (-5, 0), (110, 116)),
+                            sample_cloud(rng, 8_000, (12, 15), (140, 143))])
+    cfg = DemConfig(method=method, neighbours=32, max_distance_m=10_000.0, **REGION)
+    index = build_point_index(cloud, datum_radius_m=DATUM_RADIUS_M)
+    g = GridSpec.from_config(cfg, datum_radius_m=DATUM_RADIUS_M)
+    reach = max(cfg.max_distance_m, cfg.search_radius_factor * 2 * np.pi * DATUM_RADIUS_M / 360 / 4.0)
+    for bounds in [(0, g.shape[0], 0, g.shape[1]), (100, 140, 30, 90)]:
+        full = grid_chunk(index, g, bounds, cfg)
+        near = grid_chunk(index, g, bounds, cfg, near_points_only=True)
+        far = full["distance_to_nearest_point"] > reach * (1 + 1e-6)
+        assert np.array_equal(np.isinf(near["distance_to_nearest_point"]), far)
+        for name, a in full.items():
+            b = near[name].copy()
+            if name == "distance_to_nearest_point":
+                b[far] = a[far]
+            np.testing.assert_array_equal(b, a, err_msg=f"{method} {bounds} {name}")
+        assert (full["point_count"][far] == 0).all() and np.isnan(full["elevation"][far]).all()
+    assert 0.02 < np.isfinite(full["elevation"]).mean() < 0.3  # patchy: most pixels are gaps
+    assert far.mean() > 0.5

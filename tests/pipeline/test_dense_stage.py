@@ -112,6 +112,41 @@ def test_the_dense_dem_has_elevation_precision_and_source(dense_run: tuple[Path,
     assert block["source_fraction"]["dense"] > 0.2  # measured 0.35 (the rest of the map is outside the images)
 
 
+def test_the_dense_dem_has_the_sparse_dems_products(dense_run: tuple[Path, dict[str, Any], float]) -> None:
+    """GeoTIFF/COG, PDS with labels, ISIS cube, statistics and browse of the dense DEM, its values, the side-by-side
+    hillshade, and the orthoimages on it (issue 31 section 3).
+    """
+    import rasterio
+
+    from mercury_dem.pipeline.dem_stage import open_dem
+
+    run, report, _ = dense_run
+    prod = run / "products" / "dense"
+    block = report["dense"]["products"]
+    assert "error" not in block, block
+    for rel in ("dem.tif", "pds/equirectangular.tif", "pds/equirectangular.xml", "isis/dem_radius.cub",
+                "statistics.json", "browse/hillshade.png", "browse/colour_hillshade.png",
+                "browse/dense_vs_sparse_hillshade.png"):
+        assert (prod / rel).stat().st_size > 0, rel
+    assert not [p for p in prod.rglob("*") if ".tmp-" in p.name]  # written under temporary names, renamed
+    assert block["browse_title"].startswith("Mercury dense DEM (")
+    ds = open_dem(run / "dem_dense.zarr").load()
+    elev = ds["elevation"].transpose("lat", "lon").values
+    with rasterio.open(prod / "dem.tif") as src:
+        tif = src.read(1, masked=True).filled(np.nan)
+    assert tif.shape == elev.shape
+    ok = np.isfinite(elev)
+    assert np.array_equal(np.isfinite(tif), ok)
+    assert np.array_equal(np.sort(tif[ok]), np.sort(elev[ok]))  # the product layer's values, dense and fallback
+    orth = report["dense"]["ortho"]
+    assert orth["images"] > 0 and not orth["skipped"]
+    made = [m for m in orth["mosaics"].values() if "path" in m]
+    assert made and all(m["dtm"]["pixel_m"] == pytest.approx(report["dense"]["dem"]["pixel_m"]) for m in made)
+    assert all(m["pixel_m"] < m["dtm"]["pixel_m"] for m in made)  # native scale finer than the DTM's
+    with rasterio.open(made[0]["dtm"]["path"]) as src:
+        assert src.overviews(1) and src.crs is not None
+
+
 def test_the_report_has_the_dense_entries(dense_run: tuple[Path, dict[str, Any], float]) -> None:
     run, report, seconds = dense_run
     on_disk = json.loads((run / "report.json").read_text())
@@ -130,6 +165,7 @@ def test_the_report_has_the_dense_entries(dense_run: tuple[Path, dict[str, Any],
 
     text = dense_lines(dense)
     assert f"{pairs['selected']} of {pairs['candidates']} candidate pairs selected" in text and "dense DEM:" in text
+    assert "dense products: " in text and "orthoimages on the dense DEM: " in text
     print(f"dense stage {on_disk['timings']['dense']:.1f} s, resumed run {seconds:.1f} s")
 
 

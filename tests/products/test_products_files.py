@@ -207,6 +207,29 @@ def test_regional_map_names_the_caps_it_does_not_reach(tmp_path, dem_dir, produc
     assert set(summary["skipped"]) == {"pds/north_polar.tif", "pds/south_polar.tif"}
     assert "none north of 65 deg" in summary["skipped"]["pds/north_polar.tif"]
     assert "-19.75 to 19.75" in summary["skipped"]["pds/south_polar.tif"]
+    # the colour hillshade is titled with the map's name (it once read "south_polar", the caps loop's variable)
+    assert summary["browse_title"].startswith("Mercury DEM (")
+    named = make_products(tmp_path / "dem.zarr", tmp_path / "named", cfg, name="dense DEM")
+    assert named["browse_title"].startswith("Mercury dense DEM (") and "polar" not in named["browse_title"]
     assert not (out / "pds/north_polar.tif").exists()
     assert (out / "pds/equirectangular.tif").exists()
     assert products["skipped"] == {}  # the global map writes every product
+
+
+def test_hillshade_pair_crops_to_the_right_maps_data_and_shades_both_alike(tmp_path):
+    """The dense-vs-sparse browse: both maps shaded with one exaggeration, cropped to where the right one has values."""
+    from mercury_dem.products import browse
+
+    lat = np.arange(19.75, -20.0, -0.5)
+    lon = np.arange(100.25, 140.0, 0.5)
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    crater = -800.0 * np.exp(-((la - 2.0) ** 2 + (lo - 121.0) ** 2) / 2.0)
+    right = np.where((np.abs(la) < 5.0) & (np.abs(lo - 120.0) < 6.0), crater, np.nan)
+    left = np.zeros_like(crater)
+    res = browse.write_hillshade_pair_png(left, right, lat, lon, tmp_path / "pair.png", ("a", "b"), "test",
+                                          radius_m=DATUM_RADIUS_M)
+    assert (tmp_path / "pair.png").stat().st_size > 0
+    assert res["exaggeration"] == pytest.approx(browse.auto_exaggeration(right, lat, lon, radius_m=DATUM_RADIUS_M))
+    w, e, s, n = res["extent_deg"]
+    # the right map's data (|lat| < 5, 114..126 E) plus crop_to_data's 4-pixel margin (2 deg)
+    assert 111.5 <= w <= 114.0 and 126.0 <= e <= 128.5 and -7.5 <= s <= -5.0 and 5.0 <= n <= 7.5
