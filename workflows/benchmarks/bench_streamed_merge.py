@@ -62,6 +62,19 @@ def _ordered_map(client: Any, window: int) -> Any:
     return run
 
 
+def _config(args: argparse.Namespace) -> Any:
+    from mercury_dem.config.adjust import AdjustConfig
+
+    kw: dict[str, Any] = dict(CFG_KW)
+    if args.max_iterations:
+        kw["max_iterations"] = args.max_iterations
+    return AdjustConfig(**kw)
+
+
+def _worker_peak() -> int:
+    return _peak()
+
+
 def unit(args: argparse.Namespace) -> None:
     """The unit's process: streamed merge, then the blocked adjustment over the merged store."""
     from mercury_dem.adjust.blocked import (
@@ -72,12 +85,11 @@ def unit(args: argparse.Namespace) -> None:
         setup_from_config,
     )
     from mercury_dem.compute import open_client
-    from mercury_dem.config.adjust import AdjustConfig
     from mercury_dem.io.merged_network_store import stream_merge
     from mercury_dem.io.synthetic_network_store import BlockedNetwork, StoredBlocks
 
     root = Path(args.dir)
-    cfg = AdjustConfig(**CFG_KW)
+    cfg = _config(args)
     src_images = BlockedNetwork(root / "src").images
     out = root / "merged"
     shutil.rmtree(out, ignore_errors=True)
@@ -90,6 +102,12 @@ def unit(args: argparse.Namespace) -> None:
                                map_parts=mapper)
         rec["merge_seconds"] = round(time.perf_counter() - t0, 2)
         rec["unit_peak_rss_bytes_after_merge"] = _peak()
+        if args.merge_only:
+            rec.update({"merge": summary.to_dict(), "measures": summary.n_measures, "unit_peak_rss_bytes": _peak(),
+                        "worker_peak_rss_bytes": client.run(_worker_peak) if args.workers > 0 else {}})
+            rec["worker_peak_rss_bytes"] = list(rec["worker_peak_rss_bytes"].values())
+            print(json.dumps(rec))
+            return
         t0 = time.perf_counter()
         net = BlockedNetwork(out)
         im = net.images
@@ -119,13 +137,12 @@ def in_memory(args: argparse.Namespace) -> None:
     """Today's path: merge in memory, the problem, ``blocked_bundle_adjust`` in this process."""
     from mercury_dem.adjust.blocked_bundle import blocked_bundle_adjust
     from mercury_dem.adjust.network import problem_from_network
-    from mercury_dem.config.adjust import AdjustConfig
     from mercury_dem.io.network_store import read_network
     from mercury_dem.io.synthetic_network_store import BlockedNetwork
     from mercury_dem.network.merge import merge_networks
 
     root = Path(args.dir)
-    cfg = AdjustConfig(**CFG_KW)
+    cfg = _config(args)
     im = BlockedNetwork(root / "src").images
     t0 = time.perf_counter()
     merged = merge_networks([read_network(root / "a"), read_network(root / "b")]).network
@@ -140,6 +157,7 @@ def in_memory(args: argparse.Namespace) -> None:
 
 
 def main() -> None:
+    """Build the children (or reuse them), run the unit in its own process, print and record the figures."""
     ap = argparse.ArgumentParser()
     ap.add_argument("--measures", type=float, default=1e6)
     ap.add_argument("--workers", type=int, default=0, help="LocalCluster workers (0: all in the unit's process)")
@@ -149,6 +167,8 @@ def main() -> None:
     ap.add_argument("--compare", action="store_true", help="also run the in-memory merge and compare")
     ap.add_argument("--keep", action="store_true", help="reuse the children of an earlier run of this size")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--max-iterations", type=int, default=0, help="cap the adjustment's iterations (0: the default)")
+    ap.add_argument("--merge-only", action="store_true", help="the streamed merge only (no adjustment)")
     ap.add_argument("--unit", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--in-memory", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -171,7 +191,8 @@ def main() -> None:
         stamp.write_text(json.dumps(want))
         print(json.dumps({"children_measures": kids, "seconds": round(time.perf_counter() - t0, 1)}), file=sys.stderr)
     me = [sys.executable, str(Path(__file__).resolve()), "--dir", str(root), "--measures", str(args.measures),
-          "--workers", str(args.workers), "--part-measures", str(args.part_measures)]
+          "--workers", str(args.workers), "--part-measures", str(args.part_measures),
+          "--max-iterations", str(args.max_iterations), *(["--merge-only"] if args.merge_only else [])]
     m = measure([*me, "--unit"])
     rec = json.loads(m.stdout.strip().splitlines()[-1])
     rec["wall_seconds"] = round(m.wall_s, 2)
@@ -187,7 +208,8 @@ def main() -> None:
     if rec["worker_peak_rss_bytes"]:
         rec["worker_bytes_per_measure"] = round(sum(rec["worker_peak_rss_bytes"]) / n, 1)
     append_record("streamed_merge", {"measures": args.measures, "workers": args.workers, "seed": args.seed,
-                                     "part_measures": args.part_measures, "compare": args.compare}, rec)
+                                     "part_measures": args.part_measures, "compare": args.compare,
+                                     "max_iterations": args.max_iterations, "merge_only": args.merge_only}, rec)
     if args.json:
         print(json.dumps(rec))
     else:
