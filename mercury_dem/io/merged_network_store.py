@@ -209,6 +209,7 @@ def stream_merge(
     overwrite: bool = False,
     map_parts: Callable[[Callable[[Any], Any], list[Any]], Iterable[Any]] | None = None,
     scratch: str | Path | None = None,
+    clear_rejections: bool = False,
 ) -> StreamedMergeSummary:
     """Merge the children's stored networks into ``out`` by parts (the module docstring says how).
 
@@ -224,6 +225,8 @@ def stream_merge(
     part_measures : measures per part of the join and of the merge (memory of one part)
     map_parts : ``map_parts(function, items)`` gives the results in order (default: one after the other here)
     scratch : where the spill files go (default: next to ``out``; removed at the end)
+    clear_rejections : the children's ``measure_rejected`` and ``point_rejected`` read as False (an adjusted
+        child re-judged at the next level: :func:`~mercury_dem.adjust.cascade.rejudged_network`)
 
     Raises
     ------
@@ -305,6 +308,8 @@ def stream_merge(
             for r0, r1 in _chunks(n_pts, rows):
                 part = point_part[kid.point_offset + r0:kid.point_offset + r1]
                 data = {name: _read(unit, kid, name, r0, r1) for name in pcols}
+                if clear_rejections:
+                    data["point_rejected"] = np.zeros_like(data["point_rejected"])
                 local = np.arange(r0, r1, dtype=np.int64)
                 for q in np.unique(part):
                     sel = part == q
@@ -313,6 +318,8 @@ def stream_merge(
                     files[int(q)][c][0].append(f)
             for r0, r1 in _chunks(kid.store.n_measures, rows):
                 data = {name: _read(unit, kid, name, r0, r1) for name in MEASURE_COLUMNS}
+                if clear_rejections:
+                    data["measure_rejected"] = np.zeros_like(data["measure_rejected"])
                 data["measure_image"] = kid.image_map[data["measure_image"]]
                 part = point_part[kid.point_offset + data["measure_point"]]
                 for q in np.unique(part):

@@ -129,3 +129,32 @@ def test_join_and_partitions() -> None:
     np.testing.assert_array_equal(part, [0, 0, 1, 2, 2])
     assert median_of_counts(np.array([0.5, 1.0, 2.0]), np.array([1, 2, 1])) == np.median([0.5, 1, 1, 2])
     assert median_of_counts(np.array([0.5, 2.0]), np.array([2, 1])) == 0.5
+
+
+def test_rejections_kept_or_cleared_as_the_cascade_rejudges(world, tmp_path: Path) -> None:
+    """A child with rejected measures and points: kept as stored, or cleared (``clear_rejections``, as
+    ``rejudged_network`` for an adjusted child); either way ``merge_networks``' network row for row.
+    """
+    import zarr
+
+    from mercury_dem.adjust.cascade import rejudged_network
+
+    kids = world["kids"]
+    b = tmp_path / "b"
+    shutil.copytree(kids[1], b)
+    g = zarr.open_group(str(b), mode="r+", zarr_format=3)
+    g["measure_rejected"][-400:-100] = True  # past the border shared with a (a merged measure takes the first)
+    g["point_rejected"][-90:-50] = True
+    src = world["src"]
+    for clear in (False, True):
+        out = tmp_path / f"o{int(clear)}"
+        stream_merge("region 3", [("a", kids[0]), ("b", b)], out, lambda ids: src.images, part_measures=4_000,
+                     clear_rejections=clear)
+        nets = [read_network(kids[0]), read_network(b)]
+        if clear:
+            nets = [rejudged_network(n, "region") for n in nets]
+        ref = merge_networks(nets).network
+        got = read_network(out / "network")
+        assert got.measure_rejected.any() != clear
+        for name in ("point_ids", *POINT_COLUMNS, *MEASURE_COLUMNS):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
