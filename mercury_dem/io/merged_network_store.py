@@ -42,7 +42,13 @@ from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_directory
 from mercury_dem.io.network_store import CHUNK_ROWS, FORMAT_NAME, FORMAT_VERSION, NetworkStore, write_strings
 from mercury_dem.io.synthetic_network_store import ColumnAppender
 from mercury_dem.network.blocks import ImageTable
-from mercury_dem.network.model import MEASURE_COLUMNS, OPTIONAL_POINT_COLUMNS, POINT_COLUMNS, ControlNetwork
+from mercury_dem.network.model import (
+    MEASURE_COLUMNS,
+    OPTIONAL_POINT_COLUMNS,
+    POINT_COLUMNS,
+    ControlNetwork,
+    concatenate_ids,
+)
 from mercury_dem.network.streamed_merge import (
     block_edges,
     ids_collide,
@@ -174,7 +180,7 @@ def _merge_one_part(args: tuple[list[tuple[list[Path], list[Path]]], list[int], 
         return {"n": 0}
     merged, stats = merge_part(nets, tol, min_measures)
     key = np.asarray(merged.point_ids, np.int64)
-    index, ids = np.concatenate(index_parts), np.concatenate(id_parts)  # index rises: children in order
+    index, ids = np.concatenate(index_parts), concatenate_ids(id_parts)  # index rises: children in order
     out: dict[str, Any] = {"n": merged.n_points, "stats": stats.to_dict(), "key": key,
                            "point_ids": ids[np.searchsorted(index, key)]}
     for name in (*POINT_COLUMNS, *MEASURE_COLUMNS):
@@ -259,6 +265,7 @@ def stream_merge(
     m_in = sum(s.n_measures for s in stores)
     n_img_parts = max(1, -(-m_in // max(1, part_measures)))
     rows = max(1, min(CHUNK_ROWS, part_measures))
+    out.parent.mkdir(parents=True, exist_ok=True)
     scratch_dir = Path(tempfile.mkdtemp(prefix=f".{out.name}.spill-", dir=str(scratch or out.parent)))
     try:
         # 1. join: measures by image part; each part's pairs of input points sharing a near measure
@@ -377,7 +384,7 @@ def stream_merge(
             measure_cols.flush()
             seconds["merge"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            ids = np.concatenate(ids_parts) if ids_parts else np.zeros(0, np.int64)
+            ids = concatenate_ids(ids_parts)
             del ids_parts
             renumbered = bool(ids.size) and ids_collide(ids)
             if renumbered:

@@ -158,3 +158,50 @@ def test_rejections_kept_or_cleared_as_the_cascade_rejudges(world, tmp_path: Pat
         assert got.measure_rejected.any() != clear
         for name in ("point_ids", *POINT_COLUMNS, *MEASURE_COLUMNS):
             np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
+
+
+def test_string_ids_colliding_ids_and_a_split_component(tmp_path: Path) -> None:
+    """Small hand-made children: string and integer ids mix as strings; colliding ids are renumbered over the
+    whole (as ``point_ids="auto"``); a conflict that splits a joined group keeps ``merge_networks``' order even
+    when the group's parts land in different merge parts.
+    """
+    from mercury_dem.io.network_store import write_network
+    from mercury_dem.network.blocks import ImageTable
+    from mercury_dem.network.model import ControlNetwork
+
+    def net(pid, pts, imgs, s, images=("A", "B", "C")):
+        return ControlNetwork.from_arrays(np.array(images), np.array(pid), np.array(pts), np.array(imgs),
+                                          np.array(s, float), np.array(s, float))
+
+    def geometry(ids):
+        from mercury_dem.geometry.camera import mdis_nac
+
+        cam = mdis_nac(128)
+        n = len(ids)
+        return ImageTable((cam,), np.zeros(n, np.int64), np.zeros((n, 3)), np.tile(np.eye(3), (n, 1, 1)))
+
+    cases = {
+        # X {A 10, B 5} and W {B 40, C 40} in one child, Y {A 10.4, C 70} and Z {A 10.9, D 90} in the other:
+        # X, Y, Z joined in A (chained within 1 px) but A spreads 1.27 px: a conflict drops A and splits them;
+        # with one component a part, Y and Z (input points 2, 3) must wait for W (1)
+        "split": [net([1, 2], [0, 0, 1, 1], [0, 1, 1, 2], [10, 5, 40, 40], images=("A", "B", "C", "D")),
+                  net([3, 4], [0, 0, 1, 1], [0, 2, 0, 3], [10.4, 70, 10.9, 90], images=("A", "B", "C", "D"))],
+        "strings": [net(["AS15_1", "AS15_2"], [0, 0, 1, 1], [0, 1, 1, 2], [1, 2, 40, 41]),
+                    net([7, 8], [0, 0, 1, 1], [0, 1, 0, 2], [50, 60, 1.3, 3])],
+        "collide": [net([1, 2], [0, 0, 1, 1], [0, 1, 1, 2], [1, 2, 40, 41]),
+                    net([2, 1], [0, 0, 1, 1], [0, 1, 0, 2], [50, 60, 70, 80])],
+    }
+    for name, nets in cases.items():
+        kids = [write_network(n, tmp_path / f"{name}{i}") for i, n in enumerate(nets)]
+        ref, stats = merge_networks(nets)
+        for part_measures in (1, 3, 100):
+            out = tmp_path / f"{name}_out{part_measures}"
+            s = stream_merge(name, [(k.name, k) for k in kids], out, geometry, part_measures=part_measures)
+            got = read_network(out / "network")
+            assert s.ids_renumbered == stats.ids_renumbered and s.n_conflicts == stats.n_conflicts, name
+            assert got.point_ids.tolist() == ref.point_ids.tolist(), (name, part_measures)
+            for col in ("apriori_xyz", *MEASURE_COLUMNS):
+                np.testing.assert_array_equal(getattr(got, col), getattr(ref, col), err_msg=f"{name} {col}")
+    assert merge_networks(cases["collide"]).stats.ids_renumbered
+    split = merge_networks(cases["split"])
+    assert split.stats.n_conflicts == 1 and split.network.point_ids.tolist() == [1, 2, 3, 4]
