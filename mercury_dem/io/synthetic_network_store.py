@@ -80,7 +80,7 @@ class ColumnAppender:
         for k, parts in self.buffers.items():
             data = np.concatenate(parts)
             self.arrays[k].append(data[:n])
-            self.buffers[k] = [data[n:]] if n < len(data) else []
+            self.buffers[k] = [data[n:].copy()] if n < len(data) else []  # a copy: a view kept the whole alive
         self.pending -= n
 
 

@@ -118,6 +118,9 @@ def release_in_order(carry: dict[str, NDArray[Any]] | None, part: dict[str, NDAr
     points); the points with ``key < bound`` (the next part's first input point) are released, with their
     measures, in key order, measures grouped by point in their own order.
     """
+    key = part["key"]
+    if carry is None and (key.size == 0 or (key[-1] < bound and bool(np.all(key[1:] > key[:-1])))):
+        return part, None  # the usual case: nothing waits, nothing to reorder (no copy)
     both = part if carry is None else _concat_rows(carry, part, point_columns, measure_columns)
     key = both["key"]
     order = np.argsort(key, kind="stable")
