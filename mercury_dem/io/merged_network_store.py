@@ -60,8 +60,9 @@ from mercury_dem.network.streamed_merge import (
     release_in_order,
 )
 
-#: measures per part (join and merge) when not given: ~0.4 GB of a part's columns and merge temporaries
-PART_MEASURES = 2_000_000
+#: measures per part (join and merge) when not given: the part bounds the calling process's peak (0.97 GB at 2.5e7
+#: measures with this size, docs/benchmarks/cascade.md §5; 2e6 gave 1.6 GB at 1e7)
+PART_MEASURES = 500_000
 
 
 @dataclass

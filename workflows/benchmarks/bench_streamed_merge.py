@@ -161,7 +161,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--measures", type=float, default=1e6)
     ap.add_argument("--workers", type=int, default=0, help="LocalCluster workers (0: all in the unit's process)")
-    ap.add_argument("--part-measures", type=float, default=2e6, help="measures per part of the join and merge")
+    ap.add_argument("--part-measures", type=float, default=5e5, help="measures per part of the join and merge")
     ap.add_argument("--dir", default="/tmp/streamed_bench")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--compare", action="store_true", help="also run the in-memory merge and compare")
