@@ -158,8 +158,8 @@ class NetworkStore:
             self._image_ids = self._strings("image_ids", self.n_images)
         return self._image_ids
 
-    def _array(self, name: str, dtype: str, shape: tuple[int | None, ...]) -> NDArray[Any]:
-        """One array, checked against the dtype and shape (None: any length) it must have before it is read."""
+    def _array(self, name: str, dtype: str, shape: tuple[int | None, ...], rows: slice | None = None) -> NDArray[Any]:
+        """One array (``rows`` of it), checked against the dtype and shape (None: any length) it must have before it is read."""
         try:
             arr = self._group[name]
         except KeyError:
@@ -174,7 +174,7 @@ class NetworkStore:
             raise StoreError(f"network store {self.path}: column '{name}' is {arr.dtype} {arr.shape}, "
                              f"expected {dtype} {want}")
         try:
-            return np.asarray(arr[...])
+            return np.asarray(arr[...] if rows is None else arr[rows])
         except Exception as exc:  # a damaged chunk: codec, size or decode errors of several types
             raise StoreError(f"network store {self.path}: column '{name}' cannot be read: {exc}") from exc
 
@@ -187,6 +187,23 @@ class NetworkStore:
             return decode_strings(data, offsets)
         except UnicodeDecodeError as exc:
             raise StoreError(f"network store {self.path}: '{name}' is not UTF-8 ({exc.reason})") from None
+
+    def column_rows(self, name: str, start: int, stop: int) -> NDArray[Any]:
+        """Rows ``[start, stop)`` of a point or measure column (integer ``point_ids`` too): only their chunks are read.
+
+        For readers that stream a network by parts (:mod:`mercury_dem.io.merged_network_store`). String point
+        ids are read whole (their offsets index one byte array) and sliced.
+        """
+        if name == "point_ids":
+            if self.attrs.get("point_id_kind") == "str":
+                return self._strings("point_ids", self.n_points)[start:stop]
+            return self._array(name, "int64", (self.n_points,), slice(start, stop))
+        for table, n in ((POINT_COLUMNS, self.n_points), (OPTIONAL_POINT_COLUMNS, self.n_points),
+                         (MEASURE_COLUMNS, self.n_measures)):
+            if name in table:
+                dtype, trail = table[name]
+                return self._array(name, dtype, (n, *trail), slice(start, stop))
+        raise StoreError(f"network store {self.path} has no column '{name}'")
 
     def column(self, name: str) -> NDArray[Any]:
         """One column as a numpy array (``point_ids`` and ``image_ids`` decoded)."""

@@ -56,7 +56,7 @@ def _empty(group: Any, name: str, dtype: str, trail: tuple[int, ...]) -> Any:
                               fill_value=np.nan if dtype.startswith("float") else 0)
 
 
-class _Columns:
+class ColumnAppender:
     """Append-only Zarr columns, buffered to whole chunks so each chunk is written once."""
 
     def __init__(self, group: Any, columns: dict[str, tuple[str, tuple[int, ...]]]):
@@ -80,7 +80,7 @@ class _Columns:
         for k, parts in self.buffers.items():
             data = np.concatenate(parts)
             self.arrays[k].append(data[:n])
-            self.buffers[k] = [data[n:]] if n < len(data) else []
+            self.buffers[k] = [data[n:].copy()] if n < len(data) else []  # a copy: a view kept the whole alive
         self.pending -= n
 
 
@@ -113,10 +113,10 @@ def write_synthetic_network(
         geo.attrs["cameras"] = [camera_to_dict(c) for c in images.cameras]
         truth.create_array("true_rotations", data=images.true_rotations)
         truth.create_array("pointing_error", data=images.pointing_error)
-        point_cols = _Columns(net, {"point_ids": ("int64", ()), **POINT_COLUMNS})
-        measure_cols = _Columns(net, MEASURE_COLUMNS)
-        truth_pts = _Columns(truth, {"true_points": ("float64", (3,))})
-        truth_meas = _Columns(truth, {"outlier": ("bool", ())})
+        point_cols = ColumnAppender(net, {"point_ids": ("int64", ()), **POINT_COLUMNS})
+        measure_cols = ColumnAppender(net, MEASURE_COLUMNS)
+        truth_pts = ColumnAppender(truth, {"true_points": ("float64", (3,))})
+        truth_meas = ColumnAppender(truth, {"outlier": ("bool", ())})
         p_off, m_off = [0], [0]
         n_out = 0
         for b in range(spec.n_blocks):
@@ -264,24 +264,26 @@ class BlockedNetwork:
         if mi.size and (mi.min() < 0 or mi.max() >= self.n_images):
             raise StoreError(f"network store {self.path}: block {b} has measures of images outside [0, {self.n_images})")
         sig = self._read(g, "sigma", "float64", (m, 2), ms)
-        ignored = self._read(g, "measure_ignored", "bool", (m,), ms)
-        if np.any(ignored):
-            raise StoreError(f"network store {self.path}: block {b} has ignored measures (not supported by "
-                             f"adjust-network yet)")
+        # the adjustment's measures: as ControlNetwork.active_measures (not ignored, not rejected, nor their point)
+        bad_point = self._read(g, "point_ignored", "bool", (n,), ps) | self._read(g, "point_rejected", "bool", (n,), ps)
+        active = ~(self._read(g, "measure_ignored", "bool", (m,), ms) | self._read(g, "measure_rejected", "bool", (m,), ms)
+                   | bad_point[mp])
+        keep: slice | NDArray[np.intp] = slice(None) if active.all() else np.flatnonzero(active)
+        mp, mi, sig = mp[keep], mi[keep], sig[keep]
         finite = np.isfinite(sig)
         count = finite.sum(axis=1)
         sigma = np.where(count > 0, np.where(finite, sig, 0.0).sum(axis=1) / np.maximum(count, 1), 1.0)  # as problem_from_network
         if np.any(sigma <= 0):
             raise StoreError(f"network store {self.path}: block {b} has measure sigmas <= 0 (must be positive pixels)")
         ap = self._read(g, "apriori_xyz", "float64", (n, 3), ps)
-        meas = np.stack([self._read(g, "sample", "float64", (m,), ms), self._read(g, "line", "float64", (m,), ms)], axis=1)
+        meas = np.stack([self._read(g, "sample", "float64", (m,), ms), self._read(g, "line", "float64", (m,), ms)], axis=1)[keep]
         for what, arr in (("a-priori point coordinates", ap), ("measures (sample, line)", meas)):
             if not np.all(np.isfinite(arr)):
                 raise StoreError(f"network store {self.path}: block {b} has NaN/inf {what}")
         outlier = true_points = None
         if self.truth_path is not None:
             t = self._truth_group()
-            outlier = self._read(t, "outlier", "bool", (m,), ms)
+            outlier = self._read(t, "outlier", "bool", (m,), ms)[keep]
             true_points = self._read(t, "true_points", "float64", (n, 3), ps)
         return BlockData(
             block=b, point_start=p0,
@@ -307,3 +309,54 @@ class StoredBlocks:
     def __iter__(self) -> Iterator[BlockData]:
         net = BlockedNetwork(self.path)
         return (net.read_block(b) for b in self.ids)
+
+
+def split_synthetic_network(src: str | Path, outs: list[str | Path], overlap_blocks: int = 1, seed: int = 0,
+                            jitter_px: float = 0.05, jitter_m: float = 1.0, overwrite: bool = False) -> list[int]:
+    """Cut a synthetic network (:func:`write_synthetic_network`) into overlapping children: plain network stores.
+
+    Child ``k`` of ``len(outs)`` takes an equal run of the point blocks, widened by ``overlap_blocks`` blocks on
+    each side, so neighbouring children share the points of ``2 * overlap_blocks`` blocks (as neighbouring
+    units share their border's points). A shared point's copy in the later child has its measures moved by
+    N(0, ``jitter_px``) and its a-priori coordinates by N(0, ``jitter_m``) (seeded): a merge must join them
+    (within its tolerance) and average them. Copied one block at a time (memory: one block).
+    Returns the measures of each child.
+    """
+    net = BlockedNetwork(src)
+    g = net.store._group
+    rng = np.random.default_rng(seed)
+    cuts = np.linspace(0, net.n_blocks, len(outs) + 1).round().astype(int)
+    written = []
+    for k, out in enumerate(outs):
+        b0, b1 = max(0, cuts[k] - overlap_blocks), min(net.n_blocks, cuts[k + 1] + overlap_blocks)
+        shared_until = cuts[k] + overlap_blocks if k > 0 else 0  # blocks shared with the previous child
+        p_start = int(net.point_offsets[b0])
+        m_total = 0
+        with atomic_directory(Path(out), overwrite=overwrite) as tmp:
+            grp = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            write_strings(grp, "image_ids", net.store.image_ids)
+            pcols = ColumnAppender(grp, {"point_ids": ("int64", ()), **POINT_COLUMNS})
+            mcols = ColumnAppender(grp, MEASURE_COLUMNS)
+            for b in range(b0, b1):
+                ps = slice(int(net.point_offsets[b]), int(net.point_offsets[b + 1]))
+                ms = slice(int(net.measure_offsets[b]), int(net.measure_offsets[b + 1]))
+                pv = {name: net._read(g, name, d, (net.n_points, *t), ps) for name, (d, t) in
+                      {"point_ids": ("int64", ()), **POINT_COLUMNS}.items()}
+                mv = {name: net._read(g, name, d, (net.n_measures, *t), ms) for name, (d, t) in MEASURE_COLUMNS.items()}
+                mv["measure_point"] = mv["measure_point"] - p_start
+                if b < shared_until:
+                    pv["apriori_xyz"] = pv["apriori_xyz"] + rng.normal(0.0, jitter_m, pv["apriori_xyz"].shape)
+                    for c in ("sample", "line"):
+                        mv[c] = mv[c] + rng.normal(0.0, jitter_px, mv[c].shape)
+                pcols.append(pv)
+                mcols.append(mv)
+                m_total += len(mv["measure_point"])
+            pcols.flush()
+            mcols.flush()
+            grp.attrs.update({
+                "format": FORMAT_NAME, "format_version": FORMAT_VERSION, "n_images": net.n_images,
+                "n_points": int(net.point_offsets[b1]) - p_start, "n_measures": m_total, "point_id_kind": "int64",
+                "optional_columns": [], "metadata": {"description": f"child {k} of {src}"},
+            })
+        written.append(m_total)
+    return written

@@ -101,7 +101,7 @@ def merge_networks(
     tolerance_px: float = 1.0,
     *,
     min_measures: int = 1,
-    point_ids: Literal["auto", "keep", "renumber"] = "auto",
+    point_ids: Literal["auto", "keep", "renumber", "first"] = "auto",
 ) -> MergeResult:
     """Merge networks into one, joining points that share a measure.
 
@@ -113,7 +113,9 @@ def merge_networks(
         measure are always dropped)
     point_ids : "keep" — merged points keep their first constituent's id and
         colliding ids raise :class:`NetworkError`; "renumber" — ids 0..N-1;
-        "auto" — keep when unique, else renumber (``stats.ids_renumbered``)
+        "auto" — keep when unique, else renumber (``stats.ids_renumbered``); "first" — the first
+        constituent's id, unchecked (for a merge done by parts, which decides on the whole:
+        :mod:`mercury_dem.network.streamed_merge`)
 
     Returns
     -------
@@ -124,8 +126,9 @@ def merge_networks(
     nets = list(networks)
     if not nets:
         raise NetworkError("merge_networks needs at least one network")
-    if point_ids not in ("auto", "keep", "renumber"):
-        raise NetworkError(f"merge_networks: point_ids must be 'auto', 'keep' or 'renumber', got {point_ids!r}")
+    if point_ids not in ("auto", "keep", "renumber", "first"):
+        raise NetworkError(
+            f"merge_networks: point_ids must be 'auto', 'keep', 'renumber' or 'first', got {point_ids!r}")
     for i, net in enumerate(nets):
         if net.n_measures and (
             net.measure_point.min() < 0 or net.measure_point.max() >= net.n_points
