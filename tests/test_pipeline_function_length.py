@@ -21,10 +21,6 @@ ALLOWED: frozenset[str] = frozenset({
     "dem_bucket.grid_dem_on_bucket",
     "register_stage._register_and_merge_blockwise",
     "register_stage.register_dem_store",
-    "dense_stage.run_dense_tile",
-    "dense_stage.run_dense_stage",
-    "dense_dem.grid_dense_dem",
-    "ortho_stage.make_orthoimages",
 })
 
 
