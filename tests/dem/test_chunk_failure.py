@@ -30,11 +30,11 @@ def _failing(bad, calls, exc=None):
     """grid_chunk that raises for the chunk ``bad`` (bounds) and counts the chunks it is asked for."""
     real = REAL_GRID_CHUNK
 
-    def fake(index, grid, bounds, cfg):
+    def fake(index, grid, bounds, cfg, **kw):
         calls.append(tuple(bounds))
         if tuple(bounds) == bad:
             raise exc if exc is not None else RuntimeError("injected fault in this chunk")
-        return real(index, grid, bounds, cfg)
+        return real(index, grid, bounds, cfg, **kw)
 
     return fake
 
@@ -110,7 +110,7 @@ def test_every_chunk_failing_is_an_error_and_leaves_no_store(global_cloud, tmp_p
     """No chunk gridded: a GridError naming the first error, not an empty DEM called done."""
     from mercury_dem.exceptions import GridError
 
-    def fail(index, grid, bounds, cfg):
+    def fail(index, grid, bounds, cfg, **kw):
         raise RuntimeError("broken kernel")
 
     monkeypatch.setattr(dem_stage, "grid_chunk", fail)

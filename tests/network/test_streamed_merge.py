@@ -34,7 +34,8 @@ from mercury_dem.network.model import MEASURE_COLUMNS, POINT_COLUMNS
 from mercury_dem.network.streamed_merge import join_edges, median_of_counts, merge_partitions
 from mercury_dem.network.synthetic import SyntheticSpec
 
-CFG = AdjustConfig(pointing_sigma_deg=float(np.degrees(450e-6)), max_iterations=8)
+CFG = AdjustConfig(max_iterations=8)
+POINTING_SIGMA_URAD = 450.0  # the synthetic networks' injected a-priori pointing error (1 sigma per axis)
 BLOCK_POINTS = 700
 
 
@@ -79,11 +80,12 @@ def test_streamed_blocks_give_the_in_memory_solution(world) -> None:
     """
     ref = world["ref"]
     cams, pos, rot = _geometry(world["src"], ref.n_images)
-    problem, _ = problem_from_network(ref, cams, pos, rot, CFG)
+    problem, _ = problem_from_network(ref, cams, pos, rot, CFG, pointing_sigma_urad=POINTING_SIGMA_URAD)
     expected = blocked_bundle_adjust(problem, CFG, block_points=BLOCK_POINTS)
     net = BlockedNetwork(world["root"] / "out")
     im = net.images
-    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG, float32=CFG.blocked_float32)
+    setup = setup_from_config(im.cameras, im.image_camera, im.positions, im.rotations, CFG,
+                              pointing_sigma_urad=POINTING_SIGMA_URAD, float32=CFG.blocked_float32)
     opt = options_from_config(CFG, world["summary"].median_sigma_px)
     engine = SyncEngine([BlockShard(StoredBlocks(str(net.root), tuple(range(net.n_blocks))), setup, opt)])
     res = blocked_levenberg_marquardt(engine, setup, opt)
