@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from mercury_dem.compute import runs_in_process
 from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
-from mercury_dem.dem.spacing import config_with_no_value_distance
+from mercury_dem.dem.grid import config_with_no_value_distance
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore

@@ -40,7 +40,7 @@ from mercury_dem.compute.failures import lost_to_the_cluster
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
 from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
-from mercury_dem.dem.spacing import config_with_no_value_distance
+from mercury_dem.dem.grid import config_with_no_value_distance
 from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
