@@ -82,6 +82,7 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     alt = mission.altimetry
     if not config.dem.register_to_altimetry or alt is None or not alt.n_shots:
         return None
+    from mercury_dem.geometry.tiling import TileGrid
     from mercury_dem.pipeline.register_stage import register_dem_store
 
     level = global_levelling(store)
@@ -91,6 +92,7 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     try:
         summary = register_dem_store(store.dem_path, mission.read_altimetry(), store.root, client,
                                      body=mission.body, overwrite=True, source=f"mission {mission.path} altimetry",
+                                     settings=config.registration, tiles=TileGrid(config.tiling.tile_size_deg),
                                      level_to_mean=True if level is None else bool(level["level_to_mean"]))
     except MercuryDemError as exc:
         rep.message(f"registration: failed ({exc})")

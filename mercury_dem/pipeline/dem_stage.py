@@ -21,9 +21,7 @@ unknown files inside a store).
 
 from __future__ import annotations
 
-import base64
 import contextlib
-import functools
 import json
 import math
 import time
@@ -39,11 +37,28 @@ from mercury_dem.compute import ThreadPoolClient, as_completed, client_or_sync, 
 from mercury_dem.compute.failures import lost_to_the_cluster
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
-from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
-from mercury_dem.dem.grid import config_with_no_value_distance
+from mercury_dem.dem.grid import (
+    LAYERS,
+    GridSpec,
+    PointIndex,
+    build_point_index,
+    config_with_no_value_distance,
+    grid_chunk,
+)
+from mercury_dem.dem.memory import check_memory, estimate_memory_bytes
+from mercury_dem.dem.store_schema import (
+    ATTRS,
+    COORD_ATTRS,
+    NAN_FILL_ATTR,
+    gridding_attr,
+    layer_compressors,
+    root_attrs,
+    spatial_ref_extra,
+)
 from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
+from mercury_dem.io.crs_cache import spatial_ref_attrs
 from mercury_dem.io.run_store import COVERAGE_FILE
 
 if TYPE_CHECKING:
@@ -89,62 +104,9 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-ATTRS: dict[str, dict[str, str]] = {
-    "elevation": {
-        "long_name": "elevation above the datum sphere (root attribute datum_radius_m), the reference "
-                     "ellipsoid of the grid mapping spatial_ref",
-        "standard_name": "height_above_reference_ellipsoid",
-        "units": "m",
-    },
-    "radius": {"long_name": "planetocentric radius of the surface", "units": "m"},
-    "point_count": {"long_name": "control points within the search radius of the pixel centre", "units": "1"},
-    "distance_to_nearest_point": {
-        "long_name": "horizontal distance from the pixel centre to the nearest control point",
-        "units": "m",
-    },
-    "spread": {
-        "long_name": "standard deviation of the radii of the points used (precision / figure of merit)",
-        "units": "m",
-    },
-}
-
-
 def _dem_config(config: Any) -> Any:
     """Accept a full :class:`~mercury_dem.config.Config` or its ``dem`` section."""
     return getattr(config, "dem", config)
-
-
-def estimate_memory_bytes(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
-    """Estimated peak memory of the DEM stage (per worker) and of the products stage.
-
-    The stage holds the point index (points, footprints, buckets, radii: ~120 B per
-    point, twice while it is pickled to a worker) and one chunk's work arrays
-    (about 40 float64 per pixel of a query batch plus the haloed chunk layers).
-    The products stage holds a few full-map float32 layers (~5 x 4 B per pixel).
-    """
-    nr, nc = grid.shape
-    npix = nr * nc
-    h = cfg.smoothing_passes * (cfg.smoothing_size // 2)
-    chunk_px = min(cfg.chunk_size + 2 * h, nr + 2 * h) * min(cfg.chunk_size + 2 * h, nc + 2 * h)
-    k = max(cfg.neighbours, cfg.shepard_max_points)
-    per_worker = 240 * n_points + chunk_px * 8 * 12 + min(chunk_px, 1 << 17) * k * 8 * 6
-    products = npix * 4 * 5
-    return {"dem_worker": int(per_worker), "products": int(products), "peak": int(max(per_worker, products))}
-
-
-def check_memory(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
-    """Raise :class:`GridError` with the estimate when the grid would not fit ``dem.memory_limit_gb``."""
-    est = estimate_memory_bytes(grid, n_points, cfg)
-    limit = cfg.memory_limit_gb * 1e9
-    if est["peak"] > limit:
-        nr, nc = grid.shape
-        raise GridError(
-            f"a {nr} x {nc} grid at {grid.pixels_per_degree} pixel/deg from {n_points} points needs about "
-            f"{est['peak'] / 1e9:.1f} GB per process (gridding {est['dem_worker'] / 1e9:.2f} GB, products "
-            f"{est['products'] / 1e9:.1f} GB), over dem.memory_limit_gb = {cfg.memory_limit_gb}; lower "
-            f"dem.pixels_per_degree or raise dem.memory_limit_gb"
-        )
-    return est
 
 
 def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> xr.Dataset:
@@ -163,152 +125,19 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: B
     ds = xr.Dataset(
         data_vars,
         coords={
-            "lat": ("lat", grid.lat_centres(), dict(_COORD_ATTRS["lat"])),
-            "lon": ("lon", grid.lon_centres(), dict(_COORD_ATTRS["lon"])),
+            "lat": ("lat", grid.lat_centres(), dict(COORD_ATTRS["lat"])),
+            "lon": ("lon", grid.lon_centres(), dict(COORD_ATTRS["lon"])),
         },
     )
     ds = ds.rio.set_spatial_dims(x_dim="lon", y_dim="lat")
     ds = ds.rio.write_crs(body.datum_geographic_crs())
-    ds["spatial_ref"].attrs.update(_spatial_ref_extra(body))
+    ds["spatial_ref"].attrs.update(spatial_ref_extra(body))
     for name in LAYERS:
         ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref",
                                   "compressors": layer_compressors()})
         ds[name].attrs.pop("grid_mapping", None)
-    ds.attrs.update(_root_attrs(grid, cfg, attrs, body))
+    ds.attrs.update(root_attrs(grid, cfg, attrs, body))
     return ds
-
-
-def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> dict[str, Any]:
-    code = body.crs("geographic")
-    if body.datum_is_iau_sphere:
-        reference = (f"elevation is metres above the {body.name.title()} IAU 2015 sphere of radius "
-                     f"{body.datum_radius_m / 1000:g} km, the sphere of the CRS {code} (grid mapping spatial_ref)")
-    else:
-        reference = (
-            f"elevation is metres above a sphere of radius {body.datum_radius_m / 1000:g} km (the datum), the "
-            f"sphere of the grid mapping spatial_ref; latitude/longitude are those of {code} (crs_code, the IAU "
-            f"2015 sphere of radius {body.radius_m:.0f} m, to which heights never refer)"
-        )
-    out = {
-        "title": f"{body.name.title()} DEM gridded from a control point cloud",
-        "Conventions": "CF-1.8",
-        "body": json.dumps(body.to_dict()),
-        "datum_radius_m": body.datum_radius_m,
-        "height_reference": reference,
-        "crs_code": code,
-        "pixels_per_degree": grid.pixels_per_degree,
-        "pixel_size_m": grid.pixel_size_m,
-        "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
-        "pixel_registration": "lat/lon are pixel centres; row 0 is the northernmost",
-        "method": cfg.method,
-        "gridding": gridding_attr(cfg),
-    }
-    if attrs:
-        out.update(attrs)
-    return out
-
-
-def gridding_attr(cfg: Any) -> str:
-    """The store's ``gridding`` attribute: the settings a pixel's value depends on, as JSON
-    (``max_distance_m`` is the no-value distance used, once resolved from the points' spacing).
-    """
-    return json.dumps({k: getattr(cfg, k) for k in ("method", "neighbours", "sigma_filter", "search_radius_factor",
-                                                    "shepard_fallback_neighbours", "shepard_max_points",
-                                                    "max_distance_m", "smoothing_passes", "smoothing_size")})
-
-
-_COORD_ATTRS = {
-    "lat": {"units": "degrees_north", "standard_name": "latitude",
-            "long_name": "planetocentric latitude of the pixel centre"},
-    "lon": {"units": "degrees_east", "standard_name": "longitude", "long_name": "east longitude of the pixel centre"},
-}
-
-
-def _spatial_ref_extra(body: Body) -> dict[str, Any]:
-    """What ``spatial_ref`` carries beside rioxarray's CF attributes: the IAU code and the WKT2."""
-    import pyproj
-
-    code = body.crs("geographic")
-    out: dict[str, Any] = {
-        "crs_code": code,
-        "crs_wkt2": pyproj.CRS.from_user_input(body.datum_geographic_crs()).to_wkt("WKT2_2019"),
-    }
-    if body.datum_is_iau_sphere:
-        out["crs_note"] = f"the grid mapping is {code}, whose sphere is the height datum"
-    else:
-        out["crs_note"] = (
-            f"the grid mapping (crs_wkt, crs_wkt2, semi_major_axis) is the sphere of the height datum, "
-            f"R = {body.datum_radius_m:.0f} m; crs_code {code} is the IAU 2015 CRS of the same latitude/longitude "
-            f"(sphere R = {body.radius_m:.0f} m), given as the horizontal reference for interoperability"
-        )
-    return out
-
-
-@functools.lru_cache(maxsize=4)
-def _spatial_ref_attrs(body: Body) -> dict[str, Any]:
-    """The ``spatial_ref`` attributes rioxarray writes for the body's datum-sphere CRS
-    (:meth:`Body.datum_geographic_crs`), plus the IAU code, the WKT2 and a note.
-
-    A constant of the body and of the installed pyproj/rioxarray: computed once and kept in the
-    user's cache (``$MERCURY_DEM_CACHE/crs/``, keyed by the body and those versions), since
-    importing rioxarray (which loads rasterio's GDAL and pyproj) was ~0.5 s of a cold
-    ``mercury-dem grid`` that needs nothing else from them. A cache that cannot be read or
-    written is computed again (a test checks the cached value equals a fresh one).
-    """
-    import hashlib
-    from importlib import metadata
-
-    from mercury_dem.io.remote import cache_root
-
-    key = json.dumps({"body": body.to_dict(),
-                      "versions": [metadata.version(m) for m in ("pyproj", "rioxarray")]}, sort_keys=True, default=str)
-    path = cache_root() / "crs" / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
-    with contextlib.suppress(OSError, ValueError):  # absent or unreadable: computed below
-        cached = json.loads(path.read_text())
-        if cached.get("key") == key:
-            return dict(cached["attrs"])
-    attrs = _compute_spatial_ref_attrs(body)
-    with contextlib.suppress(OSError):  # a read-only cache: the value is still right, only not kept
-        from mercury_dem.io.atomic import atomic_write_json
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(path, {"key": key, "attrs": attrs})
-    return attrs
-
-
-def _compute_spatial_ref_attrs(body: Body) -> dict[str, Any]:
-    """:func:`_spatial_ref_attrs` computed with rioxarray and pyproj (no cache)."""
-    import rioxarray  # noqa: F401  (registers the .rio accessor)
-    import xarray as xr
-
-    ds = xr.Dataset(coords={"lat": [0.0], "lon": [0.0]}).rio.set_spatial_dims(x_dim="lon", y_dim="lat")
-    out = dict(ds.rio.write_crs(body.datum_geographic_crs())["spatial_ref"].attrs)
-    out.update(_spatial_ref_extra(body))
-    return json.loads(json.dumps(out, default=_plain))  # numpy scalars -> JSON types, as the cache returns them
-
-
-def _plain(v: Any) -> Any:
-    if isinstance(v, np.generic):
-        return v.item()
-    raise TypeError(f"{type(v).__name__} is not JSON-serialisable")
-
-
-def layer_compressors() -> tuple[Any, ...]:
-    """The 5 map layers' compressor: Blosc LZ4 with bit shuffle (typesize from the dtype).
-
-    Chosen by measurement on the benchmark's 1000 x 1000 map (5 layers, 4 chunks): zarr's
-    default zstd took 0.12 CPU-s to write 12.7 MB; Blosc LZ4 + bit shuffle 0.05 CPU-s for
-    11.2 MB (no compression at all: 0.04 s, 21 MB). Faster *and* smaller: bit shuffle
-    groups the float32 exponents and high mantissa bits of a smooth map. Any Zarr v3 reader
-    with Blosc (xarray, zarr-python, numcodecs) opens it.
-    """
-    from zarr.codecs import BloscCodec
-
-    return (BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle"),)
-
-
-#: How xarray records a NaN ``_FillValue`` in a Zarr v3 attribute (base64 of the float64 bytes).
-_NAN_FILL_ATTR = base64.standard_b64encode(np.array(np.nan, dtype="<f8").tobytes()).decode("ascii")
 
 
 def create_store(
@@ -325,19 +154,19 @@ def create_store(
 
     nr, nc = grid.shape
     cs = cfg.chunk_size
-    group = zarr.open_group(store, mode="w", zarr_format=3, attributes=_root_attrs(grid, cfg, attrs, body))
+    group = zarr.open_group(store, mode="w", zarr_format=3, attributes=root_attrs(grid, cfg, attrs, body))
     for name, values in (("lat", grid.lat_centres()), ("lon", grid.lon_centres())):
         arr = group.create_array(name, shape=values.shape, chunks=values.shape, dtype=np.float64,
                                  fill_value=np.nan, dimension_names=[name],
-                                 attributes={**_COORD_ATTRS[name], "_FillValue": _NAN_FILL_ATTR})
+                                 attributes={**COORD_ATTRS[name], "_FillValue": NAN_FILL_ATTR})
         arr[...] = values
-    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=_spatial_ref_attrs(body))
+    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=spatial_ref_attrs(body))
     layers: dict[str, zarr.Array] = {}
     for name, dtype in LAYERS.items():
         integer = np.dtype(dtype).kind == "i"
         layer_attrs = {**ATTRS[name], "grid_mapping": "spatial_ref"}
         if not integer:
-            layer_attrs["_FillValue"] = _NAN_FILL_ATTR
+            layer_attrs["_FillValue"] = NAN_FILL_ATTR
         layers[name] = group.create_array(name, shape=(nr, nc), chunks=(cs, cs), dtype=dtype,
                                           fill_value=0 if integer else np.nan, dimension_names=["lat", "lon"],
                                           attributes=layer_attrs, compressors=layer_compressors())
