@@ -127,7 +127,8 @@ def compute_spatial_ref_attrs(body: Body) -> dict[str, Any]:
     ds = xr.Dataset(coords={"lat": [0.0], "lon": [0.0]}).rio.set_spatial_dims(x_dim="lon", y_dim="lat")
     out = dict(ds.rio.write_crs(body.datum_geographic_crs())["spatial_ref"].attrs)
     out.update(spatial_ref_extra(body))
-    return json.loads(json.dumps(out, default=_plain))  # numpy scalars -> JSON types, as the cache returns them
+    plain: dict[str, Any] = json.loads(json.dumps(out, default=_plain))  # numpy scalars -> JSON types, as cached
+    return plain
 
 
 def _plain(v: Any) -> Any:

@@ -281,161 +281,144 @@ def failed_chunk_lines(failed: list[dict[str, Any]], label: str = "dem") -> list
             f"failed: {f['error']}; {f['what_to_do']}" for f in failed]
 
 
+def _planned_grid(points_xyz: NDArray[np.floating], config: Any, body: Body
+                  ) -> tuple[NDArray[np.float64], Any, GridSpec, dict[str, int]]:
+    """The points (float64), the DEM settings with unset bounds from the cloud's box
+    (:func:`~mercury_dem.dem.extent.config_with_extent`), the grid, and its memory estimate (refused over
+    ``dem.memory_limit_gb``); an empty cloud raises its error here, before anything is created.
+    """
+    cfg = _dem_config(config)
+    pts = np.asarray(points_xyz, dtype=np.float64)
+    n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
+    if n_points and cfg.extent_from_points:
+        cfg = config_with_extent(cfg, pts)
+    grid = GridSpec.from_config(cfg, body.datum_radius_m)
+    est = check_memory(grid, max(n_points, 0), cfg)
+    if n_points == 0:
+        build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error
+    return pts, cfg, grid, est
+
+
+def _grid_chunks(index: PointIndex, grid: GridSpec, chunks: list[tuple[int, int, int, int]], cfg: Any, client: Any,
+                 layer_arrays: Mapping[str, zarr.Array], store: str, record_failures: bool, task: Any
+                 ) -> list[dict[str, Any]]:
+    """One task per chunk (:func:`_grid_and_write`, or its recording form); their results in chunk order.
+
+    In this process, two chunks in flight: one in the compiled kernel (all its threads, GIL released), the
+    other being smoothed and written (numpy, compression): the cores stay busy. Each chunk's result is
+    independent of the other: the same arrays as a plain loop. On Dask, the index is scattered once to
+    every worker and each task opens the store by its path.
+    """
+    in_process = runs_in_process(client)
+    runner = ThreadPoolClient(2) if in_process else client
+    target: Any = layer_arrays if in_process else store
+    chunk_task = _grid_and_write_or_record if record_failures else _grid_and_write
+    try:
+        index_f = runner.scatter(index, broadcast=True)
+        futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, pure=False) for b in chunks]
+        for _ in as_completed(runner, futures):  # completion order: counts as chunks land
+            task.update()
+        if record_failures:
+            return [result_or_record(grid, b, f) for b, f in zip(chunks, futures)]
+        results: list[dict[str, Any]] = runner.gather(futures)
+        return results
+    finally:
+        if in_process:
+            runner.close()
+
+
+def coverage_summary(index: PointIndex, cfg: Any, grid: GridSpec, body: Body, path: Path) -> dict[str, Any]:
+    """The point-cloud coverage (:func:`~mercury_dem.dem.coverage.point_coverage`) written to ``path``; its summary."""
+    cov = point_coverage(index, cfg.coverage_pixel_km_for(body.datum_radius_m), threads=cfg.query_threads or -1,
+                         bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
+    write_coverage(cov, path, overwrite=True)
+    summary: dict[str, Any] = cov.summary()
+    return summary
+
+
+def grid_summary(path: str, grid: GridSpec, cfg: Any, n_points: int, n_chunks: int, results: list[dict[str, Any]],
+                 est: dict[str, int], cov_summary: dict[str, Any] | None, failed: list[dict[str, Any]],
+                 extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The DEM stage's summary from its chunks' results (``extra``: the bucket run's keys, after ``n_chunks``)."""
+    no_value = sum(int(r["no_value"]) for r in results)
+    mins = [r["min"] for r in results if r.get("min") is not None and not math.isnan(r["min"])]
+    maxs = [r["max"] for r in results if r.get("max") is not None and not math.isnan(r["max"])]
+    return {"path": path, "shape": list(grid.shape), "pixels_per_degree": grid.pixels_per_degree,
+            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max], "method": cfg.method,
+            "no_value_distance_m": cfg.max_distance_m, "n_points": n_points, "n_chunks": n_chunks, **(extra or {}),
+            "no_value_pixels": no_value, "no_value_fraction": no_value / (grid.shape[0] * grid.shape[1]),
+            "elevation_min_m": min(mins) if mins else math.nan, "elevation_max_m": max(maxs) if maxs else math.nan,
+            "memory_estimate_bytes": est, "coverage": cov_summary, "failed_chunks": failed}
+
+
+def final_attrs(summary: dict[str, Any]) -> dict[str, Any]:
+    """The store's root attributes known once every chunk is in: counts, coverage, and the failed chunks
+    (:data:`FAILED_CHUNKS_ATTR`, read back on resume; absent from a complete DEM).
+    """
+    out: dict[str, Any] = {"n_points": summary["n_points"], "no_value_pixels": int(summary["no_value_pixels"]),
+                           "coverage": json.dumps(summary["coverage"]) if summary["coverage"] else ""}
+    if summary["failed_chunks"]:
+        out[FAILED_CHUNKS_ATTR] = json.dumps(summary["failed_chunks"])
+    return out
+
+
 def grid_dem(
-    points_xyz: NDArray[np.floating],
-    config: Any,
-    out_path: str | Path,
-    client: Any = None,
-    *,
-    overwrite: bool = False,
-    attrs: dict[str, Any] | None = None,
-    coverage: bool = True,
-    body: Body,
-    progress: Any = None,
-    label: str = "dem",
-    writer: StoreWriter | None = None,
-    record_failures: bool = False,
+    points_xyz: NDArray[np.floating], config: Any, out_path: str | Path, client: Any = None, *,
+    overwrite: bool = False, attrs: dict[str, Any] | None = None, coverage: bool = True, body: Body,
+    progress: Any = None, label: str = "dem", writer: StoreWriter | None = None, record_failures: bool = False,
 ) -> dict[str, Any]:
-    """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
+    """Grid a point cloud (N, 3 body-fixed metres) into ``out_path`` (a ``dem.zarr``); return a summary.
 
-    Parameters
-    ----------
-    points_xyz : ndarray of shape (N, 3), body-fixed metres (the adjusted point cloud)
-    config : Config or DemConfig
-    out_path : path of the store to create (e.g. ``RUN/dem.zarr``)
-    client : dask.distributed.Client, the synchronous client, or None
-        The run's client (the cascade's). The synchronous client or None grid the chunks in this
-        process, two at a time (same result).
-    overwrite : replace an existing store (only once the new one is complete)
-    attrs : extra global attributes (e.g. run id, source of the points)
-    coverage : also compute the point-cloud coverage into ``coverage.zarr`` beside the store
-    body : the target: heights above its datum sphere, its IAU 2015 CRS
-    progress : mercury_dem.progress.Reporter or None
-        Shows the chunks gridded (count, elapsed, ETA) as they finish, under ``label``;
-        presentation only, the store is the same with or without it.
-    label : the name progress lines start with
-    writer : StoreWriter (a ForkedStoreWriter) or None
-        With ``client=None``: a forked process that creates and writes the store
-        (:mod:`mercury_dem.pipeline.store_writer`; this process then never imports zarr).
-        The store is the same as without it. It is stopped (and waited for) if this call fails.
-    record_failures : a chunk whose gridding raises is recorded and the others written (True: the
-        run's DEM stage), or its error stops the call and nothing is written (False: ``mercury-dem grid``)
+    ``config``: Config or DemConfig; ``client``: the run's (the synchronous client or None grid the chunks in
+    this process, two at a time: the same result); ``attrs``: extra root attributes; ``coverage``: also the
+    point-cloud coverage into ``coverage.zarr`` beside the store; ``body``: heights above its datum sphere, its
+    IAU 2015 CRS; ``progress``/``label``: progress lines (presentation only); ``writer``: with ``client=None``,
+    a forked process that creates and writes the store (:mod:`mercury_dem.pipeline.store_writer`), stopped if
+    this call fails. ``record_failures``: a chunk whose gridding raises is recorded as a value (its pixels NaN,
+    the root attribute ``failed_chunks`` lists it, a resume grids only it: :func:`regrid_failed_chunks`),
+    else its error stops the call and nothing is written. A full disk always stops the stage.
 
-    Returns
-    -------
-    dict: path, shape, n_points, n_chunks, no_value_pixels, no_value_fraction,
-    elevation_min/max (m), seconds, memory_estimate_bytes, coverage (summary dict or None),
-    failed_chunks (list, one record per chunk that could not be gridded: ``bounds`` [r0, r1, c0, c1],
-    ``pixels``, ``lat_deg``/``lon_deg`` ranges, ``error``, ``what_to_do``).
-
-    With ``record_failures``, a chunk whose gridding raises is recorded as a value, not raised: the rest of the DEM is written,
-    the chunk's pixels are NaN (counted as no-value pixels; ``point_count`` 0) and the store's root
-    attribute ``failed_chunks`` lists them, so a resume grids only them again
-    (:func:`regrid_failed_chunks`). A full disk still stops the stage.
-
-    Raises
-    ------
-    GridError : empty/invalid point cloud, grid too large for ``dem.memory_limit_gb``
-    StoreError : ``out_path`` exists and ``overwrite`` is False
+    Returns :func:`grid_summary`'s dict and ``seconds``. Raises :class:`GridError` (an empty or invalid
+    cloud, a grid over ``dem.memory_limit_gb``) or :class:`StoreError` (``out_path`` exists, no ``overwrite``).
     """
     from mercury_dem.progress import NULL
 
     t0 = time.perf_counter()
     rep = progress if progress is not None else NULL
-    cfg = _dem_config(config)
     out_path = Path(out_path)
     if out_path.exists() and not overwrite:
         raise StoreError(f"{out_path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    pts = np.asarray(points_xyz, dtype=np.float64)
-    n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
-    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's box (mercury_dem.dem.extent)
-        cfg = config_with_extent(cfg, pts)
-    grid = GridSpec.from_config(cfg, body.datum_radius_m)
-    est = check_memory(grid, max(n_points, 0), cfg)
-    if n_points == 0:
-        build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error before anything is created
+    pts, cfg, grid, est = _planned_grid(points_xyz, config, body)
     chunks = grid.chunks(cfg.chunk_size)
-    in_process = runs_in_process(client)
-    if writer is not None and not in_process:
+    if writer is not None and not runs_in_process(client):
         raise ValueError("a forked store writer is for in-process gridding (client=None)")
     forked: list[StoreWriter | None] = [writer]  # the writer, or None once it declined (then this process writes)
-    chunk_task = _grid_and_write_or_record if record_failures else _grid_and_write
 
     def mark(tmp: Path) -> None:
         (mark_zarr_complete if forked[0] is None else forked[0].complete)(tmp)
 
     with atomic_store(out_path, overwrite=overwrite, mark_complete=mark) as tmp, \
             _stopping_on_error(writer), ThreadPoolExecutor(max_workers=2) as pool:
-        store = str(tmp)
         # The index (compiled, GIL released) builds while this thread writes the store's template.
         index_job = pool.submit(build_point_index, pts, body.datum_radius_m)
-        layer_arrays = None if writer is None else writer.create(store, grid, cfg, attrs, body, name=str(out_path))
+        layer_arrays = None if writer is None else writer.create(str(tmp), grid, cfg, attrs, body, name=str(out_path))
         if layer_arrays is None:
             forked[0] = None
-            group, layer_arrays = create_store(store, grid, cfg, attrs, body)
-        rep.message(f"{label}: indexing {n_points} points for a {grid.shape[0]} x {grid.shape[1]} grid "
-                    f"({len(chunks)} chunks, {cfg.method})")
+            group, layer_arrays = create_store(str(tmp), grid, cfg, attrs, body)
+        rep.message(f"{label}: indexing {pts.shape[0] if pts.ndim == 2 else 0} points for a {grid.shape[0]} x "
+                    f"{grid.shape[1]} grid ({len(chunks)} chunks, {cfg.method})")
         index = index_job.result()
-        # max_distance_m = 0: the no-value distance from the points' spacing (mercury_dem.dem.spacing)
-        cfg = config_with_no_value_distance(cfg, index)
+        cfg = config_with_no_value_distance(cfg, index)  # max_distance_m = 0: from the points' spacing
         with rep.task(f"{label} grid", len(chunks), "chunks") as task:
-            # In this process, two chunks in flight: one in the compiled kernel (all its threads, GIL
-            # released), the other being smoothed and written (numpy, compression): the cores stay busy.
-            # Each chunk's result is independent of the other: same arrays as a plain loop. On Dask, the
-            # index is scattered once to every worker and each task opens the store by its path.
-            runner = ThreadPoolClient(2) if in_process else client
-            target: Any = layer_arrays if in_process else store
-            try:
-                index_f = runner.scatter(index, broadcast=True)
-                futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, pure=False) for b in chunks]
-                for _ in as_completed(runner, futures):  # completion order: counts as chunks land
-                    task.update()
-                results = ([result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
-                           else runner.gather(futures))
-            finally:
-                if in_process:
-                    runner.close()
+            results = _grid_chunks(index, grid, chunks, cfg, client, layer_arrays, str(tmp), record_failures, task)
         failed = judge_chunk_results(results, str(out_path), rep, label)
-        cov_summary = None
         if coverage:
             rep.message(f"{label}: point coverage")
-            cov = point_coverage(index, cfg.coverage_pixel_km_for(body.datum_radius_m), threads=cfg.query_threads or -1,
-                                 bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
-            cov_summary = cov.summary()
-            write_coverage(cov, out_path.parent / COVERAGE_FILE, overwrite=True)
-        no_value = sum(r["no_value"] for r in results)
-        npix = grid.shape[0] * grid.shape[1]
-        mins = [r["min"] for r in results if not math.isnan(r["min"])]
-        maxs = [r["max"] for r in results if not math.isnan(r["max"])]
-        summary = {
-            "path": str(out_path),
-            "shape": list(grid.shape),
-            "pixels_per_degree": grid.pixels_per_degree,
-            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
-            "method": cfg.method,
-            "no_value_distance_m": cfg.max_distance_m,
-            "n_points": index.n_points,
-            "n_chunks": len(chunks),
-            "no_value_pixels": int(no_value),
-            "no_value_fraction": no_value / npix,
-            "elevation_min_m": min(mins) if mins else math.nan,
-            "elevation_max_m": max(maxs) if maxs else math.nan,
-            "memory_estimate_bytes": est,
-            "coverage": cov_summary,
-            "failed_chunks": failed,
-        }
-        final_attrs = {
-            "gridding": gridding_attr(cfg),  # the no-value distance resolved after the store was created
-            "n_points": index.n_points,
-            "no_value_pixels": int(no_value),
-            "coverage": json.dumps(cov_summary) if cov_summary else "",
-        }
-        if failed:  # read back on resume (regrid_failed_chunks); absent from a complete DEM
-            final_attrs[FAILED_CHUNKS_ATTR] = json.dumps(summary["failed_chunks"])
-        if forked[0] is None:
-            group.attrs.update(final_attrs)
-        else:
-            forked[0].update_attrs(final_attrs)
+        cov = coverage_summary(index, cfg, grid, body, out_path.parent / COVERAGE_FILE) if coverage else None
+        summary = grid_summary(str(out_path), grid, cfg, index.n_points, len(chunks), results, est, cov, failed)
+        # the no-value distance was resolved after the store was created
+        done = {"gridding": gridding_attr(cfg), **final_attrs(summary)}
+        (group.attrs.update if forked[0] is None else forked[0].update_attrs)(done)
     summary["seconds"] = time.perf_counter() - t0
     return summary
 
