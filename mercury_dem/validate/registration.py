@@ -1,4 +1,4 @@
-"""Seed 004's check of a registration: in the tiles with many profiles, did the profile offsets lower the residuals?
+"""Seed 004's check of a registration: in tiles with many profiles, did the profile offsets lower the residuals.
 
 The registration stage (:mod:`mercury_dem.pipeline.register_stage`) reports per tile the RMS of the shots'
 residuals against the DEM as given (``rms_before_m``), after the tile transform (``rms_registered_m``) and
