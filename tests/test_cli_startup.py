@@ -104,14 +104,15 @@ def test_cold_grid_starts_numba_without_scipy_linalg_or_cffi(tmp_path: Path, mon
 
     from mercury_dem.config import load_config
     from mercury_dem.geometry.body import MERCURY
-    from mercury_dem.pipeline.dem_stage import _spatial_ref_attrs, grid_dem
+    from mercury_dem.io.crs_cache import spatial_ref_attrs
+    from mercury_dem.pipeline.dem_stage import grid_dem
     from tests.dem.dem_synthetic import sample_cloud
 
     # The CRS cache as `make setup` leaves it (python -m mercury_dem.pipeline.warm), in a cache of this test's own:
     # the suite's object-store fixture points $MERCURY_DEM_CACHE at a fresh directory for its session.
     monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "cache"))
-    _spatial_ref_attrs.cache_clear()
-    _spatial_ref_attrs(MERCURY)
+    spatial_ref_attrs.cache_clear()
+    spatial_ref_attrs(MERCURY)
 
     pts = sample_cloud(np.random.default_rng(7), 30_000, (-5.0, 5.0), (10.0, 20.0))
     np.save(tmp_path / "pts.npy", pts)

@@ -71,6 +71,7 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
 def run(args: argparse.Namespace, config: Config) -> int:
     from mercury_dem.compute import connect
     from mercury_dem.geometry.body import body_by_name
+    from mercury_dem.geometry.tiling import TileGrid
     from mercury_dem.io.atomic import strict_json
     from mercury_dem.io.run_store import DEM_FILE, PRODUCTS_DIR, REGISTRATION_DIR
     from mercury_dem.pipeline.register_stage import register_dem_store
@@ -92,6 +93,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
 
         summary = register_dem_store(
             dem_path, shots, client=conn.client, body=body, overwrite=args.overwrite, source=", ".join(args.altimetry),
+            settings=config.registration, tiles=TileGrid(config.tiling.tile_size_deg),
             other_outputs=() if args.no_products else [products_dir / k for k in (*REGISTRATION_PRODUCTS, REGISTRATION_DIR)])
     finally:
         conn.close()

@@ -23,6 +23,7 @@ from mercury_dem.config.execution import ExecutionConfig
 from mercury_dem.config.match import MatchConfig
 from mercury_dem.config.network import NetworkConfig
 from mercury_dem.config.reference import ReferenceConfig
+from mercury_dem.config.registration import RegistrationConfig
 from mercury_dem.config.tiling import TilingConfig
 from mercury_dem.config.yaml_loader import DuplicateKeyError, safe_load_unique
 from mercury_dem.exceptions import ConfigError
@@ -39,6 +40,8 @@ class Config(ConfigSection):
     network: NetworkConfig = section(NetworkConfig, "Control networks: tracks and merging")
     adjust: AdjustConfig = section(AdjustConfig, "Bundle adjustment at every level")
     dem: DemConfig = section(DemConfig, "DEM gridding")
+    registration: RegistrationConfig = section(RegistrationConfig, "The DEM registered to laser altimetry per tile "
+                                               "and merged with it (when dem.register_to_altimetry)")
     dense: DenseConfig = section(DenseConfig, "Dense stereo: pairs, chips, matching, the dense cloud and DEM "
                                  "(issue 31)")
     execution: ExecutionConfig = section(ExecutionConfig, "Execution on Dask")

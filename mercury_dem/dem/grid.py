@@ -42,6 +42,7 @@ chunk's result is identical whatever the chunking.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -51,6 +52,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.config.dem import DemConfig
+from mercury_dem.dem.extent import points_box
+from mercury_dem.dem.spacing import BOX_SAMPLE, no_value_distance_m, probe_lattice
 from mercury_dem.exceptions import GridError
 from mercury_dem.geometry.body import latlon_to_unit
 
@@ -390,22 +393,38 @@ def grid_pixels(
     """
     lat = np.asarray(lat_deg, dtype=np.float64).ravel()
     lon = np.asarray(lon_deg, dtype=np.float64).ravel()
-    cfg = _with_no_value_distance(cfg, index)
+    cfg = config_with_no_value_distance(cfg, index)
     if use_kdtree:
         res = _kdtree_pixels(index, lat, lon, cfg, _search_radius(index, cfg))
         return _layers(res, cfg, index.datum_radius_m)
     return _bucket_pixels(index, lat, lon, cfg, grid=False)
 
 
-def _with_no_value_distance(cfg: DemConfig, index: PointIndex) -> DemConfig:
-    """``cfg`` with ``max_distance_m`` = 0 resolved from the points' spacing (deterministic: every chunk gets
-    the same distance), else ``cfg`` itself.
+def typical_gap_m(index: PointIndex, cfg: DemConfig) -> float:
+    """The points' typical gap ``g`` (m): the median distance from the probe places (:func:`probe_lattice`
+    over the points' bounding box) to their nearest point, by the gridding's own exact search.
+    """
+    pts = index.footprint
+    box = points_box(pts[:: max(1, pts.shape[0] // BOX_SAMPLE)])
+    lat, lon = probe_lattice(box)
+    # the nearest point only, searched without giving up (no no-value distance yet): exact, as for a pixel
+    probe_cfg = dataclasses.replace(cfg, method="median11", neighbours=1,
+                                    max_distance_m=4.0 * index.datum_radius_m)
+    d = grid_pixels(index, lat, lon, probe_cfg)["distance_to_nearest_point"]
+    return float(np.median(d))
+
+
+def config_with_no_value_distance(cfg: DemConfig, index: PointIndex) -> DemConfig:
+    """``cfg`` with ``max_distance_m`` resolved from the points' spacing when it is 0 (else ``cfg`` itself).
+
+    Deterministic for a given cloud and configuration (a fixed lattice, an exact search): a resumed
+    stage resolves the same distance as the first try.
     """
     if cfg.max_distance_m > 0:
         return cfg
-    from mercury_dem.dem.spacing import config_with_no_value_distance  # spacing imports this module
-
-    return config_with_no_value_distance(cfg, index)
+    pixel_m = 2.0 * math.pi * index.datum_radius_m / 360.0 / cfg.pixels_per_degree
+    d = no_value_distance_m(typical_gap_m(index, cfg), cfg.no_value_spacing_factor, pixel_m)
+    return dataclasses.replace(cfg, max_distance_m=d)
 
 
 def _bucket_pixels(index: PointIndex, lat: NDArray[np.float64], lon: NDArray[np.float64], cfg: DemConfig, *,
@@ -495,7 +514,7 @@ def grid_chunk(
     """
     r0, r1, c0, c1 = bounds
     nr, nc = grid.shape
-    cfg = _with_no_value_distance(cfg, index)
+    cfg = config_with_no_value_distance(cfg, index)
     if not (0 <= r0 < r1 <= nr and 0 <= c0 < c1 <= nc):
         raise GridError(f"chunk bounds {bounds} are outside the grid of shape {grid.shape}")
     h = cfg.smoothing_passes * (cfg.smoothing_size // 2)

@@ -26,19 +26,18 @@ and every pixel between tracks would be no-value. The floor of one pixel (north-
 size) keeps a pixel that holds points valued when the points are denser than the grid.
 ``g`` counts empty parts of the box too, so a cloud that fills little of its box gets a
 larger ``D`` (more filled, never fewer): the old fixed 50 km was the extreme of that.
+
+This module holds the rule and its probe lattice; the gap's measurement and the resolved configuration
+(:func:`mercury_dem.dem.grid.typical_gap_m`, :func:`mercury_dem.dem.grid.config_with_no_value_distance`)
+sit beside the search they use, in ``dem/grid.py``, which imports this module (never the reverse).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 from numpy.typing import NDArray
-
-from mercury_dem.config.dem import DemConfig
-from mercury_dem.dem.extent import points_box
-from mercury_dem.dem.grid import PointIndex, grid_pixels
 
 #: Probe places of the typical gap (an equal-area lattice of 64 x 64 over the points' box).
 PROBES_PER_SIDE = 64
@@ -65,33 +64,6 @@ def probe_lattice(box: tuple[float, float, float, float], per_side: int = PROBES
     return la.ravel(), np.mod(lo.ravel(), 360.0)
 
 
-def typical_gap_m(index: PointIndex, cfg: DemConfig) -> float:
-    """The points' typical gap ``g`` (m): the median distance from the probe places (:func:`probe_lattice`
-    over the points' bounding box) to their nearest point, by the gridding's own exact search.
-    """
-    pts = index.footprint
-    box = points_box(pts[:: max(1, pts.shape[0] // BOX_SAMPLE)])
-    lat, lon = probe_lattice(box)
-    # the nearest point only, searched without giving up (no no-value distance yet): exact, as for a pixel
-    probe_cfg = dataclasses.replace(cfg, method="median11", neighbours=1,
-                                    max_distance_m=4.0 * index.datum_radius_m)
-    d = grid_pixels(index, lat, lon, probe_cfg)["distance_to_nearest_point"]
-    return float(np.median(d))
-
-
 def no_value_distance_m(gap_m: float, factor: float, pixel_size_m: float, min_pixels: float = MIN_PIXELS) -> float:
     """The rule of the module docstring: ``max(factor x gap_m, min_pixels x pixel_size_m)``, metres."""
     return max(factor * gap_m, min_pixels * pixel_size_m)
-
-
-def config_with_no_value_distance(cfg: DemConfig, index: PointIndex) -> DemConfig:
-    """``cfg`` with ``max_distance_m`` resolved from the points' spacing when it is 0 (else ``cfg`` itself).
-
-    Deterministic for a given cloud and configuration (a fixed lattice, an exact search): a resumed
-    stage resolves the same distance as the first try.
-    """
-    if cfg.max_distance_m > 0:
-        return cfg
-    pixel_m = 2.0 * math.pi * index.datum_radius_m / 360.0 / cfg.pixels_per_degree
-    d = no_value_distance_m(typical_gap_m(index, cfg), cfg.no_value_spacing_factor, pixel_m)
-    return dataclasses.replace(cfg, max_distance_m=d)

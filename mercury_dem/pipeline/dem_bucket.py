@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import math
 import shutil
 import time
 import uuid
@@ -41,13 +40,24 @@ import numpy as np
 import zarr
 from numpy.typing import NDArray
 
-from mercury_dem.compute import runs_in_process
+from mercury_dem.compute import as_completed, runs_in_process
 from mercury_dem.dem.cloud import point_cloud
-from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, grid_chunk
-from mercury_dem.dem.spacing import config_with_no_value_distance
+from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, config_with_no_value_distance, grid_chunk
+from mercury_dem.dem.memory import check_memory
+from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.remote import RemoteDir
 from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore
+from mercury_dem.pipeline.dem_stage import (
+    chunk_failure,
+    coverage_summary,
+    create_store,
+    final_attrs,
+    grid_summary,
+    judge_chunk_results,
+    mark_zarr_complete,
+    result_or_record,
+)
 
 if TYPE_CHECKING:
     from mercury_dem.compute.client import ComputeClient
@@ -111,8 +121,6 @@ def grid_chunk_to_bucket_or_record(run_url: str, global_token: str, grid: GridSp
     The record is the disk run's (:func:`~mercury_dem.pipeline.dem_stage.chunk_failure`: bounds, lat/lon,
     error, what to do); the chunk gets no marker, so the next run grids it again. A full disk is re-raised.
     """
-    from mercury_dem.pipeline.dem_stage import chunk_failure
-
     try:
         return grid_chunk_to_bucket(run_url, global_token, grid, bounds, cfg, datum_radius_m)
     except Exception as exc:  # the chunk's own failure: recorded, the other chunks go on
@@ -121,8 +129,6 @@ def grid_chunk_to_bucket_or_record(run_url: str, global_token: str, grid: GridSp
 
 def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> Path:
     """The store's template in the cache; every object but the root ``zarr.json`` uploaded. Returns the cache path."""
-    from mercury_dem.pipeline.dem_stage import create_store
-
     local = store.dem_path
     shutil.rmtree(local, ignore_errors=True)
     create_store(str(local), grid, cfg, attrs, body)
@@ -132,45 +138,64 @@ def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str,
     return local
 
 
+def _chunk_plan(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body,
+                global_token: str) -> tuple[Path, set[str]]:
+    """The store's template (in the cache) and the markers of the chunks committed before under the same plan.
+
+    The same plan (grid, settings, global network, body, attributes) as the bucket's ``plan.json``: the template
+    again, locally only, and the markers found. Another plan (or none): the chunks, markers and store removed, the
+    template uploaded (all but the root ``zarr.json``) and the plan written; no marker.
+    """
+    from mercury_dem.config import to_dict
+
+    plan = {"grid": dataclasses.asdict(grid), "dem": to_dict(cfg) if dataclasses.is_dataclass(cfg) else repr(cfg),
+            "global_token": global_token, "body": body.name, "attrs": attrs or {}}
+    plan = json.loads(json.dumps(plan, default=str))
+    remote = store.remote
+    remote.remove(f"{DEM_FILE}/zarr.json")  # from here the store is not trusted (it was not, or fetch_zarr had taken it)
+    old = remote.read_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}")
+    if old is not None and json.loads(old) == plan:
+        local = store.dem_path  # the same template again, locally only: its root zarr.json is committed last
+        shutil.rmtree(local, ignore_errors=True)
+        create_store(str(local), grid, cfg, attrs, body)
+        return local, {n for n in remote.list(DEM_CHUNKS_DIR) if n != DEM_CHUNKS_PLAN_FILE}
+    remote.remove(DEM_CHUNKS_DIR)
+    remote.remove(DEM_FILE)
+    local = _upload_template(store, grid, cfg, attrs, body)
+    remote.write_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}", json.dumps(plan).encode())
+    return local, set()
+
+
+def _grid_todo(run_url: str, global_token: str, grid: GridSpec, todo: list[tuple[int, int, int, int]], cfg: Any,
+               datum: float, client: Any, task: Any) -> list[dict[str, Any]]:
+    """The chunks to grid, in this process or on the workers (:func:`grid_chunk_to_bucket_or_record`)."""
+    if runs_in_process(client):
+        results = []
+        for b in todo:
+            results.append(grid_chunk_to_bucket_or_record(run_url, global_token, grid, b, cfg, datum))
+            task.update()
+        return results
+    futures = [client.submit(grid_chunk_to_bucket_or_record, run_url, global_token, grid, b, cfg, datum, pure=False)
+               for b in todo]
+    for _ in as_completed(client, futures):
+        task.update()
+    return [result_or_record(grid, b, f) for b, f in zip(todo, futures)]
+
+
 def grid_dem_on_bucket(
-    store: RunStore,
-    points_xyz: NDArray[np.floating],
-    config: Config | DemConfig,
-    client: ComputeClient | None = None,
-    *,
-    body: Body,
-    attrs: dict[str, Any] | None = None,
-    progress: Any = None,
-    label: str = "dem",
+    store: RunStore, points_xyz: NDArray[np.floating], config: Config | DemConfig,
+    client: ComputeClient | None = None, *, body: Body,
+    attrs: dict[str, Any] | None = None, progress: Any = None, label: str = "dem",
 ) -> dict[str, Any]:
     """Grid the run's ``dem.zarr`` on the bucket, chunk by chunk where the tasks run (module docstring).
 
-    Parameters
-    ----------
-    store : a bucket run (``store.url`` set) whose global network is committed
-    points_xyz : ndarray of shape (N, 3)
-        The global network's adjusted points (body-fixed metres), as the tasks will read them:
-        used here for the coverage and the counts.
-    config : DemConfig with the map's extent fixed (``with_extent_of``)
-    client : a ``distributed.Client``, or None to run the chunk tasks in this process (same result)
-    body, attrs, progress, label : as :func:`~mercury_dem.pipeline.dem_stage.grid_dem`
-
-    Returns
-    -------
-    dict: :func:`~mercury_dem.pipeline.dem_stage.grid_dem`'s summary, plus ``chunks_reused``
-    (chunks whose marker a resumed run found) and ``on_workers`` (whether a client ran them).
+    ``store``: a bucket run (``store.url`` set) whose global network is committed; ``points_xyz``: the global
+    network's adjusted points (N, 3 body-fixed metres), as the tasks will read them (here: the coverage and the
+    counts); ``config``: DemConfig with the map's extent fixed; ``client``: a ``distributed.Client``, or None
+    to run the chunk tasks in this process (the same result); ``body``, ``attrs``, ``progress``, ``label``: as
+    :func:`~mercury_dem.pipeline.dem_stage.grid_dem`. Returns its summary plus ``chunks_reused`` (chunks whose
+    marker a resumed run found) and ``on_workers`` (whether a client ran them).
     """
-    from mercury_dem.config import to_dict
-    from mercury_dem.dem.coverage import point_coverage
-    from mercury_dem.exceptions import StoreError
-    from mercury_dem.pipeline.dem_stage import (
-        FAILED_CHUNKS_ATTR,
-        check_memory,
-        judge_chunk_results,
-        mark_zarr_complete,
-        result_or_record,
-        write_coverage,
-    )
     from mercury_dem.progress import NULL
 
     t0 = time.perf_counter()
@@ -178,91 +203,32 @@ def grid_dem_on_bucket(
     cfg = getattr(config, "dem", config)
     if store.url is None:
         raise StoreError(f"{store.root} is a local run: grid it with grid_dem")
-    remote = store.remote
-    datum = body.datum_radius_m
-    grid = GridSpec.from_config(cfg, datum)
+    grid = GridSpec.from_config(cfg, body.datum_radius_m)
     pts = np.asarray(points_xyz, dtype=np.float64)
     est = check_memory(grid, int(pts.shape[0]), cfg)
-    global_token = remote.commit_token("global/0")
+    global_token = store.remote.commit_token("global/0")
     if global_token is None:
         raise StoreError(f"{store.url}: the global network is not committed; resume the run")
-    index = build_point_index(pts, datum)  # the coverage's (and the empty-cloud check)
+    index = build_point_index(pts, body.datum_radius_m)  # the coverage's (and the empty-cloud check)
     cfg = config_with_no_value_distance(cfg, index)  # max_distance_m = 0: from the points' spacing, before the plan
     chunks = grid.chunks(cfg.chunk_size)
-    plan = {"grid": dataclasses.asdict(grid), "dem": to_dict(cfg) if dataclasses.is_dataclass(cfg) else repr(cfg),
-            "global_token": global_token, "body": body.name, "attrs": attrs or {}}
-    plan = json.loads(json.dumps(plan, default=str))
-    remote.remove(f"{DEM_FILE}/zarr.json")  # from here the store is not trusted (it was not, or fetch_zarr had taken it)
-    old = remote.read_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}")
-    if old is not None and json.loads(old) == plan:
-        from mercury_dem.pipeline.dem_stage import create_store
-
-        local = store.dem_path  # the same template again, locally only: its root zarr.json is committed last
-        shutil.rmtree(local, ignore_errors=True)
-        create_store(str(local), grid, cfg, attrs, body)
-        markers = {n for n in remote.list(DEM_CHUNKS_DIR) if n != DEM_CHUNKS_PLAN_FILE}
-    else:
-        remote.remove(DEM_CHUNKS_DIR)
-        remote.remove(DEM_FILE)
-        local = _upload_template(store, grid, cfg, attrs, body)
-        remote.write_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}", json.dumps(plan).encode())
-        markers = set()
+    local, markers = _chunk_plan(store, grid, cfg, attrs, body, global_token)
     done = [b for b in chunks if _marker_name(b) in markers]
     todo = [b for b in chunks if _marker_name(b) not in markers]
-    results = [json.loads(remote.read_bytes(f"{DEM_CHUNKS_DIR}/{_marker_name(b)}") or b"{}") for b in done]
+    results = [json.loads(store.remote.read_bytes(f"{DEM_CHUNKS_DIR}/{_marker_name(b)}") or b"{}") for b in done]
     rep.message(f"{label}: {len(todo)} of {len(chunks)} chunks to grid "
                 f"{'in this process' if runs_in_process(client) else 'on the workers'}, straight into {store.url}/{DEM_FILE}"
                 + (f" ({len(done)} committed before)" if done else ""))
     with rep.task(f"{label} grid", len(todo), "chunks") as task:
-        if runs_in_process(client):
-            for b in todo:
-                results.append(grid_chunk_to_bucket_or_record(store.url, global_token, grid, b, cfg, datum))
-                task.update()
-        else:
-            from mercury_dem.compute import as_completed
-
-            futures = [client.submit(grid_chunk_to_bucket_or_record, store.url, global_token, grid, b, cfg, datum,
-                                     pure=False) for b in todo]
-            for _ in as_completed(client, futures):
-                task.update()
-            results += [result_or_record(grid, b, f) for b, f in zip(todo, futures)]
+        results += _grid_todo(store.url, global_token, grid, todo, cfg, body.datum_radius_m, client, task)
     failed_records = judge_chunk_results(results, f"{store.url}/{DEM_FILE}", rep, label)
     rep.message(f"{label}: point coverage")
-    cov = point_coverage(index, cfg.coverage_pixel_km_for(datum), threads=cfg.query_threads or -1,
-                         bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
-    cov_summary = cov.summary()
-    write_coverage(cov, store.coverage_path, overwrite=True)
+    cov = coverage_summary(index, cfg, grid, body, store.coverage_path)
     store.commit_zarr(COVERAGE_FILE)
-    no_value = sum(int(r["no_value"]) for r in results)
-    mins = [r["min"] for r in results if r.get("min") is not None and not math.isnan(r["min"])]
-    maxs = [r["max"] for r in results if r.get("max") is not None and not math.isnan(r["max"])]
-    final_attrs: dict[str, Any] = {
-        "n_points": index.n_points, "no_value_pixels": no_value,
-        "coverage": json.dumps(cov_summary) if cov_summary else "",
-    }
-    if failed_records:  # read back on resume (run_dem_stage grids again the chunks without a marker)
-        final_attrs[FAILED_CHUNKS_ATTR] = json.dumps(failed_records)
-    zarr.open_group(str(local), mode="r+").attrs.update(final_attrs)
+    summary = grid_summary(f"{store.url}/{DEM_FILE}", grid, cfg, index.n_points, len(chunks), results, est, cov,
+                           failed_records, extra={"chunks_reused": len(done), "on_workers": not runs_in_process(client)})
+    zarr.open_group(str(local), mode="r+").attrs.update(final_attrs(summary))
     mark_zarr_complete(local)
-    remote.write_bytes(f"{DEM_FILE}/zarr.json", (local / "zarr.json").read_bytes())  # the store's commit, last
-    npix = grid.shape[0] * grid.shape[1]
-    return {
-        "path": f"{store.url}/{DEM_FILE}",
-        "shape": list(grid.shape),
-        "pixels_per_degree": grid.pixels_per_degree,
-        "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
-        "method": cfg.method,
-        "no_value_distance_m": cfg.max_distance_m,
-        "n_points": index.n_points,
-        "n_chunks": len(chunks),
-        "chunks_reused": len(done),
-        "on_workers": not runs_in_process(client),
-        "no_value_pixels": no_value,
-        "no_value_fraction": no_value / npix,
-        "elevation_min_m": min(mins) if mins else math.nan,
-        "elevation_max_m": max(maxs) if maxs else math.nan,
-        "memory_estimate_bytes": est,
-        "coverage": cov_summary,
-        "failed_chunks": failed_records,
-        "seconds": time.perf_counter() - t0,
-    }
+    store.remote.write_bytes(f"{DEM_FILE}/zarr.json", (local / "zarr.json").read_bytes())  # the store's commit, last
+    summary["seconds"] = time.perf_counter() - t0
+    return summary

@@ -85,7 +85,9 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     alt = mission.altimetry
     if not config.dem.register_to_altimetry or alt is None or not alt.n_shots:
         return None
+    from mercury_dem.geometry.tiling import TileGrid
     from mercury_dem.pipeline.register_stage import register_dem_store
+    from mercury_dem.validate.registration import profile_check
 
     level = global_levelling(store)
     rep.message(f"registration: the DEM onto {alt.n_shots} altimetry shots, per tile"
@@ -94,6 +96,7 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     try:
         summary = register_dem_store(store.dem_path, mission.read_altimetry(), store.root, client,
                                      body=mission.body, overwrite=True, source=f"mission {mission.path} altimetry",
+                                     settings=config.registration, tiles=TileGrid(config.tiling.tile_size_deg),
                                      level_to_mean=True if level is None else bool(level["level_to_mean"]))
     except MercuryDemError as exc:
         rep.message(f"registration: failed ({exc})")
@@ -104,140 +107,140 @@ def register_to_mission_altimetry(store: RunStore, mission: Mission, config: Con
     tiles = summary.pop("tiles", [])
     summary["tiles_table"] = str(Path(summary["tables"]) / REGISTRATION_TILES_JSON)
     summary["tiles_failed"] = [t_ for t_ in tiles if not t_.get("ok", True)]
-    # Seed 004's check: per tile with >= 20 profiles, the profiles' residual RMS before and after.
-    dense = [t_ for t_ in tiles if t_.get("ok") and t_.get("n_profiles", 0) >= 20]
-    summary["tiles_20_profiles"] = [
-        {k: t_.get(k) for k in ("tile_id", "n_profiles", "rms_before_m", "rms_registered_m", "rms_after_m")}
-        for t_ in dense]
-    summary["improved_share"] = (sum(t_["rms_after_m"] < t_["rms_before_m"] for t_ in dense) / len(dense)
-                                 if dense else None)
+    # Seed 004's check (registration.check_min_profiles; the key keeps the seed's 20 in its name)
+    summary["tiles_20_profiles"], summary["improved_share"] = profile_check(
+        tiles, config.registration.check_min_profiles)
     rep.message(f"registration: {summary['tiles_registered']} tiles registered in {time.perf_counter() - t:.1f} s")
     return summary
 
 
-def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: ComputeClient | None, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
-    """Grid ``dem.zarr`` from the global network, then the products; returns the report's ``dem`` block.
-
-    ``client`` is the run's client, the one the cascade used (the synchronous client grids in this
-    process). A chunk that fails is recorded (``failed_chunks`` of the block: which, why, what to do),
-    its pixels left NaN, and the stage goes on; a resume grids only those chunks again
-    (:func:`~mercury_dem.pipeline.dem_stage.regrid_failed_chunks` on a disk run; on a bucket run the
-    chunks without a marker, :func:`~mercury_dem.pipeline.dem_bucket.grid_dem_on_bucket`).
-
-    With truth, the a-priori (unadjusted) points are gridded too (into a
-    temporary store) so the report shows what the adjustment bought.
-
-    On a bucket run (``store.url``) the chunk tasks run on the workers as on a disk
-    run, reading the point cloud from the bucket and writing their chunks straight into
-    the bucket's ``dem.zarr``, each chunk committed with its marker last
-    (:mod:`mercury_dem.pipeline.dem_bucket`); the root ``zarr.json`` is committed last.
-    The registration and the a-priori DEM of the validation read the run's local cache,
-    so on a bucket run they run in this process.
+def _grid_or_resume(store: RunStore, pts: Any, dem_cfg: Any, client: ComputeClient | None, body: Any, rep: Any) -> dict[str, Any]:
+    """``dem.zarr``: gridded (a bucket run: straight into the bucket, :mod:`~mercury_dem.pipeline.dem_bucket`),
+    its failed chunks gridded again (resume), or reused when complete.
     """
-    from mercury_dem.dem.extent import config_with_extent
-    from mercury_dem.io.network_store import read_network
-    from mercury_dem.pipeline.dem_stage import failed_chunks_of, grid_dem, open_dem, regrid_failed_chunks
-    from mercury_dem.products.make import make_products
-    from mercury_dem.progress import Reporter
+    from mercury_dem.pipeline.dem_stage import failed_chunks_of, grid_dem, regrid_failed_chunks
 
-    rep = Reporter(stream)
-    t0 = time.perf_counter()
-    net = read_network(store.network_path("global", 0))
-    pts = point_cloud(net, adjusted=True)
-    # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
-    body = mission.body
-    dem_cfg = config_with_extent(config.dem, pts) if pts.shape[0] else config.dem
-    # an existing complete DEM is reused (resume); products are always rewritten
+    attrs = {"source": "global adjusted control points"}
     remote = store.url is not None
     if remote:
         store.fetch_zarr(COVERAGE_FILE)
-    if not store.fetch_zarr(DEM_FILE):
-        attrs = {"source": "global adjusted control points"}
-        if remote:  # chunks gridded where the tasks run, straight into the bucket (pipeline/dem_bucket.py)
-            from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
+    fetched = store.fetch_zarr(DEM_FILE)
+    if fetched and not failed_chunks_of(store.dem_path):
+        return {"path": str(store.dem_path), "reused": True}
+    if remote:  # new, or the chunks without a marker; then the committed store into the cache, for the products
+        from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
 
-            grid_summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body, attrs=attrs, progress=rep)
-            store.fetch_zarr(DEM_FILE)  # the committed store into the cache, for the products
-        else:
-            grid_summary = grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep,
-                                    record_failures=True)
-    elif failed_chunks_of(store.dem_path):  # resume: only the chunks that failed last time
-        if remote:  # the chunks without a marker (pipeline/dem_bucket.py), then the store committed again
-            from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
+        summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body, attrs=attrs, progress=rep)
+        store.fetch_zarr(DEM_FILE)
+        return summary
+    if fetched:  # resume: only the chunks that failed last time
+        return regrid_failed_chunks(pts, dem_cfg, store.dem_path, client, body=body, progress=rep)
+    return grid_dem(pts, dem_cfg, store.dem_path, client, body=body, attrs=attrs, progress=rep, record_failures=True)
 
-            grid_summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body,
-                                              attrs={"source": "global adjusted control points"}, progress=rep)
-            store.fetch_zarr(DEM_FILE)
-        else:
-            grid_summary = regrid_failed_chunks(pts, dem_cfg, store.dem_path, client, body=body, progress=rep)
-    else:
-        grid_summary = {"path": str(store.dem_path), "reused": True}
-    if remote:
-        client = None  # below, tasks read the local cache (registration, the a-priori DEM): in this process
+
+def _checks(store: RunStore, mission: Mission, config: Config, rep: Any) -> dict[str, Any]:
+    """The DEM against the configured references (``reference``) and against the body's shape (``shape_check``)."""
+    from mercury_dem.pipeline.dem_stage import open_dem
+    from mercury_dem.pipeline.reference_check import check_against_body_shape, compare_with_references
+
+    out: dict[str, Any] = {}
+    ref = config.reference
+    if ref.dem or ref.altimetry or ref.shape_harmonics:
+        out["reference"] = compare_with_references(open_dem(store.dem_path), mission.body, ref)
+    out["shape_check"] = check_against_body_shape(open_dem(store.dem_path), mission, ref.max_point_distance_m)
+    if out["shape_check"].get("status") == "gross_error":
+        rep.message(f"ERROR: DEM minus the body's shape: bias {out['shape_check']['bias_m']:+.0f} m "
+                    f"({out['shape_check']['cause']})")
+    return out
+
+
+def _registration_products(store: RunStore, config: Config, registration: dict[str, Any], files: list[str],
+                           rep: Any) -> None:
+    """The registered and merged DEMs' products; their files appended to ``files``, statistics to ``registration``."""
+    from mercury_dem.pipeline.register_stage import make_registration_products
+
+    t = time.perf_counter()
+    reg_products = make_registration_products(store.root, store.products_dir, config, overwrite=True)
+    files += reg_products["files"]
+    registration["products"] = {k: {f: reg_products[k][f] for f in ("statistics", "skipped")} for k in REGISTRATION_MAPS}
+    rep.message(f"products of the registered and merged DEMs: {len(reg_products['files'])} files in "
+                f"{time.perf_counter() - t:.1f} s")
+
+
+def _validation(store: RunStore, net: Any, dem_cfg: Any, client: ComputeClient | None, body: Any, truth: Any, adjusted: Any,
+                registration: dict[str, Any] | None, rep: Any) -> dict[str, Any]:
+    """Accuracy against the truth (:func:`~mercury_dem.dem.accuracy.dem_accuracy`) of the adjusted DEM, the
+    registered and merged ones, and of a DEM of the a-priori points (gridded into a temporary store).
+    """
+    from mercury_dem.dem.accuracy import dem_accuracy
+    from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
+
+    validation: dict[str, Any] = {"adjusted": adjusted}
+    if registration is not None and "error" not in registration:
+        for key in REGISTRATION_MAPS:
+            ds = _open_map(registration[key])
+            validation[key] = dem_accuracy(ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth)
+    tmp = store.root / DEM_APRIORI_FILE
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        grid_dem(point_cloud(net, adjusted=False), dem_cfg, tmp, client, coverage=False, body=body,
+                 record_failures=True, attrs={"source": "a-priori control points"}, progress=rep,
+                 label="dem (a-priori points)")
+        ds = open_dem(tmp)
+        validation["a_priori"] = dem_accuracy(ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth,
+                                              ds["distance_to_nearest_point"].values)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return validation
+
+
+def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: ComputeClient | None, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
+    """Grid ``dem.zarr`` from the global network, then the products, checks, registration and validation; returns
+    the report's ``dem`` block.
+
+    ``client`` is the run's (the synchronous client grids in this process). A chunk that fails is recorded
+    (``failed_chunks``: which, why, what to do), its pixels left NaN, and a resume grids only it again. On a
+    bucket run (``store.url``) the chunk tasks write straight into the bucket's ``dem.zarr``
+    (:mod:`mercury_dem.pipeline.dem_bucket`); the registration and the a-priori DEM of the validation read the
+    run's local cache, so they run in this process. With truth, the a-priori points are gridded too (into a
+    temporary store), so the report shows what the adjustment bought.
+    """
+    from mercury_dem.dem.extent import config_with_extent
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.products.make import make_products
+    from mercury_dem.progress import Reporter
+
+    rep, t0 = Reporter(stream), time.perf_counter()
+    net = read_network(store.network_path("global", 0))
+    pts = point_cloud(net, adjusted=True)
+    # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
+    dem_cfg = config_with_extent(config.dem, pts) if pts.shape[0] else config.dem
+    grid_summary = _grid_or_resume(store, pts, dem_cfg, client, mission.body, rep)
+    client = None if store.url is not None else client  # below, tasks read the local cache: in this process
     truth = mission.truth.surface().height if mission.truth is not None else None
     rep.message("products: writing GeoTIFF/ISIS/PDS products and browse images")
     t = time.perf_counter()
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
     out: dict[str, Any] = {
-        "points": int(pts.shape[0]),
-        "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
+        "points": int(pts.shape[0]), "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
         "coverage": grid_summary.get("coverage"),
-        # chunks that could not be gridded (their pixels NaN): which, why, what to do; [] when none
-        "failed_chunks": grid_summary.get("failed_chunks", []),
-        "statistics": products.get("statistics"),
-        "files": [str(f) for f in products.get("files", [])],
+        "failed_chunks": grid_summary.get("failed_chunks", []),  # chunks not gridded (pixels NaN); [] when none
+        "statistics": products.get("statistics"), "files": [str(f) for f in products.get("files", [])],
         "products_skipped": products.get("skipped", {}),
     }
     rep.message(f"products: {len(products.get('files', []))} files in {time.perf_counter() - t:.1f} s")
-    ref = config.reference
-    if ref.dem or ref.altimetry or ref.shape_harmonics:
-        from mercury_dem.pipeline.reference_check import compare_with_references
-
-        out["reference"] = compare_with_references(open_dem(store.dem_path), body, ref)
-    from mercury_dem.pipeline.reference_check import check_against_body_shape
-
-    out["shape_check"] = check_against_body_shape(open_dem(store.dem_path), mission, ref.max_point_distance_m)
-    if out["shape_check"].get("status") == "gross_error":
-        rep.message(f"ERROR: DEM minus the body's shape: bias {out['shape_check']['bias_m']:+.0f} m "
-                    f"({out['shape_check']['cause']})")
+    out.update(_checks(store, mission, config, rep))
     registration = register_to_mission_altimetry(store, mission, config, client, rep)
     if registration is not None:
         out["registration"] = registration
         if "error" not in registration:
-            from mercury_dem.pipeline.register_stage import make_registration_products
-
-            t = time.perf_counter()
-            reg_products = make_registration_products(store.root, store.products_dir, config, overwrite=True)
-            out["files"] += reg_products["files"]
-            registration["products"] = {k: {f: reg_products[k][f] for f in ("statistics", "skipped")}
-                                        for k in REGISTRATION_MAPS}
-            rep.message(f"products of the registered and merged DEMs: {len(reg_products['files'])} files in "
-                        f"{time.perf_counter() - t:.1f} s")
-    if registration is not None and "error" not in registration and ref.shape_harmonics:
-        out["reference_by_map"] = _shape_reference_of_maps(store, registration, body, ref)
+            _registration_products(store, config, registration, out["files"], rep)
+            if config.reference.shape_harmonics:
+                out["reference_by_map"] = _shape_reference_of_maps(store, registration, mission.body, config.reference)
     store.commit_tree(PRODUCTS_DIR)  # a bucket run: the whole products directory, once
     if truth is not None:
-        from mercury_dem.dem.accuracy import dem_accuracy
-
-        validation: dict[str, Any] = {"adjusted": products.get("accuracy")}
-        if registration is not None and "error" not in registration:
-            for key in REGISTRATION_MAPS:
-                ds = _open_map(registration[key])
-                validation[key] = dem_accuracy(ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth)
-        apri = point_cloud(net, adjusted=False)
-        tmp = store.root / DEM_APRIORI_FILE
-        shutil.rmtree(tmp, ignore_errors=True)
-        try:
-            grid_dem(apri, dem_cfg, tmp, client, coverage=False, body=body, record_failures=True,
-                     attrs={"source": "a-priori control points"}, progress=rep, label="dem (a-priori points)")
-            ds = open_dem(tmp)
-            validation["a_priori"] = dem_accuracy(
-                ds["elevation"].values, ds["lat"].values, ds["lon"].values, truth,
-                ds["distance_to_nearest_point"].values,
-            )
-        finally:
-            shutil.rmtree(tmp, ignore_errors=True)
-        out["validation"] = validation
+        out["validation"] = _validation(store, net, dem_cfg, client, mission.body, truth, products.get("accuracy"),
+                                        registration, rep)
     rep.message(f"dem stage: done in {time.perf_counter() - t0:.1f} s")
     if stream is not None and products.get("table"):
         print(products["table"], file=stream)

@@ -21,9 +21,7 @@ unknown files inside a store).
 
 from __future__ import annotations
 
-import base64
 import contextlib
-import functools
 import json
 import math
 import time
@@ -39,11 +37,28 @@ from mercury_dem.compute import ThreadPoolClient, as_completed, client_or_sync, 
 from mercury_dem.compute.failures import lost_to_the_cluster
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
-from mercury_dem.dem.grid import LAYERS, GridSpec, PointIndex, build_point_index, grid_chunk
-from mercury_dem.dem.spacing import config_with_no_value_distance
+from mercury_dem.dem.grid import (
+    LAYERS,
+    GridSpec,
+    PointIndex,
+    build_point_index,
+    config_with_no_value_distance,
+    grid_chunk,
+)
+from mercury_dem.dem.memory import check_memory, estimate_memory_bytes
+from mercury_dem.dem.store_schema import (
+    ATTRS,
+    COORD_ATTRS,
+    NAN_FILL_ATTR,
+    gridding_attr,
+    layer_compressors,
+    root_attrs,
+    spatial_ref_extra,
+)
 from mercury_dem.exceptions import DiskFullError, GridError, StoreError
 from mercury_dem.geometry.body import Body
 from mercury_dem.io.atomic import atomic_directory, disk_full_cause
+from mercury_dem.io.crs_cache import spatial_ref_attrs
 from mercury_dem.io.run_store import COVERAGE_FILE
 
 if TYPE_CHECKING:
@@ -93,62 +108,9 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-ATTRS: dict[str, dict[str, str]] = {
-    "elevation": {
-        "long_name": "elevation above the datum sphere (root attribute datum_radius_m), the reference "
-                     "ellipsoid of the grid mapping spatial_ref",
-        "standard_name": "height_above_reference_ellipsoid",
-        "units": "m",
-    },
-    "radius": {"long_name": "planetocentric radius of the surface", "units": "m"},
-    "point_count": {"long_name": "control points within the search radius of the pixel centre", "units": "1"},
-    "distance_to_nearest_point": {
-        "long_name": "horizontal distance from the pixel centre to the nearest control point",
-        "units": "m",
-    },
-    "spread": {
-        "long_name": "standard deviation of the radii of the points used (precision / figure of merit)",
-        "units": "m",
-    },
-}
-
-
 def _dem_config(config: Config | DemConfig) -> DemConfig:
     """Accept a full :class:`~mercury_dem.config.Config` or its ``dem`` section."""
     return cast("DemConfig", getattr(config, "dem", config))
-
-
-def estimate_memory_bytes(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
-    """Estimated peak memory of the DEM stage (per worker) and of the products stage.
-
-    The stage holds the point index (points, footprints, buckets, radii: ~120 B per
-    point, twice while it is pickled to a worker) and one chunk's work arrays
-    (about 40 float64 per pixel of a query batch plus the haloed chunk layers).
-    The products stage holds a few full-map float32 layers (~5 x 4 B per pixel).
-    """
-    nr, nc = grid.shape
-    npix = nr * nc
-    h = cfg.smoothing_passes * (cfg.smoothing_size // 2)
-    chunk_px = min(cfg.chunk_size + 2 * h, nr + 2 * h) * min(cfg.chunk_size + 2 * h, nc + 2 * h)
-    k = max(cfg.neighbours, cfg.shepard_max_points)
-    per_worker = 240 * n_points + chunk_px * 8 * 12 + min(chunk_px, 1 << 17) * k * 8 * 6
-    products = npix * 4 * 5
-    return {"dem_worker": int(per_worker), "products": int(products), "peak": int(max(per_worker, products))}
-
-
-def check_memory(grid: GridSpec, n_points: int, cfg: Any) -> dict[str, int]:
-    """Raise :class:`GridError` with the estimate when the grid would not fit ``dem.memory_limit_gb``."""
-    est = estimate_memory_bytes(grid, n_points, cfg)
-    limit = cfg.memory_limit_gb * 1e9
-    if est["peak"] > limit:
-        nr, nc = grid.shape
-        raise GridError(
-            f"a {nr} x {nc} grid at {grid.pixels_per_degree} pixel/deg from {n_points} points needs about "
-            f"{est['peak'] / 1e9:.1f} GB per process (gridding {est['dem_worker'] / 1e9:.2f} GB, products "
-            f"{est['products'] / 1e9:.1f} GB), over dem.memory_limit_gb = {cfg.memory_limit_gb}; lower "
-            f"dem.pixels_per_degree or raise dem.memory_limit_gb"
-        )
-    return est
 
 
 def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> xr.Dataset:
@@ -167,152 +129,19 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: B
     ds = xr.Dataset(
         data_vars,
         coords={
-            "lat": ("lat", grid.lat_centres(), dict(_COORD_ATTRS["lat"])),
-            "lon": ("lon", grid.lon_centres(), dict(_COORD_ATTRS["lon"])),
+            "lat": ("lat", grid.lat_centres(), dict(COORD_ATTRS["lat"])),
+            "lon": ("lon", grid.lon_centres(), dict(COORD_ATTRS["lon"])),
         },
     )
     ds = ds.rio.set_spatial_dims(x_dim="lon", y_dim="lat")
     ds = ds.rio.write_crs(body.datum_geographic_crs())
-    ds["spatial_ref"].attrs.update(_spatial_ref_extra(body))
+    ds["spatial_ref"].attrs.update(spatial_ref_extra(body))
     for name in LAYERS:
         ds[name].encoding.update({"chunks": (cs, cs), "grid_mapping": "spatial_ref",
                                   "compressors": layer_compressors()})
         ds[name].attrs.pop("grid_mapping", None)
-    ds.attrs.update(_root_attrs(grid, cfg, attrs, body))
+    ds.attrs.update(root_attrs(grid, cfg, attrs, body))
     return ds
-
-
-def _root_attrs(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> dict[str, Any]:
-    code = body.crs("geographic")
-    if body.datum_is_iau_sphere:
-        reference = (f"elevation is metres above the {body.name.title()} IAU 2015 sphere of radius "
-                     f"{body.datum_radius_m / 1000:g} km, the sphere of the CRS {code} (grid mapping spatial_ref)")
-    else:
-        reference = (
-            f"elevation is metres above a sphere of radius {body.datum_radius_m / 1000:g} km (the datum), the "
-            f"sphere of the grid mapping spatial_ref; latitude/longitude are those of {code} (crs_code, the IAU "
-            f"2015 sphere of radius {body.radius_m:.0f} m, to which heights never refer)"
-        )
-    out = {
-        "title": f"{body.name.title()} DEM gridded from a control point cloud",
-        "Conventions": "CF-1.8",
-        "body": json.dumps(body.to_dict()),
-        "datum_radius_m": body.datum_radius_m,
-        "height_reference": reference,
-        "crs_code": code,
-        "pixels_per_degree": grid.pixels_per_degree,
-        "pixel_size_m": grid.pixel_size_m,
-        "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
-        "pixel_registration": "lat/lon are pixel centres; row 0 is the northernmost",
-        "method": cfg.method,
-        "gridding": gridding_attr(cfg),
-    }
-    if attrs:
-        out.update(attrs)
-    return out
-
-
-def gridding_attr(cfg: Any) -> str:
-    """The store's ``gridding`` attribute: the settings a pixel's value depends on, as JSON
-    (``max_distance_m`` is the no-value distance used, once resolved from the points' spacing).
-    """
-    return json.dumps({k: getattr(cfg, k) for k in ("method", "neighbours", "sigma_filter", "search_radius_factor",
-                                                    "shepard_fallback_neighbours", "shepard_max_points",
-                                                    "max_distance_m", "smoothing_passes", "smoothing_size")})
-
-
-_COORD_ATTRS = {
-    "lat": {"units": "degrees_north", "standard_name": "latitude",
-            "long_name": "planetocentric latitude of the pixel centre"},
-    "lon": {"units": "degrees_east", "standard_name": "longitude", "long_name": "east longitude of the pixel centre"},
-}
-
-
-def _spatial_ref_extra(body: Body) -> dict[str, Any]:
-    """What ``spatial_ref`` carries beside rioxarray's CF attributes: the IAU code and the WKT2."""
-    import pyproj
-
-    code = body.crs("geographic")
-    out: dict[str, Any] = {
-        "crs_code": code,
-        "crs_wkt2": pyproj.CRS.from_user_input(body.datum_geographic_crs()).to_wkt("WKT2_2019"),
-    }
-    if body.datum_is_iau_sphere:
-        out["crs_note"] = f"the grid mapping is {code}, whose sphere is the height datum"
-    else:
-        out["crs_note"] = (
-            f"the grid mapping (crs_wkt, crs_wkt2, semi_major_axis) is the sphere of the height datum, "
-            f"R = {body.datum_radius_m:.0f} m; crs_code {code} is the IAU 2015 CRS of the same latitude/longitude "
-            f"(sphere R = {body.radius_m:.0f} m), given as the horizontal reference for interoperability"
-        )
-    return out
-
-
-@functools.lru_cache(maxsize=4)
-def _spatial_ref_attrs(body: Body) -> dict[str, Any]:
-    """The ``spatial_ref`` attributes rioxarray writes for the body's datum-sphere CRS
-    (:meth:`Body.datum_geographic_crs`), plus the IAU code, the WKT2 and a note.
-
-    A constant of the body and of the installed pyproj/rioxarray: computed once and kept in the
-    user's cache (``$MERCURY_DEM_CACHE/crs/``, keyed by the body and those versions), since
-    importing rioxarray (which loads rasterio's GDAL and pyproj) was ~0.5 s of a cold
-    ``mercury-dem grid`` that needs nothing else from them. A cache that cannot be read or
-    written is computed again (a test checks the cached value equals a fresh one).
-    """
-    import hashlib
-    from importlib import metadata
-
-    from mercury_dem.io.remote import cache_root
-
-    key = json.dumps({"body": body.to_dict(),
-                      "versions": [metadata.version(m) for m in ("pyproj", "rioxarray")]}, sort_keys=True, default=str)
-    path = cache_root() / "crs" / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.json"
-    with contextlib.suppress(OSError, ValueError):  # absent or unreadable: computed below
-        cached = json.loads(path.read_text())
-        if cached.get("key") == key:
-            return dict(cached["attrs"])
-    attrs = _compute_spatial_ref_attrs(body)
-    with contextlib.suppress(OSError):  # a read-only cache: the value is still right, only not kept
-        from mercury_dem.io.atomic import atomic_write_json
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(path, {"key": key, "attrs": attrs})
-    return attrs
-
-
-def _compute_spatial_ref_attrs(body: Body) -> dict[str, Any]:
-    """:func:`_spatial_ref_attrs` computed with rioxarray and pyproj (no cache)."""
-    import rioxarray  # noqa: F401  (registers the .rio accessor)
-    import xarray as xr
-
-    ds = xr.Dataset(coords={"lat": [0.0], "lon": [0.0]}).rio.set_spatial_dims(x_dim="lon", y_dim="lat")
-    out = dict(ds.rio.write_crs(body.datum_geographic_crs())["spatial_ref"].attrs)
-    out.update(_spatial_ref_extra(body))
-    return json.loads(json.dumps(out, default=_plain))  # numpy scalars -> JSON types, as the cache returns them
-
-
-def _plain(v: Any) -> Any:
-    if isinstance(v, np.generic):
-        return v.item()
-    raise TypeError(f"{type(v).__name__} is not JSON-serialisable")
-
-
-def layer_compressors() -> tuple[Any, ...]:
-    """The 5 map layers' compressor: Blosc LZ4 with bit shuffle (typesize from the dtype).
-
-    Chosen by measurement on the benchmark's 1000 x 1000 map (5 layers, 4 chunks): zarr's
-    default zstd took 0.12 CPU-s to write 12.7 MB; Blosc LZ4 + bit shuffle 0.05 CPU-s for
-    11.2 MB (no compression at all: 0.04 s, 21 MB). Faster *and* smaller: bit shuffle
-    groups the float32 exponents and high mantissa bits of a smooth map. Any Zarr v3 reader
-    with Blosc (xarray, zarr-python, numcodecs) opens it.
-    """
-    from zarr.codecs import BloscCodec
-
-    return (BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle"),)
-
-
-#: How xarray records a NaN ``_FillValue`` in a Zarr v3 attribute (base64 of the float64 bytes).
-_NAN_FILL_ATTR = base64.standard_b64encode(np.array(np.nan, dtype="<f8").tobytes()).decode("ascii")
 
 
 def create_store(
@@ -329,19 +158,19 @@ def create_store(
 
     nr, nc = grid.shape
     cs = cfg.chunk_size
-    group = zarr.open_group(store, mode="w", zarr_format=3, attributes=_root_attrs(grid, cfg, attrs, body))
+    group = zarr.open_group(store, mode="w", zarr_format=3, attributes=root_attrs(grid, cfg, attrs, body))
     for name, values in (("lat", grid.lat_centres()), ("lon", grid.lon_centres())):
         arr = group.create_array(name, shape=values.shape, chunks=values.shape, dtype=np.float64,
                                  fill_value=np.nan, dimension_names=[name],
-                                 attributes={**_COORD_ATTRS[name], "_FillValue": _NAN_FILL_ATTR})
+                                 attributes={**COORD_ATTRS[name], "_FillValue": NAN_FILL_ATTR})
         arr[...] = values
-    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=_spatial_ref_attrs(body))
+    group.create_array("spatial_ref", shape=(), dtype=np.int64, fill_value=0, attributes=spatial_ref_attrs(body))
     layers: dict[str, zarr.Array] = {}
     for name, dtype in LAYERS.items():
         integer = np.dtype(dtype).kind == "i"
         layer_attrs = {**ATTRS[name], "grid_mapping": "spatial_ref"}
         if not integer:
-            layer_attrs["_FillValue"] = _NAN_FILL_ATTR
+            layer_attrs["_FillValue"] = NAN_FILL_ATTR
         layers[name] = group.create_array(name, shape=(nr, nc), chunks=(cs, cs), dtype=dtype,
                                           fill_value=0 if integer else np.nan, dimension_names=["lat", "lon"],
                                           attributes=layer_attrs, compressors=layer_compressors())
@@ -456,166 +285,150 @@ def failed_chunk_lines(failed: list[dict[str, Any]], label: str = "dem") -> list
             f"failed: {f['error']}; {f['what_to_do']}" for f in failed]
 
 
+def _planned_grid(points_xyz: NDArray[np.floating], config: Config | DemConfig, body: Body
+                  ) -> tuple[NDArray[np.float64], DemConfig, GridSpec, dict[str, int]]:
+    """The points (float64), the DEM settings with unset bounds from the cloud's box
+    (:func:`~mercury_dem.dem.extent.config_with_extent`), the grid, and its memory estimate (refused over
+    ``dem.memory_limit_gb``); an empty cloud raises its error here, before anything is created.
+    """
+    cfg = _dem_config(config)
+    pts = np.asarray(points_xyz, dtype=np.float64)
+    n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
+    if n_points and cfg.extent_from_points:
+        cfg = config_with_extent(cfg, pts)
+    grid = GridSpec.from_config(cfg, body.datum_radius_m)
+    est = check_memory(grid, max(n_points, 0), cfg)
+    if n_points == 0:
+        build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error
+    return pts, cfg, grid, est
+
+
+def _grid_chunks(index: PointIndex, grid: GridSpec, chunks: list[tuple[int, int, int, int]], cfg: DemConfig,
+                 client: ComputeClient | None, layer_arrays: Mapping[str, zarr.Array], store: str,
+                 record_failures: bool, task: Any, near_points_only: bool = False) -> list[dict[str, Any]]:
+    """One task per chunk (:func:`_grid_and_write`, or its recording form); their results in chunk order.
+
+    In this process, two chunks in flight: one in the compiled kernel (all its threads, GIL released), the
+    other being smoothed and written (numpy, compression): the cores stay busy. Each chunk's result is
+    independent of the other: the same arrays as a plain loop. On Dask, the index is scattered once to
+    every worker and each task opens the store by its path.
+    """
+    in_process = runs_in_process(client)
+    runner = ThreadPoolClient(2) if in_process else client
+    target: Any = layer_arrays if in_process else store
+    chunk_task = _grid_and_write_or_record if record_failures else _grid_and_write
+    try:
+        index_f = runner.scatter(index, broadcast=True)
+        futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, near_points_only, pure=False)
+                   for b in chunks]
+        for _ in as_completed(runner, futures):  # completion order: counts as chunks land
+            task.update()
+        if record_failures:
+            return [result_or_record(grid, b, f) for b, f in zip(chunks, futures)]
+        results: list[dict[str, Any]] = runner.gather(futures)
+        return results
+    finally:
+        if in_process:
+            runner.close()
+
+
+def coverage_summary(index: PointIndex, cfg: Any, grid: GridSpec, body: Body, path: Path) -> dict[str, Any]:
+    """The point-cloud coverage (:func:`~mercury_dem.dem.coverage.point_coverage`) written to ``path``; its summary."""
+    cov = point_coverage(index, cfg.coverage_pixel_km_for(body.datum_radius_m), threads=cfg.query_threads or -1,
+                         bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
+    write_coverage(cov, path, overwrite=True)
+    summary: dict[str, Any] = cov.summary()
+    return summary
+
+
+def grid_summary(path: str, grid: GridSpec, cfg: Any, n_points: int, n_chunks: int, results: list[dict[str, Any]],
+                 est: dict[str, int], cov_summary: dict[str, Any] | None, failed: list[dict[str, Any]],
+                 extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The DEM stage's summary from its chunks' results (``extra``: the bucket run's keys, after ``n_chunks``)."""
+    no_value = sum(int(r["no_value"]) for r in results)
+    mins = [r["min"] for r in results if r.get("min") is not None and not math.isnan(r["min"])]
+    maxs = [r["max"] for r in results if r.get("max") is not None and not math.isnan(r["max"])]
+    return {"path": path, "shape": list(grid.shape), "pixels_per_degree": grid.pixels_per_degree,
+            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max], "method": cfg.method,
+            "no_value_distance_m": cfg.max_distance_m, "n_points": n_points, "n_chunks": n_chunks, **(extra or {}),
+            "no_value_pixels": no_value, "no_value_fraction": no_value / (grid.shape[0] * grid.shape[1]),
+            "elevation_min_m": min(mins) if mins else math.nan, "elevation_max_m": max(maxs) if maxs else math.nan,
+            "memory_estimate_bytes": est, "coverage": cov_summary, "failed_chunks": failed}
+
+
+def final_attrs(summary: dict[str, Any]) -> dict[str, Any]:
+    """The store's root attributes known once every chunk is in: counts, coverage, and the failed chunks
+    (:data:`FAILED_CHUNKS_ATTR`, read back on resume; absent from a complete DEM).
+    """
+    out: dict[str, Any] = {"n_points": summary["n_points"], "no_value_pixels": int(summary["no_value_pixels"]),
+                           "coverage": json.dumps(summary["coverage"]) if summary["coverage"] else ""}
+    if summary["failed_chunks"]:
+        out[FAILED_CHUNKS_ATTR] = json.dumps(summary["failed_chunks"])
+    return out
+
+
 def grid_dem(
-    points_xyz: NDArray[np.floating],
-    config: Config | DemConfig,
-    out_path: str | Path,
-    client: ComputeClient | None = None,
-    *,
-    overwrite: bool = False,
-    attrs: dict[str, Any] | None = None,
-    coverage: bool = True,
-    body: Body,
-    progress: Any = None,
-    label: str = "dem",
-    writer: StoreWriter | None = None,
-    record_failures: bool = False,
-    near_points_only: bool = False,
+    points_xyz: NDArray[np.floating], config: Config | DemConfig, out_path: str | Path,
+    client: ComputeClient | None = None, *, overwrite: bool = False, attrs: dict[str, Any] | None = None,
+    coverage: bool = True, body: Body, progress: Any = None, label: str = "dem", writer: StoreWriter | None = None,
+    record_failures: bool = False, near_points_only: bool = False,
 ) -> dict[str, Any]:
-    """Grid a point cloud into ``out_path`` (a ``dem.zarr`` store); return a summary.
+    """Grid a point cloud (N, 3 body-fixed metres) into ``out_path`` (a ``dem.zarr``); return a summary.
 
-    Parameters
-    ----------
-    points_xyz : ndarray of shape (N, 3), body-fixed metres (the adjusted point cloud)
-    config : Config or DemConfig
-    out_path : path of the store to create (e.g. ``RUN/dem.zarr``)
-    client : dask.distributed.Client, the synchronous client, or None
-        The run's client (the cascade's). The synchronous client or None grid the chunks in this
-        process, two at a time (same result).
-    overwrite : replace an existing store (only once the new one is complete)
-    attrs : extra global attributes (e.g. run id, source of the points)
-    coverage : also compute the point-cloud coverage into ``coverage.zarr`` beside the store
-    body : the target: heights above its datum sphere, its IAU 2015 CRS
-    progress : mercury_dem.progress.Reporter or None
-        Shows the chunks gridded (count, elapsed, ETA) as they finish, under ``label``;
-        presentation only, the store is the same with or without it.
-    label : the name progress lines start with
-    writer : StoreWriter (a ForkedStoreWriter) or None
-        With ``client=None``: a forked process that creates and writes the store
-        (:mod:`mercury_dem.pipeline.store_writer`; this process then never imports zarr).
-        The store is the same as without it. It is stopped (and waited for) if this call fails.
-    record_failures : a chunk whose gridding raises is recorded and the others written (True: the
-        run's DEM stage), or its error stops the call and nothing is written (False: ``mercury-dem grid``)
-    near_points_only : search only the pixels within reach of a point (the no-value distance or the count's
-        radius), the others are gaps without a search (:func:`mercury_dem.dem.grid.grid_chunk`); the same
-        elevations, for a patchy cloud on a large grid (the dense stereo cloud)
+    ``config``: Config or DemConfig; ``client``: the run's (the synchronous client or None grid the chunks in
+    this process, two at a time: the same result); ``attrs``: extra root attributes; ``coverage``: also the
+    point-cloud coverage into ``coverage.zarr`` beside the store; ``body``: heights above its datum sphere, its
+    IAU 2015 CRS; ``progress``/``label``: progress lines (presentation only); ``writer``: with ``client=None``,
+    a forked process that creates and writes the store (:mod:`mercury_dem.pipeline.store_writer`), stopped if
+    this call fails. ``record_failures``: a chunk whose gridding raises is recorded as a value (its pixels NaN,
+    the root attribute ``failed_chunks`` lists it, a resume grids only it: :func:`regrid_failed_chunks`),
+    else its error stops the call and nothing is written. A full disk always stops the stage.
+    ``near_points_only``: search only the pixels within reach of a point (the no-value distance or the count's
+    radius), the others are gaps without a search (:func:`mercury_dem.dem.grid.grid_chunk`): the same
+    elevations, for a patchy cloud on a large grid (the dense stereo cloud).
 
-    Returns
-    -------
-    dict: path, shape, n_points, n_chunks, no_value_pixels, no_value_fraction,
-    elevation_min/max (m), seconds, memory_estimate_bytes, coverage (summary dict or None),
-    failed_chunks (list, one record per chunk that could not be gridded: ``bounds`` [r0, r1, c0, c1],
-    ``pixels``, ``lat_deg``/``lon_deg`` ranges, ``error``, ``what_to_do``).
-
-    With ``record_failures``, a chunk whose gridding raises is recorded as a value, not raised: the rest of the DEM is written,
-    the chunk's pixels are NaN (counted as no-value pixels; ``point_count`` 0) and the store's root
-    attribute ``failed_chunks`` lists them, so a resume grids only them again
-    (:func:`regrid_failed_chunks`). A full disk still stops the stage.
-
-    Raises
-    ------
-    GridError : empty/invalid point cloud, grid too large for ``dem.memory_limit_gb``
-    StoreError : ``out_path`` exists and ``overwrite`` is False
+    Returns :func:`grid_summary`'s dict and ``seconds``. Raises :class:`GridError` (an empty or invalid
+    cloud, a grid over ``dem.memory_limit_gb``) or :class:`StoreError` (``out_path`` exists, no ``overwrite``).
     """
     from mercury_dem.progress import NULL
 
     t0 = time.perf_counter()
     rep = progress if progress is not None else NULL
-    cfg = _dem_config(config)
     out_path = Path(out_path)
     if out_path.exists() and not overwrite:
         raise StoreError(f"{out_path} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    pts = np.asarray(points_xyz, dtype=np.float64)
-    n_points = int(pts.shape[0]) if pts.ndim == 2 else 0
-    if n_points and cfg.extent_from_points:  # unset bounds: the cloud's box (mercury_dem.dem.extent)
-        cfg = config_with_extent(cfg, pts)
-    grid = GridSpec.from_config(cfg, body.datum_radius_m)
-    est = check_memory(grid, max(n_points, 0), cfg)
-    if n_points == 0:
-        build_point_index(pts, body.datum_radius_m)  # raises the empty-cloud error before anything is created
+    pts, cfg, grid, est = _planned_grid(points_xyz, config, body)
     chunks = grid.chunks(cfg.chunk_size)
-    in_process = runs_in_process(client)
-    if writer is not None and not in_process:
+    if writer is not None and not runs_in_process(client):
         raise ValueError("a forked store writer is for in-process gridding (client=None)")
     forked: list[StoreWriter | None] = [writer]  # the writer, or None once it declined (then this process writes)
-    chunk_task = _grid_and_write_or_record if record_failures else _grid_and_write
 
     def mark(tmp: Path) -> None:
         (mark_zarr_complete if forked[0] is None else forked[0].complete)(tmp)
 
     with atomic_store(out_path, overwrite=overwrite, mark_complete=mark) as tmp, \
             _stopping_on_error(writer), ThreadPoolExecutor(max_workers=2) as pool:
-        store = str(tmp)
         # The index (compiled, GIL released) builds while this thread writes the store's template.
         index_job = pool.submit(build_point_index, pts, body.datum_radius_m)
-        layer_arrays = None if writer is None else writer.create(store, grid, cfg, attrs, body, name=str(out_path))
+        layer_arrays = None if writer is None else writer.create(str(tmp), grid, cfg, attrs, body, name=str(out_path))
         if layer_arrays is None:
             forked[0] = None
-            group, layer_arrays = create_store(store, grid, cfg, attrs, body)
-        rep.message(f"{label}: indexing {n_points} points for a {grid.shape[0]} x {grid.shape[1]} grid "
-                    f"({len(chunks)} chunks, {cfg.method})")
+            group, layer_arrays = create_store(str(tmp), grid, cfg, attrs, body)
+        rep.message(f"{label}: indexing {pts.shape[0] if pts.ndim == 2 else 0} points for a {grid.shape[0]} x "
+                    f"{grid.shape[1]} grid ({len(chunks)} chunks, {cfg.method})")
         index = index_job.result()
-        # max_distance_m = 0: the no-value distance from the points' spacing (mercury_dem.dem.spacing)
-        cfg = config_with_no_value_distance(cfg, index)
+        cfg = config_with_no_value_distance(cfg, index)  # max_distance_m = 0: from the points' spacing
         with rep.task(f"{label} grid", len(chunks), "chunks") as task:
-            # In this process, two chunks in flight: one in the compiled kernel (all its threads, GIL
-            # released), the other being smoothed and written (numpy, compression): the cores stay busy.
-            # Each chunk's result is independent of the other: same arrays as a plain loop. On Dask, the
-            # index is scattered once to every worker and each task opens the store by its path.
-            runner = ThreadPoolClient(2) if in_process else client
-            target: Any = layer_arrays if in_process else store
-            try:
-                index_f = runner.scatter(index, broadcast=True)
-                futures = [runner.submit(chunk_task, index_f, grid, b, cfg, target, near_points_only, pure=False)
-                           for b in chunks]
-                for _ in as_completed(runner, futures):  # completion order: counts as chunks land
-                    task.update()
-                results = ([result_or_record(grid, b, f) for b, f in zip(chunks, futures)] if record_failures
-                           else runner.gather(futures))
-            finally:
-                if in_process:
-                    runner.close()
+            results = _grid_chunks(index, grid, chunks, cfg, client, layer_arrays, str(tmp), record_failures, task,
+                                   near_points_only)
         failed = judge_chunk_results(results, str(out_path), rep, label)
-        cov_summary = None
         if coverage:
             rep.message(f"{label}: point coverage")
-            cov = point_coverage(index, cfg.coverage_pixel_km_for(body.datum_radius_m), threads=cfg.query_threads or -1,
-                                 bounds=(grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max))
-            cov_summary = cov.summary()
-            write_coverage(cov, out_path.parent / COVERAGE_FILE, overwrite=True)
-        no_value = sum(r["no_value"] for r in results)
-        npix = grid.shape[0] * grid.shape[1]
-        mins = [r["min"] for r in results if not math.isnan(r["min"])]
-        maxs = [r["max"] for r in results if not math.isnan(r["max"])]
-        summary = {
-            "path": str(out_path),
-            "shape": list(grid.shape),
-            "pixels_per_degree": grid.pixels_per_degree,
-            "grid_bounds_deg": [grid.lat_min, grid.lat_max, grid.lon_min, grid.lon_max],
-            "method": cfg.method,
-            "no_value_distance_m": cfg.max_distance_m,
-            "n_points": index.n_points,
-            "n_chunks": len(chunks),
-            "no_value_pixels": int(no_value),
-            "no_value_fraction": no_value / npix,
-            "elevation_min_m": min(mins) if mins else math.nan,
-            "elevation_max_m": max(maxs) if maxs else math.nan,
-            "memory_estimate_bytes": est,
-            "coverage": cov_summary,
-            "failed_chunks": failed,
-        }
-        final_attrs = {
-            "gridding": gridding_attr(cfg),  # the no-value distance resolved after the store was created
-            "n_points": index.n_points,
-            "no_value_pixels": int(no_value),
-            "coverage": json.dumps(cov_summary) if cov_summary else "",
-        }
-        if failed:  # read back on resume (regrid_failed_chunks); absent from a complete DEM
-            final_attrs[FAILED_CHUNKS_ATTR] = json.dumps(summary["failed_chunks"])
-        if forked[0] is None:
-            group.attrs.update(final_attrs)
-        else:
-            forked[0].update_attrs(final_attrs)
+        cov = coverage_summary(index, cfg, grid, body, out_path.parent / COVERAGE_FILE) if coverage else None
+        summary = grid_summary(str(out_path), grid, cfg, index.n_points, len(chunks), results, est, cov, failed)
+        # the no-value distance was resolved after the store was created
+        done = {"gridding": gridding_attr(cfg), **final_attrs(summary)}
+        (group.attrs.update if forked[0] is None else forked[0].update_attrs)(done)
     summary["seconds"] = time.perf_counter() - t0
     return summary
 

@@ -3,27 +3,25 @@
 How it runs
 -----------
 1. The shots are checked (columns ``lat``, ``lon``, ``radius_m``, ``track_id``; rows with
-   non-finite values dropped and counted) and split by 10° tile (:class:`TileGrid`).
+   non-finite values dropped and counted) and split by tile of the run's grid (:class:`TileGrid` of
+   ``tiling.tile_size_deg``).
 2. One task per tile holding shots on the DEM (:func:`mercury_dem.altimetry.register.register_tile`);
    a task reads its own DEM window from the store (the store path travels, not the map) and
    gets its tile's shots. Tasks go through the client the caller passes (the synchronous
    in-process client by default, a ``distributed.Client`` on a cluster: the same results). An
    unexpected exception in a tile becomes that tile's failure (``ok = False``, the error),
    and the stage goes on.
-3. In this process, one block of rows at a time (``block_rows``; by default about 4·10⁶
-   pixels): the block's DEM rows and margins are read from the store, registered
-   (:func:`mercury_dem.altimetry.merge.register_dem`; pass 1, into a float64 scratch store),
-   levelled on the shots' mean per tile (``level_to_mean``; offsets from the whole map's samples,
-   applied per block) and merged with the shots corrected by
-   their profile offsets (:func:`mercury_dem.altimetry.merge.merge_dem`), and the block's rows
-   are written into the two stores. The margins (the merge's reach and the transforms'
-   largest displacement) make the result equal to the whole-map computation; memory is that
-   of a block, not of the map (before: ~120 B per map pixel measured, ~40 GB for a global 64 ppd DEM).
+3. In this process, one block of rows at a time (``registration.block_pixels``; by default about 4·10⁶
+   pixels): :func:`mercury_dem.altimetry.register_map.register_and_merge_blockwise` registers, levels
+   and merges the map (its docstring), reading the DEM's rows from the store and handing back each
+   finished block, which is written into the two stores. Memory is that of a block, not of the map
+   (before: ~120 B per map pixel measured, ~40 GB for a global 64 ppd DEM). Every constant of the
+   stage is the ``registration`` configuration section's (``mercury-dem config --template``).
 4. Written atomically beside the DEM: ``registered.zarr`` and ``merged.zarr`` (the DEM's
    coordinates, CRS and attributes; ``merged.zarr`` adds ``altimetry_weight`` and
    ``shot_count``), and ``registration/``: ``tiles.parquet`` + ``tiles.json`` (one row per
    tile), ``profiles.parquet`` (one row per profile), ``rms_per_tile.png`` (seed 004's
-   Figure 1: residual RMS before/after per tile) and ``summary.json``.
+   Figure 1, :func:`mercury_dem.products.registration_figure.rms_per_tile_png`) and ``summary.json``.
 
 :func:`register_dem_store` is the one function ``run`` calls.
 """
@@ -32,11 +30,11 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import time
 import traceback
 import uuid
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -44,27 +42,30 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from mercury_dem.altimetry.merge import (
-    MeanLevel,
-    MergeOptions,
-    blended_scalar,
-    max_displacement_m,
-    mean_level_offsets,
-    merge_dem,
-    merge_halo_px,
-    register_dem,
-)
+from mercury_dem.altimetry.merge import MergedDem, MergeOptions
 from mercury_dem.altimetry.register import (
     ProfileOffsets,
     RegisterOptions,
     TileRegistration,
     TileTransform,
-    enu_frame,
     register_tile,
     tile_window,
 )
+from mercury_dem.altimetry.register_map import (
+    SAMPLE_NAMES,
+    BlockwiseMaps,
+    ShotPositions,
+    corrected_shots,
+    level_allowed_tiles,
+    register_and_merge_blockwise,
+    rows_per_block,
+    sample_blockwise,
+)
+from mercury_dem.config.registration import RegistrationConfig
+from mercury_dem.config.tiling import TilingConfig
+from mercury_dem.dem.store_schema import layer_compressors
 from mercury_dem.exceptions import ReferenceDataError, StoreError
-from mercury_dem.geometry.body import Body, latlon_to_unit, xyz_to_latlon
+from mercury_dem.geometry.body import Body
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_write_bytes
 from mercury_dem.io.atomic import strict_json as _jsonable
@@ -78,8 +79,8 @@ from mercury_dem.io.run_store import (
     write_registration_tables,
 )
 from mercury_dem.pipeline.dem_stage import atomic_store
+from mercury_dem.products.registration_figure import rms_per_tile_png
 from mercury_dem.reference.compare import compare_heights
-from mercury_dem.reference.sampling import sample_grid
 
 if TYPE_CHECKING:
     from mercury_dem.compute.client import ComputeClient
@@ -145,39 +146,19 @@ def _tile_task(dem_path: str, tile_id: int, tile_size_deg: float, lat: np.ndarra
                                 ProfileOffsets.empty(), {"shots": int(np.size(lat))})
 
 
-def _corrected_shots(shots: pd.DataFrame, profiles: ProfileOffsets, tiles: TileGrid, datum: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shots moved by their profile's offset (shots of unfitted profiles unchanged)."""
-    x = latlon_to_unit(shots["lat"].to_numpy(), shots["lon"].to_numpy()) * shots["radius_m"].to_numpy()[:, None]
-    pf = profiles.to_frame()
-    if len(pf):
-        key = pd.DataFrame({"track_id": shots["track_id"].to_numpy(), "tile_id": shots["tile_id"].to_numpy()})
-        pf = pf[pf["fitted"]]
-        m = key.merge(pf, on=["track_id", "tile_id"], how="left")
-        d = m[["offset_e_m", "offset_n_m", "offset_u_m"]].to_numpy(dtype=np.float64)
-        has = np.isfinite(d).all(axis=1)
-        if has.any():
-            E = enu_frame(m["centre_lat"].to_numpy()[has], m["centre_lon"].to_numpy()[has])
-            x[has] += np.einsum("nij,nj->ni", E, d[has])
-    lat, lon, h = xyz_to_latlon(x, datum)
-    return lat, lon, h + datum
-
-
 def _create_map(path: Path, source: xr.Dataset, layers: dict[str, tuple[Any, dict[str, Any]]],
-                attrs: dict[str, Any], block_rows: int) -> dict[str, Any]:
+                attrs: dict[str, Any], block_rows: int, chunk_columns: int) -> dict[str, Any]:
     """An empty map store with the DEM's coordinates, CRS and attributes (``dem.zarr`` conventions).
 
     ``layers``: name → (dtype, attributes). The arrays' Zarr chunks are ``block_rows`` rows by up to
-    1024 columns, so each block of :func:`register_dem_store` writes whole chunks. Returns the open
+    ``chunk_columns`` columns, so each block of :func:`register_dem_store` writes whole chunks. Returns the open
     Zarr arrays, for region writes.
     """
     import dask.array as da
     import zarr
 
-    from mercury_dem.pipeline.dem_stage import layer_compressors
-
     H, W = source.sizes["lat"], source.sizes["lon"]
-    cs = (max(min(block_rows, H), 1), max(min(1024, W), 1))
+    cs = (max(min(block_rows, H), 1), max(min(chunk_columns, W), 1))
     data_vars = {}
     for name, (dtype, var_attrs) in layers.items():
         fill = np.nan if np.dtype(dtype).kind == "f" else 0
@@ -194,261 +175,53 @@ def _create_map(path: Path, source: xr.Dataset, layers: dict[str, tuple[Any, dic
     return {name: group[name] for name in layers}
 
 
-def _row_of(lat_pts: np.ndarray, lat: np.ndarray) -> np.ndarray:
-    """The nearest grid row of each latitude (clipped to the grid; the grid's latitudes evenly spaced)."""
-    if lat.size < 2:
-        return np.zeros(lat_pts.shape, dtype=np.int64)
-    r = np.rint((lat_pts - lat[0]) / (lat[1] - lat[0]))
-    return np.clip(np.nan_to_num(r, nan=0.0), 0, lat.size - 1).astype(np.int64)
-
-
-def _blocks(n_rows: int, block_rows: int) -> list[tuple[int, int]]:
-    return [(r0, min(r0 + block_rows, n_rows)) for r0 in range(0, n_rows, block_rows)]
-
-
-def _sample_blockwise(elevation: xr.DataArray, lat: np.ndarray, lon: np.ndarray, plat: np.ndarray, plon: np.ndarray,
-                      block_rows: int) -> np.ndarray:
-    """``sample_grid`` of the whole map at the points, reading it one block of rows (+1 row each side) at a time."""
-    out = np.full(plat.shape, np.nan)
-    rows = _row_of(plat, lat)
-    H = lat.size
-    for r0, r1 in _blocks(H, block_rows):
-        sel = np.flatnonzero((rows >= r0) & (rows < r1))
-        if not sel.size:
-            continue
-        i0, i1 = max(r0 - 1, 0), min(r1 + 1, H)
-        win = elevation[i0:i1].values.astype(np.float64)
-        out[sel] = sample_grid(win, lat[i0:i1], lon, plat[sel], plon[sel])
-    return out
-
-
-def _register_and_merge_blockwise(
-    elevation: xr.DataArray, lat: np.ndarray, lon: np.ndarray, datum: float, transforms: list[TileTransform],
-    tiles: TileGrid, merge_options: MergeOptions, corrected: tuple[np.ndarray, np.ndarray, np.ndarray],
-    block_rows: int, level_allowed: np.ndarray | None, reg_path: Path, merged_path: Path, source: xr.Dataset,
-    elev_attrs: dict[str, Any], reg_attrs: dict[str, Any], merged_attrs: dict[str, Any], overwrite: bool,
-) -> dict[str, Any]:
-    """The registered and merged maps, computed and written one block of rows at a time.
-
-    Pass 1, per block: the DEM rows it needs (the block and the largest displacement of the
-    transforms, :func:`max_displacement_m`, in rows) are read and the block registered
-    (:func:`register_dem` with ``rows``) into a float64 scratch store; the transformed map is
-    sampled at the corrected shots. Between the passes, the mean level's per-tile offsets
-    (:func:`mean_level_offsets`, when ``level_allowed`` is given: the tiles that may level
-    themselves). Pass 2, per block: the transformed rows of the block and the merge's margin
-    (:func:`merge_halo_px`) are read back, levelled (:func:`blended_scalar`, pointwise), merged
-    (:func:`merge_dem` on the shots near the block), and the block's own rows written into
-    ``registered.zarr`` and ``merged.zarr`` (both built under temporary names and renamed when
-    every block is in). Every pixel depends only on neighbours within those margins, so the
-    stores equal the whole-map computation (a test compares them) while memory stays a block's.
-
-    Returns the samples at the corrected shots (``as_given``, ``transformed``, ``registered``,
-    ``merged``), the merge's dense-pixel count and the :class:`MeanLevel` summary holder (its
-    ``height`` is not kept: an empty array).
-    """
-    import tempfile
-
-    import zarr
-
-    clat, clon, crad = corrected
-    H, W = lat.size, lon.size
-    step_deg = abs(float(lat[1] - lat[0])) if H > 1 else 1.0
-    hm = merge_halo_px(merge_options)
-    shift_deg = math.degrees(max_displacement_m(transforms, datum + 50_000.0) / datum)
-    hr = int(math.ceil(shift_deg / step_deg)) + 2
-    shot_rows = _row_of(clat, lat)
-    order = np.argsort(shot_rows, kind="stable")
-    sorted_rows = shot_rows[order]
-    samples = {name: np.full(clat.shape, np.nan) for name in ("as_given", "transformed", "registered", "merged")}
-    n_dense = 0
-    blocks = _blocks(H, block_rows)
-
-    def own_shots(r0: int, r1: int) -> np.ndarray:
-        return order[np.searchsorted(sorted_rows, r0):np.searchsorted(sorted_rows, r1)]
-
-    reg_path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=".register-scratch-", dir=reg_path.parent) as scratch_dir:
-        scratch = zarr.create_array(str(Path(scratch_dir) / REGISTRATION_SCRATCH_FILE), shape=(H, W),
-                                    chunks=(block_rows, W), dtype=np.float64, fill_value=np.nan, compressors=None)
-        for r0, r1 in blocks:  # pass 1: the tile transforms
-            i0, i1 = max(r0 - hr, 0), min(r1 + hr, H)
-            win = elevation[i0:i1].values.astype(np.float64)
-            reg = register_dem(win, lat[i0:i1], lon, datum, transforms, tiles, rows=(r0 - i0, r1 - i0))
-            scratch[r0:r1, :] = reg
-            own = own_shots(r0, r1)
-            if own.size:
-                i0s, i1s = max(r0 - 1, 0), min(r1 + 1, H)
-                samples["as_given"][own] = sample_grid(win[i0s - i0:i1s - i0], lat[i0s:i1s], lon, clat[own], clon[own])
-        for r0, r1 in blocks:  # the transformed map at the shots, now that every row is in
-            own = own_shots(r0, r1)
-            if own.size:
-                i0s, i1s = max(r0 - 1, 0), min(r1 + 1, H)
-                samples["transformed"][own] = sample_grid(scratch[i0s:i1s, :], lat[i0s:i1s], lon, clat[own], clon[own])
-        n_tiles = tiles.n_tiles
-        if level_allowed is not None:
-            offset, own_t, shots_t = mean_level_offsets((crad - datum) - samples["transformed"], clat, clon, tiles,
-                                                        allowed=level_allowed)
-        else:
-            offset, own_t, shots_t = np.zeros(n_tiles), np.zeros(n_tiles, bool), np.zeros(n_tiles, np.int64)
-        level_on = bool(own_t.any())
-
-        def levelled(rows: slice) -> np.ndarray:
-            h = scratch[rows, :]
-            if level_on:
-                LA, LO = np.meshgrid(lat[rows], lon, indexing="ij")
-                h = h + blended_scalar(offset, tiles, LA.ravel(), LO.ravel()).reshape(h.shape)
-            return h
-
-        with atomic_store(reg_path, overwrite=overwrite) as reg_tmp, \
-                atomic_store(merged_path, overwrite=overwrite) as merged_tmp:
-            reg_out = _create_map(reg_tmp, source, {"elevation": (np.float32, elev_attrs)}, reg_attrs, block_rows)
-            merged_out = _create_map(merged_tmp, source, {
-                "elevation": (np.float32, elev_attrs),
-                "altimetry_weight": (np.float32, {"long_name": "weight of the altimetry (0: registered image DEM, "
-                                                               "1: altimetry)", "units": "1"}),
-                "shot_count": (np.int32, {"long_name": "altimetry shots in the pixel", "units": "1"}),
-            }, merged_attrs, block_rows)
-            for r0, r1 in blocks:  # pass 2: the level, the merge
-                e0, e1 = max(r0 - hm, 0), min(r1 + hm, H)  # the block and the merge's margin
-                reg = levelled(slice(e0, e1))
-                near = order[np.searchsorted(sorted_rows, e0 - 1):np.searchsorted(sorted_rows, e1 + 1)]
-                merged = merge_dem(reg, lat[e0:e1], lon, datum, clat[near], clon[near], crad[near], merge_options)
-                core = slice(r0 - e0, r1 - e0)
-                reg_out["elevation"][r0:r1, :] = reg[core].astype(np.float32)
-                merged_out["elevation"][r0:r1, :] = merged.height[core].astype(np.float32)
-                merged_out["altimetry_weight"][r0:r1, :] = merged.altimetry_weight[core]
-                merged_out["shot_count"][r0:r1, :] = merged.shot_count[core]
-                n_dense += int((merged.shot_count[core] >= merge_options.min_shots_per_pixel).sum())
-                own = own_shots(r0, r1)
-                if own.size:
-                    pla, plo = clat[own], clon[own]
-                    samples["registered"][own] = sample_grid(reg, lat[e0:e1], lon, pla, plo)
-                    samples["merged"][own] = sample_grid(merged.height, lat[e0:e1], lon, pla, plo)
-    level = (MeanLevel(np.zeros((0, 0)), offset, own_t, shots_t) if level_allowed is not None else None)
-    return {"samples": samples, "n_dense_pixels": n_dense, "level": level}
-
-
-def _figure_png(table: pd.DataFrame, profiles: pd.DataFrame) -> bytes:
-    """Seed 004's Figure 1: residual RMS per tile (and per profile) before (blue) and after (red)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    ok = table[table["ok"]].sort_values("tile_id")
-    x = np.arange(len(ok))
-    ax = axes[0]
-    ax.semilogy(x, ok["rms_before_m"], "o", ms=3, color="tab:blue", label="image DEM as given")
-    ax.semilogy(x, ok["rms_registered_m"], "s", ms=3, color="tab:orange", label="after tile transform")
-    ax.semilogy(x, ok["rms_after_m"], "^", ms=3, color="tab:red", label="after profile offsets")
-    ax.set_xlabel("registered tile (by tile id)")
-    ax.set_ylabel("RMS shot − DEM residual (m)")
-    ax.set_title("per tile")
-    ax.legend(fontsize=8)
-    ax = axes[1]
-    fp = profiles[profiles["fitted"]] if len(profiles) else profiles
-    if len(fp):
-        k = np.arange(len(fp))
-        ax.semilogy(k, fp["rms_before_m"], ".", ms=2, color="tab:blue", label="before profile offset")
-        ax.semilogy(k, fp["rms_after_m"], ".", ms=2, color="tab:red", label="after")
-        ax.legend(fontsize=8)
-    ax.set_xlabel("profile")
-    ax.set_title("per profile (registered DEM)")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    return buf.getvalue()
-
-
 def _parquet(df: pd.DataFrame) -> bytes:
     buf = io.BytesIO()
     df.to_parquet(buf, index=False)
     return buf.getvalue()
 
 
-def register_dem_store(
-    dem_path: str | Path,
-    shots: pd.DataFrame,
-    out_dir: str | Path | None = None,
-    client: ComputeClient | None = None,
-    *,
-    body: Body | None = None,
-    options: RegisterOptions | None = None,
-    merge_options: MergeOptions | None = None,
-    tiles: TileGrid | None = None,
-    margin_deg: float = 1.0,
-    overwrite: bool = False,
-    source: str = "altimetry",
-    block_rows: int | None = None,
-    block_pixels: float = 4e6,
-    other_outputs: Sequence[Path] = (),
-    level_to_mean: bool = True,
-) -> dict[str, Any]:
-    """Register a ``dem.zarr`` onto altimetry shots and merge them; write the results beside it.
+@dataclass(frozen=True)
+class _Outputs:
+    """Where the stage writes: the two maps and the tables' directory."""
 
-    Parameters
-    ----------
-    dem_path : path of a complete ``dem.zarr``
-    shots : DataFrame with :data:`SHOT_COLUMNS` (planetocentric degrees, east degrees, metres from
-        the centre of mass, profile id); other columns are ignored
-    out_dir : where to write (default: the DEM's directory)
-    client : a ``distributed.Client`` or :class:`~mercury_dem.compute.SyncClient`
-        (None: the synchronous client)
-    body : the body the caller expects; a DEM of another body is refused
-    options, merge_options, tiles, margin_deg : the registration's settings, tile grid, window margin
-    overwrite : replace existing outputs
-    source : name of the shots for messages
-    other_outputs : paths the caller will write afterwards (e.g. the products): refused like the
-        stage's own outputs when they exist without ``overwrite``, before anything is computed
-    block_rows, block_pixels : the registered and merged maps are computed and written this many rows
-        at a time (default: as many rows as make ``block_pixels`` pixels, at least 16); memory is
-        bounded by the block, not the map (measured at 2880 columns: 0.17 / 0.38 / 0.50 GB traced
-        peak with blocks of 10⁵ / 5·10⁵ / 4·10⁶ pixels; docs/benchmarks/altimetry.md)
-    level_to_mean : after the tile transforms, level the registered DEM on the corrected shots' mean per
-        tile (:func:`mercury_dem.altimetry.merge.mean_level`; the transforms align the median)
+    registered: Path
+    merged: Path
+    tables: Path
 
-    Returns
-    -------
-    dict
-        JSON-able: paths, counts, seconds, ``tiles`` (one summary per tile), and ``statistics``
-        (bias/RMSE of the DEM as given, registered and merged against the corrected shots).
+    @classmethod
+    def beside(cls, out: Path) -> _Outputs:
+        return cls(out / REGISTERED_FILE, out / MERGED_FILE, out / REGISTRATION_DIR)
 
-    Raises
-    ------
-    StoreError : no complete DEM, another body's DEM, or outputs exist without ``overwrite``
-    ReferenceDataError : the shot table lacks a column or has no usable shot
-    """
-    from mercury_dem.compute import client_or_sync
+
+def _open_dem_of(dem_path: Path, body: Body | None) -> tuple[xr.Dataset, Body, float]:
+    """The complete DEM, its body (refused when not ``body``) and its datum radius."""
     from mercury_dem.products.make import dem_body, open_dem
 
-    t0 = time.perf_counter()
-    dem_path = Path(dem_path)
-    out = Path(out_dir) if out_dir is not None else dem_path.parent
-    reg_path, merged_path, table_dir = out / REGISTERED_FILE, out / MERGED_FILE, out / REGISTRATION_DIR
     ds = open_dem(dem_path)
     dem_b = dem_body(ds)
     if body is not None and body.name != dem_b.name:
         raise StoreError(f"{dem_path} is a DEM of {dem_b.name}, not {body.name}; give the DEM's body (--body "
                          f"{dem_b.name.lower()}) or the right DEM")
-    datum = float(ds.attrs.get("datum_radius_m", dem_b.datum_radius_m))
-    opt = options or RegisterOptions()
-    tiles = tiles or TileGrid(10.0)
-    client = client_or_sync(client)
+    return ds, dem_b, float(ds.attrs.get("datum_radius_m", dem_b.datum_radius_m))
+
+
+def _usable_shots(shots: pd.DataFrame, source: str, outputs: Sequence[Path], overwrite: bool) -> tuple[pd.DataFrame, int]:
+    """:func:`check_shots`, refusing a table without a usable shot, then outputs that exist without ``overwrite``
+    (inputs first: the first fault reported is the input's).
+    """
     good, n_bad = check_shots(shots, source)
     if good.empty:
         raise ReferenceDataError(f"{source}: no usable shot ({n_bad} rows with missing or non-finite values)")
-    for p in (reg_path, merged_path, table_dir, *other_outputs):  # inputs first, then outputs: the first fault is the input's
+    for p in outputs:
         if p.exists() and not overwrite:
             raise StoreError(f"{p} already exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    elevation = ds["elevation"]
-    lat, lon = ds["lat"].values.astype(np.float64), ds["lon"].values.astype(np.float64)
-    H, W = lat.size, lon.size
-    rows_per_block = block_rows or max(16, min(H, int(block_pixels // max(W, 1))))
-    on_dem = np.isfinite(_sample_blockwise(elevation, lat, lon, good["lat"].to_numpy(), good["lon"].to_numpy(),
-                                           rows_per_block))
-    good["tile_id"] = tiles.tile_of(good["lat"].to_numpy(), good["lon"].to_numpy())
+    return good, n_bad
+
+
+def _register_tiles(client: ComputeClient | None, dem_path: Path, good: pd.DataFrame, on_dem: np.ndarray, tiles: TileGrid,
+                    opt: RegisterOptions, margin_deg: float) -> list[TileRegistration]:
+    """One task per tile holding shots on the DEM (:func:`_tile_task`), through ``client``."""
     tiles_with = np.unique(good["tile_id"].to_numpy()[on_dem])
     groups = {int(k): g for k, g in good[good["tile_id"].isin(tiles_with)].groupby("tile_id")}
     run_key = uuid.uuid4().hex[:8]
@@ -459,44 +232,137 @@ def register_dem_store(
         for tid, g in groups.items()
     ]
     results: list[TileRegistration] = client.gather(futures)
+    return results
+
+
+def _merged_layers(elev_attrs: dict[str, Any]) -> dict[str, tuple[Any, dict[str, Any]]]:
+    return {"elevation": (np.float32, elev_attrs),
+            "altimetry_weight": (np.float32, {"long_name": "weight of the altimetry (0: registered image DEM, "
+                                                           "1: altimetry)", "units": "1"}),
+            "shot_count": (np.int32, {"long_name": "altimetry shots in the pixel", "units": "1"})}
+
+
+def _maps_attrs(dem_b: Body, source: str, tiles: TileGrid, opt: RegisterOptions, mo: MergeOptions
+                ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The root attributes of ``registered.zarr`` and ``merged.zarr`` (beside the DEM's own)."""
+    note = {"registration": json.dumps({"source": source, "tile_size_deg": tiles.tile_size_deg,
+                                        "options": opt.__dict__ | {"models": list(opt.models)}})}
+    return ({"title": f"{dem_b.name.title()} image DEM registered to laser altimetry (per-tile affine)", **note},
+            {"title": f"{dem_b.name.title()} DEM merged from laser altimetry and the registered image DEM", **note,
+             "merge": json.dumps(mo.__dict__)})
+
+
+def _register_and_write_maps(ds: xr.Dataset, dem_b: Body, datum: float, transforms: list[TileTransform],
+                             tiles: TileGrid, shots: ShotPositions, level_allowed: np.ndarray | None,
+                             block_rows: int, st: RegistrationConfig, opt: RegisterOptions, out: _Outputs,
+                             source: str, overwrite: bool) -> BlockwiseMaps:
+    """Load → :func:`~mercury_dem.altimetry.register_map.register_and_merge_blockwise` → save: the DEM read by
+    rows, the transformed map kept in a float64 scratch store, each block written into ``registered.zarr`` and
+    ``merged.zarr`` (both built under temporary names, renamed when every block is in).
+    """
+    import tempfile
+
+    import zarr
+
+    mo = MergeOptions(min_shots_per_pixel=st.min_shots_per_pixel, gap_px=st.gap_px, feather_px=st.feather_px)
+    elevation = ds["elevation"]
+    lat, lon = ds["lat"].values.astype(np.float64), ds["lon"].values.astype(np.float64)
+    elev_attrs = dict(elevation.attrs)
+    elev_attrs.pop("grid_mapping", None)
+    reg_attrs, merged_attrs = _maps_attrs(dem_b, source, tiles, opt, mo)
+    out.registered.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".register-scratch-", dir=out.registered.parent) as scratch_dir, \
+            atomic_store(out.registered, overwrite=overwrite) as reg_tmp, \
+            atomic_store(out.merged, overwrite=overwrite) as merged_tmp:
+        scratch = zarr.create_array(str(Path(scratch_dir) / REGISTRATION_SCRATCH_FILE), shape=(lat.size, lon.size),
+                                    chunks=(block_rows, lon.size), dtype=np.float64, fill_value=np.nan,
+                                    compressors=None)
+        reg_out = _create_map(reg_tmp, ds, {"elevation": (np.float32, elev_attrs)}, reg_attrs, block_rows,
+                              st.chunk_columns)
+        merged_out = _create_map(merged_tmp, ds, _merged_layers(elev_attrs), merged_attrs, block_rows, st.chunk_columns)
+
+        def write(r0: int, r1: int, registered: np.ndarray, merged: MergedDem) -> None:
+            reg_out["elevation"][r0:r1, :] = registered.astype(np.float32)
+            merged_out["elevation"][r0:r1, :] = merged.height.astype(np.float32)
+            merged_out["altimetry_weight"][r0:r1, :] = merged.altimetry_weight
+            merged_out["shot_count"][r0:r1, :] = merged.shot_count
+
+        return register_and_merge_blockwise(
+            lambda i0, i1: elevation[i0:i1].values.astype(np.float64), lat, lon, datum, transforms, tiles, shots,
+            scratch=scratch, write=write, block_rows=block_rows, merge_options=mo, level_allowed=level_allowed,
+            surface_height_m=st.max_surface_height_m)
+
+
+def _stage_summary(results: list[TileRegistration], profiles: pd.DataFrame, maps: BlockwiseMaps,
+                   shots: ShotPositions, datum: float, level_to_mean: bool, block_rows: int) -> dict[str, Any]:
+    """The counts and statistics of the summary that come from the tiles and the maps."""
+    names = SAMPLE_NAMES if level_to_mean else tuple(n for n in SAMPLE_NAMES if n != "transformed")
+    stats = {name: compare_heights(maps.samples[name], datum_radius_m=datum, reference_radius_m=shots.radius_m)
+             for name in names}  # "transformed": the tile transforms alone, before the mean level
+    return {"tiles_with_shots": len(results), "tiles_registered": int(sum(r.transform.ok for r in results)),
+            "profiles": int(len(profiles)), "profiles_fitted": int(profiles["fitted"].sum()) if len(profiles) else 0,
+            "merged_dense_pixels": maps.n_dense_pixels, "statistics": stats, "block_rows": block_rows,
+            "mean_level": maps.level.summary() if maps.level is not None else None}
+
+
+def _write_tables(out: _Outputs, results: list[TileRegistration], profiles: pd.DataFrame, summary: dict[str, Any],
+                  overwrite: bool) -> None:
+    """``registration/``: the tiles' and profiles' tables, the figure and ``summary.json``."""
+    table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
+        columns=["tile_id", "ok", "rms_before_m", "rms_registered_m", "rms_after_m"])
+    write_registration_tables(out.tables, tiles_parquet=_parquet(table), tiles=summary["tiles"],
+                              profiles_parquet=_parquet(profiles), figure_png=rms_per_tile_png(table, profiles),
+                              summary=_jsonable({k: v for k, v in summary.items() if k != "tiles"}), overwrite=overwrite)
+
+
+def register_dem_store(
+    dem_path: str | Path, shots: pd.DataFrame, out_dir: str | Path | None = None, client: ComputeClient | None = None, *,
+    body: Body | None = None, options: RegisterOptions | None = None, settings: RegistrationConfig | None = None,
+    tiles: TileGrid | None = None, overwrite: bool = False, source: str = "altimetry", block_rows: int | None = None,
+    other_outputs: Sequence[Path] = (), level_to_mean: bool = True,
+) -> dict[str, Any]:
+    """Register a ``dem.zarr`` onto altimetry shots (:data:`SHOT_COLUMNS`) and merge them; write the results in
+    ``out_dir`` (default: beside the DEM). Steps: the module docstring.
+
+    ``client``: a ``distributed.Client`` or the synchronous client (None); ``body``: a DEM of another body is
+    refused; ``options``: the tiles' fit; ``settings``: the ``registration`` configuration section (margins,
+    blocks, chunks, the merge); ``tiles``: the tile grid (default: the configuration's ``tiling.tile_size_deg``);
+    ``block_rows``: overrides ``settings.block_pixels``; ``other_outputs``: paths the caller writes afterwards,
+    refused like the stage's own when they exist without ``overwrite``; ``level_to_mean``: level the
+    registered DEM on the corrected shots' mean per tile. Returns a JSON-able summary (paths, counts, seconds,
+    one entry per tile, bias/RMSE against the corrected shots). Raises :class:`StoreError` (no complete DEM,
+    another body's, outputs exist) or :class:`ReferenceDataError` (a missing column, no usable shot).
+    """
+    from mercury_dem.compute import client_or_sync
+
+    t0 = time.perf_counter()
+    st, opt = settings or RegistrationConfig(), options or RegisterOptions()
+    tiles = tiles or TileGrid(TilingConfig().tile_size_deg)
+    out = _Outputs.beside(Path(out_dir) if out_dir is not None else Path(dem_path).parent)
+    ds, dem_b, datum = _open_dem_of(Path(dem_path), body)
+    good, n_bad = _usable_shots(shots, source, (out.registered, out.merged, out.tables, *other_outputs), overwrite)
+    lat, lon = ds["lat"].values.astype(np.float64), ds["lon"].values.astype(np.float64)
+    rows = block_rows or rows_per_block(lat.size, lon.size, st.block_pixels, st.min_block_rows)
+    on_dem = np.isfinite(sample_blockwise(lambda i0, i1: ds["elevation"][i0:i1].values.astype(np.float64), lat, lon,
+                                          good["lat"].to_numpy(), good["lon"].to_numpy(), rows))
+    good["tile_id"] = tiles.tile_of(good["lat"].to_numpy(), good["lon"].to_numpy())
+    results = _register_tiles(client_or_sync(client), Path(dem_path), good, on_dem, tiles, opt, st.window_margin_deg)
     t_tiles = time.perf_counter() - t0
     transforms = [r.transform for r in results]
     profiles = ProfileOffsets.concat([r.profiles for r in results])
-    clat, clon, crad = _corrected_shots(good, profiles, tiles, datum)
-    allowed = np.zeros(tiles.n_tiles, bool)  # tiles that may level themselves: those with a transform
-    allowed[[t.tile_id for t in transforms if t.ok]] = True
-
-    table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
-        columns=["tile_id", "ok", "rms_before_m", "rms_registered_m", "rms_after_m"])
+    corrected = corrected_shots(good, profiles, datum)
+    allowed = level_allowed_tiles(transforms, tiles.n_tiles) if level_to_mean else None
+    maps = _register_and_write_maps(ds, dem_b, datum, transforms, tiles, corrected, allowed, rows, st, opt, out,
+                                    source, overwrite)
     pf = profiles.to_frame()
-    elev_attrs = dict(elevation.attrs)
-    elev_attrs.pop("grid_mapping", None)
-    note = {"registration": json.dumps({"source": source, "tile_size_deg": tiles.tile_size_deg,
-                                        "options": opt.__dict__ | {"models": list(opt.models)}})}
-    mo = merge_options or MergeOptions()
-    maps = _register_and_merge_blockwise(
-        elevation, lat, lon, datum, transforms, tiles, mo, (clat, clon, crad), rows_per_block,
-        allowed if level_to_mean else None, reg_path, merged_path, ds, elev_attrs,
-        {"title": f"{dem_b.name.title()} image DEM registered to laser altimetry (per-tile affine)", **note},
-        {"title": f"{dem_b.name.title()} DEM merged from laser altimetry and the registered image DEM", **note,
-         "merge": json.dumps(mo.__dict__)}, overwrite)
-    names = ("as_given", "transformed", "registered", "merged") if level_to_mean else ("as_given", "registered", "merged")
-    stats = {name: compare_heights(maps["samples"][name], datum_radius_m=datum, reference_radius_m=crad)
-             for name in names}  # "transformed": the tile transforms alone, before the mean level
     summary: dict[str, Any] = {
-        "dem": str(dem_path), "registered": str(reg_path), "merged": str(merged_path), "tables": str(table_dir),
+        "dem": str(dem_path), "registered": str(out.registered), "merged": str(out.merged), "tables": str(out.tables),
         "body": dem_b.name, "shots": int(len(shots)), "shots_dropped_invalid": n_bad,
-        "shots_off_dem": int((~on_dem).sum()), "tiles_with_shots": len(results),
-        "tiles_registered": int(sum(r.transform.ok for r in results)),
-        "profiles": int(len(pf)), "profiles_fitted": int(pf["fitted"].sum()) if len(pf) else 0,
-        "merged_dense_pixels": maps["n_dense_pixels"], "statistics": stats, "block_rows": rows_per_block,
-        "mean_level": maps["level"].summary() if maps["level"] is not None else None,
+        "shots_off_dem": int((~on_dem).sum()), **_stage_summary(results, pf, maps, corrected, datum, level_to_mean, rows),
         "seconds_tiles": t_tiles, "seconds": time.perf_counter() - t0,
         "tiles": [_jsonable(r.summary()) for r in results],
     }
-    write_registration_tables(table_dir, tiles_parquet=_parquet(table), tiles=summary["tiles"],
-                              profiles_parquet=_parquet(pf), figure_png=_figure_png(table, pf),
-                              summary=_jsonable({k: v for k, v in summary.items() if k != "tiles"}), overwrite=overwrite)
+    _write_tables(out, results, pf, summary, overwrite)
     summary["seconds"] = time.perf_counter() - t0
     return summary
 

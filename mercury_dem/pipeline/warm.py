@@ -8,7 +8,7 @@ for each catalogued body into a temporary directory, so that
 - numba compiles the dense refinement's window fit (:mod:`mercury_dem.dense.refine_kernel`) the same way
   (~4 s instead of 0.8 s on the first chip of every fresh worker process, measured 2026-12-02), and
 - the CRS attributes of every body's ``spatial_ref`` are in the user's cache
-  (``$MERCURY_DEM_CACHE/crs/``, :func:`mercury_dem.pipeline.dem_stage._spatial_ref_attrs`).
+  (``$MERCURY_DEM_CACHE/crs/``, :func:`mercury_dem.io.crs_cache.spatial_ref_attrs`).
 
 Nothing is kept but the caches; running it again is cheap. It lives with the DEM stage it runs (until
 session 13 it was ``mercury_dem.dem.warm``, the one import of ``pipeline`` by ``dem/``).

@@ -13,7 +13,7 @@ import xarray as xr
 from mercury_dem.cli import main
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.grid import GridSpec
-from mercury_dem.exceptions import ReferenceDataError
+from mercury_dem.exceptions import ConfigError, ReferenceDataError
 from mercury_dem.geometry.body import MERCURY
 from mercury_dem.pipeline.dem_stage import atomic_store, create_store
 from mercury_dem.pipeline.register_stage import register_dem_store
@@ -186,3 +186,24 @@ def test_blockwise_maps_equal_the_whole_map(dem_dir, tmp_path):
     for k in ("as_given", "registered", "merged"):
         assert small["statistics"][k]["n"] == whole["statistics"][k]["n"]
         assert small["statistics"][k]["rmse_m"] == pytest.approx(whole["statistics"][k]["rmse_m"], abs=1e-6)
+
+
+@pytest.mark.integration  # the whole register stage on a synthetic DEM
+def test_the_stage_takes_its_settings_and_tile_grid(dem_dir, tmp_path):
+    """The registration section and the tile grid reach the stage: 5° tiles (not a fixed 10°), 50-column chunks."""
+    from mercury_dem.config import load_config
+    from mercury_dem.geometry.tiling import TileGrid
+
+    cfg = load_config(overrides={"registration": {"chunk_columns": 50}, "tiling": {"tile_size_deg": 5.0}})
+    shots = pd.read_parquet(dem_dir / "shots.parquet")
+    s = register_dem_store(dem_dir / "dem.zarr", shots, tmp_path, settings=cfg.registration,
+                           tiles=TileGrid(cfg.tiling.tile_size_deg))
+    grid5 = TileGrid(5.0)
+    assert {t["tile_id"] for t in s["tiles"]} <= set(np.unique(grid5.tile_of(shots["lat"].dropna().to_numpy(),
+                                                                               shots["lon"][shots["lat"].notna()])))
+    assert s["tiles_with_shots"] > 2  # two 10° tiles hold shots; on 5° tiles, more
+    reg = xr.open_zarr(tmp_path / "registered.zarr", consolidated=False)
+    assert reg["elevation"].encoding["chunks"][1] == 50
+    assert json.loads(reg.attrs["registration"])["tile_size_deg"] == 5.0
+    with pytest.raises(ConfigError, match="registration.no_such_key"):
+        load_config(overrides={"registration": {"no_such_key": 1}})

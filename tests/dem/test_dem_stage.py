@@ -204,22 +204,23 @@ def test_spatial_ref_attributes_cached_on_disk(tmp_path, monkeypatch):
     import sys
 
     from mercury_dem.geometry.body import MERCURY, MOON
-    from mercury_dem.pipeline import dem_stage
+    from mercury_dem.dem.store_schema import compute_spatial_ref_attrs
+    from mercury_dem.io.crs_cache import spatial_ref_attrs
 
     monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "cache"))
     for body in (MERCURY, MOON):
-        dem_stage._spatial_ref_attrs.cache_clear()
-        first = dem_stage._spatial_ref_attrs(body)  # computed, then written
-        dem_stage._spatial_ref_attrs.cache_clear()
-        assert dem_stage._spatial_ref_attrs(body) == first == dem_stage._compute_spatial_ref_attrs(body)
+        spatial_ref_attrs.cache_clear()
+        first = spatial_ref_attrs(body)  # computed, then written
+        spatial_ref_attrs.cache_clear()
+        assert spatial_ref_attrs(body) == first == compute_spatial_ref_attrs(body)
     files = sorted((tmp_path / "cache" / "crs").glob("*.json"))
     assert len(files) == 2
     files[0].write_text('{"key": "not json')  # damaged: ignored, computed and rewritten
-    dem_stage._spatial_ref_attrs.cache_clear()
-    assert {dem_stage._spatial_ref_attrs(b)["semi_major_axis"] for b in (MERCURY, MOON)} == {
+    spatial_ref_attrs.cache_clear()
+    assert {spatial_ref_attrs(b)["semi_major_axis"] for b in (MERCURY, MOON)} == {
         MERCURY.datum_radius_m, MOON.datum_radius_m}
     assert json.loads(files[0].read_text())["attrs"]
-    dem_stage._spatial_ref_attrs.cache_clear()
+    spatial_ref_attrs.cache_clear()
     # a fresh process writing a store with the cache warm: no GDAL/PROJ stack imported
     code = ("import sys\nfrom mercury_dem.config.dem import DemConfig\nfrom mercury_dem.dem.grid import GridSpec\n"
             "from mercury_dem.geometry.body import MERCURY\n"

@@ -13,8 +13,7 @@ import pytest
 from mercury_dem.cli import main
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.extent import box_area_ratio, points_box
-from mercury_dem.dem.grid import build_point_index
-from mercury_dem.dem.spacing import config_with_no_value_distance, typical_gap_m
+from mercury_dem.dem.grid import build_point_index, config_with_no_value_distance, typical_gap_m
 from mercury_dem.geometry.body import MOON
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
 from mercury_dem.synth.tracks import BlockSurface, altimeter_block

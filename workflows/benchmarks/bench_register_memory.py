@@ -38,7 +38,7 @@ def main() -> None:
     ap.add_argument("--out", required=True)
     ap.add_argument("--pythonpath", action="append", default=[], help="source tree to run (repeatable)")
     ap.add_argument("--api-block-pixels", type=float, action="append", default=[],
-                    help="call register_dem_store(block_pixels=N) in the child instead of the CLI, one per "
+                    help="call register_dem_store(settings=RegistrationConfig(block_pixels=N)) in the child instead of the CLI, one per "
                          "--pythonpath (0: without the argument, for a tree that predates it)")
     ap.add_argument("--extra", action="append", default=[],
                     help="extra arguments for register, one per --pythonpath (e.g. '--no-products' for a tree that has it)")
@@ -61,8 +61,9 @@ def main() -> None:
                 f"sys.argv = {argv!r}\n"
                 "runpy.run_module('mercury_dem.cli', run_name='__main__')\n")
         if block is not None:  # the stage alone, through its Python API
-            kw = f", block_pixels={block!r}" if block else ""
+            kw = f", settings=RegistrationConfig(block_pixels={block!r})" if block else ""
             code = ("import sys, tracemalloc\nimport pandas as pd\n"
+                    "from mercury_dem.config.registration import RegistrationConfig\n"
                     "from mercury_dem.pipeline.register_stage import register_dem_store\n"
                     f"shots = pd.read_parquet({str(out / 'shots.parquet')!r})\n"
                     "tracemalloc.start()\n"
