@@ -383,10 +383,7 @@ def grid_dem(
     this call fails. ``record_failures``: a chunk whose gridding raises is recorded as a value (its pixels NaN,
     the root attribute ``failed_chunks`` lists it, a resume grids only it: :func:`regrid_failed_chunks`),
     else its error stops the call and nothing is written. A full disk always stops the stage.
-    ``near_points_only``: search only the pixels within reach of a point (the no-value distance or the count's
-    radius), the others are gaps without a search (:func:`mercury_dem.dem.grid.grid_chunk`): the same
-    elevations, for a patchy cloud on a large grid (the dense stereo cloud).
-
+    ``near_points_only``: the dense cloud's search (:func:`mercury_dem.dem.grid.grid_chunk`: same elevations).
     Returns :func:`grid_summary`'s dict and ``seconds``. Raises :class:`GridError` (an empty or invalid
     cloud, a grid over ``dem.memory_limit_gb``) or :class:`StoreError` (``out_path`` exists, no ``overwrite``).
     """
@@ -419,8 +416,8 @@ def grid_dem(
         index = index_job.result()
         cfg = config_with_no_value_distance(cfg, index)  # max_distance_m = 0: from the points' spacing
         with rep.task(f"{label} grid", len(chunks), "chunks") as task:
-            results = _grid_chunks(index, grid, chunks, cfg, client, layer_arrays, str(tmp), record_failures, task,
-                                   near_points_only)
+            results = _grid_chunks(index, grid, chunks, cfg, client, layer_arrays, str(tmp), record_failures,
+                                   task, near_points_only)
         failed = judge_chunk_results(results, str(out_path), rep, label)
         if coverage:
             rep.message(f"{label}: point coverage")
