@@ -381,11 +381,10 @@ def grid_dem(
     IAU 2015 CRS; ``progress``/``label``: progress lines (presentation only); ``writer``: with ``client=None``,
     a forked process that creates and writes the store (:mod:`mercury_dem.pipeline.store_writer`), stopped if
     this call fails. ``record_failures``: a chunk whose gridding raises is recorded as a value (its pixels NaN,
-    the root attribute ``failed_chunks`` lists it, a resume grids only it: :func:`regrid_failed_chunks`),
-    else its error stops the call and nothing is written. A full disk always stops the stage.
-    ``near_points_only``: the dense cloud's search (:func:`mercury_dem.dem.grid.grid_chunk`: same elevations).
-    Returns :func:`grid_summary`'s dict and ``seconds``. Raises :class:`GridError` (an empty or invalid
-    cloud, a grid over ``dem.memory_limit_gb``) or :class:`StoreError` (``out_path`` exists, no ``overwrite``).
+    the root attribute ``failed_chunks`` lists it, a resume grids only it: :func:`regrid_failed_chunks`), else
+    its error stops the call and nothing is written (a full disk always stops it). ``near_points_only``: the
+    dense cloud's search (:func:`mercury_dem.dem.grid.grid_chunk`: same elevations). Returns :func:`grid_summary`'s
+    dict and ``seconds``; raises :class:`GridError` (an empty cloud, over ``dem.memory_limit_gb``), StoreError.
     """
     from mercury_dem.progress import NULL
 
