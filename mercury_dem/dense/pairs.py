@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
+from enum import StrEnum
 from itertools import combinations
 from typing import Any
 
@@ -39,6 +40,22 @@ from mercury_dem.match.pretransform import ImageGeometry, PairGeometry, pair_geo
 
 #: Status of a candidate in :class:`StereoCandidate`.
 SELECTED, REJECTED = "selected", "rejected"
+
+
+class PairRejection(StrEnum):
+    """Why a stereo candidate was rejected, set where the test fails (the keys of the report's
+    ``dense.pairs.rejected_by_reason``; nothing parses the human-readable ``reason``).
+    """
+
+    PARALLAX_HEIGHT = "parallax_height"
+    SCALE_RATIO = "scale_ratio"
+    INCIDENCE = "incidence"  # the incidence difference, or the larger incidence over its limit
+    SUN_AZIMUTH = "sun_azimuth"
+    OVERLAP = "overlap"
+    CAP = "cap"  # per image (here) or per tile (:func:`mercury_dem.dense.rules.cap_per_tile`)
+    TILE_SUBSET = "tile_subset"
+    NO_GEOMETRY = "no_geometry"  # an image without an adjusted pose
+    PAIR_GEOMETRY = "pair_geometry"  # the pair's geometry could not be computed (no overlap, degenerate)
 
 
 @dataclass(frozen=True)
@@ -96,6 +113,7 @@ class StereoCandidate:
     incidence_left_deg, incidence_right_deg : solar incidence at the overlap centre (sphere normal)
     sun_azimuth_difference_deg : difference of the local sun azimuths, 0..180
     overlap : share of the left image's datum grid inside the right image
+    rejections : the :class:`PairRejection` values of every test it failed (empty when selected)
     """
 
     left: str
@@ -113,6 +131,7 @@ class StereoCandidate:
     incidence_right_deg: float
     sun_azimuth_difference_deg: float
     overlap: float
+    rejections: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """The row as JSON-ready values (NaN stays NaN; the report writer maps it to null)."""
@@ -146,9 +165,10 @@ def parallax_height_ratio(ground: NDArray[np.float64], camera_a: NDArray[np.floa
                                      axis=-1), np.float64)
 
 
-def _nan_row(left: str, right: str, reason: str) -> StereoCandidate:
+def _nan_row(left: str, right: str, reason: str, kind: PairRejection) -> StereoCandidate:
     nan = float("nan")
-    return StereoCandidate(left, right, REJECTED, reason, 0, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan)
+    return StereoCandidate(left, right, REJECTED, reason, 0, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan,
+                           (kind.value,))
 
 
 def _geometry_row(left: str, right: str, a: ImageGeometry, b: ImageGeometry,
@@ -165,27 +185,33 @@ def _geometry_row(left: str, right: str, a: ImageGeometry, b: ImageGeometry,
     )
 
 
-def rejection_reason(c: StereoCandidate, criteria: StereoPairCriteria) -> str:
-    """Why a candidate's geometry fails the rule (every failed test, ``; ``-joined), or ``""``."""
+def failed_tests(c: StereoCandidate, criteria: StereoPairCriteria) -> list[tuple[PairRejection, str]]:
+    """Every test of the rule a candidate's geometry fails: (its kind, what failed with the value and the limit)."""
     k = criteria
-    why = []
+    why: list[tuple[PairRejection, str]] = []
     if not (k.min_parallax_height <= c.parallax_height <= k.max_parallax_height):
-        why.append(f"parallax/height {c.parallax_height:.3f} outside [{k.min_parallax_height:g}, "
-                   f"{k.max_parallax_height:g}]")
+        why.append((PairRejection.PARALLAX_HEIGHT, f"parallax/height {c.parallax_height:.3f} outside "
+                    f"[{k.min_parallax_height:g}, {k.max_parallax_height:g}]"))
     if not c.scale_ratio <= k.max_scale_ratio:
-        why.append(f"pixel-scale ratio {c.scale_ratio:.2f} > {k.max_scale_ratio:g}")
+        why.append((PairRejection.SCALE_RATIO, f"pixel-scale ratio {c.scale_ratio:.2f} > {k.max_scale_ratio:g}"))
     d_inc = abs(c.incidence_left_deg - c.incidence_right_deg)
     if not d_inc <= k.max_incidence_difference_deg:
-        why.append(f"incidence difference {d_inc:.1f} deg > {k.max_incidence_difference_deg:g}")
+        why.append((PairRejection.INCIDENCE,
+                    f"incidence difference {d_inc:.1f} deg > {k.max_incidence_difference_deg:g}"))
     if not c.sun_azimuth_difference_deg <= k.max_sun_azimuth_difference_deg:
-        why.append(f"sun-azimuth difference {c.sun_azimuth_difference_deg:.1f} deg > "
-                   f"{k.max_sun_azimuth_difference_deg:g}")
+        why.append((PairRejection.SUN_AZIMUTH, f"sun-azimuth difference {c.sun_azimuth_difference_deg:.1f} deg > "
+                    f"{k.max_sun_azimuth_difference_deg:g}"))
     inc = max(c.incidence_left_deg, c.incidence_right_deg)
     if not inc <= k.max_incidence_deg:
-        why.append(f"incidence {inc:.1f} deg > {k.max_incidence_deg:g}")
+        why.append((PairRejection.INCIDENCE, f"incidence {inc:.1f} deg > {k.max_incidence_deg:g}"))
     if not c.overlap >= k.min_overlap:
-        why.append(f"overlap {c.overlap:.2f} < {k.min_overlap:g}")
-    return "; ".join(why)
+        why.append((PairRejection.OVERLAP, f"overlap {c.overlap:.2f} < {k.min_overlap:g}"))
+    return why
+
+
+def rejection_reason(c: StereoCandidate, criteria: StereoPairCriteria) -> str:
+    """Why a candidate's geometry fails the rule (every failed test, ``; ``-joined), or ``""``."""
+    return "; ".join(text for _, text in failed_tests(c, criteria))
 
 
 def pair_score(c: StereoCandidate, criteria: StereoPairCriteria) -> float:
@@ -233,16 +259,18 @@ def select_stereo_pairs(
     rows: list[StereoCandidate] = []
     for a, b in pairs:
         if a not in geometry or b not in geometry:
-            rows.append(_nan_row(a, b, f"no adjusted geometry for {a if a not in geometry else b}"))
+            rows.append(_nan_row(a, b, f"no adjusted geometry for {a if a not in geometry else b}",
+                                 PairRejection.NO_GEOMETRY))
             continue
         pg = pair_geometry(geometry[a], geometry[b])
         if isinstance(pg, str):
-            rows.append(_nan_row(a, b, pg))
+            rows.append(_nan_row(a, b, pg, PairRejection.PAIR_GEOMETRY))
             continue
         row = _geometry_row(a, b, geometry[a], geometry[b], pg)
-        why = rejection_reason(row, criteria)
+        why = failed_tests(row, criteria)
         if why:
-            rows.append(replace(row, status=REJECTED, reason=why))
+            rows.append(replace(row, status=REJECTED, reason="; ".join(t for _, t in why),
+                                rejections=tuple(k.value for k, _ in why)))
         else:
             rows.append(replace(row, score=pair_score(row, criteria)))
     order = sorted((i for i, r in enumerate(rows) if r.status == SELECTED), key=lambda i: (-rows[i].score, i))
@@ -253,7 +281,8 @@ def select_stereo_pairs(
         full = [x for x in (r.left, r.right) if used.get(x, 0) >= criteria.max_pairs_per_image]
         if full:
             rows[i] = replace(r, status=REJECTED, reason=f"cap: image {full[0]} is already in "
-                                                          f"{criteria.max_pairs_per_image} better-ranked pairs")
+                                                          f"{criteria.max_pairs_per_image} better-ranked pairs",
+                              rejections=(PairRejection.CAP.value,))
             continue
         rank += 1
         rows[i] = replace(r, rank=rank)
@@ -263,6 +292,9 @@ def select_stereo_pairs(
 
 
 def candidate_table(rows: Sequence[StereoCandidate]) -> dict[str, NDArray[Any]]:
-    """The candidates as columns (name -> array of len(rows)), e.g. for a Parquet/Zarr table."""
+    """The candidates as columns (name -> array of len(rows)), e.g. for a Parquet/Zarr table; ``rejections``
+    as one string per row, its kinds ``;``-joined.
+    """
     fields = list(StereoCandidate.__dataclass_fields__)
-    return {f: np.array([getattr(r, f) for r in rows]) for f in fields}
+    return {f: np.array([";".join(r.rejections) if f == "rejections" else getattr(r, f) for r in rows])
+            for f in fields}

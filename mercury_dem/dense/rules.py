@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mercury_dem.dense.pairs import REJECTED, SELECTED
+from mercury_dem.dense.pairs import REJECTED, SELECTED, PairRejection
 from mercury_dem.stats import NMAD_FACTOR
 
 
@@ -28,12 +28,14 @@ def cap_per_tile(rows: list[Any], tile_of: dict[str, int], max_per_tile: int,
     for i in sorted((i for i, r in enumerate(out) if r.status == SELECTED), key=lambda i: out[i].rank):
         t = int(tile_of.get(out[i].left, -1))
         if tiles and t not in tiles:
-            out[i] = replace(out[i], status=REJECTED, rank=0, reason=f"tile {t} not in dense.tiles")
+            out[i] = replace(out[i], status=REJECTED, rank=0, reason=f"tile {t} not in dense.tiles",
+                             rejections=(PairRejection.TILE_SUBSET.value,))
             continue
         got = per_tile.setdefault(t, [])
         if len(got) >= max_per_tile:
             out[i] = replace(out[i], status=REJECTED, rank=0,
-                             reason=f"cap: tile {t} already has {max_per_tile} better-ranked pairs")
+                             reason=f"cap: tile {t} already has {max_per_tile} better-ranked pairs",
+                             rejections=(PairRejection.CAP.value,))
             continue
         got.append(i)
     return out, {t: v for t, v in per_tile.items() if v}

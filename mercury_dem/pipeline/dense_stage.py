@@ -59,10 +59,6 @@ if TYPE_CHECKING:
 __all__ = ["CLOUD_COLUMNS", "SparseSurface", "adjusted_geometry", "criteria_of", "matcher_of", "open_sparse_surface",
            "read_cloud", "run_dense_stage", "run_dense_tile", "tile_complete", "tile_group_name"]
 
-#: A rejection reason's first word -> its key in ``dense.pairs.rejected_by_reason``.
-_REASON_KEYS = {"parallax/height": "parallax_height", "pixel-scale": "scale_ratio", "incidence": "incidence",
-                "sun-azimuth": "sun_azimuth", "overlap": "overlap", "tile": "tile_subset", "no": "no_geometry"}
-
 #: Per-tile counts summed into the stage's block.
 _TILE_COUNTS = ("chips", "chips_failed", "chips_capped", "chip_parts", "chip_parts_failed", "points",
                 "interior_pixels")
@@ -101,8 +97,7 @@ def rejection_counts(rows: list[Any]) -> dict[str, int]:
     for r in rows:
         if r.status == SELECTED:
             continue
-        for part in r.reason.split("; "):
-            key = "cap" if part.startswith("cap:") else _REASON_KEYS.get(part.split(" ")[0], part.split(" ")[0])
+        for key in r.rejections:  # dense.pairs.PairRejection values, set where each test failed
             reasons[key] = reasons.get(key, 0) + 1
     return reasons
 

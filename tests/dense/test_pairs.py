@@ -11,6 +11,7 @@ from dense_scene import site_frame, sun_at, view
 from mercury_dem.dense.pairs import (
     REJECTED,
     SELECTED,
+    PairRejection,
     StereoPairCriteria,
     candidate_table,
     parallax_height_ratio,
@@ -61,6 +62,18 @@ def test_pairs_are_selected_or_rejected_for_the_stated_reasons() -> None:
     assert rows[("nadir", "far_side")].status == REJECTED and rows[("nadir", "far_side")].reason
     assert rows[("nadir", "missing")].reason == "no adjusted geometry for missing"
     assert all(r.rank == 0 for r in rows.values() if r.status == REJECTED)
+    # the kinds are set where each test fails (the report counts them; nothing parses the reason text)
+    kinds = {k: r.rejections for k, r in rows.items()}
+    assert kinds[("nadir", "north25")] == ()
+    assert kinds[("nadir", "north4")] == (PairRejection.PARALLAX_HEIGHT,)
+    assert PairRejection.SCALE_RATIO in kinds[("nadir", "coarse")]
+    assert PairRejection.SUN_AZIMUTH in kinds[("nadir", "evening")]
+    assert PairRejection.PARALLAX_HEIGHT not in kinds[("nadir", "evening")]
+    assert PairRejection.INCIDENCE in kinds[("nadir", "low_sun")]
+    assert kinds[("nadir", "far_side")] == (PairRejection.PAIR_GEOMETRY,)
+    assert kinds[("nadir", "missing")] == (PairRejection.NO_GEOMETRY,)
+    for r in rows.values():  # one kind per failed test, as many as the reason's parts
+        assert len(r.rejections) == (len(r.reason.split("; ")) if r.reason else 0)
     table = candidate_table(list(rows.values()))
     assert table["status"].tolist().count(SELECTED) == 1 and table["parallax_height"].shape == (7,)
 
@@ -73,6 +86,7 @@ def test_ranking_prefers_the_best_band_and_the_cap_names_the_full_image() -> Non
     # a-b (0.47) is in the best band; a-c (0.21) and a-d (0.84) are accepted but ranked lower
     assert by[("a", "b")].rank == 1
     assert by[("a", "c")].reason == "cap: image a is already in 1 better-ranked pairs"
+    assert by[("a", "c")].rejections == (PairRejection.CAP,)
     selected = [r for r in rows if r.status == SELECTED]
     used = [x for r in selected for x in (r.left, r.right)]
     assert len(used) == len(set(used))  # the cap: every image in at most one selected pair

@@ -28,9 +28,11 @@ def test_the_per_tile_cap_keeps_the_best_ranked_and_names_the_tile() -> None:
     out, per_tile = cap_per_tile(rows, tile_of, max_per_tile=2)
     assert per_tile == {5: [1, 0], 6: [4]}
     assert out[2].status == REJECTED and out[2].reason == "cap: tile 5 already has 2 better-ranked pairs"
+    assert out[2].rejections == ("cap",)
     assert out[3].reason == "overlap 0.1 < 0.2"  # rejected rows untouched
     out, per_tile = cap_per_tile(rows, tile_of, max_per_tile=9, tiles=(6,))
     assert per_tile == {6: [4]} and out[0].reason == "tile 5 not in dense.tiles"
+    assert out[0].rejections == ("tile_subset",)
 
 
 def test_height_margins_from_the_tie_points_scatter_with_a_floor() -> None:
