@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.compute import ThreadPoolClient, as_completed, client_or_sync, runs_in_process
 from mercury_dem.compute.failures import lost_to_the_cluster
+from mercury_dem.compute.lazy import lazy_full
 from mercury_dem.dem.coverage import CoverageResult, point_coverage
 from mercury_dem.dem.extent import config_with_extent
 from mercury_dem.dem.grid import (
@@ -114,8 +115,7 @@ def _dem_config(config: Config | DemConfig) -> DemConfig:
 
 
 def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> xr.Dataset:
-    """The lazy (Dask-backed, never computed) Dataset that defines the store's layout."""
-    import dask.array as da
+    """The lazy (never computed) Dataset that defines the store's layout."""
     import rioxarray  # noqa: F401  (registers the .rio accessor)
     import xarray as xr
 
@@ -124,7 +124,7 @@ def dem_template(grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: B
     data_vars = {}
     for name, dtype in LAYERS.items():
         fill = 0 if np.dtype(dtype).kind == "i" else np.nan
-        arr = da.full((nr, nc), fill, dtype=dtype, chunks=(cs, cs))
+        arr = lazy_full((nr, nc), fill, dtype, (cs, cs))
         data_vars[name] = xr.Variable(("lat", "lon"), arr, attrs=dict(ATTRS[name]))
     ds = xr.Dataset(
         data_vars,

@@ -154,15 +154,16 @@ def _create_map(path: Path, source: xr.Dataset, layers: dict[str, tuple[Any, dic
     ``chunk_columns`` columns, so each block of :func:`register_dem_store` writes whole chunks. Returns the open
     Zarr arrays, for region writes.
     """
-    import dask.array as da
     import zarr
+
+    from mercury_dem.compute.lazy import lazy_full
 
     H, W = source.sizes["lat"], source.sizes["lon"]
     cs = (max(min(block_rows, H), 1), max(min(chunk_columns, W), 1))
     data_vars = {}
     for name, (dtype, var_attrs) in layers.items():
         fill = np.nan if np.dtype(dtype).kind == "f" else 0
-        data_vars[name] = xr.Variable(("lat", "lon"), da.full((H, W), fill, dtype=dtype, chunks=cs), attrs=var_attrs)
+        data_vars[name] = xr.Variable(("lat", "lon"), lazy_full((H, W), fill, dtype, cs), attrs=var_attrs)
     ds = xr.Dataset(data_vars, coords={"lat": source["lat"], "lon": source["lon"],
                                        "spatial_ref": source["spatial_ref"]})
     for name in layers:

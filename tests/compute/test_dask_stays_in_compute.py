@@ -9,8 +9,6 @@ PACKAGE = Path(__file__).resolve().parents[2] / "mercury_dem"
 
 #: Modules outside ``compute/`` that import Dask, each for a stated reason (docs/design.md, "Execution").
 ALLOWED_OUTSIDE = {
-    "pipeline/dem_stage.py": "dask.array.full: the lazy template of dem.zarr (never computed)",
-    "pipeline/register_stage.py": "dask.array.full: the lazy template of the registration maps",
     "cluster/jobqueue.py": "the batch-system launcher (dask-jobqueue's configuration)",
     "cluster/idle_timeout.py": "a scheduler plugin loaded by `dask scheduler --preload`",
 }
