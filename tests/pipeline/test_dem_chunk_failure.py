@@ -35,10 +35,10 @@ def test_a_run_records_a_failed_dem_chunk_and_its_resume_grids_it(sync_run, tiny
     rows, cols = ref["elevation"].shape
     bad = (64, min(128, rows), 64, min(128, cols))  # tiny_config: 64-pixel chunks
 
-    def fake(index, grid, bounds, cfg):
+    def fake(index, grid, bounds, cfg, **kw):
         if tuple(bounds) == bad:
             raise RuntimeError("injected fault in this chunk")
-        return REAL_GRID_CHUNK(index, grid, bounds, cfg)
+        return REAL_GRID_CHUNK(index, grid, bounds, cfg, **kw)
 
     monkeypatch.setattr(dem_stage, "grid_chunk", fake)
     report = run_pipeline(tiny_mission_path, run, tiny_config(), scheduler="sync", stream=None, force="dem")
