@@ -230,7 +230,7 @@ class _Reader:
         value = self.get(key)
         try:
             x = float(value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise self.error(key, f"must be a number, got {value!r}") from None
         if not math.isfinite(x) or (positive and x <= 0):
             raise self.error(key, f"must be a finite{' positive' if positive else ''} number, got {x}")
@@ -249,7 +249,7 @@ class _Reader:
         raw = self.get(key)
         try:
             a = np.asarray(raw, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise self.error(key, f"must hold numbers of shape {shape}, got {str(raw)[:80]}") from None
         want = tuple(a.shape[0] if (i == 0 and n == -1 and a.ndim) else n for i, n in enumerate(shape))
         if a.shape != want or a.size == 0:
@@ -481,7 +481,7 @@ def _has_jitter(node: Any) -> bool:
     try:
         return any(float(c) != 0.0 for key in ("lineJitterCoefficients", "sampleJitterCoefficients")
                    for c in (node.get(key) or ()))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return True
 
 
@@ -563,7 +563,7 @@ def _knoten_sun_quirk(r: _Reader) -> bool:
         rows = np.asarray(r.get("sun_position.positions"), dtype=np.float64)
         vel = np.asarray(r.get("sun_position.velocities"), dtype=np.float64) if r.has("sun_position.velocities") \
             else None
-    except (TypeError, ValueError, IsdError):
+    except (TypeError, ValueError, OverflowError, IsdError):
         return False
     return (vel is not None and rows.shape == (1, 4) and vel.shape == (1, 3) and bool(np.all(np.isfinite(rows)))
             and bool(rows[0, 3] == vel[0, 0]))

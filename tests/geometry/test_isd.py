@@ -241,6 +241,9 @@ def test_missing_key_usgscsm(tmp_path: Path, key: str) -> None:
         ("instrument_position.positions", [[100.0, 200.0]], "rows of 3 numbers"),
         ("instrument_position.positions", [[100.0, 200.0, 300.0]], "inside"),
         ("instrument_position.positions", "far away", "numbers"),
+        ("instrument_position.positions", [[10**400, 1000.0, 2000.0]], "must hold numbers"),  # beyond float64
+        ("detector_line_summing", 10**400, "must be a number"),
+        ("jitter", {"lineJitterCoefficients": [10**400]}, "jitter"),
         ("instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.1], "not a proper rotation"),
         ("instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, -1.0], "not a proper rotation"),
         ("sun_position.positions", [[1.0e4, 2.0e4, 3.0e4]], "check the position's unit"),
