@@ -38,11 +38,14 @@ def views_per_pixel(lat: NDArray[np.float64], lon: NDArray[np.float64], height_m
     fill = float(np.nanmedian(h)) if np.isfinite(h).any() else 0.0
     hh = np.where(np.isfinite(h), h, fill).ravel()
     xyz = latlon_to_xyz(la.ravel(), lo.ravel(), height_m=hh, datum_radius_m=datum_radius_m)
-    unit = latlon_to_xyz(la.ravel(), lo.ravel(), height_m=np.zeros_like(hh), datum_radius_m=1.0)
-    tree = cKDTree(unit)  # each image projects only the pixels near its footprint (blocks of many images)
+    unit = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    # each image projects only the pixels near its footprint (blocks of many images); an unbalanced tree builds
+    # faster and its queries here are few
+    tree = cKDTree(unit, balanced_tree=False, compact_nodes=False)
     count = np.zeros(la.size, np.int32)
+    heights = (float(hh.min()), float(hh.max()))
     for g in images:
-        edge = _edge_directions(g, datum_radius_m, (float(hh.min()), float(hh.max())))
+        edge = _edge_directions(g, datum_radius_m, heights)
         if edge.shape[0] < 3:  # the image does not see the surface
             continue
         centre = edge.mean(axis=0)
