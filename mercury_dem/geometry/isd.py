@@ -230,7 +230,7 @@ class _Reader:
         value = self.get(key)
         try:
             x = float(value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise self.error(key, f"must be a number, got {value!r}") from None
         if not math.isfinite(x) or (positive and x <= 0):
             raise self.error(key, f"must be a finite{' positive' if positive else ''} number, got {x}")
@@ -249,7 +249,7 @@ class _Reader:
         raw = self.get(key)
         try:
             a = np.asarray(raw, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise self.error(key, f"must hold numbers of shape {shape}, got {str(raw)[:80]}") from None
         want = tuple(a.shape[0] if (i == 0 and n == -1 and a.ndim) else n for i, n in enumerate(shape))
         if a.shape != want or a.size == 0:
@@ -481,7 +481,7 @@ def _has_jitter(node: Any) -> bool:
     try:
         return any(float(c) != 0.0 for key in ("lineJitterCoefficients", "sampleJitterCoefficients")
                    for c in (node.get(key) or ()))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return True
 
 
@@ -545,10 +545,48 @@ def _csm_pose(r: _Reader, require_sun: bool, warnings: list[str]) -> tuple[Any, 
     camera_to_body = quaternion_to_matrix(np.r_[q[3], q[:3]])  # stored (x, y, z, w)
 
     def sun() -> NDArray[np.float64]:
+        if _knoten_sun_quirk(r):
+            return _knoten_sun(r, warnings)
         s = _single_row(r, "sun_position.positions", 3) * r.unit_scale("sun_position.unit", "m")
         return _check_sun(r, "sun_position.positions", s)
 
     return position, camera_to_body.T, _optional_sun(r, require_sun, warnings, sun), None
+
+
+def _knoten_sun_quirk(r: _Reader) -> bool:
+    """Whether ``sun_position`` has the known layout of the older knoten/ALE CSM exports: one row of 4 numbers
+    whose 4th repeats the first velocity component (``sun_position.velocities[0][0]``) exactly. Seen in the USGS
+    knoten MDIS stereo examples (tests/data/real/SOURCE.md), whose Sun is in kilometres though ``unit`` says "m".
+    Any other row width stays an error (:func:`_single_row`).
+    """
+    try:
+        rows = np.asarray(r.get("sun_position.positions"), dtype=np.float64)
+        vel = np.asarray(r.get("sun_position.velocities"), dtype=np.float64) if r.has("sun_position.velocities") \
+            else None
+    except (TypeError, ValueError, OverflowError, IsdError):
+        return False
+    return (vel is not None and rows.shape == (1, 4) and vel.shape == (1, 3) and bool(np.all(np.isfinite(rows)))
+            and bool(rows[0, 3] == vel[0, 0]))
+
+
+def _knoten_sun(r: _Reader, warnings: list[str]) -> NDArray[np.float64]:
+    """The Sun of a :func:`_knoten_sun_quirk` ISD: the row's first 3 numbers, in the labelled unit when that puts
+    the Sun at a plausible distance (:data:`SUN_DISTANCE_RANGE_M`), else in kilometres when those do; each
+    reinterpretation is a warning naming the file and the key. Neither plausible: the usual unit error.
+    """
+    key = "sun_position.positions"
+    row = r.array(key, (1, 4))[0, :3]
+    warnings.append(f"ISD {r.source}: key '{key}' has rows of 4 numbers, the 4th repeating "
+                    "'sun_position.velocities'[0][0] (a known quirk of older knoten/ALE exports): the first 3 are "
+                    "the position")
+    labelled = row * r.unit_scale("sun_position.unit", "m")
+    lo, hi = SUN_DISTANCE_RANGE_M
+    if not lo <= float(np.linalg.norm(labelled)) <= hi and lo <= float(np.linalg.norm(row * 1000.0)) <= hi:
+        warnings.append(f"ISD {r.source}: key '{key}' in the labelled unit puts the Sun "
+                        f"{float(np.linalg.norm(labelled)):.4g} m from the body, outside {lo:.1e}-{hi:.1e} m; "
+                        f"read as kilometres it is {float(np.linalg.norm(row)) * 1000.0:.4g} m: kilometres used")
+        return _check_sun(r, key, row * 1000.0)
+    return _check_sun(r, key, labelled)
 
 
 def isd_from_dict(isd: Mapping[str, Any], source: str = "<dict>", require_sun: bool = True) -> IsdGeometry:

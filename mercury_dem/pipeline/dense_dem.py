@@ -60,22 +60,29 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
             "bounds": list(bounds), "points": int(xyz.shape[0]),
             "source_fraction": {name: float((source == v).sum() / source.size) for name, v in
                                 (("dense", SOURCE_DENSE), ("sparse_fallback", SOURCE_SPARSE), ("none", SOURCE_NONE))},
-            # where neither DEM reaches is left out: the dense DEM's holes and the sparse DEM's on the same pixels
-            "hole_fraction": hole_fractions(ds),
             "failed_chunks": summary.get("failed_chunks", []), "gridding_seconds": round(summary["seconds"], 2),
             "precision_median_m": _nan_median(ds["precision_m"].values.astype(np.float64))}
 
 
-def hole_fractions(ds: Any) -> dict[str, float | None]:
-    """Share of the pixels with a value in either DEM (the dense DEM's own values, the sparse DEM resampled on its
-    grid) that have none in each: ``dense`` (a hole of the stereo points: shadow, no texture, outside the pairs)
-    and ``sparse`` (beyond the sparse DEM's no-value distance of every tie point).
+def block_holes(path: Path, images: Any, datum_radius_m: float) -> dict[str, Any]:
+    """Holes of the dense DEM ``path`` within the block's footprint, the pixels seen by at least 2 of ``images``
+    (the controlled images' adjusted geometry, :func:`mercury_dem.dense.footprint.views_per_pixel`): the shares
+    without a value in the delivered ``elevation`` (dense, else the sparse fallback), in the dense values alone
+    (``dense``; ``dense_coverage`` = 1 - it) and in the sparse DEM on the same grid (``sparse``).
     """
-    dense = np.isfinite(ds["elevation_dense"].values)
-    sparse = np.isfinite(ds["sparse_on_grid"].values)
-    n = int((dense | sparse).sum())
-    return {"dense": float((~dense).sum() - (~(dense | sparse)).sum()) / n if n else None,
-            "sparse": float((~sparse).sum() - (~(dense | sparse)).sum()) / n if n else None}
+    from mercury_dem.dense.footprint import hole_fractions, views_per_pixel
+    from mercury_dem.pipeline.dem_stage import open_dem
+
+    ds = open_dem(path).load()
+    lat, lon = ds["lat"].values.astype(np.float64), ds["lon"].values.astype(np.float64)
+    layer = {k: ds[v].transpose("lat", "lon").values.astype(np.float64) for k, v in
+             (("delivered", "elevation"), ("dense", "elevation_dense"), ("sparse", "sparse_on_grid"))}
+    views = views_per_pixel(lat, lon, layer["delivered"], list(images), datum_radius_m)
+    out = hole_fractions(views >= 2, layer)
+    out["dense_coverage"] = None if out["dense"] is None else 1.0 - out["dense"]
+    out["footprint"] = "pixels seen by at least 2 of the block's controlled images (adjusted geometry)"
+    out["grid_pixels"] = int(views.size)
+    return out
 
 
 def _nan_median(a: NDArray[Any]) -> float | None:

@@ -58,9 +58,11 @@ def write_dense_products(store: RunStore, config: Config, truth_height: Callable
 
 
 def reference_comparison(dem_dense_path: Path, config: Config) -> dict[str, Any] | None:
-    """The dense DEM's own values and the sparse DEM resampled on the same pixels (``source`` = dense, both
-    with a value) against each reference of ``config.reference``: ``{"dense": {ref: stats}, "sparse": {ref:
-    stats}}`` (``compare_with_references``'s statistics: ``bias_m``, ``rmse_m``, ...); None without a reference.
+    """The dense DEM's own values, its delivered ``elevation`` (the product: there the dense value fused with the
+    sparse DEM when ``dense.sparse_sigma_m`` is set) and the sparse DEM resampled on the same pixels (``source`` =
+    dense, both with a value) against each reference of ``config.reference``: ``{"dense": {ref: stats},
+    "delivered": {...}, "sparse": {...}}`` (``compare_with_references``'s statistics: ``bias_m``, ``rmse_m``, ...);
+    None without a reference.
     """
     from mercury_dem.pipeline.dense_dem import SOURCE_DENSE
     from mercury_dem.pipeline.reference_check import compare_with_references
@@ -73,7 +75,7 @@ def reference_comparison(dem_dense_path: Path, config: Config) -> dict[str, Any]
     body = dem_body(ds)
     both = (ds["source"] == SOURCE_DENSE) & np.isfinite(ds["sparse_on_grid"])
     out: dict[str, Any] = {"pixels": int(both.sum())}
-    for key, layer in (("dense", "elevation_dense"), ("sparse", "sparse_on_grid")):
+    for key, layer in (("dense", "elevation_dense"), ("delivered", "elevation"), ("sparse", "sparse_on_grid")):
         view = ds[["distance_to_nearest_point"]].copy()
         view["elevation"] = ds[layer].where(both)
         out[key] = compare_with_references(view, body, ref)

@@ -213,7 +213,7 @@ def dense_dem_and_products(store: RunStore, mission: Any, config: Config, client
     from mercury_dem.dem.cloud import point_cloud
     from mercury_dem.dem.dense_grid import dense_grid_ppd
     from mercury_dem.io.network_store import read_network
-    from mercury_dem.pipeline.dense_dem import grid_dense_dem, rmse_ratio, validate_dense_dem
+    from mercury_dem.pipeline.dense_dem import block_holes, grid_dense_dem, rmse_ratio, validate_dense_dem
     from mercury_dem.pipeline.dense_products import reference_comparison, write_dense_products
 
     body = mission.body
@@ -224,6 +224,7 @@ def dense_dem_and_products(store: RunStore, mission: Any, config: Config, client
                                                  median_pixel_scale_m=float(np.median(scales)))}
     out["dem"]["seconds"] = round(time.perf_counter() - t, 2)
     path = store.root / DEM_DENSE_FILE
+    out["dem"]["hole_fraction"] = block_holes(path, adjusted_geometry(store, mission).values(), body.datum_radius_m)
     truth = mission.truth.surface().height if mission.truth is not None else None
     if truth is not None:
         tie = point_cloud(read_network(store.network_path("global", 0)), adjusted=True)

@@ -319,10 +319,17 @@ def _dense_product_lines(dense: dict[str, Any]) -> list[str]:
     ref = dense.get("reference") or {}
     for name, stats in (ref.get("dense") or {}).items():
         sparse = (ref.get("sparse") or {}).get(name) or {}
+        delivered = (ref.get("delivered") or {}).get(name) or {}
         if "rmse_m" in stats:
-            out.append(f"  vs {name}: dense RMSE {_f(stats.get('rmse_m'), '.0f')} m (bias "
-                       f"{_f(stats.get('bias_m'), '+.0f')}), sparse on the same pixels "
-                       f"{_f(sparse.get('rmse_m'), '.0f')} m (bias {_f(sparse.get('bias_m'), '+.0f')})\n")
+            out.append(f"  vs {name}: delivered dense DEM RMSE {_f(delivered.get('rmse_m'), '.0f')} m (bias "
+                       f"{_f(delivered.get('bias_m'), '+.0f')}), dense values alone "
+                       f"{_f(stats.get('rmse_m'), '.0f')} m (bias {_f(stats.get('bias_m'), '+.0f')}), sparse on "
+                       f"the same pixels {_f(sparse.get('rmse_m'), '.0f')} m (bias {_f(sparse.get('bias_m'), '+.0f')})\n")
+    holes = (dense.get("dem") or {}).get("hole_fraction") or {}
+    if holes.get("footprint_pixels"):
+        out.append(f"  holes within the block's footprint ({holes['footprint_pixels']} pixels seen by >= 2 images): "
+                   f"delivered {_f(holes.get('delivered'), '.1%')}, sparse {_f(holes.get('sparse'), '.1%')}, "
+                   f"dense values alone {_f(holes.get('dense'), '.1%')}\n")
     return out
 
 

@@ -241,6 +241,9 @@ def test_missing_key_usgscsm(tmp_path: Path, key: str) -> None:
         ("instrument_position.positions", [[100.0, 200.0]], "rows of 3 numbers"),
         ("instrument_position.positions", [[100.0, 200.0, 300.0]], "inside"),
         ("instrument_position.positions", "far away", "numbers"),
+        ("instrument_position.positions", [[10**400, 1000.0, 2000.0]], "must hold numbers"),  # beyond float64
+        ("detector_line_summing", 10**400, "must be a number"),
+        ("jitter", {"lineJitterCoefficients": [10**400]}, "jitter"),
         ("instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.1], "not a proper rotation"),
         ("instrument_pointing.constant_rotation", [1.0, 0, 0, 0, 1.0, 0, 0, 0, -1.0], "not a proper rotation"),
         ("sun_position.positions", [[1.0e4, 2.0e4, 3.0e4]], "check the position's unit"),
@@ -359,3 +362,38 @@ def test_sun_of_a_body_beyond_mercury_is_kept(au: float) -> None:
     # the same position written in kilometres but labelled metres is still a unit mistake
     with pytest.raises(IsdError, match="check the position's unit"):
         isd_from_dict(_set(csm_isd(), "sun_position.positions", [(sun / 1000).tolist()]), "far.json")
+
+
+KNOTEN_STEREO = Path(__file__).resolve().parents[1] / "data" / "real" / "mdis_stereo"
+
+
+def test_knoten_sun_rows_of_four_in_kilometres_are_read_with_warnings() -> None:
+    """The knoten MDIS stereo ISDs: ``sun_position`` rows of 4 numbers (the 4th repeats the first velocity
+    component) in kilometres labelled "m". The first 3 are read as kilometres, each reinterpretation a warning
+    naming the file and the key; the Sun lands where Mercury's orbit allows (0.307-0.467 AU)."""
+    path = KNOTEN_STEREO / "EN0213023991M.json"
+    g = read_isd(path)
+    raw = json.loads(path.read_text())["sun_position"]["positions"][0]
+    assert g.sun_position is not None
+    np.testing.assert_allclose(g.sun_position, np.array(raw[:3]) * 1000.0)
+    assert 0.30 < np.linalg.norm(g.sun_position) / 1.495978707e11 < 0.47
+    notes = [w for w in g.warnings if "sun_position.positions" in w]
+    assert len(notes) == 2 and all(str(path) in w for w in notes)
+    assert "4th repeating" in notes[0] and "kilometres used" in notes[1]
+
+
+def test_knoten_sun_quirk_needs_its_signature() -> None:
+    """Only the exact quirk is accepted: a 4th number that is not the first velocity component, or a Sun that
+    neither unit makes plausible, stays the project's error naming the key."""
+    sun_km = (SUN / 1000.0).tolist()
+    quirk = _set(csm_isd(), "sun_position", {"positions": [sun_km + [-43.4]], "velocities": [[-43.4, 17.1, 0.0]],
+                                             "unit": "m"})
+    g = isd_from_dict(quirk, "quirk.json")
+    np.testing.assert_allclose(g.sun_position, SUN, rtol=1e-12)
+    in_m = _set(quirk, "sun_position.positions", [SUN.tolist() + [-43.4]])  # the quirk in metres: no reinterpretation
+    g = isd_from_dict(in_m, "quirk.json")
+    assert np.allclose(g.sun_position, SUN) and not any("kilometres used" in w for w in g.warnings)
+    with pytest.raises(IsdError, match="quirk.json: key 'sun_position.positions' must be a list of rows of 3"):
+        isd_from_dict(_set(quirk, "sun_position.velocities", [[-43.0, 17.1, 0.0]]), "quirk.json")
+    with pytest.raises(IsdError, match="quirk.json: key 'sun_position.positions'.*check the position's unit"):
+        isd_from_dict(_set(quirk, "sun_position.positions", [[1.0, 2.0, 3.0, -43.4]]), "quirk.json")
