@@ -428,3 +428,34 @@ def stream_merge(
         join_pairs=n_pairs, ids_renumbered=renumbered, median_sigma_px=median_sigma,
         seconds={k: round(v, 3) for k, v in seconds.items()}, **totals,
     )
+
+
+def stream_merged_network(
+    unit: str,
+    children: Sequence[tuple[str, str | Path]],
+    scratch: str | Path,
+    geometry: Callable[[NDArray[np.str_]], ImageTable],
+    *,
+    tolerance_px: float = 1.0,
+    part_measures: int = PART_MEASURES,
+    block_points: int = 25_000,
+    clear_rejections: bool = False,
+) -> tuple[ControlNetwork, StreamedMergeSummary]:
+    """The children's merged network as :func:`~mercury_dem.network.merge.merge_networks` gives it (every image
+    of the children kept, as ``MergeResult.network``), made by :func:`stream_merge` into ``scratch`` and read back.
+
+    The merge itself holds one part at a time; what this returns is the whole merged network (one copy, never
+    the children's networks beside it), for an adjustment that still needs it in memory. ``scratch`` is
+    replaced if a failed attempt left it and removed once read. Raises :class:`StoreError` as ``stream_merge``.
+    """
+    from mercury_dem.io.network_store import read_network
+
+    scratch = Path(scratch)
+    try:
+        summary = stream_merge(unit, children, scratch, geometry, tolerance_px=tolerance_px,
+                               part_measures=part_measures, block_points=block_points, overwrite=True,
+                               clear_rejections=clear_rejections)
+        network = read_network(scratch / "network")
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return network, summary
