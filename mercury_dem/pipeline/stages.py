@@ -331,12 +331,12 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
             if store.unit_complete(child_level, c) and read_summary(store, child_level, c).ok]
     if not kids:
         raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
-    mission = open_mission(store.read_run()["mission"])
-    merged_all = merge_children(store, level, unit_id, kids, config, mission)
+    merged_all = merge_children(store, level, unit_id, kids, config)
     merged = merged_all.drop_unused_images()
     if merged.n_measures == 0:
         raise _NoInput("the merged network has no measures")
     singular = singular_parts(merged_all, merged)
+    mission = open_mission(store.read_run()["mission"])
     ids = [str(x) for x in merged.image_ids]
     cameras = [mission.camera(i) for i in ids]
     positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)

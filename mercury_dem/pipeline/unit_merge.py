@@ -9,6 +9,7 @@ networks and the merge in memory at once.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -58,9 +59,12 @@ def checked_children(store: RunStore, level: str, kids: list[int]) -> None:
 
 
 def merge_children(store: RunStore, level: str, unit_id: int, kids: list[int], config: Config,
-                   mission: Mission) -> ControlNetwork:
+                   mission: Mission | None = None) -> ControlNetwork:
     """The unit's merged network (every image of its children kept: ``MergeResult.network``), its children's
     rejections cleared when they were adjusted (:func:`~mercury_dem.adjust.cascade.rejudged_network`).
+
+    ``mission``: the run's mission (the streamed merge records its images' geometry); None: opened from the
+    run when needed (a child's damaged files are found before that).
     """
     from mercury_dem.adjust.cascade import rejudged_network
 
@@ -75,10 +79,14 @@ def merge_children(store: RunStore, level: str, unit_id: int, kids: list[int], c
         return merge_networks(nets, tolerance_px=tol).network
     from mercury_dem.io.merged_network_store import stream_merged_network
 
+    if mission is None:
+        from mercury_dem.mission import open_mission
+
+        mission = open_mission(store.read_run()["mission"])
     scratch = store.unit_dir(level, unit_id).parent / f".{int(unit_id)}.merge"
     children = [(unit_name(child_level, c), store.network_path(child_level, c)) for c in kids]
     merged, _ = stream_merged_network(
-        unit_name(level, unit_id), children, scratch, lambda ids: mission_image_table(mission, ids),
+        unit_name(level, unit_id), children, scratch, partial(mission_image_table, mission),
         tolerance_px=tol, part_measures=config.adjust.streamed_merge_part_measures,
         block_points=config.adjust.blocked_block_points, clear_rejections=child_level in ADJUSTED_LEVELS)
     return merged
