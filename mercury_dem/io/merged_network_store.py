@@ -459,3 +459,24 @@ def stream_merged_network(
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     return network, summary
+
+
+def stored_singular_parts(path: str | Path, limit: int = 20, rows: int = CHUNK_ROWS) -> dict[str, Any]:
+    """:func:`~mercury_dem.network.check.singular_parts` of a stored merged network, read by row chunks.
+
+    ``images_without_measures`` (sorted ids) and ``single_measure_points`` (count, the first ``limit`` ids), as
+    ``singular_parts(merged_all, merged_all.drop_unused_images())`` gives them; what this holds is one count per
+    image and per point (8 B a point), never the network. For a unit adjusted from its merged store.
+    """
+    store = NetworkStore(path)
+    per_image = np.zeros(store.n_images, np.int64)
+    per_point = np.zeros(store.n_points, np.int64)
+    for r0, r1 in _chunks(store.n_measures, max(1, rows)):
+        per_image += np.bincount(store.column_rows("measure_image", r0, r1), minlength=store.n_images)
+        per_point += np.bincount(store.column_rows("measure_point", r0, r1), minlength=store.n_points)
+    single = np.flatnonzero(per_point == 1)
+    ids = [store.column_rows("point_ids", int(k), int(k) + 1)[0] for k in single[:limit]]
+    return {
+        "images_without_measures": sorted(str(i) for i in store.image_ids[per_image == 0]),
+        "single_measure_points": {"count": int(single.size), "ids": [p.item() if hasattr(p, "item") else p for p in ids]},
+    }

@@ -131,3 +131,22 @@ def test_run_units_streamed_equal_in_memory(sync_run: tuple[Path, dict[str, Any]
         assert np.abs(got.solution.rotations - ref.solution.rotations).max() < 1e-9
         for name in ("point_ids", *POINT_COLUMNS, *MEASURE_COLUMNS):
             np.testing.assert_array_equal(getattr(got.network, name), getattr(ref.network, name), err_msg=name)
+
+
+def test_stored_singular_parts_equal_the_networks(hemisphere: tuple[_Store, _Mission], tmp_path: Path) -> None:
+    """What the unit summary names (images without measures, single-measure points) read from a merged store by
+    row chunks equals ``singular_parts`` of the network in memory (an image left without measures, single points).
+    """
+    from mercury_dem.io.merged_network_store import stored_singular_parts
+    from mercury_dem.network.check import singular_parts
+
+    store, mission = hemisphere
+    net = merge_children(store, "hemisphere", 0, sorted(store.kids), load_config(), mission)  # type: ignore[arg-type]
+    gone = net.measure_image != 3  # image 3 loses its measures; some points are left with one
+    net = net.replace(measure_image=net.measure_image[gone], measure_point=net.measure_point[gone],
+                      **{k: getattr(net, k)[gone] for k in MEASURE_COLUMNS if k not in ("measure_image", "measure_point")})
+    path = write_network(net, tmp_path / "merged.zarr")
+    ref = singular_parts(net, net.drop_unused_images())
+    got = stored_singular_parts(path, rows=700)
+    assert got == ref
+    assert got["images_without_measures"] == [str(net.image_ids[3])] and got["single_measure_points"]["count"] > 0
