@@ -41,6 +41,7 @@ def _digest(net: Any) -> str:
 
 
 def in_memory(root: Path) -> dict[str, Any]:
+    """The key off: both children read whole, ``merge_networks``."""
     from mercury_dem.io.network_store import read_network
     from mercury_dem.network.merge import merge_networks
 
@@ -49,6 +50,7 @@ def in_memory(root: Path) -> dict[str, Any]:
 
 
 def streamed(root: Path, part_measures: int) -> dict[str, Any]:
+    """The key on: ``stream_merged_network`` (by parts into a scratch store, read back, removed)."""
     from mercury_dem.io.merged_network_store import stream_merged_network
     from mercury_dem.io.synthetic_network_store import BlockedNetwork
 
@@ -59,6 +61,7 @@ def streamed(root: Path, part_measures: int) -> dict[str, Any]:
 
 
 def main() -> None:
+    """Build the children, measure both merges interleaved, print and record the figures."""
     ap = argparse.ArgumentParser()
     ap.add_argument("--measures", type=float, default=1e6)
     ap.add_argument("--part-measures", type=float, default=5e5)
