@@ -112,6 +112,15 @@ class AdjustConfig(ConfigSection):
         ("hemisphere", "global"), "Levels whose units may use the blocked adjustment (see blocked_min_measures)"
     )
     blocked_block_points: int = param(25000, "Points per block of the blocked adjustment", lo=1)
+    streamed_merge_levels: tuple[str, ...] = param(
+        (), "Levels whose units merge their children's stored networks by parts (mercury_dem.io.merged_network_store."
+        "stream_merge: the same merged network bit for bit, never the children's networks and the merge in memory "
+        "at once); the adjustment then reads the merged network from that store. Empty (the default): the "
+        "in-memory merge"
+    )
+    streamed_merge_part_measures: int = param(
+        500000, "Measures per part of the streamed merge (streamed_merge_levels): bounds the merge's memory", lo=1
+    )
     blocked_on_workers: bool = param(
         True, "A blocked unit running on a Dask worker spreads its point blocks over the run's workers (one shard "
         "actor each, the unit's task seceded while it drives the loop); false: its blocks stay in the unit's process"

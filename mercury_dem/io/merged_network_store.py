@@ -428,3 +428,55 @@ def stream_merge(
         join_pairs=n_pairs, ids_renumbered=renumbered, median_sigma_px=median_sigma,
         seconds={k: round(v, 3) for k, v in seconds.items()}, **totals,
     )
+
+
+def stream_merged_network(
+    unit: str,
+    children: Sequence[tuple[str, str | Path]],
+    scratch: str | Path,
+    geometry: Callable[[NDArray[np.str_]], ImageTable],
+    *,
+    tolerance_px: float = 1.0,
+    part_measures: int = PART_MEASURES,
+    block_points: int = 25_000,
+    clear_rejections: bool = False,
+) -> tuple[ControlNetwork, StreamedMergeSummary]:
+    """The children's merged network as :func:`~mercury_dem.network.merge.merge_networks` gives it (every image
+    of the children kept, as ``MergeResult.network``), made by :func:`stream_merge` into ``scratch`` and read back.
+
+    The merge itself holds one part at a time; what this returns is the whole merged network (one copy, never
+    the children's networks beside it), for an adjustment that still needs it in memory. ``scratch`` is
+    replaced if a failed attempt left it and removed once read. Raises :class:`StoreError` as ``stream_merge``.
+    """
+    from mercury_dem.io.network_store import read_network
+
+    scratch = Path(scratch)
+    try:
+        summary = stream_merge(unit, children, scratch, geometry, tolerance_px=tolerance_px,
+                               part_measures=part_measures, block_points=block_points, overwrite=True,
+                               clear_rejections=clear_rejections)
+        network = read_network(scratch / "network")
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return network, summary
+
+
+def stored_singular_parts(path: str | Path, limit: int = 20, rows: int = CHUNK_ROWS) -> dict[str, Any]:
+    """:func:`~mercury_dem.network.check.singular_parts` of a stored merged network, read by row chunks.
+
+    ``images_without_measures`` (sorted ids) and ``single_measure_points`` (count, the first ``limit`` ids), as
+    ``singular_parts(merged_all, merged_all.drop_unused_images())`` gives them; what this holds is one count per
+    image and per point (8 B a point), never the network. For a unit adjusted from its merged store.
+    """
+    store = NetworkStore(path)
+    per_image = np.zeros(store.n_images, np.int64)
+    per_point = np.zeros(store.n_points, np.int64)
+    for r0, r1 in _chunks(store.n_measures, max(1, rows)):
+        per_image += np.bincount(store.column_rows("measure_image", r0, r1), minlength=store.n_images)
+        per_point += np.bincount(store.column_rows("measure_point", r0, r1), minlength=store.n_points)
+    single = np.flatnonzero(per_point == 1)
+    ids = [store.column_rows("point_ids", int(k), int(k) + 1)[0] for k in single[:limit]]
+    return {
+        "images_without_measures": sorted(str(i) for i in store.image_ids[per_image == 0]),
+        "single_measure_points": {"count": int(single.size), "ids": [p.item() if hasattr(p, "item") else p for p in ids]},
+    }

@@ -25,7 +25,7 @@ import pandas as pd
 
 from mercury_dem.compute.failures import raise_if_run_stopping, run_stopping_error
 from mercury_dem.config import Config, to_dict
-from mercury_dem.exceptions import CorruptUnitError, MercuryDemError
+from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.geometry.pose import validate_pose
 from mercury_dem.io.run_store import RunStore, read_solution, unit_name  # unit_name: re-exported
 from mercury_dem.mission import Mission, open_mission
@@ -321,33 +321,22 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
                  engine_factory: Any = None) -> tuple[UnitSummary, UnitFiles]:
-    from mercury_dem.adjust.cascade import rejudged_network
     from mercury_dem.adjust.unit import adjust_unit_network
     from mercury_dem.altimetry.unit_terms import AltimetryTerms
-    from mercury_dem.io.network_store import read_network
     from mercury_dem.network.check import singular_parts
-    from mercury_dem.network.merge import merge_networks
+    from mercury_dem.pipeline.unit_merge import merge_children
 
     child_level = LEVEL_CHILD[level]
     kids = [c for c in child_ids(level, unit_id, config)
             if store.unit_complete(child_level, c) and read_summary(store, child_level, c).ok]
     if not kids:
         raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
-    nets = []
-    for c in kids:
-        try:
-            store.check_unit(child_level, c)  # CorruptUnitError: not merged, the run says which files
-        except CorruptUnitError:
-            store.invalidate_unit(child_level, c)  # withdrawn (marker first): the resumed run recomputes it
-            raise
-        nets.append(rejudged_network(read_network(store.network_path(child_level, c)), child_level))
-    merged_all = merge_networks(nets, tolerance_px=config.network.merge_tolerance_px).network
+    merged_all = merge_children(store, level, unit_id, kids, config)
     merged = merged_all.drop_unused_images()
     if merged.n_measures == 0:
         raise _NoInput("the merged network has no measures")
     singular = singular_parts(merged_all, merged)
-    run = store.read_run()
-    mission = open_mission(run["mission"])
+    mission = open_mission(store.read_run()["mission"])
     ids = [str(x) for x in merged.image_ids]
     cameras = [mission.camera(i) for i in ids]
     positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
