@@ -54,7 +54,8 @@ from mercury_dem.reference.sampling import sample_grid
 from mercury_dem.stats import NMAD_FACTOR
 
 __all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "blended_scalar", "max_displacement_m",
-           "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem", "transform_table"]
+           "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem", "register_points",
+           "transform_table"]
 
 
 def transform_table(transforms: Sequence[TileTransform], tiles: TileGrid) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -182,6 +183,27 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
             clo = clo - (wrap_longitude(qlo - tlo + 180.0) - 180.0)
         out[r0 - first:r0 - first + block.size] = qh.reshape(LA.shape)
     return out
+
+
+def register_points(xyz: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m: float, table: ArrayLike,
+                    tiles: TileGrid, level_offset_m: ArrayLike | None = None
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Points moved by the registration the maps get: ``(lat, lon, height)`` after it.
+
+    The forward form of :func:`register_dem` (which resamples a grid, so it inverts the mapping):
+    ``q = p + δ(p)`` with δ the tiles' blended displacement (``table`` as :func:`transform_table` gives it),
+    then the mean level's per-tile offset (``level_offset_m``, :class:`MeanLevel`'s ``offset_m``, blended
+    by :func:`blended_scalar` at ``q``) added to the height, as the registration stage adds it to the
+    registered map. Points of shape (N, 3), body-fixed metres, with their latitude/longitude (N,).
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    tab = np.asarray(table, dtype=np.float64)
+    q = p + blended_displacement(tab, tiles, p, np.asarray(lat, np.float64), np.asarray(lon, np.float64))
+    qla, qlo, qh = xyz_to_latlon(q, datum_radius_m)
+    qla, qlo, qh = (np.asarray(v, np.float64) for v in (qla, qlo, qh))
+    if level_offset_m is not None:
+        qh = qh + blended_scalar(np.asarray(level_offset_m, np.float64), tiles, qla, qlo)
+    return qla, qlo, qh
 
 
 def blended_scalar(values: NDArray[np.float64], tiles: TileGrid, lat: NDArray[np.float64],
