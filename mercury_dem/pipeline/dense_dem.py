@@ -32,7 +32,7 @@ SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE = 0, 1, 2
 
 
 def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeClient | None, body: Any, rep: Any,
-                   median_pixel_scale_m: float) -> dict[str, Any]:
+                   median_pixel_scale_m: float, shots: Any = None) -> dict[str, Any]:
     """Grid the cloud into ``dem_dense.zarr`` with the sparse DEM as fallback; returns the report's block."""
     from mercury_dem.geometry.body import latlon_to_xyz
     from mercury_dem.pipeline.dem_stage import atomic_store
@@ -47,6 +47,7 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
     fallback = open_sparse_surface(sparse_path).sample(lat2, lon2)
     precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
     ds = dense_layers(g, elev, fallback, precision, config.dense.sparse_sigma_m, config.dense.fusion_correlation)
+    level = level_dense_pixels(ds, shots, body.datum_radius_m, config) if shots is not None else None
     ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
                      "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
                                   f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
@@ -58,6 +59,7 @@ def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeC
     return {"path": str(out_path), "pixels_per_degree": ppd, "median_pair_pixel_scale_m": median_pixel_scale_m,
             "pixel_m": 2 * math.pi * body.datum_radius_m / 360.0 / ppd, "shape": list(source.shape),
             "bounds": list(bounds), "points": int(xyz.shape[0]), "frame": frame, "sparse_dem": str(sparse_path),
+            "altimetry_level": level,
             "source_fraction": {name: float((source == v).sum() / source.size) for name, v in
                                 (("dense", SOURCE_DENSE), ("sparse_fallback", SOURCE_SPARSE), ("none", SOURCE_NONE))},
             # where neither DEM reaches is left out: the dense DEM's holes and the sparse DEM's on the same pixels
@@ -90,6 +92,32 @@ def registered_cloud(store: RunStore, cloud: dict[str, NDArray[Any]], datum_radi
     la, lo, h = register_points(xyz, cloud["lat"], cloud["lon"], datum_radius_m, t["table"],
                                 TileGrid(float(t["tile_size_deg"])), t.get("level_offset_m"))
     return {**cloud, "lat": la, "lon": lo, "height": h}, registered, "registered to altimetry"
+
+
+def level_dense_pixels(ds: Any, shots: Any, datum_radius_m: float, config: Config) -> dict[str, Any] | None:
+    """``ds``'s ``elevation`` levelled on the altimetry shots' mean per tile on its dense pixels (``source`` =
+    dense; :func:`~mercury_dem.altimetry.merge.level_on_shots`), in place, when ``dense.level_to_altimetry``;
+    the report's summary of the offsets (None when off).
+    """
+    from mercury_dem.altimetry.merge import level_on_shots
+    from mercury_dem.geometry.tiling import TileGrid
+
+    if not config.dense.level_to_altimetry or shots is None or not len(shots):
+        return None
+    dims = ds["elevation"].dims
+    dense = ds["source"].transpose("lat", "lon").values == SOURCE_DENSE
+    elev = ds["elevation"].transpose("lat", "lon").values.astype(np.float64)
+    levelled, offset, own, n = level_on_shots(
+        np.where(dense, elev, np.nan), ds["lat"].values, ds["lon"].values, shots["lat"].to_numpy(),
+        shots["lon"].to_numpy(), shots["radius_m"].to_numpy() - datum_radius_m, TileGrid(config.tiling.tile_size_deg),
+        min_shots=config.dense.level_min_shots)
+    ds["elevation"] = (("lat", "lon"), np.where(dense, levelled, elev).astype(np.float32))
+    ds["elevation"] = ds["elevation"].transpose(*dims)
+    ds["elevation"].encoding = {}
+    o = offset[own]
+    return {"tiles": int(own.sum()), "shots": int(n.sum()),
+            "offset_median_m": float(np.median(o)) if o.size else None,
+            "offset_min_m": float(o.min()) if o.size else None, "offset_max_m": float(o.max()) if o.size else None}
 
 
 def hole_fractions(ds: Any) -> dict[str, float | None]:

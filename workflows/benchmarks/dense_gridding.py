@@ -7,6 +7,8 @@ each pixel's centre as the validation samples it, RMSE (bias) in metres and the 
 
 * rows ``oracle``: the cloud's points with the truth's height at their own (lat, lon) (``dense_bounds.py``'s oracle):
   what each gridding allows;
+* rows ``real ..., fused``: the same gridded values fused with the sparse DEM by their precisions as the stage fuses
+  them (``dense.sparse_sigma_m``, ``dense.fusion_correlation``; the precision layer of the points' sigma_h);
 * rows ``real``: the cloud's own heights, moved by the run's registration (``registration/transform.json``,
   :func:`mercury_dem.altimetry.merge.register_points`) when the run has one; ``real, adjusted frame``: not moved
   (the dense DEM before this session's registration hook), for the bias.
@@ -157,8 +159,16 @@ def main(argv: list[str] | None = None) -> None:
         print("|---" * (len(cols) + 1) + "|")
         sig = cloud["sigma_h_m"].astype(np.float64)
         pair = cloud["pair"].astype(np.int64)
-        for name, (a, b, h) in heights.items():
-            row = []
+        from mercury_dem.dem.dense_grid import fuse_with_prior, pixel_precision
+
+        d = config.dense
+        for name, (a, b, h) in list(heights.items()):
+            fused = name.startswith("real") and d.sparse_sigma_m is not None
+            prec = (pixel_precision({"lat": a, "lon": b, "sigma_h_m": sig, "pair": pair}, glat, glon, ppd,
+                                    int(d.grid_neighbours)) if fused else None)
+            rows: dict[str, list[str]] = {name: []}
+            if fused:
+                rows[name + ", fused"] = []
             for col, arg in cols:
                 if col == "stage":
                     g = grid_heights(a, b, h, config, ppd, bounds, body)
@@ -172,11 +182,18 @@ def main(argv: list[str] | None = None) -> None:
                     g = pair_wmedian_grid(a, b, h, sig, pair, glat, glon, ppd)
                 else:
                     g = tin_grid(a, b, h, glat, glon, mask)
-                e = np.where(mask, g - t_pt, np.nan)
-                miss = int((mask & ~np.isfinite(g)).sum())
-                r = rms(e)
-                row.append(f"{r:.0f} ({np.nanmean(e):+.0f}) {r / s_rmse:.2f}" + (f" [{miss} px none]" if miss else ""))
-            print(f"| {name} | " + " | ".join(row) + " |", flush=True)
+                outs = {name: g}
+                if fused:
+                    outs[name + ", fused"] = fuse_with_prior(g, prec, sparse, float(d.sparse_sigma_m),
+                                                             float(d.fusion_correlation))[0]
+                for key, gg in outs.items():
+                    e = np.where(mask, gg - t_pt, np.nan)
+                    miss = int((mask & ~np.isfinite(gg)).sum())
+                    r = rms(e)
+                    rows[key].append(f"{r:.0f} ({np.nanmean(e):+.0f}) {r / s_rmse:.2f}"
+                                     + (f" [{miss} px none]" if miss else ""))
+            for key, row in rows.items():
+                print(f"| {key} | " + " | ".join(row) + " |", flush=True)
 
 
 if __name__ == "__main__":
