@@ -139,7 +139,8 @@ def _nan_median(a: NDArray[Any]) -> float | None:
 def dense_grid_config(config: Config, sparse_dem_path: Path, ppd: float, datum_radius_m: float
                       ) -> tuple[Any, tuple[float, float, float, float]]:
     """The gridding's configuration of the dense DEM: the sparse DEM's extent snapped to ``ppd``, median of
-    ``dense.grid_neighbours`` points, no value beyond ``dense.max_gap_pixels`` from a dense point; and the bounds.
+    ``dense.grid_neighbours`` points, ``dense.grid_smoothing_passes`` (null: the DEM stage's), no value beyond
+    ``dense.max_gap_pixels`` from a dense point; and the bounds.
     """
     from mercury_dem.pipeline.dem_stage import open_dem
 
@@ -150,6 +151,8 @@ def dense_grid_config(config: Config, sparse_dem_path: Path, ppd: float, datum_r
                              float(so.max()) + half), ppd)
     cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
                   lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours,
+                  smoothing_passes=(config.dem.smoothing_passes if config.dense.grid_smoothing_passes is None
+                                    else config.dense.grid_smoothing_passes),
                   max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * datum_radius_m / 360.0 / ppd)
     return cfg, bounds
 

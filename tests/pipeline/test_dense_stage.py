@@ -181,7 +181,13 @@ def test_dense_dem_against_sparse_on_the_dense_grid(dense_run: tuple[Path, dict[
     assert dense["rmse_m"] <= 1.15 * MEASURED_DENSE_RMSE_M
     assert ratio <= 1.15 * MEASURED_RATIO
     assert ratio <= 1.02  # fused by their precisions, the dense DEM is not worse than the sparse one
-    assert abs(dense["bias_m"]) <= 100.0  # measured -28 m (alone -61 m)
+    # issue 31 done-when 1: |bias| <= 25 m after registration. The cloud moved by the registration's transform and
+    # the dense pixels levelled on the altimetry's mean (shots: 1 m range noise, 3 m radial orbit error per
+    # profile, ~300,000 on the dense pixels: the level's own error is below a metre); measured +2 m (alone +6 m;
+    # before, in the adjusted frame: -28 m, alone -61 m; moved but not levelled: +38 m)
+    block = report["dense"]["dem"]
+    assert block["frame"] == "registered to altimetry" and block["altimetry_level"]["tiles"] > 0
+    assert abs(dense["bias_m"]) <= 25.0
     alone = val["dense_alone_on_dense_pixels"]
     assert dense["rmse_m"] < alone["rmse_m"] <= 1.15 * MEASURED_DENSE_ALONE_RMSE_M
     # the same pixels: the dense DEM's pixels that the sparse DEM also covers

@@ -14,7 +14,7 @@ each pixel's centre as the validation samples it, RMSE (bias) in metres and the 
   (the dense DEM before this session's registration hook), for the bias.
 
 Griddings (columns): ``stage`` = the stage's own (``grid_dem``, median11 of ``dense.grid_neighbours`` with
-``dem.smoothing_passes``, ``dense.max_gap_pixels``; via ``dense_bounds.grid_heights``); ``stage kN sS`` = the same
+``dense.grid_smoothing_passes``, ``dense.max_gap_pixels``; via ``dense_bounds.grid_heights``); ``stage kN sS`` = the same
 with N neighbours and S smoothing passes; ``knn-mean k`` / ``knn-median k`` = mean / median of the k nearest points
 of each pixel centre (chord distance, ``scipy.spatial.cKDTree``), no smoothing; ``tin`` = linear interpolation
 (``scipy.interpolate.LinearNDInterpolator``) in a tangent plane at the cloud's centre; ``pair-wmedian`` = per pixel
@@ -23,6 +23,7 @@ sigma_h)^2 (the issue's "pairs merged by a weighted median"). Each is evaluated 
 
 Run (light, no lock; ~1-3 min per run):
     .venv/bin/python workflows/benchmarks/dense_gridding.py RUN [RUN ...] [--k 4 8 16 32] [--stage 16:0 64:0]
+        [--no-tin] [--no-adjusted]
 """
 
 from __future__ import annotations
@@ -115,6 +116,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--stage", nargs="*", default=["16:0", "32:0", "64:0"], metavar="N:S",
                     help="the stage's gridding with N neighbours and S smoothing passes")
     ap.add_argument("--no-tin", action="store_true")
+    ap.add_argument("--no-adjusted", action="store_true", help="without the rows of the cloud in the adjusted frame")
     args = ap.parse_args(argv)
     for run in args.runs:
         info = json.loads((run / "run.json").read_text())
@@ -147,7 +149,8 @@ def main(argv: list[str] | None = None) -> None:
             rla, rlo, rh = register_points(xyz, lat, lon, R, t["table"], TileGrid(float(t["tile_size_deg"])),
                                            t.get("level_offset_m"))
             heights["real, registered"] = (rla, rlo, rh)
-        heights["real, adjusted frame"] = (lat, lon, h_adj)
+        if t is None or not args.no_adjusted:
+            heights["real, adjusted frame"] = (lat, lon, h_adj)
         print(f"\n# {run}: {int(mask.sum())} pixels at {ppd:g} pixel/deg, {lat.size} points; the run's dense DEM "
               f"frame: {frame}; sparse DEM there {s_rmse:.0f} m RMSE (bias {np.nanmean(s_err):+.0f} m); "
               f"registration transform {'stored' if t is not None else 'none'}", flush=True)
@@ -173,8 +176,8 @@ def main(argv: list[str] | None = None) -> None:
                 if col == "stage":
                     g = grid_heights(a, b, h, config, ppd, bounds, body)
                 elif col.startswith("stage k"):
-                    cfg = replace(config, dense=replace(config.dense, grid_neighbours=arg[0]),
-                                  dem=replace(config.dem, smoothing_passes=arg[1]))
+                    cfg = replace(config, dense=replace(config.dense, grid_neighbours=arg[0],
+                                                        grid_smoothing_passes=arg[1]))
                     g = grid_heights(a, b, h, cfg, ppd, bounds, body)
                 elif col.startswith("knn"):
                     g = knn_grid(a, b, h, glat, glon, arg[1], R, arg[0])
