@@ -91,14 +91,18 @@ def test_the_dense_dem_has_elevation_precision_and_source(dense_run: tuple[Path,
     assert set(np.unique(src)) <= {SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE}
     assert np.array_equal(src == SOURCE_DENSE, np.isfinite(dense))
     # dense pixels: the dense value fused with the sparse DEM by precision (dense.sparse_sigma_m), so it lies between
-    # the two (float32 rounding aside), and is the dense value alone where the sparse DEM has none
+    # the two (float32 rounding aside), and is the dense value alone where the sparse DEM has none; then levelled on
+    # the altimetry's mean (dense.level_to_altimetry): a blend of the tiles' offsets, within their range
+    lv = report["dense"]["dem"]["altimetry_level"] or {"offset_min_m": 0.0, "offset_max_m": 0.0}
+    a, b = min(0.0, lv["offset_min_m"]), max(0.0, lv["offset_max_m"])
     d = src == SOURCE_DENSE
     both = d & np.isfinite(sparse)
     lo, hi = np.minimum(dense, sparse)[both], np.maximum(dense, sparse)[both]
-    assert np.all((elev[both] >= lo - 1e-2) & (elev[both] <= hi + 1e-2))
+    assert np.all((elev[both] >= lo + a - 1e-2) & (elev[both] <= hi + b + 1e-2))
     moved = np.abs(elev[both] - dense[both]) > 1.0
     assert moved.mean() > 0.5  # the fusion acts (a mutant that keeps the dense value alone fails)
-    assert np.array_equal(elev[d & ~np.isfinite(sparse)], dense[d & ~np.isfinite(sparse)])
+    alone = d & ~np.isfinite(sparse)
+    assert np.all((elev[alone] - dense[alone] >= a - 1e-2) & (elev[alone] - dense[alone] <= b + 1e-2))
     assert np.array_equal(elev[src == SOURCE_SPARSE], sparse[src == SOURCE_SPARSE])
     assert np.all(np.isnan(elev[src == SOURCE_NONE]))
     prec = ds["precision_m"].values
