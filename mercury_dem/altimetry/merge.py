@@ -54,7 +54,9 @@ from mercury_dem.reference.sampling import sample_grid
 from mercury_dem.stats import NMAD_FACTOR
 
 __all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "blended_scalar", "max_displacement_m",
-           "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem", "transform_table"]
+           "level_on_shots", "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem",
+           "register_points",
+           "transform_table"]
 
 
 def transform_table(transforms: Sequence[TileTransform], tiles: TileGrid) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
@@ -182,6 +184,48 @@ def register_dem(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius
             clo = clo - (wrap_longitude(qlo - tlo + 180.0) - 180.0)
         out[r0 - first:r0 - first + block.size] = qh.reshape(LA.shape)
     return out
+
+
+def register_points(xyz: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m: float, table: ArrayLike,
+                    tiles: TileGrid, level_offset_m: ArrayLike | None = None
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Points moved by the registration the maps get: ``(lat, lon, height)`` after it.
+
+    The forward form of :func:`register_dem` (which resamples a grid, so it inverts the mapping):
+    ``q = p + δ(p)`` with δ the tiles' blended displacement (``table`` as :func:`transform_table` gives it),
+    then the mean level's per-tile offset (``level_offset_m``, :class:`MeanLevel`'s ``offset_m``, blended
+    by :func:`blended_scalar` at ``q``) added to the height, as the registration stage adds it to the
+    registered map. Points of shape (N, 3), body-fixed metres, with their latitude/longitude (N,).
+    """
+    p = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    tab = np.asarray(table, dtype=np.float64)
+    q = p + blended_displacement(tab, tiles, p, np.asarray(lat, np.float64), np.asarray(lon, np.float64))
+    qla, qlo, qh = xyz_to_latlon(q, datum_radius_m)
+    qla, qlo, qh = (np.asarray(v, np.float64) for v in (qla, qlo, qh))
+    if level_offset_m is not None:
+        qh = qh + blended_scalar(np.asarray(level_offset_m, np.float64), tiles, qla, qlo)
+    return qla, qlo, qh
+
+
+def level_on_shots(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, shot_lat: ArrayLike, shot_lon: ArrayLike,
+                   shot_height_m: ArrayLike, tiles: TileGrid, *, min_shots: int = 500
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
+    """A map levelled on the shots' mean per tile, where it has values: ``(levelled, offset_m, own, shots)``.
+
+    The offsets are :func:`mean_level_offsets` of ``shot_height_m − height(shot)`` (bilinear; shots next to a
+    NaN post left out), blended between tile centres by :func:`blended_scalar` and added to the map's finite
+    pixels. Used on the dense DEM (issue 31): a robust (median-like) registration leaves a DEM whose errors are
+    skewed (it misses crater floors) with a mean bias, which the mean level removes.
+    """
+    h = np.asarray(height, np.float64)
+    la, lo = np.asarray(lat, np.float64), np.asarray(lon, np.float64)
+    d = np.asarray(shot_height_m, np.float64) - sample_grid(h, la, lo, np.asarray(shot_lat, np.float64),
+                                                          np.asarray(shot_lon, np.float64))
+    offset, own, shots = mean_level_offsets(d, shot_lat, shot_lon, tiles, min_shots=min_shots)
+    if not own.any():
+        return h.copy(), offset, own, shots
+    LA, LO = np.meshgrid(la, lo, indexing="ij")
+    return h + blended_scalar(offset, tiles, LA.ravel(), LO.ravel()).reshape(h.shape), offset, own, shots
 
 
 def blended_scalar(values: NDArray[np.float64], tiles: TileGrid, lat: NDArray[np.float64],

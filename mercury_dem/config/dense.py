@@ -111,6 +111,19 @@ class DenseConfig(ConfigSection):
     fusion_correlation: float = param(
         0.66, "Correlation of the dense and sparse errors used for the fused pixels' stated precision (both miss the "
         "relief neither resolves; measured 0.66 on tiny seed 42)", lo=-1.0, hi=1.0)
+    level_to_altimetry: bool = param(
+        True, "Where the mission has altimetry: the dense DEM's dense pixels levelled on the shots' mean per tile "
+        "(registration's mean level, altimetry.merge.level_on_shots), after its cloud was moved by the "
+        "registration's transform. The robust registration leaves the fused DEM's mean above the truth where the "
+        "sparse prior's errors are skewed (tiny seed 42: +38 m, levelled +3 m)")
+    level_min_shots: int = param(
+        500, "Fewest shots on a tile's dense pixels for its own level (fewer: the nearest tile's)", lo=1)
+    grid_smoothing_passes: int | None = param(
+        None, "Passes of the DEM stage's NaN-aware box filter on the dense DEM; null: dem.smoothing_passes (1). "
+        "Measured on tiny seed 42 (workflows/benchmarks/dense_gridding.py, docs/benchmarks/dense.md): lighter "
+        "griddings bring the oracle (true heights at the matched points) from 0.72 to 0.20-0.37 x the sparse RMSE "
+        "but the real cloud from 1.12 to 1.43-2.24 x (its matching noise is not averaged): the default keeps the "
+        "median of 64 with one pass", lo=0, hi=100)
     grid_neighbours: int = param(
         64, "The dense DEM's median11 takes the median of this many nearest points (the sparse DEM's "
         "dem.neighbours is 11): the pairs' points merged by a robust median over about a pixel", lo=1, hi=1000)

@@ -94,6 +94,8 @@ REGISTRATION_TILES_JSON = "tiles.json"
 REGISTRATION_PROFILES_TABLE = "profiles.parquet"
 REGISTRATION_FIGURE = "rms_per_tile.png"
 REGISTRATION_SUMMARY_FILE = SUMMARY_FILE
+#: The registration's transform as the maps got it (tile table and mean level), for the dense cloud (issue 31).
+REGISTRATION_TRANSFORM_FILE = "transform.json"
 REGISTRATION_SCRATCH_FILE = "transformed.zarr"
 #: What the DEM stage writes into ``RUN/`` (removed by ``--force dem`` or an earlier stage).
 DEM_OUTPUTS = (DEM_FILE, DEM_CHUNKS_DIR, COVERAGE_FILE, PRODUCTS_DIR)
@@ -108,11 +110,12 @@ DENSE_OUTPUTS = (DENSE_FILE, DEM_DENSE_FILE, DEM_DENSE_SCRATCH_FILE)
 
 
 def write_registration_tables(table_dir: str | Path, *, tiles_parquet: bytes, tiles: Any, profiles_parquet: bytes,
-                              figure_png: bytes, summary: Any, overwrite: bool = False) -> Path:
+                              figure_png: bytes, summary: Any, overwrite: bool = False, transform: Any = None) -> Path:
     """Write the registration's table directory (``registration/``) as one unit, atomically.
 
     The tiles' and profiles' Parquet tables, the tiles' JSON, the before/after RMS figure and the
-    summary, under :data:`REGISTRATION_DIR`'s file names; the directory appears whole or not at all
+    summary, under :data:`REGISTRATION_DIR`'s file names, and ``transform`` (JSON-able, when given:
+    :data:`REGISTRATION_TRANSFORM_FILE`); the directory appears whole or not at all
     (:func:`~mercury_dem.io.atomic.atomic_directory`). Returns the directory.
     """
     with atomic_directory(table_dir, overwrite=overwrite) as tmp:
@@ -121,7 +124,20 @@ def write_registration_tables(table_dir: str | Path, *, tiles_parquet: bytes, ti
         atomic_write_bytes(tmp / REGISTRATION_PROFILES_TABLE, profiles_parquet)
         atomic_write_bytes(tmp / REGISTRATION_FIGURE, figure_png)
         atomic_write_json(tmp / REGISTRATION_SUMMARY_FILE, summary)
+        if transform is not None:
+            atomic_write_json(tmp / REGISTRATION_TRANSFORM_FILE, transform)
     return Path(table_dir)
+
+
+def read_registration_transform(table_dir: str | Path) -> dict[str, Any] | None:
+    """The registration's stored transform (:data:`REGISTRATION_TRANSFORM_FILE` in ``table_dir``), or None
+    when there is none (no altimetry, a failed registration, or a run registered before it was stored).
+    """
+    path = Path(table_dir) / REGISTRATION_TRANSFORM_FILE
+    if not path.is_file():
+        return None
+    out: dict[str, Any] = json.loads(path.read_text())
+    return out
 
 @dataclass(frozen=True)
 class RunStore:

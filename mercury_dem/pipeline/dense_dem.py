@@ -32,36 +32,90 @@ SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE = 0, 1, 2
 
 
 def grid_dense_dem(store: RunStore, config: Config, ppd: float, client: ComputeClient | None, body: Any, rep: Any,
-                   median_pixel_scale_m: float) -> dict[str, Any]:
+                   median_pixel_scale_m: float, shots: Any = None) -> dict[str, Any]:
     """Grid the cloud into ``dem_dense.zarr`` with the sparse DEM as fallback; returns the report's block."""
     from mercury_dem.geometry.body import latlon_to_xyz
     from mercury_dem.pipeline.dem_stage import atomic_store
 
-    cloud = read_cloud(store.root / DENSE_FILE)
+    cloud, sparse_path, frame = registered_cloud(store, read_cloud(store.root / DENSE_FILE), body.datum_radius_m)
     xyz = latlon_to_xyz(cloud["lat"], cloud["lon"], height_m=cloud["height"], datum_radius_m=body.datum_radius_m)
-    cfg, bounds = dense_grid_config(config, store.dem_path, ppd, body.datum_radius_m)
+    cfg, bounds = dense_grid_config(config, sparse_path, ppd, body.datum_radius_m)
     summary, g = _grid_points(store, xyz, cfg, client, body, rep)
     lat, lon = g["lat"].values, g["lon"].values
     elev = g["elevation"].transpose("lat", "lon").values.astype(np.float64)
     lat2, lon2 = np.meshgrid(lat, lon, indexing="ij")
-    fallback = open_sparse_surface(store.dem_path).sample(lat2, lon2)
+    fallback = open_sparse_surface(sparse_path).sample(lat2, lon2)
     precision = pixel_precision(cloud, lat, lon, ppd, int(config.dense.grid_neighbours))
     ds = dense_layers(g, elev, fallback, precision, config.dense.sparse_sigma_m, config.dense.fusion_correlation)
+    level = level_dense_pixels(ds, shots, body.datum_radius_m, config) if shots is not None else None
     ds.attrs.update({"source": "dense stereo points; sparse DEM (dem.zarr) resampled where no dense point reaches",
                      "grid_rule": f"{config.dense.grid_pixel_factor:g} x the pairs' median pixel scale "
                                   f"{median_pixel_scale_m:.0f} m -> {ppd:g} pixel/deg",
-                     "pixels_per_degree": ppd})
+                     "pixels_per_degree": ppd, "frame": frame})
     out_path = store.root / DEM_DENSE_FILE
     with atomic_store(out_path, overwrite=True) as tmp:
         ds.to_zarr(str(tmp), mode="w", zarr_format=3, consolidated=False)
     source = ds["source"].values
     return {"path": str(out_path), "pixels_per_degree": ppd, "median_pair_pixel_scale_m": median_pixel_scale_m,
             "pixel_m": 2 * math.pi * body.datum_radius_m / 360.0 / ppd, "shape": list(source.shape),
-            "bounds": list(bounds), "points": int(xyz.shape[0]),
+            "bounds": list(bounds), "points": int(xyz.shape[0]), "frame": frame, "sparse_dem": str(sparse_path),
+            "altimetry_level": level,
             "source_fraction": {name: float((source == v).sum() / source.size) for name, v in
                                 (("dense", SOURCE_DENSE), ("sparse_fallback", SOURCE_SPARSE), ("none", SOURCE_NONE))},
             "failed_chunks": summary.get("failed_chunks", []), "gridding_seconds": round(summary["seconds"], 2),
             "precision_median_m": _nan_median(ds["precision_m"].values.astype(np.float64))}
+
+
+def registered_cloud(store: RunStore, cloud: dict[str, NDArray[Any]], datum_radius_m: float
+                     ) -> tuple[dict[str, NDArray[Any]], Path, str]:
+    """The cloud in the frame of the run's final sparse DEM, that DEM's path, and the frame's name.
+
+    Where the run registered its DEM to altimetry and stored the transform (``registration/transform.json``
+    beside ``registered.zarr``), the points are moved by that transform
+    (:func:`~mercury_dem.altimetry.merge.register_points`: the tiles' blended displacement and the mean
+    level, as the registered map got them) and the registered DEM is the fallback and prior; otherwise (no
+    altimetry, a failed registration, a run registered before the transform was stored) the cloud stays in
+    the adjusted frame with ``dem.zarr``.
+    """
+    from mercury_dem.altimetry.merge import register_points
+    from mercury_dem.geometry.body import latlon_to_xyz
+    from mercury_dem.geometry.tiling import TileGrid
+    from mercury_dem.io.run_store import REGISTERED_FILE, read_registration_transform
+
+    t = read_registration_transform(store.registration_dir)
+    registered = store.root / REGISTERED_FILE
+    if t is None or not registered.exists():
+        return cloud, store.dem_path, "adjusted"
+    xyz = latlon_to_xyz(cloud["lat"], cloud["lon"], height_m=cloud["height"], datum_radius_m=datum_radius_m)
+    la, lo, h = register_points(xyz, cloud["lat"], cloud["lon"], datum_radius_m, t["table"],
+                                TileGrid(float(t["tile_size_deg"])), t.get("level_offset_m"))
+    return {**cloud, "lat": la, "lon": lo, "height": h}, registered, "registered to altimetry"
+
+
+def level_dense_pixels(ds: Any, shots: Any, datum_radius_m: float, config: Config) -> dict[str, Any] | None:
+    """``ds``'s ``elevation`` levelled on the altimetry shots' mean per tile on its dense pixels (``source`` =
+    dense; :func:`~mercury_dem.altimetry.merge.level_on_shots`), in place, when ``dense.level_to_altimetry``;
+    the report's summary of the offsets (None when off).
+    """
+    from mercury_dem.altimetry.merge import level_on_shots
+    from mercury_dem.geometry.tiling import TileGrid
+
+    if not config.dense.level_to_altimetry or shots is None or not len(shots):
+        return None
+    dims = ds["elevation"].dims
+    dense = ds["source"].transpose("lat", "lon").values == SOURCE_DENSE
+    elev = ds["elevation"].transpose("lat", "lon").values.astype(np.float64)
+    levelled, offset, own, n = level_on_shots(
+        np.where(dense, elev, np.nan), ds["lat"].values, ds["lon"].values, shots["lat"].to_numpy(),
+        shots["lon"].to_numpy(), shots["radius_m"].to_numpy() - datum_radius_m, TileGrid(config.tiling.tile_size_deg),
+        min_shots=config.dense.level_min_shots)
+    ds["elevation"] = (("lat", "lon"), np.where(dense, levelled, elev).astype(np.float32))
+    ds["elevation"] = ds["elevation"].transpose(*dims)
+    ds["elevation"].encoding = {}
+    o = offset[own]
+    return {"tiles": int(own.sum()), "shots": int(n.sum()),
+            "offset_median_m": float(np.median(o)) if o.size else None,
+            "offset_min_m": float(o.min()) if o.size else None, "offset_max_m": float(o.max()) if o.size else None}
 
 
 def block_holes(path: Path, images: Any, datum_radius_m: float) -> dict[str, Any]:
@@ -92,7 +146,8 @@ def _nan_median(a: NDArray[Any]) -> float | None:
 def dense_grid_config(config: Config, sparse_dem_path: Path, ppd: float, datum_radius_m: float
                       ) -> tuple[Any, tuple[float, float, float, float]]:
     """The gridding's configuration of the dense DEM: the sparse DEM's extent snapped to ``ppd``, median of
-    ``dense.grid_neighbours`` points, no value beyond ``dense.max_gap_pixels`` from a dense point; and the bounds.
+    ``dense.grid_neighbours`` points, ``dense.grid_smoothing_passes`` (null: the DEM stage's), no value beyond
+    ``dense.max_gap_pixels`` from a dense point; and the bounds.
     """
     from mercury_dem.pipeline.dem_stage import open_dem
 
@@ -103,6 +158,8 @@ def dense_grid_config(config: Config, sparse_dem_path: Path, ppd: float, datum_r
                              float(so.max()) + half), ppd)
     cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
                   lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours,
+                  smoothing_passes=(config.dem.smoothing_passes if config.dense.grid_smoothing_passes is None
+                                    else config.dense.grid_smoothing_passes),
                   max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * datum_radius_m / 360.0 / ppd)
     return cfg, bounds
 

@@ -220,8 +220,10 @@ def dense_dem_and_products(store: RunStore, mission: Any, config: Config, client
     scales = pairs.pixel_scales_m()
     ppd = dense_grid_ppd(scales, config.dense.grid_pixel_factor, body.datum_radius_m)
     t = time.perf_counter()
+    alt = mission.altimetry
+    shots = mission.read_altimetry(columns=["lat", "lon", "radius_m"]) if alt is not None and alt.n_shots else None
     out: dict[str, Any] = {"dem": grid_dense_dem(store, config, ppd, client, body, rep,
-                                                 median_pixel_scale_m=float(np.median(scales)))}
+                                                 median_pixel_scale_m=float(np.median(scales)), shots=shots)}
     out["dem"]["seconds"] = round(time.perf_counter() - t, 2)
     path = store.root / DEM_DENSE_FILE
     out["dem"]["hole_fraction"] = block_holes(path, adjusted_geometry(store, mission).values(), body.datum_radius_m)

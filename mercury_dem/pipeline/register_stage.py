@@ -306,14 +306,29 @@ def _stage_summary(results: list[TileRegistration], profiles: pd.DataFrame, maps
             "mean_level": maps.level.summary() if maps.level is not None else None}
 
 
+def transform_record(transforms: list[TileTransform], tiles: TileGrid, maps: BlockwiseMaps) -> dict[str, Any]:
+    """The transform the maps got, JSON-able (``registration/transform.json``): the tiles' blended table
+    (:func:`~mercury_dem.altimetry.merge.transform_table`) and the mean level's per-tile offsets (or None), so
+    the dense stage moves its points as the registered map was moved
+    (:func:`~mercury_dem.altimetry.merge.register_points`).
+    """
+    from mercury_dem.altimetry.merge import transform_table
+
+    table, own = transform_table(transforms, tiles)
+    level = maps.level
+    return {"tile_size_deg": tiles.tile_size_deg, "table": table.tolist(), "own": own.tolist(),
+            "level_offset_m": level.offset_m.tolist() if level is not None else None}
+
+
 def _write_tables(out: _Outputs, results: list[TileRegistration], profiles: pd.DataFrame, summary: dict[str, Any],
-                  overwrite: bool) -> None:
-    """``registration/``: the tiles' and profiles' tables, the figure and ``summary.json``."""
+                  overwrite: bool, transform: dict[str, Any] | None = None) -> None:
+    """``registration/``: the tiles' and profiles' tables, the figure, ``summary.json`` and ``transform.json``."""
     table = pd.DataFrame([r.summary() for r in results]) if results else pd.DataFrame(
         columns=["tile_id", "ok", "rms_before_m", "rms_registered_m", "rms_after_m"])
     write_registration_tables(out.tables, tiles_parquet=_parquet(table), tiles=summary["tiles"],
                               profiles_parquet=_parquet(profiles), figure_png=rms_per_tile_png(table, profiles),
-                              summary=_jsonable({k: v for k, v in summary.items() if k != "tiles"}), overwrite=overwrite)
+                              summary=_jsonable({k: v for k, v in summary.items() if k != "tiles"}), overwrite=overwrite,
+                              transform=transform)
 
 
 def register_dem_store(
@@ -363,7 +378,7 @@ def register_dem_store(
         "seconds_tiles": t_tiles, "seconds": time.perf_counter() - t0,
         "tiles": [_jsonable(r.summary()) for r in results],
     }
-    _write_tables(out, results, pf, summary, overwrite)
+    _write_tables(out, results, pf, summary, overwrite, transform_record(transforms, tiles, maps))
     summary["seconds"] = time.perf_counter() - t0
     return summary
 

@@ -299,7 +299,9 @@ def dense_lines(dense: dict[str, Any] | None, limit: int = 5) -> str:
         frac = dem.get("source_fraction", {})
         out.append(f"  dense DEM: {dem.get('pixels_per_degree')} pixel/deg, dense {_f(frac.get('dense'), '.0%')}, "
                    f"sparse fallback {_f(frac.get('sparse_fallback'), '.0%')}; RMSE dense / sparse on the dense "
-                   f"pixels {_f(dem.get('rmse_ratio_dense_over_sparse'), '.2f')}\n")
+                   f"pixels {_f(dem.get('rmse_ratio_dense_over_sparse'), '.2f')}; frame {dem.get('frame', 'adjusted')}"
+                   + (f", levelled on the altimetry in {lv['tiles']} tiles" if (lv := dem.get("altimetry_level")) else "")
+                   + "\n")
     out += _dense_product_lines(dense)
     return "".join(out)
 

@@ -8,7 +8,8 @@ pixel scale of 2.7 km); on the 28,804 pixels the dense points reach (and the spa
 alone is 487 m RMSE against the truth, the sparse DEM resampled there 428 m: ratio 1.14; fused with the sparse DEM
 by their precisions (``dense.sparse_sigma_m``, session 4) 412 m, ratio 0.96. Issue 31's <= 0.5 is **not** met on
 the tiny mission (docs/design/dense.md, "What bounds the ratio"; seed 7: 1.25 alone, 0.99 fused). The stage
-takes 52-130 s (the machine's load).
+takes 52-130 s (the machine's load). Session 5: the cloud moved by the registration's transform and the dense pixels
+levelled on the altimetry's mean: 406 m, bias +2 m (before -28 m), ratio 0.95 (docs/benchmarks/dense.md).
 """
 
 from __future__ import annotations
@@ -91,14 +92,18 @@ def test_the_dense_dem_has_elevation_precision_and_source(dense_run: tuple[Path,
     assert set(np.unique(src)) <= {SOURCE_NONE, SOURCE_DENSE, SOURCE_SPARSE}
     assert np.array_equal(src == SOURCE_DENSE, np.isfinite(dense))
     # dense pixels: the dense value fused with the sparse DEM by precision (dense.sparse_sigma_m), so it lies between
-    # the two (float32 rounding aside), and is the dense value alone where the sparse DEM has none
+    # the two (float32 rounding aside), and is the dense value alone where the sparse DEM has none; then levelled on
+    # the altimetry's mean (dense.level_to_altimetry): a blend of the tiles' offsets, within their range
+    lv = report["dense"]["dem"]["altimetry_level"] or {"offset_min_m": 0.0, "offset_max_m": 0.0}
+    a, b = min(0.0, lv["offset_min_m"]), max(0.0, lv["offset_max_m"])
     d = src == SOURCE_DENSE
     both = d & np.isfinite(sparse)
     lo, hi = np.minimum(dense, sparse)[both], np.maximum(dense, sparse)[both]
-    assert np.all((elev[both] >= lo - 1e-2) & (elev[both] <= hi + 1e-2))
+    assert np.all((elev[both] >= lo + a - 1e-2) & (elev[both] <= hi + b + 1e-2))
     moved = np.abs(elev[both] - dense[both]) > 1.0
     assert moved.mean() > 0.5  # the fusion acts (a mutant that keeps the dense value alone fails)
-    assert np.array_equal(elev[d & ~np.isfinite(sparse)], dense[d & ~np.isfinite(sparse)])
+    alone = d & ~np.isfinite(sparse)
+    assert np.all((elev[alone] - dense[alone] >= a - 1e-2) & (elev[alone] - dense[alone] <= b + 1e-2))
     assert np.array_equal(elev[src == SOURCE_SPARSE], sparse[src == SOURCE_SPARSE])
     assert np.all(np.isnan(elev[src == SOURCE_NONE]))
     prec = ds["precision_m"].values
@@ -181,7 +186,13 @@ def test_dense_dem_against_sparse_on_the_dense_grid(dense_run: tuple[Path, dict[
     assert dense["rmse_m"] <= 1.15 * MEASURED_DENSE_RMSE_M
     assert ratio <= 1.15 * MEASURED_RATIO
     assert ratio <= 1.02  # fused by their precisions, the dense DEM is not worse than the sparse one
-    assert abs(dense["bias_m"]) <= 100.0  # measured -28 m (alone -61 m)
+    # issue 31 done-when 1: |bias| <= 25 m after registration. The cloud moved by the registration's transform and
+    # the dense pixels levelled on the altimetry's mean (shots: 1 m range noise, 3 m radial orbit error per
+    # profile, ~300,000 on the dense pixels: the level's own error is below a metre); measured +2 m (alone +6 m;
+    # before, in the adjusted frame: -28 m, alone -61 m; moved but not levelled: +38 m)
+    block = report["dense"]["dem"]
+    assert block["frame"] == "registered to altimetry" and block["altimetry_level"]["tiles"] > 0
+    assert abs(dense["bias_m"]) <= 25.0
     alone = val["dense_alone_on_dense_pixels"]
     assert dense["rmse_m"] < alone["rmse_m"] <= 1.15 * MEASURED_DENSE_ALONE_RMSE_M
     # the same pixels: the dense DEM's pixels that the sparse DEM also covers

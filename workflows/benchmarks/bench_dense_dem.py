@@ -50,6 +50,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--run", action="append", default=[], help="SEED=RUN: an existing tiny run of that seed")
     ap.add_argument("--dense", action="append", default=[], metavar="KEY=VALUE",
                     help="a dense.* key for the dense run (YAML value), e.g. refine_window=7; repeatable")
+    ap.add_argument("--force", default="dense", choices=("dem", "dense"),
+                    help="the stage the dense run recomputes from: dense (default), or dem (the DEM and its "
+                         "registration too: a run registered before registration/transform.json was stored)")
     args = ap.parse_args(argv)
     import yaml
 
@@ -72,7 +75,7 @@ def main(argv: list[str] | None = None) -> None:
                 generate_mission(mission, SynthConfig(preset="tiny", seed=seed))
             run_pipeline(mission, run, tiny_config(), scheduler="sync", stream=None)
         rep = run_pipeline(mission, run, tiny_config(dense={"enabled": True, **dense_keys}), scheduler="sync", stream=None,
-                           force="dense")
+                           force=args.force)
         d, v = rep["dense"], rep["validation"]["dem"]
         a, b = v["dense_on_dense_pixels"], v["sparse_on_dense_pixels"]
         cloud = read_cloud(run / "dense.zarr")
@@ -82,6 +85,8 @@ def main(argv: list[str] | None = None) -> None:
         beyond = float(np.mean(np.abs(err) > 3 * sig))
         c = v.get("dense_alone_on_dense_pixels")  # before the fusion with the sparse DEM (dense.sparse_sigma_m)
         alone = f"{c['rmse_m']:.0f} ({c['rmse_m'] / b['rmse_m']:.2f})" if c else "-"
+        print(f"# seed {seed}: dense DEM frame {d['dem'].get('frame', 'adjusted')}, sparse DEM "
+              f"{d['dem'].get('sparse_dem', 'dem.zarr')}", flush=True)
         print(f"| {seed} | {d['points']} | {d.get('chip_parts')} / {d['chips']} | {a['rmse_m']:.0f} ({a['bias_m']:+.0f}) "
               f"| {b['rmse_m']:.0f} ({b['bias_m']:+.0f}) | {d['dem']['rmse_ratio_dense_over_sparse']:.2f} | {ratio:.2f} "
               f"| {100 * beyond:.2f} % | {rep['timings']['dense']:.0f} | {alone} |", flush=True)

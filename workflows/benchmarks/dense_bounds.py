@@ -18,7 +18,7 @@ it (at each pixel's centre):
 * **actual**: the cloud as it is, regridded the same way (checks this script against the run's report).
 
 ``--neighbours`` and ``--smoothing`` grid with other values than the run's (``dense.grid_neighbours``,
-``dem.smoothing_passes``) for every column but the run's own.
+``dense.grid_smoothing_passes``) for every column but the run's own.
 
 Run (1-3 min per run on the shared machine; light, no lock needed):
     .venv/bin/python workflows/benchmarks/dense_bounds.py RUN [RUN ...] [--noise 0.1 0.2 0.3] [--correlated]
@@ -110,6 +110,8 @@ def grid_heights(lat: np.ndarray, lon: np.ndarray, height: np.ndarray, config: A
     xyz = latlon_to_xyz(lat, lon, height_m=height, datum_radius_m=body.datum_radius_m)
     cfg = replace(config.dem, pixels_per_degree=ppd, lat_min=bounds[0], lat_max=bounds[1], lon_min=bounds[2],
                   lon_max=bounds[3], method="median11", neighbours=config.dense.grid_neighbours,
+                  smoothing_passes=(config.dem.smoothing_passes if config.dense.grid_smoothing_passes is None
+                                    else config.dense.grid_smoothing_passes),
                   max_distance_m=config.dense.max_gap_pixels * 2 * math.pi * body.datum_radius_m / 360.0 / ppd)
     tmp = Path(tempfile.mkdtemp(prefix="dense_bounds_"))
     try:
@@ -147,7 +149,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.neighbours is not None:
             config = replace(config, dense=replace(config.dense, grid_neighbours=args.neighbours))
         if args.smoothing is not None:
-            config = replace(config, dem=replace(config.dem, smoothing_passes=args.smoothing))
+            config = replace(config, dense=replace(config.dense, grid_smoothing_passes=args.smoothing))
         body = mission.body
         truth = mission.need_truth().surface().height
         ds = open_dem(run / "dem_dense.zarr").load()
