@@ -83,7 +83,7 @@ class BlockwiseMaps:
 
 
 def corrected_shots(shots: pd.DataFrame, profiles: ProfileOffsets, datum_radius_m: float) -> ShotPositions:
-    """Shots (columns lat, lon, radius_m, track_id, tile_id) moved by their profile's fitted offset.
+    """Shots (columns lat, lon, radius_m, profile_id, tile_id) moved by their profile's fitted offset.
 
     Shots of profiles without a fitted offset are unchanged. The offset is east/north/up at the
     profile's tile centre (:func:`~mercury_dem.altimetry.register.enu_frame`).
@@ -91,9 +91,9 @@ def corrected_shots(shots: pd.DataFrame, profiles: ProfileOffsets, datum_radius_
     x = latlon_to_unit(shots["lat"].to_numpy(), shots["lon"].to_numpy()) * shots["radius_m"].to_numpy()[:, None]
     pf = profiles.to_frame()
     if len(pf):
-        key = pd.DataFrame({"track_id": shots["track_id"].to_numpy(), "tile_id": shots["tile_id"].to_numpy()})
+        key = pd.DataFrame({"profile_id": shots["profile_id"].to_numpy(), "tile_id": shots["tile_id"].to_numpy()})
         pf = pf[pf["fitted"]]
-        m = key.merge(pf, on=["track_id", "tile_id"], how="left")
+        m = key.merge(pf, on=["profile_id", "tile_id"], how="left")
         d = m[["offset_e_m", "offset_n_m", "offset_u_m"]].to_numpy(dtype=np.float64)
         has = np.isfinite(d).all(axis=1)
         if has.any():

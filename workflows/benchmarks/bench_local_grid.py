@@ -4,8 +4,8 @@ The user's case: 52,363 LOLA shots over 0.8 deg x 0.75 deg of the Moon near 25 N
 ``mercury-dem grid --body moon``. Before, the canvas was 6 x 5 deg (30x the data's
 area, 48 % no value) and the grid took 52 s at 64 pixel/deg; at 256 it was still on its
 first chunk after 8 minutes. Here the shots are simulated
-(:func:`mercury_dem.synth.tracks.altimeter_block`: 45 near-polar tracks, 1 m noise, over
-:class:`~mercury_dem.synth.tracks.BlockSurface`: a regional slope, long waves, six craters).
+(:func:`mercury_dem.synth.altimeter_block.altimeter_block`: 45 near-polar tracks, 1 m noise, over
+:class:`~mercury_dem.synth.altimeter_block.BlockSurface`: a regional slope, long waves, six craters).
 
 Reported:
 
@@ -57,7 +57,7 @@ from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.extent import box_area_ratio, points_box, points_extent
 from mercury_dem.geometry.body import MOON
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
-from mercury_dem.synth.tracks import BlockSurface, altimeter_block
+from mercury_dem.synth.altimeter_block import BlockSurface, altimeter_block
 
 BODY = MOON
 LAT = (24.6, 25.35)
@@ -74,7 +74,7 @@ def simulate(seed: int = 30):
     """The block of shots and its truth surface."""
     surf = BlockSurface(0.5 * sum(LAT), 0.5 * sum(LON), BODY.datum_radius_m)
     block = altimeter_block(np.random.default_rng(seed), BODY.datum_radius_m, surf, lat_range=LAT, lon_range=LON,
-                            n_tracks=N_TRACKS, n_shots=N_SHOTS, noise_m=NOISE_M)
+                            n_profiles=N_TRACKS, n_shots=N_SHOTS, noise_m=NOISE_M)
     return block, surf
 
 
