@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -88,6 +88,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import polar
 
+from mercury_dem.config.registration import MODEL_NAMES, RegistrationConfig
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
 from mercury_dem.stats import NMAD_FACTOR
 
@@ -104,7 +105,9 @@ __all__ = [
 ]
 
 #: The transform models, most general first, with their number of parameters.
-MODELS: dict[str, int] = {"affine": 12, "similarity": 7, "translation": 3, "vertical": 1}
+MODELS: dict[str, int] = dict(zip(MODEL_NAMES, (12, 7, 3, 1), strict=True))
+
+_CONFIG = RegistrationConfig()  # the defaults of RegisterOptions: the configuration's, defined once there
 
 #: After this many Gauss-Newton steps a model whose worst parameter σ is over twice
 #: ``max_param_sigma_m`` is abandoned (it would be rejected at convergence anyway).
@@ -113,7 +116,8 @@ _EARLY_JUDGEMENT_ITERATION = 3
 
 @dataclass(frozen=True)
 class RegisterOptions:
-    """Settings of the registration (units in the names).
+    """Settings of the registration (units in the names): the ``registration`` configuration section's keys of
+    the same names (:meth:`from_config`; the defaults are that section's).
 
     Attributes
     ----------
@@ -153,21 +157,26 @@ class RegisterOptions:
         directions (≤ 0.008) and the others (≥ 0.10) on 42 tiles, docs/design/altimetry.md.
     """
 
-    models: tuple[str, ...] = ("affine", "similarity", "translation", "vertical")
-    max_param_sigma_m: float = 10.0
-    huber_k: float = 2.0
-    reject_k: float = 5.0
-    max_iterations: int = 20
-    tolerance_m: float = 0.05
-    min_shots: int = 50
-    min_profile_shots: int = 10
-    profile_sigma_horizontal_m: float = 2000.0
-    profile_sigma_vertical_m: float = 500.0
-    max_abs_height_m: float = 50_000.0
-    profile_nuisance: bool = True
-    nuisance_sigma_horizontal_m: float = 100.0
-    nuisance_sigma_vertical_m: float = 10.0
-    nuisance_min_within_share: float = 0.05
+    models: tuple[str, ...] = _CONFIG.models
+    max_param_sigma_m: float = _CONFIG.max_param_sigma_m
+    huber_k: float = _CONFIG.huber_k
+    reject_k: float = _CONFIG.reject_k
+    max_iterations: int = _CONFIG.max_iterations
+    tolerance_m: float = _CONFIG.tolerance_m
+    min_shots: int = _CONFIG.min_shots
+    min_profile_shots: int = _CONFIG.min_profile_shots
+    profile_sigma_horizontal_m: float = _CONFIG.profile_sigma_horizontal_m
+    profile_sigma_vertical_m: float = _CONFIG.profile_sigma_vertical_m
+    max_abs_height_m: float = _CONFIG.max_abs_height_m
+    profile_nuisance: bool = _CONFIG.profile_nuisance
+    nuisance_sigma_horizontal_m: float = _CONFIG.nuisance_sigma_horizontal_m
+    nuisance_sigma_vertical_m: float = _CONFIG.nuisance_sigma_vertical_m
+    nuisance_min_within_share: float = _CONFIG.nuisance_min_within_share
+
+    @classmethod
+    def from_config(cls, cfg: RegistrationConfig) -> RegisterOptions:
+        """The fit settings of the ``registration`` configuration section (its keys of the same names)."""
+        return cls(**{f.name: getattr(cfg, f.name) for f in fields(cls)})
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.models if m not in MODELS]

@@ -293,7 +293,8 @@ def _register_and_write_maps(ds: xr.Dataset, dem_b: Body, datum: float, transfor
         return register_and_merge_blockwise(
             lambda i0, i1: elevation[i0:i1].values.astype(np.float64), lat, lon, datum, transforms, tiles, shots,
             scratch=scratch, write=write, block_rows=block_rows, merge_options=mo, level_allowed=level_allowed,
-            surface_height_m=st.max_surface_height_m)
+            surface_height_m=st.max_surface_height_m, level_min_shots=st.level_min_shots,
+            level_clip_nmad=st.level_clip_nmad)
 
 
 def _stage_summary(results: list[TileRegistration], profiles: pd.DataFrame, maps: BlockwiseMaps,
@@ -339,7 +340,8 @@ def register_dem_store(
     from mercury_dem.compute import client_or_sync
 
     t0 = time.perf_counter()
-    st, opt = settings or RegistrationConfig(), options or RegisterOptions()
+    st = settings or RegistrationConfig()
+    opt = options or RegisterOptions.from_config(st)
     tiles = tiles or TileGrid(TilingConfig().tile_size_deg)
     out = _Outputs.beside(Path(out_dir) if out_dir is not None else Path(dem_path).parent)
     ds, dem_b, datum = _open_dem_of(Path(dem_path), body)

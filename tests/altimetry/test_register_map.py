@@ -54,7 +54,8 @@ def _run(dem: np.ndarray, shots: ShotPositions, block_rows: int, level: bool):
     maps = register_and_merge_blockwise(
         lambda i0, i1: dem[i0:i1].copy(), LAT, LON, R, [], tiles, shots, scratch=np.full(dem.shape, np.nan),
         write=write, block_rows=block_rows, merge_options=MergeOptions(),
-        level_allowed=np.ones(tiles.n_tiles, bool) if level else None, surface_height_m=50_000.0)
+        level_allowed=np.ones(tiles.n_tiles, bool) if level else None, surface_height_m=50_000.0,
+        level_min_shots=500, level_clip_nmad=10.0)
     return maps, written
 
 
