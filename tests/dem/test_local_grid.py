@@ -21,7 +21,7 @@ from mercury_dem.synth.altimeter_block import BlockSurface, altimeter_block
 R = MOON.datum_radius_m
 LAT = (24.6, 25.35)
 LON = (2.6, 3.4)
-N_TRACKS = 45
+N_PROFILES = 45
 PPD = 256.0
 NOISE_M = 5.0
 #: A gentle surface: across-track interpolation (up to 250 m, slopes < 0.6 %) stays below the noise.
@@ -32,14 +32,14 @@ def _block(lon=LON, drop=(), spacing_jitter=0.0, n_shots=20_000, surface=GENTLE,
     lat0 = 0.5 * (LAT[0] + LAT[1])
     surf = BlockSurface(lat0, 0.5 * (lon[0] + lon[1]), R, slope=surface.slope, wave_m=surface.wave_m,
                         n_craters=surface.n_craters)
-    b = altimeter_block(np.random.default_rng(seed), R, surf, lat_range=LAT, lon_range=lon, n_profiles=N_TRACKS,
+    b = altimeter_block(np.random.default_rng(seed), R, surf, lat_range=LAT, lon_range=lon, n_profiles=N_PROFILES,
                         n_shots=n_shots, noise_m=NOISE_M, spacing_jitter=spacing_jitter, drop_profiles=drop,
                         tilt_deg=tilt_deg)
     return b, surf
 
 
 def _track_spacing_m(lon=LON):
-    return (lon[1] - lon[0]) / N_TRACKS * np.pi / 180 * R * np.cos(np.radians(np.mean(LAT)))
+    return (lon[1] - lon[0]) / N_PROFILES * np.pi / 180 * R * np.cos(np.radians(np.mean(LAT)))
 
 
 def _grid(tmp_path, pts, **cfg):
