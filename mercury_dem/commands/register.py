@@ -27,7 +27,7 @@ HELP = "register DIR/dem.zarr onto altimetry shots (per-tile affine + per-profil
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="directory holding dem.zarr (a run directory or 'grid --out')")
     p.add_argument("--altimetry", nargs="+", required=True, metavar="FILE",
-                   help="shot tables: LOLA/MLA RDR CSV, or Parquet with lat, lon, radius_m, profile_id")
+                   help="shot tables: LOLA/MLA RDR CSV, or Parquet with lat, lon, radius_m, profile_id (track_id, its old name, is read too)")
     p.add_argument("--body", metavar="NAME", help="the DEM's body (mercury, moon); checked against the DEM")
     p.add_argument("--scheduler", default="sync", metavar="ADDR",
                    help="sync (default, in-process), local (a LocalCluster) or a scheduler address")

@@ -61,7 +61,7 @@ def test_gap_setting_joins_profiles():
     assert s.n_profiles == 1
 
 
-def test_assign_tracks():
+def test_assign_profiles():
     t = np.array([0.0, 0.1, 0.2, 5.0, 5.1, 100.0])
     assert list(assign_profiles(t, 1.0)) == [0, 0, 0, 1, 1, 2]
     assert assign_profiles(np.zeros(0), 1.0).size == 0
