@@ -48,10 +48,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from mercury_dem.altimetry.register import TileTransform
+from mercury_dem.config.registration import RegistrationConfig
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.reference.sampling import sample_grid
 from mercury_dem.stats import NMAD_FACTOR
+
+_CONFIG = RegistrationConfig()  # the mean level's defaults: the configuration's, defined once there
 
 __all__ = ["MergeOptions", "MergedDem", "MeanLevel", "blended_displacement", "blended_scalar", "max_displacement_m",
            "level_on_shots", "mean_level", "mean_level_offsets", "merge_dem", "merge_halo_px", "register_dem",
@@ -236,7 +239,7 @@ def blended_scalar(values: NDArray[np.float64], tiles: TileGrid, lat: NDArray[np
 
 
 def mean_level_offsets(d: ArrayLike, shot_lat: ArrayLike, shot_lon: ArrayLike, tiles: TileGrid, *,
-                       min_shots: int = 500, clip_nmad: float = 10.0, allowed: ArrayLike | None = None
+                       min_shots: int = _CONFIG.level_min_shots, clip_nmad: float = _CONFIG.level_clip_nmad, allowed: ArrayLike | None = None
                        ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
     """The per-tile offsets of :func:`mean_level` from the shots' differences ``d = h_shot − DEM(shot)`` (N,).
 
@@ -304,7 +307,7 @@ class MeanLevel:
 
 def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m: float, shot_lat: ArrayLike,
                shot_lon: ArrayLike, shot_radius_m: ArrayLike, tiles: TileGrid | None = None, *,
-               min_shots: int = 500, clip_nmad: float = 10.0, allowed: ArrayLike | None = None) -> MeanLevel:
+               min_shots: int = _CONFIG.level_min_shots, clip_nmad: float = _CONFIG.level_clip_nmad, allowed: ArrayLike | None = None) -> MeanLevel:
     """The DEM shifted, per tile and blended, so that its mean difference to the shots is zero.
 
     The tile registration is robust (Huber, k·NMAD rejection): it puts the DEM's *median*
@@ -324,7 +327,7 @@ def mean_level(height: ArrayLike, lat: ArrayLike, lon: ArrayLike, datum_radius_m
     lat, lon : (H,), (W,) pixel centres, degrees
     shot_lat, shot_lon, shot_radius_m : (N,) the shots after their profile offsets
     tiles : the tile grid (10° by default)
-    min_shots, clip_nmad : see above
+    min_shots, clip_nmad : see above (configuration: ``registration.level_min_shots``, ``level_clip_nmad``)
     allowed : (n_tiles,) bool, the tiles that may have an offset of their own (e.g. those whose transform
         was determined: where it was not, the DEM itself is in doubt); default all
 

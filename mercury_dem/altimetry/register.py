@@ -66,7 +66,7 @@ decomposition ``M = R S`` about the east, north and up axes, ``scale`` = det(S)^
 
 Per-profile offsets
 -------------------
-A profile is one altimetry track (``track_id``) within one tile: a track crossing several
+A profile is one altimetry ground track (``profile_id``) within one tile: a ground track crossing several
 tiles gets one offset per tile, as seed 004 fits its ~3°-long profile segments. The offset
 ``d`` (metres, in the ENU frame at the segment's mean position) is the correction *added*
 to the shots: ``x + d`` lies on the registered DEM. It is estimated by the same robust
@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -88,6 +88,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import polar
 
+from mercury_dem.config.registration import MODEL_NAMES, RegistrationConfig
 from mercury_dem.geometry.body import latlon_to_unit, wrap_longitude, xyz_to_latlon
 from mercury_dem.stats import NMAD_FACTOR
 
@@ -104,7 +105,9 @@ __all__ = [
 ]
 
 #: The transform models, most general first, with their number of parameters.
-MODELS: dict[str, int] = {"affine": 12, "similarity": 7, "translation": 3, "vertical": 1}
+MODELS: dict[str, int] = dict(zip(MODEL_NAMES, (12, 7, 3, 1), strict=True))
+
+_CONFIG = RegistrationConfig()  # the defaults of RegisterOptions: the configuration's, defined once there
 
 #: After this many Gauss-Newton steps a model whose worst parameter σ is over twice
 #: ``max_param_sigma_m`` is abandoned (it would be rejected at convergence anyway).
@@ -113,7 +116,8 @@ _EARLY_JUDGEMENT_ITERATION = 3
 
 @dataclass(frozen=True)
 class RegisterOptions:
-    """Settings of the registration (units in the names).
+    """Settings of the registration (units in the names): the ``registration`` configuration section's keys of
+    the same names (:meth:`from_config`; the defaults are that section's).
 
     Attributes
     ----------
@@ -153,21 +157,26 @@ class RegisterOptions:
         directions (≤ 0.008) and the others (≥ 0.10) on 42 tiles, docs/design/altimetry.md.
     """
 
-    models: tuple[str, ...] = ("affine", "similarity", "translation", "vertical")
-    max_param_sigma_m: float = 10.0
-    huber_k: float = 2.0
-    reject_k: float = 5.0
-    max_iterations: int = 20
-    tolerance_m: float = 0.05
-    min_shots: int = 50
-    min_profile_shots: int = 10
-    profile_sigma_horizontal_m: float = 2000.0
-    profile_sigma_vertical_m: float = 500.0
-    max_abs_height_m: float = 50_000.0
-    profile_nuisance: bool = True
-    nuisance_sigma_horizontal_m: float = 100.0
-    nuisance_sigma_vertical_m: float = 10.0
-    nuisance_min_within_share: float = 0.05
+    models: tuple[str, ...] = _CONFIG.models
+    max_param_sigma_m: float = _CONFIG.max_param_sigma_m
+    huber_k: float = _CONFIG.huber_k
+    reject_k: float = _CONFIG.reject_k
+    max_iterations: int = _CONFIG.max_iterations
+    tolerance_m: float = _CONFIG.tolerance_m
+    min_shots: int = _CONFIG.min_shots
+    min_profile_shots: int = _CONFIG.min_profile_shots
+    profile_sigma_horizontal_m: float = _CONFIG.profile_sigma_horizontal_m
+    profile_sigma_vertical_m: float = _CONFIG.profile_sigma_vertical_m
+    max_abs_height_m: float = _CONFIG.max_abs_height_m
+    profile_nuisance: bool = _CONFIG.profile_nuisance
+    nuisance_sigma_horizontal_m: float = _CONFIG.nuisance_sigma_horizontal_m
+    nuisance_sigma_vertical_m: float = _CONFIG.nuisance_sigma_vertical_m
+    nuisance_min_within_share: float = _CONFIG.nuisance_min_within_share
+
+    @classmethod
+    def from_config(cls, cfg: RegistrationConfig) -> RegisterOptions:
+        """The fit settings of the ``registration`` configuration section (its keys of the same names)."""
+        return cls(**{f.name: getattr(cfg, f.name) for f in fields(cls)})
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.models if m not in MODELS]
@@ -421,11 +430,11 @@ class TileTransform:
 
 @dataclass(frozen=True, eq=False)
 class ProfileOffsets:
-    """One 3-D offset per profile (track within a tile), columnar (arrays of shape (P,)).
+    """One 3-D offset per profile (a ground track within a tile), columnar (arrays of shape (P,)).
 
     Attributes
     ----------
-    track_id, tile_id : int arrays
+    profile_id, tile_id : int arrays
     offset_enu_m : ndarray of shape (P, 3)
         Correction added to the profile's shots (ENU at the profile's mean position), metres;
         zero for profiles not fitted.
@@ -441,7 +450,7 @@ class ProfileOffsets:
         False for profiles with fewer than ``min_profile_shots`` usable shots.
     """
 
-    track_id: NDArray[np.int64]
+    profile_id: NDArray[np.int64]
     tile_id: NDArray[np.int64]
     offset_enu_m: NDArray[np.float64]
     sigma_enu_m: NDArray[np.float64]
@@ -461,7 +470,7 @@ class ProfileOffsets:
 
     def to_frame(self) -> pd.DataFrame:
         """One row per profile: the fields above, the ENU vectors as ``_e``/``_n``/``_u`` columns."""
-        d: dict[str, Any] = {"track_id": self.track_id, "tile_id": self.tile_id}
+        d: dict[str, Any] = {"profile_id": self.profile_id, "tile_id": self.tile_id}
         for k, ax in enumerate("enu"):
             d[f"offset_{ax}_m"] = self.offset_enu_m[:, k]
         for k, ax in enumerate("enu"):
@@ -472,11 +481,11 @@ class ProfileOffsets:
 
     @staticmethod
     def concat(parts: list[ProfileOffsets]) -> ProfileOffsets:
-        parts = [p for p in parts if p.track_id.size]
+        parts = [p for p in parts if p.profile_id.size]
         if not parts:
             return ProfileOffsets.empty()
         return ProfileOffsets(*(np.concatenate([getattr(p, f) for p in parts]) for f in (
-            "track_id", "tile_id", "offset_enu_m", "sigma_enu_m", "centre_lat", "centre_lon", "n_shots",
+            "profile_id", "tile_id", "offset_enu_m", "sigma_enu_m", "centre_lat", "centre_lon", "n_shots",
             "n_used", "rms_before_m", "rms_after_m", "fitted")))
 
 
@@ -786,13 +795,13 @@ def _decompose(theta: NDArray[np.float64], L: NDArray[np.float64]) -> dict[str, 
 
 
 def _fit_profiles(
-    x: NDArray[np.float64], track: NDArray[np.int64], keep: NDArray[np.bool_],
+    x: NDArray[np.float64], profile: NDArray[np.int64], keep: NDArray[np.bool_],
     apply: Callable[[NDArray[np.float64]], NDArray[np.float64]], sampler: _Sampler, datum: float, scale0: float,
     opt: RegisterOptions, tile_id: int,
 ) -> tuple[ProfileOffsets, NDArray[np.float64], NDArray[np.float64]]:
     """One robust 3-D offset per profile; returns the offsets and the shots' residuals before/after."""
-    tracks, inv_idx = np.unique(track, return_inverse=True)
-    P = tracks.size
+    ids, inv_idx = np.unique(profile, return_inverse=True)
+    P = ids.size
     lat_s, lon_s, _ = xyz_to_latlon(x, datum)
     # mean position of each profile (of all its shots on the DEM) -> its ENU frame
     cnt = np.bincount(inv_idx, minlength=P).astype(np.float64)
@@ -844,7 +853,7 @@ def _fit_profiles(
 
     sig = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
     offsets = ProfileOffsets(
-        track_id=tracks.astype(np.int64), tile_id=np.full(P, tile_id, dtype=np.int64), offset_enu_m=d,
+        profile_id=ids.astype(np.int64), tile_id=np.full(P, tile_id, dtype=np.int64), offset_enu_m=d,
         sigma_enu_m=np.where(fitted[:, None], sig, np.nan), centre_lat=plat, centre_lon=plon,
         n_shots=cnt.astype(np.int64), n_used=n_used, rms_before_m=seg_rms(r_before), rms_after_m=seg_rms(r_after),
         fitted=fitted,
@@ -857,7 +866,7 @@ def register_tile(
     lat: ArrayLike,
     lon: ArrayLike,
     radius_m: ArrayLike,
-    track_id: ArrayLike,
+    profile_id: ArrayLike,
     *,
     tile_id: int,
     centre: tuple[float, float],
@@ -874,8 +883,8 @@ def register_tile(
         The tile's shots: planetocentric latitude, east longitude, degrees.
     radius_m : array_like of shape (N,)
         Their radii from the centre of mass, metres.
-    track_id : array_like of shape (N,)
-        Profile (track) id of each shot.
+    profile_id : array_like of shape (N,)
+        Profile (ground track) id of each shot.
     tile_id : int
     centre : (lat, lon)
         Tile centre, degrees: the origin of the transform's ENU frame.
@@ -895,22 +904,22 @@ def register_tile(
     lat = np.asarray(lat, dtype=np.float64).ravel()
     lon = np.asarray(lon, dtype=np.float64).ravel()
     rad = np.asarray(radius_m, dtype=np.float64).ravel()
-    track = np.asarray(track_id).ravel()
-    if not (lat.shape == lon.shape == rad.shape == track.shape):
-        raise ValueError(f"shot arrays differ in length: {lat.size}, {lon.size}, {rad.size}, {track.size}")
+    profile = np.asarray(profile_id).ravel()
+    if not (lat.shape == lon.shape == rad.shape == profile.shape):
+        raise ValueError(f"shot arrays differ in length: {lat.size}, {lon.size}, {rad.size}, {profile.size}")
     counts = {"shots": int(lat.size)}
     with np.errstate(invalid="ignore"):
         finite = (np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90.0)
                   & (np.abs(rad - datum) <= opt.max_abs_height_m))  # NaN/inf radii fail this too
     counts["invalid"] = int((~finite).sum())
-    lat, lon, rad, track = lat[finite], lon[finite], rad[finite], track[finite].astype(np.int64)
+    lat, lon, rad, profile = lat[finite], lon[finite], rad[finite], profile[finite].astype(np.int64)
     sampler = _Sampler(window)
     on = np.isfinite(sampler(lat, lon)[0])
     counts["off_dem"] = int((~on).sum())
-    lat, lon, rad, track = lat[on], lon[on], rad[on], track[on]
+    lat, lon, rad, profile = lat[on], lon[on], rad[on], profile[on]
     base = TileTransform(int(tile_id), float(centre[0]), float(centre[1]), datum)
     n = lat.size
-    counts.update(used=0, rejected=0, not_registered=0, profiles=int(np.unique(track).size), profiles_fitted=0,
+    counts.update(used=0, rejected=0, not_registered=0, profiles=int(np.unique(profile).size), profiles_fitted=0,
                   profiles_too_few_shots=0)
     if n < opt.min_shots:
         counts["not_registered"] = n
@@ -929,7 +938,7 @@ def register_tile(
     notes = []
     fit = None
     for model in opt.models:
-        f = _fit_transform(x, q, E, c, sampler, datum, model, L, opt, np.unique(track, return_inverse=True)[1])
+        f = _fit_transform(x, q, E, c, sampler, datum, model, L, opt, np.unique(profile, return_inverse=True)[1])
         if isinstance(f, _FitFailure):
             notes.append(f.reason)
             continue
@@ -952,7 +961,7 @@ def register_tile(
     tt = TileTransform(**{**base.__dict__, **dec, "model": model, "ok": True,
                           "sigma_m": tuple(float(s) for s in f.sigma), "reason": "; ".join(notes)})
     scale0 = max(_nmad(f.r[keep]), 1e-3)
-    profiles, r_reg, r_after = _fit_profiles(x, track, keep, f.apply, sampler, datum, scale0, opt, int(tile_id))
+    profiles, r_reg, r_after = _fit_profiles(x, profile, keep, f.apply, sampler, datum, scale0, opt, int(tile_id))
     counts["profiles_fitted"] = int(profiles.fitted.sum())
     counts["profiles_too_few_shots"] = int((~profiles.fitted).sum())
     return TileRegistration(tt, profiles, counts, rms_before_m=_rms(r0[keep]), rms_registered_m=_rms(r_reg[keep]),

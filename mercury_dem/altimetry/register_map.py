@@ -83,7 +83,7 @@ class BlockwiseMaps:
 
 
 def corrected_shots(shots: pd.DataFrame, profiles: ProfileOffsets, datum_radius_m: float) -> ShotPositions:
-    """Shots (columns lat, lon, radius_m, track_id, tile_id) moved by their profile's fitted offset.
+    """Shots (columns lat, lon, radius_m, profile_id, tile_id) moved by their profile's fitted offset.
 
     Shots of profiles without a fitted offset are unchanged. The offset is east/north/up at the
     profile's tile centre (:func:`~mercury_dem.altimetry.register.enu_frame`).
@@ -91,9 +91,9 @@ def corrected_shots(shots: pd.DataFrame, profiles: ProfileOffsets, datum_radius_
     x = latlon_to_unit(shots["lat"].to_numpy(), shots["lon"].to_numpy()) * shots["radius_m"].to_numpy()[:, None]
     pf = profiles.to_frame()
     if len(pf):
-        key = pd.DataFrame({"track_id": shots["track_id"].to_numpy(), "tile_id": shots["tile_id"].to_numpy()})
+        key = pd.DataFrame({"profile_id": shots["profile_id"].to_numpy(), "tile_id": shots["tile_id"].to_numpy()})
         pf = pf[pf["fitted"]]
-        m = key.merge(pf, on=["track_id", "tile_id"], how="left")
+        m = key.merge(pf, on=["profile_id", "tile_id"], how="left")
         d = m[["offset_e_m", "offset_n_m", "offset_u_m"]].to_numpy(dtype=np.float64)
         has = np.isfinite(d).all(axis=1)
         if has.any():
@@ -240,7 +240,7 @@ def register_and_merge_blockwise(
     read_rows: Rows, lat: NDArray[np.float64], lon: NDArray[np.float64], datum_radius_m: float,
     transforms: Sequence[TileTransform], tiles: TileGrid, shots: ShotPositions, *, scratch: Scratch,
     write: BlockWriter, block_rows: int, merge_options: MergeOptions, level_allowed: NDArray[np.bool_] | None,
-    surface_height_m: float,
+    surface_height_m: float, level_min_shots: int, level_clip_nmad: float,
 ) -> BlockwiseMaps:
     """The registered and merged maps of a DEM, computed one block of rows at a time.
 
@@ -260,6 +260,8 @@ def register_and_merge_blockwise(
         None: no mean level
     surface_height_m : the surface lies below this height above the datum (bounds the transforms'
         displacement, :func:`transform_margin_rows`)
+    level_min_shots, level_clip_nmad : the mean level's ``min_shots`` and ``clip_nmad``
+        (:func:`~mercury_dem.altimetry.merge.mean_level_offsets`)
 
     Between the passes the mean level's per-tile offsets
     (:func:`~mercury_dem.altimetry.merge.mean_level_offsets`) are computed from the whole map's samples.
@@ -273,7 +275,8 @@ def register_and_merge_blockwise(
     level = None
     if level_allowed is not None:
         offset, own_t, shots_t = mean_level_offsets((shots.radius_m - datum_radius_m) - samples["transformed"],
-                                                    shots.lat, shots.lon, tiles, allowed=level_allowed)
+                                                    shots.lat, shots.lon, tiles, allowed=level_allowed,
+                                                    min_shots=level_min_shots, clip_nmad=level_clip_nmad)
         level = MeanLevel(np.zeros((0, 0)), offset, own_t, shots_t)
     n_dense = _merge_pass(scratch, level, lat, lon, datum_radius_m, tiles, merge_options, blocks, shots, by_row,
                           samples, write)

@@ -14,7 +14,7 @@ south. :func:`simulate_altimetry` reproduces that geometry and MLA's error budge
   range to the surface is below ``max_range_m``; nadir-pointing, so the true bounce point
   is the sub-spacecraft point at radius ``datum + height(lat, lon)`` of the truth surface.
 * **errors**: range noise N(0, ``range_noise_m``); one orbit error per profile, constant in
-  the orbit frame (along-track, cross-track, radial; 1-sigma ``along/cross/radial_sigma_m``),
+  the orbit frame (along-profile, cross-profile, radial; 1-sigma ``along/cross/radial_sigma_m``),
   added to the spacecraft position the shot is geolocated from; ``bad_fraction`` of the
   shots are bad returns: half flagged noise detections (``flag`` 1, range anywhere in the gate),
   half unflagged wild ranges (N(0, ``wild_sigma_m``) added, as noise that passed the editing).
@@ -113,13 +113,13 @@ class SimulatedAltimetry:
     """What :func:`simulate_altimetry` returns.
 
     shots : DataFrame, one row per shot as an RDR would give it, sorted by time: ``time``
-        (s), ``lat``, ``lon``, ``radius_m``, ``track_id`` (= profile), ``range_m``, ``sc_lat``,
+        (s), ``lat``, ``lon``, ``radius_m``, ``profile_id``, ``range_m``, ``sc_lat``,
         ``sc_lon``, ``sc_radius_m`` (the reconstructed, i.e. erroneous, spacecraft position),
         ``flag`` (1 = flagged noise detection), ``sigma_m`` (= the range noise sigma)
     truth : DataFrame aligned with ``shots``: ``true_lat``, ``true_lon``, ``true_radius_m``,
         ``true_range_m``, ``bad`` (0 good, 1 flagged, 2 wild), ``offset_x_m``/``_y_m``/``_z_m``
         (the orbit error added to this shot, body-fixed)
-    profiles : DataFrame, one row per profile: ``track_id``, ``n_shots``, ``along_m``,
+    profiles : DataFrame, one row per profile: ``profile_id``, ``n_shots``, ``along_m``,
         ``cross_m``, ``radial_m`` (the injected orbit error, orbit frame), and at the profile's
         middle shot ``lat_mid``, ``lon_mid``, ``east_m``, ``north_m``, ``up_m`` (the same error in
         the local east/north/up frame there)
@@ -224,7 +224,7 @@ def simulate_altimetry(
         if not keep.any():
             continue
         sc = s_hat * r_orb[:, None]
-        tang = np.gradient(sc, axis=0)  # along-track direction (body-fixed), per shot
+        tang = np.gradient(sc, axis=0)  # along-profile direction (body-fixed), per shot
         idx = np.flatnonzero(keep)
         cols["t"].append(START_TIME_S + k * d.orbit_period_s + t_rel[idx])
         cols["k"].append(np.full(idx.size, k))
@@ -233,7 +233,7 @@ def simulate_altimetry(
     if not cols["t"]:
         return _empty()
     t = np.concatenate(cols["t"])
-    track = np.concatenate(cols["k"]).astype(np.int64)
+    profile = np.concatenate(cols["k"]).astype(np.int64)
     sc = np.concatenate(cols["s"])
     radial = _unit(sc)
     along = _unit(np.concatenate(cols["tang"]) - np.sum(np.concatenate(cols["tang"]) * radial, -1)[:, None] * radial)
@@ -244,10 +244,10 @@ def simulate_altimetry(
     sc_r = np.linalg.norm(sc, axis=-1)
     true_range = sc_r - true_r
     ok = true_range <= d.max_range_m
-    t, track, sc, radial, along, cross = t[ok], track[ok], sc[ok], radial[ok], along[ok], cross[ok]
+    t, profile, sc, radial, along, cross = t[ok], profile[ok], sc[ok], radial[ok], along[ok], cross[ok]
     true_lat, true_lon, true_r, true_range = true_lat[ok], true_lon[ok], true_r[ok], true_range[ok]
     m = t.size
-    err = orbit_err[track]
+    err = orbit_err[profile]
     offset = err[:, :1] * along + err[:, 1:2] * cross + err[:, 2:] * radial
     meas_range = true_range + rng.normal(0.0, d.range_noise_m, m)
     bad = np.zeros(m, np.int8)
@@ -265,7 +265,7 @@ def simulate_altimetry(
         "time": t,
         "lat": np.degrees(np.arcsin(np.clip(point[:, 2] / rad, -1, 1))),
         "lon": wrap_longitude(np.degrees(np.arctan2(point[:, 1], point[:, 0]))),
-        "radius_m": rad, "track_id": track, "range_m": meas_range,
+        "radius_m": rad, "profile_id": profile, "range_m": meas_range,
         "sc_lat": np.degrees(np.arcsin(np.clip(sc_rec[:, 2] / sc_rec_r, -1, 1))),
         "sc_lon": wrap_longitude(np.degrees(np.arctan2(sc_rec[:, 1], sc_rec[:, 0]))),
         "sc_radius_m": sc_rec_r, "flag": (bad == 1).astype(np.int64),
@@ -276,7 +276,7 @@ def simulate_altimetry(
         "bad": bad, "offset_x_m": offset[:, 0], "offset_y_m": offset[:, 1], "offset_z_m": offset[:, 2],
     })
     # Per profile: the injected error, and the same in east/north/up at the profile's middle shot.
-    ids, first, counts = np.unique(track, return_index=True, return_counts=True)
+    ids, first, counts = np.unique(profile, return_index=True, return_counts=True)
     mid = first + counts // 2
     lat_r, lon_r = np.radians(true_lat[mid]), np.radians(true_lon[mid])
     east = np.stack([-np.sin(lon_r), np.cos(lon_r), np.zeros_like(lon_r)], -1)
@@ -284,7 +284,7 @@ def simulate_altimetry(
     up = radial[mid]
     off_mid = offset[mid]
     profiles = pd.DataFrame({
-        "track_id": ids, "n_shots": counts, "along_m": orbit_err[ids, 0], "cross_m": orbit_err[ids, 1],
+        "profile_id": ids, "n_shots": counts, "along_m": orbit_err[ids, 0], "cross_m": orbit_err[ids, 1],
         "radial_m": orbit_err[ids, 2], "lat_mid": true_lat[mid], "lon_mid": true_lon[mid],
         "east_m": np.sum(off_mid * east, -1), "north_m": np.sum(off_mid * north, -1), "up_m": np.sum(off_mid * up, -1),
     })
@@ -294,11 +294,11 @@ def simulate_altimetry(
 def _empty() -> SimulatedAltimetry:
     shots = pd.DataFrame({c: np.zeros(0) for c in ("time", "lat", "lon", "radius_m", "range_m", "sc_lat", "sc_lon",
                                                    "sc_radius_m", "sigma_m")})
-    shots["track_id"] = np.zeros(0, np.int64)
+    shots["profile_id"] = np.zeros(0, np.int64)
     shots["flag"] = np.zeros(0, np.int64)
     truth = pd.DataFrame({c: np.zeros(0) for c in ("true_lat", "true_lon", "true_radius_m", "true_range_m", "bad",
                                                    "offset_x_m", "offset_y_m", "offset_z_m")})
-    profiles = pd.DataFrame({c: np.zeros(0) for c in ("track_id", "n_shots", "along_m", "cross_m", "radial_m",
+    profiles = pd.DataFrame({c: np.zeros(0) for c in ("profile_id", "n_shots", "along_m", "cross_m", "radial_m",
                                                       "lat_mid", "lon_mid", "east_m", "north_m", "up_m")})
     return SimulatedAltimetry(shots, truth, profiles)
 

@@ -12,7 +12,7 @@ complete, :func:`mercury_dem.io.atomic.atomic_directory`)::
 Columns of ``shots.parquet`` (:data:`SHOT_COLUMNS`, the canonical shot table of
 :mod:`mercury_dem.reference.lola` plus three): ``time`` (datetime64[ns] UTC or float seconds,
 one kind per store), ``lat`` (planetocentric deg), ``lon`` (east deg in [0, 360)),
-``radius_m`` (metres from the centre of mass), ``track_id`` (int64, profile id unique in the
+``radius_m`` (metres from the centre of mass), ``profile_id`` (int64, profile id unique in the
 store), ``sigma_m`` (the shot's 1-sigma height uncertainty, m), ``tile_id`` (int64, the
 project's tile grid, :class:`mercury_dem.geometry.tiling.TileGrid`), ``source_id`` (int32,
 index into ``altimetry.json`` ``sources``); optionally ``range_m``, ``sc_lat``, ``sc_lon``,
@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mercury_dem.altimetry.names import stored_columns, upgrade_columns, upgrade_keys
 from mercury_dem.exceptions import ConfigError, StoreError
 from mercury_dem.geometry.tiling import TileGrid
 from mercury_dem.io.atomic import atomic_directory, atomic_write_json, is_complete
@@ -50,7 +51,7 @@ VERSION = 1
 SHOTS_FILE = "shots.parquet"
 META_FILE = "altimetry.json"
 #: Columns every store has, in file order.
-SHOT_COLUMNS: tuple[str, ...] = ("time", "lat", "lon", "radius_m", "track_id", "sigma_m", "tile_id", "source_id")
+SHOT_COLUMNS: tuple[str, ...] = ("time", "lat", "lon", "radius_m", "profile_id", "sigma_m", "tile_id", "source_id")
 #: Columns a store may have besides.
 OPTIONAL_COLUMNS: tuple[str, ...] = ("range_m", "sc_lat", "sc_lon", "sc_radius_m", "flag")
 #: Drop reasons of :mod:`mercury_dem.reference.lola`, in its order.
@@ -67,11 +68,11 @@ class ShotSource:
     name: str
     n_rows: int
     n_shots: int
-    n_tracks: int
+    n_profiles: int
     dropped: dict[str, int]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "n_rows": self.n_rows, "n_shots": self.n_shots, "n_tracks": self.n_tracks,
+        return {"name": self.name, "n_rows": self.n_rows, "n_shots": self.n_shots, "n_profiles": self.n_profiles,
                 "dropped": dict(self.dropped)}
 
 
@@ -80,7 +81,7 @@ def combine_shots(
     sources: Sequence[ShotSource],
     sigma_m: float = DEFAULT_SIGMA_M,
 ) -> pd.DataFrame:
-    """One shot table from several (one per source file): track ids made unique, sources numbered.
+    """One shot table from several (one per source file): profile ids made unique, sources numbered.
 
     Parameters
     ----------
@@ -95,7 +96,7 @@ def combine_shots(
     Returns
     -------
     DataFrame
-        The rows of all tables, ``track_id`` offset so that profiles of different files never
+        The rows of all tables, ``profile_id`` offset so that profiles of different files never
         share an id, ``source_id`` the table's position; not yet sorted or tiled.
 
     Raises
@@ -115,10 +116,10 @@ def combine_shots(
     out = []
     offset = 0
     for k, t in enumerate(tables):
-        t = t.copy()
+        t = upgrade_columns(t, sources[k].name).copy()
         if len(t):
-            t["track_id"] = t["track_id"].astype(np.int64) + offset
-            offset = int(t["track_id"].max()) + 1
+            t["profile_id"] = t["profile_id"].astype(np.int64) + offset
+            offset = int(t["profile_id"].max()) + 1
         if "sigma_m" not in t.columns:
             t["sigma_m"] = float(sigma_m)
         t["source_id"] = np.int32(k)
@@ -169,7 +170,7 @@ def write_altimetry(
     path : str or Path
         The store directory (``MISSION/altimetry``).
     table : DataFrame
-        Shots with at least ``time, lat, lon, radius_m, track_id, sigma_m, source_id``
+        Shots with at least ``time, lat, lon, radius_m, profile_id, sigma_m, source_id``
         (:func:`combine_shots` makes one); ``tile_id`` is computed here.
     sources : sequence of ShotSource
         What each ``source_id`` is (recorded in ``altimetry.json`` with its drop counts).
@@ -198,7 +199,7 @@ def write_altimetry(
     order = np.lexsort((ts, t["tile_id"].to_numpy()))
     cols = list(SHOT_COLUMNS) + [c for c in OPTIONAL_COLUMNS if c in t.columns]
     t = t.iloc[order][cols].reset_index(drop=True)
-    t = t.astype({"track_id": np.int64, "tile_id": np.int64, "source_id": np.int32, "sigma_m": np.float64,
+    t = t.astype({"profile_id": np.int64, "tile_id": np.int64, "source_id": np.int32, "sigma_m": np.float64,
                   "lat": np.float64, "lon": np.float64, "radius_m": np.float64})
     dropped = dict.fromkeys(DROP_REASONS, 0)
     for s in sources:
@@ -223,7 +224,7 @@ def write_altimetry(
             "format": FORMAT, "version": VERSION, "tile_size_deg": float(tile_size_deg),
             # stored key kept as it was written by earlier versions (the value is the datum radius)
             "body_radius_m": float(datum_radius_m), "n_shots": int(len(t)),
-            "n_tracks": int(t["track_id"].nunique()) if len(t) else 0,
+            "n_profiles": int(t["profile_id"].nunique()) if len(t) else 0,
             "time_kind": "datetime" if _is_datetime(t["time"]) else "numeric",
             "columns": cols, "dropped": dropped, "sources": [s.to_dict() for s in sources],
             "tiles": {k: int(e - s) for k, s, e in zip(row_groups, starts, ends)},
@@ -237,7 +238,7 @@ class AltimetryStore:
     """An altimetry store on disk. Use :func:`open_altimetry`.
 
     Attributes: ``path``, ``meta`` (altimetry.json), ``tile_size_deg``, ``n_shots``,
-    ``n_tracks``, ``tiles`` (tile id -> shot count), ``dropped`` (totals by reason),
+    ``n_profiles``, ``tiles`` (tile id -> shot count), ``dropped`` (totals by reason),
     ``sources`` (list of dicts).
     """
 
@@ -247,13 +248,13 @@ class AltimetryStore:
         self._row_groups = row_groups
         self.tile_size_deg = float(meta["tile_size_deg"])
         self.n_shots = int(meta["n_shots"])
-        self.n_tracks = int(meta["n_tracks"])
+        self.n_profiles = int(meta["n_profiles"])
         self.tiles = {int(k): int(v) for k, v in meta["tiles"].items()}
         self.dropped = {str(k): int(v) for k, v in meta["dropped"].items()}
         self.sources = list(meta["sources"])
 
     def __repr__(self) -> str:
-        return f"AltimetryStore({str(self.path)!r}, {self.n_shots} shots, {self.n_tracks} profiles, {len(self.tiles)} tiles)"
+        return f"AltimetryStore({str(self.path)!r}, {self.n_shots} shots, {self.n_profiles} profiles, {len(self.tiles)} tiles)"
 
     @property
     def file(self) -> Path:
@@ -265,8 +266,10 @@ class AltimetryStore:
         cols = None if columns is None else list(dict.fromkeys([*columns, "lat", "lon", "tile_id"]))
         try:
             pf = pq.ParquetFile(self.file)
-            arrow = pf.read(columns=cols) if row_groups is None else pf.read_row_groups(row_groups, columns=cols)
-            table = arrow.to_pandas()
+            file_cols = None if cols is None else stored_columns(cols, pf.schema_arrow.names)
+            arrow = pf.read(columns=file_cols) if row_groups is None else pf.read_row_groups(row_groups,
+                                                                                              columns=file_cols)
+            table = upgrade_columns(arrow.to_pandas(), f"altimetry store {self.path}")
         except Exception as exc:  # pyarrow raises many types on corrupt files
             raise StoreError(f"altimetry store {self.path}: cannot read {SHOTS_FILE} ({type(exc).__name__}: {exc}); "
                              "write the altimetry again (ingest --altimetry or synth)") from None
@@ -299,7 +302,8 @@ class AltimetryStore:
             import pyarrow.parquet as pq
 
             try:
-                empty = pq.ParquetFile(self.file).schema_arrow.empty_table().to_pandas()
+                empty = upgrade_columns(pq.ParquetFile(self.file).schema_arrow.empty_table().to_pandas(),
+                                        f"altimetry store {self.path}")
             except Exception as exc:  # pyarrow raises many types on corrupt files
                 raise StoreError(f"altimetry store {self.path}: cannot read {SHOTS_FILE} ({exc})") from None
             missing = [c for c in (columns or SHOT_COLUMNS) if c not in empty.columns]
@@ -320,7 +324,7 @@ class AltimetryStore:
 
     def summary(self) -> dict[str, Any]:
         """Counts for ``info``: shots, profiles, tiles, drops, sources."""
-        return {"n_shots": self.n_shots, "n_tracks": self.n_tracks, "n_tiles": len(self.tiles),
+        return {"n_shots": self.n_shots, "n_profiles": self.n_profiles, "n_tiles": len(self.tiles),
                 "dropped": self.dropped, "sources": [s.get("name") for s in self.sources],
                 "tile_size_deg": self.tile_size_deg}
 
@@ -348,6 +352,10 @@ def open_altimetry(path: str | Path) -> AltimetryStore:
                          f"{meta.get('format') if isinstance(meta, dict) else None!r})")
     if meta.get("version") != VERSION:
         raise StoreError(f"altimetry store {p} has version {meta.get('version')!r}; this reader reads {VERSION}")
+    meta = upgrade_keys(meta, f"altimetry store {p} ({META_FILE})")  # a store written before the profile rename
+    if isinstance(meta.get("sources"), list):
+        meta["sources"] = [upgrade_keys(s, f"altimetry store {p} ({META_FILE} sources)") if isinstance(s, dict) else s
+                           for s in meta["sources"]]
     try:
         for key, kind in (("tiles", dict), ("row_groups", dict), ("dropped", dict), ("sources", list)):
             if not isinstance(meta[key], kind):
@@ -356,7 +364,7 @@ def open_altimetry(path: str | Path) -> AltimetryStore:
             raise TypeError("tile_size_deg and n_shots must be numbers")
         grid = TileGrid(float(meta["tile_size_deg"]))
         n_shots = int(meta["n_shots"])
-        int(meta["n_tracks"])
+        int(meta["n_profiles"])
         tiles = {int(k): int(v) for k, v in meta["tiles"].items()}
         row_groups = {int(k): [int(i) for i in v] for k, v in meta["row_groups"].items()}
         for k, v in meta["dropped"].items():
@@ -400,7 +408,7 @@ def shots_from_files(
     for f in files:
         shots = read_altimetry_csv(f, datum_radius_m, **reader)
         tables.append(shots.table)
-        sources.append(ShotSource(str(f), shots.n_rows, len(shots.table), shots.n_tracks, dict(shots.dropped)))
+        sources.append(ShotSource(str(f), shots.n_rows, len(shots.table), shots.n_profiles, dict(shots.dropped)))
     return combine_shots(tables, sources, sigma_m), sources
 
 

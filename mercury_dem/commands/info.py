@@ -65,7 +65,7 @@ def run(args: argparse.Namespace, config: Config) -> int:
     alt = summary.get("altimetry")
     if alt:
         drops = ", ".join(f"{k} {v}" for k, v in alt["dropped"].items() if v) or "none"
-        lines.append(f"altimetry    {alt['n_shots']} shots in {alt['n_tracks']} profiles over {alt['n_tiles']} tiles "
+        lines.append(f"altimetry    {alt['n_shots']} shots in {alt['n_profiles']} profiles over {alt['n_tiles']} tiles "
                      f"({alt['tile_size_deg']:g} deg); dropped: {drops}")
     if summary.get("partial"):
         lines.insert(1, f"PARTIAL      {summary['partial'].get('note', 'a subset of the design')}")

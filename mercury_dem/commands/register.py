@@ -3,7 +3,7 @@
 DIR is any directory holding a ``dem.zarr`` (a run, or ``mercury-dem grid --out``). FILE is a
 LOLA/MLA RDR shot table (CSV, read by :func:`mercury_dem.reference.lola.read_altimetry_csv`)
 or a Parquet table with the columns ``lat``, ``lon``, ``radius_m`` (metres from the centre of
-mass) and ``track_id``. Writes ``DIR/registered.zarr``, ``DIR/merged.zarr`` and
+mass) and ``profile_id``. Writes ``DIR/registered.zarr``, ``DIR/merged.zarr`` and
 ``DIR/registration/`` (per-tile and per-profile tables, the RMS figure), and unless
 ``--no-products`` the products of the registered and merged DEMs in ``DIR/products/registered/``
 and ``DIR/products/merged/`` (as the adjusted DEM's: GeoTIFF, PDS4-labelled PDS GeoTIFFs, ISIS
@@ -27,7 +27,7 @@ HELP = "register DIR/dem.zarr onto altimetry shots (per-tile affine + per-profil
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dir", metavar="DIR", help="directory holding dem.zarr (a run directory or 'grid --out')")
     p.add_argument("--altimetry", nargs="+", required=True, metavar="FILE",
-                   help="shot tables: LOLA/MLA RDR CSV, or Parquet with lat, lon, radius_m, track_id")
+                   help="shot tables: LOLA/MLA RDR CSV, or Parquet with lat, lon, radius_m, profile_id (track_id, its old name, is read too)")
     p.add_argument("--body", metavar="NAME", help="the DEM's body (mercury, moon); checked against the DEM")
     p.add_argument("--scheduler", default="sync", metavar="ADDR",
                    help="sync (default, in-process), local (a LocalCluster) or a scheduler address")
@@ -39,14 +39,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def read_shots(paths: list[str], radius_m: float) -> Any:
-    """All shot tables as one DataFrame; track ids made unique across files."""
+    """All shot tables as one DataFrame; profile ids made unique across files."""
     import numpy as np
     import pandas as pd
 
+    from mercury_dem.altimetry.names import upgrade_columns
     from mercury_dem.reference.lola import read_altimetry_csv
 
     frames = []
-    next_track = 0
+    next_profile = 0
     for p in paths:
         path = Path(p)
         if path.suffix.lower() in (".parquet", ".pq"):
@@ -59,11 +60,12 @@ def read_shots(paths: list[str], radius_m: float) -> Any:
                                          f"write it with pandas.DataFrame.to_parquet") from None
         else:
             df = read_altimetry_csv(path, radius_m).table
-        if "track_id" in df.columns and len(df):
-            tid = pd.to_numeric(df["track_id"], errors="coerce")
-            df = df.assign(track_id=tid + next_track)
+        df = upgrade_columns(df, str(path))  # a user's file may carry the old name track_id
+        if "profile_id" in df.columns and len(df):
+            tid = pd.to_numeric(df["profile_id"], errors="coerce")
+            df = df.assign(profile_id=tid + next_profile)
             if np.isfinite(tid).any():
-                next_track = int(np.nanmax(df["track_id"])) + 1
+                next_profile = int(np.nanmax(df["profile_id"])) + 1
         frames.append(df)
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 

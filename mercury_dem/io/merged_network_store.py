@@ -42,6 +42,7 @@ from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_directory
 from mercury_dem.io.network_store import CHUNK_ROWS, FORMAT_NAME, FORMAT_VERSION, NetworkStore, write_strings
 from mercury_dem.io.synthetic_network_store import ColumnAppender
 from mercury_dem.network.blocks import ImageTable
+from mercury_dem.network.merge import MergeStats
 from mercury_dem.network.model import (
     MEASURE_COLUMNS,
     OPTIONAL_POINT_COLUMNS,
@@ -67,32 +68,26 @@ PART_MEASURES = 500_000
 
 @dataclass
 class StreamedMergeSummary:
-    """What :func:`stream_merge` wrote, and the counts of the merge (summed over the parts)."""
+    """What :func:`stream_merge` wrote: the counts of the merge as :func:`~mercury_dem.network.merge.merge_networks`
+    gives them (``stats``, summed over the parts; its ``n_networks`` the children merged), and how it was streamed.
+    """
 
     path: Path
-    n_children: int
-    n_images: int
-    n_points_in: int
-    n_measures_in: int
-    n_points: int
-    n_measures: int
+    stats: MergeStats
     n_blocks: int
     image_parts: int
     merge_parts: int
     join_pairs: int
-    n_points_joined: int
-    n_measures_collapsed: int
-    n_conflicts: int
-    n_conflict_measures: int
-    n_points_dropped: int
-    ids_renumbered: bool
     #: the median of the active measures' sigmas (px), as ``bundle_adjust`` takes it for the rejection floor
     median_sigma_px: float
     seconds: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
-        out = dict(self.__dict__)
-        out["path"] = str(self.path)
+        """Flat, as the benchmark records have it: ``n_children`` and the merge's counts beside the streaming's."""
+        counts = self.stats.to_dict()
+        out: dict[str, Any] = {"path": str(self.path), "n_children": counts.pop("n_networks"), **counts}
+        out.update({k: getattr(self, k) for k in ("n_blocks", "image_parts", "merge_parts", "join_pairs",
+                                                   "median_sigma_px", "seconds")})
         return out
 
 
@@ -422,11 +417,11 @@ def stream_merge(
     finally:
         shutil.rmtree(scratch_dir, ignore_errors=True)
     seconds["total"] = time.perf_counter() - t_all
+    stats = MergeStats(n_networks=len(kids), n_images=len(image_ids), n_points_in=n_in, n_measures_in=m_in,
+                       n_points=n_out, n_measures=m_out, ids_renumbered=renumbered, **totals)
     return StreamedMergeSummary(
-        path=out, n_children=len(kids), n_images=len(image_ids), n_points_in=n_in, n_measures_in=m_in,
-        n_points=n_out, n_measures=m_out, n_blocks=len(edges_b) - 1, image_parts=n_img_parts, merge_parts=n_parts,
-        join_pairs=n_pairs, ids_renumbered=renumbered, median_sigma_px=median_sigma,
-        seconds={k: round(v, 3) for k, v in seconds.items()}, **totals,
+        path=out, stats=stats, n_blocks=len(edges_b) - 1, image_parts=n_img_parts, merge_parts=n_parts,
+        join_pairs=n_pairs, median_sigma_px=median_sigma, seconds={k: round(v, 3) for k, v in seconds.items()},
     )
 
 

@@ -514,7 +514,7 @@ def ingest_mission(
         "rejected": rejected, "cameras": sorted(cameras), "seconds": time.perf_counter() - t0,
         "catalog": catalog,
         "altimetry": None if not alt_sources else {
-            "n_shots": int(len(alt_table)), "n_tracks": int(alt_table["track_id"].nunique()) if len(alt_table) else 0,
+            "n_shots": int(len(alt_table)), "n_profiles": int(alt_table["profile_id"].nunique()) if len(alt_table) else 0,
             "sources": [s.to_dict() for s in alt_sources]},
     }
 
@@ -569,7 +569,7 @@ def describe(summary: dict[str, Any]) -> str:
                      f"inc {r['incidence_deg']:5.1f} emi {r['emission_deg']:5.1f} tile {r['tile_id']}")
     alt = summary.get("altimetry")
     if alt:
-        lines.append(f"  altimetry: {alt['n_shots']} shots in {alt['n_tracks']} profiles from {len(alt['sources'])} files")
+        lines.append(f"  altimetry: {alt['n_shots']} shots in {alt['n_profiles']} profiles from {len(alt['sources'])} files")
         for s in alt["sources"]:
             drops = ", ".join(f"{k} {v}" for k, v in s["dropped"].items() if v)
             lines.append(f"    {s['name']}: {s['n_shots']} of {s['n_rows']} rows" + (f" (dropped: {drops})" if drops else ""))

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mercury_dem.altimetry.names import upgrade_columns
 from mercury_dem.exceptions import StoreError
 from mercury_dem.mission.catalog import POSITION_COLUMNS, ROTATION_COLUMNS
 
@@ -110,13 +111,13 @@ class SyntheticTruth:
 
     @cached_property
     def altimetry_profiles(self) -> pd.DataFrame | None:
-        """The orbit error injected into each simulated altimetry profile (track_id, along_m, cross_m,
+        """The orbit error injected into each simulated altimetry profile (profile_id, along_m, cross_m,
         radial_m, and east_m/north_m/up_m at the profile's middle shot lat_mid/lon_mid), or None.
         """
         p = self.path / "altimetry_profiles.parquet"
         import pandas as pd
 
-        return pd.read_parquet(p) if p.is_file() else None
+        return upgrade_columns(pd.read_parquet(p), str(p)) if p.is_file() else None
 
     @cached_property
     def _arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

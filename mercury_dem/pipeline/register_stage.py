@@ -2,7 +2,7 @@
 
 How it runs
 -----------
-1. The shots are checked (columns ``lat``, ``lon``, ``radius_m``, ``track_id``; rows with
+1. The shots are checked (columns ``lat``, ``lon``, ``radius_m``, ``profile_id``; rows with
    non-finite values dropped and counted) and split by tile of the run's grid (:class:`TileGrid` of
    ``tiling.tile_size_deg``).
 2. One task per tile holding shots on the DEM (:func:`mercury_dem.altimetry.register.register_tile`);
@@ -43,6 +43,7 @@ import pandas as pd
 import xarray as xr
 
 from mercury_dem.altimetry.merge import MergedDem, MergeOptions
+from mercury_dem.altimetry.names import upgrade_columns
 from mercury_dem.altimetry.register import (
     ProfileOffsets,
     RegisterOptions,
@@ -90,7 +91,7 @@ if TYPE_CHECKING:
 __all__ = ["REGISTRATION_PRODUCTS", "SHOT_COLUMNS", "check_shots", "make_registration_products", "register_dem_store"]
 
 #: Columns a shot table must have (``reference.lola.read_altimetry_csv`` gives them).
-SHOT_COLUMNS = ("lat", "lon", "radius_m", "track_id")
+SHOT_COLUMNS = ("lat", "lon", "radius_m", "profile_id")
 #: The maps whose products :func:`make_registration_products` writes: key (of
 #: :data:`~mercury_dem.io.run_store.REGISTRATION_MAPS`, their store names) → what it is.
 REGISTRATION_PRODUCTS = {"registered": "DEM registered to laser altimetry",
@@ -105,6 +106,7 @@ def check_shots(shots: pd.DataFrame, source: str = "altimetry") -> tuple[pd.Data
     ReferenceDataError
         A column of :data:`SHOT_COLUMNS` is missing or not numeric (names the source and what to do).
     """
+    shots = upgrade_columns(shots, source)  # a shot file may carry the old name track_id
     missing = [c for c in SHOT_COLUMNS if c not in shots.columns]
     if missing:
         raise ReferenceDataError(
@@ -112,18 +114,18 @@ def check_shots(shots: pd.DataFrame, source: str = "altimetry") -> tuple[pd.Data
             f"{', '.join(SHOT_COLUMNS)} (read RDR CSVs with mercury_dem.reference.lola.read_altimetry_csv)")
     try:
         lat, lon, rad = (shots[c].to_numpy(dtype=np.float64) for c in ("lat", "lon", "radius_m"))
-        track = shots["track_id"].to_numpy()
-        ok_track = np.isfinite(track.astype(np.float64))
+        profile = shots["profile_id"].to_numpy()
+        ok_profile = np.isfinite(profile.astype(np.float64))
     except (TypeError, ValueError) as exc:
-        raise ReferenceDataError(f"{source}: lat, lon, radius_m and track_id must be numbers ({exc})") from None
-    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(rad) & (np.abs(lat) <= 90.0) & ok_track
+        raise ReferenceDataError(f"{source}: lat, lon, radius_m and profile_id must be numbers ({exc})") from None
+    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(rad) & (np.abs(lat) <= 90.0) & ok_profile
     out = pd.DataFrame({"lat": lat[ok], "lon": lon[ok], "radius_m": rad[ok],
-                        "track_id": track[ok].astype(np.int64)})
+                        "profile_id": profile[ok].astype(np.int64)})
     return out, int((~ok).sum())
 
 
 def _tile_task(dem_path: str, tile_id: int, tile_size_deg: float, lat: np.ndarray, lon: np.ndarray,
-               radius: np.ndarray, track: np.ndarray, options: RegisterOptions, margin_deg: float) -> TileRegistration:
+               radius: np.ndarray, profile: np.ndarray, options: RegisterOptions, margin_deg: float) -> TileRegistration:
     """Task body: read the tile's DEM window from the store, register; a crash becomes the tile's failure."""
     tiles = TileGrid(tile_size_deg)
     lat_c, lon_c = (float(v) for v in tiles.centre(tile_id))
@@ -139,7 +141,7 @@ def _tile_task(dem_path: str, tile_id: int, tile_size_deg: float, lat: np.ndarra
         win = tile_window(band, la[rows[0]:rows[-1] + 1], lo, tuple(b), datum, margin_deg)  # type: ignore[arg-type]
         if win is None:
             raise ValueError("the DEM has fewer than 2 x 2 pixels in this tile")
-        return register_tile(win, lat, lon, radius, track, tile_id=tile_id, centre=(lat_c, lon_c), options=options)
+        return register_tile(win, lat, lon, radius, profile, tile_id=tile_id, centre=(lat_c, lon_c), options=options)
     except Exception as exc:  # noqa: BLE001 - a tile's failure is a value; the stage goes on
         reason = f"tile {tile_id}: {type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}"
         return TileRegistration(TileTransform(tile_id, lat_c, lon_c, float("nan"), reason=reason),
@@ -228,7 +230,7 @@ def _register_tiles(client: ComputeClient | None, dem_path: Path, good: pd.DataF
     run_key = uuid.uuid4().hex[:8]
     futures = [
         client.submit(_tile_task, str(dem_path), tid, tiles.tile_size_deg, g["lat"].to_numpy(), g["lon"].to_numpy(),
-                      g["radius_m"].to_numpy(), g["track_id"].to_numpy(), opt, margin_deg,
+                      g["radius_m"].to_numpy(), g["profile_id"].to_numpy(), opt, margin_deg,
                       key=f"register-tile-{tid}-{run_key}", pure=False)
         for tid, g in groups.items()
     ]
@@ -291,7 +293,8 @@ def _register_and_write_maps(ds: xr.Dataset, dem_b: Body, datum: float, transfor
         return register_and_merge_blockwise(
             lambda i0, i1: elevation[i0:i1].values.astype(np.float64), lat, lon, datum, transforms, tiles, shots,
             scratch=scratch, write=write, block_rows=block_rows, merge_options=mo, level_allowed=level_allowed,
-            surface_height_m=st.max_surface_height_m)
+            surface_height_m=st.max_surface_height_m, level_min_shots=st.level_min_shots,
+            level_clip_nmad=st.level_clip_nmad)
 
 
 def _stage_summary(results: list[TileRegistration], profiles: pd.DataFrame, maps: BlockwiseMaps,
@@ -352,7 +355,8 @@ def register_dem_store(
     from mercury_dem.compute import client_or_sync
 
     t0 = time.perf_counter()
-    st, opt = settings or RegistrationConfig(), options or RegisterOptions()
+    st = settings or RegistrationConfig()
+    opt = options or RegisterOptions.from_config(st)
     tiles = tiles or TileGrid(TilingConfig().tile_size_deg)
     out = _Outputs.beside(Path(out_dir) if out_dir is not None else Path(dem_path).parent)
     ds, dem_b, datum = _open_dem_of(Path(dem_path), body)

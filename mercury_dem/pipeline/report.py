@@ -1,10 +1,12 @@
 """``RUN/report.json``: the stable contract that tools and notebooks read, and its printed summary.
 
-Keys (see docs/design.md): ``tiles`` {total, non_empty, succeeded, failed: [{tile, error}]},
-``levels`` {region: [...], hemisphere: [...], global: {...}} with per unit id, name, ok, error,
+Keys (see docs/design.md): ``tiles`` {total, non_empty, succeeded, failed: [{tile, error, failure}]},
+``levels`` {region: [...], hemisphere: [...], global: {...}} with per unit id, name, ok, error, failure,
 images, points, measures, rms_px, sigma0, rejected, iterations, seconds; ``images`` {input,
 controlled, uncontrolled: [ids], excluded: {id: reason}}; ``timings``; ``config``; ``versions``;
-``execution``; ``dem``; and, when the mission has truth, ``validation``.
+``execution``; ``dem``; ``failures`` {level: {kind: count}} (the failed units of each level counted by
+their :class:`~mercury_dem.pipeline.results.UnitFailure`; ``unrecorded`` for summaries of older runs);
+and, when the mission has truth, ``validation``.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from mercury_dem.pipeline.results import Summary, TileSummary, UnitSummary
 if TYPE_CHECKING:
     from mercury_dem.mission import Mission
 
-LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_px", "sigma0", "rejected",
+LEVEL_KEYS = ("id", "name", "ok", "error", "failure", "images", "points", "measures", "rms_px", "sigma0", "rejected",
               "iterations", "seconds", "converged", "reason", "sigma0_history", "flagged_images", "islands",
               "children", "altimetry", "point_prior", "point_prior_centre", "levelling", "underdetermined_points", "weak_images",
               "images_without_measures", "single_measure_points")
@@ -30,6 +32,8 @@ LEVEL_KEYS = ("id", "name", "ok", "error", "images", "points", "measures", "rms_
 def _level_row(s: Summary) -> dict[str, Any]:
     """A unit's row of ``report.json``'s levels: the keys of ``LEVEL_KEYS`` its summary has, in that order."""
     has: dict[str, Any] = {"id": s.id, "name": s.name, "ok": s.ok, "error": s.error}
+    if s.failure is not None:
+        has["failure"] = s.failure.value
     if isinstance(s, UnitSummary) and s.children is not None:  # merged: its adjustment's figures
         has.update(s.adjustment, children=s.children)
         if s.single_measure_points is not None:
@@ -77,6 +81,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
             "hemisphere": [_level_row(s) for s in summaries.get("hemisphere", [])],
             "global": _level_row(glob[0]) if glob else None,
         },
+        "failures": failure_counts(summaries),
     }
     controlled, validation = _global_solution(store, mission) if global_ok else ([], None)
     cset = set(controlled)
@@ -109,9 +114,26 @@ def tiles_block(plan: dict[str, Any], tiles: list[Summary]) -> dict[str, Any]:
         "total": int(plan["tiles_total"]),
         "non_empty": len(plan["non_empty_tiles"]),
         "succeeded": sum(1 for s in tiles if s.ok),
-        "failed": [{"tile": s.id, "error": s.error} for s in tiles if not s.ok],
+        "failed": [{"tile": s.id, "error": s.error, "failure": _kind(s)} for s in tiles if not s.ok],
         "image_errors": {k: v for s in tiles if isinstance(s, TileSummary) for k, v in s.image_errors.items()},
     }
+
+
+def _kind(s: Summary) -> str:
+    return "unrecorded" if s.failure is None else s.failure.value
+
+
+def failure_counts(summaries: dict[str, list[Summary]]) -> dict[str, dict[str, int]]:
+    """``report.json``'s ``failures``: per level with a failed unit, the failed units counted by kind (most first)."""
+    out: dict[str, dict[str, int]] = {}
+    for level, units in summaries.items():
+        counts: dict[str, int] = {}
+        for s in units:
+            if not s.ok:
+                counts[_kind(s)] = counts.get(_kind(s), 0) + 1
+        if counts:
+            out[level] = dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    return out
 
 
 def _global_solution(store: RunStore, mission: Mission) -> tuple[list[str], dict[str, Any] | None]:
@@ -202,6 +224,8 @@ def print_report(report: dict[str, Any], stream: TextIO) -> None:
     w(f"run {report['run']}  (mission {report['mission']})\n")
     w(_tiles_and_images_text(report))
     w(_levels_text(report["levels"]))
+    for level, counts in (report.get("failures") or {}).items():
+        w(f"failed {level} units by kind: " + ", ".join(f"{k} {n}" for k, n in counts.items()) + "\n")
     v = report.get("validation")
     if v:
         w(_validation_text(v))

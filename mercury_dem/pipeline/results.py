@@ -27,9 +27,19 @@ import time
 import traceback
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from mercury_dem.exceptions import (
+    AdjustmentError,
+    ConfigError,
+    GeometryError,
+    GridError,
+    NetworkError,
+    ReferenceDataError,
+    StoreError,
+)
 from mercury_dem.io.run_store import (
     BUNDLEOUT_FILE,
     NETWORK_FILE,
@@ -46,10 +56,57 @@ if TYPE_CHECKING:  # numpy only in annotations: the readers of summaries ('mercu
 
     from mercury_dem.network.model import ControlNetwork
 
-__all__ = ["FailureSummary", "Summary", "TileCounts", "TileSummary", "UnitFiles", "UnitSolution", "UnitSummary",
-           "UnitTiming", "read_summary", "summary_from_json"]
+__all__ = ["FailureSummary", "Summary", "TileCounts", "TileSummary", "UnitFailure", "UnitFiles", "UnitSolution",
+           "UnitSummary", "UnitTiming", "failure_of", "read_summary", "summary_from_json"]
 
 _TIMING_KEYS = ("seconds", "finished_at", "started_at")
+
+
+class UnitFailure(StrEnum):
+    """Why a unit (tile, region, hemisphere, globe) failed: ``failure`` in its ``summary.json`` beside the
+    human-readable ``error``, set where the failure is found (from the exception's type,
+    :func:`failure_of`); the report counts failed units by it and nothing parses ``error``. A summary of an
+    older run has none (read as None, counted as ``unrecorded``).
+    """
+
+    NO_PAIRS = "no_pairs"  # a tile without overlapping image pairs: nothing to match
+    NO_MATCH = "no_match"  # a tile whose pairs gave no control point
+    NO_INPUT = "no_input"  # a merged unit without a successful child network, or no measures once merged
+    CORRUPT_INPUT = "corrupt_input"  # a store or unit file it reads is missing, cut or fails its checksums
+    BAD_INPUT = "bad_input"  # unusable geometry, network, reference data or configuration for this unit
+    ADJUSTMENT_FAILED = "adjustment_failed"  # the bundle adjustment cannot be solved (AdjustmentError)
+    OTHER = "other"  # another of the package's own errors
+    UNEXPECTED = "unexpected"  # the task died with an unexpected exception (FailureSummary: a bug, a lost worker)
+
+
+#: The failure kind of an exception's type, first match wins (an exception may also carry its own ``failure``).
+_FAILURE_OF_TYPE: tuple[tuple[type[BaseException] | tuple[type[BaseException], ...], UnitFailure], ...] = (
+    (StoreError, UnitFailure.CORRUPT_INPUT),
+    (AdjustmentError, UnitFailure.ADJUSTMENT_FAILED),
+    ((GeometryError, NetworkError, ReferenceDataError, ConfigError, GridError), UnitFailure.BAD_INPUT),
+)
+
+
+def failure_of(exc: BaseException) -> UnitFailure:
+    """The :class:`UnitFailure` of an exception a unit caught: its own ``failure`` attribute when it has one,
+    else by its type (:data:`_FAILURE_OF_TYPE`), else ``OTHER``.
+    """
+    own = getattr(exc, "failure", None)
+    if isinstance(own, UnitFailure):
+        return own
+    for types, kind in _FAILURE_OF_TYPE:
+        if isinstance(exc, types):
+            return kind
+    return UnitFailure.OTHER
+
+
+def _failure_from_json(d: Mapping[str, Any]) -> UnitFailure | None:
+    """A summary's ``failure``; None when it has none (an older run, or a unit that did not fail) or an unknown one."""
+    v = d.get("failure")
+    try:
+        return None if v is None else UnitFailure(v)
+    except ValueError:
+        return None
 
 
 @dataclass(frozen=True)
@@ -125,10 +182,13 @@ class TileSummary:
     error: str | None = None
     counts: TileCounts | None = None
     timing: UnitTiming | None = None
+    failure: UnitFailure | None = None
     level: str = field(default="tile", init=False)
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"level": "tile", "id": int(self.id), "ok": self.ok, "error": self.error}
+        if self.failure is not None:
+            out["failure"] = self.failure.value
         if self.counts is not None:
             out.update(self.counts.to_json())
         if self.timing is not None:
@@ -138,7 +198,7 @@ class TileSummary:
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> TileSummary:
         return cls(id=int(d["id"]), ok=bool(d.get("ok")), error=d.get("error"), counts=TileCounts.from_json(d),
-                   timing=UnitTiming.from_json(d))
+                   timing=UnitTiming.from_json(d), failure=_failure_from_json(d))
 
     @property
     def name(self) -> str:
@@ -187,6 +247,7 @@ class UnitSummary:
     adjustment: dict[str, Any] = field(default_factory=dict)
     single_measure_points: dict[str, Any] | None = None
     timing: UnitTiming | None = None
+    failure: UnitFailure | None = None
 
     @property
     def name(self) -> str:
@@ -243,6 +304,8 @@ class UnitSummary:
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"level": self.level, "id": int(self.id), "name": self.name, "ok": self.ok,
                                "error": self.error}
+        if self.failure is not None:
+            out["failure"] = self.failure.value
         if self.children is not None:
             out["children"] = self.children
             out.update(self.adjustment)
@@ -254,10 +317,11 @@ class UnitSummary:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> UnitSummary:
-        own = {"level", "id", "name", "ok", "error", "children", "single_measure_points", *_TIMING_KEYS}
+        own = {"level", "id", "name", "ok", "error", "failure", "children", "single_measure_points", *_TIMING_KEYS}
         return cls(level=str(d["level"]), id=int(d["id"]), ok=bool(d.get("ok")), error=d.get("error"),
                    children=d.get("children"), adjustment={k: v for k, v in d.items() if k not in own},
-                   single_measure_points=d.get("single_measure_points"), timing=UnitTiming.from_json(d))
+                   single_measure_points=d.get("single_measure_points"), timing=UnitTiming.from_json(d),
+                   failure=_failure_from_json(d))
 
 
 @dataclass(frozen=True)
@@ -270,6 +334,7 @@ class FailureSummary:
     traceback: str
     ok: bool = field(default=False, init=False)
     timing: UnitTiming | None = field(default=None, init=False)
+    failure: UnitFailure = field(default=UnitFailure.UNEXPECTED, init=False)
 
     @property
     def name(self) -> str:
@@ -287,7 +352,7 @@ class FailureSummary:
 
     def to_json(self) -> dict[str, Any]:
         return {"level": self.level, "id": int(self.id), "name": unit_name(self.level, self.id), "ok": False,
-                "error": self.error, "traceback": self.traceback}
+                "error": self.error, "failure": self.failure.value, "traceback": self.traceback}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> FailureSummary:
@@ -295,7 +360,7 @@ class FailureSummary:
 
 
 #: A unit's summary, whatever its level and outcome (the readers use ``level``, ``id``, ``name``, ``ok``,
-#: ``error``, ``timing`` and ``seconds`` of each).
+#: ``error``, ``failure``, ``timing`` and ``seconds`` of each).
 Summary = TileSummary | UnitSummary | FailureSummary
 
 

@@ -33,10 +33,12 @@ from mercury_dem.pipeline.results import (
     FailureSummary,
     TileCounts,
     TileSummary,
+    UnitFailure,
     UnitFiles,
     UnitSolution,
     UnitSummary,
     UnitTiming,
+    failure_of,
     read_summary,
 )
 from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
@@ -164,11 +166,17 @@ def run_tile(run_root: str, tile_id: int, config: Config) -> dict[str, Any]:
         counts, files = _run_tile(store, tile_id, config)
     except MercuryDemError as exc:
         raise_if_fatal(exc, "tile", tile_id, store)
-        return _write_unit(store, "tile", tile_id, TileSummary(id=int(tile_id), error=f"tile {tile_id}: {exc}"), t0)
+        return _write_unit(store, "tile", tile_id, TileSummary(id=int(tile_id), error=f"tile {tile_id}: {exc}",
+                                                               failure=failure_of(exc)), t0)
     ok = counts.points > 0
     summary = TileSummary(id=int(tile_id), ok=ok, error=None if ok else _no_points_reason(tile_id, counts),
-                          counts=counts)
+                          counts=counts, failure=None if ok else _no_points_failure(counts))
     return _write_unit(store, "tile", tile_id, summary, t0, files=files)
+
+
+def _no_points_failure(s: TileCounts) -> UnitFailure:
+    """The kind of a tile without control points: no pairs to match, or pairs that matched nothing."""
+    return UnitFailure.NO_PAIRS if s.pairs == 0 else UnitFailure.NO_MATCH
 
 
 def _no_points_reason(tile_id: int, s: TileCounts) -> str:
@@ -299,7 +307,8 @@ def run_adjust_unit(run_root: str, level: str, unit_id: int, config: Config,
         summary, files = _adjust_unit(store, level, unit_id, config, engine_factory=engine_factory)
     except MercuryDemError as exc:
         raise_if_fatal(exc, level, unit_id, store)
-        summary, files = UnitSummary(level, int(unit_id), error=f"{unit_name(level, unit_id)}: {exc}"), UnitFiles()
+        summary = UnitSummary(level, int(unit_id), error=f"{unit_name(level, unit_id)}: {exc}", failure=failure_of(exc))
+        files = UnitFiles()
     return _write_unit(store, level, unit_id, summary, t0, files=files)
 
 
@@ -407,7 +416,7 @@ def pointing_sigma_urad_for(mission: Mission, config: Config) -> float:
 
 
 class _NoInput(MercuryDemError):
-    pass
+    failure = UnitFailure.NO_INPUT
 
 
 def reconcile_solutions(store: RunStore, child_level: str, kids: list[int], ids: list[str],

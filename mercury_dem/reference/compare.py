@@ -156,15 +156,15 @@ def compare_dem_with_shots(
     -------
     dict
         :func:`compare_heights` statistics; shots outside the DEM or on its gaps count in
-        ``n_excluded``; ``n_tracks`` when the shots have a ``track_id``.
+        ``n_excluded``; ``n_profiles`` when the shots have a ``profile_id``.
     """
     _check_datum(dem, datum_radius_m)
     h = sample_reference_dem(dem, shots["lat"].to_numpy(), shots["lon"].to_numpy())
     stats: dict[str, Any] = dict(
         compare_heights(h, datum_radius_m=datum_radius_m, reference_radius_m=shots["radius_m"].to_numpy())
     )
-    if "track_id" in shots:
-        stats["n_tracks"] = int(shots.loc[np.isfinite(h), "track_id"].nunique())
+    if "profile_id" in shots:
+        stats["n_profiles"] = int(shots.loc[np.isfinite(h), "profile_id"].nunique())
     stats["reference"] = "altimetry shots"
     return stats
 

@@ -52,7 +52,7 @@ __all__ = [
     "MLA_BAD_CHANNEL",
     "MOON_RADIUS_M",
     "AltimetryShots",
-    "assign_tracks",
+    "assign_profiles",
     "parse_altimetry_csv",
     "read_altimetry_csv",
     "read_lola_ldem",
@@ -110,7 +110,7 @@ class AltimetryShots:
         One row per usable shot, sorted by time: ``time`` (datetime64[ns] UTC for ISO times,
         float seconds for numeric times such as ephemeris time), ``lat`` (planetocentric
         degrees), ``lon`` (east degrees in [0, 360)), ``radius_m`` (metres from the centre of
-        mass), ``track_id`` (int, 0-based; a new profile starts after a time gap), and when the
+        mass), ``profile_id`` (int, 0-based; a new profile starts after a time gap), and when the
         file has them ``range_m``, ``sc_lat``, ``sc_lon``, ``sc_radius_m``, ``flag``.
     n_rows : int
         Data rows in the file (header excluded).
@@ -133,9 +133,9 @@ class AltimetryShots:
     source: str = ""
 
     @property
-    def n_tracks(self) -> int:
-        """Number of profiles (distinct track ids)."""
-        return int(self.table["track_id"].nunique()) if len(self.table) else 0
+    def n_profiles(self) -> int:
+        """Number of profiles (distinct profile ids)."""
+        return int(self.table["profile_id"].nunique()) if len(self.table) else 0
 
 
 def _norm(name: str) -> str:
@@ -180,7 +180,7 @@ def _looks_like_header(fields: Sequence[str]) -> bool:
     return not any(_is_number(f) or re.match(r"\s*\d{4}-\d{2}-\d{2}", f) for f in fields)
 
 
-def assign_tracks(time_s: np.ndarray, max_gap_s: float) -> np.ndarray:
+def assign_profiles(time_s: np.ndarray, max_gap_s: float) -> np.ndarray:
     """Profile ids from shot times: a gap longer than ``max_gap_s`` starts a new profile.
 
     Parameters
@@ -193,7 +193,7 @@ def assign_tracks(time_s: np.ndarray, max_gap_s: float) -> np.ndarray:
     Returns
     -------
     ndarray of shape (N,), int64
-        0-based track ids, non-decreasing.
+        0-based profile ids, non-decreasing.
     """
     t = np.asarray(time_s, dtype=np.float64)
     if t.size == 0:
@@ -333,7 +333,7 @@ def parse_altimetry_csv(
     table = pd.DataFrame(data)
     order = np.argsort(time_s[keep], kind="stable")
     table = table.iloc[order].reset_index(drop=True)
-    table["track_id"] = assign_tracks(time_s[keep][order], max_gap_s)
+    table["profile_id"] = assign_profiles(time_s[keep][order], max_gap_s)
     table.attrs.update(source=source, body_radius_m=float(datum_radius_m), radius_reference="centre of mass")
     return AltimetryShots(
         table=table,
@@ -372,7 +372,7 @@ def read_altimetry_csv(
     radius_tolerance_m : float
         Half-width of the accepted radius band around ``datum_radius_m``, metres.
     max_gap_s : float
-        A gap between consecutive shots longer than this (seconds) starts a new track.
+        A gap between consecutive shots longer than this (seconds) starts a new profile.
 
     Returns
     -------

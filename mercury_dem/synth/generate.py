@@ -185,10 +185,10 @@ def write_simulated_altimetry(writer: MissionWriter, root: Path, design: Mission
     sim = simulate_altimetry(design.altimetry, surface.height, rng, datum_radius_m=body.datum_radius_m,
                              area_deg=area, gm=gm, rotation_period_s=rotation_s)  # type: ignore[arg-type]
     kept, dropped = screen_shots(sim.shots, body.datum_radius_m)
-    n_tracks = int(kept["track_id"].nunique()) if len(kept) else 0
-    source = ShotSource(f"simulated MLA (seed {seed})", len(sim.shots), len(kept), n_tracks, dropped)
+    n_profiles = int(kept["profile_id"].nunique()) if len(kept) else 0
+    source = ShotSource(f"simulated MLA (seed {seed})", len(sim.shots), len(kept), n_profiles, dropped)
     writer.write_altimetry(combine_shots([kept], [source]), sources=[source], body=body, tile_size_deg=tile_size_deg,
                            extra={"simulation": design.altimetry.to_dict()})
     sim.profiles.to_parquet(Path(root) / "truth" / "altimetry_profiles.parquet", index=False)
-    return {"n_shots": int(len(kept)), "n_simulated": int(len(sim.shots)), "n_tracks": n_tracks,
+    return {"n_shots": int(len(kept)), "n_simulated": int(len(sim.shots)), "n_profiles": n_profiles,
             "dropped": dropped, "seconds": time.perf_counter() - t0}

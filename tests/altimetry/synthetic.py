@@ -90,16 +90,16 @@ class Profiles:
     lat: np.ndarray
     lon: np.ndarray
     radius: np.ndarray
-    track: np.ndarray
-    offset_enu: np.ndarray  # (n_tracks, 3) injected error of each track (measured - true), metres
+    profile_id: np.ndarray
+    offset_enu: np.ndarray  # (n_profiles, 3) injected error of each track (measured - true), metres
 
 
-def profiles(surface: Surface, rng, bounds, n_tracks=40, spacing_deg=0.01, noise_m=1.0,
+def profiles(surface: Surface, rng, bounds, n_profiles=40, spacing_deg=0.01, noise_m=1.0,
              sigma_h_m=150.0, sigma_v_m=5.0):
     """Near-polar tracks across the bounds, with a 3-D error per track and Gaussian range noise."""
     lat0, lat1, lon0, lon1 = bounds
     lats, lons, rads, tracks, offs = [], [], [], [], []
-    for k in range(n_tracks):
+    for k in range(n_profiles):
         lo_start = rng.uniform(lon0, lon1)
         incl = rng.uniform(-0.15, 0.15)  # degrees of longitude per degree of latitude
         la = np.arange(lat0, lat1, spacing_deg) + rng.uniform(0, spacing_deg)

@@ -17,10 +17,10 @@ def terrain(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
             + 40 * np.cos((x - y) / 2500.0))
 
 
-def shots(rng: np.random.Generator, n_tracks: int, noise_m: float) -> tuple[np.ndarray, ...]:
+def shots(rng: np.random.Generator, n_profiles: int, noise_m: float) -> tuple[np.ndarray, ...]:
     """Near-polar profiles across a 1 x 1 degree box, a shot every ~400 m."""
     lats, lons = [], []
-    for k in range(n_tracks):
+    for k in range(n_profiles):
         lon0 = 10.0 + rng.uniform(0, 1)
         lat = np.arange(20.0, 21.0, 400.0 / R * 180 / np.pi)
         lats.append(lat)

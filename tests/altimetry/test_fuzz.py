@@ -24,7 +24,7 @@ def _parquet() -> bytes:
     buf = io.BytesIO()
     n = 40
     pd.DataFrame({"lat": np.linspace(30, 31, n), "lon": np.linspace(100, 100.1, n), "radius_m": R + np.arange(n),
-                  "track_id": np.arange(n) // 10}).to_parquet(buf, index=False)
+                  "profile_id": np.arange(n) // 10}).to_parquet(buf, index=False)
     return buf.getvalue()
 
 

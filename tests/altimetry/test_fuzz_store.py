@@ -28,14 +28,14 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
     n = 300
     t = pd.DataFrame({"time": 1e8 + 0.125 * np.arange(n), "lat": rng.uniform(-30, 30, n),
                       "lon": rng.uniform(0, 40, n), "radius_m": 2_439_400.0 + rng.normal(0, 1e3, n),
-                      "track_id": np.arange(n) // 30, "flag": np.zeros(n, np.int64)})
+                      "profile_id": np.arange(n) // 30, "flag": np.zeros(n, np.int64)})
     src = [ShotSource("fuzz.csv", n, n, 10, {"flagged": 2})]
     root = tmp_path_factory.mktemp("alt_fuzz_base") / "alt"
     write_altimetry(root, combine_shots([t], src), sources=src, datum_radius_m=2_439_400.0)
     return root
 
 
-_META_KEYS = ["n_shots", "n_tracks", "tile_size_deg", "tiles", "row_groups", "dropped", "sources", "format",
+_META_KEYS = ["n_shots", "n_profiles", "tile_size_deg", "tiles", "row_groups", "dropped", "sources", "format",
               "version", "columns"]
 _VALUES = [0, -1, 1, 7.5, 1e308, None, "x", [], {}, {"1": [0]}, {"999999": [0]}, {"20": [99]}, True, 10.0, 3.0]
 

@@ -20,12 +20,12 @@ def test_registered_dem_recovers_truth():
     lon = np.arange(99.0, 111.01, 0.05)
     D = Rigid((35.0, 105.0), np.array([1500.0, -800.0, 250.0]), angle_up_deg=0.01)
     dem = moved_dem(surf, D, lat, lon)
-    prof = profiles(surf, rng, (30.0, 40.0, 100.0, 110.0), n_tracks=120, spacing_deg=0.03, sigma_h_m=0.0,
+    prof = profiles(surf, rng, (30.0, 40.0, 100.0, 110.0), n_profiles=120, spacing_deg=0.03, sigma_h_m=0.0,
                     sigma_v_m=0.0)
     from mercury_dem.altimetry.register import DemWindow
 
     tid = int(TILES.tile_of(35.0, 105.0))
-    res = register_tile(DemWindow(dem, lat, lon, R_DATUM), prof.lat, prof.lon, prof.radius, prof.track,
+    res = register_tile(DemWindow(dem, lat, lon, R_DATUM), prof.lat, prof.lon, prof.radius, prof.profile_id,
                         tile_id=tid, centre=(35.0, 105.0))
     assert res.transform.ok
     reg = register_dem(dem, lat, lon, R_DATUM, [res.transform], TILES)

@@ -12,7 +12,7 @@ BOUNDS = (30.0, 40.0, 100.0, 110.0)
 CENTRE = (35.0, 105.0)
 
 
-def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_tracks=200, spacing_deg=0.03,
+def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_profiles=200, spacing_deg=0.03,
           sigma_h_m=10.0, sigma_v_m=3.0, **kw):
     rng = np.random.default_rng(seed)
     surf = Surface(rng)
@@ -21,7 +21,7 @@ def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_tracks=200, sp
     D = Rigid(CENTRE, np.asarray(t_enu), angle_up_deg=angle)
     dem = moved_dem(surf, D, lat, lon)
     # 200 profiles: their mean error (sigma_h / sqrt(200)) is what the tile translation cannot tell apart.
-    prof = profiles(surf, rng, BOUNDS, n_tracks=n_tracks, spacing_deg=spacing_deg, sigma_h_m=sigma_h_m,
+    prof = profiles(surf, rng, BOUNDS, n_profiles=n_profiles, spacing_deg=spacing_deg, sigma_h_m=sigma_h_m,
                     sigma_v_m=sigma_v_m, **kw)
     return DemWindow(dem, lat, lon, R_DATUM), prof
 
@@ -36,7 +36,7 @@ def _case(seed: int, t_enu=(2000.0, 1000.0, 300.0), angle=0.02, n_tracks=200, sp
                                   pytest.param(13, marks=pytest.mark.integration), 41])
 def test_injected_transform_recovered(seed):
     win, prof = _case(seed, sigma_h_m=30.0)
-    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.profile_id, tile_id=0, centre=CENTRE)
     t = res.transform
     assert t.ok and t.model in ("affine", "similarity"), t.reason
     # T maps the DEM back onto the altimetry: the inverse of the injected move
@@ -58,7 +58,7 @@ def test_injected_transform_recovered(seed):
 @pytest.mark.parametrize("seed", [pytest.param(1, marks=pytest.mark.integration), 13])  # fast loop: 13 (unseen)
 def test_injected_profile_offsets_recovered(seed):
     win, prof = _case(seed, sigma_h_m=100.0, sigma_v_m=5.0)
-    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.profile_id, tile_id=0, centre=CENTRE)
     t = res.transform
     mean_off = prof.offset_enu.mean(axis=0)
     got = -np.asarray(t.translation_enu_m)
@@ -67,7 +67,7 @@ def test_injected_profile_offsets_recovered(seed):
     p = res.profiles
     assert p.fitted.mean() > 0.95  # tracks clipped at the tile corner may be short
     f = p.fitted
-    inj_corr = -(prof.offset_enu[p.track_id] - mean_off)[f]
+    inj_corr = -(prof.offset_enu[p.profile_id] - mean_off)[f]
     for k in range(3):
         assert np.corrcoef(p.offset_enu_m[f, k], inj_corr[:, k])[0, 1] > 0.9, k
     # vertical: ~1 m noise over ~300 shots + the DEM's bilinear error
@@ -80,7 +80,7 @@ def test_injected_profile_offsets_recovered(seed):
 def test_plain_two_step_without_nuisance_still_runs():
     """The plain seed-004 step 1 (profile errors as shot noise) stays available and recovers the shift."""
     win, prof = _case(1, sigma_h_m=30.0)
-    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE,
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.profile_id, tile_id=0, centre=CENTRE,
                         options=RegisterOptions(profile_nuisance=False))
     got = -np.asarray(res.transform.translation_enu_m)
     assert np.all(np.abs(got - [2000.0, 1000.0, 300.0]) <= [200.0, 100.0, 30.0])
@@ -88,16 +88,16 @@ def test_plain_two_step_without_nuisance_still_runs():
 
 
 def test_no_shift_gives_identity():
-    win, prof = _case(3, t_enu=(0.0, 0.0, 0.0), angle=0.0, n_tracks=60, sigma_h_m=0.0, sigma_v_m=0.0)
-    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    win, prof = _case(3, t_enu=(0.0, 0.0, 0.0), angle=0.0, n_profiles=60, sigma_h_m=0.0, sigma_v_m=0.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.profile_id, tile_id=0, centre=CENTRE)
     t = res.transform
     assert np.all(np.abs(t.translation_enu_m[:2]) < 30.0) and abs(t.translation_enu_m[2]) < 2.0
     assert np.all(np.abs(res.profiles.offset_enu_m[:, 2]) < 2.0)
 
 
 def test_bad_shots_counted_not_fatal():
-    win, prof = _case(5, n_tracks=60)
-    lat, lon, rad, track = prof.lat.copy(), prof.lon.copy(), prof.radius.copy(), prof.track.copy()
+    win, prof = _case(5, n_profiles=60)
+    lat, lon, rad, track = prof.lat.copy(), prof.lon.copy(), prof.radius.copy(), prof.profile_id.copy()
     lat[:7] = np.nan
     rad[10:13] = np.inf
     rad[20:22] = R_DATUM + 2e6  # off the body
@@ -118,12 +118,12 @@ def test_bad_shots_counted_not_fatal():
     assert res.transform.ok
     got = -np.asarray(res.transform.translation_enu_m) + prof.offset_enu.mean(axis=0)
     assert np.all(np.abs(got - [2000, 1000, 300]) <= [200, 100, 30])
-    row = res.profiles.to_frame().set_index("track_id").loc[999]
+    row = res.profiles.to_frame().set_index("profile_id").loc[999]
     assert not row["fitted"] and row["offset_e_m"] == 0.0
 
 
 def test_tile_without_shots_and_too_few():
-    win, _ = _case(2, n_tracks=1)
+    win, _ = _case(2, n_profiles=1)
     res = register_tile(win, [], [], [], [], tile_id=3, centre=CENTRE)
     assert not res.transform.ok and "usable shots" in res.transform.reason and res.counts["shots"] == 0
     res = register_tile(win, [35.0] * 5, [105.0] * 5, [R_DATUM] * 5, [0] * 5, tile_id=3, centre=CENTRE)
@@ -134,8 +134,8 @@ def test_single_line_falls_back():
     """All shots on one profile (a line): shear and rotation about the line are not determined, so the tile
     falls back to a model the line carries (a translation, or at least the vertical shift) and is registered
     with it: the injected shift comes back and the shots fit the DEM to the noise-free interpolation error."""
-    win, prof = _case(4, n_tracks=1, sigma_h_m=0.0, sigma_v_m=0.0)
-    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.track, tile_id=0, centre=CENTRE)
+    win, prof = _case(4, n_profiles=1, sigma_h_m=0.0, sigma_v_m=0.0)
+    res = register_tile(win, prof.lat, prof.lon, prof.radius, prof.profile_id, tile_id=0, centre=CENTRE)
     t = res.transform
     # registered, not given up: a tile left unregistered would pass a test that only names the models
     assert t.ok and t.model in ("translation", "vertical"), (t.model, t.reason)
@@ -183,8 +183,8 @@ def test_options_validated():
 # off on seeds 1-3; these seeds were first run with the chosen threshold).
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_few_profiles_nuisance_does_not_loosen_the_transform(seed):
-    win, prof = _case(seed, n_tracks=12, spacing_deg=0.01, sigma_h_m=30.0)
-    args = (win, prof.lat, prof.lon, prof.radius, prof.track)
+    win, prof = _case(seed, n_profiles=12, spacing_deg=0.01, sigma_h_m=30.0)
+    args = (win, prof.lat, prof.lon, prof.radius, prof.profile_id)
     res = register_tile(*args, tile_id=0, centre=CENTRE)
     plain = register_tile(*args, tile_id=0, centre=CENTRE, options=RegisterOptions(profile_nuisance=False))
     assert res.transform.ok and plain.transform.ok

@@ -42,8 +42,8 @@ def dem_dir(tmp_path_factory):
         layers["elevation"][...] = heights.astype(np.float32)
     shots = []
     for k, b in enumerate(((30.0, 40.0, 100.0, 110.0), (30.0, 40.0, 110.0, 120.0))):
-        p = profiles(surf, rng, b, n_tracks=80, spacing_deg=0.04, sigma_h_m=20.0, sigma_v_m=2.0)
-        shots.append(pd.DataFrame({"lat": p.lat, "lon": p.lon, "radius_m": p.radius, "track_id": p.track + 1000 * k}))
+        p = profiles(surf, rng, b, n_profiles=80, spacing_deg=0.04, sigma_h_m=20.0, sigma_v_m=2.0)
+        shots.append(pd.DataFrame({"lat": p.lat, "lon": p.lon, "radius_m": p.radius, "profile_id": p.profile_id + 1000 * k}))
     table = pd.concat(shots, ignore_index=True)
     table.loc[:4, "lat"] = np.nan
     table.to_parquet(d / "shots.parquet")
@@ -126,12 +126,12 @@ def test_register_refuses_bad_input(dem_dir, capsys, tmp_path):
     pd.DataFrame({"lat": [1.0], "lon": [2.0], "radius": [3.0]}).to_parquet(bad)
     assert main(["register", str(dem_dir), "--altimetry", str(bad), "--overwrite"]) == 2
     err = capsys.readouterr().err
-    assert "radius_m" in err and "track_id" in err
+    assert "radius_m" in err and "profile_id" in err
     assert main(["register", str(dem_dir), "--altimetry", str(bad), "--body", "moon"]) == 2
     assert "MERCURY" in capsys.readouterr().err
     with pytest.raises(ReferenceDataError, match="no usable shot"):
         register_dem_store(dem_dir / "dem.zarr", pd.DataFrame({"lat": [np.nan], "lon": [0.0], "radius_m": [1.0],
-                                                               "track_id": [0]}), tmp_path)
+                                                               "profile_id": [0]}), tmp_path)
 
 
 @pytest.mark.integration  # the whole register stage on a synthetic DEM
@@ -160,8 +160,8 @@ def test_register_reads_rdr_csv(dem_dir, tmp_path, capsys):
     d = tmp_path / "csv"
     shutil.copytree(dem_dir / "dem.zarr", d / "dem.zarr")
     t = pd.read_parquet(dem_dir / "shots.parquet").dropna()
-    t = t.sort_values(["track_id", "lat"])
-    time_s = t["track_id"].to_numpy() * 1000.0 + t.groupby("track_id").cumcount().to_numpy() * 0.1
+    t = t.sort_values(["profile_id", "lat"])
+    time_s = t["profile_id"].to_numpy() * 1000.0 + t.groupby("profile_id").cumcount().to_numpy() * 0.1
     csv = pd.DataFrame({"ET": time_s, "Pt_Longitude": t["lon"], "Pt_Latitude": t["lat"],
                         "Pt_Radius": t["radius_m"] / 1000.0})
     csv.to_csv(d / "mla.csv", index=False, float_format="%.9f")
@@ -184,7 +184,7 @@ def test_grid_and_register_take_the_moon(tmp_path, capsys):
     ds = xr.open_zarr(tmp_path / "dem.zarr", consolidated=False)
     assert float(ds.attrs["datum_radius_m"]) == MOON.datum_radius_m and "MOON" in ds.attrs["body"]
     assert abs(float(np.nanmedian(ds["elevation"].values)) - 100.0) < 1.0
-    pd.DataFrame({"lat": [11.0], "lon": [21.0], "radius_m": [MOON.datum_radius_m], "track_id": [0]}).to_parquet(
+    pd.DataFrame({"lat": [11.0], "lon": [21.0], "radius_m": [MOON.datum_radius_m], "profile_id": [0]}).to_parquet(
         tmp_path / "s.parquet")
     capsys.readouterr()
     assert main(["register", str(tmp_path), "--altimetry", str(tmp_path / "s.parquet"), "--body", "mercury"]) == 2

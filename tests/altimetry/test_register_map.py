@@ -54,7 +54,8 @@ def _run(dem: np.ndarray, shots: ShotPositions, block_rows: int, level: bool):
     maps = register_and_merge_blockwise(
         lambda i0, i1: dem[i0:i1].copy(), LAT, LON, R, [], tiles, shots, scratch=np.full(dem.shape, np.nan),
         write=write, block_rows=block_rows, merge_options=MergeOptions(),
-        level_allowed=np.ones(tiles.n_tiles, bool) if level else None, surface_height_m=50_000.0)
+        level_allowed=np.ones(tiles.n_tiles, bool) if level else None, surface_height_m=50_000.0,
+        level_min_shots=500, level_clip_nmad=10.0)
     return maps, written
 
 
@@ -100,7 +101,7 @@ def test_corrected_shots_apply_the_fitted_profile_offsets():
     """A profile offset of +30 m up moves its shots 30 m out; an unfitted profile's shots stay."""
     lat, lon = np.array([12.0, 12.5, 11.0]), np.array([11.0, 11.5, 12.0])
     rad = np.full(3, R + 100.0)
-    shots = pd.DataFrame({"lat": lat, "lon": lon, "radius_m": rad, "track_id": [1, 1, 2], "tile_id": [0, 0, 0]})
+    shots = pd.DataFrame({"lat": lat, "lon": lon, "radius_m": rad, "profile_id": [1, 1, 2], "tile_id": [0, 0, 0]})
     prof = ProfileOffsets(np.array([1, 2]), np.array([0, 0]), np.array([[0.0, 0.0, 30.0], [0.0, 0.0, 500.0]]),
                           np.ones((2, 3)), np.array([12.25, 11.0]), np.array([11.25, 12.0]), np.array([2, 1]),
                           np.array([2, 1]), np.ones(2), np.ones(2), np.array([True, False]))

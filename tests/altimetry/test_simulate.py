@@ -54,7 +54,7 @@ def test_range_noise_and_bad_returns(north) -> None:
 
 def test_per_profile_orbit_errors_are_in_the_shots_and_in_truth(north) -> None:
     s, t, prof = north.shots, north.truth, north.profiles
-    assert len(prof) == s["track_id"].nunique() == 24
+    assert len(prof) == s["profile_id"].nunique() == 24
     # injected magnitudes: tens-hundreds of metres horizontally, metres vertically
     assert 60 < prof["along_m"].std() < 300 and 40 < prof["cross_m"].std() < 200 and prof["radial_m"].std() < 8
     horiz = np.hypot(prof["east_m"], prof["north_m"])
@@ -68,9 +68,9 @@ def test_per_profile_orbit_errors_are_in_the_shots_and_in_truth(north) -> None:
     miss = np.linalg.norm(rec - tru - off, axis=1)[good]
     assert np.percentile(miss, 99) < 4.0  # range noise (1 m) only
     # the mean displacement per profile recovers its injected error (east/north/up at the middle shot)
-    disp = pd.DataFrame(rec - tru, columns=list("xyz")).assign(track_id=s["track_id"].to_numpy())[good]
-    mean = disp.groupby("track_id")[list("xyz")].mean()
-    mid = prof.set_index("track_id")
+    disp = pd.DataFrame(rec - tru, columns=list("xyz")).assign(profile_id=s["profile_id"].to_numpy())[good]
+    mean = disp.groupby("profile_id")[list("xyz")].mean()
+    mid = prof.set_index("profile_id")
     up = latlon_to_unit(mid["lat_mid"].to_numpy(), mid["lon_mid"].to_numpy())
     # the orbit frame turns along a profile, so the mean is compared by magnitude and radial part
     assert np.corrcoef(np.linalg.norm(mean.to_numpy(), axis=1), np.hypot(horiz, mid["up_m"]))[0, 1] > 0.8
@@ -83,7 +83,7 @@ def test_geometry_dense_north_none_south_400m_spacing(north) -> None:
     density_n = np.sum(s["lat"] > 60) / cap(60, 90)
     density_mid = np.sum((s["lat"] > 0) & (s["lat"] < 30)) / cap(0, 30)
     assert density_n > 5 * density_mid and np.sum(s["lat"] < -10) == 0
-    one = s[s["track_id"] == s["track_id"].iloc[0]]
+    one = s[s["profile_id"] == s["profile_id"].iloc[0]]
     xyz = latlon_to_unit(one["lat"].to_numpy(), one["lon"].to_numpy()) * R
     step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     near_periapsis = step[np.argsort(one["range_m"].to_numpy()[1:])[: len(step) // 10]]

@@ -35,7 +35,7 @@ def _table(n: int, seed: int) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     return pd.DataFrame({
         "time": np.arange(n) * 0.125 + 1e8, "lat": rng.uniform(-90, 90, n), "lon": rng.uniform(0, 360, n),
-        "radius_m": MERCURY_M + rng.normal(0, 2000, n), "track_id": np.arange(n) // 50,
+        "radius_m": MERCURY_M + rng.normal(0, 2000, n), "profile_id": np.arange(n) // 50,
         "flag": np.zeros(n, np.int64),
     })
 
@@ -44,16 +44,16 @@ def test_round_trip_and_per_tile_reads(tmp_path: Path) -> None:
     a, b = _table(3000, 1), _table(500, 2)
     src = [ShotSource("a.csv", 3010, 3000, 60, {"non_finite": 10}), ShotSource("b.csv", 500, 500, 10, {})]
     table = combine_shots([a, b], src, sigma_m=2.0)
-    assert table["track_id"].nunique() == 70  # profiles of b do not reuse a's ids
+    assert table["profile_id"].nunique() == 70  # profiles of b do not reuse a's ids
     meta = write_altimetry(tmp_path / "alt", table, sources=src, datum_radius_m=MERCURY_M)
     store = open_altimetry(tmp_path / "alt")
-    assert store.n_shots == 3500 and store.n_tracks == 70 and store.dropped["non_finite"] == 10
+    assert store.n_shots == 3500 and store.n_profiles == 70 and store.dropped["non_finite"] == 10
     assert [s["name"] for s in store.sources] == ["a.csv", "b.csv"] and meta["n_shots"] == 3500
     whole = store.read()
     assert len(whole) == 3500 and (whole["sigma_m"] == 2.0).all()
     back = whole.sort_values(["source_id", "time"]).reset_index(drop=True)
     ref = table.sort_values(["source_id", "time"]).reset_index(drop=True)
-    for c in ("time", "lat", "lon", "radius_m", "track_id", "source_id", "flag"):
+    for c in ("time", "lat", "lon", "radius_m", "profile_id", "source_id", "flag"):
         np.testing.assert_array_equal(back[c].to_numpy(), ref[c].to_numpy())
     grid = TileGrid(10.0)
     tiles = grid.tile_of(table["lat"], table["lon"])
@@ -86,7 +86,7 @@ def test_real_lola_files_with_their_drops(tmp_path: Path) -> None:
     table, sources = shots_from_files(LOLA, 1_737_400.0)
     assert [s.n_shots for s in sources] == [55, 51]
     # head: one profile, tail: two -> three distinct profiles in the store
-    assert table["track_id"].nunique() == 3
+    assert table["profile_id"].nunique() == 3
     write_altimetry(tmp_path / "alt", table, sources=sources, datum_radius_m=1_737_400.0)
     first = open_altimetry(tmp_path / "alt").read().sort_values("time").iloc[0]
     assert first["lat"] == pytest.approx(60.0187875) and first["lon"] == pytest.approx(99.0636769)
@@ -129,7 +129,7 @@ def test_ingest_mercury_cube_with_an_mla_like_table(tmp_path: Path) -> None:
     m = open_mission(s["path"])
     shots = m.read_altimetry()
     assert shots["radius_m"].between(2_437_900.0, 2_438_100.0).all() and (shots["sigma_m"] == 1.0).all()
-    assert m.altimetry.dropped["flagged"] == 1 and m.altimetry.n_tracks == 1
+    assert m.altimetry.dropped["flagged"] == 1 and m.altimetry.n_profiles == 1
 
 
 def test_bad_shot_tables_are_counted_or_refused(tmp_path: Path) -> None:
@@ -149,7 +149,7 @@ def test_bad_shot_tables_are_counted_or_refused(tmp_path: Path) -> None:
     table, (src,) = shots_from_files([f], MERCURY_M)
     assert src.dropped["non_finite"] == 1 and src.dropped["radius_out_of_range"] == 1
     assert src.n_rows == 12 and src.n_shots == 10
-    sizes = table.groupby("track_id").size().to_list()
+    sizes = table.groupby("profile_id").size().to_list()
     assert sizes == [8, 2]
     write_altimetry(tmp_path / "alt", table, sources=[src], datum_radius_m=MERCURY_M)
     assert open_altimetry(tmp_path / "alt").dropped == {"malformed": 0, "bad_time": 0, "non_finite": 1,

@@ -15,8 +15,8 @@ def test_tiny_mission_has_simulated_altimetry(tiny_mission) -> None:
     area_tiles = {int(grid.tile_of(la, lo)) for la in (-5, 5, 15) for lo in (-12, -5, 5, 12)}
     assert len(area_tiles) == 12
     for t in area_tiles:
-        shots = tiny_mission.read_altimetry(t, ["track_id", "radius_m"])
-        assert shots["track_id"].nunique() >= 20, t
+        shots = tiny_mission.read_altimetry(t, ["profile_id", "radius_m"])
+        assert shots["profile_id"].nunique() >= 20, t
     # shots lie on the truth surface up to the injected errors (1 m noise, ~3 m radial orbit error,
     # 100-150 m horizontal error times the slopes, 1.5 % wild ranges)
     shots = tiny_mission.read_altimetry(sorted(area_tiles)[4])
@@ -26,6 +26,6 @@ def test_tiny_mission_has_simulated_altimetry(tiny_mission) -> None:
     assert abs(np.median(d)) < 5.0 and np.percentile(np.abs(d), 90) < 60.0
     assert (shots["sigma_m"] == 1.0).all()
     prof = tiny_mission.truth.altimetry_profiles
-    assert set(prof["track_id"]) >= set(shots["track_id"])
+    assert set(prof["profile_id"]) >= set(shots["profile_id"])
     assert 50 < np.hypot(prof["east_m"], prof["north_m"]).mean() < 400 and prof["up_m"].abs().max() < 15
     assert tiny_mission.meta["altimetry"]["n_shots"] == alt.n_shots

@@ -1,7 +1,7 @@
 """The grid of a block covers the block (issue 30 item 5): canvas, no-value distance, --bounds, wrap, accuracy.
 
 The block is the user's case scaled down: altimeter shots along near-polar tracks over
-0.8 deg x 0.75 deg of the Moon near 25 N, 3 E (mercury_dem.synth.tracks), ~490 m between
+0.8 deg x 0.75 deg of the Moon near 25 N, 3 E (mercury_dem.synth.altimeter_block), ~490 m between
 tracks, gridded at 256 pixel/deg (118 m pixels).
 """
 
@@ -16,12 +16,12 @@ from mercury_dem.dem.extent import box_area_ratio, points_box
 from mercury_dem.dem.grid import build_point_index, config_with_no_value_distance, typical_gap_m
 from mercury_dem.geometry.body import MOON
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
-from mercury_dem.synth.tracks import BlockSurface, altimeter_block
+from mercury_dem.synth.altimeter_block import BlockSurface, altimeter_block
 
 R = MOON.datum_radius_m
 LAT = (24.6, 25.35)
 LON = (2.6, 3.4)
-N_TRACKS = 45
+N_PROFILES = 45
 PPD = 256.0
 NOISE_M = 5.0
 #: A gentle surface: across-track interpolation (up to 250 m, slopes < 0.6 %) stays below the noise.
@@ -32,14 +32,14 @@ def _block(lon=LON, drop=(), spacing_jitter=0.0, n_shots=20_000, surface=GENTLE,
     lat0 = 0.5 * (LAT[0] + LAT[1])
     surf = BlockSurface(lat0, 0.5 * (lon[0] + lon[1]), R, slope=surface.slope, wave_m=surface.wave_m,
                         n_craters=surface.n_craters)
-    b = altimeter_block(np.random.default_rng(seed), R, surf, lat_range=LAT, lon_range=lon, n_tracks=N_TRACKS,
-                        n_shots=n_shots, noise_m=NOISE_M, spacing_jitter=spacing_jitter, drop_tracks=drop,
+    b = altimeter_block(np.random.default_rng(seed), R, surf, lat_range=LAT, lon_range=lon, n_profiles=N_PROFILES,
+                        n_shots=n_shots, noise_m=NOISE_M, spacing_jitter=spacing_jitter, drop_profiles=drop,
                         tilt_deg=tilt_deg)
     return b, surf
 
 
 def _track_spacing_m(lon=LON):
-    return (lon[1] - lon[0]) / N_TRACKS * np.pi / 180 * R * np.cos(np.radians(np.mean(LAT)))
+    return (lon[1] - lon[0]) / N_PROFILES * np.pi / 180 * R * np.cos(np.radians(np.mean(LAT)))
 
 
 def _grid(tmp_path, pts, **cfg):
@@ -86,7 +86,7 @@ def test_the_no_value_mask_follows_the_track_spacing(tmp_path) -> None:
     elev = ds["elevation"].values
     rows = slice(8, elev.shape[0] - 8)  # away from the block's northern and southern ends
     lon = ds.lon.values
-    t = np.sort(b.track_lon)
+    t = np.sort(b.profile_lon)
 
     def middle_column(west, east):
         return int(np.argmin(np.abs(lon - 0.5 * (west + east))))

@@ -64,7 +64,8 @@ def test_streamed_merge_equals_in_memory_merge(world) -> None:
     assert stats.n_points_joined > 1000 and stats.n_conflicts > 0 and s.merge_parts > 3 and s.image_parts > 3
     for k in ("n_points_in", "n_measures_in", "n_points", "n_measures", "n_points_joined", "n_measures_collapsed",
               "n_conflicts", "n_conflict_measures", "n_points_dropped", "ids_renumbered"):
-        assert getattr(s, k) == getattr(stats, k), k
+        assert getattr(s.stats, k) == getattr(stats, k), k
+    assert s.stats.n_networks == 3 and s.to_dict()["n_children"] == 3 and "stats" not in s.to_dict()
     assert s.median_sigma_px == float(np.median(problem_from_network(
         ref, *_geometry(world["src"], ref.n_images))[0].measure_sigma))
 
@@ -200,7 +201,7 @@ def test_string_ids_colliding_ids_and_a_split_component(tmp_path: Path) -> None:
             out = tmp_path / f"{name}_out{part_measures}"
             s = stream_merge(name, [(k.name, k) for k in kids], out, geometry, part_measures=part_measures)
             got = read_network(out / "network")
-            assert s.ids_renumbered == stats.ids_renumbered and s.n_conflicts == stats.n_conflicts, name
+            assert s.stats.ids_renumbered == stats.ids_renumbered and s.stats.n_conflicts == stats.n_conflicts, name
             assert got.point_ids.tolist() == ref.point_ids.tolist(), (name, part_measures)
             for col in ("apriori_xyz", *MEASURE_COLUMNS):
                 np.testing.assert_array_equal(getattr(got, col), getattr(ref, col), err_msg=f"{name} {col}")

@@ -81,6 +81,8 @@ def test_one_image_tiles_and_the_island_are_named(degenerate_run: tuple[Path, Pa
     _, _, report = degenerate_run
     failed = {f["tile"]: f["error"] for f in report["tiles"]["failed"]}
     assert len(failed) == 2 and all("no overlapping image pairs (1 images)" in e for e in failed.values())
+    assert [f["failure"] for f in report["tiles"]["failed"]] == ["no_pairs", "no_pairs"]
+    assert report["failures"]["tile"] == {"no_pairs": 2}
     glob = report["levels"]["global"]
     assert glob["ok"] and len(glob["islands"]) == 2 and sorted(glob["islands"][1]) == sorted(d.ISLAND)
     assert set(d.ISLAND) <= set(read_solution_ids(degenerate_run[1]))  # adjusted, held by their a-priori pointing

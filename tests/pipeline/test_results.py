@@ -96,7 +96,7 @@ def test_failure_summary() -> None:
     except RuntimeError as exc:
         f = FailureSummary.of("hemisphere", 1, exc)
     d = f.to_json()
-    assert set(d) == {"level", "id", "name", "ok", "error", "traceback"}
+    assert set(d) == {"level", "id", "name", "ok", "error", "failure", "traceback"} and d["failure"] == "unexpected"
     assert d["name"] == "hemisphere south" and d["ok"] is False
     assert d["error"] == "hemisphere south: unexpected RuntimeError: boom" and "boom" in d["traceback"]
     assert summary_from_json(d) == f

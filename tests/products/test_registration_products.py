@@ -36,7 +36,7 @@ def _shots(rng: np.random.Generator) -> pd.DataFrame:
         lat = np.arange(0.5, 39.5, 0.02)
         lon = (lon0 + 0.05 * (lat - 20.0)) % 360
         radius = MERCURY.datum_radius_m + height(lat, lon) + UP_M + rng.normal(0, 3.0) + rng.normal(0, 1.0, lat.size)
-        frames.append(pd.DataFrame({"lat": lat, "lon": lon, "radius_m": radius, "track_id": k}))
+        frames.append(pd.DataFrame({"lat": lat, "lon": lon, "radius_m": radius, "profile_id": k}))
     return pd.concat(frames, ignore_index=True)
 
 

@@ -92,10 +92,10 @@ def test_dem_with_shots_global_grid_across_the_seam():
     s_lon = np.where(np.arange(n) % 2 == 0, rng.uniform(-0.2, 0.2, n) % 360, rng.uniform(0, 360, n))  # half on the seam
     # Shots are absolute radii BIAS_M below the DEM's surface, with N(0, SIGMA_M) noise.
     radius = DATUM_M + _smooth_surface(s_lat, s_lon) - BIAS_M + rng.normal(0, SIGMA_M, n)
-    shots = pd.DataFrame({"lat": s_lat, "lon": s_lon, "radius_m": radius, "track_id": np.arange(n) // 100})
+    shots = pd.DataFrame({"lat": s_lat, "lon": s_lon, "radius_m": radius, "profile_id": np.arange(n) // 100})
     stats = compare_dem_with_shots(dem, shots, DATUM_M)
     _assert_recovers(stats, n)
-    assert stats["n_tracks"] == 40
+    assert stats["n_profiles"] == 40
     r = residuals_at_shots(dem, shots, DATUM_M)
     assert r.shape == (n,) and np.all(np.isfinite(r))
 

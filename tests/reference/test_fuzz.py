@@ -126,4 +126,4 @@ def test_fuzz_altimetry_csv(fuzz_dir, data):
     if len(t):
         assert np.all(np.isfinite(t[["lat", "lon", "radius_m"]].to_numpy()))
         assert t["lon"].between(0.0, 360.0, inclusive="left").all()
-        assert t["track_id"].is_monotonic_increasing
+        assert t["profile_id"].is_monotonic_increasing

@@ -9,7 +9,7 @@ from mercury_dem.exceptions import ReferenceDataError
 from mercury_dem.reference.lola import (
     LOLA_RDR_COLUMNS,
     MOON_RADIUS_M,
-    assign_tracks,
+    assign_profiles,
     parse_altimetry_csv,
     read_altimetry_csv,
     read_lola_ldem,
@@ -37,7 +37,7 @@ def ldem():
 
 
 def test_real_lola_shots(head, tail):
-    assert (head.n_rows, len(head.table), head.n_tracks) == (55, 55, 1)
+    assert (head.n_rows, len(head.table), head.n_profiles) == (55, 55, 1)
     assert sum(head.dropped.values()) == 0
     first = head.table.iloc[0]
     assert first["lat"] == pytest.approx(60.0187875)
@@ -51,20 +51,20 @@ def test_real_lola_shots(head, tail):
     assert np.allclose(t["sc_radius_m"] - t["radius_m"], t["range_m"], atol=50.0)
     assert t["time"].is_monotonic_increasing
     # The tail repeats the head's first shot, then resumes 19.75 s later: two profiles.
-    assert (tail.n_rows, tail.n_tracks) == (51, 2)
-    assert list(tail.table["track_id"][:3]) == [0, 1, 1]
+    assert (tail.n_rows, tail.n_profiles) == (51, 2)
+    assert list(tail.table["profile_id"][:3]) == [0, 1, 1]
     assert tail.table.iloc[0]["time"] == first["time"]
 
 
 def test_gap_setting_joins_profiles():
     s = read_altimetry_csv(shared(LOLA_DIR / "lidarPoints_tail.csv"), MOON_RADIUS_M, max_gap_s=30.0)
-    assert s.n_tracks == 1
+    assert s.n_profiles == 1
 
 
-def test_assign_tracks():
+def test_assign_profiles():
     t = np.array([0.0, 0.1, 0.2, 5.0, 5.1, 100.0])
-    assert list(assign_tracks(t, 1.0)) == [0, 0, 0, 1, 1, 2]
-    assert assign_tracks(np.zeros(0), 1.0).size == 0
+    assert list(assign_profiles(t, 1.0)) == [0, 0, 0, 1, 1, 2]
+    assert assign_profiles(np.zeros(0), 1.0).size == 0
 
 
 def test_shots_agree_with_ldem(head, ldem):
@@ -117,7 +117,7 @@ def test_header_names_any_case_and_dropped_counts():
                          "same_shot": 0}
     assert s.n_rows == len(s.table) + sum(s.dropped.values())
     t = s.table
-    assert len(t) == 3 and s.n_tracks == 2
+    assert len(t) == 3 and s.n_profiles == 2
     assert t["lon"].tolist() == pytest.approx([349.5, 349.6, 350.0])  # west-negative folded to [0, 360)
     assert t["radius_m"].tolist() == pytest.approx([2_438_000.0, 2_438_010.0, 2_437_500.0])
 
@@ -125,7 +125,7 @@ def test_header_names_any_case_and_dropped_counts():
 def test_numeric_times_and_metres():
     text = "et,lat,lon,radius\n100.0,1,2,2439000\n100.1,1,2,2439001\n250.0,1,2,2439002\n"
     s = parse_altimetry_csv(text, MERCURY_M, radius_unit="m", max_gap_s=1.0)
-    assert s.table["time"].dtype == np.float64 and s.n_tracks == 2
+    assert s.table["time"].dtype == np.float64 and s.n_profiles == 2
     assert s.table["radius_m"].iloc[0] == 2_439_000.0
 
 
@@ -194,7 +194,7 @@ def test_mla_rdr_header_layout(tmp_path):
     assert t["lat"].iloc[0] == pytest.approx(70.0) and t["sc_lat"].iloc[0] == pytest.approx(70.0)
     assert t["lon"].between(0.0, 360.0, inclusive="left").all()
     assert str(t["time"].iloc[0]) == "2012-06-01 07:03:47"
-    assert shots.n_tracks == 1 and (t["flag"] == 0).all()
+    assert shots.n_profiles == 1 and (t["flag"] == 0).all()
     # The ODE point export carries a radius beside the altitude: the radius wins.
     ode = tmp_path / "ode_mla.csv"
     ode.write_text("longitude,latitude,altitude,radius,EphemerisTime,chn,UTC\n"
@@ -225,7 +225,7 @@ def test_real_mla_rdr_excerpt_reads_with_its_values(gtmes):
     assert str(first["time"]) == "2012-01-01 10:22:42.416700"
     assert first["sc_lat"] == pytest.approx(58.78300)
     # the two stretches are 5 min apart: two profiles
-    assert shots.n_tracks == 2
+    assert shots.n_profiles == 2
     diff = t["radius_m"].to_numpy() - evaluate(gtmes, t["lat"].to_numpy(), t["lon"].to_numpy())
     for tid in (0, 1):
-        assert abs(np.median(diff[t["track_id"].to_numpy() == tid])) < 600.0
+        assert abs(np.median(diff[t["profile_id"].to_numpy() == tid])) < 600.0

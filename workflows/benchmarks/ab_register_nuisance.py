@@ -52,10 +52,10 @@ for t in pick:
     t = int(t); c = tuple(float(v) for v in tg.centre(t))
     win = tile_window(el, la, lo, tuple(float(v) for v in tg.bounds(t)), R, 1.0)
     sel = shots[tile == t]
-    row = {"tile": t, "lat": c[0], "shots": len(sel), "profiles": sel["track_id"].nunique()}
+    row = {"tile": t, "lat": c[0], "shots": len(sel), "profiles": sel["profile_id"].nunique()}
     for k, o in variants.items():
         res = register_tile(win, sel["lat"].to_numpy(), sel["lon"].to_numpy(), sel["radius_m"].to_numpy(),
-                            sel["track_id"].to_numpy(), tile_id=t, centre=c, options=o)
+                            sel["profile_id"].to_numpy(), tile_id=t, centre=c, options=o)
         tr = np.asarray(res.transform.translation_enu_m)
         row.update({f"{k}_ok": res.transform.ok, f"{k}_rms_reg": res.rms_registered_m, f"{k}_rms_after": res.rms_after_m,
                     f"{k}_tE": tr[0], f"{k}_tN": tr[1], f"{k}_tU": tr[2], f"{k}_it": res.iterations})

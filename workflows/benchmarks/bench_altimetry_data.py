@@ -50,7 +50,7 @@ def bench(preset: str, seed: int) -> None:
         t_all = time.perf_counter() - t
         bands = (every["lat"] // 30 * 30).astype(int).value_counts().sort_index().to_dict()
         print(f"{preset}: surface {t_surface:.1f} s; simulate + screen + write {out['seconds']:.1f} s: "
-              f"{out['n_shots']} shots kept of {out['n_simulated']}, {out['n_tracks']} profiles, "
+              f"{out['n_shots']} shots kept of {out['n_simulated']}, {out['n_profiles']} profiles, "
               f"{len(store.tiles)} tiles, dropped {out['dropped']['flagged']} flagged; "
               f"shots.parquet {os.path.getsize(store.file) / 1e6:.1f} MB")
         print(f"  read densest tile {dense} ({len(one)} shots) {t_tile:.3f} s; read all ({len(every)}) {t_all:.2f} s; "

@@ -11,7 +11,8 @@ rectified chips, interleaved repetitions time:
 * ``ours_fast``: the same with ``refine_quantum_px=0`` (one dense refinement step instead of the grouped pass);
 * ``triangulate``: :func:`mercury_dem.dense.triangulate.triangulate_chip` of ``ours``' disparities.
 
-Wall (``perf_counter``) and CPU (``process_time``) seconds, medians over the repetitions, and the
+Wall (``perf_counter``) and CPU (``process_time``) seconds (``harness.measure_here``, rounds by
+``harness.interleave``), medians over the repetitions, and the
 ratios to the floor; points per second of matching + triangulation. OpenCV's threads as configured
 (``cv2.getNumThreads()``).
 
@@ -29,6 +30,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from harness import interleave, measure_here
 
 from mercury_dem.dense.disparity import MatcherSettings, dense_disparity, sgbm_disparity, to_8bit
 from mercury_dem.dense.rectify import Chip, rectify_chip
@@ -64,10 +66,16 @@ def rendered_pair(samples: int, gsd_m: float = 200.0) -> tuple[Any, list[np.ndar
     return surface, images, geom
 
 
-def timed(fn: Any) -> tuple[float, float, Any]:
-    w0, c0 = time.perf_counter(), time.process_time()
-    out = fn()
-    return time.perf_counter() - w0, time.process_time() - c0, out
+def timed(fn: Any, label: str, keep: dict[str, Any] | None = None) -> Any:
+    """``fn`` as one of ``harness.interleave``'s runs: timed in this process (``harness.measure_here``: wall and
+    CPU, ``process_time``); its result goes to ``keep[label]`` (the last round's), not into the measurement."""
+    def once() -> Any:
+        m = measure_here(fn, label=label)
+        if keep is not None:
+            keep[label] = m.value
+        m.value = None
+        return m
+    return once
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -104,17 +112,16 @@ def main(argv: list[str] | None = None) -> None:
             return dense_disparity(rect.left, rect.right, rect.left_valid, rect.right_valid,
                                    rect.disparity_min_px, rect.disparity_max_px, s)
 
-        rows: dict[str, list[tuple[float, float]]] = {"floor": [], "ours": [], "fast": [], "tri": []}
-        dm = ours()
-        for _ in range(args.reps):  # interleaved
-            for name, fn in (("floor", floor), ("ours", ours), ("fast", lambda: ours(fast))):
-                w, c, out = timed(fn)
-                rows[name].append((w, c))
-                if name == "ours":
-                    dm = out
-            w, c, pts = timed(lambda: triangulate_chip(rect, gl, gr, dm.disparity, dm.sigma_px, dm.score))
-            rows["tri"].append((w, c))
-        med = {k: np.median(np.array(v), axis=0) for k, v in rows.items()}
+        last: dict[str, Any] = {"ours": ours()}
+
+        def tri() -> Any:
+            dm = last["ours"]  # the disparities of this round's ours
+            return triangulate_chip(rect, gl, gr, dm.disparity, dm.sigma_px, dm.score)
+
+        res = interleave({"floor": timed(floor, "floor"), "ours": timed(ours, "ours", last),
+                          "fast": timed(lambda: ours(fast), "fast"), "tri": timed(tri, "tri", last)}, args.reps)
+        pts = last["tri"]
+        med = {k: np.median(np.array([(m.wall_s, m.cpu_s) for m in ms]), axis=0) for k, ms in res.items()}
         f, o, q, t = med["floor"], med["ours"], med["fast"], med["tri"]
         print(f"| {n - 32}^2 ({n}^2) | {rect.disparity_count} | {rect.sgm_memory_bytes / 2**20:.1f} MiB "
               f"| {f[0]:.4f} / {f[1]:.4f} | {o[0]:.4f} / {o[1]:.4f} | {o[0] / f[0]:.1f} / {o[1] / f[1]:.1f} "

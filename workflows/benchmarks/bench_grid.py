@@ -43,15 +43,14 @@ import argparse
 import json
 import math
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from harness import peak_rss_bytes
-from harness.scenarios import make_points, median_and_min, run_gdal, truth_height, write_point_inputs
+from harness import interleave, measure, measure_here, peak_rss_bytes
+from harness.scenarios import gdal_grid, make_points, median_and_min, truth_height, write_point_inputs
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.geometry.body import DATUM_RADIUS_M, MERCURY, xyz_to_latlon
@@ -64,20 +63,19 @@ def rmse_vs_truth(elev, lat, lon):
     return float(np.sqrt(np.nanmean(e**2))), float(np.isfinite(elev).mean())
 
 
-def run_ours(npy, method, cfg, work):
+def run_ours(npy, method, cfg, work, label="ours"):
+    """The DEM stage in this process, timed by the harness from the load of the points to the written store;
+    returns (the Measurement, the grid and its coordinates read back, the stage's summary)."""
     out = work / f"{method}.zarr"
-    t0 = time.perf_counter()
-    pts = np.load(npy)
-    summary = grid_dem(pts, cfg, out, coverage=False, body=MERCURY)
-    dt = time.perf_counter() - t0
+    m = measure_here(lambda: grid_dem(np.load(npy), cfg, out, coverage=False, body=MERCURY), label=label)
     ds = open_dem(out)
-    return dt, ds.elevation.values, ds.lat.values, ds.lon.values, summary
+    return m, ds.elevation.values, ds.lat.values, ds.lon.values, m.value
 
 
-def run_ours_cold(npy, method, cfg, work):
-    """The same DEM stage in a fresh interpreter, timed from outside (imports included)."""
+def _cold_code(npy, cfg, work, method="median11"):
+    """The same DEM stage for a fresh interpreter (timed from outside by the harness: imports included)."""
     out = work / f"{method}_cold.zarr"
-    code = (
+    return (
         "import numpy as np\n"
         "from mercury_dem.config.dem import DemConfig\n"
         "from mercury_dem.geometry.body import MERCURY\n"
@@ -85,9 +83,6 @@ def run_ours_cold(npy, method, cfg, work):
         f"grid_dem(np.load({str(npy)!r}), DemConfig(**{_cfg_dict(cfg)!r}),"
         f" {str(out)!r}, coverage=False, body=MERCURY)\n"
     )
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", code], check=True)
-    return time.perf_counter() - t0
 
 
 def _cfg_dict(cfg):
@@ -150,36 +145,42 @@ def comparison(args):
         notes: dict[str, str] = {}
         cmds = {}
 
-        def ours(name, cfg, rep):
-            dt, elev, la, lo, _ = run_ours(npy, cfg.method, cfg, work)
-            shutil.rmtree(work / f"{cfg.method}.zarr")
-            times.setdefault(name, []).append(dt)
-            if name not in quality:
-                quality[name] = rmse_vs_truth(elev, la, lo)
-                notes[name] = "in-process (warm), 2 threads"
+        def ours(name, cfg):
+            def run():
+                m, elev, la, lo, _ = run_ours(npy, cfg.method, cfg, work, label=name)
+                m.value = None
+                shutil.rmtree(work / f"{cfg.method}.zarr")
+                if name not in quality:
+                    quality[name] = rmse_vs_truth(elev, la, lo)
+                    notes[name] = "in-process (warm), 2 threads"
+                return m
+            return name, run
 
-        def gdal(algo_name, src, rep):
+        def gdal(algo_name, src):
             label = "fgb" if src == fgb else "csv"
             name = f"gdal_grid {algo_name} ({label})"
-            dt, elev, cmd = run_gdal(src, algos[algo_name], size, extent, work)
-            times.setdefault(name, []).append(dt)
-            if name not in quality:
-                cmds[name] = cmd
-                quality[name] = rmse_vs_truth(elev, glat, glon)
-                notes[name] = f"GDAL (Debian), {'FlatGeobuf' if label == 'fgb' else 'CSV via VRT'}, 2 threads"
+
+            def run():
+                m, elev, cmd = gdal_grid(src, algos[algo_name], size, extent, work)
+                if name not in quality:
+                    cmds[name] = cmd
+                    quality[name] = rmse_vs_truth(elev, glat, glon)
+                    notes[name] = f"GDAL (Debian), {'FlatGeobuf' if label == 'fgb' else 'CSV via VRT'}, 2 threads"
+                return m
+            return name, run
+
+        def cold():
+            return measure([sys.executable, "-c", _cold_code(npy, cfg_m, work)], label="ours median11 cold")
 
         t_start = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
         load_start = Path("/proc/loadavg").read_text().split()[:3]
-        for rep in range(args.repeats):
-            ours("ours median11", cfg_m, rep)
-            gdal("invdistnn", fgb, rep)
-            ours("ours shepard", cfg_s, rep)
-            gdal("nearest", fgb, rep)
-        for rep in range(args.csv_repeats):
-            dt_cold = run_ours_cold(npy, "median11", cfg_m, work)
-            times.setdefault("ours median11 cold", []).append(dt_cold)
-            gdal("invdistnn", vrt, rep)
-            gdal("nearest", vrt, rep)
+        # harness.interleave: one round is ours median11, gdal invdistnn, ours shepard, gdal nearest (FlatGeobuf)
+        fast = dict([ours("ours median11", cfg_m), gdal("invdistnn", fgb), ours("ours shepard", cfg_s),
+                     gdal("nearest", fgb)])
+        slow = {"ours median11 cold": cold, **dict([gdal("invdistnn", vrt), gdal("nearest", vrt)])}
+        for runs, repeats in ((fast, args.repeats), (slow, args.csv_repeats)):
+            for name, ms in interleave(runs, repeats).items():
+                times[name] = [m.wall_s for m in ms]
         quality["ours median11 cold"] = quality["ours median11"]
         notes["ours median11 cold"] = "fresh interpreter: imports + cache load"
         if not args.skip_griddata:

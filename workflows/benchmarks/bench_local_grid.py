@@ -4,8 +4,8 @@ The user's case: 52,363 LOLA shots over 0.8 deg x 0.75 deg of the Moon near 25 N
 ``mercury-dem grid --body moon``. Before, the canvas was 6 x 5 deg (30x the data's
 area, 48 % no value) and the grid took 52 s at 64 pixel/deg; at 256 it was still on its
 first chunk after 8 minutes. Here the shots are simulated
-(:func:`mercury_dem.synth.tracks.altimeter_block`: 45 near-polar tracks, 1 m noise, over
-:class:`~mercury_dem.synth.tracks.BlockSurface`: a regional slope, long waves, six craters).
+(:func:`mercury_dem.synth.altimeter_block.altimeter_block`: 45 near-polar tracks, 1 m noise, over
+:class:`~mercury_dem.synth.altimeter_block.BlockSurface`: a regional slope, long waves, six craters).
 
 Reported:
 
@@ -50,19 +50,19 @@ import time
 from pathlib import Path
 
 import numpy as np
-from harness import measure
+from harness import interleave, measure, measure_here
 from harness.scenarios import gdal_grid, median_and_min, write_cloud_files  # gdal_grid's inputs and call, shared
 
 from mercury_dem.config.dem import DemConfig
 from mercury_dem.dem.extent import box_area_ratio, points_box, points_extent
 from mercury_dem.geometry.body import MOON
 from mercury_dem.pipeline.dem_stage import grid_dem, open_dem
-from mercury_dem.synth.tracks import BlockSurface, altimeter_block
+from mercury_dem.synth.altimeter_block import BlockSurface, altimeter_block
 
 BODY = MOON
 LAT = (24.6, 25.35)
 LON = (2.6, 3.4)
-N_TRACKS = 45
+N_PROFILES = 45
 N_SHOTS = 52_363
 NOISE_M = 1.0
 PPD = 256.0
@@ -74,7 +74,7 @@ def simulate(seed: int = 30):
     """The block of shots and its truth surface."""
     surf = BlockSurface(0.5 * sum(LAT), 0.5 * sum(LON), BODY.datum_radius_m)
     block = altimeter_block(np.random.default_rng(seed), BODY.datum_radius_m, surf, lat_range=LAT, lon_range=LON,
-                            n_tracks=N_TRACKS, n_shots=N_SHOTS, noise_m=NOISE_M)
+                            n_profiles=N_PROFILES, n_shots=N_SHOTS, noise_m=NOISE_M)
     return block, surf
 
 
@@ -86,10 +86,10 @@ def rmse_filled(elev, lat, lon, surf):
 
 
 def run_ours(npy, cfg, out):
-    """The DEM stage in this process (reading the .npy, writing dem.zarr; coverage off): (seconds, summary)."""
-    t0 = time.perf_counter()
-    summary = grid_dem(np.load(npy), cfg, out, coverage=False, body=BODY)
-    return time.perf_counter() - t0, summary
+    """The DEM stage in this process (reading the .npy, writing dem.zarr; coverage off), timed by the harness
+    (``harness.measure_here``): (the measurement, the stage's summary)."""
+    m = measure_here(lambda: grid_dem(np.load(npy), cfg, out, coverage=False, body=BODY), label="ours (in-process, warm)")
+    return m, m.value
 
 
 def run_cli(npy, ppd, out):
@@ -126,44 +126,51 @@ def main():
         radius_deg = math.degrees(radius_m / BODY.datum_radius_m)
         algo = f"invdistnn:power=2.0:radius={radius_deg:.8f}:max_points=11:min_points=1:nodata=nan"
         extent = (lon_min, lon_max, lat_min, lat_max)
-        times: dict[str, list[float]] = {"ours (in-process, warm)": [], "gdal_grid invdistnn (fgb)": [],
-                                         "ours: mercury-dem grid (cold CLI)": []}
         quality = {}
-        cpu: dict[str, list[float]] = {"gdal_grid invdistnn (fgb)": [], "ours: mercury-dem grid (cold CLI)": []}
-        t_start = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
-        load_start = Path("/proc/loadavg").read_text().split()[:3]
-        gdal_cmd = cli_cmd = cli_out = ""
-        for rep in range(args.repeats):
-            dt, _ = run_ours(npy, cfg, work / f"ours{rep}.zarr")
-            times["ours (in-process, warm)"].append(dt)
-            if rep == 0:
-                ds = open_dem(work / "ours0.zarr")
+        last = {}  # the commands and the CLI's output, as the last round ran them
+
+        def ours():
+            m, _ = run_ours(npy, cfg, work / "ours.zarr")
+            if "ours (in-process, warm)" not in quality:
+                ds = open_dem(work / "ours.zarr")
                 quality["ours (in-process, warm)"] = rmse_filled(ds.elevation.values, ds.lat.values, ds.lon.values,
                                                                  surf)
-            shutil.rmtree(work / f"ours{rep}.zarr")
-            m, elev, gdal_cmd = gdal_grid(fgb, algo, (nx, ny), extent, work)
-            cpu["gdal_grid invdistnn (fgb)"].append(m.cpu_s)
-            times["gdal_grid invdistnn (fgb)"].append(m.wall_s)
-            if rep == 0:
+            shutil.rmtree(work / "ours.zarr")
+            m.value = None
+            return m
+
+        def gdal():
+            m, elev, last["gdal"] = gdal_grid(fgb, algo, (nx, ny), extent, work)
+            if "gdal_grid invdistnn (fgb)" not in quality:
                 glat = lat_max - (np.arange(ny) + 0.5) / PPD
                 glon = lon_min + (np.arange(nx) + 0.5) / PPD
                 quality["gdal_grid invdistnn (fgb)"] = rmse_filled(elev, glat, glon, surf)
-            m, cli_cmd, cli_out = run_cli(npy, PPD, work / f"cli{rep}")
-            cpu["ours: mercury-dem grid (cold CLI)"].append(m.cpu_s)
-            times["ours: mercury-dem grid (cold CLI)"].append(m.wall_s)
-            shutil.rmtree(work / f"cli{rep}")
+            return m
+
+        def cli():
+            m, last["cli"], last["cli_out"] = run_cli(npy, PPD, work / "cli")
+            shutil.rmtree(work / "cli")
+            return m
+
+        t_start = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+        load_start = Path("/proc/loadavg").read_text().split()[:3]
+        res = interleave({"ours (in-process, warm)": ours, "gdal_grid invdistnn (fgb)": gdal,
+                          "ours: mercury-dem grid (cold CLI)": cli}, args.repeats)
+        times = {k: [m.wall_s for m in ms] for k, ms in res.items()}
+        cpu = {k: [m.cpu_s for m in ms] for k, ms in res.items() if k != "ours (in-process, warm)"}
+        gdal_cmd, cli_cmd, cli_out = last["gdal"], last["cli"], last["cli_out"]
         quality["ours: mercury-dem grid (cold CLI)"] = quality["ours (in-process, warm)"]
         before = None
         if args.before:
             old = DemConfig(pixels_per_degree=64.0, max_distance_m=50_000.0, query_threads=2, **OLD_BOUNDS)
-            dt, s_old = run_ours(npy, old, work / "before.zarr")
-            before = {"seconds": dt, "shape": s_old["shape"], "no_value_fraction": s_old["no_value_fraction"],
+            m_old, s_old = run_ours(npy, old, work / "before.zarr")
+            before = {"seconds": m_old.wall_s, "shape": s_old["shape"], "no_value_fraction": s_old["no_value_fraction"],
                       "area_vs_box": box_area_ratio((23.0, 28.0, 0.0, 6.0), box)}
         t_end = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
         load_end = Path("/proc/loadavg").read_text().split()[:3]
 
         ref_med, ref_min = median_and_min(times["gdal_grid invdistnn (fgb)"])
-        print(f"\n{pts.shape[0]} shots, {N_TRACKS} tracks, lat {LAT[0]}..{LAT[1]}, lon {LON[0]}..{LON[1]} "
+        print(f"\n{pts.shape[0]} shots, {N_PROFILES} tracks, lat {LAT[0]}..{LAT[1]}, lon {LON[0]}..{LON[1]} "
               f"(Moon, noise {NOISE_M:g} m); data box lat {box[0]:.4f}..{box[1]:.4f}, lon {box[2]:.4f}..{box[3]:.4f}")
         print(f"run {t_start} .. {t_end}, load average {' '.join(load_start)} .. {' '.join(load_end)}, "
               f"{args.repeats} interleaved repetitions, shared machine")

@@ -23,12 +23,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-import resource
 import time
 from typing import Any
 
 import cv2
 import numpy as np
+from harness import interleave, measure_here
 from harness.scenarios import a_priori_overlaps
 
 from mercury_dem.config.match import MatchConfig
@@ -110,10 +110,22 @@ def floor_pair(a: np.ndarray, b: np.ndarray, config: MatchConfig) -> int:
     return int(mask.sum()) if mask is not None else 0
 
 
-def _cpu() -> float:
-    """CPU seconds of this process so far, all threads (``getrusage``: user + system)."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+def _timed(run: Any, label: str) -> Any:
+    """One of :func:`speed`'s runs for ``harness.interleave``: timed in this process (``harness.measure_here``:
+    wall, CPU of all threads); the table reads the last round's result (matches per pair)."""
+    return lambda: measure_here(run, label=label)
+
+
+def _timed_floor(images: Any, pairs: Any, cfg: Any, threads: int) -> Any:
+    """The floor (:func:`floor_pair` on every pair) at ``threads`` OpenCV threads, for ``harness.interleave``."""
+    def once() -> Any:
+        old = cv2.getNumThreads()
+        cv2.setNumThreads(threads)
+        try:
+            return measure_here(lambda: [floor_pair(images[a], images[b], cfg) for a, b in pairs], label="floor")
+        finally:
+            cv2.setNumThreads(old)
+    return once
 
 
 SPEED_VARIANTS = ("tracks_off", "extra0", "flow", "all_pairs")
@@ -125,7 +137,8 @@ def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ..
     Every repetition runs ours (the defaults), then each requested variant, then the
     floor, so a load change on the shared machine hits both sides of a ratio alike.
     The per-repetition ratios (ours / floor of the same repetition) are printed as
-    well as the best-of ratios; CPU seconds are the process's (``getrusage``, all threads).
+    well as the best-of ratios; CPU seconds are the process's (``process_time``, all threads).
+    The rounds are ``harness.interleave``'s.
     """
     rng = np.random.default_rng(5)
     print(f"# bench_match speed: {n_images} mutually overlapping images per tile, all pairs; best of {repeats}")
@@ -154,25 +167,12 @@ def speed(sizes: list[int], n_images: int, repeats: int, variants: tuple[str, ..
                 "flow": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, flow_min_convergence_deg=0.0), pointing_sigma_urad=450.0),
                 "all_pairs": lambda: match_tile(images, geom, pairs, dataclasses.replace(cfg, redundant_convergence_deg=180.0), pointing_sigma_urad=450.0),
             }
-            wall: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
-            cpu: dict[str, list[float]] = {k: [] for k in ("ours", "floor", *variants)}
-            reps: Any = None
-            fl: list[int] = []
-            for _ in range(repeats):
-                for key in ("ours", *variants):
-                    t0, c0 = time.perf_counter(), _cpu()
-                    out = runs[key]()
-                    wall[key].append(time.perf_counter() - t0)
-                    cpu[key].append(_cpu() - c0)
-                    if key == "ours":
-                        reps = out[1]
-                old = cv2.getNumThreads()
-                cv2.setNumThreads(threads)
-                t0, c0 = time.perf_counter(), _cpu()
-                fl = [floor_pair(images[a], images[b], cfg) for a, b in pairs]
-                wall["floor"].append(time.perf_counter() - t0)
-                cpu["floor"].append(_cpu() - c0)
-                cv2.setNumThreads(old)
+            res = interleave({**{key: _timed(runs[key], key) for key in ("ours", *variants)},
+                              "floor": _timed_floor(images, pairs, cfg, threads)}, repeats)
+            wall = {k: [m.wall_s for m in ms] for k, ms in res.items()}
+            cpu = {k: [m.cpu_s for m in ms] for k, ms in res.items()}
+            reps: Any = res["ours"][-1].value[1]
+            fl: list[int] = res["floor"][-1].value
             k = len(pairs)
             o, f = min(wall["ours"]) / k, min(wall["floor"]) / k
             co, cf = min(cpu["ours"]) / k, min(cpu["floor"]) / k

@@ -99,7 +99,7 @@ def main() -> None:
     make_dem(surf, args.ppd, work / "dem.zarr", (args.shift_lat, args.shift_lon, args.shift_up))
     shots = make_shots(surf, int(args.shots), rng)
     t_setup = time.perf_counter() - t0
-    print(f"setup {t_setup:.1f} s: {len(shots)} shots in {shots['track_id'].nunique()} profiles, "
+    print(f"setup {t_setup:.1f} s: {len(shots)} shots in {shots['profile_id'].nunique()} profiles, "
           f"DEM {int(180 * args.ppd)} x {int(360 * args.ppd)}", flush=True)
 
     t0 = time.perf_counter()
@@ -125,7 +125,7 @@ def main() -> None:
     win = tile_window(ds["elevation"].values, ds["lat"].values, ds["lon"].values,
                       tuple(float(v) for v in tg.bounds(tid)), R, 1.0)
     sel = shots[tg.tile_of(shots["lat"].to_numpy(), shots["lon"].to_numpy()) == tid]
-    args_t = (win, sel["lat"].to_numpy(), sel["lon"].to_numpy(), sel["radius_m"].to_numpy(), sel["track_id"].to_numpy())
+    args_t = (win, sel["lat"].to_numpy(), sel["lon"].to_numpy(), sel["radius_m"].to_numpy(), sel["profile_id"].to_numpy())
     opt_sim = RegisterOptions(models=("similarity",), profile_nuisance=not args.no_profile_nuisance)
     times_ours, times_ours_prof = [], []
     for _ in range(3):
@@ -152,7 +152,7 @@ def main() -> None:
     rss_gb = peak_rss_bytes() / 1e9
     out = {
         "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()), "machine": platform.processor() or platform.machine(),
-        "shots": len(shots), "profiles": int(shots["track_id"].nunique()), "dem_shape": list(ds["elevation"].shape),
+        "shots": len(shots), "profiles": int(shots["profile_id"].nunique()), "dem_shape": list(ds["elevation"].shape),
         "setup_seconds": t_setup, "stage_seconds": t_stage, "tile_fits_seconds": summary["seconds_tiles"],
         "tiles_with_shots": n_tiles, "tiles_registered": len(ok),
         "us_per_shot_stage": 1e6 * t_stage / len(shots), "ms_per_tile_stage": 1e3 * t_stage / n_tiles,

@@ -104,7 +104,7 @@ def unit(args: argparse.Namespace) -> None:
         rec["merge_seconds"] = round(time.perf_counter() - t0, 2)
         rec["unit_peak_rss_bytes_after_merge"] = _peak()
         if args.merge_only:
-            rec.update({"merge": summary.to_dict(), "measures": summary.n_measures, "unit_peak_rss_bytes": _peak(),
+            rec.update({"merge": summary.to_dict(), "measures": summary.stats.n_measures, "unit_peak_rss_bytes": _peak(),
                         "worker_peak_rss_bytes": client.run(_worker_peak) if args.workers > 0 else {}})
             rec["worker_peak_rss_bytes"] = list(rec["worker_peak_rss_bytes"].values())
             print(json.dumps(rec))

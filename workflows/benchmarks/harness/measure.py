@@ -149,6 +149,17 @@ def measure(target: Callable[..., Any] | Sequence[str], *args: Any, label: str =
     return _run_command(list(target), label or os.path.basename(str(target[0])), env, cwd, check, timeout, log)
 
 
+def measure_here(fn: Callable[..., Any], *args: Any, label: str = "", **kwargs: Any) -> Measurement:
+    """Run ``fn(*args, **kwargs)`` once in this process (warm: its caches, loaded kernels and threads), for the
+    benchmarks that time a warm in-process call: wall (``perf_counter``), CPU of this process (``process_time``,
+    all its threads) and this process's peak resident size so far (not reset: an upper bound); the return value in
+    ``value``."""
+    c0, t0 = time.process_time(), time.perf_counter()
+    value = fn(*args, **kwargs)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return Measurement(label or getattr(fn, "__name__", "callable"), wall, cpu, peak_rss_bytes(), value=value)
+
+
 def interleave(runs: Mapping[str, Callable[[], Measurement]], repeats: int) -> dict[str, list[Measurement]]:
     """Call each of ``runs`` (label -> a function returning a :class:`Measurement`) in turn, ``repeats`` rounds:
     A B A B ... The lists keep the order of the rounds."""

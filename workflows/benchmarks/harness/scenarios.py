@@ -273,20 +273,20 @@ def make_shots(surface: Surface, n: int, rng: np.random.Generator) -> pd.DataFra
     """Pole-to-pole profiles, ~400 m apart along track, a random 3-D error per profile."""
     step = 400.0 / R * 180 / np.pi
     per_track = int(180 / step)
-    n_tracks = max(1, n // per_track)
-    lat = np.tile(np.linspace(-89.9, 89.9, per_track), n_tracks)
-    track = np.repeat(np.arange(n_tracks), per_track)
-    lon0 = rng.uniform(0, 360, n_tracks)
+    n_profiles = max(1, n // per_track)
+    lat = np.tile(np.linspace(-89.9, 89.9, per_track), n_profiles)
+    track = np.repeat(np.arange(n_profiles), per_track)
+    lon0 = rng.uniform(0, 360, n_profiles)
     lon = (lon0[track] + 0.05 * lat) % 360  # slightly inclined
     from mercury_dem.altimetry.register import enu_frame
     from mercury_dem.geometry.body import latlon_to_unit, xyz_to_latlon
 
     x = latlon_to_unit(lat, lon) * (R + surface.height(lat, lon))[:, None]
-    err = np.c_[rng.normal(0, 30, n_tracks), rng.normal(0, 30, n_tracks), rng.normal(0, 3, n_tracks)]
+    err = np.c_[rng.normal(0, 30, n_profiles), rng.normal(0, 30, n_profiles), rng.normal(0, 3, n_profiles)]
     E = enu_frame(lat, lon)
     x += np.einsum("nij,nj->ni", E, err[track])
     la, lo, h = xyz_to_latlon(x, R)
-    return pd.DataFrame({"lat": la, "lon": lo, "radius_m": R + h + rng.normal(0, 1.0, la.size), "track_id": track})
+    return pd.DataFrame({"lat": la, "lon": lo, "radius_m": R + h + rng.normal(0, 1.0, la.size), "profile_id": track})
 
 
 # ---- from bench_match.py ------------------------------------------------------------

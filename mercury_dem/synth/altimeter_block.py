@@ -1,4 +1,4 @@
-"""A block of laser-altimeter shots along near-polar tracks over a known surface (a LOLA-like block).
+"""A block of laser-altimeter shots along near-polar ground tracks (profiles) over a known surface (a LOLA-like block).
 
 What a user hands ``mercury-dem grid``: tens of thousands of shots along a few dozen
 north-south tracks over a small area (LOLA: 28 Hz shots ~20-60 m apart along track,
@@ -68,55 +68,55 @@ class BlockSurface:
 @dataclass(frozen=True)
 class AltimeterBlock:
     """Shots of :func:`altimeter_block`: ``xyz`` (N, 3) body-fixed metres; ``lat``/``lon`` degrees (east, [0, 360));
-    ``height`` m above the datum, noise included; ``track`` (N,) the track of each shot; ``track_lon`` the
-    tracks' longitudes at the block's centre latitude (degrees, dropped tracks excluded).
+    ``height`` m above the datum, noise included; ``profile_id`` (N,) the profile of each shot; ``profile_lon`` the
+    profiles' longitudes at the block's centre latitude (degrees, dropped profiles excluded).
     """
 
     xyz: NDArray[np.float64]
     lat: NDArray[np.float64]
     lon: NDArray[np.float64]
     height: NDArray[np.float64]
-    track: NDArray[np.int64]
-    track_lon: NDArray[np.float64]
+    profile_id: NDArray[np.int64]
+    profile_lon: NDArray[np.float64]
 
 
 def altimeter_block(rng: np.random.Generator, datum_radius_m: float, height: HeightFunction, *,
-                    lat_range: tuple[float, float], lon_range: tuple[float, float], n_tracks: int, n_shots: int,
+                    lat_range: tuple[float, float], lon_range: tuple[float, float], n_profiles: int, n_shots: int,
                     noise_m: float = 1.0, spacing_jitter: float = 0.3, tilt_deg: float = 1.5,
-                    drop_tracks: Sequence[int] = ()) -> AltimeterBlock:
-    """Shots along ``n_tracks`` near-polar tracks across a latitude/longitude block.
+                    drop_profiles: Sequence[int] = ()) -> AltimeterBlock:
+    """Shots along ``n_profiles`` near-polar ground tracks (profiles) across a latitude/longitude block.
 
     Parameters
     ----------
-    rng : the randomness (track positions, shot times, noise)
+    rng : the randomness (profile positions, shot times, noise)
     datum_radius_m : the body's datum sphere (heights are above it)
     height : truth height (m) as a function of latitude, longitude (degrees)
     lat_range, lon_range : the block, degrees; ``lon_range`` may cross 0 (e.g. (-0.4, 0.4)) or 180
-    n_tracks : tracks, evenly spread in longitude over the block then moved by up to
-        ``spacing_jitter`` x their spacing; ``drop_tracks`` (indices) are left out (gaps)
-    n_shots : shots in all, shared evenly by the kept tracks, at random times along each
+    n_profiles : profiles, evenly spread in longitude over the block then moved by up to
+        ``spacing_jitter`` x their spacing; ``drop_profiles`` (indices) are left out (gaps)
+    n_shots : shots in all, shared evenly by the kept profiles, at random times along each
         (mean spacing the track's length over its shots)
     noise_m : 1-sigma radial noise added to the heights
-    tilt_deg : the tracks' angle to the meridians (a near-polar orbit's ground track): a track's
+    tilt_deg : the profiles' angle to the meridians (a near-polar orbit's ground track): a profile's
         longitude drifts by tan(tilt_deg) degrees per degree of latitude from the block's centre
     """
     lat0, lat1 = lat_range
     lon0, lon1 = lon_range
-    spacing = (lon1 - lon0) / n_tracks
-    centres = lon0 + (np.arange(n_tracks) + 0.5) * spacing
-    centres = centres + rng.uniform(-spacing_jitter, spacing_jitter, n_tracks) * spacing
-    keep = np.setdiff1d(np.arange(n_tracks), np.asarray(drop_tracks, dtype=np.int64))
+    spacing = (lon1 - lon0) / n_profiles
+    centres = lon0 + (np.arange(n_profiles) + 0.5) * spacing
+    centres = centres + rng.uniform(-spacing_jitter, spacing_jitter, n_profiles) * spacing
+    keep = np.setdiff1d(np.arange(n_profiles), np.asarray(drop_profiles, dtype=np.int64))
     centres = np.sort(centres)[keep]
-    per_track = n_shots // keep.size
-    lat = np.sort(rng.uniform(lat0, lat1, (keep.size, per_track)), axis=1)
+    per_profile = n_shots // keep.size
+    lat = np.sort(rng.uniform(lat0, lat1, (keep.size, per_profile)), axis=1)
     mid = 0.5 * (lat0 + lat1)
     lon = centres[:, None] + math.tan(math.radians(tilt_deg)) * (lat - mid)
-    # every shot stays inside the block's longitudes: the drift is clipped, not the track moved
+    # every shot stays inside the block's longitudes: the drift is clipped, not the profile moved
     lon = np.clip(lon, lon0, lon1)
-    track = np.repeat(keep, per_track)
+    profile = np.repeat(keep, per_profile)
     lat = lat.ravel()
     lon = lon.ravel()
     h = height(lat, lon) + rng.normal(0.0, noise_m, lat.size)
     lon360 = np.mod(lon, 360.0)
     return AltimeterBlock(xyz=latlon_to_xyz(lat, lon360, h, datum_radius_m), lat=lat, lon=lon360, height=h,
-                          track=track, track_lon=np.mod(centres, 360.0))
+                          profile_id=profile, profile_lon=np.mod(centres, 360.0))
