@@ -13,7 +13,12 @@ label of the part that kept it, and the stored points' heights are compared:
   the rectified x (epipolar) and y directions: a seam or streak across the epipolar lines shows as a
   correlation along y much longer than along x.
 
-    PYTHONPATH=. .venv/bin/python workflows/benchmarks/diag_dense_part_seams.py RUN [--tiles N]
+    PYTHONPATH=. .venv/bin/python workflows/benchmarks/diag_dense_part_seams.py RUN [--tiles N] [--swap]
+
+``--swap``: the first pair of the first tile is matched again in-process both ways (left/right, then
+right/left: other reference pixels, other parts), both clouds binned on one lat/lon grid, and their
+high-passed heights correlated: structure both directions give is fixed on the ground (relief, or a
+systematic of the two images' geometry), not the reference image's columns or its parts.
 
 RUN is a run directory (run.json, report.json, dense.zarr). Reads only.
 """
@@ -31,10 +36,10 @@ from scipy import ndimage
 
 from mercury_dem.config import Config
 from mercury_dem.config.base import from_dict
-from mercury_dem.dense.chip import chip_grid, rectify_split
+from mercury_dem.dense.chip import chip_grid, dense_chip, rectify_split
 from mercury_dem.io.run_store import RunStore
 from mercury_dem.mission import open_mission
-from mercury_dem.pipeline.dense_inputs import adjusted_geometry, open_sparse_surface
+from mercury_dem.pipeline.dense_inputs import adjusted_geometry, matcher_of, open_sparse_surface
 
 
 def lag_corr(e: np.ndarray, dx: int, dy: int) -> float:
@@ -61,11 +66,47 @@ def nmad(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else float("nan")
 
 
+def swap_check(mission: Any, geometry: Any, surface: Any, config: Config, row: dict[str, Any], margin: float) -> None:
+    """Print how well the pair's two matching directions agree on the ground (module docstring, ``--swap``)."""
+    d = config.dense
+    settings, limits = matcher_of(config)
+    clouds = []
+    for a, b in ((row["left"], row["right"]), (row["right"], row["left"])):
+        la, lb = (np.asarray(mission.read_image(i), np.float32) for i in (a, b))
+        ga, gb = geometry[a], geometry[b]
+        pts = []
+        for chip in chip_grid(ga.camera.samples, ga.camera.lines, d.chip_size, d.chip_collar)[:d.max_chips_per_pair]:
+            p = dense_chip(la, lb, ga, gb, chip, surface, margin, settings, limits, sigma_floor_px=d.sigma_floor_px,
+                           max_vertical_px=d.max_vertical_px, min_chip_px=d.min_chip_px,
+                           sigma_scale=d.sigma_scale).points
+            keep = np.abs(p.height - surface(p.lat, p.lon)) <= d.max_height_offset_factor * margin
+            pts.append(np.c_[p.lat, p.lon, p.height][keep])
+        clouds.append(np.concatenate(pts))
+    n = 300
+    lat0, lat1 = np.min(clouds[0][:, 0]), np.max(clouds[0][:, 0])
+    lon0, lon1 = np.min(clouds[0][:, 1]), np.max(clouds[0][:, 1])
+    grids = []
+    for c in clouds:
+        i = np.rint((c[:, 0] - lat0) / (lat1 - lat0) * (n - 1)).astype(int)
+        j = np.rint((c[:, 1] - lon0) / (lon1 - lon0) * (n - 1)).astype(int)
+        k = (i >= 0) & (i < n) & (j >= 0) & (j < n)
+        total = np.bincount(i[k] * n + j[k], c[k, 2], n * n)
+        count = np.bincount(i[k] * n + j[k], None, n * n)
+        grids.append(np.where(count > 0, total / np.maximum(count, 1), np.nan).reshape(n, n))
+    print(f"swap: {len(clouds[0])} / {len(clouds[1])} points, one {n} x {n} lat/lon grid")
+    for sigma in (24, 12, 6):
+        hf, hs = high_pass(grids[0], sigma), high_pass(grids[1], sigma)
+        k = np.isfinite(hf) & np.isfinite(hs)
+        print(f"  heights - gauss {sigma} cells: std {np.std(hf[k]):.0f} / {np.std(hs[k]):.0f} m, correlation "
+              f"{np.corrcoef(hf[k], hs[k])[0, 1]:.2f}, std of the difference {np.std(hf[k] - hs[k]):.0f} m")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the figures of the module docstring for one run."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path)
     ap.add_argument("--tiles", type=int, default=1000, help="at most this many tiles (sorted by name)")
+    ap.add_argument("--swap", action="store_true", help="also match the first pair both ways (module docstring)")
     a = ap.parse_args(argv)
     run: Path = a.run
     config = from_dict(Config, json.loads((run / "run.json").read_text())["config"])
@@ -78,6 +119,11 @@ def main(argv: list[str] | None = None) -> int:
     truth = mission.truth.surface().height if mission.truth is not None else None
     d = config.dense
     cloud = zarr.open_group(str(run / "dense.zarr"), mode="r")
+    if a.swap:
+        first = sorted(cloud.group_keys())[0]
+        g0 = cloud[first]
+        swap_check(mission, geometry, surface, config, dict(g0.attrs)["summary"]["pairs_table"][0],
+                   float(margins[first.split("_")[1]]))
     acc: dict[str, list[Any]] = {k: [] for k in ("across", "within", "offset", "nmad", "rn", "err", "vrms", "lags", "steps", "control")}
     lags = (2, 4, 8, 16, 32)
     for name in sorted(cloud.group_keys())[:a.tiles]:
