@@ -59,7 +59,11 @@ def read_arrow_table(path: str | Path, what: str) -> pa.Table:
     try:
         # ParquetFile.read, not pq.read_table: the latter imports pyarrow.dataset, which imports pandas
         with pq.ParquetFile(path) as f:
-            return f.read(use_pandas_metadata=True)
+            table = f.read(use_pandas_metadata=True)
+        # full validation: a flipped byte in a string column reads without error and fails only when a value
+        # is decoded (UnicodeDecodeError in to_pylist, found by tests/mission/test_fuzz_store.py)
+        table.validate(full=True)
+        return table
     except Exception as exc:  # pyarrow raises several types for a damaged file
         raise StoreError(f"{what}: cannot read {path} ({type(exc).__name__}: {exc})") from None
 

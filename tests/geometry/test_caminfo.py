@@ -185,7 +185,9 @@ def test_older_usgscsm_pair_is_sane() -> None:
     infos = []
     for path in PAIR:
         g = read_isd(path, require_sun=False)
-        assert g.sun_position is None and len(g.warnings) == 2  # 4-number sun vector, no distortion key
+        # the knoten export's 4-number Sun row in km labelled m is read (two warnings say how), no distortion key
+        assert len(g.warnings) == 3 and sum("sun_position" in w for w in g.warnings) == 2
+        assert g.sun_position is not None and 0.307 < np.linalg.norm(g.sun_position) / 1.495978707e11 < 0.467
         info = compute_caminfo(g.camera, g.position, g.rotation, None, radius_m=g.radius_m)
         assert 31.0 < info.centre_lat < 33.0 and 183.5 < info.centre_lon < 185.5
         assert 1.9e6 < info.spacecraft_altitude_m < 2.1e6 and 100 < info.pixel_scale_m < 130
@@ -211,8 +213,12 @@ def test_cli_table_and_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert data["caminfo"]["centre_lat"] == pytest.approx(46.2748, abs=1e-3)
     assert main(["geometry", str(PAIR[0]), "--json", "--no-sun"]) == 0
     data = json.loads(capsys.readouterr().out)
-    assert data["caminfo"]["incidence_deg"] is None and len(data["warnings"]) == 2
-    assert main(["geometry", str(PAIR[0])]) == 2  # its sun vector is unusable: say so, suggest --no-sun
+    assert 60.0 < data["caminfo"]["incidence_deg"] < 80.0 and len(data["warnings"]) == 3  # measured 71.0
+    raw = json.loads(Path(PAIR[0]).read_text())
+    raw["sun_position"]["positions"] = [[1.0, 2.0, 3.0]]  # a Sun 4 m away: unusable in any unit
+    bad_sun = tmp_path / "bad_sun.json"
+    bad_sun.write_text(json.dumps(raw))
+    assert main(["geometry", str(bad_sun)]) == 2  # its sun vector is unusable: say so, suggest --no-sun
     assert "--no-sun" in capsys.readouterr().err
     not_label = tmp_path / "notes.lbl"
     not_label.write_text("FOO = 1\nEND\n")
