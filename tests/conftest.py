@@ -6,6 +6,7 @@ it is the world of the synth, pipeline and notebook tests.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -50,21 +51,65 @@ _WHOLE_RUN_MODULES = {"test_run.py", "test_execution.py", "test_tiny_mission_on_
                       "test_local_scripts.py", "test_listen_addresses.py"}
 
 
+#: Single tests that are end to end although their module is not, each with its reason (marked ``integration``,
+#: so they leave the fast loop and stay in ``make test``). Listed here, not on the test, to keep the marks of
+#: modules other branches edit in one place.
+_WHOLE_RUN_TESTS = {
+    # a whole command (import-isis, twice) over a real ISIS network of the shared data
+    "tests/network/test_cli.py::test_import_with_serial_map": "whole command on real data",
+    # every published network read, written as v2 and v5 and read back: real data over many files;
+    # the reader/writer stays in the fast loop through the property test test_our_networks_round_trip
+    "tests/network/test_isis.py::test_real_networks_round_trip": "real-data round trips over many files",
+    # a real Dask scheduler process started and waited on (seconds of sleeping, not computing)
+    "tests/cluster/test_idle_timeout.py::test_the_idle_clock_starts_at_the_first_join_not_at_the_start":
+        "a real scheduler",
+    "tests/cluster/test_idle_timeout.py::test_a_scheduler_nobody_joins_ends_after_the_bound": "a real scheduler",
+    "tests/compute/test_no_worker_watchdog.py::test_a_real_scheduler_without_workers_cancels_the_waiting_futures":
+        "a real scheduler",
+}
+
+#: Examples each hypothesis test draws at most in the fast loop (``-m`` naming ``not integration``); ``make test``
+#: (plain ``pytest``) and the fuzz benchmark keep every test's own count, and ``MERCURY_DEM_FUZZ_EXAMPLES``, when
+#: set, turns the cap off. Every reader is still fuzzed in the loop, on fewer inputs.
+FAST_LOOP_FUZZ_EXAMPLES = 10
+
+
+def _cap_fuzz_examples(items: list[pytest.Item], cap: int) -> None:
+    """Lower the ``max_examples`` of each hypothesis test among ``items`` to ``cap``.
+
+    hypothesis has no public switch that overrides a count given in ``@settings`` (a profile only sets the
+    default), so the settings object that ``@given`` reads when the test runs is replaced by a child of it.
+    """
+    from hypothesis import settings
+
+    for item in items:
+        test = getattr(item, "obj", None)
+        current = getattr(test, "_hypothesis_internal_use_settings", None)
+        if current is not None and current.max_examples > cap:
+            test._hypothesis_internal_use_settings = settings(current, max_examples=cap)  # type: ignore[union-attr]
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The two loops: ``integration`` marks, and ``slow`` tests kept out of every selection not naming them.
 
     ``pytest -m "not integration"`` is the fast inner loop; plain ``pytest`` (``make test``) runs every
     test that is not ``slow``. Tests that use a whole-run fixture, or live in one of
-    :data:`_WHOLE_RUN_MODULES`, are marked ``integration`` here; others mark themselves.
+    :data:`_WHOLE_RUN_MODULES`, or are listed in :data:`_WHOLE_RUN_TESTS` are marked ``integration`` here;
+    others mark themselves. In the fast loop the hypothesis tests draw at most :data:`FAST_LOOP_FUZZ_EXAMPLES`.
 
     ``addopts`` excludes ``slow`` with ``-m "not slow"``, but a ``-m`` on the command line replaces it:
     ``-m "not integration"`` used to run the slow tests too (52 s of them on this machine). So a slow test
     is deselected here unless the ``-m`` expression mentions ``slow`` (``make test-slow`` is ``-m slow``).
     """
     for item in items:
-        if _WHOLE_RUN_FIXTURES & set(getattr(item, "fixturenames", ())) or item.path.name in _WHOLE_RUN_MODULES:
+        whole_run = (_WHOLE_RUN_FIXTURES & set(getattr(item, "fixturenames", ()))
+                     or item.path.name in _WHOLE_RUN_MODULES or item.nodeid.split("[")[0] in _WHOLE_RUN_TESTS)
+        if whole_run:
             item.add_marker(pytest.mark.integration)
-    if "slow" not in (config.option.markexpr or ""):
+    markexpr = config.option.markexpr or ""
+    if "not integration" in markexpr and not os.environ.get("MERCURY_DEM_FUZZ_EXAMPLES"):
+        _cap_fuzz_examples(items, FAST_LOOP_FUZZ_EXAMPLES)
+    if "slow" not in markexpr:
         slow = [item for item in items if item.get_closest_marker("slow") is not None]
         if slow:
             config.hook.pytest_deselected(items=slow)
