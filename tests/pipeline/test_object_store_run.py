@@ -153,6 +153,12 @@ def test_a_local_cluster_on_the_bucket_equals_the_sync_run(s3_endpoint: str, tin
     ids1, rot1, _, _ = read_solution(RunStore("s3://e2e-cluster/run").solution_path("global", 0))
     assert (ids0 == ids1).all() and np.array_equal(rot0, rot1)
     assert RunStore("s3://e2e-cluster/run").remote.exists("performance.html")
+    # the DEM stage's products, registration and validation ran as a task on a worker process (issue 33 item 3)
+    assert report["dem"]["tail_on_worker"] is True and report["dem"]["statistics"] == sync_run[1]["dem"]["statistics"]
+    assert RunStore("s3://e2e-cluster/run").remote.exists("products/dem.tif")
+    # and the global solution's validation against the truth too, equal to the in-process one's
+    v0, v1 = dict(sync_run[1]["validation"]), dict(report["validation"])
+    assert v0.pop("dem")["adjusted"] == v1.pop("dem")["adjusted"] and v1 == v0
 
 
 def _chunk_tokens(r: RemoteDir) -> dict[str, str]:

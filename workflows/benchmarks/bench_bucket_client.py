@@ -50,6 +50,7 @@ def main() -> int:
     ap.add_argument("--config", type=Path)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dir", type=Path)
+    ap.add_argument("--label", default="", help="which code ran (recorded: the harness's commit is the script's)")
     ap.add_argument("--json", action="store_true", help="append the record to records/bucket_client.jsonl")
     ap.add_argument("--client", nargs=4, metavar=("MISSION", "OUT", "CONFIG", "WORKERS"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -93,7 +94,7 @@ def main() -> int:
         keys = [k for k in run.fs.find(run.key("")) if k.endswith("/summary.json")]
         run.fs.get(keys, [str(tmp / "run" / k[len(run.key("")):].lstrip("/")) for k in keys])
         if args.json:
-            append_record("bucket_client", {"preset": args.preset if args.mission is None else None, "workers": args.workers,
+            append_record("bucket_client", {"label": args.label, "preset": args.preset if args.mission is None else None, "workers": args.workers,
                                             "config": str(args.config) if args.config else None}, values)
     finally:
         proc.terminate()
