@@ -284,7 +284,7 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Com
         out["tail_on_worker"] = True
         if stream is not None:
             stream.write(log)
-    else:  # a bucket run with the synchronous client reads the local cache: in this process
+    else:  # a disk run (its client registers and grids), or a bucket run with the synchronous client: here
         tail, table = _dem_tail(store, mission, config, net, dem_cfg, None if store.url is not None else client, rep)
         out["tail_on_worker"] = False
     out.update(tail)
