@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
+from mercury_dem.compute import runs_in_process
 from mercury_dem.config import Config
 from mercury_dem.dem.cloud import point_cloud
 from mercury_dem.exceptions import MercuryDemError
@@ -194,40 +195,20 @@ def _validation(store: RunStore, net: Any, dem_cfg: Any, client: ComputeClient |
     return validation
 
 
-def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: ComputeClient | None, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
-    """Grid ``dem.zarr`` from the global network, then the products, checks, registration and validation; returns
-    the report's ``dem`` block.
-
-    ``client`` is the run's (the synchronous client grids in this process). A chunk that fails is recorded
-    (``failed_chunks``: which, why, what to do), its pixels left NaN, and a resume grids only it again. On a
-    bucket run (``store.url``) the chunk tasks write straight into the bucket's ``dem.zarr``
-    (:mod:`mercury_dem.pipeline.dem_bucket`); the registration and the a-priori DEM of the validation read the
-    run's local cache, so they run in this process. With truth, the a-priori points are gridded too (into a
-    temporary store), so the report shows what the adjustment bought.
+def _dem_tail(store: RunStore, mission: Mission, config: Config, net: Any, dem_cfg: Any, client: ComputeClient | None,
+              rep: Any) -> tuple[dict[str, Any], str | None]:
+    """What follows the gridding of ``dem.zarr``: the products, checks, registration (and its products) and the
+    validation; returns the report's keys they fill and the products' table. ``client`` grids the a-priori DEM
+    and registers the tiles (None: in this process).
     """
-    from mercury_dem.dem.extent import config_with_extent
-    from mercury_dem.io.network_store import read_network
     from mercury_dem.products.make import make_products
-    from mercury_dem.progress import Reporter
 
-    rep, t0 = Reporter(stream), time.perf_counter()
-    net = read_network(store.network_path("global", 0))
-    pts = point_cloud(net, adjusted=True)
-    # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
-    dem_cfg = config_with_extent(config.dem, pts) if pts.shape[0] else config.dem
-    grid_summary = _grid_or_resume(store, pts, dem_cfg, client, mission.body, rep)
-    client = None if store.url is not None else client  # below, tasks read the local cache: in this process
     truth = mission.truth.surface().height if mission.truth is not None else None
     rep.message("products: writing GeoTIFF/ISIS/PDS products and browse images")
     t = time.perf_counter()
     products = make_products(store.dem_path, store.products_dir, config, truth_height=truth, overwrite=True)
-    out: dict[str, Any] = {
-        "points": int(pts.shape[0]), "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
-        "coverage": grid_summary.get("coverage"),
-        "failed_chunks": grid_summary.get("failed_chunks", []),  # chunks not gridded (pixels NaN); [] when none
-        "statistics": products.get("statistics"), "files": [str(f) for f in products.get("files", [])],
-        "products_skipped": products.get("skipped", {}),
-    }
+    out: dict[str, Any] = {"statistics": products.get("statistics"), "files": [str(f) for f in products.get("files", [])],
+                           "products_skipped": products.get("skipped", {})}
     rep.message(f"products: {len(products.get('files', []))} files in {time.perf_counter() - t:.1f} s")
     out.update(_checks(store, mission, config, rep))
     registration = register_to_mission_altimetry(store, mission, config, client, rep)
@@ -241,7 +222,73 @@ def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: Com
     if truth is not None:
         out["validation"] = _validation(store, net, dem_cfg, client, mission.body, truth, products.get("accuracy"),
                                         registration, rep)
+    return out, products.get("table")
+
+
+def dem_tail_task(run_url: str, config: Config, dem_cfg: Any) -> tuple[dict[str, Any], str | None, str]:
+    """Task body of a bucket run's DEM stage after the gridding (:func:`_dem_tail`), on a worker.
+
+    Reads what it needs from the bucket into this worker's cache (the run, its mission, the committed
+    ``dem.zarr`` and ``coverage.zarr``, the global network) and commits what it makes to the bucket (products,
+    registered and merged maps, registration tables: each committed as on a disk run's client, atomically);
+    returns the report's keys, the products' table and its progress messages (the client prints them).
+    """
+    import io
+
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.mission import open_mission
+    from mercury_dem.progress import Reporter
+
+    store = RunStore.open(run_url)
+    mission = open_mission(store.read_run()["mission"])
+    for name in (DEM_FILE, COVERAGE_FILE):
+        store.fetch_zarr(name)
+    log = io.StringIO()
+    out, table = _dem_tail(store, mission, config, read_network(store.network_path("global", 0)), dem_cfg, None,
+                           Reporter(log, mode="lines"))
+    return out, table, log.getvalue()
+
+
+def run_dem_stage(store: RunStore, mission: Mission, config: Config, client: ComputeClient | None, stream: TextIO | None = sys.stdout) -> dict[str, Any]:
+    """Grid ``dem.zarr`` from the global network, then the products, checks, registration and validation; returns
+    the report's ``dem`` block.
+
+    ``client`` is the run's (the synchronous client grids in this process). A chunk that fails is recorded
+    (``failed_chunks``: which, why, what to do), its pixels left NaN, and a resume grids only it again. On a
+    bucket run (``store.url``) the chunk tasks write straight into the bucket's ``dem.zarr``
+    (:mod:`mercury_dem.pipeline.dem_bucket`), and what follows (products, checks, registration, validation:
+    :func:`_dem_tail`) runs as one task on a worker (:func:`dem_tail_task`), which reads the bucket and commits
+    its results there, so the client holds only the point cloud it grids from (issue 33: the client stays
+    light). With the synchronous client they run in this process. With truth, the a-priori points are gridded
+    too (into a temporary store), so the report shows what the adjustment bought.
+    """
+    from mercury_dem.dem.extent import config_with_extent
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.progress import Reporter
+
+    rep, t0 = Reporter(stream), time.perf_counter()
+    net = read_network(store.network_path("global", 0))
+    pts = point_cloud(net, adjusted=True)
+    # Unset map bounds come from the adjusted cloud, once: the a-priori DEM is gridded on the same map.
+    dem_cfg = config_with_extent(config.dem, pts) if pts.shape[0] else config.dem
+    grid_summary = _grid_or_resume(store, pts, dem_cfg, client, mission.body, rep)
+    out: dict[str, Any] = {
+        "points": int(pts.shape[0]), "grid": {k: v for k, v in grid_summary.items() if k != "coverage"},
+        "coverage": grid_summary.get("coverage"),
+        "failed_chunks": grid_summary.get("failed_chunks", []),  # chunks not gridded (pixels NaN); [] when none
+    }
+    del pts
+    if store.url is not None and client is not None and not runs_in_process(client):  # on a worker, from the bucket
+        rep.message("dem stage: products, checks, registration and validation in one task on a worker")
+        tail, table, log = client.submit(dem_tail_task, store.url, config, dem_cfg, pure=False).result()
+        out["tail_on_worker"] = True
+        if stream is not None:
+            stream.write(log)
+    else:  # a disk run (its client registers and grids), or a bucket run with the synchronous client: here
+        tail, table = _dem_tail(store, mission, config, net, dem_cfg, None if store.url is not None else client, rep)
+        out["tail_on_worker"] = False
+    out.update(tail)
     rep.message(f"dem stage: done in {time.perf_counter() - t0:.1f} s")
-    if stream is not None and products.get("table"):
-        print(products["table"], file=stream)
+    if stream is not None and table:
+        print(table, file=stream)
     return out

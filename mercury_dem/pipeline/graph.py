@@ -28,6 +28,7 @@ from mercury_dem.compute import (
     lost_to_the_cluster,
     performance_report,
     raise_if_run_stopping,
+    runs_in_process,
 )
 from mercury_dem.compute.watchdog import NoWorkerWatchdog, watch_workers
 from mercury_dem.config import Config, to_dict
@@ -252,6 +253,7 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
             glob = summaries["global"][0] if summaries["global"] else None
             products = _products(store, mission, config, conn.client, stream, timings, stage,
                                  dem and glob is not None and glob.ok)
+            validation = _validation_on_worker(store, mission, conn.client, glob)
             if watchdog is not None and watchdog.error is not None:  # a stage that took its cancelled tasks
                 raise watchdog.error                                   # for failures of its own must not finish
     finally:
@@ -262,12 +264,23 @@ def _run_pipeline(mission_path: str | Path, out: str | Path, config: Config, sch
     timings["total"] = time.perf_counter() - t_start
     stage[0] = "the report (RUN/report.json)"
     dem_summary, dense_summary = products
-    report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary)
+    report = build_report(store, mission, config, plan, summaries, timings, conn, dem_summary, validation)
     report["integrity"] = integrity
     if dense_summary is not None:
         report["dense"] = dense_summary
     write_report(store, report)
     return report
+
+
+def _validation_on_worker(store: RunStore, mission: Any, client: ComputeClient, glob: Any) -> dict[str, Any] | None:
+    """A bucket run's validation of the global solution against the truth, as a task on a worker (issue 33: the
+    client stays light; it was the client's peak after the DEM stage); None elsewhere: the report computes it here.
+    """
+    if store.url is None or mission.truth is None or glob is None or not glob.ok or runs_in_process(client):
+        return None
+    from mercury_dem.pipeline.report import validate_global_task
+
+    return dict(client.submit(validate_global_task, store.url, pure=False).result())
 
 
 def _announce(store: RunStore, conn: Connection, stream: TextIO | None) -> None:

@@ -63,10 +63,11 @@ def versions() -> dict[str, str]:
 
 def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[str, Any],
                  summaries: dict[str, list[Summary]], timings: dict[str, float], conn: Any,
-                 dem_summary: dict[str, Any] | None) -> dict[str, Any]:
+                 dem_summary: dict[str, Any] | None, validation: dict[str, Any] | None = None) -> dict[str, Any]:
     """The run's report (``report.json``): images, levels, timings, validation against the truth and the DEM's summary.
 
-    ``summaries``: the typed summaries of each level's units (:mod:`mercury_dem.pipeline.results`).
+    ``summaries``: the typed summaries of each level's units (:mod:`mercury_dem.pipeline.results`);
+    ``validation``: the global solution's against the truth when a worker computed it (else computed here).
     """
     glob = summaries.get("global", [])
     global_ok = bool(glob and glob[0].ok)
@@ -83,7 +84,7 @@ def build_report(store: RunStore, mission: Mission, config: Config, plan: dict[s
         },
         "failures": failure_counts(summaries),
     }
-    controlled, validation = _global_solution(store, mission) if global_ok else ([], None)
+    controlled, validation = _global_solution(store, mission, validation) if global_ok else ([], None)
     cset = set(controlled)
     ids_all = [str(x) for x in mission.catalog["image_id"]]
     uncontrolled = [i for i in ids_all if i not in cset]
@@ -136,21 +137,40 @@ def failure_counts(summaries: dict[str, list[Summary]]) -> dict[str, dict[str, i
     return out
 
 
-def _global_solution(store: RunStore, mission: Mission) -> tuple[list[str], dict[str, Any] | None]:
+def _global_solution(store: RunStore, mission: Mission, validation: dict[str, Any] | None = None,
+                     ) -> tuple[list[str], dict[str, Any] | None]:
     """The images the global solution controls (at least one measure), and its validation against the mission's
-    truth (None without one).
+    truth (None without one): ``validation`` when given (computed on a worker, :func:`validate_global_task`),
+    else :func:`validate_global` here.
     """
     sid, rot, pos, table = read_solution(store.solution_path("global", 0))
     nmeas = table["n_measures"].to_numpy()
     controlled = [str(i) for i, n in zip(sid, nmeas) if n > 0]
     if mission.truth is None:
         return controlled, None
+    return controlled, validation if validation is not None else validate_global(store, mission)
+
+
+def validate_global(store: RunStore, mission: Mission) -> dict[str, Any]:
+    """The global solution against the mission's truth (:func:`mercury_dem.validate.run.validate_run`)."""
     from mercury_dem.io.network_store import read_network
     from mercury_dem.validate.run import validate_run
 
+    sid, rot, pos, table = read_solution(store.solution_path("global", 0))
+    nmeas = table["n_measures"].to_numpy()
     net = read_network(store.network_path("global", 0))
     keep = nmeas > 0
-    return controlled, validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep], positions=pos[keep])
+    return validate_run(net, list(sid[keep]), rot[keep], mission, nmeas[keep], positions=pos[keep])
+
+
+def validate_global_task(run_url: str) -> dict[str, Any]:
+    """Task body of a bucket run (issue 33: the client stays light): :func:`validate_global` on a worker, which
+    reads the run, its mission and truth from the bucket into its own cache.
+    """
+    from mercury_dem.mission import open_mission
+
+    store = RunStore.open(run_url)
+    return validate_global(store, open_mission(store.read_run()["mission"]))
 
 
 def uncontrolled_reasons(store: RunStore, ids: list[str], plan: dict[str, Any], global_ok: bool,

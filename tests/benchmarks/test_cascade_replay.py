@@ -28,6 +28,9 @@ scheduler_overhead = _replay.scheduler_overhead
 sleep_cluster = _replay.sleep_cluster
 BlockedCost = _replay.BlockedCost
 InMemoryCost = _replay.InMemoryCost
+MergeCost = _replay.MergeCost
+SplitGraph = _replay.SplitGraph
+with_merge = _replay.with_merge
 
 
 def test_critical_path_hand_made_graph() -> None:
@@ -172,6 +175,29 @@ def test_level_spans_from_summary_times(tmp_path: Path) -> None:
     sp = level_spans(read_unit_timings(tmp_path))
     assert sp["tile"] == {"start": 0.0, "end": 4.0, "span": 4.0}  # tile 1: 100 -> 104
     assert sp["region"]["start"] == pytest.approx(4.0) and sp["global"]["end"] == pytest.approx(22.0)
+
+
+def test_merge_is_a_task_of_its_own_before_its_unit(tmp_path: Path) -> None:
+    # the merge of the hemispheres and the globe: a one-worker task on the unit's children, the unit after it
+    _fake_run(tmp_path)
+    target = TargetSize(images=6480, measures=648_000, tile_size_deg=10.0, pairs_per_image=3.0)
+    plan = scale_plan(read_unit_timings(tmp_path), target, alpha=1.0)
+    merge = MergeCost(input_measures=1000.0, seconds=1.0, peak_bytes=1e9, peak_exponent=0.0, input_ratio=1.1)
+    graph, dur, det = with_merge(plan, ("hemisphere", "global"), plan.durations, merge)
+    assert graph.deps["merge:global-0"] == plan.graph.deps["global-0"] and graph.deps["global-0"] == ("merge:global-0",)
+    assert graph.order.index("merge:global-0") == graph.order.index("global-0") - 1
+    assert graph.keys("global") == ["global-0"] and "merge:region-0" not in dur
+    assert dur["merge:global-0"] == pytest.approx(648_000 * 1.1 / 1000.0) and det["global-0"]["bytes"] == 1e9
+    # the critical path gains exactly the merges on it; a wide cluster's makespan is the critical path
+    cp0, path0 = critical_path(plan.graph.deps, plan.durations)
+    cp1, path1 = critical_path(graph.deps, dur)
+    assert path1 == [k for p in path0 for k in ((f"merge:{p}", p) if p.split("-")[0] in ("hemisphere", "global") else (p,))]
+    assert cp1 == pytest.approx(cp0 + sum(dur[k] for k in path1 if k.startswith("merge:")))
+    assert list_schedule(graph, dur, 10_000).makespan == pytest.approx(cp1)
+    assert list_schedule(graph, dur, 10_000).level_finish(graph)["global"] == pytest.approx(cp1)
+    # the in-memory merge's figures (network.md): 5.5e6 input measures, 8.1 s, 1.72 GB, linear in memory
+    mem = MergeCost.in_memory()
+    assert mem.unit_bytes(5_500_030 / mem.input_ratio) == pytest.approx(1.72e9)
 
 
 def test_read_timings_refuses_an_empty_directory(tmp_path: Path) -> None:

@@ -153,6 +153,12 @@ def test_a_local_cluster_on_the_bucket_equals_the_sync_run(s3_endpoint: str, tin
     ids1, rot1, _, _ = read_solution(RunStore("s3://e2e-cluster/run").solution_path("global", 0))
     assert (ids0 == ids1).all() and np.array_equal(rot0, rot1)
     assert RunStore("s3://e2e-cluster/run").remote.exists("performance.html")
+    # the DEM stage's products, registration and validation ran as a task on a worker process (issue 33 item 3)
+    assert report["dem"]["tail_on_worker"] is True and report["dem"]["statistics"] == sync_run[1]["dem"]["statistics"]
+    assert RunStore("s3://e2e-cluster/run").remote.exists("products/dem.tif")
+    # and the global solution's validation against the truth too, equal to the in-process one's
+    v0, v1 = dict(sync_run[1]["validation"]), dict(report["validation"])
+    assert v0.pop("dem")["adjusted"] == v1.pop("dem")["adjusted"] and v1 == v0
 
 
 def _chunk_tokens(r: RemoteDir) -> dict[str, str]:
@@ -276,3 +282,29 @@ def test_dem_chunks_run_on_dask_workers(s3_run: list[str], sync_run: tuple[Path,
     assert dem.attrs["complete"] is True
     np.testing.assert_array_equal(dem["elevation"].values, ref["elevation"].values)
     np.testing.assert_array_equal(dem["point_count"].values, ref["point_count"].values)
+
+
+def test_dem_stage_tail_runs_on_a_worker(s3_run: list[str]) -> None:
+    """A bucket run's products, checks, registration and validation run as one task on a worker (issue 33 item 3):
+    it reads the bucket, commits its products there, and its report equals the in-process run's."""
+    from distributed import Client, LocalCluster
+
+    from mercury_dem.mission import open_mission
+    from mercury_dem.pipeline.dem_run import run_dem_stage
+
+    store = RunStore.open(RUN)
+    store.remote.remove("products")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        out = run_dem_stage(store, open_mission(MISSION), tiny_config(), client, stream=None)
+    report = __import__("json").loads(store.report_json.read_text())  # the run's, its tail in this process
+    want = {**report["dem"], "validation": report["validation"]["dem"]}  # the report moves the validation out
+    assert out["tail_on_worker"] is True and want["tail_on_worker"] is False
+    assert set(out) == set(want)
+    for key in ("statistics", "shape_check", "products_skipped", "validation"):
+        assert out[key] == want[key], key
+    reg, reg0 = out.get("registration") or {}, want.get("registration") or {}
+    assert {k: v for k, v in reg.items() if not k.startswith("seconds")} == \
+        {k: v for k, v in reg0.items() if not k.startswith("seconds")}
+    assert sorted(Path(f).name for f in out["files"]) == sorted(Path(f).name for f in want["files"])
+    assert store.remote.exists("products/dem.tif")

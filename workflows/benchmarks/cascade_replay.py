@@ -198,11 +198,11 @@ class Schedule:
     def makespan(self) -> float:
         return max(self.finish.values()) if self.finish else 0.0
 
-    def level_finish(self, graph: CascadeGraph) -> dict[str, float]:
+    def level_finish(self, graph: CascadeGraph | SplitGraph) -> dict[str, float]:
         return {lvl: max(self.finish[k] for k in graph.keys(lvl)) for lvl in LEVELS if graph.keys(lvl)}
 
 
-def list_schedule(graph: CascadeGraph, durations: Mapping[str, float], n_workers: int,
+def list_schedule(graph: CascadeGraph | SplitGraph, durations: Mapping[str, float], n_workers: int,
                   width: Mapping[str, int] | None = None) -> Schedule:
     """Greedy schedule: whenever a worker is free it takes the ready task submitted first.
 
@@ -430,6 +430,84 @@ class BlockedCost:
         p = self.shards(measures, n_workers)
         w = self.worker_peak_bytes + self.worker_bytes_per_measure * (measures / p - self.measures / self.workers)
         return max(w, 0.0), self.client_peak_bytes * images / self.images
+
+
+@dataclass(frozen=True)
+class MergeCost:
+    """The merge of a unit's children, measured at one size and scaled linearly in the input measures.
+
+    Run serially in the unit's own process before its adjustment (as the pipeline's units do: the merge in
+    the unit, the adjustment over the workers), so it occupies one worker. ``input_ratio``: the children's
+    measures over the merged unit's (their border copies, joined by the merge), measured on the streamed
+    merge's two overlapping children (26,311,820 / 23,846,511 = 1.103). Defaults: the streamed merge,
+    2.5*10^7 measures in 82.65 s, 0.97 GB in the unit's process (docs/benchmarks/cascade.md section 5; its
+    parts on 2 workers, at most 3 in flight, so more workers would not shorten it: ``peak_exponent`` 0.08,
+    the measured growth of its peak from 10^7 to 2.5*10^7). :meth:`in_memory`: ``merge_networks``,
+    5,500,030 input measures in 6.9-9.4 s (8.1 s), 1.72 GB (docs/benchmarks/network.md), linear in memory.
+    """
+
+    input_measures: float = 26_311_820
+    seconds: float = 82.65
+    peak_bytes: float = 0.967e9
+    peak_exponent: float = 0.08
+    input_ratio: float = 26_311_820 / 23_846_511
+    name: str = "streamed"
+
+    @classmethod
+    def in_memory(cls) -> MergeCost:
+        return cls(input_measures=5_500_030, seconds=8.1, peak_bytes=1.72e9, peak_exponent=1.0, name="in memory")
+
+    def unit_seconds(self, measures: float) -> float:
+        return self.seconds * measures * self.input_ratio / self.input_measures
+
+    def unit_bytes(self, measures: float) -> float:
+        return self.peak_bytes * (measures * self.input_ratio / self.input_measures) ** self.peak_exponent
+
+
+@dataclass(frozen=True)
+class SplitGraph:
+    """A cascade graph in which some units' merge is a task of its own (``merge:<key>``) before the unit.
+
+    Same interface as :class:`CascadeGraph` for :func:`critical_path`, :func:`list_schedule` and
+    :meth:`Schedule.level_finish` (``order``, ``deps``, ``keys(level)``); a merge task comes right before
+    its unit in the submission order, takes the unit's children as its dependencies and is the unit's one.
+    """
+
+    order: tuple[str, ...]
+    deps: Mapping[str, tuple[str, ...]]
+    base: CascadeGraph
+
+    def keys(self, level: str) -> list[str]:
+        return self.base.keys(level)
+
+    @classmethod
+    def of(cls, graph: CascadeGraph, merged: Sequence[str]) -> SplitGraph:
+        deps = dict(graph.deps)
+        order: list[str] = []
+        for k in graph.order:
+            if k in merged:
+                m = f"merge:{k}"
+                deps[m], deps[k] = tuple(graph.deps[k]), (m,)
+                order.append(m)
+            order.append(k)
+        return cls(order=tuple(order), deps=deps, base=graph)
+
+
+def with_merge(plan: ScaledPlan, levels: Sequence[str], durations: Mapping[str, float], merge: MergeCost,
+               ) -> tuple[SplitGraph, dict[str, float], dict[str, dict[str, float]]]:
+    """The plan's graph with ``levels``' merges as tasks of their own (:class:`SplitGraph`), costed by ``merge``;
+    ``durations`` (of the units, their adjustment only) extended with the merges'; each merge's
+    ``{"measures", "seconds", "bytes"}``.
+    """
+    keys = [k for lvl in levels for k in plan.graph.keys(lvl)]
+    graph = SplitGraph.of(plan.graph, keys)
+    out = dict(durations)
+    detail: dict[str, dict[str, float]] = {}
+    for k in keys:
+        m = plan.measures[k]
+        out[f"merge:{k}"] = merge.unit_seconds(m)
+        detail[k] = {"measures": m, "seconds": out[f"merge:{k}"], "bytes": merge.unit_bytes(m)}
+    return graph, out, detail
 
 
 def with_adjustment(plan: ScaledPlan, levels: Sequence[str], model: InMemoryCost | BlockedCost,
