@@ -37,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import shutil
 import uuid
 from pathlib import Path
 from typing import Any
@@ -161,20 +162,22 @@ class RemoteDir:
         return hashlib.sha256(data).hexdigest()
 
     def fetch_dir(self, rel: str, local: Path, last: str = COMPLETE_MARKER, token_marker: bool = True,
-                  mark_complete: Any = None, token: str | None = None) -> bool:
+                  mark_complete: Any = None, token: str | None = None, force: bool = False) -> bool:
         """Make ``local`` a copy of the committed ``rel``; False when ``rel`` has no completion marker.
 
         A cached copy whose token is the bucket's current one is kept; otherwise the
         objects are downloaded into a temporary sibling and renamed into place (a
         concurrent fetch of the same unit by another process is harmless). ``token``, when
         given, identifies the commit instead of the marker's content (a mission uploaded by
-        other tools has a plain ``.complete``).
+        other tools has a plain ``.complete``). ``force``: download even when the cached token is current
+        (a Zarr store whose chunks are committed one by one after its ``zarr.json``: the token, taken from
+        ``zarr.json``, does not change when the chunks do).
         """
         token = token or self.commit_token(rel, last, token_marker)
         if token is None:
             return False
         local = Path(local)
-        if _cached_token(local) == token:
+        if not force and _cached_token(local) == token:
             return True
         prefix = self.key(rel)
         _token_file(local).unlink(missing_ok=True)
@@ -234,6 +237,14 @@ def fetch_mission(url: str) -> Path:
 
 def _keep_fetched_marker(tmp: Path) -> None:
     """``mark_complete`` of a fetched unit: its marker (with the commit's manifest) is already in place."""
+
+
+def forget_cached(local: Path) -> None:
+    """Remove the cached copy ``local`` and its token, so the next :meth:`fetch_dir` downloads it (a local
+    directory rebuilt in place, e.g. a DEM template, must not keep the token of the commit it replaced).
+    """
+    shutil.rmtree(local, ignore_errors=True)
+    _token_file(local).unlink(missing_ok=True)
 
 
 def _cached_token(local: Path) -> str | None:

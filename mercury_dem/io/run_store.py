@@ -240,14 +240,16 @@ class RunStore:
         if self.url is not None:
             self.remote.commit_dir(self.root / name, name, last="zarr.json", token_marker=False)
 
-    def fetch_zarr(self, name: str) -> bool:
+    def fetch_zarr(self, name: str, force: bool = False) -> bool:
         """Make the cached ``RUN/name`` the bucket's committed Zarr store; False (and no cached copy) when
-        the bucket has none. A local run: whether the store exists.
+        the bucket has none. A local run: whether the store exists. ``force``: download it even when the
+        cached copy's token is current (``dem.zarr``'s chunks are committed after its ``zarr.json``, which
+        gives the token: a copy fetched between the two looks current and is not).
         """
         if self.url is None:
             return (self.root / name).exists()
         ok = self.remote.fetch_dir(name, self.root / name, last="zarr.json", token_marker=False,
-                                   mark_complete=lambda tmp: None)
+                                   mark_complete=lambda tmp: None, force=force)
         if not ok:
             shutil.rmtree(self.root / name, ignore_errors=True)
         return ok

@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import shutil
 import time
 import uuid
 from pathlib import Path
@@ -46,7 +45,7 @@ from mercury_dem.dem.grid import GridSpec, PointIndex, build_point_index, config
 from mercury_dem.dem.memory import check_memory
 from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import Body
-from mercury_dem.io.remote import RemoteDir
+from mercury_dem.io.remote import RemoteDir, forget_cached
 from mercury_dem.io.run_store import COVERAGE_FILE, DEM_CHUNKS_DIR, DEM_CHUNKS_PLAN_FILE, DEM_FILE, RunStore
 from mercury_dem.pipeline.dem_stage import (
     chunk_failure,
@@ -130,7 +129,7 @@ def grid_chunk_to_bucket_or_record(run_url: str, global_token: str, grid: GridSp
 def _upload_template(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any] | None, body: Body) -> Path:
     """The store's template in the cache; every object but the root ``zarr.json`` uploaded. Returns the cache path."""
     local = store.dem_path
-    shutil.rmtree(local, ignore_errors=True)
+    forget_cached(local)  # the directory and its cache token: the template is not the committed store
     create_store(str(local), grid, cfg, attrs, body)
     files = [p for p in sorted(local.rglob("*")) if p.is_file() and p.relative_to(local).as_posix() != "zarr.json"]
     remote = store.remote
@@ -156,7 +155,7 @@ def _chunk_plan(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any]
     old = remote.read_bytes(f"{DEM_CHUNKS_DIR}/{DEM_CHUNKS_PLAN_FILE}")
     if old is not None and json.loads(old) == plan:
         local = store.dem_path  # the same template again, locally only: its root zarr.json is committed last
-        shutil.rmtree(local, ignore_errors=True)
+        forget_cached(local)  # the directory and its cache token: the template is not the committed store
         create_store(str(local), grid, cfg, attrs, body)
         return local, {n for n in remote.list(DEM_CHUNKS_DIR) if n != DEM_CHUNKS_PLAN_FILE}
     remote.remove(DEM_CHUNKS_DIR)

@@ -29,7 +29,7 @@ def rms_per_tile_png(table: pd.DataFrame, profiles: pd.DataFrame) -> bytes:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    ok = table[table["ok"]].sort_values("tile_id")
+    ok = table[table["ok"].astype(bool)].sort_values("tile_id")  # astype: an empty object column would select columns
     x = np.arange(len(ok))
     ax = axes[0]
     ax.semilogy(x, ok["rms_before_m"], "o", ms=3, color="tab:blue", label="image DEM as given")
