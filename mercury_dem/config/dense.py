@@ -66,6 +66,11 @@ class DenseConfig(ConfigSection):
                               choices=("sgbm", "sgbm_3way", "hh", "hh4"))
     block_size: int = param(5, "SGBM matching block (odd)", unit="pixel", lo=1, hi=31)
     refine_window: int = param(9, "Least-squares refinement window side (odd, >= 3)", unit="pixel", lo=3, hi=63)
+    refine_method: str = param(
+        "window_fit", "Sub-pixel refinement: 'window_fit' (per-pixel least-squares window fit with a disparity "
+        "slope, compiled) or 'dense_lk' (whole-image Lucas-Kanade from box filters, cheaper; "
+        "docs/benchmarks/dense.md)", choices=("window_fit", "dense_lk"))
+    refine_iterations: int = param(2, "Gauss-Newton iterations of the 'dense_lk' refinement", lo=1, hi=10)
     max_sigma_px: float = param(0.5, "A larger stated disparity precision is a no-texture hole", unit="pixel",
                                 lo=0.0)
     min_score: float = param(0.5, "A smaller normalised correlation of the refined window is a hole",

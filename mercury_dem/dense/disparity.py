@@ -41,6 +41,9 @@ HOLE_REFINEMENT = 16
 HOLE_FLAGS = {"outside": HOLE_OUTSIDE, "shadow": HOLE_SHADOW, "no_texture": HOLE_NO_TEXTURE,
               "no_match": HOLE_NO_MATCH, "refinement": HOLE_REFINEMENT}
 
+#: Sub-pixel refinements (:attr:`MatcherSettings.refine_method`).
+REFINE_METHODS = ("window_fit", "dense_lk")
+
 _SGBM_MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
                "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "hh4": cv2.STEREO_SGBM_MODE_HH4}
 
@@ -58,6 +61,9 @@ class MatcherSettings:
     lr_max_diff : left--right check tolerance, integer pixels (``disp12MaxDiff``)
     speckle_window, speckle_range : SGBM speckle filter (region size, pixels; disparity step, pixels)
     refine_window : side of the refinement's least-squares window, pixels (odd)
+    refine_method : ``window_fit`` (the compiled per-pixel window fit, :func:`refine_disparity_blocks`) or
+        ``dense_lk`` (the whole-image Lucas--Kanade of :func:`refine_disparity_lk`)
+    refine_iterations : Gauss--Newton iterations of ``dense_lk``
     refine_quantum_px : second pass: window shifts quantised to this step (0: one dense step instead)
     refine_block_px : the refinement runs block by block (side in pixels; 0: the whole chip at once); bounds
         the memory of the resampled right chip (2 x 8 float32 planes per pixel at 1/8 px) on large chips
@@ -78,6 +84,8 @@ class MatcherSettings:
     speckle_window: int = 50
     speckle_range: int = 2
     refine_window: int = 9
+    refine_method: str = "window_fit"
+    refine_iterations: int = 2
     refine_quantum_px: float = 0.125
     refine_block_px: int = 512
     noise_correlation_px2: float = 1.0
@@ -89,6 +97,8 @@ class MatcherSettings:
     def __post_init__(self) -> None:
         if self.mode not in _SGBM_MODES:
             raise ValueError(f"matcher mode {self.mode!r}: choose one of {sorted(_SGBM_MODES)}")
+        if self.refine_method not in REFINE_METHODS:
+            raise ValueError(f"refine method {self.refine_method!r}: choose one of {REFINE_METHODS}")
         if self.block_size % 2 == 0 or self.refine_window % 2 == 0 or self.refine_window < 3:
             raise ValueError("block_size and refine_window must be odd (refine_window >= 3)")
 
@@ -314,6 +324,98 @@ def refine_disparity_blocks(
     return out[0], out[1], out[2], out[3]
 
 
+#: Upsampling of the right chip along the rows before the linear resampling of ``dense_lk`` (a module
+#: constant: measured, not a setting; docs/design/dense.md)
+LK_UPSAMPLE = 4
+
+
+def _lanczos4_derivative() -> NDArray[np.float32]:
+    """The 7 taps (``x - 3 .. x + 3``, correlation) of the derivative of the Lanczos-4 interpolant at a sample:
+    ``-(-1)^n sinc(n / 4) / n`` (the central difference, 2/pi of the slope at a wavelength of 4 px, made
+    the Gauss--Newton steps over- or undershoot by wavelength: ~0.15 of the error left per iteration).
+    """
+    n = np.arange(-3, 4, dtype=np.float64)
+    h = np.zeros(7)
+    nz = n != 0
+    h[nz] = -((-1.0) ** n[nz]) * np.sinc(n[nz] / 4.0) / n[nz]
+    return np.asarray(h, np.float32)
+
+
+_LANCZOS4_DERIVATIVE = _lanczos4_derivative()
+
+
+def refine_disparity_lk(
+    left: NDArray[np.float32],
+    right: NDArray[np.float32],
+    initial: NDArray[np.float32],
+    settings: MatcherSettings,
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """Sub-pixel disparity by a dense inverse-compositional Lucas--Kanade built from whole-image OpenCV
+    primitives: its cost per pixel does not depend on the window (box filters) nor on the disparity range.
+
+    The right chip is resampled at every pixel's current disparity ``d``: upsampled ``LK_UPSAMPLE`` times along
+    the rows by Lanczos-4 row filters once, then ``cv2.remap`` (linear) at columns rounded to the 1/32 sample
+    that ``remap`` resolves, so the place sampled is known exactly. In each
+    ``refine_window`` square window the resampled right chip ``R_w`` is fitted by least squares as
+    ``a L + c L' + b`` (``L'`` the left chip's gradient along the rows, so the 2 x 2 normal matrix of the
+    centred window is fixed and computed once): ``R(u + d) = alpha L(u - e) + beta`` with ``e`` the error
+    of ``d`` gives ``e = -c / a``. The window's estimate is its ``L'^2``-weighted mean warp plus ``e`` (not the
+    pixel's own warp plus ``e``, which would keep each pixel's own error: the windows overlap), so every
+    iteration estimates the window's disparity afresh about a better warp. The start is the box mean of the
+    valid SGBM integer disparities (a smooth warp). Window sums are ``cv2.boxFilter`` means.
+
+    Score: the zero-mean normalised correlation of ``L`` and ``R_w`` in the last window. Precision:
+    ``sigma_e^2 = s^2 (N^-1)_cc / a^2`` (``s^2`` the residual variance, ``n - 3`` degrees of freedom),
+    times ``sqrt(noise_correlation_px2)`` as :func:`refine_disparity`. Slope: the central difference of
+    the result along the rows. Pixels whose ``initial`` is NaN are not refined (NaN).
+
+    Written with OpenCV primitives (resampling, box filters) rather than its optical flows for the reasons of
+    the module docstring; the element-wise work between them is fused in :mod:`mercury_dem.dense.lk_kernel`.
+
+    Parameters and returns as :func:`refine_disparity`.
+    """
+    from mercury_dem.dense import lk_kernel as lk
+
+    f32 = np.float32
+    w = settings.refine_window
+    up = LK_UPSAMPLE
+    hh, ww = left.shape
+    noise = float(np.sqrt(max(settings.noise_correlation_px2, 1.0)))
+    # one offset off both chips (the model has its own per window): the window moments lose fewer digits
+    l1, r1 = np.empty((hh, ww), f32), np.empty(right.shape, f32)
+    seeds = np.empty((hh, ww, 2), f32)
+    known = np.empty((hh, ww), np.bool_)
+    fill = lk.prepare(np.ascontiguousarray(left, f32), np.ascontiguousarray(right, f32),
+                      np.ascontiguousarray(initial, f32), float(np.mean(left)), l1, r1, seeds, known)
+    g = np.asarray(cv2.filter2D(l1, cv2.CV_32F, _LANCZOS4_DERIVATIVE[None, :], borderType=cv2.BORDER_REFLECT), f32)
+    # the right chip upsampled along the rows (Lanczos-4 row filters, exact phases); remap then interpolates
+    # linearly between samples 1/up px apart: its bias is below 0.002 px where bicubic on the chip gave 0.04
+    phases = np.empty((hh, int(right.shape[1]), up), f32)
+    phases[:, :, 0] = r1
+    for k in range(1, up):
+        phases[:, :, k] = cv2.filter2D(r1, cv2.CV_32F, lanczos4_weights(k / up)[None, :], anchor=(3, 0),
+                                       borderType=cv2.BORDER_REPLICATE)
+    r_up = phases.reshape(hh, -1)
+    buf4 = np.empty((hh, ww, 4), f32)
+    buf1 = np.empty((hh, ww), f32)
+    lk.fixed_products(l1, g, buf4, buf1)
+    fixed4, fixed_gg = _box(buf4, w), _box(buf1, w)
+    d, mx, dq, sigma, score = (np.empty((hh, ww), f32) for _ in range(5))
+    lk.start(_box(seeds, w), fill, up, d, mx, dq)
+    vv = np.repeat(np.arange(hh, dtype=f32)[:, None], ww, axis=1)
+    iterations = max(settings.refine_iterations, 1)
+    for it in range(iterations):
+        rw = np.asarray(cv2.remap(r_up, mx, vv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), f32)
+        lk.products(l1, g, rw, dq, buf4, buf1)
+        if it < iterations - 1:
+            lk.update(fixed4, fixed_gg, _box(buf4, w), _box(buf1, w), fill, up, d, mx, dq)
+        else:
+            lk.update_last(fixed4, fixed_gg, _box(buf4, w), _box(buf1, w), float(w * w), noise, d, sigma, score)
+    out = tuple(np.empty((hh, ww), f32) for _ in range(4))
+    lk.finish(d, sigma, score, known, *out)
+    return out[0], out[1], out[2], out[3]
+
+
 def dense_disparity(
     left: NDArray[np.float32],
     right: NDArray[np.float32],
@@ -342,7 +444,10 @@ def dense_disparity(
     d0 = sgbm_disparity(l8, r8, d_min, d_max, s)
     # The SGBM disparity's integer part seeds the refinement; its parabola fraction would pixel-lock.
     seed = np.round(d0)
-    d, sigma, score, slope = refine_disparity_blocks(left, right, seed, s)
+    if s.refine_method == "dense_lk":  # an iteration converges to its own fixed point: start from SGBM's 1/16 px
+        d, sigma, score, slope = refine_disparity_lk(left, right, d0, s)
+    else:
+        d, sigma, score, slope = refine_disparity_blocks(left, right, seed, s)
     # holes (flags in one compiled pass, refine_kernel.flag_holes):
     # outside: the left pixel, or the right pixel it matched, is not inside its image;
     # shadow: the pixel (its 3 x 3 mean, for the noise) is dark in the left chip, or at the matched place in

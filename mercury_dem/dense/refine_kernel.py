@@ -376,7 +376,10 @@ def fit_windows(left: NDArray[np.float32], rplanes: NDArray[np.float32], gplanes
 
 
 def warm() -> None:
-    """Compile (or load from numba's cache) the kernel for the types the refinement passes."""
+    """Compile (or load from numba's cache) the kernels for the types the refinements pass (both methods)."""
+    from mercury_dem.dense import lk_kernel
+
+    lk_kernel.warm()
     z = np.zeros((1, 4, 4), np.float32)
     i4 = np.zeros((4, 4), np.int64)
     yes = np.ones((4, 4), np.bool_)

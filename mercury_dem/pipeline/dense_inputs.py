@@ -39,6 +39,7 @@ def matcher_of(config: Config) -> tuple[Any, Any]:
 
     d = config.dense
     return (MatcherSettings(mode=d.matcher_mode, block_size=d.block_size, refine_window=d.refine_window,
+                            refine_method=d.refine_method, refine_iterations=d.refine_iterations,
                             max_sigma_px=d.max_sigma_px, min_score=d.min_score),
             PointFilter(max_miss_pixels=d.max_miss_pixels, min_angle_deg=d.min_angle_deg,
                         max_sigma_h_m=d.max_sigma_h_m))
