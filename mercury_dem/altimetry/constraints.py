@@ -244,10 +244,10 @@ def radius_priors_within(
         sigma = np.sqrt(cov_aa * np.maximum(scale2, 1.0) + terrain2 + slope2 * horizontal_sigma_m**2)
     radius = np.where(use, beta[:, 0], np.nan)
     sigma = np.where(use, sigma, np.nan)
-    # Where the shots lie along one profile (the usual case away from crossovers: MLA's tracks are
+    # Where the shots lie along one profile (the usual case away from crossovers: MLA's profiles are
     # kilometres apart, its shots 400 m apart), fit the profile instead: r = a + b s along its
     # principal direction, and widen the sigma by a cross-track slope times the point's distance from
-    # the profile (the slope across the track is unknown; |b| and cross_track_slope stand for it).
+    # the profile (the slope across the profile is unknown; |b| and cross_track_slope stand for it).
     line = ~use & (count >= 3)
     if line.any():
         r_line, s_line, rough_line = _profile_fit(pt_idx, e, n, h, w, count, line, n_pt, cross_track_slope,

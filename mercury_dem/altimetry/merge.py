@@ -25,8 +25,8 @@ Seed 004 fills the gaps of the altimetry DEM with the registered stereo DEM; SLD
 LOLA with Kaguya TC the same way, feathered. Here the altimetry is gridded as a *correction*
 of the registered DEM: each (offset-corrected) shot gives ``Δ = h_shot − DEM(shot)``
 (bilinear), averaged per pixel; a pixel is *dense* with at least ``min_shots_per_pixel`` shots.
-The dense pixels, closed over ``gap_px`` (the gaps between neighbouring tracks), are the
-altimetry's area; inside it the correction is the pixel's own mean Δ, between tracks a
+The dense pixels, closed over ``gap_px`` (the gaps between neighbouring profiles), are the
+altimetry's area; inside it the correction is the pixel's own mean Δ, between profiles a
 normalised Gaussian average of the neighbours' (σ = ``gap_px``). The merged DEM is
 
     merged = registered + w · Δ,   w = clip(distance to the area's edge / feather_px, 0, 1),

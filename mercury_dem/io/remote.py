@@ -19,7 +19,13 @@ reader fetches a unit's objects into the cache and keeps the commit token beside
 them, so a cached copy is reused only while the bucket still holds the same
 commit. Zarr stores (``dem.zarr``, ``coverage.zarr``) are committed the same way
 with the root ``zarr.json`` (which carries their ``complete`` attribute) as the
-last object.
+last object; their token is the store's **content token** (:meth:`RemoteDir.content_token`: a hash of
+every object's name, size and entity tag, or modification time where the store has no tag), taken from
+the bucket's listing on every fetch. A store rewritten under the same name with other values (a regrid
+under the same plan, chunks written by workers after the root ``zarr.json``) has another token whatever its
+``zarr.json`` says, so a stale cached copy cannot be taken for the current one: no caller has to remember
+to force a download. Its cost: one listing per fetch (S3 lists 1,000 objects a request, so a DEM of 10,000
+chunks is 10 requests), where the hash of ``zarr.json`` was one GET; the download itself uses that listing.
 
 Why not write every array straight to the bucket with zarr/fsspec: the stage
 runners, the products (GDAL writes GeoTIFFs to local files only) and the readers
@@ -44,6 +50,11 @@ from typing import Any
 
 from mercury_dem.exceptions import StoreError
 from mercury_dem.io.atomic import COMPLETE_MARKER, atomic_directory
+
+#: The keys of an object's info (fsspec ``find(detail=True)``) that identify its bytes, first present wins:
+#: S3's entity tag (the MD5 of a single PUT), GCS's, then a modification time (a local or other filesystem).
+_OBJECT_IDENTITY = ("ETag", "etag", "md5Hash", "crc32c", "mtime", "LastModified", "last_modified", "updated",
+                    "created")
 
 #: Suffix of the file beside a cached directory (``.NAME.remote-token``) holding the commit token
 #: it was fetched (or committed) at: outside the directory, so a Zarr store holds only Zarr objects.
@@ -146,20 +157,54 @@ class RemoteDir:
             if last not in rels:
                 raise StoreError(f"{local}: no {last} to commit last; the local store is incomplete")
             marker = (local / last).read_bytes()
-            token = hashlib.sha256(marker).hexdigest()
         self.write_bytes(f"{rel}/{last}", marker)
+        if not token_marker:  # the content token, as a reader will list it
+            token = self.content_token(rel, last) or ""
         _token_file(local).write_text(token)
         return token
 
     def commit_token(self, rel: str, last: str = COMPLETE_MARKER, token_marker: bool = True) -> str | None:
-        """The token of ``rel``'s last commit, or None when it has no completion marker (not trusted)."""
+        """The token of ``rel``'s last commit, or None when it has no completion marker (not trusted).
+
+        With ``token_marker`` the random token in the marker; without (a Zarr store), the store's
+        :meth:`content_token`.
+        """
+        if not token_marker:
+            return self.content_token(rel, last)
         data = self.read_bytes(f"{rel}/{last}")
         if data is None:
             return None
-        if token_marker:
-            text = data.decode("utf-8", "replace").split("\n", 1)[0].strip()  # line 2: the checksum manifest
-            return text.split(" ", 1)[1] if " " in text else text
-        return hashlib.sha256(data).hexdigest()
+        text = data.decode("utf-8", "replace").split("\n", 1)[0].strip()  # line 2: the checksum manifest
+        return text.split(" ", 1)[1] if " " in text else text
+
+    def objects(self, rel: str) -> dict[str, dict[str, Any]]:
+        """Every object under ``rel`` (path relative to it -> the store's info: size, entity tag, ...); one listing."""
+        prefix = self.key(rel)
+        try:
+            found = self.fs.find(prefix, detail=True)
+        except FileNotFoundError:
+            return {}
+        return {str(k)[len(prefix) + 1:]: dict(v) for k, v in found.items() if str(k).startswith(prefix + "/")}
+
+    def content_token(self, rel: str, last: str = "zarr.json",
+                      objects: dict[str, dict[str, Any]] | None = None) -> str | None:
+        """A token of what ``rel`` holds now: a hash of each object's name, size and identity (the entity tag
+        S3 and GCS give every object, a hash of its bytes for a single PUT; where a store has none, its
+        modification time). None when ``last`` (the store's commit, written last) is absent: not trusted.
+
+        Any object rewritten with other bytes changes the token, so a cached copy recorded under an older
+        token is fetched again (a Zarr store's chunks may be rewritten while its root ``zarr.json`` stays the
+        same). ``objects``: a listing already taken (:meth:`objects`).
+        """
+        objects = self.objects(rel) if objects is None else objects
+        if last not in objects:
+            return None
+        h = hashlib.sha256()
+        for name in sorted(objects):
+            info = objects[name]
+            ident = next((info[k] for k in _OBJECT_IDENTITY if info.get(k) not in (None, "")), None)
+            h.update(repr((name, info.get("size"), str(ident))).encode())
+        return h.hexdigest()
 
     def fetch_dir(self, rel: str, local: Path, last: str = COMPLETE_MARKER, token_marker: bool = True,
                   mark_complete: Any = None, token: str | None = None, force: bool = False) -> bool:
@@ -169,11 +214,15 @@ class RemoteDir:
         objects are downloaded into a temporary sibling and renamed into place (a
         concurrent fetch of the same unit by another process is harmless). ``token``, when
         given, identifies the commit instead of the marker's content (a mission uploaded by
-        other tools has a plain ``.complete``). ``force``: download even when the cached token is current
-        (a Zarr store whose chunks are committed one by one after its ``zarr.json``: the token, taken from
-        ``zarr.json``, does not change when the chunks do).
+        other tools has a plain ``.complete``). Without ``token_marker`` (a Zarr store) the token is the
+        store's :meth:`content_token`, from the listing the download uses; when the store changed while it
+        was downloaded, the copy is kept without a token (the next fetch downloads it again). ``force``:
+        download even when the cached token is current (no caller needs it for staleness: a store's token
+        changes with any of its objects).
         """
-        token = token or self.commit_token(rel, last, token_marker)
+        listing = None if token_marker or token else self.objects(rel)
+        token = token or (self.content_token(rel, last, listing) if listing is not None
+                          else self.commit_token(rel, last, token_marker))
         if token is None:
             return False
         local = Path(local)
@@ -185,8 +234,8 @@ class RemoteDir:
             if token_marker and mark_complete is None:
                 mark_complete = _keep_fetched_marker  # the marker is written below, with the manifest
             with atomic_directory(local, overwrite=True, mark_complete=mark_complete) as tmp:
-                keys = [str(k) for k in sorted(self.fs.find(prefix)) if str(k).startswith(prefix + "/")]
-                pairs = [(k, tmp / k[len(prefix) + 1:]) for k in keys]
+                names = sorted(listing) if listing is not None else sorted(self.objects(rel))
+                pairs = [(f"{prefix}/{n}", tmp / n) for n in names]
                 for _, dest in pairs:
                     dest.parent.mkdir(parents=True, exist_ok=True)
                 if pairs:  # one call: downloaded concurrently
@@ -200,6 +249,8 @@ class RemoteDir:
             # a concurrent fetch of the same commit (another worker process) renamed its copy first: keep it
             if not (local.is_dir() and self.commit_token(rel, last, token_marker) == token):
                 raise
+        if listing is not None and self.content_token(rel, last) != token:
+            return True  # rewritten while downloaded: no token, so the copy is never taken for current
         _token_file(local).write_text(token)
         return True
 

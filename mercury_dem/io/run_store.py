@@ -242,9 +242,10 @@ class RunStore:
 
     def fetch_zarr(self, name: str, force: bool = False) -> bool:
         """Make the cached ``RUN/name`` the bucket's committed Zarr store; False (and no cached copy) when
-        the bucket has none. A local run: whether the store exists. ``force``: download it even when the
-        cached copy's token is current (``dem.zarr``'s chunks are committed after its ``zarr.json``, which
-        gives the token: a copy fetched between the two looks current and is not).
+        the bucket has none. A local run: whether the store exists. The cached copy is reused only while the
+        bucket's store has the content it was fetched at (:meth:`~mercury_dem.io.remote.RemoteDir.content_token`:
+        any object rewritten, ``zarr.json`` or a chunk, makes it stale), so no reader needs ``force`` (kept: a
+        download whatever the token).
         """
         if self.url is None:
             return (self.root / name).exists()

@@ -29,7 +29,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,6 +37,9 @@ from mercury_dem.config.adjust import AdjustConfig
 from mercury_dem.exceptions import MercuryDemError, NetworkError
 from mercury_dem.io.atomic import atomic_write_json, atomic_write_text
 from mercury_dem.io.names import name_fault
+
+if TYPE_CHECKING:
+    from mercury_dem.network.model import ControlNetwork
 
 
 class AdjustIsisError(MercuryDemError):
@@ -221,7 +224,7 @@ class _Adjustable:
     """The part of the network with cameras, ready to adjust: points placed a priori where they can be."""
 
     cut: Any  # network.jigsaw cut: the sub-network and the camera of each of its images
-    network: Any  # the sub-network, image ids those of its cameras
+    network: ControlNetwork  # the sub-network, image ids those of its cameras
     images: list[Any]  # SourceImage of each of its images
     cameras: list[Any]
     positions: np.ndarray
@@ -231,7 +234,7 @@ class _Adjustable:
     outside: dict[str, int]  # measures beyond their image's pixels, per image id
 
 
-def _adjustable(net_path: Path, network: Any, images: list[Any], match: Any) -> _Adjustable:
+def _adjustable(net_path: Path, network: ControlNetwork, images: list[Any], match: Any) -> _Adjustable:
     """Cut the network to the images with cameras; points without a-priori coordinates are triangulated."""
     from mercury_dem.network.build import triangulate_points
     from mercury_dem.network.jigsaw import cut_adjustable
@@ -263,7 +266,7 @@ _SUMMARY_KEYS = ("network", "out", "body", "images", "points", "measures", "iter
                  "bundleout", "isds", "isds_not_written", "flagged_images", "islands", "warning")
 
 
-def _summary(net_path: Path, out_path: Path, report_path: Path, camera_files: Sequence[str | Path], network: Any,
+def _summary(net_path: Path, out_path: Path, report_path: Path, camera_files: Sequence[str | Path], network: ControlNetwork,
              job: _Adjustable, match: Any, adj: Any, result: Any) -> dict[str, Any]:
     """The summary of an adjust-isis run (the ISDs written are added by the caller)."""
     s = adj.summary

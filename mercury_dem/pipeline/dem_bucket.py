@@ -166,7 +166,7 @@ def _chunk_plan(store: RunStore, grid: GridSpec, cfg: Any, attrs: dict[str, Any]
 
 
 def _grid_todo(run_url: str, global_token: str, grid: GridSpec, todo: list[tuple[int, int, int, int]], cfg: Any,
-               datum: float, client: Any, task: Any) -> list[dict[str, Any]]:
+               datum: float, client: ComputeClient | None, task: Any) -> list[dict[str, Any]]:
     """The chunks to grid, in this process or on the workers (:func:`grid_chunk_to_bucket_or_record`)."""
     if runs_in_process(client):
         results = []

@@ -132,8 +132,7 @@ def _grid_or_resume(store: RunStore, pts: Any, dem_cfg: Any, client: ComputeClie
         from mercury_dem.pipeline.dem_bucket import grid_dem_on_bucket
 
         summary = grid_dem_on_bucket(store, pts, dem_cfg, client, body=body, attrs=attrs, progress=rep)
-        # force: a regrid under the same plan leaves the cached token current over a local empty template
-        store.fetch_zarr(DEM_FILE, force=True)
+        store.fetch_zarr(DEM_FILE)  # the template rebuilt in the cache has no token: the committed store is fetched
         return summary
     if fetched:  # resume: only the chunks that failed last time
         return regrid_failed_chunks(pts, dem_cfg, store.dem_path, client, body=body, progress=rep)
@@ -242,8 +241,8 @@ def dem_tail_task(run_url: str, config: Config, dem_cfg: Any) -> tuple[dict[str,
 
     store = RunStore.open(run_url)
     mission = open_mission(store.read_run()["mission"])
-    for name in (DEM_FILE, COVERAGE_FILE):  # force: a cached copy taken before the chunks were committed looks current
-        store.fetch_zarr(name, force=True)
+    for name in (DEM_FILE, COVERAGE_FILE):  # a cached copy of other content has another token (io.remote): fetched
+        store.fetch_zarr(name)
     log = io.StringIO()
     out, table = _dem_tail(store, mission, config, read_network(store.network_path("global", 0)), dem_cfg, None,
                            Reporter(log, mode="lines"))

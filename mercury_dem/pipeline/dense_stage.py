@@ -11,8 +11,9 @@ After the DEM stage (the sparse ``dem.zarr`` and, where the mission has altimetr
    chips (:func:`mercury_dem.dense.chip.chip_grid`), each chip through
    :func:`mercury_dem.dense.chip.dense_chip` about the sparse DEM (``surface_height``), with the tile's height
    margin (``dense.height_margin_factor`` x the robust scatter of the tile's tie points about the sparse DEM,
-   at least ``dense.min_height_margin_m``). A chip or pair that fails is recorded with its reason and the
-   others go on. Memory per task: the tile's images (float32) + one chip's SGM cost volumes (stated,
+   at least ``dense.min_height_margin_m``). A chip or pair that fails is recorded with its reason and its kind
+   (:class:`mercury_dem.dense.failures.DenseFailure`; a failed tile: :class:`~mercury_dem.pipeline.results.UnitFailure`)
+   and the others go on; the report counts both by kind. Memory per task: the tile's images (float32) + one chip's SGM cost volumes (stated,
    ``memory_bytes``).
 3. **The cloud**: ``dense.zarr/tile_XXX/`` (columnar: ``lat``, ``lon``, ``height``, ``sigma_h_m``, ``miss_m``,
    ``angle_deg``, ``score``, ``pair`` (index into ``dense.zarr``'s ``pairs`` attribute), ``left_px``,
@@ -52,6 +53,7 @@ from mercury_dem.pipeline.dense_inputs import (
     open_sparse_surface,
 )
 from mercury_dem.pipeline.dense_tile import run_dense_tile, tile_task
+from mercury_dem.pipeline.results import UnitFailure
 
 if TYPE_CHECKING:
     from mercury_dem.compute.client import ComputeClient
@@ -151,7 +153,8 @@ def run_tiles(store: RunStore, config: Config, client: ComputeClient, pairs: Pai
             raise_if_run_stopping(exc, f"dense tile task {getattr(fut, 'key', '?')}", store.location)
             if lost_to_the_cluster(exc):
                 raise  # cancelled by the cluster (no worker, the scheduler gone): the run's failure, not the tile's
-            s = {"tile": None, "ok": False, "error": f"dense tile task {getattr(fut, 'key', '?')}: {exc}"}
+            s = {"tile": None, "ok": False, "error": f"dense tile task {getattr(fut, 'key', '?')}: {exc}",
+                 "failure": UnitFailure.UNEXPECTED.value}
         tiles.append(s)
         rep.message(f"dense: tile {s.get('tile')}: " + (f"{s.get('points', 0)} points from {s.get('chips', 0)} "
                     f"chips in {s.get('seconds', 0):.1f} s" if s.get("ok") else f"FAILED ({s.get('error')})"))
@@ -160,14 +163,19 @@ def run_tiles(store: RunStore, config: Config, client: ComputeClient, pairs: Pai
 
 
 def tiles_block(tiles: list[dict[str, Any]], margins: dict[int, float], run_margin: float) -> dict[str, Any]:
-    """The report's per-stage sums of the tiles' summaries."""
+    """The report's per-stage sums of the tiles' summaries; failed tiles and failed pairs/chips also counted by
+    kind (``tiles.failed_by_kind``, ``failures_by_kind``; an entry of an older run without one: ``unrecorded``).
+    """
     ok = [s for s in tiles if s.get("ok")]
+    failed = [s for s in tiles if not s.get("ok")]
+    failures = [f for s in ok for f in s.get("failures", [])]
     return {
-        "tiles": {"run": len(tiles), "failed": [s for s in tiles if not s.get("ok")]},
+        "tiles": {"run": len(tiles), "failed": failed, "failed_by_kind": kind_counts(failed)},
         **{k: int(sum(s.get(k, 0) for s in ok)) for k in _TILE_COUNTS},
         "holes": _sum_dicts(s.get("holes", {}) for s in ok),
         "removed": _sum_dicts(s.get("removed", {}) for s in ok),
-        "failures": [f for s in ok for f in s.get("failures", [])],
+        "failures": failures,
+        "failures_by_kind": kind_counts(failures),
         "height_margin_m": {"run": run_margin, "per_tile": {str(k): v for k, v in sorted(margins.items())}},
         "memory_bytes_max_task": max((s["memory_bytes"]["total"] for s in ok if "memory_bytes" in s), default=0),
         "tile_seconds": {str(s["tile"]): s.get("seconds") for s in ok},
@@ -265,6 +273,15 @@ def dense_orthoimages(store: RunStore, config: Config, pairs: PairSelection, dtm
                                      if k in ("path", "pixel_m", "valid_fraction", "skipped")}})
                         for t, m in s["mosaics"].items()},
             "seconds": s["seconds"]}
+
+
+def kind_counts(entries: list[dict[str, Any]]) -> dict[str, int]:
+    """Failure entries counted by their ``failure`` (``unrecorded`` without one: an older run), most first."""
+    counts: dict[str, int] = {}
+    for e in entries:
+        k = str(e.get("failure") or "unrecorded")
+        counts[k] = counts.get(k, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
 def _sum_dicts(ds: Any) -> dict[str, int]:

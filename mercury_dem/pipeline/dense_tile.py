@@ -3,7 +3,9 @@ chip, into the tile's cloud ``dense.zarr/tile_XXX`` (:mod:`mercury_dem.io.dense_
 
 Load (the run's mission, the adjusted geometry, the sparse DEM) -> call (:func:`mercury_dem.dense.chip.chip_grid`,
 :func:`mercury_dem.dense.chip.dense_chip` per chip) -> save (the columns and the tile's summary, atomically). A chip
-that raises and a pair without an image or adjusted pose are recorded with their reason and the rest goes on.
+that raises and a pair without an image or adjusted pose are recorded with their reason and its kind
+(:class:`mercury_dem.dense.failures.DenseFailure`) and the rest goes on; a tile task that raises is a failed tile
+with its :class:`mercury_dem.pipeline.results.UnitFailure`.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.compute.failures import raise_if_run_stopping
 from mercury_dem.config import Config
+from mercury_dem.dense.failures import DenseFailure, chip_failure_of, pair_failure_of
 from mercury_dem.exceptions import MercuryDemError
 from mercury_dem.io.dense_store import (
     CLOUD_COLUMNS,
@@ -29,6 +32,7 @@ from mercury_dem.io.dense_store import (
 )
 from mercury_dem.io.run_store import DENSE_FILE, RunStore
 from mercury_dem.pipeline.dense_inputs import SparseSurface, adjusted_geometry, matcher_of, open_sparse_surface
+from mercury_dem.pipeline.results import UnitFailure, failure_of
 
 #: Per-chip counts summed over a tile (``ChipResult`` attribute -> the summary's key).
 _CHIP_COUNTS = {"interior_pixels": "interior_pixels", "matched": "matched", "parts": "chip_parts",
@@ -48,11 +52,11 @@ class TileCloud:
         self.per_pair: list[dict[str, Any]] = []
         self.sgm_max = 0
 
-    def fail(self, row: dict[str, Any], chip: Any, error: str) -> None:
-        """Record a failed pair (``chip`` None) or chip with its reason."""
+    def fail(self, row: dict[str, Any], chip: Any, error: str, failure: DenseFailure) -> None:
+        """Record a failed pair (``chip`` None) or chip with its reason and its kind."""
         window = None if chip is None else [chip.x0, chip.y0, chip.width, chip.height]
         self.failures.append({"pair": row["pair"], "left": row["left"], "right": row["right"], "chip": window,
-                              "error": error})
+                              "error": error, "failure": failure.value})
         if chip is not None:
             self.counts["chips_failed"] += 1
 
@@ -118,7 +122,7 @@ def run_dense_tile(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]
 
     ``pairs``: (pair index, left id, right id) in rank order. Returns the tile's summary (also stored in the
     group's attributes): pairs, chips run / failed / capped, points, hole and filter counts, the failures
-    (``{"pair", "left", "right", "chip", "error"}``), seconds and the task's stated memory. An already
+    (``{"pair", "left", "right", "chip", "error", "failure"}``), seconds and the task's stated memory. An already
     complete group is not recomputed (its stored summary is returned, ``reused``: True).
     """
     store = RunStore(Path(run_root))
@@ -147,7 +151,7 @@ def _run_pair(tile: _Tile, cloud: TileCloud, index: int, left: str, right: str) 
         li, ri = tile.image(left), tile.image(right)
     except (KeyError, MercuryDemError, OSError, ValueError) as exc:
         why = f"no adjusted pose for {exc}" if isinstance(exc, KeyError) else str(exc)
-        cloud.fail(row, None, f"pair {left}/{right}: {why}")
+        cloud.fail(row, None, f"pair {left}/{right}: {why}", pair_failure_of(exc))
         return
     d = tile.d
     chips = chip_grid(a.camera.samples, a.camera.lines, d.chip_size, d.chip_collar)
@@ -173,10 +177,10 @@ def _run_chip(tile: _Tile, cloud: TileCloud, row: dict[str, Any], pair: tuple[An
                          sigma_height_floor_m=d.sigma_height_floor_factor * tile.margin,
                          sigma_height_cap_m=d.max_height_offset_factor * tile.margin / math.sqrt(3.0))
     except (MercuryDemError, ValueError, np.linalg.LinAlgError) as exc:
-        cloud.fail(row, chip, f"{where}: {exc}")
+        cloud.fail(row, chip, f"{where}: {exc}", chip_failure_of(exc))
         return
     except Exception as exc:  # noqa: BLE001 - OpenCV's cv2.error and the like: recorded, the rest goes on
-        cloud.fail(row, chip, f"{where}: {type(exc).__name__}: {exc}")
+        cloud.fail(row, chip, f"{where}: {type(exc).__name__}: {exc}", chip_failure_of(exc))
         return
     p = res.points
     far = ~(np.abs(p.height - tile.surface(p.lat, p.lon)) <= d.max_height_offset_factor * tile.margin)
@@ -185,9 +189,13 @@ def _run_chip(tile: _Tile, cloud: TileCloud, row: dict[str, Any], pair: tuple[An
 
 def tile_task(run_root: str, tile_id: int, pairs: list[tuple[int, str, str]], config: Config,
               margin: float) -> dict[str, Any]:
-    """:func:`run_dense_tile`; an unexpected exception becomes a failed tile's summary (nothing written)."""
+    """:func:`run_dense_tile`; an exception becomes a failed tile's summary (nothing written), with its kind
+    (:func:`~mercury_dem.pipeline.results.failure_of` for the package's own errors, ``unexpected`` for others).
+    """
     try:
         return run_dense_tile(run_root, tile_id, pairs, config, margin)
     except Exception as exc:  # noqa: BLE001 - recorded as a value; a full disk still stops the run
         raise_if_run_stopping(exc, f"dense tile {tile_id}", run_root)
-        return {"tile": int(tile_id), "ok": False, "error": f"dense tile {tile_id}: {type(exc).__name__}: {exc}"}
+        kind = failure_of(exc) if isinstance(exc, MercuryDemError) else UnitFailure.UNEXPECTED
+        return {"tile": int(tile_id), "ok": False, "error": f"dense tile {tile_id}: {type(exc).__name__}: {exc}",
+                "failure": kind.value}

@@ -332,6 +332,10 @@ def dense_lines(dense: dict[str, Any] | None, limit: int = 5) -> str:
     out = [f"\ndense: {p.get('selected', 0)} of {p.get('candidates', 0)} candidate pairs selected (rejected: "
            f"{reasons or 'none'}); {dense.get('chips', 0)} chips, {dense.get('chips_failed', 0)} failed; "
            f"{dense.get('points', 0)} points\n"]
+    for what, kinds in (("failed tiles", (dense.get("tiles") or {}).get("failed_by_kind")),
+                        ("failed pairs and chips", dense.get("failures_by_kind"))):
+        if kinds:  # an older run's report has no counts by kind: its errors below only
+            out.append(f"  {what} by kind: " + ", ".join(f"{k} {v}" for k, v in kinds.items()) + "\n")
     for t in (dense.get("tiles") or {}).get("failed", [])[:limit]:
         out.append(f"  {t.get('error')}\n")
     for f in (dense.get("failures") or [])[:limit]:

@@ -216,7 +216,7 @@ def _gtmes_shape() -> BodyShape:
     return BodyShape(
         body="MERCURY", name="GTMES_150V05 (MLA) to degree 148", source=GTMES_PACKAGED,
         citation="MESSENGER MLA team (D. E. Smith, NASA GSFC); PDS MESS-H-RSS/MLA-5-SDP-V1.0, GTMES_150V05_SHA",
-        grid=grid, reference_radius_m=ref, resolution_km=2 * math.pi * 2439.4 / 148 / 2,
+        grid=grid, reference_radius_m=ref, resolution_km=2 * math.pi * (ref / 1000.0) / 148 / 2,
         # the MDIS pair's DEM differs from it by 440 m (std) over 60 km: the relief degree 148 lacks
         prior_sigma_m=1000.0, gross_bias_m=3000.0,
     )

@@ -60,6 +60,17 @@ def test_measure_a_command_counts_its_children() -> None:
     assert m.cpu_s >= 0.3, m
 
 
+def test_a_commands_peak_states_its_floor() -> None:
+    """A command's ru_maxrss starts at the spawning process's high-water mark (Linux keeps it across exec): the
+    record carries that floor, so a peak near it is read as an upper bound."""
+    import numpy as np
+
+    held = np.ones(200 * MB // 8)  # this process now holds 200 MB more
+    m = harness.measure([sys.executable, "-c", "pass"])
+    assert m.extra["parent_rss_bytes"] > 200 * MB and held.sum() > 0
+    assert m.peak_rss_bytes >= 0.9 * m.extra["parent_rss_bytes"], m  # the floor the docstring states
+
+
 def test_measure_reports_a_failing_child() -> None:
     def boom() -> None:
         raise ValueError("the fault")

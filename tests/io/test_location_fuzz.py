@@ -42,6 +42,9 @@ def test_any_marker_bytes_give_a_token(data: bytes) -> None:
         def read_bytes(self, rel: str) -> bytes | None:
             return data
 
-    for token_marker in (True, False):
-        token = Fake().commit_token("tile/1", token_marker=token_marker)
-        assert isinstance(token, str)
+        def objects(self, rel: str) -> dict[str, dict[str, object]]:  # a Zarr store's listing: any entity tag
+            return {"zarr.json": {"size": len(data), "ETag": data}, "a/c/0": {"size": 0, "mtime": data}}
+
+    assert isinstance(Fake().commit_token("tile/1", token_marker=True), str)
+    token = Fake().commit_token("dem.zarr", last="zarr.json", token_marker=False)
+    assert isinstance(token, str) and token == Fake().content_token("dem.zarr")

@@ -135,3 +135,43 @@ def test_the_checksum_manifest_travels_with_the_marker(tmp_path: Path) -> None:
     store.remote.write_bytes("tile/4/data.bin", bytes(2048))  # bit rot on the bucket (same size)
     shutil.rmtree(fresh.root, ignore_errors=True)
     assert fresh.verify_unit("tile", 4) == ["data.bin: checksum mismatch (sha256 differs from the committed one)"]
+
+
+def test_a_zarr_store_rewritten_under_the_same_name_is_fetched_again(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 33: a Zarr store's cache token is its content on the bucket, not its root ``zarr.json``: a store
+    rewritten with other values and the same ``zarr.json`` (a regrid under the same plan) is fetched again by a
+    reader on another node without ``force``; an unchanged one is not downloaded twice."""
+    import shutil
+
+    import zarr
+
+    make_bucket("rewrite")
+    writer = RunStore("s3://rewrite/run")
+    path = writer.root / "dem.zarr"
+
+    def write(value: float) -> bytes:
+        shutil.rmtree(path, ignore_errors=True)
+        g = zarr.open_group(str(path), mode="w")
+        g.create_array("elevation", shape=(4, 4), chunks=(2, 2), dtype="f4")[:] = value
+        g.attrs["complete"] = True
+        writer.commit_zarr("dem.zarr")
+        return (path / "zarr.json").read_bytes()
+
+    first = write(1.0)
+    monkeypatch.setenv("MERCURY_DEM_CACHE", str(tmp_path / "other-node"))
+    reader = RunStore("s3://rewrite/run")
+    assert reader.root != writer.root and reader.fetch_zarr("dem.zarr")
+    assert (zarr.open_array(str(reader.root / "dem.zarr" / "elevation"), mode="r")[:] == 1.0).all()
+    gets: list[object] = []
+    real_get = reader.remote.fs.get
+    monkeypatch.setattr(reader.remote.fs, "get", lambda *a, **kw: (gets.append(a), real_get(*a, **kw))[1])
+    assert reader.fetch_zarr("dem.zarr") and gets == []  # unchanged on the bucket: the cached copy is current
+    assert write(2.0) == first  # the same root zarr.json: its hash alone cannot tell the two stores apart
+    assert reader.fetch_zarr("dem.zarr") and len(gets) == 1
+    assert (zarr.open_array(str(reader.root / "dem.zarr" / "elevation"), mode="r")[:] == 2.0).all()
+    # a chunk rewritten on the bucket after the commit (as a bucket run's gridding tasks write theirs)
+    chunk = next(k for k in sorted(writer.remote.objects("dem.zarr")) if k.startswith("elevation/c/"))
+    zarr.open_array(writer.remote.url_of("dem.zarr/elevation"), mode="r+")[:2, :2] = 3.0
+    assert reader.fetch_zarr("dem.zarr") and len(gets) == 2, chunk
+    assert zarr.open_array(str(reader.root / "dem.zarr" / "elevation"), mode="r")[0, 0] == 3.0

@@ -254,6 +254,7 @@ def test_a_bad_pair_is_recorded_and_the_tile_goes_on(dense_run: tuple[Path, dict
                            tiny_config(dense={"enabled": True}), 1000.0)
         assert s["ok"] and len(s["failures"]) == 1
         assert "pair NO_SUCH_IMAGE/" in s["failures"][0]["error"] and "NO_SUCH_IMAGE" in s["failures"][0]["error"]
+        assert s["failures"][0]["failure"] == "no_pose"  # its kind, from the exception (dense.failures)
         assert s["points"] > 0  # the good pair went on
     finally:
         shutil.rmtree(run / "dense.zarr" / tile_group_name(tile), ignore_errors=True)

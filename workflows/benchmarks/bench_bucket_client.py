@@ -7,7 +7,7 @@ Starts moto's S3 server on 127.0.0.1, uploads the mission (``--mission``, or one
 ``--preset``) to ``s3://bench/mission`` and runs ``mercury-dem run`` into ``s3://bench/run`` on a
 LocalCluster of ``--workers`` single-threaded worker processes, as a command under the harness's
 ``measure()`` (wall). The harness's command peak is the largest process of the tree (a worker's, as
-well as the client's), so the client reports its own peak (``ru_maxrss`` of its own process, the
+well as the client's), so the client reports its own peak (``harness.peak_rss_bytes``: ``VmHWM`` of its own process, the
 scheduler's thread included) on its last line; that is the figure. The units' ``summary.json`` are copied to
 ``DIR/run`` (for ``bench_cascade_merge.py``). Needs ``moto[server]`` and ``s3fs``.
 """
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import sys
 import tempfile
 import time
@@ -27,7 +26,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from bench_object_store import _moto  # noqa: E402  (beside this script)
-from harness import append_record, measure  # noqa: E402
+from harness import append_record, measure, peak_rss_bytes  # noqa: E402
 
 
 def client(mission: str, out: str, config: str | None, workers: int) -> None:
@@ -37,7 +36,7 @@ def client(mission: str, out: str, config: str | None, workers: int) -> None:
 
     cfg = load_config(config) if config else load_config()
     rep = run_pipeline(mission, out, cfg, workers=workers, threads_per_worker=1, stream=None)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    peak = peak_rss_bytes()  # this process's own VmHWM (harness.memory)
     print(json.dumps({"client_peak_rss_bytes": peak, "global_ok": bool(rep["levels"]["global"]["ok"]),
                       "dem": sorted(rep.get("dem", {}))}))
 

@@ -13,13 +13,10 @@ from __future__ import annotations
 import os
 import sys
 
-from harness import measure
+from harness import interleave, measure
 
 n = int(os.environ.get("N", "5"))
-walls, cpus = [], []
-for _ in range(n):
-    m = measure(sys.argv[1:], cwd="/tmp")
-    walls.append(m.wall_s)
-    cpus.append(m.cpu_s)
+runs = interleave({"command": lambda: measure(sys.argv[1:], cwd="/tmp")}, n)["command"]
+walls, cpus = [m.wall_s for m in runs], [m.cpu_s for m in runs]
 print(f"wall min {min(walls):.3f} median {sorted(walls)[n // 2]:.3f}  "
       f"cpu min {min(cpus):.3f} median {sorted(cpus)[n // 2]:.3f}")

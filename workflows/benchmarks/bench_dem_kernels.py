@@ -16,9 +16,9 @@ import argparse
 import hashlib
 import json
 import statistics
-import time
 
 import numpy as np
+from harness import interleave, measure_here
 
 
 def main() -> None:
@@ -46,15 +46,17 @@ def main() -> None:
     jobs["median11_search"] = lambda: B.median11_search(b, rows, cols, 11, 1.0, search_r, 0.05, grid=True)
     jobs["shepard_search"] = lambda: B.shepard_search(b, rows, cols, 32, 5, search_r, 0.05, grid=True)
     out: dict[str, object] = {"points": n, "grid": [args.size, args.size], "repeats": args.repeats}
-    for name, job in jobs.items():
-        res = job()  # warm-up: numba's cache loaded (or the kernels compiled)
-        times = []
-        for _ in range(args.repeats):
-            t = time.perf_counter()
-            res = job()
-            times.append(time.perf_counter() - t)
+    for job in jobs.values():
+        job()  # warm-up: numba's cache loaded (or the kernels compiled)
+    # harness.interleave of warm in-process calls (harness.measure_here): one round is each kernel once
+    ms = interleave({name: (lambda job=job, name=name: measure_here(job, label=name)) for name, job in jobs.items()},
+                    args.repeats)
+    for name, runs in ms.items():
+        times = [m.wall_s for m in runs]
+        res = runs[-1].value
         arr = res.xyz if name == "build_buckets" else res["radius"]
         out[name] = {"median_s": round(statistics.median(times), 4), "min_s": round(min(times), 4),
+                     "cpu_median_s": round(statistics.median(m.cpu_s for m in runs), 4),
                      "checksum": hashlib.sha256(np.ascontiguousarray(arr).tobytes()).hexdigest()[:16]}
     print(json.dumps(out))
 

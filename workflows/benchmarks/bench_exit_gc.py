@@ -5,19 +5,23 @@
 Each repetition runs three fresh interpreters that start the kernels as a cold ``mercury-dem grid`` does
 (``mercury_dem.dem.numba_start.start_gridding_kernels``) and then end: normally, after ``gc.freeze()``
 (what ``mercury_dem.cli`` does when ``grid`` ends its process), and with ``os._exit(0)`` (no finalisation at
-all, the floor). Measured: seconds from the script's last statement to the parent seeing the process end.
-Prints a JSON record (medians and all values).
+all, the floor). Measured: seconds from the script's last statement to the parent seeing the process end
+(``harness.measure`` runs each child and gives its wall, CPU and peak; the end is its start plus its wall, the
+start taken just before the call, so an exit time is short by the harness's few-microsecond set-up). The three
+modes alternate (``harness.interleave``). Prints the record and appends it to ``records/exit_gc.jsonl``
+(``harness.append_record``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
 import time
+from collections.abc import Callable
+
+from harness import Measurement, append_record, interleave, measure
 
 CHILD = """
 import gc, os, sys, time
@@ -32,21 +36,32 @@ if mode == "os_exit":
     os._exit(0)
 """
 
+MODES = ("normal", "freeze", "os_exit")
+
+
+def child(mode: str) -> Callable[[], Measurement]:
+    """One of :func:`harness.interleave`'s runs: a fresh interpreter ending by ``mode``; its exit seconds in
+    ``extra["exit_s"]``."""
+    def run() -> Measurement:
+        t0 = time.time()
+        m = measure([sys.executable, "-c", CHILD, mode], cwd="/tmp", label=mode)
+        m.extra["exit_s"] = round(t0 + m.wall_s - float(m.stdout.strip().splitlines()[-1]), 3)
+        return m
+    return run
+
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args()
-    out: dict[str, list[float]] = {}
-    for _ in range(args.repeats):
-        for mode in ("normal", "freeze", "os_exit"):
-            proc = subprocess.Popen([sys.executable, "-c", CHILD, mode], stdout=subprocess.PIPE, text=True, cwd="/tmp",
-                                    env=dict(os.environ))
-            line = proc.stdout.readline()
-            proc.wait()
-            out.setdefault(mode, []).append(round(time.time() - float(line), 3))
-    print(json.dumps({"date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()), "load_average": os.getloadavg(),
-                      "median_exit_s": {k: statistics.median(v) for k, v in out.items()}, "all_s": out}, indent=2))
+    ms = interleave({mode: child(mode) for mode in MODES}, args.repeats)
+    out = {k: [m.extra["exit_s"] for m in v] for k, v in ms.items()}
+    values = {"median_exit_s": {k: statistics.median(v) for k, v in out.items()}, "all_s": out,
+              "median_wall_s": {k: round(statistics.median(m.wall_s for m in v), 3) for k, v in ms.items()},
+              "median_cpu_s": {k: round(statistics.median(m.cpu_s for m in v), 3) for k, v in ms.items()},
+              "peak_rss_median_bytes": {k: int(statistics.median(m.peak_rss_bytes for m in v)) for k, v in ms.items()}}
+    rec = append_record("exit_gc", {"repeats": args.repeats}, values)
+    print(json.dumps(rec, indent=2))
 
 
 if __name__ == "__main__":

@@ -6,12 +6,15 @@ What a user sees at the command line: ``mercury-dem grid points.npy --out DIR`` 
 interpreter: Python start-up, imports, numba's compiled-kernel cache load, the gridding,
 the ``dem.zarr`` write; ``--no-coverage``) against ``gdal_grid -a invdistnn`` (11 nearest,
 the same search radius) on the same cloud as FlatGeobuf and as CSV. 1000 x 1000 grid over
-20 deg x 20 deg, as ``bench_grid.py``; the runs are interleaved so load bursts hit both.
+20 deg x 20 deg, as ``bench_grid.py``; the runs are interleaved (``harness.interleave``) so load bursts hit
+both.
 Also timed: ``mercury-dem --help`` and the bare import of the gridding stage, cold.
 ``--tree DIR`` (repeatable) runs ``mercury-dem`` from each source tree (first on ``PYTHONPATH``),
 interleaved with the others and gdal_grid: before/after side by side in the same minutes.
 Wall and CPU seconds (user + system of the child process, including any process it forked and
-waited for, e.g. the ``dem.zarr`` writer of mercury_dem.pipeline.store_writer) are both recorded. Prints a JSON record. Run under ``flock /tmp/mercury_bench.lock``.
+waited for, e.g. the ``dem.zarr`` writer of mercury_dem.pipeline.store_writer) are both recorded, and each
+command's peak resident size (``harness.measure``). Prints the record and appends it to
+``records/grid_cli_cold.jsonl`` (``harness.append_record``). Run under ``flock /tmp/mercury_bench.lock``.
 """
 
 from __future__ import annotations
@@ -24,28 +27,18 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-from harness import append_record, measure
+from harness import Measurement, append_record, interleave, measure
 from harness.scenarios import gdal_grid, write_point_inputs  # the same cloud and gdal_grid call as bench_grid.py
 
-CPU: dict[str, list[float]] = {}
 
-
-def timed(cmd: list[str], env: dict[str, str] | None = None, cpu_key: str | None = None) -> float:
-    """Wall seconds of ``cmd`` (``harness.measure``); its CPU seconds (user + system of the child and its
-    children) go to ``CPU[cpu_key]``."""
+def command(cmd: list[str], env: dict[str, str], label: str) -> Callable[[], Measurement]:
+    """One of :func:`harness.interleave`'s runs: ``cmd`` measured by ``harness.measure`` (wall, CPU of the child
+    and its children, peak resident size)."""
     # cwd /tmp: 'python -m'/'-c' put the current directory first on sys.path, before PYTHONPATH's tree
-    m = measure(cmd, env=env, cwd="/tmp")
-    if cpu_key is not None:
-        CPU.setdefault(cpu_key, []).append(m.cpu_s)
-    return m.wall_s
-
-
-def gdal_timed(key: str, *a: object) -> float:
-    m = gdal_grid(*a)[0]
-    CPU.setdefault(key, []).append(m.cpu_s)
-    return m.wall_s
+    return lambda: measure(cmd, env=env, cwd="/tmp", label=label)
 
 
 def main() -> None:
@@ -82,20 +75,18 @@ def main() -> None:
             return what if t is None else f"{what} [{t}]"
 
         for t in trees:
-            timed(grid_cmd, envs[t])  # numba's on-disk cache filled (a first run after install compiles; not timed)
-        times: dict[str, list[float]] = {}
-        for _ in range(args.repeats):
-            for t in trees:
-                k = name("mercury-dem grid (cold process)", t)
-                times.setdefault(k, []).append(timed(grid_cmd, envs[t], k))
-            for k, src in (("gdal_grid invdistnn FlatGeobuf", fgb), ("gdal_grid invdistnn CSV", vrt)):
-                times.setdefault(k, []).append(gdal_timed(k, src, algo, size, extent, work))
-            for t in trees:
-                k = name("mercury-dem --help", t)
-                times.setdefault(k, []).append(timed(exe + ["--help"], envs[t], k))
-                k = name("import mercury_dem.pipeline.dem_stage (cold)", t)
-                times.setdefault(k, []).append(
-                    timed([sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], envs[t], k))
+            measure(grid_cmd, env=envs[t], cwd="/tmp")  # numba's on-disk cache filled (a first run compiles; not timed)
+        # harness.interleave: one round is each tree's grid, gdal_grid FlatGeobuf and CSV, each tree's --help and import
+        runs = {name("mercury-dem grid (cold process)", t): command(grid_cmd, envs[t], name("grid", t)) for t in trees}
+        for k, src in (("gdal_grid invdistnn FlatGeobuf", fgb), ("gdal_grid invdistnn CSV", vrt)):
+            runs[k] = lambda src=src: gdal_grid(src, algo, size, extent, work)[0]
+        for t in trees:
+            runs[name("mercury-dem --help", t)] = command(exe + ["--help"], envs[t], name("help", t))
+            runs[name("import mercury_dem.pipeline.dem_stage (cold)", t)] = command(
+                [sys.executable, "-c", "import mercury_dem.pipeline.dem_stage"], envs[t], name("import", t))
+        ms = interleave(runs, args.repeats)
+        times = {k: [m.wall_s for m in v] for k, v in ms.items()}
+        cpu = {k: [m.cpu_s for m in v] for k, v in ms.items()}
         med = {k: statistics.median(v) for k, v in times.items()}
         record: dict[str, object] = {
             "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
@@ -103,16 +94,17 @@ def main() -> None:
             "points": args.points, "grid": [size, size], "repeats": args.repeats,
             "median_s": {k: round(v, 3) for k, v in med.items()},
             "all_s": {k: [round(x, 3) for x in v] for k, v in times.items()},
-            "cpu_median_s": {k: round(statistics.median(v), 3) for k, v in CPU.items()},
-            "cpu_all_s": {k: [round(x, 3) for x in v] for k, v in CPU.items()},
+            "cpu_median_s": {k: round(statistics.median(v), 3) for k, v in cpu.items()},
+            "cpu_all_s": {k: [round(x, 3) for x in v] for k, v in cpu.items()},
+            "peak_rss_median_bytes": {k: int(statistics.median(m.peak_rss_bytes for m in v)) for k, v in ms.items()},
         }
         for t in trees:
             ours = med[name("mercury-dem grid (cold process)", t)]
             record[name("gdal_fgb_over_ours", t)] = round(med["gdal_grid invdistnn FlatGeobuf"] / ours, 2)
             record[name("gdal_csv_over_ours", t)] = round(med["gdal_grid invdistnn CSV"] / ours, 2)
-            ours_cpu = statistics.median(CPU[name("mercury-dem grid (cold process)", t)])
+            ours_cpu = statistics.median(cpu[name("mercury-dem grid (cold process)", t)])
             record[name("cpu_gdal_fgb_over_ours", t)] = round(
-                statistics.median(CPU["gdal_grid invdistnn FlatGeobuf"]) / ours_cpu, 2)
+                statistics.median(cpu["gdal_grid invdistnn FlatGeobuf"]) / ours_cpu, 2)
             # per repetition (adjacent runs, the same load): gdal_grid FlatGeobuf wall / ours wall
             record[name("per_repeat_gdal_fgb_over_ours", t)] = [
                 round(g / o, 2) for g, o in zip(times["gdal_grid invdistnn FlatGeobuf"],

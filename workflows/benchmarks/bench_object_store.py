@@ -4,13 +4,17 @@
 
 Runs the tiny mission (generated when --mission is not given) with ``--scheduler sync`` into a
 local directory and into ``s3://bench/run-N`` (the mission read from the bucket too), then resumes
-each; prints wall times, the bucket's object count and whether the global solutions are equal.
+each; the four runs of a round (disk run, disk resume, bucket run, bucket resume) alternate over the rounds
+(``harness.interleave``), each in a child of its own (``harness.measure``: wall, CPU, peak). Prints each round
+(wall times, the bucket's object count, whether the global solutions are equal) and appends the record (medians,
+bucket/disk ratio of the run medians) to ``records/object_store.jsonl`` (``harness.append_record``).
 Needs ``moto[server]`` and ``s3fs`` (``make test`` installs them).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import socket
 import subprocess
@@ -19,6 +23,9 @@ import tempfile
 import time
 import urllib.request
 from pathlib import Path
+from typing import Any
+
+from harness import append_record, interleave, measure, ratio_of_medians
 
 
 def _moto(tmp: Path) -> tuple[subprocess.Popen[bytes], str]:
@@ -75,20 +82,39 @@ def main() -> None:
         t = time.perf_counter()
         remote.fs.put([str(p) for p in files], [remote.key(p.relative_to(mission).as_posix()) for p in files])
         print(f"mission upload: {len(files)} objects in {time.perf_counter() - t:.1f} s")
-        for k in range(args.repeats):
-            row = {}
-            for name, m, out in (("disk", mission, tmp / f"run-{k}"), ("bucket", "s3://bench/mission", f"s3://bench/run-{k}")):
-                for phase in ("run", "resume"):
-                    t = time.perf_counter()
-                    rep = run_pipeline(m, out, config, scheduler="sync", stream=None)
-                    row[f"{name} {phase}"] = time.perf_counter() - t
-                    assert rep["levels"]["global"]["ok"]
+        rounds: list[int] = []
+
+        def phase(name: str, what: str) -> Any:
+            def run() -> Any:
+                if (name, what) == ("disk", "run"):
+                    rounds.append(len(rounds))  # a new round: new run directories
+                k = rounds[-1]
+                m, out = (mission, tmp / f"run-{k}") if name == "disk" else ("s3://bench/mission", f"s3://bench/run-{k}")
+                return measure(lambda: bool(run_pipeline(m, out, config, scheduler="sync", stream=None)
+                                            ["levels"]["global"]["ok"]), label=f"{name} {what}")
+            return run
+
+        ms = interleave({f"{n} {w}": phase(n, w) for n in ("disk", "bucket") for w in ("run", "resume")}, args.repeats)
+        assert all(m.value for v in ms.values() for m in v), "a global adjustment failed"
+        rows = []
+        for k in rounds:
             a = read_solution(RunStore(tmp / f"run-{k}").solution_path("global", 0))
             b = read_solution(RunStore(f"s3://bench/run-{k}").solution_path("global", 0))
             n = len(RemoteDir(f"s3://bench/run-{k}").fs.find(f"bench/run-{k}"))
+            row = {key: v[k].wall_s for key, v in ms.items()}
+            equal = bool((a[0] == b[0]).all() and np.array_equal(a[1], b[1]))
+            rows.append({"wall_s": row, "objects": n, "global_solutions_equal": equal})
             print(" | ".join(f"{key} {v:.1f} s" for key, v in row.items())
                   + f" | bucket/disk {row['bucket run'] / row['disk run']:.2f}x | {n} objects"
-                  + f" | global solutions equal: {bool((a[0] == b[0]).all() and np.array_equal(a[1], b[1]))}")
+                  + f" | global solutions equal: {equal}")
+        values = {"median_wall_s": {k: round(float(np.median([m.wall_s for m in v])), 2) for k, v in ms.items()},
+                  "median_cpu_s": {k: round(float(np.median([m.cpu_s for m in v])), 2) for k, v in ms.items()},
+                  "peak_rss_median_bytes": {k: int(np.median([m.peak_rss_bytes for m in v])) for k, v in ms.items()},
+                  "bucket_over_disk_run": round(ratio_of_medians(ms["bucket run"], ms["disk run"]), 3),  # median bucket / disk
+                  "rounds": rows}
+        rec = append_record("object_store", {"mission": str(args.mission) if args.mission else "tiny (generated)",
+                                             "repeats": args.repeats}, values)
+        print(json.dumps(rec["values"], indent=2))
     finally:
         proc.terminate()
         proc.wait(timeout=10)

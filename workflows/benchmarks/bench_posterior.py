@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import subprocess
 import sys
 import time
@@ -29,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from harness import peak_rss_bytes
 
 C = 3
 
@@ -80,7 +80,7 @@ def build_system(n_measures: float, path: Path, seed: int, k: int = 0, parts: in
              points=n_pt, n_prior=lin.counts[0])
     return {"images": int(images.n_images), "measures": int(m), "points": int(n_pt), "pair_blocks": int(len(keys)),
             "build_seconds": round(time.perf_counter() - t0, 1),
-            "build_peak_rss_gb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6, 3)}
+            "build_peak_rss_gb": round(peak_rss_bytes() / 1e9, 3)}
 
 
 def merge_parts(path: Path, parts: int) -> None:
@@ -144,11 +144,11 @@ def posterior(path: Path, dense_max: int, n_check: int, seed: int) -> dict[str, 
     from mercury_dem.adjust.posterior import selected_inverse
 
     selected_inverse(sp.csc_matrix(np.eye(30) + 0.1), supernodal=True).blocks(np.arange(10), np.arange(10), 3)
-    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    rss0 = peak_rss_bytes() / 1e9
     t = time.perf_counter()
     post = blocked_posterior_sigmas(eng, setup, res)
     seconds = time.perf_counter() - t
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    peak = peak_rss_bytes() / 1e9
     assert post.image_covariances is not None
     out: dict[str, Any] = {
         "images": n_img, "unknowns": C * n_img, "measures": eng.m, "method": post.method,

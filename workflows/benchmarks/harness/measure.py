@@ -7,6 +7,12 @@ all of them, the peak is the largest resident size among them. A forked child st
 resident, so for a callable the peak is also read inside the child after resetting ``VmHWM`` at the call
 (``start_rss_bytes`` is what it held when the call began; ``extra_rss_bytes`` the difference).
 
+A command's peak has a floor: Linux carries the high-water mark of the process image a child replaced at
+``exec`` (the fork of this process) into its ``ru_maxrss``, so a command spawned by a benchmark holding 500 MB
+reports at least ~500 MB whatever it used (measured: ``true`` 30 MB from a bare interpreter, 510 MB from one
+holding a 480 MB array). ``extra["parent_rss_bytes"]`` records this process's resident size at the spawn: a
+command's peak near it says only "at most this"; measure a small command from a small process.
+
 ``interleave`` runs several such measurements alternately (A B A B ...), so that load on a shared machine falls
 on ours and on the reference alike; a ratio is taken between medians of the same run.
 """
@@ -63,6 +69,7 @@ def _run_command(cmd: Sequence[str], label: str, env: Mapping[str, str] | None, 
                  check: bool, timeout: float | None, log: str | os.PathLike[str] | None) -> Measurement:
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err, \
             open(log if log is not None else os.devnull, "w") as log_fh:
+        parent_rss = rss_bytes()  # the floor of the command's ru_maxrss (module docstring)
         t0 = time.perf_counter()
         # a session of its own: on a timeout its whole process group (and nothing else) is stopped
         proc = subprocess.Popen(list(cmd), stdout=log_fh if log is not None else out,
@@ -86,7 +93,7 @@ def _run_command(cmd: Sequence[str], label: str, env: Mapping[str, str] | None, 
         stdout, stderr = out.read(), err.read()
     cpu, peak = _rusage_figures(ru)
     m = Measurement(label, wall, cpu, peak, returncode=proc.returncode, stdout=stdout, stderr=stderr,
-                    extra={"timed_out": True} if timed_out else {})
+                    extra={"parent_rss_bytes": parent_rss, **({"timed_out": True} if timed_out else {})})
     if check and (proc.returncode != 0 or timed_out):
         raise RuntimeError(f"{label}: {' '.join(cmd)} exited {proc.returncode}: {stderr[-2000:]}")
     return m
