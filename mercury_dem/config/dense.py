@@ -123,6 +123,17 @@ class DenseConfig(ConfigSection):
         "sparse prior's errors are skewed (tiny seed 42: +38 m, levelled +3 m)")
     level_min_shots: int = param(
         500, "Fewest shots on a tile's dense pixels for its own level (fewer: the nearest tile's)", lo=1)
+    level_pairs_on_sparse: bool = param(
+        True, "Each stereo pair's points shifted, before the gridding, by the clipped mean of (sparse DEM - point) "
+        "over the pair's points (dem.dense_grid.pair_level_offsets), so the dense values keep the level of the "
+        "sparse DEM (tied to many images, registered and levelled on the altimetry) and add its relief: a pair's "
+        "heights share an offset of their own (the demo's four pairs -8 / +49 / +94 / +261 m against the truth; "
+        "the dense values alone were +221 m above it after the registration; docs/design/dense.md)")
+    pair_level_clip_nmad: float = param(
+        3.0, "Pair level: points farther than this many NMAD from the pair's median difference to the sparse DEM "
+        "are left out of its mean", lo=1e-9, hi=1e6)
+    pair_level_min_points: int = param(
+        500, "Pair level: fewest points (on the sparse DEM, after the clipping) for a pair to be shifted", lo=1)
     grid_smoothing_passes: int | None = param(
         None, "Passes of the DEM stage's NaN-aware box filter on the dense DEM; null: dem.smoothing_passes (1). "
         "Measured on tiny seed 42 (workflows/benchmarks/dense_gridding.py, docs/benchmarks/dense.md): lighter "

@@ -349,6 +349,8 @@ def dense_lines(dense: dict[str, Any] | None, limit: int = 5) -> str:
                    f"sparse fallback {_f(frac.get('sparse_fallback'), '.0%')}; RMSE dense / sparse on the dense "
                    f"pixels {_f(dem.get('rmse_ratio_dense_over_sparse'), '.2f')}; frame {dem.get('frame', 'adjusted')}"
                    + (f", levelled on the altimetry in {lv['tiles']} tiles" if (lv := dem.get("altimetry_level")) else "")
+                   + (f"; {pl['pairs_levelled']} of {pl['pairs']} pairs put on the sparse DEM's level (median "
+                      f"{_f(pl.get('offset_median_m'), '+.0f')} m)" if (pl := dem.get("pair_level")) else "")
                    + "\n")
     out += _dense_product_lines(dense)
     return "".join(out)
