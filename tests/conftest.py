@@ -94,6 +94,8 @@ _WHOLE_RUN_MODULE_FIXTURES = {
 SHARED_FIXTURE_GROUPS = {
     # regional_run (tests/products/conftest.py): one regional DEM per case for both modules
     "products_regional_dems": ("tests/products/test_product_metadata.py", "tests/products/test_isis_pds4_products.py"),
+    # pair_world (tests/match/conftest.py): the rendered standard pairs, ~2.4 s
+    "match_pair_world": ("tests/match/test_tile.py", "tests/match/test_accuracy.py"),
     # the rendered pairs of tests/dense/conftest.py (lambert_pair in five modules, ~2 s each)
     "dense_rendered_pairs": ("tests/dense/test_chip.py", "tests/dense/test_disparity.py", "tests/dense/test_rectify.py",
                              "tests/dense/test_refine_kernel.py", "tests/dense/test_triangulate.py"),
