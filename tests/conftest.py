@@ -113,6 +113,7 @@ def work_unit(nodeid: str) -> str:
     return module
 
 
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: unknown when xdist is not loaded (-p no:xdist)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     """``--dist loadgroup``: whole modules, and the groups of :data:`SHARED_FIXTURE_GROUPS`, as work units
     (largest first, xdist's default reordering).
