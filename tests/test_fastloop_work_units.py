@@ -1,6 +1,7 @@
 """The xdist work units of ``make test-fast`` (``--dist loadgroup``, tests/conftest.py): a test's module, or the
 group of modules sharing a costly session fixture; every grouped module exists (a renamed one would silently
-fall back to its own unit and build the fixture again on the other worker)."""
+fall back to its own unit and build the fixture again on the other worker).
+"""
 
 from __future__ import annotations
 
