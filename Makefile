@@ -49,8 +49,10 @@ test-slow: setup
 # Bytecode is cached under .pytest_cache/pycache even where PYTHONDONTWRITEBYTECODE is set (as in this project's
 # shared sessions): without it every worker re-compiles the package and re-rewrites the asserts of ~200 test
 # modules at each run (~6 s of CPU a worker). The prefix keeps the cache out of the (maybe shared) venv.
+# --dist loadgroup: each test module (or group of modules sharing a session fixture) runs on one worker, so its
+# fixtures are built once (tests/conftest.py, pytest_xdist_make_scheduler).
 test-fast: setup
-	PYTHONDONTWRITEBYTECODE= PYTHONPYCACHEPREFIX=$(CURDIR)/.pytest_cache/pycache $(PY) -m pytest -m "not integration" -n 2
+	PYTHONDONTWRITEBYTECODE= PYTHONPYCACHEPREFIX=$(CURDIR)/.pytest_cache/pycache $(PY) -m pytest -m "not integration" -n 2 --dist loadgroup
 
 # ruff (with pydocstyle's numpy convention) and mypy on the package, configured in pyproject.toml.
 lint: setup

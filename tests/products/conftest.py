@@ -1,6 +1,12 @@
-"""A small gridded DEM store (global, 2 pixel/deg, with a gap) shared by the product tests."""
+"""A small gridded DEM store (global, 2 pixel/deg, with a gap) shared by the product tests, and the regional
+DEMs of the metadata and ISIS/PDS4 tests, each gridded once per session.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -33,3 +39,24 @@ def products(dem_dir):
 
     return make_products(dem_dir / "dem.zarr", dem_dir / "products", CFG, truth_height,
                          profiles=[(-40.0, 10.0, 50.0, 100.0)])
+
+
+@pytest.fixture(scope="session")
+def regional_run(tmp_path_factory) -> Callable[[Any, tuple[float, float]], tuple[Path, dict[str, Any]]]:
+    """``get(body, lon_bounds) -> (run dir, products summary)``: a small regional DEM with a gap and its products
+    (:func:`tests.products.regional.regional_products`), built on the first request of each case and shared by
+    test_product_metadata and test_isis_pds4_products (the tests only read them): ~1.7 s of CPU a case, which
+    each module used to grid again with its own seed.
+    """
+    from tests.products.regional import regional_products
+
+    built: dict[tuple[str, tuple[float, float]], tuple[Path, dict[str, Any]]] = {}
+
+    def get(body: Any, lons: tuple[float, float]) -> tuple[Path, dict[str, Any]]:
+        key = (body.name, lons)
+        if key not in built:
+            d = tmp_path_factory.mktemp(f"regional_{body.name}_{lons[0]:g}_{lons[1]:g}")
+            built[key] = (d, regional_products(body, lons, d, seed=7, max_distance_m=60_000.0, hole=True))
+        return built[key]
+
+    return get

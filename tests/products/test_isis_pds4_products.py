@@ -19,7 +19,7 @@ import xarray as xr
 
 from mercury_dem.geometry.body import MERCURY, MOON
 from mercury_dem.products.planetary import ISIS_NULL_REAL, load_isis_label
-from tests.products.regional import LAT, PPD, regional_products
+from tests.products.regional import LAT, PPD
 
 CASES = {
     "mercury_across_0": (MERCURY, (-15.0, 15.0)),
@@ -31,17 +31,17 @@ PDS = ("equirectangular", "north_polar", "south_polar")
 
 
 #: The fast loop (-m "not integration") grids one Mercury case across 0 deg and one Moon case away from it
-#: (~5 s of fixture each); make test runs every case.
+#: (~1.7 s of CPU each, gridded once for both test_product_metadata and test_isis_pds4_products: conftest
+#: regional_run); make test runs every case.
 _FAST = {"mercury_across_0", "moon_100_130"}
 
 
 @pytest.fixture(scope="module", params=[c if c in _FAST else pytest.param(c, marks=pytest.mark.integration)
                                              for c in CASES])
-def run(request, tmp_path_factory):
+def run(request, regional_run):
     """(body, lon bounds, run dir, summary): dem.zarr and the products of a small regional DEM with a gap."""
     body, lons = CASES[request.param]
-    d = tmp_path_factory.mktemp(request.param)
-    summary = regional_products(body, lons, d, seed=7, max_distance_m=60_000.0, hole=True)
+    d, summary = regional_run(body, lons)
     lon_min, lon_max = lons
     return body, (lon_min, lon_max), d, summary
 

@@ -21,7 +21,7 @@ import xarray as xr
 
 from mercury_dem.geometry.body import MERCURY, MOON
 from mercury_dem.products.sampling import sample_bilinear
-from tests.products.regional import LAT, PPD, regional_products
+from tests.products.regional import LAT, PPD
 
 CASES = {
     "mercury_across_0": (MERCURY, (-15.0, 15.0)),
@@ -33,17 +33,19 @@ TIFS = ("dem.tif", "pds/equirectangular.tif", "pds/north_polar.tif", "pds/south_
 
 
 #: The fast loop (-m "not integration") grids one Mercury case across 0 deg and one Moon case away from it
-#: (~5 s of fixture each); make test runs every case.
+#: (~1.7 s of CPU each, gridded once for both test_product_metadata and test_isis_pds4_products: conftest
+#: regional_run); make test runs every case.
 _FAST = {"mercury_across_0", "moon_100_130"}
 
 
 @pytest.fixture(scope="module", params=[c if c in _FAST else pytest.param(c, marks=pytest.mark.integration)
                                              for c in CASES])
-def run(request, tmp_path_factory):
-    """(body, lon bounds, run dir): dem.zarr + coverage.zarr + products of a small regional DEM."""
+def run(request, regional_run):
+    """(body, lon bounds, run dir): dem.zarr + coverage.zarr + products of a small regional DEM (with a gap;
+    the same as test_isis_pds4_products').
+    """
     body, lons = CASES[request.param]
-    d = tmp_path_factory.mktemp(request.param)
-    regional_products(body, lons, d, seed=5, max_distance_m=100_000.0)
+    d, _ = regional_run(body, lons)
     lon_min, lon_max = lons
     return body, (lon_min, lon_max), d
 
