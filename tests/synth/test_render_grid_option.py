@@ -40,6 +40,7 @@ def _scene(scale_m: float = 2000.0):
 
 
 def test_the_band_limit_at_one_pixel_is_the_old_renderer_bit_for_bit() -> None:
+    """surface_resolution_px 1 on the 1-px grid is the default renderer; the half-pixel grid draws nearly the same scene."""
     surf = Surface(SurfaceParams(seed=3, crater_d_min_m=5000.0))
     cam, c, r, sun = _scene()
     old = render_reflectance(surf, cam, c, r, sun, RenderSettings())
@@ -57,6 +58,7 @@ def test_the_band_limit_at_one_pixel_is_the_old_renderer_bit_for_bit() -> None:
 
 
 def test_negative_band_limits_are_refused() -> None:
+    """A negative band limit is the renderer's own error naming the setting."""
     with pytest.raises(GeometryError, match="surface_resolution"):
         RenderSettings(surface_resolution_px=-1.0)
     with pytest.raises(GeometryError, match="surface_resolution"):
@@ -64,6 +66,7 @@ def test_negative_band_limits_are_refused() -> None:
 
 
 def test_a_mission_records_its_render_grid(tmp_path) -> None:
+    """synth.render_grid_px reaches the renderer and mission.json says how the images were drawn."""
     generate_mission(tmp_path / "default", SynthConfig(seed=9), design=MINI, images="0:1")
     generate_mission(tmp_path / "fine", SynthConfig(seed=9, render_grid_px=0.5), design=MINI, images="0:1")
     a, b = open_mission(tmp_path / "default"), open_mission(tmp_path / "fine")
