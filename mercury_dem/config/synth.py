@@ -23,6 +23,6 @@ class SynthConfig(ConfigSection):
     )
     render_grid_px: float = param(
         0.0, "Renderer's surface-grid spacing in ground pixels, the surface band-limited at one pixel as with "
-             "the preset's grid (0.5: two views agree ~30 % better on km-scale pairs, 3.4-3.7x the render "
+             "the preset's grid (0.5: two views agree ~30 % better on km-scale pairs, 3.5-3.7x the render "
              "cost); 0: the preset's renderer (a 1-pixel grid)", unit="px", lo=0.0, hi=2.0
     )

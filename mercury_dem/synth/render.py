@@ -75,7 +75,7 @@ class RenderSettings:
         from its own piecewise-linear sampling of the surface's shortest wavelengths; 0.5 with
         ``surface_resolution_px`` 1 (the same surface, a finer grid; ``mercury-dem synth --render-grid-px
         0.5``) makes two noise-free views of a km-scale mission agree to 0.18-0.33 px instead of 0.25-0.47 px
-        (1.4826 MAD of the dense matcher's disparity error) at 3.4-3.7x the render cost (docs/design/dense.md)
+        (1.4826 MAD of the dense matcher's disparity error) at 3.5-3.7x the render cost (docs/design/dense.md)
     psf_sigma_px : Gaussian point-spread sigma, image pixels
     lambert_weight : weight of the Lambert term in the Lommel–Seeliger/Lambert mix (0..1)
     phase_scale_deg : e-folding angle of the exponential phase function, degrees
