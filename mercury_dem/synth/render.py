@@ -329,7 +329,7 @@ def sample_surface(
     (default: the grid spacing).
 
     ``dirs`` : (ny, nx, 3) the node directions (``grid.directions()``).
-    Uses the surface's ``sample_grid(grid, dirs)`` when it has one (the truth ``Surface``
+    Uses the surface's ``sample_grid(grid, dirs, resolution_m)`` when it has one (the truth ``Surface``
     evaluates craters per crater over the grid instead of per point), else
     ``height_unit``/``albedo_unit`` at the node directions.
     """
