@@ -28,6 +28,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, help="seed of the surface, the mission and the noise")
     p.add_argument("--pointing-sigma-urad", type=float, help="a-priori pointing error per axis (1 sigma), microradians")
     p.add_argument("--position-sigma-m", type=float, help="a-priori position error per axis (1 sigma), metres")
+    p.add_argument("--render-grid-px", type=float,
+                   help="renderer's surface-grid spacing in ground pixels (default: the preset's, 1); 0.5 draws "
+                        "every view from a twice finer grid of the same surface (two views agree ~30 %% better on "
+                        "km-scale pairs) at ~3.5x the render time")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.add_argument("--workers", type=int, default=1,
                    help="render on a local Dask cluster of this many processes (default 1: plain loop)")
@@ -54,7 +58,7 @@ def synth_config(args: argparse.Namespace) -> SynthConfig:
     """
     data = to_dict(SynthConfig())
     for flag, key in (("preset", "preset"), ("body", "body"), ("seed", "seed"), ("pointing_sigma_urad", "pointing_sigma_urad"),
-                      ("position_sigma_m", "position_sigma_m")):
+                      ("position_sigma_m", "position_sigma_m"), ("render_grid_px", "render_grid_px")):
         v = getattr(args, flag)
         if v is not None:
             data[key] = v

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,9 @@ def generate_mission(
         raise StoreError(f"{out} already exists; pass --overwrite to replace it (or choose another OUT)")
     t0 = time.perf_counter()
     design = design or get_preset(config.preset)
+    if config.render_grid_px > 0:
+        render = replace(design.render, grid_spacing_px=config.render_grid_px, surface_resolution_px=1.0)
+        design = replace(design, render=render)
     params = replace(design.surface, seed=config.seed)
     body = body_by_name(config.body)
     if params.shape_harmonics and body.name != "MERCURY":
@@ -127,6 +130,8 @@ def generate_mission(
         "n_images_design": n_design,
         "image_size": design.samples,
         "area_deg": list(design.area_deg) if design.area_deg else None,
+        # how the images were drawn (a mission written before session 20 has no key: the preset's 1-px grid)
+        "render": asdict(design.render),
     }
     if idx is not None:
         meta["partial"] = {

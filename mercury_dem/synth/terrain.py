@@ -268,7 +268,9 @@ class Surface:
         a = p.albedo_mean * np.exp(p.albedo_variation * mottle) * (1.0 + boost)
         return np.clip(a, 0.01, 0.9)
 
-    def sample_grid(self, grid: Any, units: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def sample_grid(
+        self, grid: Any, units: NDArray[np.float64], resolution_m: float | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Height (m) and albedo, each (ny, nx), at the nodes of a renderer's local grid.
 
         ``grid`` : a :class:`mercury_dem.synth.render.LocalGrid` (plane tangent at
@@ -277,8 +279,10 @@ class Surface:
         ``resolution_m = grid.spacing_m`` (up to the order of the crater sums, ~1e-12 m),
         but the craters are visited crater by crater over the grid (each touches only
         the nodes it reaches) instead of point by point through the lat/lon index:
-        ~3x faster on a renderer's grid.
+        ~3x faster on a renderer's grid. ``resolution_m`` (default: the grid spacing) is the
+        resolution the fields are band-limited to.
         """
+        res = float(grid.spacing_m) if resolution_m is None else float(resolution_m)
         u = np.ascontiguousarray(units, dtype=np.float64)
         shape = u.shape[:-1]
         flat = u.reshape(-1, 3)
@@ -287,11 +291,11 @@ class Surface:
         ix = self._height_index
         ids = cr.grid_candidates(ix, u, self.craters.shape[0])
         h = cr.crater_heights_grid(u, self.craters, ids, ix.reach_rad, *geo)
-        height = self._compose_height(flat, h.ravel(), grid.spacing_m).reshape(shape)
+        height = self._compose_height(flat, h.ravel(), res).reshape(shape)
         ix = self._ray_index
         ids = cr.grid_candidates(ix, u, self._ray_table.shape[0])
         boost = cr.ray_albedo_grid(u, self._ray_table, ids, ix.reach_rad, *geo)
-        albedo = self._compose_albedo(flat, boost.ravel(), grid.spacing_m).reshape(shape)
+        albedo = self._compose_albedo(flat, boost.ravel(), res).reshape(shape)
         return height, albedo
 
     # -- evaluation on latitude/longitude ------------------------------------

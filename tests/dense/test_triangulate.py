@@ -1,11 +1,11 @@
 """Triangulation of dense matches: heights against the synthetic truth, and a stated precision that means
 what it says (issue 31, 'Done when' 2: share beyond 3 sigma <= 1 %, true RMS / stated RMS in 0.7-1.5).
 
-The stated precision uses ``sigma_floor_px = 0.2``: the renderer's own floor, measured as the disparity
-error of the refinement on *noise-free* Lambert renderings of this pair (0.19 px RMS: each view is drawn
-from its own one-pixel triangulated grid of the surface, so the two images disagree at that level where
-the relief is sharp). It is a property of the synthetic images, stated here, not fitted to the figures
-asserted below.
+The stated precision uses ``sigma_floor_px = 0.2``: the floor of *noise-free* Lambert renderings of this
+pair, measured as the refinement's disparity error (0.18-0.19 px RMS; 0.05 px where the disparity is flat,
+0.48 px on the steepest tenth of the relief, where the tilted view foreshortens the window; a finer render
+grid does not move it: ``workflows/benchmarks/render_agreement.py``, docs/design/dense.md). It is a property
+of the synthetic pair, stated here, not fitted to the figures asserted below.
 """
 
 from __future__ import annotations

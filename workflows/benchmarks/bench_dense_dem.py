@@ -8,7 +8,8 @@ truth: true RMS / stated RMS and the share beyond 3 stated sigma.
 
 Run (heavy: a whole tiny run per seed, ~5 min, plus the dense stage, 1-2 min; take the lock):
     flock /tmp/mercury_bench.lock nice -n 10 .venv/bin/python workflows/benchmarks/bench_dense_dem.py
-        --workdir /tmp/dense_dem --seeds 42 7 [--run 42=/path/to/run] [--dense refine_window=7]   (one command line)
+        --workdir /tmp/dense_dem --seeds 42 7 [--run 42=/path/to/run] [--dense refine_window=7]
+        [--render-grid-px 0.5]   (one command line)
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--force", default="dense", choices=("dem", "dense"),
                     help="the stage the dense run recomputes from: dense (default), or dem (the DEM and its "
                          "registration too: a run registered before registration/transform.json was stored)")
+    ap.add_argument("--render-grid-px", type=float, default=0.0,
+                    help="the missions' renderer grid in ground pixels (synth.render_grid_px; 0: the preset's)")
     args = ap.parse_args(argv)
     import yaml
 
@@ -72,7 +75,7 @@ def main(argv: list[str] | None = None) -> None:
         else:
             mission = root / "mission"
             if not (mission / "catalog.parquet").exists():
-                generate_mission(mission, SynthConfig(preset="tiny", seed=seed))
+                generate_mission(mission, SynthConfig(preset="tiny", seed=seed, render_grid_px=args.render_grid_px))
             run_pipeline(mission, run, tiny_config(), scheduler="sync", stream=None)
         rep = run_pipeline(mission, run, tiny_config(dense={"enabled": True, **dense_keys}), scheduler="sync", stream=None,
                            force=args.force)

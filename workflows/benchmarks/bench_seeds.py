@@ -110,7 +110,7 @@ def group_figures(err: np.ndarray, pair: np.ndarray, rows: list[dict[str, Any]],
 
 
 def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions: Path | None = None,
-             study_matching: bool = True) -> dict[str, Any]:
+             study_matching: bool = True, render_grid_px: float = 0.0) -> dict[str, Any]:
     """Synthesize, run and study one seed (cached in WORKDIR/seed_N.json; missions in ``missions`` when given).
 
     ``study_matching`` False: the run's pointing figures only (for a change that does not touch matching:
@@ -126,7 +126,9 @@ def one_seed(seed: int, workdir: Path, preset: str, config: str | None, missions
     log = workdir / f"seed_{seed}.log"
     t_synth = t_run = 0.0
     if not (mission / "mission.json").exists():
-        t_synth = _cli("synth", str(mission), "--preset", preset, "--seed", str(seed), "--quiet", "--overwrite", log=log)
+        grid = ["--render-grid-px", str(render_grid_px)] if render_grid_px > 0 else []
+        t_synth = _cli("synth", str(mission), "--preset", preset, "--seed", str(seed), "--quiet", "--overwrite", *grid,
+                       log=log)
     cfg = ["--config", config] if config else []
     if not (run / "report.json").exists():
         t_run = _cli("run", str(mission), "--out", str(run), "--scheduler", "sync", "--no-dem", "--quiet", *cfg, log=log)
@@ -248,6 +250,8 @@ def main() -> None:
     p.add_argument("--json", help="also write every seed's figures to this file")
     p.add_argument("--missions", help="take (or make) the missions in this directory (e.g. another study's "
                    "WORKDIR: the same missions, matched and adjusted again)")
+    p.add_argument("--render-grid-px", type=float, default=0.0,
+                   help="missions made here are rendered on this grid (synth --render-grid-px; 0: the preset's)")
     p.add_argument("--report-only", action="store_true", help="only the report of the seeds already in WORKDIR")
     p.add_argument("--pointing-only", action="store_true", help="run and pointing figures only, no matching "
                    "study (for changes after matching: the adjustment's weights, its priors)")
@@ -258,7 +262,8 @@ def main() -> None:
     for s in parse_seeds(a.seeds):
         if a.report_only and not (work / f"seed_{s}.json").exists():
             continue
-        r = one_seed(s, work, a.preset, a.config, Path(a.missions) if a.missions else None, not a.pointing_only)
+        r = one_seed(s, work, a.preset, a.config, Path(a.missions) if a.missions else None, not a.pointing_only,
+                     a.render_grid_px)
         g = r["groups"].get("similar", {})
         print(f"seed {s}: similar median {g.get('median_px', float('nan')):.3f} p95 {g.get('p95_px', float('nan')):.3f}, "
               f"outliers {100 * r['groups'].get('all', {}).get('outlier_share', float('nan')):.2f} %, pointing "
