@@ -10,6 +10,7 @@ and the network-wide RMS (summed in another order: to rounding). And the fallbac
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -116,3 +117,44 @@ def test_fallback_reasons() -> None:
     assert "re-centring" in str(streamed_fallback_reason(recentre, "global", 10, altimetry=False))
     post = AdjustConfig(blocked_min_measures=0, posterior_sigmas=True, point_prior_recentre_levels=())
     assert "posterior" in str(streamed_fallback_reason(post, "hemisphere", 10, altimetry=False))
+
+
+def _adjust_on_worker(path: str, out: str, ids: list[str], geometry: tuple[Any, ...], radius: float) -> Any:
+    from mercury_dem.pipeline.shard_engine import shard_engine_factory
+
+    cams, pos, rot, start = geometry
+    return adjust_stored_unit(path, out, ids, cams, pos, rot, CFG, pointing_sigma_urad=50.0, datum_radius_m=radius,
+                              initial_rotations=start, engine_factory=shard_engine_factory())
+
+
+def test_stored_unit_blocks_on_the_dask_workers(merged: tuple[Path, _Mission, float], tmp_path: Path) -> None:
+    """The unit's task on a worker of a 2-worker LocalCluster: each worker's shard actor reads its own run of the
+    stored blocks (``DaskShardEngine.from_blocks`` given ``StoredBlocks``); the in-process solution to rounding
+    (two shards sum in another order), the same rejections, nothing left on the workers.
+    """
+    from distributed import Client
+
+    from mercury_dem.compute import local_cluster
+
+    path, mission, radius = merged
+    unused = set(stored_singular_parts(path / "network")["images_without_measures"])
+    ids = [i for i in stored_image_ids(path).tolist() if i not in unused]
+    geometry = _geometry(mission, ids)
+    ref = adjust_stored_unit(path, tmp_path / "sync.zarr", ids, *geometry[:3], CFG, pointing_sigma_urad=50.0,
+                             datum_radius_m=radius, initial_rotations=geometry[3])
+    with local_cluster(2, 1, processes=False, memory_limit=0) as cluster, Client(cluster) as client:
+        got = client.submit(_adjust_on_worker, str(path), str(tmp_path / "dask.zarr"), ids, geometry, radius,
+                            pure=False).result()
+        for _ in range(50):
+            left = client.run(lambda dask_worker: len(dask_worker.state.actors))
+            if not any(left.values()):
+                break
+            time.sleep(0.1)
+        assert not any(left.values()), left
+    assert got.summary["blocked"]["engine"] == "dask (2 workers)"
+    assert got.summary["iterations"] == ref.summary["iterations"]
+    assert np.abs(got.rotations - ref.rotations).max() < 1e-10
+    a, b = read_network(ref.network_path), read_network(got.network_path)
+    np.testing.assert_array_equal(a.measure_rejected, b.measure_rejected)
+    assert np.allclose(a.residuals, b.residuals, atol=1e-6, equal_nan=True)
+    assert np.allclose(a.adjusted_xyz, b.adjusted_xyz, atol=1e-3, equal_nan=True)
