@@ -646,6 +646,17 @@ class BlockShard:
             out.append((b.block, b.pixels(r)))
         return out
 
+    def initial_residual_sums(self, omega: NDArray[np.float64]) -> list[tuple[float, int, int]]:
+        """(sum of squared residuals px², residual coordinates, measures that cannot be projected) at ``omega``,
+        per block: :meth:`initial_residuals` summed where it is computed (a unit adjusted from its store).
+        """
+        out = []
+        for b in self.blocks:
+            _, r = b.cost(omega)
+            px = b.pixels(r)
+            out.append((float(np.sum(px * px)), int(px.size), int(np.sum(~np.all(np.isfinite(px), axis=1)))))
+        return out
+
     def point_sigmas(self, keys: NDArray[np.int64], blocks: NDArray[np.float64],
                      sigma0: float) -> list[tuple[int, NDArray[np.float64]]]:
         """(block, a-posteriori point sigmas (n_pt, 3)) of every block (see :meth:`PointBlockState.point_sigmas`)."""
@@ -656,6 +667,14 @@ class BlockShard:
         """(block, points, frozen points, accepted measures, residuals in pixels) of every block at the current state."""
         return [(b.block, b.points, b.frozen, b.active, b.pixels(b.r_now))
                 for b in self.blocks]
+
+    def block_results_of(self, ids: tuple[int, ...]) -> list[tuple[int, NDArray[np.float64], NDArray[np.bool_],
+                                                                   NDArray[np.bool_], NDArray[np.float64]]]:
+        """:meth:`block_results` of the blocks ``ids`` this shard holds (none if it holds none of them): the
+        adjusted network is fetched a few blocks at a time, never the whole of it at once.
+        """
+        want = {int(b) for b in ids}
+        return [(b.block, b.points, b.frozen, b.active, b.pixels(b.r_now)) for b in self.blocks if b.block in want]
 
     def solution(self) -> list[tuple[int, int, NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]]:
         """(block, first point, points, accepted measures, frozen points) of every block (tests, small runs)."""

@@ -72,8 +72,19 @@ def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: f
     """
     if point_prior_center not in ("datum", "shape"):
         return problem
-    held = np.asarray(problem.held_points, bool)[:, None]
-    pts = np.asarray(problem.points, np.float64)
+    return dataclasses.replace(problem, points=centred_points(problem.points, problem.held_points, point_prior_center,
+                                                             datum_radius_m, shape))
+
+
+def centred_points(points: ArrayLike, held: ArrayLike, point_prior_center: str, datum_radius_m: float,
+                   shape: Any = None) -> NDArray[np.float64]:
+    """The points ``(n, 3)`` as :func:`centre_point_priors` places them (``held`` ones kept; a point at a time,
+    so a block of them gives the same rows as the whole: a unit adjusted from its stored blocks).
+    """
+    pts = np.asarray(points, np.float64)
+    if point_prior_center not in ("datum", "shape"):
+        return pts
+    keep = np.asarray(held, bool)[:, None]
     if point_prior_center == "shape" and shape is not None:
         r = np.linalg.norm(pts, axis=1, keepdims=True)
         target = np.asarray(shape.radius_at_xyz(pts), np.float64)[:, None]
@@ -81,7 +92,8 @@ def centre_point_priors(problem: Any, point_prior_center: str, datum_radius_m: f
         placed = np.where(ok, pts * (np.where(ok, target, 1.0) / np.where(r > 0, r, 1.0)), on_datum(pts, datum_radius_m))
     else:
         placed = on_datum(pts, datum_radius_m)
-    return dataclasses.replace(problem, points=np.where(held, pts, placed))
+    out: NDArray[np.float64] = np.where(keep, pts, placed)
+    return out
 
 
 def neighbour_radii(points_xyz: ArrayLike, usable: ArrayLike | None = None, k: int = 50) -> NDArray[np.float64]:

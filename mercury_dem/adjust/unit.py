@@ -191,8 +191,15 @@ def point_prior_centre(problem: AdjustmentProblem, cfg: AdjustConfig, datum_radi
     """
     from mercury_dem.adjust.datum import centre_point_priors
 
-    on_shape = cfg.point_prior_center == "shape" and prior_shape is not None
     problem = centre_point_priors(problem, cfg.point_prior_center, datum_radius_m, shape=prior_shape)
+    cfg, centre = prior_centre_config(cfg, datum_radius_m, prior_shape)
+    return problem, cfg, centre
+
+
+def prior_centre_config(cfg: AdjustConfig, datum_radius_m: float, prior_shape: Any = None
+                        ) -> tuple[AdjustConfig, dict[str, Any]]:
+    """:func:`point_prior_centre`'s configuration and summary alone (the points are moved elsewhere: by block)."""
+    on_shape = cfg.point_prior_center == "shape" and prior_shape is not None
     if on_shape:
         sigma = cfg.point_prior_shape_sigma_m or float(prior_shape.prior_sigma_m)
         cfg = dataclasses.replace(cfg, radius_sigma_m=sigma)
@@ -203,7 +210,7 @@ def point_prior_centre(problem: AdjustmentProblem, cfg: AdjustConfig, datum_radi
             centre["why"] = "no shape model for this run (a synthetic mission or a body without one)"
     else:
         centre = {"centre": "network", "radius_sigma_m": cfg.radius_sigma_m}
-    return problem, cfg, centre
+    return cfg, centre
 
 
 def _levelling(points: NDArray[np.float64], cfg: AdjustConfig, heights: HeightTerms | None,

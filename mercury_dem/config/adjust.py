@@ -115,8 +115,10 @@ class AdjustConfig(ConfigSection):
     streamed_merge_levels: tuple[str, ...] = param(
         (), "Levels whose units merge their children's stored networks by parts (mercury_dem.io.merged_network_store."
         "stream_merge: the same merged network bit for bit, never the children's networks and the merge in memory "
-        "at once); the adjustment then reads the merged network from that store. Empty (the default): the "
-        "in-memory merge"
+        "at once); a unit adjusted by blocks is then adjusted from that store's blocks and its adjusted network "
+        "written back by blocks (never whole in the unit's process), other units (altimetry passes, re-centring, "
+        "posterior sigmas, not blocked) read it back and adjust in memory, their summary saying why. Empty (the "
+        "default): the in-memory merge"
     )
     streamed_merge_part_measures: int = param(
         500000, "Measures per part of the streamed merge (streamed_merge_levels): bounds the merge's memory", lo=1

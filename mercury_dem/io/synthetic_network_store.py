@@ -305,10 +305,23 @@ class StoredBlocks:
 
     path: str
     ids: tuple[int, ...]
+    #: applied to every block as it is read (picklable: it goes to the workers), e.g. a unit's point prior
+    #: centre and image renumbering (:class:`mercury_dem.adjust.unit_streamed.UnitBlockPrior`); None: as stored
+    transform: Callable[[BlockData], BlockData] | None = None
 
     def __iter__(self) -> Iterator[BlockData]:
         net = BlockedNetwork(self.path)
-        return (net.read_block(b) for b in self.ids)
+        if self.transform is None:
+            return (net.read_block(b) for b in self.ids)
+        fn = self.transform
+        return (fn(net.read_block(b)) for b in self.ids)
+
+    def subset(self, ids: tuple[int, ...]) -> StoredBlocks:
+        """The same store's blocks ``ids`` with the same transform (one worker's run of them)."""
+        return StoredBlocks(self.path, tuple(int(b) for b in ids), self.transform)
+
+    def __len__(self) -> int:
+        return len(self.ids)
 
 
 def split_synthetic_network(src: str | Path, outs: list[str | Path], overlap_blocks: int = 1, seed: int = 0,

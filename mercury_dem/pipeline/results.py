@@ -23,6 +23,7 @@ and a pass-through for the adjustment's open-ended summary.
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import time
 import traceback
 from collections.abc import Callable, Mapping
@@ -404,6 +405,8 @@ class UnitFiles:
     pairs: Any = None  # pandas.DataFrame, one row per matched pair -> pairs.parquet (tiles)
     solution: UnitSolution | None = None  # -> solution.parquet (merged units)
     bundleout: str | None = None  # jigsaw-like report -> bundleout.txt (merged units)
+    #: a complete network store already written (a unit adjusted from its merged store) -> moved to network.zarr
+    network_dir: Path | None = None
 
     def writers(self) -> dict[str, Callable[[Path], object]]:
         """For :meth:`~mercury_dem.io.run_store.RunStore.write_unit`: file name -> a function writing it at a path."""
@@ -416,6 +419,9 @@ class UnitFiles:
 
             net = self.network
             out[NETWORK_FILE] = lambda p: write_network(net, p)
+        elif self.network_dir is not None:
+            src = self.network_dir
+            out[NETWORK_FILE] = lambda p: shutil.move(str(src), str(p))  # a rename on one file system
         if self.pairs is not None:
             pairs = self.pairs
             out[PAIRS_FILE] = lambda p: pairs.to_parquet(p, index=False)

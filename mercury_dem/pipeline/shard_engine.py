@@ -64,9 +64,11 @@ class DaskShardEngine:
         self.description = f"dask ({len(self.actors)} workers)"
 
     @classmethod
-    def from_blocks(cls, client: DaskClient, blocks: list[Any], setup: Any, opt: Any,
+    def from_blocks(cls, client: DaskClient, blocks: Any, setup: Any, opt: Any,
                     tree_min_workers: int = TREE_MIN_WORKERS) -> DaskShardEngine:
-        """The engine over ``blocks`` held by the caller (a run's unit): scattered to the workers, not read there.
+        """The engine over ``blocks`` held by the caller (a run's unit): scattered to the workers, not read there;
+        or, ``blocks`` a :class:`~mercury_dem.io.synthetic_network_store.StoredBlocks` (a unit adjusted from its
+        merged store), each worker's actor reads its run of them from the store.
 
         Contiguous runs of blocks, one per worker (at most one per block); each run is scattered
         straight to its worker and its actor built there from it; the scattered copies are then
@@ -77,6 +79,7 @@ class DaskShardEngine:
 
         from mercury_dem.adjust.blocked import BlockShard
         from mercury_dem.exceptions import AdjustmentError
+        from mercury_dem.io.synthetic_network_store import StoredBlocks
 
         workers = sorted(client.scheduler_info()["workers"])
         if not workers:
@@ -87,7 +90,10 @@ class DaskShardEngine:
         self.tree_min_workers = tree_min_workers
         self.workers, futures = [], []
         for w, r in zip(workers, runs):
-            data = client.scatter([blocks[int(k)] for k in r], workers=[w], hash=False)
+            if isinstance(blocks, StoredBlocks):  # a stored unit's blocks: each worker reads its own run
+                data: Any = blocks.subset(tuple(blocks.ids[int(k)] for k in r))
+            else:
+                data = client.scatter([blocks[int(k)] for k in r], workers=[w], hash=False)
             futures.append(client.submit(BlockShard, data, setup, opt, actor=True, workers=[w],
                                          allow_other_workers=False, pure=False))
             self.workers.append(w)

@@ -330,9 +330,6 @@ def _no_children_reason(store: RunStore, level: str, unit_id: int, child_level: 
 
 def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
                  engine_factory: Any = None) -> tuple[UnitSummary, UnitFiles]:
-    from mercury_dem.adjust.unit import adjust_unit_network
-    from mercury_dem.altimetry.unit_terms import AltimetryTerms
-    from mercury_dem.network.check import singular_parts
     from mercury_dem.pipeline.unit_merge import merge_children
 
     child_level = LEVEL_CHILD[level]
@@ -340,19 +337,27 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
             if store.unit_complete(child_level, c) and read_summary(store, child_level, c).ok]
     if not kids:
         raise _NoInput(_no_children_reason(store, level, unit_id, child_level, config))
+    if level in config.adjust.streamed_merge_levels:
+        return _adjust_unit_streamed(store, level, unit_id, kids, config, engine_factory)
     merged_all = merge_children(store, level, unit_id, kids, config)
+    return _adjust_unit_in_memory(store, level, unit_id, kids, merged_all, config, engine_factory)
+
+
+def _adjust_unit_in_memory(store: RunStore, level: str, unit_id: int, kids: list[int], merged_all: ControlNetwork,
+                           config: Config, engine_factory: Any = None,
+                           streamed: dict[str, Any] | None = None) -> tuple[UnitSummary, UnitFiles]:
+    """The unit's merged network adjusted in memory; ``streamed``: why a unit of ``streamed_merge_levels`` was."""
+    from mercury_dem.adjust.unit import adjust_unit_network
+    from mercury_dem.altimetry.unit_terms import AltimetryTerms
+    from mercury_dem.network.check import singular_parts
+
     merged = merged_all.drop_unused_images()
     if merged.n_measures == 0:
         raise _NoInput("the merged network has no measures")
     singular = singular_parts(merged_all, merged)
     mission = open_mission(store.read_run()["mission"])
     ids = [str(x) for x in merged.image_ids]
-    cameras = [mission.camera(i) for i in ids]
-    positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
-    rotations = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
-    start_rot = None
-    if child_level != "tile":
-        start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
+    cameras, positions, rotations, start_rot = _unit_geometry(store, mission, LEVEL_CHILD[level], kids, ids)
     adjust_cfg = config.adjust
     adj = adjust_unit_network(merged, cameras, positions, rotations, adjust_cfg,
                               pointing_sigma_urad=pointing_sigma_urad_for(mission, config),
@@ -361,13 +366,79 @@ def _adjust_unit(store: RunStore, level: str, unit_id: int, config: Config,
                               recentre_point_priors=level in adjust_cfg.point_prior_recentre_levels, level=level,
                               engine_factory=engine_factory, prior_shape=prior_shape_of(mission))
     adjustment = dict(adj.summary)
+    if streamed is not None:
+        adjustment["streamed"] = streamed
+    return _unit_result(level, unit_id, kids, adjustment, singular, ids, adj,
+                        UnitFiles(network=adj.network, bundleout=adj.text_report))
+
+
+def _adjust_unit_streamed(store: RunStore, level: str, unit_id: int, kids: list[int], config: Config,
+                          engine_factory: Any = None) -> tuple[UnitSummary, UnitFiles]:
+    """A unit of ``adjust.streamed_merge_levels``: merged by parts into a scratch store and adjusted from its
+    blocks, the adjusted network written back by blocks (never in this process whole); in memory where that
+    path does not apply yet, the summary's ``streamed`` saying why.
+    """
+    from mercury_dem.adjust.unit_streamed import streamed_fallback_reason
+    from mercury_dem.io.adjusted_network_store import adjust_stored_unit, stored_image_ids
+    from mercury_dem.io.merged_network_store import stored_singular_parts
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.pipeline.unit_merge import adjusted_scratch, streamed_children
+
+    mission = open_mission(store.read_run()["mission"])
+    cfg = config.adjust
+    with streamed_children(store, level, unit_id, kids, config, mission) as (path, merge):
+        if merge.stats.n_measures == 0:
+            raise _NoInput("the merged network has no measures")
+        reason = streamed_fallback_reason(cfg, level, merge.stats.n_measures,
+                                          altimetry=_has_altimetry(mission, level, cfg))
+        if reason is not None:
+            return _adjust_unit_in_memory(store, level, unit_id, kids, read_network(path / "network"), config,
+                                          engine_factory, streamed={"used": False, "reason": reason})
+        singular = stored_singular_parts(path / "network")
+        unused = set(singular["images_without_measures"])
+        ids = [i for i in stored_image_ids(path).tolist() if i not in unused]
+        cameras, positions, rotations, start_rot = _unit_geometry(store, mission, LEVEL_CHILD[level], kids, ids)
+        adj = adjust_stored_unit(path, adjusted_scratch(store, level, unit_id), ids, cameras, positions, rotations,
+                                 cfg, pointing_sigma_urad=pointing_sigma_urad_for(mission, config),
+                                 datum_radius_m=mission.body.datum_radius_m, initial_rotations=start_rot,
+                                 engine_factory=engine_factory, prior_shape=prior_shape_of(mission))
+    adjustment = dict(adj.summary)
+    adjustment["streamed"] = {"used": True, "merge_parts": merge.merge_parts, "blocks": merge.n_blocks,
+                              "merged_measures": merge.stats.n_measures}
+    return _unit_result(level, unit_id, kids, adjustment, singular, ids, adj,
+                        UnitFiles(network_dir=adj.network_path, bundleout=adj.text_report))
+
+
+def _unit_geometry(store: RunStore, mission: Mission, child_level: str, kids: list[int],
+                   ids: list[str]) -> tuple[list[Any], Any, Any, Any]:
+    """The unit's images' cameras, a-priori positions and rotations, and where the iteration starts (the
+    children's reconciled solutions; None above tiles' children).
+    """
+    cameras = [mission.camera(i) for i in ids]
+    positions = np.array([mission.a_priori_pose(i)[0] for i in ids]).reshape(-1, 3)
+    rotations = np.array([mission.a_priori_pose(i)[1] for i in ids]).reshape(-1, 3, 3)
+    start_rot = None
+    if child_level != "tile":
+        start_rot, _ = reconcile_solutions(store, child_level, kids, ids, rotations, positions)
+    return cameras, positions, rotations, start_rot
+
+
+def _unit_result(level: str, unit_id: int, kids: list[int], adjustment: dict[str, Any], singular: dict[str, Any],
+                 ids: list[str], adj: Any, files: UnitFiles) -> tuple[UnitSummary, UnitFiles]:
+    """The unit's summary and files from its adjustment (``adj``: in memory or from its store)."""
     adjustment["images_without_measures"] = sorted(set(singular["images_without_measures"])
-                                                   | set(adj.summary.get("images_without_measures", [])))
+                                                   | set(adjustment.get("images_without_measures", [])))
     summary = UnitSummary(level, int(unit_id), ok=True, children=kids, adjustment=adjustment,
                           single_measure_points=singular["single_measure_points"])
     solution = UnitSolution(np.array(ids), adj.rotations, adj.positions,
                             {"n_measures": adj.image_measures, "rms_px": adj.image_rms_px})
-    return summary, UnitFiles(network=adj.network, solution=solution, bundleout=adj.text_report)
+    return summary, dataclasses.replace(files, solution=solution)
+
+
+def _has_altimetry(mission: Mission, level: str, adjust_cfg: AdjustConfig) -> bool:
+    """Whether the level's units may be constrained by the mission's altimetry (:func:`unit_altimetry`)."""
+    shots = getattr(mission, "altimetry", None)
+    return level in adjust_cfg.altimetry_levels and shots is not None and bool(getattr(shots, "n_shots", 0))
 
 
 def prior_shape_of(mission: Mission) -> Any:

@@ -9,7 +9,11 @@ networks and the merge in memory at once.
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+from collections.abc import Iterator
 from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,6 +26,7 @@ from mercury_dem.plan.tree import CHILD_LEVEL as LEVEL_CHILD
 
 if TYPE_CHECKING:
     from mercury_dem.config import Config
+    from mercury_dem.io.merged_network_store import StreamedMergeSummary
     from mercury_dem.mission import Mission
     from mercury_dem.network.blocks import ImageTable
     from mercury_dem.network.model import ControlNetwork
@@ -90,3 +95,35 @@ def merge_children(store: RunStore, level: str, unit_id: int, kids: list[int], c
         tolerance_px=tol, part_measures=config.adjust.streamed_merge_part_measures,
         block_points=config.adjust.blocked_block_points, clear_rejections=child_level in ADJUSTED_LEVELS)
     return merged
+
+
+@contextlib.contextmanager
+def streamed_children(store: RunStore, level: str, unit_id: int, kids: list[int], config: Config,
+                      mission: Mission) -> Iterator[tuple[Path, StreamedMergeSummary]]:
+    """The unit's children merged by parts into a scratch store beside the unit's directory (the merged network
+    and its point blocks: :func:`~mercury_dem.io.merged_network_store.stream_merge`), removed on leaving.
+    """
+    from mercury_dem.io.merged_network_store import stream_merge
+
+    child_level = LEVEL_CHILD[level]
+    checked_children(store, level, kids)
+    scratch = store.unit_dir(level, unit_id).parent / f".{int(unit_id)}.merge"
+    children = [(unit_name(child_level, c), store.network_path(child_level, c)) for c in kids]
+    try:
+        summary = stream_merge(
+            unit_name(level, unit_id), children, scratch, partial(mission_image_table, mission),
+            tolerance_px=config.network.merge_tolerance_px, part_measures=config.adjust.streamed_merge_part_measures,
+            block_points=config.adjust.blocked_block_points, overwrite=True,
+            clear_rejections=child_level in ADJUSTED_LEVELS)
+        yield scratch, summary
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def adjusted_scratch(store: RunStore, level: str, unit_id: int) -> Path:
+    """Where a unit adjusted from its merged store writes its adjusted network before it is moved into the unit
+    (a failed attempt's leftover removed).
+    """
+    path = store.unit_dir(level, unit_id).parent / f".{int(unit_id)}.adjusted.zarr"
+    shutil.rmtree(path, ignore_errors=True)
+    return path

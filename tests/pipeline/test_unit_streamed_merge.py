@@ -110,9 +110,13 @@ def test_mission_image_table_one_camera_per_model(hemisphere: tuple[_Store, _Mis
 
 @pytest.mark.integration
 def test_run_units_streamed_equal_in_memory(sync_run: tuple[Path, dict[str, Any]]) -> None:
-    """The tiny run's hemisphere and global units adjusted again from its store with the key on: the same
-    adjusted network, pointing (to 1e-9 rad: the same arithmetic, so in fact equal) and summary.
+    """The tiny run's hemisphere and global units adjusted again from its store with the key on, by blocks:
+    merged by parts, adjusted from the merged store's blocks and written back by blocks, against the in-memory
+    blocked path: the same adjusted network, pointing (to 1e-9 rad: the same arithmetic, so in fact equal) and
+    summary; the summary says the streamed path was used, and why not where it does not apply.
     """
+    import shutil
+
     from mercury_dem.io.run_store import RunStore
     from mercury_dem.pipeline.stages import _adjust_unit
 
@@ -120,17 +124,28 @@ def test_run_units_streamed_equal_in_memory(sync_run: tuple[Path, dict[str, Any]
 
     run, _ = sync_run
     store = RunStore(run)
-    on = tiny_config(adjust={"streamed_merge_levels": ["hemisphere", "global"], "streamed_merge_part_measures": 500})
+    blocked = {"blocked_min_measures": 0, "point_prior_recentre_levels": [], "altimetry_levels": []}
+    on = tiny_config(adjust={**blocked, "streamed_merge_levels": ["hemisphere", "global"],
+                             "streamed_merge_part_measures": 500})
     for level in ("hemisphere", "global"):
-        ref_summary, ref = _adjust_unit(store, level, 0, tiny_config())
+        ref_summary, ref = _adjust_unit(store, level, 0, tiny_config(adjust=blocked))
         got_summary, got = _adjust_unit(store, level, 0, on)
+        assert got_summary.adjustment["streamed"]["used"] is True and got.network is None
+        got_net = read_network(got.network_dir)
+        shutil.rmtree(got.network_dir)
         assert got_summary.adjustment["iterations"] == ref_summary.adjustment["iterations"]
         assert got_summary.single_measure_points == ref_summary.single_measure_points
         assert got_summary.adjustment["images_without_measures"] == ref_summary.adjustment["images_without_measures"]
+        assert got_summary.adjustment["islands"] == ref_summary.adjustment["islands"]
         assert np.array_equal(got.solution.image_ids, ref.solution.image_ids)
         assert np.abs(got.solution.rotations - ref.solution.rotations).max() < 1e-9
+        assert list(got_net.image_ids) == list(ref.network.image_ids)
         for name in ("point_ids", *POINT_COLUMNS, *MEASURE_COLUMNS):
-            np.testing.assert_array_equal(getattr(got.network, name), getattr(ref.network, name), err_msg=name)
+            np.testing.assert_array_equal(getattr(got_net, name), getattr(ref.network, name), err_msg=name)
+    fallback, _ = _adjust_unit(store, "global", 0, tiny_config(adjust={"streamed_merge_levels": ["global"]}))
+    assert fallback.adjustment["streamed"] == {
+        "used": False, "reason": "not adjusted by blocks (adjust.blocked_levels / blocked_min_measures): the global "
+        "is solved in memory, so its merged network is read back"}
 
 
 def test_stored_singular_parts_equal_the_networks(hemisphere: tuple[_Store, _Mission], tmp_path: Path) -> None:

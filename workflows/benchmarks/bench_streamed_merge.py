@@ -15,6 +15,14 @@ Usage::
 3. with ``--compare``, today's path in another process: ``merge_networks`` in memory, ``problem_from_network``,
    ``blocked_bundle_adjust`` (in process), and the largest difference of the adjusted rotations.
 
+``--through-unit``: the unit as a run's hemisphere/global unit of ``adjust.streamed_merge_levels`` does it
+(``pipeline/stages._adjust_unit_streamed``'s library calls): ``stream_merge``, then
+``io.adjusted_network_store.adjust_stored_unit`` (its images with measures, the point priors on the datum, the
+blocks read by the shards through the unit's transform; on the workers by ``DaskShardEngine.from_blocks`` with
+the stored blocks when ``--workers`` > 0) and the adjusted network written back by blocks; ``--compare`` then
+runs the in-memory unit (``merge_networks``, ``drop_unused_images``, ``adjust_unit_network`` over point blocks,
+``write_network``) and compares the poses and every column of the two written networks.
+
 Prints (``--json``: one JSON line) the unit process's peak RSS, each worker's, the times, the solution's checksum
 (sha256 of the adjusted rotations' bytes) and, with ``--compare``, the in-memory path's peak and the difference;
 appends a ``streamed_merge`` record (harness).
@@ -63,10 +71,10 @@ def _ordered_map(client: Any, window: int) -> Any:
     return run
 
 
-def _config(args: argparse.Namespace) -> Any:
+def _config(args: argparse.Namespace, extra: dict[str, Any] | None = None) -> Any:
     from mercury_dem.config.adjust import AdjustConfig
 
-    kw: dict[str, Any] = dict(CFG_KW)
+    kw: dict[str, Any] = {**CFG_KW, **(extra or {})}
     if args.max_iterations:
         kw["max_iterations"] = args.max_iterations
     return AdjustConfig(**kw)
@@ -74,6 +82,129 @@ def _config(args: argparse.Namespace) -> Any:
 
 def _worker_peak() -> int:
     return _peak()
+
+
+UNIT_CFG_KW: dict[str, Any] = {"blocked_min_measures": 0, "point_prior_center": "datum",
+                               "point_prior_recentre_levels": (), "altimetry_levels": ()}
+
+
+def _unit_inputs(root: Path, ids: list[str]) -> tuple[Any, ...]:
+    """Cameras, positions, rotations of ``ids`` (from the source network's geometry) and the datum radius."""
+    from mercury_dem.io.synthetic_network_store import BlockedNetwork
+
+    src = BlockedNetwork(root / "src")
+    index = {str(i): k for k, i in enumerate(src.store.image_ids)}
+    k = np.array([index[i] for i in ids], np.int64)
+    im = src.images
+    radius = float(np.median(np.linalg.norm(src.store.column_rows("apriori_xyz", 0, min(src.n_points, 5000)), axis=1)))
+    return [im.cameras[c] for c in im.image_camera[k]], im.positions[k], im.rotations[k], radius
+
+
+def _table(root: Path) -> Any:
+    from mercury_dem.io.synthetic_network_store import BlockedNetwork
+    from mercury_dem.network.blocks import ImageTable
+
+    src = BlockedNetwork(root / "src")
+    index = {str(i): k for k, i in enumerate(src.store.image_ids)}
+    im = src.images
+
+    def table(ids: Any) -> Any:
+        k = np.array([index[str(i)] for i in ids], np.int64)
+        return ImageTable(im.cameras, im.image_camera[k], im.positions[k], im.rotations[k])
+    return table
+
+
+def through_unit(args: argparse.Namespace) -> None:
+    """The unit's process as a streamed run unit: merge by parts, adjust from the store, write back by blocks."""
+    import contextlib
+
+    from mercury_dem.compute import open_client
+    from mercury_dem.io.adjusted_network_store import adjust_stored_unit, stored_image_ids
+    from mercury_dem.io.merged_network_store import stored_singular_parts, stream_merge
+
+    root = Path(args.dir)
+    cfg = _config(args, UNIT_CFG_KW)
+    out = root / "merged"
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.rmtree(root / "adjusted_streamed.zarr", ignore_errors=True)
+    rec: dict[str, Any] = {}
+    with open_client(workers=args.workers) as client:
+        t0 = time.perf_counter()
+        mapper = None if args.workers <= 0 else _ordered_map(client, args.workers + 1)
+        summary = stream_merge("hemisphere 0", [("a", root / "a"), ("b", root / "b")], out, _table(root),
+                               block_points=cfg.blocked_block_points, part_measures=int(args.part_measures),
+                               map_parts=mapper)
+        rec["merge_seconds"] = round(time.perf_counter() - t0, 2)
+        rec["unit_peak_rss_bytes_after_merge"] = _peak()
+        t0 = time.perf_counter()
+        unused = set(stored_singular_parts(out / "network")["images_without_measures"])
+        ids = [i for i in stored_image_ids(out).tolist() if i not in unused]
+        cams, pos, rot, radius = _unit_inputs(root, ids)
+        factory = None
+        if args.workers > 0:
+            from mercury_dem.pipeline.shard_engine import DaskShardEngine
+
+            @contextlib.contextmanager
+            def factory(blocks: Any, setup: Any, opt: Any) -> Any:
+                engine = DaskShardEngine.from_blocks(client, blocks, setup, opt)
+                try:
+                    yield engine
+                    rec["worker_peak_rss_bytes"] = [int(x) for x in engine.call("peak_rss_bytes")]
+                finally:
+                    engine.close()
+        adj = adjust_stored_unit(out, root / "adjusted_streamed.zarr", ids, cams, pos, rot, cfg,
+                                 pointing_sigma_urad=POINTING_SIGMA_URAD, datum_radius_m=radius, engine_factory=factory)
+        rec["adjust_seconds"] = round(time.perf_counter() - t0, 2)
+    np.save(root / "streamed_rotations.npy", adj.rotations)
+    s = adj.summary
+    rec.update({"merge": summary.to_dict(), "measures": s["measures"], "points": s["points"], "images": s["images"],
+                "blocks": summary.n_blocks, "iterations": s["iterations"], "converged": s["converged"],
+                "rejected": s["rejected"], "sigma0": s["sigma0"], "engine": s["blocked"]["engine"],
+                "checksum": _checksum(adj.rotations), "unit_peak_rss_bytes": _peak()})
+    rec.setdefault("worker_peak_rss_bytes", [])
+    print(json.dumps(rec))
+
+
+def unit_in_memory(args: argparse.Namespace) -> None:
+    """The in-memory unit: ``merge_networks``, ``adjust_unit_network`` over point blocks, ``write_network``."""
+    from mercury_dem.adjust.unit import adjust_unit_network
+    from mercury_dem.io.network_store import read_network, write_network
+    from mercury_dem.network.merge import merge_networks
+
+    root = Path(args.dir)
+    cfg = _config(args, UNIT_CFG_KW)
+    t0 = time.perf_counter()
+    merged = merge_networks([read_network(root / "a"), read_network(root / "b")]).network.drop_unused_images()
+    ids = [str(i) for i in merged.image_ids]
+    cams, pos, rot, radius = _unit_inputs(root, ids)
+    adj = adjust_unit_network(merged, cams, pos, rot, cfg, pointing_sigma_urad=POINTING_SIGMA_URAD,
+                              datum_radius_m=radius, level="hemisphere")
+    del merged
+    shutil.rmtree(root / "adjusted_in_memory.zarr", ignore_errors=True)
+    write_network(adj.network, root / "adjusted_in_memory.zarr")
+    np.save(root / "inmemory_rotations.npy", adj.rotations)
+    print(json.dumps({"seconds": round(time.perf_counter() - t0, 2), "peak_rss_bytes": _peak(),
+                      "checksum": _checksum(adj.rotations), "iterations": adj.summary["iterations"]}))
+
+
+def _network_differences(a: Path, b: Path) -> dict[str, Any]:
+    """The two written networks compared column by column: the floating columns' largest difference (NaN where
+    both are NaN), the others equal or not (the shards' sums in another order move the last bits only).
+    """
+    from mercury_dem.io.network_store import read_network
+    from mercury_dem.network.model import MEASURE_COLUMNS, POINT_COLUMNS
+
+    x, y = read_network(a), read_network(b)
+    out: dict[str, Any] = {}
+    for k in ("image_ids", "point_ids", *POINT_COLUMNS, *MEASURE_COLUMNS):
+        u, v = getattr(x, k), getattr(y, k)
+        if u.dtype.kind != "f" or u.shape != v.shape:
+            out[k] = bool(u.shape == v.shape and np.array_equal(u, v))
+            continue
+        same_nan = bool(np.array_equal(np.isnan(u), np.isnan(v)))
+        fin = np.isfinite(u) & np.isfinite(v)
+        out[k] = float(np.abs(u[fin] - v[fin]).max()) if same_nan and fin.any() else (0.0 if same_nan else False)
+    return out
 
 
 def unit(args: argparse.Namespace) -> None:
@@ -170,13 +301,15 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--max-iterations", type=int, default=0, help="cap the adjustment's iterations (0: the default)")
     ap.add_argument("--merge-only", action="store_true", help="the streamed merge only (no adjustment)")
+    ap.add_argument("--through-unit", action="store_true",
+                    help="the unit as a streamed run unit: adjust_stored_unit, the network written back by blocks")
     ap.add_argument("--unit", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--in-memory", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.unit:
-        return unit(args)
+        return through_unit(args) if args.through_unit else unit(args)
     if args.in_memory:
-        return in_memory(args)
+        return unit_in_memory(args) if args.through_unit else in_memory(args)
     from mercury_dem.io.synthetic_network_store import split_synthetic_network, write_synthetic_network
     from mercury_dem.network.synthetic import SyntheticSpec
 
@@ -193,7 +326,8 @@ def main() -> None:
         print(json.dumps({"children_measures": kids, "seconds": round(time.perf_counter() - t0, 1)}), file=sys.stderr)
     me = [sys.executable, str(Path(__file__).resolve()), "--dir", str(root), "--measures", str(args.measures),
           "--workers", str(args.workers), "--part-measures", str(args.part_measures),
-          "--max-iterations", str(args.max_iterations), *(["--merge-only"] if args.merge_only else [])]
+          "--max-iterations", str(args.max_iterations), *(["--merge-only"] if args.merge_only else []),
+          *(["--through-unit"] if args.through_unit else [])]
     m = measure([*me, "--unit"])
     rec = json.loads(m.stdout.strip().splitlines()[-1])
     rec["wall_seconds"] = round(m.wall_s, 2)
@@ -204,13 +338,17 @@ def main() -> None:
         diff = float(np.abs(np.load(root / "streamed_rotations.npy") - np.load(root / "inmemory_rotations.npy")).max())
         rec["in_memory"] = {**ref, "process_peak_rss_bytes_harness": c.peak_rss_bytes}
         rec["max_rotation_difference"] = diff
+        if args.through_unit:
+            rec["network_differences"] = _network_differences(root / "adjusted_streamed.zarr",
+                                                              root / "adjusted_in_memory.zarr")
     n = rec["measures"]
     rec["unit_bytes_per_measure"] = round(rec["unit_peak_rss_bytes"] / n, 1)
     if rec["worker_peak_rss_bytes"]:
         rec["worker_bytes_per_measure"] = round(sum(rec["worker_peak_rss_bytes"]) / n, 1)
     append_record("streamed_merge", {"measures": args.measures, "workers": args.workers, "seed": args.seed,
                                      "part_measures": args.part_measures, "compare": args.compare,
-                                     "max_iterations": args.max_iterations, "merge_only": args.merge_only}, rec)
+                                     "max_iterations": args.max_iterations, "merge_only": args.merge_only,
+                                     "through_unit": args.through_unit}, rec)
     if args.json:
         print(json.dumps(rec))
     else:
