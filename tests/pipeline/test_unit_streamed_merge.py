@@ -21,6 +21,7 @@ from mercury_dem.io.synthetic_network_store import BlockedNetwork, split_synthet
 from mercury_dem.network.model import MEASURE_COLUMNS, POINT_COLUMNS
 from mercury_dem.network.synthetic import SyntheticSpec
 from mercury_dem.pipeline.unit_merge import merge_children, mission_image_table
+from tests.pipeline.stored_mission import StoredMission
 
 
 class _Store:
@@ -40,18 +41,7 @@ class _Store:
         return self.root / level / str(unit_id)
 
 
-class _Mission:
-    def __init__(self, src: BlockedNetwork):
-        im = src.images
-        self.index = {str(i): k for k, i in enumerate(src.store.image_ids)}
-        self.cams, self.ic, self.pos, self.rot = im.cameras, im.image_camera, im.positions, im.rotations
-
-    def camera(self, image_id: str) -> Any:
-        return self.cams[self.ic[self.index[image_id]]]
-
-    def a_priori_pose(self, image_id: str) -> tuple[np.ndarray, np.ndarray]:
-        k = self.index[image_id]
-        return self.pos[k], self.rot[k]
+_Mission = StoredMission
 
 
 @pytest.fixture(scope="module")
