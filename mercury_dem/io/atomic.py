@@ -35,16 +35,24 @@ COMPLETE_MARKER = ".complete"
 CHECKSUM_ALGORITHM = "sha256"
 
 
-_TMP_NAME = re.compile(r"^\..+\.tmp-[0-9a-f]{12}$")
+_TMP_NAME = re.compile(r"^\..+\.tmp-[0-9a-f]{12}(\.[A-Za-z0-9]{1,8})?$")
 
 
-def tmp_sibling(path: Path) -> Path:
-    """A fresh temporary sibling of ``path`` (``.NAME.tmp-<12 hex>``, what :func:`sweep_temporaries` removes)."""
-    return path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
+def tmp_sibling(path: Path, suffix: str | None = None) -> Path:
+    """A fresh temporary sibling of ``path`` (``.NAME.tmp-<12 hex>``, what :func:`sweep_temporaries` removes).
+
+    ``suffix`` (e.g. ``".cub"``, for writers whose driver chooses the format by the extension): the name is
+    ``.STEM.tmp-<12 hex>SUFFIX``, which the sweep recognises too.
+    """
+    tag = uuid.uuid4().hex[:12]
+    if suffix is None:
+        return path.with_name(f".{path.name}.tmp-{tag}")
+    return path.with_name(f".{path.stem}.tmp-{tag}{suffix}")
 
 
 def sweep_temporaries(root: str | Path) -> list[Path]:
-    """Remove the temporary siblings (``.NAME.tmp-<12 hex>``) a killed writer left under ``root``.
+    """Remove the temporary siblings (``.NAME.tmp-<12 hex>``, optionally with an extension) a killed writer left
+    under ``root``.
 
     A writer that is SIGKILLed (or loses its machine) cannot clean up: its temporary file or
     directory stays beside the target, which was never replaced. Call this only when no writer of

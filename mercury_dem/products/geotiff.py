@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mercury_dem.geometry.body import Body
+from mercury_dem.io.atomic import tmp_sibling
 
 
 def grid_geometry(lat: NDArray[np.floating], lon: NDArray[np.floating], pixels_per_degree: float | None = None,
@@ -132,8 +133,6 @@ def write_raster(
     ``OVERVIEW_COUNT``). Written to a temporary sibling and renamed: a reader never sees a
     half-written file.
     """
-    import uuid
-
     import rasterio
     from rasterio.crs import CRS
 
@@ -160,8 +159,7 @@ def write_raster(
             profile.update(blockxsize=16 * max(1, min(16, -(-arr.shape[1] // 16))),
                            blockysize=16 * max(1, min(16, -(-arr.shape[0] // 16))))
     profile.update(creation_options or {})
-    # the temporary name io.atomic.sweep_temporaries recognises (.NAME.tmp-<12 hex>), unique per writer
-    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:12]}")
+    tmp = tmp_sibling(path)  # the name io.atomic.sweep_temporaries recognises, unique per writer
     try:
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(arr, 1)

@@ -28,7 +28,6 @@ from __future__ import annotations
 import logging
 import math
 import re
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +36,7 @@ from numpy.typing import NDArray
 
 from mercury_dem.exceptions import StoreError
 from mercury_dem.geometry.body import Body
-from mercury_dem.io.atomic import atomic_write_text
+from mercury_dem.io.atomic import atomic_write_text, tmp_sibling
 from mercury_dem.products.geotiff import crosses_zero_meridian, grid_geometry, pixel_transform, west_edge
 
 #: ISIS's Null pixel for Real (32-bit float) cubes (bits 0xFF7FFFFB).
@@ -45,10 +44,6 @@ ISIS_NULL_REAL = float(np.array([0xFF7FFFFB], dtype="<u4").view("<f4")[0])
 
 #: PDS4 context type of each catalogued body's target.
 _TARGET_TYPE = {"MERCURY": "Planet", "MOON": "Satellite"}
-
-
-def _tmp_name(path: Path, suffix: str) -> Path:
-    return path.with_name(f".{path.stem}.tmp-{uuid.uuid4().hex[:8]}{suffix}")
 
 
 def isis_target_name(body: Body) -> str:
@@ -86,7 +81,7 @@ def write_isis_radius_cube(
             "LATITUDE_TYPE": "Planetocentric", "LONGITUDE_DIRECTION": "PositiveEast",
             "FORCE_360": "YES" if clon == 180.0 else "NO",
             "BOUNDING_DEGREES": f"{west!r},{lat_min!r},{east!r},{lat_max!r}"}
-    tmp = _tmp_name(path, ".cub")
+    tmp = tmp_sibling(path, ".cub")
     try:
         with MemoryFile() as mf:
             with mf.open(driver="GTiff", width=W, height=H, count=1, dtype="float32", crs=crs, transform=transform,
@@ -185,7 +180,7 @@ def write_pds4_label(tif: str | Path, body: Body, bounding_degrees: tuple[float,
 
     tif = Path(tif)
     xml = tif.with_suffix(".xml")
-    tmp = _tmp_name(xml, ".xml")
+    tmp = tmp_sibling(xml, ".xml")
     try:
         # rasterio upper-cases creation option values: only pass options where that is harmless. GDAL warns
         # of each template variable it leaves for the archive (${LOGICAL_IDENTIFIER}, ...): not news here.
